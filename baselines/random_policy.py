@@ -1,0 +1,23 @@
+"""Uniform random actions within the env's action bounds, from a generator seeded per episode."""
+from __future__ import annotations
+
+import numpy as np
+
+
+class RandomPolicy:
+    """The floor every policy should beat; seeded by the episode seed for reproducibility."""
+
+    def __init__(self, low: np.ndarray, high: np.ndarray):
+        self.low, self.high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+        self._rng = np.random.default_rng(0)
+
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self._rng.uniform(self.low, self.high).astype(np.float32)
+
+
+def make(cell, env, cfg) -> RandomPolicy:
+    """Policy factory (entry point `bench.policies: random`)."""
+    return RandomPolicy(env.action_low, env.action_high)

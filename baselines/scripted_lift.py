@@ -1,0 +1,73 @@
+"""Scripted pick-and-lift expert that reads only the embodiment-agnostic observation.
+
+Phases: hover above the object -> descend to it -> close while still commanding
+the grasp position (zero deltas let the hand drift) until the fingers stop ->
+lift. Position action = clip(gain * error, -1, 1); rotation deltas 0; gripper
++1 closes, -1 opens. If the object falls out of the hand while lifting, it starts
+over. Works unchanged on all 7 robosuite single arms because it uses nothing
+robot-specific (see `bench.sim_robosuite.OBS_NAMES`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from bench.env import obs_slices
+
+
+class LiftExpert:
+    """Stateful per episode; `reset()` before each one."""
+
+    hover = 0.08      # m above the object before descending
+    lift_to = 0.25    # m above the grasp height
+    gain = 10.0       # action per metre of error (saturates at 10 cm)
+
+    def __init__(self, obs_names: list[tuple[str, int]], action_dim: int = 7):
+        self._s = obs_slices(obs_names)
+        self.action_dim = action_dim
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        self.phase, self.steps_in_phase = "hover", 0
+        self._openings: list[float] = []
+        self._grasp_pos = None
+
+    def _go(self, phase: str) -> None:
+        self.phase, self.steps_in_phase = phase, 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        s = self._s
+        eef, obj = obs[s["eef_pos"]].astype(np.float64), obs[s["object_pos"]].astype(np.float64)
+        opening = float(obs[s["gripper_opening"]][0])
+        grip = -1.0
+        self.steps_in_phase += 1
+        if self.phase == "hover":
+            target = obj + [0.0, 0.0, self.hover]
+            err = target - eef
+            if np.linalg.norm(err[:2]) < 0.01 and abs(err[2]) < 0.02:
+                self._go("descend")
+        if self.phase == "descend":
+            target = obj.copy()
+            err = target - eef
+            if np.linalg.norm(err[:2]) > 0.03:  # object moved away: hover again
+                self._go("hover")
+                target = obj + [0.0, 0.0, self.hover]
+            elif np.linalg.norm(err) < 0.01:
+                self._go("close")
+                self._openings = []
+        if self.phase == "close":
+            target, grip = obj.copy(), 1.0
+            self._openings.append(opening)
+            recent = self._openings[-6:]
+            if len(self._openings) >= 6 and max(recent) - min(recent) < 0.01:
+                self._grasp_pos = eef.copy()
+                self._go("lift")
+        if self.phase == "lift":
+            grip = 1.0
+            target = self._grasp_pos + [0.0, 0.0, self.lift_to]  # fixed: the held object lags the hand
+            if np.linalg.norm(obj - eef) > 0.06:  # dropped it: start over
+                self._go("hover")
+                grip, target = -1.0, obj + [0.0, 0.0, self.hover]
+        action = np.zeros(self.action_dim, dtype=np.float32)
+        action[:3] = np.clip(self.gain * (target - eef), -1.0, 1.0)
+        action[-1] = grip
+        return action

@@ -1,0 +1,3 @@
+"""Sim2Real transfer benchmark harness: will this policy transfer?"""
+
+__version__ = "0.1.0"

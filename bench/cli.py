@@ -1,0 +1,90 @@
+"""`bench` command line: a thin dispatcher onto one handler per subcommand.
+
+Each subcommand lives in the module that owns its concept and exposes
+`main(argv: list[str]) -> int`; it is imported only when called, so `bench list`
+and `bench --help` stay fast (no simulator is imported).
+
+Arguments are Hydra-style `key=value` overrides (nested keys with dots, lists as
+`[a,b]`); a few commands also take positional paths. Bad input raises a
+`BenchError`, printed here on one line with exit code 2.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+from bench.errors import BenchError, did_you_mean
+
+# name -> (handler "module:function", one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("bench.run:main", "run a policy across a suite's tasks and conditions; writes records + summary"),
+    "list": ("bench.registry:main_list", "list registered suites (with their seen/unseen manifest) and policies"),
+    "check": ("bench.check:main", "check a suite's split hygiene and its simulator contract"),
+    "score": ("bench.summary:main_score", "re-score a run directory from its episodes.jsonl"),
+    "leaderboard": ("bench.leaderboard:main", "leaderboard tools: validate FILE | merge RUN... out=FILE | show FILE"),
+    "perf": ("bench.perf:main", "measure harness throughput against raw simulator stepping"),
+    "logs": ("bench.logs.cli:main", "real-log tools: info DIR | import SRC out=DIR format=csv|mat|rlds"),
+    "replay": ("bench.replay:main", "open-loop replay of logged commands in the simulator; per-joint RMSE/NRMSE"),
+    "correlate": ("bench.agreement:main", "sim-real agreement of per-policy outcomes: Pearson, Spearman, Kendall, MMRV"),
+    "calibrate": ("bench.calibrate.cli:main", "Real2Sim: fit a model to logs, trace the residual to missing effects"),
+    "regress": ("bench.regress:main", "CI regression gate: candidate vs baseline checkpoint, paired by seed"),
+    "report": ("bench.report:main", "static HTML report of a run or leaderboard"),
+    "coverage": ("bench.coverage:main", "data-coverage metrics of a training set against a suite; sweeps"),
+}
+
+USAGE = """usage: bench COMMAND [key=value ...]
+
+Will this policy transfer? Runs policies across held-out robots, environments,
+perturbed physics and real logs, and scores transfer gaps with intervals.
+
+commands:
+{commands}
+
+examples:
+  bench run suite=held_out_robots                     # the suite's reference expert, default settings
+  bench run suite=held_out_robots policy=random episodes=10 workers=2
+  bench run suite=held_out_robots robots=[UR5e,IIWA] episodes=5 seed=1 run_id=my_run
+  bench list
+  bench leaderboard validate runs/<run_id>/summary.json
+
+`bench COMMAND --help` describes a command and its keys. Bad input exits 2.
+"""
+
+
+def _usage() -> str:
+    width = max(len(n) for n in COMMANDS)
+    lines = [f"  {name.ljust(width)}  {help_}" for name, (_, help_) in COMMANDS.items()]
+    return USAGE.format(commands="\n".join(lines))
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(_usage())
+        return 0
+    if argv[0] in ("-V", "--version"):
+        from bench import __version__
+
+        print(f"bench {__version__}")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"error: unknown command {name!r}; valid: {', '.join(COMMANDS)}.{did_you_mean(name, COMMANDS)}",
+              file=sys.stderr)
+        return 2
+    target = COMMANDS[name][0]
+    module_name, func_name = target.split(":")
+    try:
+        handler = getattr(importlib.import_module(module_name), func_name)
+        return int(handler(rest) or 0)
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted: records written so far are kept; rerun with the same run_id to resume",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,81 @@
+"""Command-line overrides in Hydra's grammar onto typed, frozen configs.
+
+`key=value` sets a field, `a.b=value` a nested one, `key=[x,y]` a list. Values are
+parsed as YAML scalars/flow lists by OmegaConf. The result is a frozen dataclass:
+nothing downstream can mutate it. An unknown key or a value of the wrong type is
+a one-line `ConfigError` (exit 2) that names the key and suggests the closest one.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Iterable, TypeVar
+
+from bench.errors import ConfigError, did_you_mean
+
+T = TypeVar("T")
+
+
+def split_args(argv: Iterable[str]) -> tuple[list[str], list[str]]:
+    """Split argv into positional arguments and `key=value` overrides (in order)."""
+    positional, overrides = [], []
+    for arg in argv:
+        if "=" in arg and not arg.startswith("="):
+            overrides.append(arg)
+        else:
+            positional.append(arg)
+    return positional, overrides
+
+
+def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
+    """Positional arguments and a nested dict of the `key=value` overrides (untyped).
+
+    For commands whose keys are checked by hand; typed commands use `build`.
+    """
+    from omegaconf import OmegaConf
+
+    positional, overrides = split_args(argv)
+    try:
+        kv = OmegaConf.to_container(OmegaConf.from_dotlist(overrides), resolve=True)
+    except Exception as exc:  # omegaconf grammar errors
+        raise ConfigError(f"cannot parse overrides {overrides}: {str(exc).splitlines()[0]}") from None
+    return positional, kv  # type: ignore[return-value]
+
+
+def _fields(schema: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(schema)]
+
+
+def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None) -> T:
+    """Merge `key=value` overrides onto the dataclass `schema` and return a frozen instance.
+
+    Args:
+        schema: a (frozen) dataclass whose fields have defaults and type hints.
+        overrides: strings like `episodes=10`, `robots=[UR5e,IIWA]`, `perturb.friction=[0.5,1]`.
+        base: optional values applied before the overrides (e.g. a stored config).
+    """
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
+
+    overrides = list(overrides)
+    for item in overrides:
+        key = item.split("=", 1)[0]
+        if "=" not in item or not key:
+            raise ConfigError(f"argument {item!r} is not key=value; valid keys: {', '.join(_fields(schema))}")
+    try:
+        cfg = OmegaConf.structured(schema)
+        if base:
+            cfg = OmegaConf.merge(cfg, base)
+        cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
+        return OmegaConf.to_object(cfg)  # type: ignore[return-value]
+    except ConfigKeyError as exc:
+        key = str(getattr(exc, "full_key", None) or getattr(exc, "key", "?"))
+        top = key.split(".")[0]
+        valid = _fields(schema)
+        hint = did_you_mean(top, valid) if top not in valid else ""
+        raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{hint}") from None
+    except ValidationError as exc:
+        key = str(getattr(exc, "full_key", None) or getattr(exc, "key", "?"))
+        msg = str(exc).splitlines()[0]
+        raise ConfigError(f"bad value for {key!r}: {msg}") from None
+    except OmegaConfBaseException as exc:
+        raise ConfigError(f"cannot parse overrides: {str(exc).splitlines()[0]}") from None

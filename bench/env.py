@@ -1,0 +1,63 @@
+"""The simulator-adapter contract every suite's environment follows.
+
+A suite builds one `Env` per (task cell, worker) and reuses it across episodes.
+Observations and actions are flat float32 vectors whose layout is named by
+`obs_names` / `action_names`, so a policy (or a dataset recorded from it) can
+find its fields by name on every robot and backend.
+"""
+from __future__ import annotations
+
+import hashlib
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Env(Protocol):
+    """What the rollout needs from a simulator adapter.
+
+    Attributes:
+        backend: simulator name and version, e.g. "robosuite-1.5.2/mujoco-3.3.0".
+        obs_names: (field name, width) pairs in order; their widths sum to the obs size.
+        action_names: one name per action dimension.
+        action_low, action_high: bounds of the action vector.
+        horizon: number of control steps in one episode.
+        model, data: the `mujoco.MjModel` / `MjData` for MuJoCo backends, else None.
+    """
+
+    backend: str
+    obs_names: list[tuple[str, int]]
+    action_names: list[str]
+    action_low: np.ndarray
+    action_high: np.ndarray
+    horizon: int
+    model: Any
+    data: Any
+
+    def reset(self, seed: int) -> np.ndarray:
+        """Reset to the initial state determined by `seed` alone; return the observation."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+        """Apply one control step; `info["success"]` is the task's success predicate now."""
+
+    def init_state(self) -> np.ndarray:
+        """The simulator state right after reset (for initial-state hashing)."""
+
+    def close(self) -> None:
+        """Release the simulator."""
+
+
+def obs_slices(obs_names: list[tuple[str, int]]) -> dict[str, slice]:
+    """Map each observation field name to its slice of the flat vector."""
+    out, start = {}, 0
+    for name, width in obs_names:
+        out[name] = slice(start, start + width)
+        start += width
+    return out
+
+
+def state_hash(state: np.ndarray, decimals: int = 6) -> str:
+    """A short, platform-stable hash of a state vector, rounded so float noise does not matter."""
+    arr = np.round(np.asarray(state, dtype=np.float64), decimals) + 0.0  # +0.0 folds -0.0 into 0.0
+    return hashlib.sha256(arr.tobytes()).hexdigest()[:16]

@@ -1,0 +1,40 @@
+"""Exceptions of the harness: one class per kind of failure, all exit code 2 at the CLI.
+
+Messages are one line: they name the field, the bad value and what would be valid.
+"""
+from __future__ import annotations
+
+import difflib
+from typing import Iterable
+
+
+class BenchError(Exception):
+    """Bad input the user can fix; the CLI prints the message on one line and exits 2."""
+
+    exit_code = 2
+
+
+class ConfigError(BenchError):
+    """An unknown key or a value of the wrong type in the `key=value` overrides."""
+
+
+class RegistryError(BenchError):
+    """A suite or policy name that no entry point provides."""
+
+
+class DataError(BenchError):
+    """A log, dataset or result file that is missing, malformed or inconsistent."""
+
+
+class SpecError(BenchError):
+    """A malformed calibration or policy spec."""
+
+
+class SplitError(BenchError):
+    """A suite whose seen/unseen split is not clean (overlap, repeated initial states)."""
+
+
+def did_you_mean(value: str, valid: Iterable[str]) -> str:
+    """Return ' Did you mean X?' for the closest valid name, or '' when nothing is close."""
+    match = difflib.get_close_matches(str(value), [str(v) for v in valid], n=1, cutoff=0.5)
+    return f" Did you mean {match[0]!r}?" if match else ""

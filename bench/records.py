@@ -1,0 +1,137 @@
+"""Per-episode records: the single source of truth of a run.
+
+`runs/<run_id>/episodes.jsonl` gets one JSON line per finished episode, flushed and
+fsynced as it lands, so a run killed with `kill -9` loses at most the episodes in
+flight. Reading tolerates (and repairs) a torn last line. Every aggregate is
+recomputed from these records, so a resumed run scores like an uninterrupted one.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+from bench.errors import DataError
+
+EPISODES = "episodes.jsonl"
+TIMING_FIELDS = ("wall_s", "finished_at", "worker_pid")
+
+
+@dataclass
+class EpisodeRecord:
+    """What happened in one episode (see DESIGN.md, EpisodeRecord)."""
+
+    run_id: str
+    job_id: str
+    suite: str
+    suite_version: str
+    task: str
+    robot: str
+    env: str
+    split: str
+    condition: str
+    axis: str | None
+    level: Any
+    params: dict[str, Any]          # sampled perturbation values actually applied
+    episode: int
+    seed: int
+    init_state_hash: str | None
+    success_once: bool
+    success_at_end: bool
+    return_: float
+    length: int
+    steps_to_success: int | None
+    error: str | None
+    policy: str
+    checkpoint_sha256: str | None
+    backend: str | None
+    wall_s: float
+    finished_at: float
+    worker_pid: int
+    versions: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["return"] = d.pop("return_")
+        return json.dumps(d, sort_keys=True, allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "EpisodeRecord":
+        d = dict(d)
+        d["return_"] = d.pop("return")
+        return cls(**d)
+
+
+class RecordWriter:
+    """Append-only writer; each record is flushed and fsynced before `write` returns."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        _repair_torn_tail(self.path)
+        self._fh = open(self.path, "a", encoding="utf-8")
+
+    def write(self, record: EpisodeRecord) -> None:
+        self._fh.write(record.to_json() + "\n")
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> "RecordWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _repair_torn_tail(path: Path) -> None:
+    """Cut a partial last line left by a killed process (no newline at the end)."""
+    if not path.exists() or path.stat().st_size == 0:
+        return
+    with open(path, "rb+") as fh:
+        data = fh.read()
+        if data.endswith(b"\n"):
+            return
+        cut = data.rfind(b"\n") + 1
+        fh.truncate(cut)
+
+
+def read_records(path: Path) -> list[EpisodeRecord]:
+    """All complete records in `path`; a torn last line is ignored, a corrupt middle line is an error."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    out: list[EpisodeRecord] = []
+    lines = path.read_bytes().split(b"\n")
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            out.append(EpisodeRecord.from_dict(json.loads(line)))
+        except (json.JSONDecodeError, TypeError) as exc:
+            if i == len(lines) - 1:  # torn tail of a killed run
+                break
+            raise DataError(f"{path}: line {i + 1} is not an episode record ({type(exc).__name__}: {exc})") from None
+    return out
+
+
+def dedupe(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
+    """Keep the first record per job id (merged or re-run directories may repeat jobs)."""
+    seen, out = set(), []
+    for r in records:
+        if r.job_id not in seen:
+            seen.add(r.job_id)
+            out.append(r)
+    return out
+
+
+def comparable(record: EpisodeRecord) -> dict[str, Any]:
+    """The record without timing fields and run id: two runs with the same seed must agree on this."""
+    d = json.loads(record.to_json())
+    for k in (*TIMING_FIELDS, "run_id"):
+        d.pop(k, None)
+    return d

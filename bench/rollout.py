@@ -1,0 +1,122 @@
+"""One episode: reset with the episode's seed, apply its condition, step the policy, record."""
+from __future__ import annotations
+
+import os
+import signal
+import time
+import traceback
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench.env import state_hash
+from bench.records import EpisodeRecord
+from bench.suite import Job, condition_rng
+
+
+class EpisodeTimeout(Exception):
+    """The episode ran past its wall-clock limit."""
+
+
+@contextmanager
+def time_limit(seconds: float | None):
+    """Raise EpisodeTimeout in the main thread after `seconds` (no-op when None/0 or off-main-thread)."""
+    if not seconds or seconds <= 0 or not hasattr(signal, "setitimer"):
+        yield
+        return
+    try:
+        old = signal.signal(signal.SIGALRM, _on_alarm)
+    except ValueError:  # not the main thread
+        yield
+        return
+    signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _on_alarm(signum, frame):
+    raise EpisodeTimeout("episode timed out")
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """What every episode of a run shares (passed once to each worker)."""
+
+    run_id: str
+    suite_version: str
+    policy_id: str
+    checkpoint_sha256: str | None
+    versions: dict[str, str]
+    horizon: int
+    timeout_s: float
+
+
+def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
+    """Run `job` on an already-built env; return its record and whether the env is still usable.
+
+    An exception or timeout is recorded in `error` (the run goes on); the env is then
+    reported unusable so the caller rebuilds it.
+    """
+    from bench import perturb
+
+    t0 = time.perf_counter()
+    success_once = success_at_end = False
+    ret, length, first_success = 0.0, 0, None
+    init_hash, params, error = None, {}, None
+    try:
+        with time_limit(ctx.timeout_s):
+            rng = condition_rng(job.seed, job.condition)
+            stepper, params = perturb.apply(env, job.condition, rng)
+            obs = stepper.reset(job.seed)
+            init_hash = state_hash(env.init_state())
+            policy.reset(job.seed)
+            for t in range(ctx.horizon):
+                obs, reward, done, info = stepper.step(policy.act(obs))
+                ret += reward
+                length = t + 1
+                success_at_end = bool(info.get("success", False))
+                if success_at_end and first_success is None:
+                    first_success = length
+                    success_once = True
+                if done:
+                    break
+    except EpisodeTimeout:
+        error = f"timeout after {ctx.timeout_s:g} s at step {length}"
+    except Exception as exc:  # recorded, the run goes on
+        tb = traceback.extract_tb(exc.__traceback__)[-1]
+        error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
+    if error:
+        success_once = success_at_end = False
+    cell = job.cell
+    record = EpisodeRecord(
+        run_id=ctx.run_id, job_id=job.job_id, suite=cell.suite, suite_version=ctx.suite_version,
+        task=cell.task, robot=cell.robot, env=cell.env, split=cell.split,
+        condition=job.condition.name, axis=job.condition.axis, level=_jsonable(job.condition.level),
+        params=_jsonable(params), episode=job.episode, seed=job.seed, init_state_hash=init_hash,
+        success_once=success_once, success_at_end=success_at_end, return_=float(ret), length=length,
+        steps_to_success=first_success, error=error, policy=ctx.policy_id,
+        checkpoint_sha256=ctx.checkpoint_sha256, backend=getattr(env, "backend", None),
+        wall_s=round(time.perf_counter() - t0, 4), finished_at=round(time.time(), 3), worker_pid=os.getpid(),
+        versions=ctx.versions,
+    )
+    return record, error is None
+
+
+def _jsonable(x: Any) -> Any:
+    """numpy scalars/arrays -> plain Python, so records serialise without surprises."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, float):
+        return round(x, 10)
+    return x

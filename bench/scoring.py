@@ -1,0 +1,151 @@
+"""Scores with intervals: success rates, aggregates across cells, transfer gaps.
+
+Conventions:
+- A per-cell rate carries a Wilson score interval (`scipy.stats.binomtest(...).proportion_ci`).
+- Aggregates over cells (mean, IQM) and gaps between groups of cells carry a
+  stratified percentile bootstrap interval: episodes are resampled within each cell
+  (strata = cells), so every cell keeps its episode count in every resample.
+- Paired gaps (same episode seeds under two conditions) resample episode indices
+  jointly, so the shared initial state cancels out.
+- Anything that cannot be computed is `None` plus a reason: never NaN.
+All randomness comes from a generator the caller seeds (from the run seed).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate with a two-sided interval, or None with the reason why."""
+
+    value: float | None
+    lo: float | None = None
+    hi: float | None = None
+    reason: str | None = None
+
+    def to_dict(self) -> dict:
+        if self.value is None:
+            return {"value": None, "ci": None, "reason": self.reason or "not computable"}
+        ci = None if self.lo is None else [round(self.lo, 6), round(self.hi, 6)]
+        out = {"value": round(self.value, 6), "ci": ci}
+        if self.reason:
+            out["reason"] = self.reason
+        return out
+
+
+def wilson(successes: int, trials: int, confidence: float = 0.95) -> Estimate:
+    """Success rate with a Wilson score interval."""
+    if trials <= 0:
+        return Estimate(None, reason="no completed episodes")
+    from scipy.stats import binomtest
+
+    ci = binomtest(int(successes), int(trials)).proportion_ci(confidence_level=confidence, method="wilson")
+    return Estimate(successes / trials, float(ci.low), float(ci.high))
+
+
+def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% (25% trimmed from each end)."""
+    from scipy.stats import trim_mean
+
+    return trim_mean(values, 0.25, axis=axis)
+
+
+STATISTICS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "mean": lambda x: np.mean(x, axis=-1),
+    "iqm": iqm,
+}
+
+
+def _resampled_rates(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int) -> np.ndarray:
+    """(n_boot, n_cells) success rates with episodes resampled within each cell."""
+    out = np.empty((n_boot, len(cells)))
+    for j, outcomes in enumerate(cells):
+        outcomes = np.asarray(outcomes, dtype=float)
+        idx = rng.integers(0, len(outcomes), size=(n_boot, len(outcomes)))
+        out[:, j] = outcomes[idx].mean(axis=1)
+    return out
+
+
+def _interval(samples: np.ndarray, confidence: float) -> tuple[float, float]:
+    alpha = (1.0 - confidence) / 2.0
+    lo, hi = np.quantile(samples, [alpha, 1.0 - alpha])
+    return float(lo), float(hi)
+
+
+def aggregate(
+    cells: Sequence[np.ndarray],
+    rng: np.random.Generator,
+    statistic: str = "mean",
+    n_boot: int = 2000,
+    confidence: float = 0.95,
+) -> Estimate:
+    """Mean or IQM of per-cell success rates, with a stratified bootstrap interval.
+
+    Args:
+        cells: one array of 0/1 outcomes per cell (episodes of that cell).
+    """
+    cells = [np.asarray(c, dtype=float) for c in cells if len(c)]
+    if not cells:
+        return Estimate(None, reason="no cell has completed episodes")
+    stat = STATISTICS[statistic]
+    point = float(stat(np.array([c.mean() for c in cells])))
+    boot = stat(_resampled_rates(cells, rng, n_boot))
+    lo, hi = _interval(boot, confidence)
+    return Estimate(point, lo, hi)
+
+
+def gap(
+    reference: Sequence[np.ndarray],
+    target: Sequence[np.ndarray],
+    rng: np.random.Generator,
+    statistic: str = "mean",
+    n_boot: int = 2000,
+    confidence: float = 0.95,
+) -> Estimate:
+    """Transfer gap = stat(reference cells) - stat(target cells), independent stratified bootstrap."""
+    reference = [np.asarray(c, dtype=float) for c in reference if len(c)]
+    target = [np.asarray(c, dtype=float) for c in target if len(c)]
+    if not reference or not target:
+        side = "reference" if not reference else "target"
+        return Estimate(None, reason=f"the {side} group has no completed episodes")
+    stat = STATISTICS[statistic]
+    point = float(stat(np.array([c.mean() for c in reference])) - stat(np.array([c.mean() for c in target])))
+    boot = stat(_resampled_rates(reference, rng, n_boot)) - stat(_resampled_rates(target, rng, n_boot))
+    lo, hi = _interval(boot, confidence)
+    return Estimate(point, lo, hi)
+
+
+def paired_gap(
+    reference: np.ndarray,
+    target: np.ndarray,
+    rng: np.random.Generator,
+    n_boot: int = 2000,
+    confidence: float = 0.95,
+) -> Estimate:
+    """Mean of (reference - target) over episodes paired by seed, with a paired bootstrap interval.
+
+    Args:
+        reference, target: (n_cells, n_episodes) or (n_episodes,) outcome arrays whose
+            entries at the same position share an initial state (same seed, same cell).
+    """
+    ref, tgt = np.atleast_2d(np.asarray(reference, float)), np.atleast_2d(np.asarray(target, float))
+    if ref.shape != tgt.shape:
+        raise ValueError(f"paired arrays differ in shape: {ref.shape} vs {tgt.shape}")
+    if ref.size == 0:
+        return Estimate(None, reason="no paired episodes")
+    diff = ref - tgt  # (cells, episodes)
+    point = float(diff.mean())
+    n = diff.shape[1]
+    idx = rng.integers(0, n, size=(n_boot, n))
+    boot = diff[:, idx].mean(axis=(0, 2))  # same resampled seeds in every cell
+    lo, hi = _interval(boot, confidence)
+    return Estimate(point, lo, hi)
+
+
+def one_sided_lower(samples: np.ndarray, confidence: float = 0.95) -> float:
+    """Lower confidence bound at `confidence` (one-sided) from bootstrap samples."""
+    return float(np.quantile(np.asarray(samples, float), 1.0 - confidence))

@@ -1,0 +1,55 @@
+"""held_out_robots: RoboNet-style transfer to whole robots the policy never saw.
+
+Task:
+    robosuite `Lift` (pick the cube up) on the 7 single arms robosuite ships:
+    Panda, Sawyer, IIWA, UR5e, Kinova3, Jaco, XArm7.
+Split:
+    seen   = Panda, Sawyer, IIWA — 7-DOF arms with parallel-jaw grippers, the kind
+             that dominate public multi-robot datasets (RoboNet's Franka, Sawyer, Kuka).
+    unseen = UR5e, Kinova3, Jaco, XArm7 — a 6-DOF arm (UR5e) with a Robotiq linkage
+             gripper, Kinova's Gen3 and Jaco (a three-finger hand that closes ~3x
+             slower), and the xArm 7 with its own gripper: new kinematics, new hands.
+    A policy trained on the seen arms must transfer across kinematic structure and
+    gripper mechanism, which is the RoboNet question.
+Observation (the same 18 numbers on every arm):
+    eef_pos (3), eef_quat_rel (4, relative to the pose at reset), gripper_opening
+    (1; 1 = fully open, 0 = fully closed), object_pos (3), object_quat (4),
+    gripper_to_object (3).
+Action:
+    robosuite's default OSC_POSE delta controller: 6 end-effector deltas in [-1, 1]
+    (position deltas are world-frame on every arm) + gripper (+1 close, -1 open).
+Conditions:
+    nominal; perturbations via `perturb.*` when the perturbation library is present.
+Success:
+    success_once = the cube was lifted 4 cm above the table at any step;
+    success_at_end = it is still lifted at the last step (horizon 250 steps, 20 Hz).
+Metric:
+    success rate per (task, robot) with Wilson intervals; mean over seen and unseen
+    robots with a stratified bootstrap interval; transfer gap = seen - unseen.
+"""
+from __future__ import annotations
+
+from bench.suite import Cell, Suite
+
+SEEN = ["Panda", "Sawyer", "IIWA"]
+UNSEEN = ["UR5e", "Kinova3", "Jaco", "XArm7"]
+
+
+class HeldOutRobots(Suite):
+    """Lift on 7 robosuite arms; 3 seen, 4 held out (RoboNet style)."""
+
+    name = "held_out_robots"
+    version = "1"
+    reference_policy = "scripted"
+    default_horizon = 250
+    manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
+
+    def all_cells(self) -> list[Cell]:
+        return [Cell(self.name, "Lift", r, "default", "seen") for r in SEEN] + [
+            Cell(self.name, "Lift", r, "default", "unseen") for r in UNSEEN
+        ]
+
+    def make_env(self, cell: Cell, horizon: int):
+        from bench.sim_robosuite import RobosuiteEnv
+
+        return RobosuiteEnv(cell.task, cell.robot, horizon)
