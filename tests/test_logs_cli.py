@@ -1,0 +1,86 @@
+"""`bench logs info|import` through the top-level dispatcher."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from bench.logs import from_arrays, read_dataset, write_dataset
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        pytest.skip(f"{path} not found (the shared data folder lives outside the repo)")
+    return path
+
+
+@pytest.mark.parametrize("argv", [["logs"], ["logs", "--help"], ["logs", "info", "--help"], ["logs", "import", "--help"]])
+def test_help(argv, capsys):
+    assert main(argv) == 0
+    assert "usage: bench logs" in capsys.readouterr().out
+
+
+def test_import_help_lists_keys(capsys):
+    main(["logs", "import", "--help"])
+    text = capsys.readouterr().out
+    for key in ("out", "format", "fps", "state=", "action=", "time=", "episode=", "velocity=", "split=", "overwrite"):
+        assert key in text
+
+
+def test_info(tmp_path, capsys):
+    ds = from_arrays([{"observation.state": np.zeros((3, 2)), "action": np.zeros((3, 1))}] * 2, fps=15,
+                     names={"action": ["u"]}, task="reach", robot_type="arm")
+    write_dataset(tmp_path / "d", ds)
+    assert main(["logs", "info", str(tmp_path / "d")]) == 0
+    text = capsys.readouterr().out
+    assert "episodes  2  (frames 6; length 3..3" in text and "fps       15" in text
+    assert "observation.state" in text and "float32" in text and "[2]" in text and "reach" in text
+
+
+def test_import_csv(tmp_path, capsys):
+    src = tmp_path / "log.csv"
+    src.write_text("time,q,u\n" + "".join(f"{i * 0.01},{i},{-i}\n" for i in range(10)))
+    out = tmp_path / "ds"
+    assert main(["logs", "import", str(src), f"out={out}", "time=time", "state=[q]", "action=u", "task=wave"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    ds = read_dataset(out)
+    assert ds.fps == 100 and ds.tasks == ["wave"] and ds.features["action"]["names"] == ["u"]
+    np.testing.assert_array_equal(ds.episodes[0].data["observation.state"][:, 0], np.arange(10, dtype=np.float32))
+    # refuses to overwrite, then does with overwrite=true
+    assert main(["logs", "import", str(src), f"out={out}", "time=time", "state=[q]"]) == 2
+    assert "pass overwrite=True" in capsys.readouterr().err
+    assert main(["logs", "import", str(src), f"out={out}", "time=time", "state=[q]", "overwrite=true"]) == 0
+
+
+def test_import_mat_emps(tmp_path):
+    src = _need(SHARED / "real" / "emps" / "DATA_EMPS.mat")
+    assert main(["logs", "import", str(src), f"out={tmp_path / 'e'}", "state=[qm]", "action=[vir]", "velocity=true"]) == 0
+    ds = read_dataset(tmp_path / "e")
+    assert ds.features["observation.state"]["names"] == ["qm", "qm_dot"] and ds.fps == 1000
+
+
+def test_import_rlds(tmp_path):
+    src = _need(SHARED / "formats" / "rlds_toy" / "toy_rlds")
+    assert main(["logs", "import", str(src), f"out={tmp_path / 'r'}", "fps=5"]) == 0  # format from the folder
+    assert len(read_dataset(tmp_path / "r").episodes) == 3
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["logs", "import", "x.csv", "out=o", "velocity=true"], "unknown key 'velocity' for format=csv"),
+        (["logs", "import", "x.csv"], "missing key 'out'"),
+        (["logs", "import", "x.bin", "out=o"], "cannot tell the format"),
+        (["logs", "import", "x.csv", "out=o", "format=hdf5"], "format is 'hdf5'; valid: csv, mat, rlds"),
+        (["logs", "info", "/nonexistent/dataset"], "dataset folder does not exist"),
+        (["logs", "inf", "x"], "unknown logs subcommand 'inf'; valid: info, import. Did you mean 'info'"),
+    ],
+)
+def test_errors_exit_2(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
