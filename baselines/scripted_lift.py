@@ -51,14 +51,15 @@ class LiftExpert:
             if np.linalg.norm(err[:2]) > 0.03:  # object moved away: hover again
                 self._go("hover")
                 target = obj + [0.0, 0.0, self.hover]
-            elif np.linalg.norm(err) < 0.01:
-                self._go("close")
+            elif abs(err[2]) < 0.01 and (np.linalg.norm(err[:2]) < 0.004 or self.steps_in_phase > 40):
+                self._go("close")  # centred, or as centred as this arm's controller gets
                 self._openings = []
         if self.phase == "close":
             target, grip = obj.copy(), 1.0
             self._openings.append(opening)
             recent = self._openings[-6:]
-            if len(self._openings) >= 6 and max(recent) - min(recent) < 0.01:
+            # at least 12 steps: hands lag when the command reverses (Jaco), which looks like "stopped"
+            if len(self._openings) >= 12 and max(recent) - min(recent) < 0.01:
                 self._grasp_pos = eef.copy()
                 self._go("lift")
         if self.phase == "lift":

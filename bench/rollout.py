@@ -7,6 +7,7 @@ import time
 import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,21 @@ class RunContext:
     versions: dict[str, str]
     horizon: int
     timeout_s: float
+    trajectory_dir: str | None = None   # set when `record=` asks for the rollouts
+
+
+def trajectory_path(directory: str | Path, job_id: str) -> Path:
+    """Where a job's trajectory (.npz) is kept until the run assembles the dataset."""
+    safe = job_id.replace("/", "__").replace("|", "--").replace("=", "-").replace("~", "_")
+    return Path(directory) / f"{safe}.npz"
+
+
+def _save_trajectory(path: Path, traj: dict[str, list]) -> None:
+    """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **{k: np.asarray(v) for k, v in traj.items()})
+    os.replace(tmp, path)
 
 
 def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
@@ -68,6 +84,8 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
     success_once = success_at_end = False
     ret, length, first_success = 0.0, 0, None
     init_hash, params, error = None, {}, None
+    traj: dict[str, list] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": []} \
+        if ctx.trajectory_dir else None
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)
@@ -76,10 +94,16 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
             for t in range(ctx.horizon):
-                obs, reward, done, info = stepper.step(policy.act(obs))
+                action = policy.act(obs)
+                if traj is not None:
+                    _append_frame(traj, env, obs, action)
+                obs, reward, done, info = stepper.step(action)
                 ret += reward
                 length = t + 1
                 success_at_end = bool(info.get("success", False))
+                if traj is not None:
+                    traj["reward"].append(float(reward))
+                    traj["success"].append(success_at_end)
                 if success_at_end and first_success is None:
                     first_success = length
                     success_once = True
@@ -92,6 +116,11 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
         error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
     if error:
         success_once = success_at_end = False
+    elif traj is not None and length:
+        traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_names]
+        traj["action_names"] = list(env.action_names)
+        traj["fps"] = [float(getattr(env, "fps", 0.0) or 0.0)]
+        _save_trajectory(trajectory_path(ctx.trajectory_dir, job.job_id), traj)
     cell = job.cell
     record = EpisodeRecord(
         run_id=ctx.run_id, job_id=job.job_id, suite=cell.suite, suite_version=ctx.suite_version,
@@ -105,6 +134,14 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
         versions=ctx.versions,
     )
     return record, error is None
+
+
+def _append_frame(traj: dict[str, list], env, obs: np.ndarray, action: np.ndarray) -> None:
+    traj["obs"].append(np.asarray(obs, np.float32))
+    traj["action"].append(np.asarray(action, np.float32))
+    data = getattr(env, "data", None)
+    if data is not None and hasattr(data, "qpos"):  # MuJoCo state, so logs can be replayed in simulation
+        traj["sim_state"].append(np.concatenate([data.qpos, data.qvel]).astype(np.float32))
 
 
 def _jsonable(x: Any) -> Any:

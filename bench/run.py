@@ -64,7 +64,17 @@ def help_text() -> str:
         "  bench run suite=held_out_robots\n"
         "  bench run suite=held_out_robots policy=random episodes=10 workers=2\n"
         "  bench run suite=held_out_robots robots=[UR5e,IIWA] episodes=3 run_id=try1\n"
+        "  bench run robots=[Panda] perturb.friction=[0.01,0.1] perturb.latency=uniform(0,4)\n"
+        "  bench run suite=gym env_id=HalfCheetah-v5 perturb.gravity=[0.5,1.5] perturb.mass.bodies=[torso] perturb.mass.levels=[2]\n"
+        + _perturb_help()
     )
+
+
+def _perturb_help() -> str:
+    from bench.perturb import axes_help
+
+    return ("\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
+            "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n")
 
 
 def sha256_file(path: Path) -> str:
@@ -104,7 +114,7 @@ def prepare(argv: list[str]):
         raise ConfigError(f"run_id={cfg.run_id!r}: must be a plain folder name")
     suite = registry.make_suite(cfg.suite)
     policy_name = cfg.policy or suite.reference_policy
-    registry.policy_factory(policy_name)  # fails early on a bad name
+    factory = registry.policy_factory(policy_name)  # fails early on a bad name
     checkpoint_sha = None
     if cfg.checkpoint:
         ckpt = Path(cfg.checkpoint)
@@ -116,7 +126,13 @@ def prepare(argv: list[str]):
     cells = suite.cells(cfg)
     if not cells:
         raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
+    preflight = getattr(factory, "preflight", None)  # optional factory hook: check e.g. a checkpoint before workers
+    if preflight is not None:
+        preflight(cfg, suite, cells)
+    if cfg.record and Path(cfg.record).exists() and any(Path(cfg.record).iterdir()):
+        raise ConfigError(f"record={cfg.record!r} exists and is not empty; give a new folder (nothing is overwritten)")
     conditions = perturb.conditions_from_config(cfg.perturb)
+    perturb.validate_run(suite, cells, conditions, cfg.horizon or suite.default_horizon)  # names in the model
     jobs = suite.jobs(cfg, conditions)
     run_id = cfg.run_id or f"{suite.name}-{policy_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     cfg = dataclasses.replace(cfg, run_id=run_id, policy=policy_name)
@@ -150,23 +166,13 @@ def _open_run_dir(run_dir: Path, cfg: RunConfig, meta: dict[str, Any]) -> dict[s
     return meta
 
 
-def main(argv: list[str]) -> int:
-    if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
-        return 0
-    from bench import provenance
-    from bench.leaderboard import validate
-    from bench.records import EPISODES, RecordWriter, read_records
+def start(p: dict[str, Any], workers: int):
+    """Open (or resume) the run directory of a prepared run `p`: writes run.json; returns (meta, RunContext)."""
+    from bench import __version__, provenance
     from bench.rollout import RunContext
-    from bench.runner import execute
-    from bench.summary import build, render, write_atomic
 
-    p = prepare(argv)
     cfg: RunConfig = p["cfg"]
-    suite, jobs, run_dir = p["suite"], p["jobs"], p["run_dir"]
-    workers = min(cfg.workers or os.cpu_count() or 1, len(jobs))
-    from bench import __version__
-
+    suite, jobs = p["suite"], p["jobs"]
     meta = {
         "run_id": cfg.run_id,
         "suite": suite.describe(),
@@ -179,14 +185,48 @@ def main(argv: list[str]) -> int:
             "episode_seeds": sorted({j.seed for j in jobs}), "started_at": _now(), "finished_at": None,
         },
     }
-    meta = _open_run_dir(run_dir, cfg, meta)
+    meta = _open_run_dir(p["run_dir"], cfg, meta)
+    ctx = RunContext(run_id=cfg.run_id, suite_version=suite.version, policy_id=p["policy_name"],
+                     checkpoint_sha256=p["checkpoint_sha"], versions=provenance.package_versions(),
+                     horizon=cfg.horizon or suite.default_horizon, timeout_s=cfg.timeout,
+                     trajectory_dir=str(p["run_dir"] / "trajectories") if cfg.record else None)
+    return meta, ctx
+
+
+def finish(p: dict[str, Any], meta: dict[str, Any], workers: int) -> dict[str, Any]:
+    """Stamp run.json (finish time, workers, backends), write and return the validated summary.json."""
+    from bench.leaderboard import validate
+    from bench.records import EPISODES, read_records
+    from bench.summary import build, write_atomic
+
+    run_dir = p["run_dir"]
+    records = read_records(run_dir / EPISODES)
+    meta["provenance"]["finished_at"] = _now()
+    meta["provenance"]["workers"] = workers
+    meta["provenance"]["backend"] = sorted({r.backend for r in records if r.backend})
+    write_atomic(run_dir / "run.json", meta)
+    summary = build(records, run_meta=meta)
+    validate(summary, "summary")
+    write_atomic(run_dir / "summary.json", summary)
+    return summary
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] in ("-h", "--help"):
+        print(help_text())
+        return 0
+    from bench.records import EPISODES, RecordWriter, read_records
+    from bench.runner import execute
+    from bench.summary import render
+
+    p = prepare(argv)
+    cfg: RunConfig = p["cfg"]
+    suite, jobs, run_dir = p["suite"], p["jobs"], p["run_dir"]
+    workers = min(cfg.workers or os.cpu_count() or 1, len(jobs))
+    meta, ctx = start(p, workers)
     episodes_path = run_dir / EPISODES
     done_ids = {r.job_id for r in read_records(episodes_path)}
     todo = [j for j in jobs if j.job_id not in done_ids]
-    horizon = cfg.horizon or suite.default_horizon
-    ctx = RunContext(run_id=cfg.run_id, suite_version=suite.version, policy_id=p["policy_name"],
-                     checkpoint_sha256=p["checkpoint_sha"], versions=provenance.package_versions(),
-                     horizon=horizon, timeout_s=cfg.timeout)
     from rich.console import Console
 
     console = Console(stderr=True)
@@ -195,15 +235,14 @@ def main(argv: list[str]) -> int:
     console.print(f"run {cfg.run_id}: {len(todo)} episodes on {workers} worker(s) -> {run_dir}")
     t0 = time.time()
     _execute_with_progress(todo, suite, cfg, ctx, workers, episodes_path, console, execute, RecordWriter)
-    records = read_records(episodes_path)
-    meta["provenance"]["finished_at"] = _now()
-    meta["provenance"]["workers"] = workers
-    meta["provenance"]["backend"] = sorted({r.backend for r in records if r.backend})
-    write_atomic(run_dir / "run.json", meta)
-    summary = build(records, run_meta=meta)
-    validate(summary, "summary")
-    write_atomic(run_dir / "summary.json", summary)
+    summary = finish(p, meta, workers)
     render(summary)
+    if cfg.record:
+        from bench.recording import assemble
+
+        records = read_records(episodes_path)
+        path = assemble(records, run_dir / "trajectories", Path(cfg.record))
+        console.print(f"recorded {sum(r.error is None for r in records)} episodes as a LeRobot v3 dataset: {path}")
     console.print(f"{len(todo)} episodes in {time.time() - t0:.1f} s; records: {episodes_path}; "
                   f"summary: {run_dir / 'summary.json'}")
     return 0

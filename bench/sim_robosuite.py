@@ -34,6 +34,13 @@ OBS_NAMES: list[tuple[str, int]] = [
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
 _OBJECT = {"Lift": "cube", "Stack": "cubeA"}
+# Scene keys `env_kwargs` may carry besides robosuite's own (table_full_size, table_friction):
+#   table_offset (x, y, z): table-top centre in metres (robosuite hard-codes (0, 0, 0.8));
+#   placement_x_range / placement_y_range (lo, hi): object spawn region, metres relative to
+#     the table-top centre (robosuite's default sampler uses (-0.03, 0.03) on both);
+#   table_contact_priority (int): MuJoCo contact priority of the table's collision geom; with 1
+#     the table's own friction governs object-table contacts instead of max(table, object).
+SCENE_KEYS = ("table_offset", "placement_x_range", "placement_y_range", "table_contact_priority")
 
 
 def _quiet_robosuite() -> None:
@@ -67,6 +74,41 @@ def _quat_conj(q: np.ndarray) -> np.ndarray:
     return np.array([-q[0], -q[1], -q[2], q[3]])
 
 
+def _scene_env_name(task: str) -> str:
+    """Register (once per process) a subclass of robosuite `task` that also takes `SCENE_KEYS`.
+
+    robosuite's table tasks fix the table height in `__init__` and build their placement
+    sampler in `_load_model`; the subclass sets both just around that call, so a hard
+    reset rebuilds the same scene. Registered by robosuite's own metaclass as "<task>Scene".
+    """
+    from robosuite.environments.base import REGISTERED_ENVS
+
+    name = f"{task}Scene"
+    if name in REGISTERED_ENVS:
+        return name
+    base = REGISTERED_ENVS[task]
+
+    def __init__(self, *args, table_offset=None, placement_x_range=None, placement_y_range=None,
+                 table_contact_priority=None, **kwargs):
+        self._scene = dict(table_offset=table_offset, x_range=placement_x_range, y_range=placement_y_range,
+                           priority=table_contact_priority)
+        base.__init__(self, *args, **kwargs)
+
+    def _load_model(self):
+        scene = self._scene
+        if scene["table_offset"] is not None:
+            self.table_offset = np.array(scene["table_offset"], dtype=np.float64)
+        base._load_model(self)
+        if scene["priority"] is not None:
+            self.model.mujoco_arena.table_collision.set("priority", str(int(scene["priority"])))
+        for key in ("x_range", "y_range"):
+            if scene[key] is not None:
+                setattr(self.placement_initializer, key, [float(v) for v in scene[key]])
+
+    type(base)(name, (base,), {"__init__": __init__, "_load_model": _load_model})
+    return name
+
+
 class RobosuiteEnv:
     """A robosuite manipulation env behind the `bench.env.Env` contract."""
 
@@ -79,8 +121,15 @@ class RobosuiteEnv:
             raise ValueError(f"task {task!r} not supported; valid: {sorted(_OBJECT)}")
         self.task, self.robot, self.horizon = task, robot, int(horizon)
         self._object = _OBJECT[task]
+        env_kwargs = dict(env_kwargs or {})
+        scene = {k: env_kwargs.pop(k) for k in SCENE_KEYS if k in env_kwargs}
+        # the scene is part of the initial state: two scenes with the same joint state are not the same start
+        described = {**{k: v for k, v in env_kwargs.items() if k in ("table_full_size", "table_friction")}, **scene}
+        self._scene_vec = np.concatenate([np.ravel(np.asarray(described[k], dtype=np.float64)) for k in sorted(described)]
+                                         ) if described else np.zeros(0)
         self._env = robosuite.make(
-            task,
+            _scene_env_name(task) if scene else task,
+            **scene,
             robots=robot,
             has_renderer=False,
             has_offscreen_renderer=False,
@@ -90,11 +139,14 @@ class RobosuiteEnv:
             reward_shaping=True,
             horizon=self.horizon,
             seed=0,
-            **(env_kwargs or {}),
+            **env_kwargs,
         )
         self.model = self._env.sim.model._model
         self.data = self._env.sim.data._data
+        # bodies of the manipulated object (bench.perturb: perturb.mass scales these by default)
+        self.object_bodies = [getattr(self._env, self._object).root_body]
         self.backend = f"robosuite-{robosuite.__version__}/mujoco-{mujoco.__version__}"
+        self.fps = float(self._env.control_freq)  # control steps per second
         self.obs_names = list(OBS_NAMES)
         self.action_names = list(ACTION_NAMES)
         low, high = self._env.action_spec
@@ -117,9 +169,16 @@ class RobosuiteEnv:
         ends = []
         for grip in (-1.0, 1.0):
             command[-1] = grip
-            for _ in range(130):
+            last = self.data.qpos[self._grip_idx].copy()
+            still = 0
+            for _ in range(300):  # Jaco needs ~200 steps from open to closed
                 self._env.step(command)
-            ends.append(self.data.qpos[self._grip_idx].copy())
+                q = self.data.qpos[self._grip_idx].copy()
+                still = still + 1 if np.max(np.abs(q - last)) < 1e-4 else 0
+                last = q
+                if still >= 10:  # the fingers reached their end
+                    break
+            ends.append(last)
         self._grip_open, self._grip_closed = ends
         self._grip_mask = np.abs(self._grip_open - self._grip_closed) > 1e-3  # joints that move
 
@@ -141,7 +200,7 @@ class RobosuiteEnv:
     def reset(self, seed: int) -> np.ndarray:
         raw = self._raw_reset(int(seed))
         self._quat0 = np.asarray(raw["robot0_eef_quat"], dtype=np.float64)
-        self._init_state = np.concatenate([self.data.qpos, self.data.qvel]).copy()
+        self._init_state = np.concatenate([self.data.qpos, self.data.qvel, self._scene_vec]).copy()
         return self._obs(raw)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:

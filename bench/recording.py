@@ -1,0 +1,73 @@
+"""`bench run ... record=DIR`: the run's rollouts as a LeRobot v3 dataset.
+
+Workers save each finished episode's arrays next to the records (atomically, so a
+record implies its trajectory); when the run ends they are assembled, in job order,
+into one dataset with these features:
+
+- `observation.state` (T, D): the suite's observation, element names from its `obs_names`
+- `action` (T, A): what the policy commanded
+- `next.reward` (T, 1), `next.success` (T, 1): per step, after the action
+- `observation.sim_state` (T, nq+nv): MuJoCo qpos and qvel before the step (for replay);
+  only when every episode has the same state size (one robot), since a feature has one shape
+
+and per-episode metadata (task, robot, env, split, condition, seed, sampled
+parameters, success_once/at_end). The task string is the cell key, e.g. `Lift/Panda/default`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import DataError
+from bench.records import EpisodeRecord
+from bench.rollout import trajectory_path
+
+
+def _expand(names: list[str]) -> list[str]:
+    out = []
+    for item in names:
+        name, width = item.rsplit(":", 1)
+        out += [name] if int(width) == 1 else [f"{name}_{i}" for i in range(int(width))]
+    return out
+
+
+def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robot_type: str | None = None) -> Path:
+    """Write the successful-or-not (but not errored) episodes of `records` to a LeRobot v3 dataset at `out`."""
+    from bench.logs import from_arrays, write_dataset
+
+    episodes, tasks, meta = [], [], []
+    obs_names = action_names = None
+    fps = 0.0
+    for r in sorted(records, key=lambda r: r.job_id):
+        if r.error is not None or r.length == 0:
+            continue
+        path = trajectory_path(trajectory_dir, r.job_id)
+        if not path.exists():
+            raise DataError(f"{path}: trajectory of {r.job_id} is missing; was the run started without record=?")
+        with np.load(path) as z:
+            ep = {
+                "observation.state": z["obs"],
+                "action": z["action"],
+                "next.reward": z["reward"].reshape(-1, 1),
+                "next.success": z["success"].reshape(-1, 1),
+            }
+            if z["sim_state"].size:
+                ep["observation.sim_state"] = z["sim_state"]
+            obs_names = obs_names or _expand([str(x) for x in z["obs_names"]])
+            action_names = action_names or [str(x) for x in z["action_names"]]
+            fps = fps or float(z["fps"][0])
+        episodes.append(ep)
+        tasks.append(f"{r.task}/{r.robot}/{r.env}")
+        meta.append({"task": r.task, "robot": r.robot, "env": r.env, "split": r.split, "condition": r.condition,
+                     "seed": r.seed, "episode": r.episode, "params": r.params, "success_once": r.success_once,
+                     "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id})
+    if not episodes:
+        raise DataError("record: the run has no completed episode to record")
+    widths = {ep["observation.sim_state"].shape[1] for ep in episodes if "observation.sim_state" in ep}
+    if len(widths) > 1 or (widths and not all("observation.sim_state" in ep for ep in episodes)):
+        for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
+            ep.pop("observation.sim_state", None)
+    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type,
+                     names={"observation.state": obs_names, "action": action_names})
+    return write_dataset(out, ds)

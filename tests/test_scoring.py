@@ -1,0 +1,79 @@
+"""Scoring math against values computed by hand."""
+import math
+
+import numpy as np
+import pytest
+
+from bench import scoring
+
+
+def test_wilson_matches_hand_computation():
+    # p = 0.7, n = 10, z = 1.959964: denom = 1 + z^2/n = 1.384146;
+    # centre = (p + z^2/2n)/denom = 0.644492; half = z*sqrt(p(1-p)/n + z^2/4n^2)/denom = 0.247715
+    est = scoring.wilson(7, 10)
+    assert est.value == pytest.approx(0.7)
+    assert est.lo == pytest.approx(0.644492 - 0.247715, abs=1e-5)
+    assert est.hi == pytest.approx(0.644492 + 0.247715, abs=1e-5)
+
+
+def test_wilson_extremes_and_empty():
+    zero = scoring.wilson(0, 10)  # lower bound exactly 0, upper z^2/(n+z^2) = 3.8415/13.8415 = 0.27753
+    assert zero.lo == pytest.approx(0.0, abs=1e-12) and zero.hi == pytest.approx(0.27753, abs=1e-4)
+    empty = scoring.wilson(0, 0)
+    assert empty.value is None and empty.to_dict() == {"value": None, "ci": None, "reason": "no completed episodes"}
+
+
+def test_aggregate_and_gap_points():
+    rng = np.random.default_rng(0)
+    seen = [np.array([1, 1, 1, 0]), np.array([1, 0])]        # cell rates 0.75, 0.5 -> mean 0.625
+    unseen = [np.array([0, 0]), np.array([1, 0, 0, 0])]      # cell rates 0.0, 0.25 -> mean 0.125
+    agg = scoring.aggregate(seen, rng)
+    assert agg.value == pytest.approx(0.625)
+    assert 0.0 <= agg.lo <= 0.625 <= agg.hi <= 1.0
+    g = scoring.gap(seen, unseen, rng)
+    assert g.value == pytest.approx(0.5)
+    assert g.lo < 0.5 < g.hi
+
+
+def test_iqm_by_hand():
+    # 8 values sorted: 0 .1 .2 .3 .4 .5 .6 1.0 -> drop 2 from each end -> mean(.2,.3,.4,.5) = .35
+    x = np.array([0.5, 0.1, 1.0, 0.3, 0.0, 0.6, 0.2, 0.4])
+    assert float(scoring.iqm(x)) == pytest.approx(0.35)
+
+
+def test_constant_cells_give_degenerate_interval():
+    rng = np.random.default_rng(1)
+    est = scoring.aggregate([np.ones(5), np.ones(3)], rng)
+    assert (est.value, est.lo, est.hi) == (1.0, 1.0, 1.0)
+
+
+def test_paired_gap_by_hand():
+    rng = np.random.default_rng(2)
+    ref = np.array([1, 1, 0, 1])
+    tgt = np.array([0, 1, 0, 0])  # differences 1, 0, 0, 1 -> 0.5
+    est = scoring.paired_gap(ref, tgt, rng)
+    assert est.value == pytest.approx(0.5)
+    assert 0.0 <= est.lo <= 0.5 <= est.hi <= 1.0
+    same = scoring.paired_gap(np.ones(6), np.zeros(6), rng)
+    assert (same.value, same.lo, same.hi) == (1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="differ in shape"):
+        scoring.paired_gap(np.ones(3), np.ones(4), rng)
+
+
+def test_bootstrap_interval_covers_truth_about_95_percent():
+    rng = np.random.default_rng(3)
+    hits = 0
+    reps = 200
+    for _ in range(reps):
+        cells = [rng.binomial(1, 0.5, size=40) for _ in range(4)]
+        est = scoring.aggregate(cells, rng, n_boot=500)
+        hits += est.lo <= 0.5 <= est.hi
+    assert 0.88 <= hits / reps <= 0.995
+
+
+def test_no_nan_anywhere():
+    rng = np.random.default_rng(4)
+    for est in (scoring.aggregate([], rng), scoring.gap([np.ones(2)], [], rng), scoring.paired_gap([], [], rng)):
+        d = est.to_dict()
+        assert d["value"] is None and d["reason"]
+        assert not any(isinstance(v, float) and math.isnan(v) for v in d.values())
