@@ -1,0 +1,141 @@
+"""`bench perf`: harness throughput against raw robosuite stepping, measured in one run.
+
+Two ratios, both printed with their raw figures:
+
+1. harness ÷ raw, one process: the same env (Lift on one arm), the same seeds and the
+   same action sequences (the random policy's, which depend only on the episode seed);
+   raw = `robosuite.make(...)` + soft reset + `env.step` in a bare loop; harness = the
+   runner's serial path (policy, agnostic observation, success check, record written,
+   flushed and fsynced). Both time steady state: each env is built and warmed first.
+2. 2 workers ÷ 1 worker: `bench.runner.execute` on the same jobs end to end
+   (worker start-up and env builds included), so the ratio is what a user gets.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench import config as config_mod
+from bench.errors import ConfigError
+
+
+def _jobs(suite, robot: str, episodes: int, seed: int):
+    from bench.run import RunConfig
+    from bench.suite import NOMINAL
+
+    cfg = config_mod.build(RunConfig, [f"robots=[{robot}]", f"episodes={episodes}", f"seed={seed}", "policy=random"])
+    return cfg, suite.jobs(cfg, [NOMINAL])
+
+
+def _ctx(suite, horizon: int):
+    from bench.provenance import package_versions
+    from bench.rollout import RunContext
+
+    return RunContext(run_id="perf", suite_version=suite.version, policy_id="random", checkpoint_sha256=None,
+                      versions=package_versions(), horizon=horizon, timeout_s=0)
+
+
+def harness_vs_raw(robot: str, episodes: int, horizon: int, seed: int) -> dict:
+    """Steps/s of the harness's serial path and of bare robosuite on identical work."""
+    from baselines.random_policy import RandomPolicy
+    from bench import registry, runner
+    from bench.records import RecordWriter
+    from bench.sim_robosuite import _quiet_robosuite
+
+    suite = registry.make_suite("held_out_robots")
+    cfg, jobs = _jobs(suite, robot, episodes, seed)
+    ctx = _ctx(suite, horizon)
+
+    # harness: runner's serial path, env built and warmed by one episode first
+    runner._init_worker("held_out_robots", "random", cfg, ctx)
+    runner._run_job(jobs[0])
+    env = runner._W["cache"][jobs[0].cell.key][0]
+    with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
+        t0 = time.perf_counter()
+        steps = 0
+        for job in jobs:
+            rec = runner._run_job(job)
+            writer.write(rec)
+            steps += rec.length
+        harness_s = time.perf_counter() - t0
+    low, high = env.action_low, env.action_high
+    runner._close_cache()
+
+    # raw robosuite: same kwargs, same seeds (env.rng + placement sampler), same action sequences
+    _quiet_robosuite()
+    import robosuite
+
+    raw = robosuite.make("Lift", robots=robot, has_renderer=False, has_offscreen_renderer=False,
+                         use_camera_obs=False, hard_reset=False, ignore_done=True, reward_shaping=True,
+                         horizon=horizon, seed=0)
+    policy = RandomPolicy(low, high)
+    actions = []
+    for job in jobs:
+        policy.reset(job.seed)
+        actions.append(np.stack([policy.act(None) for _ in range(horizon)]).astype(np.float64))
+    raw.reset()
+    for a in actions[0][:20]:
+        raw.step(a)  # warm-up
+    t0 = time.perf_counter()
+    raw_steps = 0
+    for job, acts in zip(jobs, actions):
+        raw.rng = np.random.default_rng(job.seed)
+        raw.placement_initializer.rng = raw.rng
+        raw.reset()
+        for a in acts:
+            raw.step(a)
+        raw_steps += len(acts)
+    raw_s = time.perf_counter() - t0
+    raw.close()
+    return {"harness_steps_per_s": steps / harness_s, "raw_steps_per_s": raw_steps / raw_s,
+            "ratio": (steps / harness_s) / (raw_steps / raw_s), "steps": steps}
+
+
+def workers_scaling(robot: str, episodes: int, horizon: int, seed: int, workers: int) -> dict:
+    """Env-steps/s end to end with 1 worker and with `workers` workers on the same jobs."""
+    from bench import registry
+    from bench.runner import execute
+
+    suite = registry.make_suite("held_out_robots")
+    cfg, jobs = _jobs(suite, robot, episodes, seed)
+    ctx = _ctx(suite, horizon)
+    out = {}
+    for w in (1, workers):
+        steps = []
+        t0 = time.perf_counter()
+        execute(jobs, suite_name="held_out_robots", policy_name="random", cfg=cfg, ctx=ctx, workers=w,
+                on_record=lambda r: steps.append(r.length))
+        out[w] = sum(steps) / (time.perf_counter() - t0)
+    return {"one_worker_steps_per_s": out[1], f"{workers}_workers_steps_per_s": out[workers],
+            "ratio": out[workers] / out[1]}
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] in ("-h", "--help"):
+        print("usage: bench perf [robot=Panda] [episodes=8] [horizon=250] [seed=0] [workers=2] [scaling_episodes=24]\n\n"
+              + __doc__)
+        return 0
+    from bench.config import parse_kv
+
+    positional, kv = parse_kv(argv)
+    allowed = {"robot", "episodes", "horizon", "seed", "workers", "scaling_episodes"}
+    bad = [k for k in kv if k not in allowed] + positional
+    if bad:
+        raise ConfigError(f"perf: unknown argument {bad[0]!r}; valid keys: {', '.join(sorted(allowed))}")
+    robot = str(kv.get("robot", "Panda"))
+    episodes, horizon = int(kv.get("episodes", 8)), int(kv.get("horizon", 250))
+    seed, workers = int(kv.get("seed", 0)), int(kv.get("workers", 2))
+    scaling_episodes = int(kv.get("scaling_episodes", 24))
+    print(f"machine: {os.cpu_count()} cores; robosuite Lift/{robot}, horizon {horizon}, random policy")
+    a = harness_vs_raw(robot, episodes, horizon, seed)
+    print(f"harness {a['harness_steps_per_s']:.1f} env-steps/s, raw robosuite {a['raw_steps_per_s']:.1f} env-steps/s "
+          f"({a['steps']} steps each): harness / raw = {a['ratio']:.3f}  (target >= 0.97)")
+    b = workers_scaling(robot, scaling_episodes, horizon, seed, workers)
+    print(f"1 worker {b['one_worker_steps_per_s']:.1f} env-steps/s, {workers} workers "
+          f"{b[f'{workers}_workers_steps_per_s']:.1f} env-steps/s ({scaling_episodes} episodes, start-up included): "
+          f"{workers} / 1 = {b['ratio']:.3f}  (target >= 1.8 on 2 cores)")
+    return 0
