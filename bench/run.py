@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from bench import config as config_mod
-from bench.errors import ConfigError
+from bench.errors import ConfigError, SplitError
 
 
 @dataclass(frozen=True)
@@ -134,6 +134,12 @@ def prepare(argv: list[str]):
     conditions = perturb.conditions_from_config(cfg.perturb)
     perturb.validate_run(suite, cells, conditions, cfg.horizon or suite.default_horizon)  # names in the model
     jobs = suite.jobs(cfg, conditions)
+    from bench.check import fast_check
+
+    problems = fast_check(suite, cells, jobs)
+    if problems and not cfg.allow_split_violation:
+        raise SplitError(f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={suite.name}` "
+                         "lists them; allow_split_violation=true runs anyway)")
     run_id = cfg.run_id or f"{suite.name}-{policy_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     cfg = dataclasses.replace(cfg, run_id=run_id, policy=policy_name)
     return dict(cfg=cfg, suite=suite, policy_name=policy_name, checkpoint_sha=checkpoint_sha, jobs=jobs,
