@@ -92,3 +92,13 @@ def test_record_writes_lerobot_dataset(tmp_path):
     assert ds.features["action"]["names"][-1] == "gripper"
     # an existing dataset is never overwritten
     assert _run(tmp_path, "rec2", f"record={out}") == 2
+
+    # policy on logs: the expert that produced the log reproduces its actions; random does not
+    from bench.policy_on_logs import ActionsConfig, evaluate
+
+    same = evaluate(ActionsConfig(logs=str(out), policy="scripted"))
+    assert same["episodes"] == 2 and same["frames"] == 500
+    assert all(d["mae"]["value"] < 1e-6 for d in same["per_dim"])
+    rand = evaluate(ActionsConfig(logs=str(out), policy="random"))
+    grip = next(d for d in rand["per_dim"] if d["dim"] == "gripper")
+    assert grip["mae"]["value"] > 0.3 and grip["mae"]["ci"][0] > 0.1

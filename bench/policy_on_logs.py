@@ -1,0 +1,158 @@
+"""`bench actions`: a policy fed logged observations, its actions compared with the logged ones.
+
+For each episode of a LeRobot v3 dataset the policy is reset, then given the logged
+`observation.state` frame by frame (open loop: the log, not the policy, decides what
+happens next); its action is compared with the logged `action`. Reported per action
+dimension: mean absolute error and RMSE, each with a bootstrap interval that resamples
+whole episodes (frames within an episode are not independent).
+
+The policy is made exactly as `bench run` makes it, for the suite cell named by the
+episode's task string (datasets written by `bench run record=` use the cell key, e.g.
+`Lift/Panda/default`), so checkpoints and scripted experts are checked against the same
+observation layout: the dataset's observation names must match the env's.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from bench import config as config_mod
+from bench.errors import ConfigError, DataError
+
+
+@dataclass(frozen=True)
+class ActionsConfig:
+    """Keys of `bench actions`."""
+
+    logs: Optional[str] = None        # LeRobot v3 dataset folder
+    policy: str = "scripted"          # registered policy name
+    checkpoint: Optional[str] = None  # for policy=checkpoint
+    suite: str = "held_out_robots"    # suite whose cells name the episodes' tasks
+    episodes: Optional[list[int]] = None  # only these episode indices
+    seed: int = 0                     # bootstrap seed
+    n_boot: int = 2000                # bootstrap resamples (over episodes)
+    confidence: float = 0.95          # interval level
+    out: Optional[str] = None         # write the JSON result here
+
+
+def _expand(obs_names: list[tuple[str, int]]) -> list[str]:
+    return [n if w == 1 else f"{n}_{i}" for n, w in obs_names for i in range(w)]
+
+
+def _bootstrap(per_episode: np.ndarray, weights: np.ndarray, rng, n_boot: int, conf: float):
+    """Frame-weighted mean over episodes with an episode-level bootstrap interval: (value, lo, hi) per dim."""
+    value = (per_episode * weights[:, None]).sum(0) / weights.sum()
+    if len(per_episode) < 2:
+        return value, None, None
+    idx = rng.integers(0, len(per_episode), size=(n_boot, len(per_episode)))
+    w = weights[idx]
+    boot = (per_episode[idx] * w[..., None]).sum(1) / w.sum(1)[:, None]
+    a = (1 - conf) / 2
+    return value, np.quantile(boot, a, axis=0), np.quantile(boot, 1 - a, axis=0)
+
+
+def evaluate(cfg: ActionsConfig) -> dict:
+    """Action errors of `cfg.policy` on the logged observations of `cfg.logs`."""
+    from bench import registry
+    from bench.logs import read_dataset
+
+    ds = read_dataset(cfg.logs)
+    for feat in ("observation.state", "action"):
+        if feat not in ds.features:
+            raise DataError(f"{cfg.logs}: feature {feat!r} missing; bench actions needs observation.state and action")
+    suite = registry.make_suite(cfg.suite)
+    factory = registry.policy_factory(cfg.policy)
+    cells = {c.key: c for c in suite.all_cells()}
+    episodes = ds.episodes if cfg.episodes is None else [e for e in ds.episodes if e.index in set(cfg.episodes)]
+    if not episodes:
+        raise ConfigError(f"episodes={cfg.episodes}: none of these indices is in {cfg.logs}")
+    built: dict[str, tuple] = {}
+    mae, mse, frames = [], [], []
+    action_names = ds.features["action"].get("names")
+    try:
+        for ep in episodes:
+            key = ep.tasks[0] if ep.tasks else ""
+            if key not in cells:
+                raise DataError(f"{cfg.logs}: episode {ep.index} task {key!r} is not a cell of suite {cfg.suite!r}; "
+                                f"valid: {', '.join(sorted(cells))}")
+            if key not in built:
+                env = suite.make_env(cells[key], suite.default_horizon)
+                names = ds.features["observation.state"].get("names")
+                if names and list(names) != _expand(env.obs_names):
+                    raise DataError(f"{cfg.logs}: observation.state names do not match suite {cfg.suite!r}'s "
+                                    f"observation ({names[:3]}... vs {_expand(env.obs_names)[:3]}...)")
+                built[key] = (env, factory(cells[key], env, cfg))
+            env, policy = built[key]
+            obs, act = ep.data["observation.state"], ep.data["action"]
+            policy.reset(int(ep.meta.get("seed", 0)) if isinstance(ep.meta, dict) else 0)
+            pred = np.stack([np.asarray(policy.act(o), np.float64) for o in obs])
+            if pred.shape != act.shape:
+                raise DataError(f"{cfg.logs}: policy actions have shape {pred.shape[1:]}, logged {act.shape[1:]}")
+            err = pred - act
+            mae.append(np.abs(err).mean(0))
+            mse.append((err ** 2).mean(0))
+            frames.append(len(obs))
+    finally:
+        for env, _ in built.values():
+            env.close()
+    rng = np.random.default_rng(cfg.seed)
+    w = np.asarray(frames, float)
+    m, mlo, mhi = _bootstrap(np.array(mae), w, rng, cfg.n_boot, cfg.confidence)
+    s, slo, shi = _bootstrap(np.array(mse), w, rng, cfg.n_boot, cfg.confidence)
+    dims = action_names or [f"a{i}" for i in range(len(m))]
+    per_dim = []
+    for i, name in enumerate(dims):
+        per_dim.append({
+            "dim": name,
+            "mae": {"value": float(m[i]), "ci": None if mlo is None else [float(mlo[i]), float(mhi[i])]},
+            "rmse": {"value": float(np.sqrt(s[i])), "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))]},
+        })
+    reason = None if len(episodes) > 1 else "one episode: no interval"
+    return {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy, "checkpoint": cfg.checkpoint,
+            "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()), "confidence": cfg.confidence,
+            "interval": "bootstrap over episodes" if reason is None else reason, "per_dim": per_dim}
+
+
+HELP = """usage: bench actions logs=DIR [policy=scripted] [checkpoint=PATH] [suite=held_out_robots] [out=FILE]
+
+Policy on logs: feeds each episode's logged observation.state to the policy (open loop) and
+compares its actions with the logged action, per dimension: mean absolute error and RMSE with
+a bootstrap interval over episodes. Episodes name their suite cell in the task string
+(`Lift/Panda/default`, as `bench run record=` writes).
+keys: logs, policy, checkpoint, suite, episodes=[0,3], seed, n_boot, confidence, out
+"""
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] in ("-h", "--help"):
+        print(HELP)
+        return 0
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; use logs=DIR")
+    cfg: ActionsConfig = config_mod.build(ActionsConfig, overrides)
+    if not cfg.logs:
+        raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
+    result = evaluate(cfg)
+    from rich.console import Console
+    from rich.table import Table
+
+    conf = int(round(cfg.confidence * 100))
+    t = Table(title=f"policy {cfg.policy} on {result['episodes']} logged episodes ({result['frames']} frames)",
+              title_justify="left")
+    for col in ("action dim", f"MAE [{conf}% CI]", f"RMSE [{conf}% CI]"):
+        t.add_column(col)
+    fmt = lambda e: f"{e['value']:.4f}" + (f" [{e['ci'][0]:.4f}, {e['ci'][1]:.4f}]" if e["ci"] else "")  # noqa: E731
+    for row in result["per_dim"]:
+        t.add_row(row["dim"], fmt(row["mae"]), fmt(row["rmse"]))
+    Console().print(t)
+    if cfg.out:
+        from bench.summary import write_atomic
+
+        write_atomic(Path(cfg.out), result)
+        print(f"wrote {cfg.out}")
+    return 0
