@@ -135,12 +135,13 @@ def render(summary: dict[str, Any], console=None) -> None:
     conf = int(round(summary.get("confidence", 0.95) * 100))
     t = Table(title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
               title_justify="left")
-    for col in ("task", "robot", "split", "condition", "n", f"success once [{conf}% Wilson]",
-                f"success at end [{conf}% Wilson]", "err"):
+    show_env = len({c.get("env") for c in summary["cells"]}) > 1  # e.g. scenes: rows differ only by env
+    for col in ("task", "robot", *(("env",) if show_env else ()), "split", "condition", "n",
+                f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]", "err"):
         t.add_column(col, justify="right" if col in ("n", "err") else "left")
     for c in summary["cells"]:
-        t.add_row(c["task"], c["robot"], c["split"], c["condition"], str(c["n"]), _fmt(c["success_once"]),
-                  _fmt(c["success_at_end"]), str(c["errors"]) if c["errors"] else "")
+        t.add_row(c["task"], c["robot"], *((str(c.get("env")),) if show_env else ()), c["split"], c["condition"],
+                  str(c["n"]), _fmt(c["success_once"]), _fmt(c["success_at_end"]), str(c["errors"]) if c["errors"] else "")
     console.print(t)
     if summary["splits"]:
         a = Table(title=f"aggregates over nominal cells (mean of cell rates, {conf}% stratified bootstrap)",

@@ -1,0 +1,106 @@
+"""held_out_envs: Meta-World ML10 / ML45 — transfer to whole manipulation tasks the policy never saw.
+
+Two registered suites, one per Meta-World benchmark (a task that is held out in
+ML10 is a training task in ML45, so one suite holding both would not have a clean
+split):
+    held_out_envs       ML10: 10 training tasks seen, 5 test tasks unseen.
+    held_out_envs_ml45  ML45: 45 training tasks seen, 5 test tasks unseen.
+Select a subset with `tasks=[drawer-open-v3,...]` or `splits=[unseen]`.
+
+Task:
+    Meta-World v3 (3.1.1) single-task envs on the Sawyer arm, e.g. "drawer-open-v3".
+    Each episode draws the object and goal positions from the task's own reset
+    distribution, pinned by the episode seed (see `bench.sim_metaworld`).
+Split (Meta-World's own definitions; `bench.sim_metaworld.metaworld_manifest` reads them):
+    ML10  seen   = reach, push, pick-place, door-open, drawer-close,
+                   button-press-topdown, peg-insert-side, window-open, sweep, basketball
+          unseen = drawer-open, door-close, shelf-place, sweep-into, lever-pull
+    ML45  seen   = the other 45 v3 tasks
+          unseen = bin-picking, box-close, hand-insert, door-lock, door-unlock
+    Cells: task = env name, robot = "Sawyer", env = "ML10" / "ML45".
+Observation:
+    Meta-World's 39-D vector with the goal hidden (last 3 values zeroed), as in the
+    ML benchmarks: the policy must infer the task from the scene.
+Action:
+    4-D in [-1, 1]: hand position deltas (x, y, z) and gripper effort (+1 closes).
+Conditions:
+    nominal; perturbations via `perturb.*` act on the MuJoCo model.
+Success:
+    Meta-World's `info["success"]`: success_once = at any step, success_at_end = at
+    the last step; 500 steps (Meta-World's limit; `horizon=` may only shorten it).
+Metric:
+    success rate per task with Wilson intervals; mean over seen (train) and unseen
+    (test) tasks with a stratified bootstrap interval; transfer gap = seen - unseen.
+Reference policy:
+    `scripted` = Meta-World's own scripted policy per task, given the true goal
+    through its input only.
+"""
+from __future__ import annotations
+
+from bench.errors import ConfigError
+from bench.suite import Cell, Suite
+
+MAX_PATH_LENGTH = 500  # = bench.sim_metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
+
+# Meta-World 3.1.1's ML10_V3 / ML45_V3 (metaworld/env_dict.py), kept here so that listing the
+# suite does not import Meta-World; tests/test_held_out_envs.py checks them against the source.
+ML10 = {
+    "seen": ["reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-close-v3",
+             "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "sweep-v3", "basketball-v3"],
+    "unseen": ["drawer-open-v3", "door-close-v3", "shelf-place-v3", "sweep-into-v3", "lever-pull-v3"],
+}
+ML45 = {
+    "seen": [
+        "assembly-v3", "basketball-v3", "button-press-topdown-v3", "button-press-topdown-wall-v3",
+        "button-press-v3", "button-press-wall-v3", "coffee-button-v3", "coffee-pull-v3", "coffee-push-v3",
+        "dial-turn-v3", "disassemble-v3", "door-close-v3", "door-open-v3", "drawer-close-v3",
+        "drawer-open-v3", "faucet-open-v3", "faucet-close-v3", "hammer-v3", "handle-press-side-v3",
+        "handle-press-v3", "handle-pull-side-v3", "handle-pull-v3", "lever-pull-v3", "pick-place-wall-v3",
+        "pick-out-of-hole-v3", "push-back-v3", "pick-place-v3", "plate-slide-v3", "plate-slide-side-v3",
+        "plate-slide-back-v3", "plate-slide-back-side-v3", "peg-insert-side-v3", "peg-unplug-side-v3",
+        "soccer-v3", "stick-push-v3", "stick-pull-v3", "push-wall-v3", "push-v3", "reach-wall-v3",
+        "reach-v3", "shelf-place-v3", "sweep-into-v3", "sweep-v3", "window-open-v3", "window-close-v3",
+    ],
+    "unseen": ["bin-picking-v3", "box-close-v3", "hand-insert-v3", "door-lock-v3", "door-unlock-v3"],
+}
+
+
+class _MetaWorldSplit(Suite):
+    """Shared body of the Meta-World suites; subclasses set `benchmark` and `manifest`."""
+
+    benchmark: str = ""
+    version = "1"
+    reference_policy = "scripted"
+    default_horizon = MAX_PATH_LENGTH
+
+    def all_cells(self) -> list[Cell]:
+        split = self.manifest["tasks"]
+        return [Cell(self.name, t, "Sawyer", self.benchmark, side) for side in ("seen", "unseen") for t in split[side]]
+
+    def configure(self, cfg) -> None:
+        """Reject a horizon Meta-World cannot run (it raises on step 501); configs without one pass."""
+        horizon = getattr(cfg, "horizon", 0) or 0
+        if horizon > MAX_PATH_LENGTH:
+            raise ConfigError(f"horizon={horizon}: Meta-World episodes last at most {MAX_PATH_LENGTH} steps "
+                              f"(0 = the suite default, {MAX_PATH_LENGTH})")
+
+    def make_env(self, cell: Cell, horizon: int):
+        from bench.sim_metaworld import MetaWorldEnv
+
+        return MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
+
+
+class HeldOutEnvs(_MetaWorldSplit):
+    """Meta-World ML10: 10 training tasks seen, 5 test tasks held out (Sawyer, goal hidden)."""
+
+    name = "held_out_envs"
+    benchmark = "ML10"
+    manifest = {"tasks": ML10}
+
+
+class HeldOutEnvsML45(_MetaWorldSplit):
+    """Meta-World ML45: 45 training tasks seen, 5 test tasks held out (Sawyer, goal hidden)."""
+
+    name = "held_out_envs_ml45"
+    benchmark = "ML45"
+    manifest = {"tasks": ML45}
