@@ -61,6 +61,12 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         key = item.split("=", 1)[0]
         if "=" not in item or not key:
             raise ConfigError(f"argument {item!r} is not key=value; valid keys: {', '.join(_fields(schema))}")
+    keys = [item.split("=", 1)[0] for item in overrides]
+    for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
+        child = next((k for k in keys if k.startswith(key + ".")), None)
+        if child:
+            raise ConfigError(f"{key} is set to a value and also given the sub-key {child}; "
+                              f"give every part as a sub-key instead (e.g. {key}.levels=[...] {child}=...)")
     try:
         cfg = OmegaConf.structured(schema)
         if base:

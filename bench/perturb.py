@@ -3,27 +3,543 @@
 Contract used by `bench.rollout`: `apply(env, condition, rng) -> (stepper, params)`
 restores the env's nominal values, applies the condition with draws from `rng`
 (the episode's own generator) and returns the object to reset/step (the env, or
-a wrapper for interface axes) plus the sampled values to record.
+a wrapper for interface axes) plus the sampled values to record. It is called
+before the env's reset, so the initial state is the one the episode seed gives.
+
+Model axes edit the `mujoco.MjModel` (`env.model`), so one implementation serves
+every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJoCo, raw MJCF). Their
+levels are scales of the nominal values, which are cached once per env the first
+time `apply` sees it and restored before every episode: a reused env never
+drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
+observation noise and a slower control rate (action hold).
+
+Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
+    perturb.friction=[0.25,0.5,2]             level grid: one condition per level
+    perturb.friction=uniform(0.8,1.2)         domain randomisation: one condition, a draw per episode
+    perturb.mass=loguniform(0.5,2)            log-uniform draw
+    perturb.mass.levels=[0.5,2] perturb.mass.bodies=[cube_main]   dict form, with targets
+    perturb.mass.uniform=[0.8,1.2]            dict form of a range
 """
 from __future__ import annotations
 
-from typing import Any
+import math
+import re
+import weakref
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 
-from bench.errors import ConfigError
+from bench.errors import ConfigError, did_you_mean
 from bench.suite import NOMINAL, Condition
 
 
+@dataclass(frozen=True)
+class Axis:
+    """One perturbation axis: what it changes, its unit and the levels it accepts."""
+
+    name: str
+    kind: str                        # "model" (edits the MjModel) or "interface" (wraps the env)
+    unit: str                        # what a level means
+    doc: str
+    minimum: float = 0.0             # smallest valid level
+    strict: bool = False             # level must be > minimum (not >=)
+    integer: bool = False            # levels are whole numbers
+    targets: tuple[str, ...] = ()    # optional name lists: "bodies", "joints", "geoms", "actuators"
+
+
+AXES: dict[str, Axis] = {a.name: a for a in (
+    Axis("friction", "model", "scale of nominal",
+         "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
+         "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
+         targets=("geoms", "bodies")),
+    Axis("mass", "model", "scale of nominal",
+         "mass and inertia of the manipulated object's bodies (env.object_bodies) or of the named bodies",
+         strict=True, targets=("bodies",)),
+    Axis("link_mass", "model", "scale of nominal",
+         "mass and inertia of the robot's moving bodies (every moving body not in env.object_bodies) "
+         "or of the named bodies", strict=True, targets=("bodies",)),
+    Axis("damping", "model", "scale of nominal", "joint damping of the robot's joints or of the named joints",
+         targets=("joints",)),
+    Axis("armature", "model", "scale of nominal", "joint armature (rotor inertia) of the robot's joints or the named ones",
+         targets=("joints",)),
+    Axis("frictionloss", "model", "scale of nominal", "joint dry friction (frictionloss) of the robot's joints or the named ones",
+         targets=("joints",)),
+    Axis("gain", "model", "scale of nominal",
+         "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
+         "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
+         targets=("actuators",)),
+    Axis("gravity", "model", "scale of nominal", "the gravity vector (1 = nominal, 0 = weightless)"),
+    Axis("latency", "interface", "control steps",
+         "the env executes the action commanded this many control steps ago (neutral action at the start)",
+         integer=True),
+    Axis("action_noise", "interface", "std as a fraction of the action half-range",
+         "Gaussian noise added to every executed action, then clipped to the bounds"),
+    Axis("obs_noise", "interface", "std in observation units",
+         "Gaussian noise added to every observation the policy sees"),
+    Axis("action_hold", "interface", "control steps",
+         "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
+         minimum=1.0, integer=True),
+)}
+_HELP = {
+    "friction": "friction of every geom", "mass": "mass + inertia of the manipulated object",
+    "link_mass": "mass + inertia of the robot's links", "damping": "joint damping", "armature": "joint armature",
+    "frictionloss": "joint dry friction", "gain": "actuator gain (servo stiffness)", "gravity": "gravity vector",
+    "latency": "action delay", "action_noise": "Gaussian action noise", "obs_noise": "Gaussian observation noise",
+    "action_hold": "command held k steps (control rate / k)",
+}
+MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
+INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
+DISTRIBUTIONS = ("uniform", "loguniform")
+_SHORT = {"uniform": "U", "loguniform": "logU"}
+_CONST_AXES = ("mass", "link_mass", "armature")  # derived constants: need mj_setConst
+_FIELD = {"friction": "geom_friction", "mass": "body_mass", "link_mass": "body_mass", "damping": "dof_damping",
+          "armature": "dof_armature", "frictionloss": "dof_frictionloss", "gain": "actuator_gainprm"}
+_DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
+
+
+# -- command line -> conditions ------------------------------------------------------------
+def _num(axis: Axis, field: str, value: Any) -> float | int:
+    """A level as a number, checked against the axis' minimum and integrality."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        try:
+            value = float(str(value).strip())
+        except ValueError:
+            raise ConfigError(f"{field}: {value!r} is not a number; {axis.name} takes {axis.unit}") from None
+    value = float(value)
+    if not math.isfinite(value):
+        raise ConfigError(f"{field}: {value!r} is not finite")
+    bad = value <= axis.minimum if axis.strict else value < axis.minimum
+    if bad:
+        op = ">" if axis.strict else ">="
+        raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}")
+    if axis.integer and value != int(value):
+        raise ConfigError(f"{field}: {value:g} is not a whole number; {axis.name} is in {axis.unit}")
+    return int(value) if axis.integer else value
+
+
+def _range(axis: Axis, field: str, dist: str, bounds: Any) -> tuple[float, float]:
+    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2:
+        raise ConfigError(f"{field}: {dist} needs [low, high], got {bounds!r}")
+    lo, hi = (_num(axis, field, b) for b in bounds)
+    if lo > hi:
+        raise ConfigError(f"{field}: {dist}({lo:g},{hi:g}) has low > high")
+    if dist == "loguniform" and lo <= 0:
+        raise ConfigError(f"{field}: loguniform needs low > 0, got {lo:g}")
+    return lo, hi
+
+
+def _parse_dist(text: str) -> tuple[str, list[str]] | None:
+    m = _DIST_RE.match(text)
+    if not m:
+        return None
+    name = {"u": "uniform", "logu": "loguniform"}.get(m.group(1).lower(), m.group(1).lower())
+    return name, [m.group(2), m.group(3)]
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def _axis(name: str) -> Axis:
+    if name not in AXES:
+        raise ConfigError(f"perturb.{name}: unknown perturbation axis; valid: {', '.join(AXES)}.{did_you_mean(name, AXES)}")
+    return AXES[name]
+
+
+def _conditions_for(name: str, value: Any) -> list[Condition]:
+    axis = _axis(name)
+    field = f"perturb.{name}"
+    targets: dict[str, list[str]] = {}
+    levels: list[Any] = []
+    dists: list[tuple[str, Any, str]] = []
+    if isinstance(value, dict):
+        valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
+        for key, v in value.items():
+            if key not in valid_keys:
+                raise ConfigError(f"{field}.{key}: unknown key; valid: {', '.join(valid_keys)}.{did_you_mean(key, valid_keys)}")
+            if key == "levels":
+                levels.extend(v if isinstance(v, (list, tuple)) else [v])
+            elif key in DISTRIBUTIONS:
+                dists.append((key, v, f"{field}.{key}"))
+            else:
+                names = [v] if isinstance(v, str) else list(v or [])
+                if not names or not all(isinstance(n, str) and n for n in names):
+                    raise ConfigError(f"{field}.{key}: expected a list of names, got {v!r}")
+                targets[key] = names
+        if not levels and not dists:
+            raise ConfigError(f"{field}: give levels=[...] or a range ({'/'.join(DISTRIBUTIONS)}=[low,high])")
+    else:
+        levels = list(value) if isinstance(value, (list, tuple)) else [value]
+        if not levels:
+            raise ConfigError(f"{field}: empty list of levels")
+    grid: list[Any] = []
+    for lv in levels:
+        parsed = _parse_dist(lv) if isinstance(lv, str) else None
+        if parsed:
+            dists.append((parsed[0], parsed[1], field))
+        elif isinstance(lv, str) and "(" in lv:
+            raise ConfigError(f"{field}: cannot parse {lv!r}; write uniform(low,high) or loguniform(low,high)")
+        else:
+            grid.append(_num(axis, field, lv))
+    out: list[Condition] = []
+    for lv in dict.fromkeys(grid):  # unique, in the given order
+        spec = {"kind": "grid", "targets": targets}
+        out.append(Condition(name=f"{name}={_fmt(lv)}", axis=name, level=lv, spec=spec))
+    for dist, bounds, f in dists:
+        lo, hi = _range(axis, f, dist, bounds)
+        spec = {"kind": dist, "targets": targets}
+        out.append(Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec))
+    return out
+
+
 def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:
-    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level."""
-    if not perturb:
-        return [NOMINAL]
-    raise ConfigError(f"perturb: axes {sorted(perturb)} are not available yet")
+    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level.
+
+    A grid gives one condition per level ("friction=0.5"); a range gives one condition
+    whose value is drawn per episode ("friction~U(0.8,1.2)"). Raises ConfigError on an
+    unknown axis, a level out of range or a malformed range.
+    """
+    out = [NOMINAL]
+    seen: set[str] = set()
+    for name, value in (perturb or {}).items():
+        for cond in _conditions_for(str(name), value):
+            if cond.name not in seen:
+                seen.add(cond.name)
+                out.append(cond)
+    return out
+
+
+# -- names in the model --------------------------------------------------------------------
+def _names(model, objtype: str, count: int) -> list[str]:
+    import mujoco
+
+    kind = getattr(mujoco.mjtObj, f"mjOBJ_{objtype.upper()}")
+    return [mujoco.mj_id2name(model, kind, i) or "" for i in range(count)]
+
+
+def _moving_bodies(model) -> list[int]:
+    return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
+
+
+def _object_body_ids(env, model) -> list[int]:
+    names = list(getattr(env, "object_bodies", None) or [])
+    all_names = _names(model, "body", model.nbody)
+    return [all_names.index(n) for n in names if n in all_names]
+
+
+def _robot_body_ids(env, model) -> list[int]:
+    objects = set(_object_body_ids(env, model))
+    return [b for b in _moving_bodies(model) if b not in objects and model.body_mass[b] > 0]
+
+
+def _resolve(names: Sequence[str], valid: list[str], what: str, field: str, where: str) -> list[int]:
+    out = []
+    for n in names:
+        if n not in valid:
+            shown = [v for v in valid if v]
+            listing = ", ".join(shown[:15]) + (f", ... ({len(shown)} in all)" if len(shown) > 15 else "")
+            article = "an" if what[0] in "aeiou" else "a"
+            raise ConfigError(f"{field}: {n!r} is not {article} {what} of {where}; valid: {listing}.{did_you_mean(n, shown)}")
+        out.append(valid.index(n))
+    return out
+
+
+def targets(env, condition: Condition, where: str = "the env") -> np.ndarray:
+    """Indices (geoms, bodies, dofs or actuators) a model-axis condition edits in `env.model`.
+
+    Raises ConfigError when a named target does not exist or the default target set is empty.
+    """
+    model, axis = env.model, condition.axis
+    named = (condition.spec or {}).get("targets") or {}
+    field = f"perturb.{axis}"
+    if axis == "friction":
+        if not named:
+            return np.arange(model.ngeom)
+        ids: list[int] = []
+        if "geoms" in named:
+            ids += _resolve(named["geoms"], _names(model, "geom", model.ngeom), "geom", f"{field}.geoms", where)
+        if "bodies" in named:
+            bodies = set(_resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where))
+            ids += [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
+        return np.array(sorted(set(ids)), dtype=int)
+    if axis in ("mass", "link_mass"):
+        if "bodies" in named:
+            ids = _resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where)
+        elif axis == "mass":
+            ids = _object_body_ids(env, model)
+            if not ids:
+                raise ConfigError(f"{field}: {where} declares no manipulated object (env.object_bodies); "
+                                  f"name the bodies with {field}.bodies=[...]")
+        else:
+            ids = _robot_body_ids(env, model)
+        return np.array(ids, dtype=int)
+    if axis in ("damping", "armature", "frictionloss"):
+        if "joints" in named:
+            jids = _resolve(named["joints"], _names(model, "joint", model.njnt), "joint", f"{field}.joints", where)
+        else:
+            robot = set(_robot_body_ids(env, model))
+            jids = [j for j in range(model.njnt) if model.jnt_bodyid[j] in robot]
+        dofs = [d for d in range(model.nv) if model.dof_jntid[d] in set(jids)]
+        return np.array(dofs, dtype=int)
+    if axis == "gain":
+        if "actuators" in named:
+            return np.array(_resolve(named["actuators"], _names(model, "actuator", model.nu), "actuator",
+                                     f"{field}.actuators", where), dtype=int)
+        return np.arange(model.nu)
+    return np.arange(0)
+
+
+def validate(env, conditions: Sequence[Condition], where: str = "the env") -> None:
+    """Check `conditions` against a built env: a MuJoCo model for model axes, names that exist,
+    and targets whose nominal value is not zero (a scale of zero changes nothing).
+
+    Raises ConfigError (exit 2) with the field, the bad value and what is valid.
+    """
+    for cond in conditions:
+        if cond.axis not in MODEL_AXES:
+            continue
+        if getattr(env, "model", None) is None:
+            raise ConfigError(f"perturb.{cond.axis}: {where} ({getattr(env, 'backend', '?')}) has no MuJoCo model; "
+                              f"only interface axes work there: {', '.join(INTERFACE_AXES)}")
+        idx = targets(env, cond, where)
+        nominal = nominal_of(env)
+        values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, _FIELD[cond.axis])[idx]
+        if cond.axis == "gain":
+            values = values[:, 0]
+        if values.size == 0 or not np.any(values != 0):
+            raise ConfigError(f"perturb.{cond.axis}: the nominal {cond.axis} of every targeted element of {where} is 0 "
+                              f"({values.size} targeted), so scaling it changes nothing; target others or drop the axis")
+
+
+def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizon: int) -> None:
+    """Check model-axis conditions against real envs before a run writes anything.
+
+    Builds (then closes) the first cell's env, or every cell's when names are targeted
+    (names differ between robots). Nothing is built when only interface axes are used.
+    An env that cannot be built here is left to the workers, which record the error.
+    """
+    model_conds = [c for c in conditions if c.axis in MODEL_AXES]
+    if not model_conds or not cells:
+        return
+    named = any((c.spec or {}).get("targets") for c in model_conds)
+    for cell in (cells if named else cells[:1]):
+        try:
+            env = suite.make_env(cell, horizon)
+        except Exception:
+            continue
+        try:
+            validate(env, model_conds, where=getattr(cell, "key", str(cell)))
+        finally:
+            try:
+                env.close()
+            except Exception:
+                pass
+
+
+# -- nominal cache and model edits ---------------------------------------------------------
+class _Nominal:
+    """Copies of every model field a model axis edits, taken from an unperturbed model."""
+
+    FIELDS = ("geom_friction", "pair_friction", "body_mass", "body_inertia", "dof_damping", "dof_armature",
+              "dof_frictionloss", "actuator_gainprm", "actuator_biasprm")
+
+    def __init__(self, model):
+        self.model = model
+        for f in self.FIELDS:
+            setattr(self, f, np.array(getattr(model, f), copy=True))
+        self.gravity = np.array(model.opt.gravity, copy=True)
+        self.const_dirty = False  # derived constants computed from perturbed masses/armature
+
+    def restore(self) -> None:
+        m = self.model
+        for f in self.FIELDS:
+            getattr(m, f)[...] = getattr(self, f)
+        m.opt.gravity[:] = self.gravity
+
+
+_CACHE: "weakref.WeakKeyDictionary[Any, _Nominal]" = weakref.WeakKeyDictionary()
+_CACHE_BY_ID: dict[int, _Nominal] = {}  # envs that cannot be weakly referenced
+
+
+def nominal_of(env) -> _Nominal:
+    """The env's nominal model values, cached the first time they are asked for (and again if the
+    env's model object was replaced, e.g. by a hard reset that rebuilt it from XML)."""
+    try:
+        entry = _CACHE.get(env)
+    except TypeError:
+        entry = _CACHE_BY_ID.get(id(env))
+    if entry is None or entry.model is not env.model:
+        entry = _Nominal(env.model)
+        try:
+            _CACHE[env] = entry
+        except TypeError:
+            _CACHE_BY_ID[id(env)] = entry
+    return entry
+
+
+def _set_const(env) -> None:
+    """Recompute derived constants (body/dof inverse weights, subtree masses, ...) after mass or
+    armature edits, keeping the current state (mj_setConst overwrites it with qpos0)."""
+    import mujoco
+
+    m, d = env.model, env.data
+    if d is None:
+        return
+    qpos, qvel, act = d.qpos.copy(), d.qvel.copy(), d.act.copy()
+    mujoco.mj_setConst(m, d)
+    d.qpos[:], d.qvel[:], d.act[:] = qpos, qvel, act
+
+
+def _forward(env) -> None:
+    if hasattr(env, "sim_forward"):
+        env.sim_forward()
+    elif getattr(env, "data", None) is not None:
+        import mujoco
+
+        mujoco.mj_forward(env.model, env.data)
+
+
+def _scale_model(env, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
+    m = env.model
+    if axis == "friction":
+        m.geom_friction[idx] = nom.geom_friction[idx] * s
+        if m.npair and len(idx) == m.ngeom:  # explicit contact pairs override geom friction
+            m.pair_friction[:] = nom.pair_friction * s
+    elif axis in ("mass", "link_mass"):
+        m.body_mass[idx] = nom.body_mass[idx] * s
+        m.body_inertia[idx] = nom.body_inertia[idx] * s  # same shape, scaled density
+    elif axis == "damping":
+        m.dof_damping[idx] = nom.dof_damping[idx] * s
+    elif axis == "armature":
+        m.dof_armature[idx] = nom.dof_armature[idx] * s
+    elif axis == "frictionloss":
+        m.dof_frictionloss[idx] = nom.dof_frictionloss[idx] * s
+    elif axis == "gain":
+        g0 = nom.actuator_gainprm[idx, 0]
+        m.actuator_gainprm[idx, 0] = g0 * s
+        for k in (1, 2):  # position servo: biasprm[1] = -kp; velocity servo: biasprm[2] = -kv
+            mirror = np.isclose(nom.actuator_biasprm[idx, k], -g0) & (g0 != 0)
+            m.actuator_biasprm[idx[mirror], k] = nom.actuator_biasprm[idx[mirror], k] * s
+    elif axis == "gravity":
+        m.opt.gravity[:] = nom.gravity * s
+
+
+def _draw(condition: Condition, rng: np.random.Generator) -> float:
+    kind = (condition.spec or {}).get("kind", "grid")
+    if kind == "grid":
+        return condition.level
+    lo, hi = condition.level
+    axis = AXES[condition.axis]
+    if axis.integer:
+        return int(rng.integers(int(lo), int(hi) + 1))
+    if kind == "loguniform":
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    return float(rng.uniform(lo, hi))
 
 
 def apply(env, condition: Condition, rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
-    """Apply `condition` to `env` for one episode (nominal: leave it as built)."""
+    """Apply `condition` to `env` for one episode; call before the env's reset.
+
+    Restores the nominal model first (the env may have run another condition), draws
+    the episode's value from `rng` for a range, and returns `(stepper, params)`:
+    the env itself for model axes and nominal, an `Interface` wrapper for interface
+    axes; `params` = {axis: value applied} for the episode record.
+    """
+    has_model = getattr(env, "model", None) is not None
+    nom = nominal_of(env) if has_model else None
+    if nom is not None:
+        nom.restore()
     if condition.axis is None:
+        if nom is not None and nom.const_dirty:
+            _set_const(env)
+            nom.const_dirty = False
+            _forward(env)
         return env, {}
-    raise NotImplementedError(f"perturbation axis {condition.axis!r} is not available yet")
+    axis = _axis(condition.axis)
+    value = _draw(condition, rng)
+    params = {axis.name: value}
+    if axis.kind == "interface":
+        if nom is not None and nom.const_dirty:
+            _set_const(env)
+            nom.const_dirty = False
+            _forward(env)
+        kw = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
+        kw[axis.name] = value
+        return Interface(env, rng, **kw), params
+    if not has_model:
+        raise ConfigError(f"perturb.{axis.name}: env {getattr(env, 'backend', '?')} has no MuJoCo model")
+    idx = targets(env, condition)
+    _scale_model(env, nom, axis.name, idx, float(value))
+    if axis.name in _CONST_AXES or nom.const_dirty:
+        _set_const(env)
+    nom.const_dirty = axis.name in _CONST_AXES
+    _forward(env)
+    return env, params
+
+
+# -- interface axes --------------------------------------------------------------------------
+class Interface:
+    """The env seen through a perturbed interface: command hold, latency, action and observation noise.
+
+    Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
+    delayed by `latency` steps (the queue starts with the neutral action: zeros clipped to
+    the bounds), perturbed by Gaussian noise with std `action_noise` x half-range and
+    clipped to the bounds; observations get Gaussian noise with std `obs_noise`. All draws
+    come from the episode's generator.
+    """
+
+    def __init__(self, env, rng: np.random.Generator, latency: int = 0, action_noise: float = 0.0,
+                 obs_noise: float = 0.0, action_hold: int = 1):
+        self.env, self.rng = env, rng
+        self.latency, self.action_noise = int(latency), float(action_noise)
+        self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))
+        self.low = np.asarray(env.action_low, dtype=np.float64)
+        self.high = np.asarray(env.action_high, dtype=np.float64)
+        half = (self.high - self.low) / 2.0
+        self._half = np.where(np.isfinite(half), half, 1.0)
+        self.neutral = np.clip(np.zeros_like(self.low), self.low, self.high)
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._queue: deque = deque([self.neutral.copy() for _ in range(self.latency)])
+        self._held = self.neutral.copy()
+        self._t = 0
+
+    def _obs(self, obs: np.ndarray) -> np.ndarray:
+        if self.obs_noise <= 0:
+            return obs
+        noisy = obs + self.rng.normal(0.0, self.obs_noise, size=np.shape(obs))
+        return noisy.astype(np.asarray(obs).dtype, copy=False)
+
+    def reset(self, seed: int) -> np.ndarray:
+        self._reset_state()
+        return self._obs(self.env.reset(seed))
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+        if self._t % self.action_hold == 0:
+            self._held = np.asarray(action, dtype=np.float64).copy()
+        self._t += 1
+        self._queue.append(self._held)
+        executed = self._queue.popleft()
+        if self.action_noise > 0:
+            executed = executed + self.rng.normal(0.0, 1.0, size=executed.shape) * self.action_noise * self._half
+            executed = np.clip(executed, self.low, self.high)
+        obs, reward, done, info = self.env.step(executed.astype(np.float32))
+        return self._obs(obs), reward, done, info
+
+    def init_state(self) -> np.ndarray:
+        return self.env.init_state()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def axes_help() -> str:
+    """One line per axis (name, unit, what it changes, optional targets) for `bench run --help`."""
+    rows = []
+    for a in AXES.values():
+        tgt = f" [targets: {', '.join(a.targets)}]" if a.targets else ""
+        rows.append(f"  {a.name:<13} {_HELP[a.name]} ({a.unit}){tgt}")
+    return "\n".join(rows)

@@ -1,0 +1,109 @@
+"""Gymnasium adapter: any registered env id behind the `bench.env.Env` contract.
+
+Observations are flattened to one float32 vector (`gymnasium.spaces.flatten`; a Dict
+space keeps one named field per key). Box actions are flattened the same way. A
+Discrete(n) action is one number in [start - 0.5, start + n - 0.5] rounded to the
+nearest integer, so a policy that samples uniformly within the bounds picks every
+action with equal probability (MultiDiscrete: the same per dimension).
+`reset(seed)` passes the seed to Gymnasium's `reset(seed=...)`, which reseeds the
+env's generator and so fixes the initial state. Success is `info["success"]` or
+`info["is_success"]` when the env reports one, else False (most control tasks
+have no success predicate; their score is the return). MuJoCo-backed envs expose
+`env.unwrapped.model` / `.data`, so the model perturbation axes work on them.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class GymEnv:
+    """One Gymnasium env, built once and reset with a seed per episode."""
+
+    def __init__(self, env_id: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
+        import gymnasium as gym
+        from gymnasium import spaces
+
+        self.env_id, self.horizon = env_id, int(horizon)
+        self._env = gym.make(env_id, max_episode_steps=self.horizon, disable_env_checker=True, **(env_kwargs or {}))
+        self._spaces = spaces
+        obs_space, act_space = self._env.observation_space, self._env.action_space
+        self._obs_space = obs_space
+        if isinstance(obs_space, spaces.Dict):
+            self.obs_names = [(str(k), int(spaces.flatdim(s))) for k, s in obs_space.spaces.items()]
+        else:
+            self.obs_names = [("obs", int(spaces.flatdim(obs_space)))]
+        self._act_space = act_space
+        if isinstance(act_space, spaces.Box):
+            self.action_low = np.asarray(act_space.low, np.float32).ravel()
+            self.action_high = np.asarray(act_space.high, np.float32).ravel()
+            self.action_names = [f"a{i}" for i in range(self.action_low.size)]
+        elif isinstance(act_space, spaces.Discrete):
+            start, n = int(act_space.start), int(act_space.n)
+            self.action_low = np.array([start - 0.5], np.float32)
+            self.action_high = np.array([start + n - 0.5], np.float32)
+            self.action_names = ["action"]
+        elif isinstance(act_space, spaces.MultiDiscrete):
+            nvec = np.asarray(act_space.nvec).ravel()
+            start = np.asarray(getattr(act_space, "start", np.zeros_like(nvec))).ravel()
+            self.action_low = (start - 0.5).astype(np.float32)
+            self.action_high = (start + nvec - 0.5).astype(np.float32)
+            self.action_names = [f"a{i}" for i in range(nvec.size)]
+        else:
+            self._env.close()
+            raise ValueError(f"{env_id}: action space {type(act_space).__name__} is not supported "
+                             "(Box, Discrete, MultiDiscrete are)")
+        unwrapped = self._env.unwrapped
+        self.model = getattr(unwrapped, "model", None)
+        self.data = getattr(unwrapped, "data", None)
+        try:
+            import mujoco
+
+            if not isinstance(self.model, mujoco.MjModel) or not isinstance(self.data, mujoco.MjData):
+                self.model = self.data = None
+        except ImportError:
+            self.model = self.data = None
+        self.object_bodies: list[str] = []  # a Gymnasium env declares no manipulated object
+        self.backend = f"gymnasium-{gym.__version__}"
+        if self.model is not None:
+            import mujoco
+
+            self.backend += f"/mujoco-{mujoco.__version__}"
+        self._init_state = np.zeros(0)
+
+    def _flat_obs(self, obs: Any) -> np.ndarray:
+        return np.asarray(self._spaces.flatten(self._obs_space, obs), dtype=np.float32).ravel()
+
+    def _action(self, action: np.ndarray) -> Any:
+        a = np.asarray(action, dtype=np.float64).ravel()
+        space = self._act_space
+        if isinstance(space, self._spaces.Box):
+            return np.clip(a, self.action_low, self.action_high).astype(space.dtype).reshape(space.shape)
+        rounded = np.clip(np.rint(a), self.action_low + 0.5, self.action_high - 0.5).astype(np.int64)
+        if isinstance(space, self._spaces.Discrete):
+            return int(rounded[0])
+        return rounded.reshape(space.shape)
+
+    def _state(self, obs: np.ndarray) -> np.ndarray:
+        if self.data is not None:
+            return np.concatenate([self.data.qpos, self.data.qvel]).copy()
+        return np.asarray(obs, dtype=np.float64).copy()
+
+    def reset(self, seed: int) -> np.ndarray:
+        obs, _ = self._env.reset(seed=int(seed))
+        flat = self._flat_obs(obs)
+        self._init_state = self._state(flat)
+        return flat
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+        obs, reward, terminated, truncated, info = self._env.step(self._action(action))
+        info = dict(info)
+        info["success"] = bool(info.get("success", info.get("is_success", False)))
+        return self._flat_obs(obs), float(reward), bool(terminated or truncated), info
+
+    def init_state(self) -> np.ndarray:
+        return self._init_state
+
+    def close(self) -> None:
+        self._env.close()
