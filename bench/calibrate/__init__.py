@@ -1,0 +1,12 @@
+"""Real2Sim calibration: fit a MuJoCo model to logs, trace the residual to missing effects, report.
+
+Entry points: `load_spec`; `bench.calibrate.trace.run` (the loop, on arrays of shape (T, n));
+`bench.calibrate.report.write_report`; the CLI `bench calibrate spec=SPEC logs=DIR out=DIR`.
+Modules: spec -> data -> model (+ effects) -> simulate -> fit -> signature -> trace -> report;
+generate writes synthetic cases. See docs/calibration.md.
+"""
+from __future__ import annotations
+
+from bench.calibrate.spec import CalibrationSpec, load_spec, parse_spec
+
+__all__ = ["CalibrationSpec", "load_spec", "parse_spec"]

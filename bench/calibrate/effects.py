@@ -1,0 +1,282 @@
+"""The library of physical effects a declared model may be missing.
+
+Every effect is *nested*: with its amplitude parameters at zero the model is exactly the declared
+one, so switching an effect on from zero is a small, well-defined change (its signature). Each effect
+attaches to one target (a joint, an actuator or a body) and is realised in the simulation itself:
+
+- through `MjModel` fields where MuJoCo has one (friction loss, damping, stiffness, armature,
+  body mass, actuator gain), so `mujoco.rollout` runs them at full speed;
+- through the applied command where the effect acts on the drive (delay, deadband, saturation),
+  transformed before the rollout at the simulator's substep resolution;
+- through `qfrc_applied` for generalised forces (bias, a known extra input, the offset part of
+  asymmetric friction), constant or precomputed;
+- only the Stribeck excess depends on the simulated velocity: it is added to `qfrc_applied` at
+  every substep in a stepped rollout (see `bench.calibrate.simulate`).
+
+Bounds are scaled to the system from the logs (`Scales`), so one library serves a 1 kg arm and a
+95 kg carriage; a spec can override them per effect.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Scales:
+    """Typical magnitudes of the system, per dof / actuator, used to bound the effects."""
+
+    force: np.ndarray  # (nv,) typical actuator force on each dof [N or N·m]
+    vel: np.ndarray  # (nv,) velocity spread [m/s or rad/s]
+    half_range: np.ndarray  # (nv,) half the position range
+    inertia: np.ndarray  # (nv,) diagonal of the mass matrix at the logged mean pose
+    ctrl_gain: np.ndarray  # (nu,) force per unit command (gear x gain)
+    ctrl_max: np.ndarray  # (nu,) largest |command| in the logs
+    ctrl_sorted: tuple[np.ndarray, ...]  # per actuator, |command| of every logged frame, sorted
+    input_max: np.ndarray  # (m,) largest |extra input| in the logs
+    mass: float  # total mass of the model [kg]
+    dt: float  # log frame period [s]
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where an effect attaches: a joint (its dof), an actuator (and the dof it drives) or a body."""
+
+    kind: str  # "joint" | "actuator" | "body"
+    name: str
+    index: int  # joint / actuator / body id
+    dof: int = -1  # dof driven (joints and actuators)
+    joint: str = ""  # name of that dof's joint
+    input: int = -1  # extra-input column (input_channel)
+    input_name: str = ""
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}<-{self.input_name}" if self.input >= 0 else self.name
+
+
+class Builder(Protocol):
+    """What an effect may change while a parameter vector is realised (see `bench.calibrate.model`)."""
+
+    model: object
+
+    def add_qfrc(self, dof: int, value: float) -> None: ...
+    def add_input(self, col: int, dof: int, gain: float) -> None: ...
+    def add_stribeck(self, dof: int, fs: float, vs: float) -> None: ...
+    def ctrl_op(self, kind: str, act: int, value: float) -> None: ...
+    def mark_setconst(self) -> None: ...
+
+
+Bounds = list[tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One family of the library: its parameters, bounds, realisation and the families it extends."""
+
+    name: str
+    kind: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    bounds: Callable[[Scales, Target], Bounds]
+    apply: Callable[[Builder, Target, np.ndarray, Scales], None]
+    doc: str
+    fields: tuple[str, ...] = ()  # MjModel fields edited on the target (a declared free field excludes it)
+    shape: tuple[float, ...] = ()  # start values of non-nested (shape) params, as a share of their upper bound
+    # families this one generalises: lift their parameters to ours, and the contrast (weights on our
+    # parameters) that must differ from zero for the generalisation to be worth it
+    extends: dict[str, Callable[[np.ndarray, Bounds], np.ndarray]] = field(default_factory=dict)
+    contrast: tuple[float, ...] = ()
+    threshold: bool = False  # shows only beyond a threshold: its signature is also taken at a large step
+    report: Callable[[np.ndarray, Scales, Target], dict[str, float]] | None = None
+
+    @property
+    def n_nested(self) -> int:
+        """Amplitude parameters (zero = absent) come first; shape parameters follow."""
+        return len(self.params) - len(self.shape)
+
+    def start(self, bounds: Bounds) -> np.ndarray:
+        """Parameter vector with the effect switched off (nested params zero, shape params at their start)."""
+        x = np.zeros(len(self.params))
+        for i, share in enumerate(self.shape):
+            lo, hi = bounds[self.n_nested + i]
+            x[self.n_nested + i] = lo + share * (hi - lo)
+        return x
+
+    def physical(self, x: np.ndarray, scales: Scales, target: Target) -> dict[str, float]:
+        """The parameters as reported (physical units), e.g. a saturation's force limit."""
+        if self.report is not None:
+            return self.report(x, scales, target)
+        return {p: float(v) for p, v in zip(self.params, x)}
+
+
+# --- primitive transforms shared by the calibration rollouts and the data generator -------------
+
+def deadband(u: np.ndarray, width: np.ndarray | float) -> np.ndarray:
+    """Command with a dead band of half-width `width` around zero (lost motion of a drive with play)."""
+    return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
+
+
+def saturate(u: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
+    """Command clipped to +-limit (torque saturation of the drive)."""
+    return np.clip(u, -limit, limit)
+
+
+def stribeck_force(v: np.ndarray, fs: np.ndarray | float, vs: np.ndarray | float) -> np.ndarray:
+    """Generalised force that turns a friction loss of fc + fs into the Stribeck curve.
+
+    MuJoCo's friction loss supplies the static level fc + fs (and true sticking); this force gives
+    back fs * (1 - exp(-(v/vs)^2)) once sliding, so the kinetic friction falls to fc. It is
+    continuous at v = 0, which keeps finite differences and the integrator well behaved.
+    """
+    return fs * (1.0 - np.exp(-np.square(v / vs))) * np.sign(v)
+
+
+# --- bounds and realisations ---------------------------------------------------------------------
+
+def _f(s: Scales, t: Target) -> float:
+    return float(s.force[t.dof])
+
+
+def _apply_coulomb(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.dof_frictionloss[t.dof] += x[0]
+
+
+def _apply_asymmetric(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    # friction -F+ when moving forward, +F- backward = symmetric (F+ + F-)/2 plus a constant offset;
+    # at rest the friction loss holds any force in [-F-, F+], exactly as the asymmetric law says.
+    b.model.dof_frictionloss[t.dof] += 0.5 * (x[0] + x[1])
+    b.add_qfrc(t.dof, -0.5 * (x[0] - x[1]))
+
+
+def _apply_stribeck(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.dof_frictionloss[t.dof] += x[0] + x[1]
+    b.add_stribeck(t.dof, x[1], x[2])
+
+
+def _apply_viscous(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.dof_damping[t.dof] += x[0]
+
+
+def _apply_armature(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.dof_armature[t.dof] += x[0]
+    b.mark_setconst()
+
+
+def _apply_spring(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.jnt_stiffness[t.index] += x[0]
+
+
+def _apply_payload(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    # a point mass at the body's centre of mass: mass grows, inertia about the COM does not
+    b.model.body_mass[t.index] += x[0]
+    b.mark_setconst()
+
+
+def _apply_gain(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.model.actuator_gainprm[t.index, 0] *= 1.0 + x[0]
+
+
+def _apply_bias(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.add_qfrc(t.dof, x[0])
+
+
+def _apply_input(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.add_input(t.input, t.dof, x[0])
+
+
+def _apply_delay(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.ctrl_op("delay", t.index, x[0])
+
+
+def _apply_deadband(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.ctrl_op("deadband", t.index, x[0] / s.ctrl_gain[t.index])
+
+
+def saturation_limit(share: float, s: Scales, act: int) -> float:
+    """Command limit that clips `share` of the logged commands (a quantile of |command|; share 0 = max)."""
+    u = s.ctrl_sorted[act]
+    return float(np.interp(1.0 - share, np.linspace(0.0, 1.0, len(u)), u))
+
+
+def _apply_saturation(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.ctrl_op("saturation", t.index, saturation_limit(float(x[0]), s, t.index))
+
+
+def _report_saturation(x: np.ndarray, s: Scales, t: Target) -> dict[str, float]:
+    return {"limit": saturation_limit(float(x[0]), s, t.index) * float(s.ctrl_gain[t.index]),
+            "clipped_share": float(x[0])}
+
+
+def _input_gain_max(s: Scales, t: Target) -> float:
+    return _f(s, t) / max(float(s.input_max[t.input]), 1e-12)
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in [
+    Effect("coulomb_friction", "joint", ("friction",), ("N·m|N",),
+           lambda s, t: [(0.0, 0.5 * _f(s, t))], _apply_coulomb,
+           "dry friction of constant magnitude opposing motion (MuJoCo friction loss)",
+           fields=("dof_frictionloss",)),
+    Effect("asymmetric_friction", "joint", ("friction_pos", "friction_neg"), ("N·m|N", "N·m|N"),
+           lambda s, t: [(0.0, 0.5 * _f(s, t))] * 2, _apply_asymmetric,
+           "dry friction whose magnitude depends on the direction of motion",
+           fields=("dof_frictionloss",),
+           extends={"coulomb_friction": lambda x, b: np.array([x[0], x[0]])}, contrast=(1.0, -1.0)),
+    Effect("stribeck_friction", "joint", ("friction", "static_excess", "stribeck_velocity"),
+           ("N·m|N", "N·m|N", "rad/s|m/s"),
+           lambda s, t: [(0.0, 0.5 * _f(s, t)), (0.0, 0.5 * _f(s, t)),
+                         (0.01 * float(s.vel[t.dof]), 1.0 * float(s.vel[t.dof]))],
+           _apply_stribeck,
+           "dry friction that is higher at rest and falls to its kinetic level above the Stribeck velocity",
+           fields=("dof_frictionloss",), shape=(0.15,),
+           extends={"coulomb_friction": lambda x, b: np.array([x[0], 0.0, b[2][0] + 0.15 * (b[2][1] - b[2][0])])},
+           contrast=(0.0, 1.0, 0.0)),
+    Effect("viscous_damping", "joint", ("damping",), ("N·m·s/rad|N·s/m",),
+           lambda s, t: [(0.0, _f(s, t) / max(float(s.vel[t.dof]), 1e-9))], _apply_viscous,
+           "force proportional to velocity (MuJoCo dof damping)", fields=("dof_damping",)),
+    Effect("armature", "joint", ("armature",), ("kg·m²|kg",),
+           lambda s, t: [(0.0, 2.0 * float(s.inertia[t.dof]))], _apply_armature,
+           "reflected rotor inertia added to the joint (MuJoCo armature)", fields=("dof_armature",)),
+    Effect("actuator_delay", "actuator", ("delay",), ("s",),
+           lambda s, t: [(0.0, max(0.1, 10 * s.dt))], _apply_delay,
+           "transport delay between the logged command and the force applied"),
+    Effect("torque_saturation", "actuator", ("clipped_share",), ("1",),
+           lambda s, t: [(0.0, 0.9)], _apply_saturation,
+           "drive force clipped at a limit (parameter: the share of logged commands above it; 0 = no clipping)",
+           report=_report_saturation, threshold=True),
+    Effect("backlash", "actuator", ("deadband",), ("N·m|N",),
+           lambda s, t: [(0.0, 0.25 * _f(s, t))], _apply_deadband,
+           "dead band on the drive force: play in the transmission that absorbs small commands", threshold=True),
+    Effect("payload_mass", "body", ("mass",), ("kg",),
+           lambda s, t: [(0.0, max(s.mass, 1e-3))], _apply_payload,
+           "extra point mass at the body's centre of mass", fields=("body_mass",)),
+    Effect("joint_spring", "joint", ("stiffness",), ("N·m/rad|N/m",),
+           lambda s, t: [(0.0, _f(s, t) / max(float(s.half_range[t.dof]), 1e-6))], _apply_spring,
+           "spring towards the model's reference pose (cables, gravity compensators)", fields=("jnt_stiffness",)),
+    Effect("actuator_gain", "actuator", ("gain_error",), ("1",),
+           lambda s, t: [(-0.5, 0.5)], _apply_gain,
+           "relative error of the drive gain (force = (1 + e) x nominal)", fields=("actuator_gainprm",)),
+    Effect("bias", "joint", ("force",), ("N·m|N",),
+           lambda s, t: [(-0.5 * _f(s, t), 0.5 * _f(s, t))], _apply_bias,
+           "constant generalised force (offset of the drive or of the force measurement)"),
+    Effect("input_channel", "joint", ("gain",), ("(N·m|N) per input unit",),
+           lambda s, t: [(-_input_gain_max(s, t), _input_gain_max(s, t))], _apply_input,
+           "a known extra logged signal acting on the joint with an unknown gain"),
+]}
+
+# two families on one target that together are exactly a third: (a, b) -> (merged, lift of a's and b's params)
+MERGES: dict[tuple[str, str], tuple[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]] = {
+    # friction F plus a constant force b: -(F - b) forwards, +(F + b) backwards: F+ = F - b, F- = F + b
+    ("coulomb_friction", "bias"): ("asymmetric_friction", lambda f, b: np.array([f[0] - b[0], f[0] + b[0]])),
+}
+
+# signature steps, as shares of each amplitude parameter's largest magnitude: a small one for the
+# slope at zero and a large one for effects that only show beyond a threshold (saturation, dead band)
+SIGNATURE_LEVELS = (0.1, 0.4)
+
+
+def signature_steps(effect: Effect, bounds: Bounds, level: float) -> np.ndarray:
+    """Finite-difference steps for the nested parameters when an effect is switched on from zero."""
+    return np.array([level * max(abs(lo), abs(hi)) for lo, hi in bounds[: effect.n_nested]])

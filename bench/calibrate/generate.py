@@ -1,0 +1,237 @@
+"""Synthetic logs with one hidden effect, for testing the Real2Sim loop on data whose answer is known.
+
+A three-joint arm (models/arm3.xml) tracks a multisine reference under a PD controller with gravity
+compensation from the *declared* model, at the log rate, with noisy position and velocity
+sensors: closed loop, so the controller partly hides the effect, as on a real robot. The plant
+carries one effect from the library, realised by the library's own code (model fields, the applied
+command, generalised forces). What is written: a LeRobot v3 dataset, the declared model (its joint
+damping set off from the truth, and without the effect), a spec for it and `truth.json`.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, stribeck_force
+from bench.calibrate.model import Edits
+from bench.errors import ConfigError, did_you_mean
+
+MODELS = Path(__file__).resolve().parent / "models"
+ARM = MODELS / "arm3.xml"
+JOINTS = ("j1", "j2", "j3")
+DECLARED_DAMPING = 0.2  # the declared model's joint damping (the truth is 0.4 / 0.3 / 0.15)
+KP = np.array([60.0, 40.0, 15.0])
+KD = np.array([6.0, 4.0, 1.5])
+INPUT_COLUMN = "observation.extra"
+
+# hidden effect -> (target name, true physical parameters)
+DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
+    "coulomb_friction": ("j2", {"friction": 0.6}),
+    "asymmetric_friction": ("j2", {"friction_pos": 0.9, "friction_neg": 0.3}),
+    "stribeck_friction": ("j2", {"friction": 0.3, "static_excess": 0.5, "stribeck_velocity": 0.3}),
+    "viscous_damping": ("j2", {"damping": 1.2}),
+    "armature": ("j2", {"armature": 0.15}),
+    "actuator_delay": ("m2", {"delay": 0.015}),  # 20 ms and more make this PD loop unstable
+    "torque_saturation": ("m2", {"limit": 5.0}),
+    "backlash": ("m2", {"deadband": 0.6}),
+    "payload_mass": ("link3", {"mass": 0.6}),
+    "joint_spring": ("j2", {"stiffness": 4.0}),
+    "actuator_gain": ("m2", {"gain_error": -0.25}),
+    "bias": ("j2", {"force": 0.8}),
+    "input_channel": ("j2", {"gain": 1.5}),
+}
+
+
+def _target(model: mujoco.MjModel, kind: str, name: str) -> Target:
+    obj = {"joint": mujoco.mjtObj.mjOBJ_JOINT, "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+           "body": mujoco.mjtObj.mjOBJ_BODY}[kind]
+    idx = mujoco.mj_name2id(model, obj, name)
+    if idx < 0:
+        raise ConfigError(f"target {name!r} is not a {kind} of arm3.xml")
+    if kind == "joint":
+        return Target(kind, name, idx, int(model.jnt_dofadr[idx]), name)
+    if kind == "actuator":
+        j = int(model.actuator_trnid[idx, 0])
+        return Target(kind, name, idx, int(model.jnt_dofadr[j]), model.joint(j).name)
+    return Target(kind, name, idx)
+
+
+def _multisine(rng: np.random.Generator, t: np.ndarray, amp: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of n sines (0.1-1.2 Hz, random phases) scaled to peak `amp`, faded in over 1 s; and its derivative."""
+    f = rng.uniform(0.1, 1.2, n)
+    ph = rng.uniform(0, 2 * np.pi, n)
+    a = rng.uniform(0.5, 1.0, n)
+    w = 2 * np.pi * f
+    s = (a[:, None] * np.sin(w[:, None] * t + ph[:, None])).sum(0)
+    ds = (a[:, None] * w[:, None] * np.cos(w[:, None] * t + ph[:, None])).sum(0)
+    s0 = s[0]
+    fade = np.clip(t / 1.0, 0, 1)
+    fade = 0.5 - 0.5 * np.cos(np.pi * fade)
+    dfade = np.where(t < 1.0, 0.5 * np.pi * np.sin(np.pi * np.clip(t, 0, 1)), 0.0)
+    scale = amp / max(np.abs(s - s0).max(), 1e-9)
+    return scale * fade * (s - s0), scale * (fade * ds + dfade * (s - s0))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The hidden effect of a generated data set."""
+
+    effect: str | None
+    target: str | None
+    joint: str | None
+    params: dict[str, float]
+
+    def to_json(self) -> dict:
+        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params}
+
+
+def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0, fps: float = 100.0,
+                 substeps: int = 5, seed: int = 0, target: str | None = None,
+                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2)) \
+        -> tuple[list[dict[str, np.ndarray]], Truth]:
+    """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays."""
+    if effect is not None and effect not in EFFECTS:
+        raise ConfigError(f"unknown effect {effect!r}; valid: none, {', '.join(EFFECTS)}."
+                          f"{did_you_mean(effect, EFFECTS)}")
+    rng = np.random.default_rng(seed)
+    true = mujoco.MjModel.from_xml_path(str(ARM))
+    true.opt.timestep = 1.0 / (fps * substeps)
+    declared = mujoco.MjModel.from_xml_path(str(ARM))  # the controller's model (gravity is what it needs)
+    b = Edits(true, 1)
+    truth = Truth(None, None, None, {})
+    if effect is not None:
+        eff = EFFECTS[effect]
+        name, default = DEFAULTS[effect]
+        name = target or name
+        p = {**default, **(params or {})}
+        tgt = _target(true, eff.kind, name)
+        if effect == "input_channel":
+            tgt = Target(tgt.kind, tgt.name, tgt.index, tgt.dof, tgt.joint, 0, f"{INPUT_COLUMN}[0]")
+        gain = float(true.actuator_gear[tgt.index, 0]) if eff.kind == "actuator" else 1.0
+        if effect == "torque_saturation":
+            b.ctrl_op("saturation", tgt.index, p["limit"] / gain)
+        elif effect == "backlash":
+            b.ctrl_op("deadband", tgt.index, p["deadband"] / gain)
+        else:
+            eff.apply(b, tgt, np.array([p[k] for k in eff.params], dtype=float), None)  # type: ignore[arg-type]
+        truth = Truth(effect, tgt.label, tgt.joint or None, p)
+    b.finish_model()
+    t = np.arange(int(round(duration * fps))) / fps
+    out = []
+    for _ in range(episodes):
+        out.append(_episode(true, declared, b, t, fps, substeps, rng, noise))
+    return out, truth
+
+
+def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.ndarray, fps: float,
+             substeps: int, rng: np.random.Generator, noise: tuple[float, float]) -> dict[str, np.ndarray]:
+    nT, nu, nv = len(t), true.nu, true.nv
+    amps = (0.6, 0.8, 1.0)
+    ref = np.empty((nT, nv))
+    dref = np.empty((nT, nv))
+    for j in range(nv):
+        ref[:, j], dref[:, j] = _multisine(rng, t, amps[j])
+    extra, _ = _multisine(rng, t, 1.0, n=3)  # a measured external load (cable, hose) in arbitrary units
+    d = mujoco.MjData(true)
+    dc = mujoco.MjData(declared)
+    delay = {a: v * fps * substeps for k, a, v in b.ops if k == "delay"}
+    hist = np.zeros((nT * substeps, nu))
+    obs = np.empty((nT, 2 * nv), dtype=np.float32)
+    act = np.empty((nT, nu), dtype=np.float32)
+    for k in range(nT):
+        q = d.qpos + rng.normal(0, noise[0], nv)
+        v = d.qvel + rng.normal(0, noise[1], nv)
+        dc.qpos[:] = q
+        dc.qvel[:] = 0.0
+        mujoco.mj_forward(declared, dc)
+        u = KP * (ref[k] - q) + KD * (dref[k] - v) + dc.qfrc_bias
+        obs[k, :nv], obs[k, nv:] = q, v
+        act[k] = u
+        u = act[k].astype(np.float64)  # the plant gets exactly what is logged
+        hist[k * substeps:(k + 1) * substeps] = u
+        for s in range(substeps):
+            n = k * substeps + s
+            applied = hist[n].copy()
+            for a, shift in delay.items():
+                x = n - shift
+                i0 = int(np.floor(x))
+                w = x - i0
+                lo, hi = min(max(i0, 0), n), min(max(i0 + 1, 0), n)
+                applied[a] = (1 - w) * hist[lo, a] + w * hist[hi, a]
+            for kind, a, value in b.ops:
+                if kind == "deadband":
+                    applied[a] = deadband(applied[a], value)
+                elif kind == "saturation":
+                    applied[a] = saturate(applied[a], value)
+            d.ctrl[:] = applied
+            d.qfrc_applied[:] = b.qfrc + b.input_gain[0] * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
+            mujoco.mj_step(true, d)
+    extra_meas = (extra + rng.normal(0, 0.01, nT)).astype(np.float32)[:, None]
+    return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas,
+            "timestamp": t.astype(np.float32)}
+
+
+def declared_xml(damping: float = DECLARED_DAMPING) -> str:
+    """The declared model: arm3.xml with every joint's damping set to the declared guess."""
+    text = ARM.read_text()
+    return re.sub(r'(<joint name="j\d")( damping="[0-9.]+")', rf'\1 damping="{damping}"', text)
+
+
+def spec_dict(effect: str | None, target: str | None = None, model_file: str = "arm3_declared.xml") -> dict:
+    """The spec that goes with the declared model: joint damping free (except where the effect is damping)."""
+    damped = list(JOINTS)
+    if effect == "viscous_damping":
+        damped.remove(target or DEFAULTS[effect][0])
+    return {
+        "model": model_file,
+        "substeps": 5,
+        "signals": {
+            "qpos": {"column": "observation.state", "index": [0, 1, 2]},
+            "qvel": {"column": "observation.state", "index": [3, 4, 5]},
+            "ctrl": {"column": "action", "index": [0, 1, 2]},
+            "inputs": {"column": INPUT_COLUMN, "index": [0]},
+        },
+        "params": [{"name": "damping", "field": "dof_damping", "elements": damped, "bounds": [0.0, 3.0]}],
+        "effects": "all",
+        "holdout": 0.3,
+        "horizon": 0.2,
+    }
+
+
+def declared_files(out: str | Path, effect: str | None, target: str | None = None) -> Path:
+    """Write the declared model and its spec into `out`; returns the spec path."""
+    import yaml
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    xml = declared_xml()
+    if effect == "viscous_damping":  # the damping that is not declared free keeps its true value
+        joint = target or DEFAULTS[effect][0]
+        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)
+        xml = re.sub(rf'(<joint name="{joint}") damping="[0-9.]+"', rf'\1 damping="{true}"', xml)
+    (out / "arm3_declared.xml").write_text(xml)
+    path = out / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec_dict(effect, target), sort_keys=False, default_flow_style=None))
+    return path
+
+
+def write_case(out: str | Path, effect: str | None, **kw) -> Path:
+    """Write logs (LeRobot v3), declared model, spec and truth for one hidden effect into `out`."""
+    from bench.logs import from_arrays, write_dataset
+
+    out = Path(out)
+    fps = kw.get("fps", 100.0)
+    episodes, truth = simulate_arm(effect, **kw)
+    ds = from_arrays(episodes, fps=fps, task="track a multisine reference", robot_type="arm3",
+                     names={"observation.state": [f"{j}.pos" for j in JOINTS] + [f"{j}.vel" for j in JOINTS],
+                            "action": [f"{j}.torque" for j in JOINTS], INPUT_COLUMN: ["load"]},
+                     meta=[{"generator": "bench.calibrate.generate", "truth": truth.to_json()}] * len(episodes))
+    declared_files(out, effect, kw.get("target"))
+    write_dataset(out / "logs", ds, overwrite=True)
+    (out / "truth.json").write_text(json.dumps(truth.to_json(), indent=2) + "\n")
+    return out

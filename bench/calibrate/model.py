@@ -1,0 +1,365 @@
+"""The simulated plant: an `MjModel` plus the recipe that turns a parameter vector into a simulation variant.
+
+A *variant* is what one rollout needs: a model copy with the declared parameters and model-field
+effects written in, the command actually applied at every substep (after delay / deadband /
+saturation), the applied generalised forces, and the Stribeck terms (the only state-dependent part).
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from bench.calibrate.data import Recording
+from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate
+from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
+from bench.errors import SpecError, did_you_mean
+
+# field prefix -> (MuJoCo object type, words for messages, model count attribute)
+_PREFIX = {
+    "dof_": (mujoco.mjtObj.mjOBJ_JOINT, "joint", "nv"),
+    "jnt_": (mujoco.mjtObj.mjOBJ_JOINT, "joint", "njnt"),
+    "body_": (mujoco.mjtObj.mjOBJ_BODY, "body", "nbody"),
+    "actuator_": (mujoco.mjtObj.mjOBJ_ACTUATOR, "actuator", "nu"),
+    "geom_": (mujoco.mjtObj.mjOBJ_GEOM, "geom", "ngeom"),
+    "tendon_": (mujoco.mjtObj.mjOBJ_TENDON, "tendon", "ntendon"),
+}
+# edits of these need mj_setConst, or MuJoCo keeps using the constants derived at compile time
+_SETCONST_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
+
+
+def load_model(path: Path) -> mujoco.MjModel:
+    """Compile an MJCF file; compile errors become a one-line SpecError."""
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        raise SpecError(f"spec field 'model': cannot compile {str(path)!r}: {str(exc).splitlines()[0]}") from None
+
+
+def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
+    return [mujoco.mj_id2name(model, obj, i) or f"#{i}" for i in range(count)]
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One declared free value: `model.<field>[row, col]`."""
+
+    label: str
+    field: str
+    row: int
+    col: int | None
+    bounds: tuple[float, float]
+    nominal: float
+    init: float
+
+
+def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_name: str) -> list[Slot]:
+    """Resolve each declared parameter's field and element names in the model."""
+    array_fields = sorted(n for n in dir(model) if any(n.startswith(p) for p in _PREFIX)
+                          and isinstance(getattr(model, n, None), np.ndarray))
+    slots = []
+    for i, p in enumerate(params):
+        where = f"params[{i}]"
+        prefix = next((pre for pre in _PREFIX if p.field.startswith(pre)), None)
+        if prefix is None or p.field not in array_fields:
+            raise SpecError(f"spec field '{where}.field': {p.field!r} is not an MjModel field of joints, dofs, "
+                            f"bodies, actuators, geoms or tendons.{did_you_mean(p.field, array_fields)}")
+        obj, word, count_attr = _PREFIX[prefix]
+        arr = getattr(model, p.field)
+        if arr.ndim == 2 and arr.shape[1] > 1 and p.column is None:
+            raise SpecError(f"spec field '{where}.column' is required: {p.field} has {arr.shape[1]} columns")
+        if p.column is not None and (arr.ndim == 1 or p.column >= arr.shape[1]):
+            width = 1 if arr.ndim == 1 else arr.shape[1]
+            raise SpecError(f"spec field '{where}.column': {p.column} is out of range for {p.field} (width {width})")
+        col = p.column if arr.ndim == 2 else None
+        valid = _names(model, obj, {"joint": model.njnt, "body": model.nbody, "actuator": model.nu,
+                                    "geom": model.ngeom, "tendon": model.ntendon}[word])
+        for name in p.elements:
+            idx = mujoco.mj_name2id(model, obj, name)
+            if idx < 0:
+                raise SpecError(f"spec field '{where}.elements': {name!r} is not a {word} of {model_name}; "
+                                f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}")
+            row = int(model.jnt_dofadr[idx]) if prefix == "dof_" else idx
+            nominal = float(arr[row] if col is None else arr[row, col])
+            lo, hi = p.bounds
+            init = p.init if p.init is not None else min(max(nominal, lo), hi)
+            if not lo <= init <= hi:
+                raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}]")
+            label = p.name if len(p.elements) == 1 and p.name != p.field else f"{p.name}[{name}]"
+            slots.append(Slot(label, p.field, row, col, (lo, hi), nominal, float(init)))
+    return slots
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """An effect family attached to one target, with its bounds."""
+
+    effect: Effect
+    target: Target
+    bounds: Bounds
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect.name}@{self.target.label}"
+
+    def start(self) -> np.ndarray:
+        return self.effect.start(self.bounds)
+
+
+@dataclass
+class Variant:
+    """Everything one rollout needs for one parameter vector."""
+
+    model: mujoco.MjModel
+    ctrl: np.ndarray  # (N*S, nu) applied command per substep, all episodes concatenated
+    qfrc_const: np.ndarray  # (nv,)
+    input_gain: np.ndarray | None  # (m, nv): qfrc += inputs @ input_gain
+    stribeck: tuple[np.ndarray, np.ndarray] | None  # (fs, vs) per dof
+
+
+class Edits:
+    """What the effects of one parameter vector change (implements `effects.Builder`)."""
+
+    def __init__(self, model: mujoco.MjModel, n_inputs: int) -> None:
+        self.model = model
+        self.qfrc = np.zeros(model.nv)
+        self.input_gain = np.zeros((n_inputs, model.nv)) if n_inputs else None
+        self.fs = np.zeros(model.nv)
+        self.vs = np.ones(model.nv)
+        self.ops: list[tuple[str, int, float]] = []
+        self.setconst = False
+
+    def add_qfrc(self, dof: int, value: float) -> None:
+        self.qfrc[dof] += value
+
+    def add_input(self, col: int, dof: int, gain: float) -> None:
+        self.input_gain[col, dof] += gain
+
+    def add_stribeck(self, dof: int, fs: float, vs: float) -> None:
+        self.fs[dof] += fs
+        self.vs[dof] = vs
+
+    def ctrl_op(self, kind: str, act: int, value: float) -> None:
+        self.ops.append((kind, act, value))
+
+    def mark_setconst(self) -> None:
+        self.setconst = True
+
+    def finish_model(self) -> mujoco.MjModel:
+        """The edited model, with derived constants recomputed where mass edits need it."""
+        if self.setconst:
+            mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
+        return self.model
+
+
+class Plant:
+    """Nominal model, log-derived scales and the declared parameter slots for one calibration."""
+
+    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording) -> None:
+        self.spec = spec
+        self.rec = rec
+        if np.any((model.jnt_type == mujoco.mjtJoint.mjJNT_FREE) | (model.jnt_type == mujoco.mjtJoint.mjJNT_BALL)):
+            raise SpecError("spec field 'model': free and ball joints are not supported; use hinge and slide joints")
+        if model.na:
+            raise SpecError("spec field 'model': actuators with activation state are not supported")
+        self.substeps = spec.substeps or max(1, int(round(1.0 / (rec.fps * model.opt.timestep))))
+        self.model = copy.copy(model)
+        self.model.opt.timestep = 1.0 / (rec.fps * self.substeps)  # exactly one log frame per `substeps`
+        self.slots = resolve_params(spec.params, self.model, spec.model.name)
+        for slot, value in zip(self.slots, self.declared_nominal()):  # the nominal model, within bounds
+            self._write(self.model, slot, value)
+        mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
+        self.base_ctrl = np.repeat(rec.ctrl, self.substeps, axis=0)  # zero-order hold per frame
+        self.base_inputs = None if rec.inputs is None else np.repeat(rec.inputs, self.substeps, axis=0)
+        self.scales = self._scales()
+        self.nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+
+    # --- parameters ------------------------------------------------------------------------
+    @staticmethod
+    def _write(model: mujoco.MjModel, slot: Slot, value: float) -> None:
+        arr = getattr(model, slot.field)
+        if slot.col is None:
+            arr[slot.row] = value
+        else:
+            arr[slot.row, slot.col] = value
+
+    def declared_nominal(self) -> np.ndarray:
+        """Declared values of the model as given (clipped into the bounds)."""
+        return np.array([min(max(s.nominal, s.bounds[0]), s.bounds[1]) for s in self.slots])
+
+    def declared_init(self) -> np.ndarray:
+        return np.array([s.init for s in self.slots])
+
+    def realise(self, declared: np.ndarray, effects: list[tuple[Candidate, np.ndarray]]) -> Variant:
+        """Model copy + applied signals for declared values and active effects with their parameters."""
+        b = Edits(copy.copy(self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1])
+        for slot, value in zip(self.slots, declared):
+            self._write(b.model, slot, float(value))
+            if slot.field in _SETCONST_FIELDS:
+                b.setconst = True
+        for cand, x in effects:
+            cand.effect.apply(b, cand.target, np.asarray(x, dtype=float), self.scales)
+        gain = b.input_gain if b.input_gain is not None and np.any(b.input_gain) else None
+        return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
+                       (b.fs, b.vs) if np.any(b.fs != 0) else None)
+
+    # --- the applied command -----------------------------------------------------------------
+    def applied_ctrl(self, ops: list[tuple[str, int, float]]) -> np.ndarray:
+        """Logged command after the drive effects, in a fixed order: delay, dead band, saturation."""
+        if not ops:
+            return self.base_ctrl
+        out = self.base_ctrl.copy()
+        s = self.substeps
+        for kind in ("delay", "deadband", "saturation"):
+            for k, act, value in ops:
+                if k != kind:
+                    continue
+                if kind == "delay":
+                    out[:, act] = self._delayed(out[:, act], value * self.rec.fps * s)
+                elif kind == "deadband":
+                    out[:, act] = deadband(out[:, act], value)
+                else:
+                    out[:, act] = saturate(out[:, act], value)
+        return out
+
+    def _delayed(self, u: np.ndarray, shift: float) -> np.ndarray:
+        """Shift a substep signal later by `shift` substeps (linear interpolation; held at episode start)."""
+        if shift <= 0:
+            return u
+        out = np.empty_like(u)
+        s = self.substeps
+        for e in range(self.rec.n_episodes):
+            a, b = self.rec.offsets[e] * s, self.rec.offsets[e + 1] * s
+            x = np.arange(b - a) - shift
+            i0 = np.floor(x).astype(np.int64)
+            w = x - i0
+            lo = np.clip(i0, 0, b - a - 1)
+            hi = np.clip(i0 + 1, 0, b - a - 1)
+            seg = u[a:b]
+            out[a:b] = (1.0 - w) * seg[lo] + w * seg[hi]
+        return out
+
+    # --- scales and candidates -----------------------------------------------------------------
+    def _scales(self) -> Scales:
+        m, rec = self.model, self.rec
+        train = rec.frames(rec.train)
+        gain = np.array([m.actuator_gear[a, 0] * m.actuator_gainprm[a, 0] for a in range(m.nu)])
+        force = np.zeros(m.nv)
+        for a in range(m.nu):
+            if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                dof = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
+                force[dof] = max(force[dof], float(np.percentile(np.abs(rec.ctrl[train, a] * gain[a]), 95)))
+        if np.any(force > 0):
+            force[force <= 0] = force[force > 0].max()
+        else:
+            force[:] = 1.0
+        d = mujoco.MjData(m)
+        d.qpos[:] = rec.qpos[train].mean(axis=0)
+        mujoco.mj_forward(m, d)
+        mass_matrix = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, mass_matrix, d.qM)
+        span = rec.qpos[train].max(axis=0) - rec.qpos[train].min(axis=0)
+        return Scales(
+            force=force,
+            vel=np.maximum(rec.qvel[train].std(axis=0), 1e-6),
+            half_range=np.maximum(0.5 * span, 1e-6),
+            inertia=np.maximum(np.diag(mass_matrix).copy(), 1e-9),
+            ctrl_gain=np.where(np.abs(gain) > 0, np.abs(gain), 1.0),
+            ctrl_max=np.maximum(np.abs(rec.ctrl).max(axis=0), 1e-12),
+            ctrl_sorted=tuple(np.sort(np.abs(rec.ctrl[:, a])) for a in range(m.nu)),
+            input_max=np.abs(rec.inputs).max(axis=0) if rec.inputs is not None else np.zeros(0),
+            mass=float(m.body_mass[1:].sum()),
+            dt=1.0 / rec.fps,
+        )
+
+    def targets(self, kind: str) -> list[Target]:
+        """Every place an effect of this kind can attach in the model."""
+        m = self.model
+        jname = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt)
+        if kind == "joint":
+            return [Target("joint", jname[j], j, int(m.jnt_dofadr[j]), jname[j]) for j in range(m.njnt)]
+        if kind == "actuator":
+            out = []
+            for a, name in enumerate(_names(m, mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu)):
+                if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                    j = int(m.actuator_trnid[a, 0])
+                    out.append(Target("actuator", name, a, int(m.jnt_dofadr[j]), jname[j]))
+            return out
+        if kind == "body":  # bodies that move (not welded to the world)
+            names = _names(m, mujoco.mjtObj.mjOBJ_BODY, m.nbody)
+            return [Target("body", names[b], b) for b in range(1, m.nbody) if m.body_weldid[b] != 0]
+        raise ValueError(kind)
+
+    def candidates(self, requests: tuple[EffectRequest, ...] | None) -> tuple[list[Candidate], list[str]]:
+        """All (effect, target) pairs to trace, and notes on families that cannot apply here."""
+        reqs = requests if requests is not None else tuple(EffectRequest(n) for n in EFFECTS)
+        declared = {(s.field, s.row) for s in self.slots}
+        out, notes = [], []
+        for i, req in enumerate(reqs):
+            eff = EFFECTS[req.name]
+            targets = self.targets(eff.kind)
+            if req.name == "input_channel":
+                if self.rec.inputs is None:
+                    notes.append("input_channel: no signals.inputs declared in the spec; skipped")
+                    continue
+                targets = [Target("joint", t.name, t.index, t.dof, t.joint, c, self.rec.input_names[c])
+                           for c in range(self.rec.inputs.shape[1]) for t in targets]
+            if req.targets is not None:
+                valid = sorted({t.name for t in targets})
+                for name in req.targets:
+                    if name not in valid:
+                        raise SpecError(f"spec field 'effects[{i}].targets': {name!r} is not a {eff.kind} of "
+                                        f"{self.spec.model.name}; valid: {', '.join(valid)}."
+                                        f"{did_you_mean(name, valid)}")
+                targets = [t for t in targets if t.name in req.targets]
+            for t in targets:
+                row = {"dof_": t.dof, "jnt_": t.index, "body_": t.index, "actuator_": t.index}
+                if any((f, row[next(p for p in row if f.startswith(p))]) in declared for f in eff.fields):
+                    notes.append(f"{eff.name}@{t.label}: already declared free; skipped")
+                    continue
+                bounds = list(req.bounds) if req.bounds else eff.bounds(self.scales, t)
+                out.append(Candidate(eff, t, [(float(lo), float(hi)) for lo, hi in bounds]))
+        return out, notes
+
+
+@dataclass
+class Layout:
+    """A parameter vector: the declared slots, then each active effect's parameters."""
+
+    plant: Plant
+    active: list[Candidate] = field(default_factory=list)
+
+    @property
+    def labels(self) -> list[str]:
+        return [s.label for s in self.plant.slots] + [f"{c.key}.{p}" for c in self.active for p in c.effect.params]
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        b = [s.bounds for s in self.plant.slots] + [bd for c in self.active for bd in c.bounds]
+        arr = np.array(b, dtype=float).reshape(-1, 2)
+        return arr[:, 0], arr[:, 1]
+
+    def split(self, x: np.ndarray) -> tuple[np.ndarray, list[tuple[Candidate, np.ndarray]]]:
+        n = len(self.plant.slots)
+        parts, i = [], n
+        for c in self.active:
+            k = len(c.effect.params)
+            parts.append((c, x[i:i + k]))
+            i += k
+        return x[:n], parts
+
+    def offset(self, cand: Candidate) -> int:
+        """Index of a candidate's first parameter in the vector."""
+        i = len(self.plant.slots)
+        for c in self.active:
+            if c is cand:
+                return i
+            i += len(c.effect.params)
+        raise KeyError(cand.key)
+
+    def realise(self, x: np.ndarray) -> Variant:
+        declared, effects = self.split(np.asarray(x, dtype=float))
+        return self.plant.realise(declared, effects)

@@ -1,0 +1,154 @@
+"""The effect library: every effect is nested (zero = absent) and realised in the simulation itself."""
+import json
+
+import mujoco
+import numpy as np
+import pytest
+
+from bench.calibrate.data import extract
+from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, saturation_limit, stribeck_force
+from bench.calibrate.generate import declared_files, simulate_arm
+from bench.calibrate.model import Candidate, Layout, Plant, load_model
+from bench.calibrate.report import clean
+from bench.calibrate.simulate import Simulator, free_runs, horizons
+from bench.calibrate.spec import load_spec
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory) -> Plant:
+    spec = load_spec(declared_files(tmp_path_factory.mktemp("fx"), None))
+    eps, _ = simulate_arm(None, episodes=2, duration=1.5, seed=3)
+    model = load_model(spec.model)
+    rec = extract(spec, eps, 100.0, nq=model.nq, nv=model.nv, nu=model.nu)
+    return Plant(spec, model, rec)
+
+
+def _candidate(plant: Plant, name: str) -> Candidate:
+    """The effect on the arm's middle joint / actuator, or its last link (built directly: the loop
+    itself skips families the spec declares free and offers Stribeck / asymmetric only over Coulomb)."""
+    eff = EFFECTS[name]
+    kind = "joint" if eff.kind == "joint" else eff.kind
+    target = {"joint": plant.targets("joint")[1], "actuator": plant.targets("actuator")[1],
+              "body": plant.targets("body")[2]}[kind]
+    if name == "input_channel":
+        target = Target("joint", target.name, target.index, target.dof, target.joint, 0, plant.rec.input_names[0])
+    return Candidate(eff, target, eff.bounds(plant.scales, target))
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_effect_is_nested_and_realised_in_simulation(plant, name):
+    cand = _candidate(plant, name)
+    sim = Simulator(plant)
+    segs = horizons(plant.rec, plant.rec.train, 20)
+    declared = plant.declared_init()
+    base = sim.run([Layout(plant, []).realise(declared)], segs)[0]
+    off = Layout(plant, [cand]).realise(np.concatenate([declared, cand.start()]))
+    on_x = cand.start()
+    on_x[: cand.effect.n_nested] = [0.5 * hi if hi > 0 else 0.5 * lo for lo, hi in cand.bounds[: cand.effect.n_nested]]
+    on = Layout(plant, [cand]).realise(np.concatenate([declared, on_x]))
+    zero, moved = sim.run([off, on], segs)
+    assert np.allclose(zero, base, atol=1e-9), f"{name} at zero must equal the declared model"
+    assert np.abs(moved - base).max() > 1e-3, f"{name} switched on must move the simulated output"
+    lo = [b[0] for b in cand.bounds]
+    hi = [b[1] for b in cand.bounds]
+    assert all(l < h for l, h in zip(lo, hi))
+    sim.close()
+
+
+@pytest.mark.parametrize("name, field", [("armature", "dof_armature"), ("payload_mass", "body_mass")])
+def test_mass_edits_reach_the_mass_matrix(plant, name, field):
+    cand = _candidate(plant, name)
+    declared = plant.declared_init()
+    mats = []
+    for x in (0.0, 0.3):
+        v = Layout(plant, [cand]).realise(np.concatenate([declared, [x]]))
+        d = mujoco.MjData(v.model)
+        d.qpos[:] = [0.2, -0.3, 0.4]
+        mujoco.mj_forward(v.model, d)
+        m = np.zeros((v.model.nv, v.model.nv))
+        mujoco.mj_fullM(v.model, m, d.qM)
+        mats.append(m)
+    assert np.abs(mats[1] - mats[0]).max() > 0.05
+    assert np.allclose(getattr(plant.model, field), getattr(Layout(plant, []).realise(declared).model, field))
+
+
+def test_stepped_and_batched_rollouts_agree_without_stribeck(plant):
+    """The stepped path (used for Stribeck friction) integrates exactly like one rollout call."""
+    sim = Simulator(plant)
+    v = Layout(plant, []).realise(plant.declared_init())
+    segs = free_runs(plant.rec, plant.rec.train[:1])
+    a = sim._rollout([v], segs)
+    b = sim._stepped([type(v)(v.model, v.ctrl, v.qfrc_const, v.input_gain, (np.zeros(3), np.ones(3)))], segs)
+    assert np.allclose(a, b, atol=1e-9)
+
+
+def test_primitives():
+    u = np.array([-2.0, -0.5, 0.0, 0.3, 3.0])
+    assert np.allclose(deadband(u, 0.5), [-1.5, 0.0, 0.0, 0.0, 2.5])
+    assert np.allclose(saturate(u, 1.0), [-1.0, -0.5, 0.0, 0.3, 1.0])
+    v = np.array([-1.0, 0.0, 1e-6, 5.0])
+    f = stribeck_force(v, 0.5, 0.1)
+    assert f[1] == 0.0 and abs(f[2]) < 1e-9 and np.isclose(f[3], 0.5) and np.isclose(f[0], -0.5)
+
+
+def test_saturation_share_is_a_quantile(plant):
+    s = plant.scales
+    limits = [saturation_limit(share, s, 1) for share in (0.0, 0.1, 0.5, 0.9)]
+    assert np.isclose(limits[0], s.ctrl_max[1])
+    assert limits == sorted(limits, reverse=True)
+    assert np.isclose(np.mean(np.abs(plant.rec.ctrl[:, 1]) > limits[2]), 0.5, atol=0.01)
+
+
+def test_delay_shifts_the_applied_command(plant):
+    s = plant.substeps
+    shifted = plant._delayed(plant.base_ctrl[:, 0], 2 * s)  # two frames
+    n = plant.rec.offsets[1] * s
+    assert np.allclose(shifted[2 * s:n], plant.base_ctrl[: n - 2 * s, 0])
+    assert np.allclose(shifted[: 2 * s], plant.base_ctrl[0, 0])  # held at the episode start
+
+
+def test_generator_is_deterministic():
+    a, ta = simulate_arm("bias", episodes=2, duration=0.5, seed=7)
+    b, tb = simulate_arm("bias", episodes=2, duration=0.5, seed=7)
+    c, _ = simulate_arm("bias", episodes=2, duration=0.5, seed=8)
+    assert ta == tb
+    for x, y in zip(a, b):
+        for k in x:
+            assert np.array_equal(x[k], y[k])
+    assert not np.array_equal(a[0]["action"], c[0]["action"])
+
+
+def test_clean_has_no_nan():
+    doc = clean({"a": float("nan"), "b": [np.float32(np.inf), np.int64(3)], "c": np.array([1.0, np.nan])})
+    assert doc == {"a": None, "b": [None, 3], "c": [1.0, None]}
+    json.dumps(doc, allow_nan=False)
+
+
+def test_collinear_declared_parameters_are_flagged(tmp_path):
+    """On a slide joint, carriage mass and armature are the same inertia: the fit must say so."""
+    from bench.calibrate.fit import Objective, fit
+    from bench.calibrate.generate import MODELS
+    from bench.calibrate.spec import parse_spec
+
+    rng = np.random.default_rng(0)
+    model = mujoco.MjModel.from_xml_path(str(MODELS / "emps.xml"))
+    d = mujoco.MjData(model)
+    u = np.repeat(rng.normal(0.0, 2.0, 40), 25)  # piecewise-constant drive command [V], 1 kHz
+    q = np.empty(len(u))
+    for i, ui in enumerate(u):
+        q[i] = d.qpos[0]
+        d.ctrl[0] = ui
+        mujoco.mj_step(model, d)
+    raw = {"model": "emps.xml", "substeps": 1,
+           "signals": {"qpos": {"column": "q", "index": [0]}, "ctrl": {"column": "u", "index": [0]}},
+           "params": [{"name": "mass", "field": "body_mass", "elements": ["carriage"], "bounds": [10, 300]},
+                      {"name": "armature", "field": "dof_armature", "elements": ["axis"], "bounds": [0, 100]}]}
+    spec = parse_spec(raw, base_dir=MODELS)
+    rec = extract(spec, [{"q": q, "u": u}], 1000.0, nq=1, nv=1, nu=1)
+    plant = Plant(spec, load_model(spec.model), rec)
+    sim = Simulator(plant)
+    scale = np.array([q.std(), 1.0])
+    f = fit(Objective(sim, Layout(plant, []), horizons(rec, rec.train, 200), rec, scale, np.arange(1)),
+            plant.declared_init())
+    assert any("ill-conditioned" in w or "not identifiable" in w for w in f.warnings), f.warnings
+    assert any("armature" in w and "mass" in w for w in f.warnings), f.warnings
