@@ -1,0 +1,198 @@
+"""`bench replay`: open-loop replay measures the sim-real gap, batched replay equals a step loop, bad input exits 2.
+
+Logs come from `bench.calibrate.generate` (a 3-joint arm under PD tracking, sensor noise 5e-4 rad and
+1e-2 rad/s), from the plain arm and from arms with one physical change; all are replayed in the
+plain arm (`models/arm3.xml`).
+"""
+import json
+import re
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+
+from bench.calibrate.generate import ARM, simulate_arm, spec_dict, write_case
+from bench.cli import main
+from bench.logs import from_arrays, write_dataset
+from bench.replay import ReplayConfig, run
+
+HORIZONS = ("one_step", "k_step", "free_run")
+
+
+def _strict_json(path):
+    def bad(const):
+        raise AssertionError(f"{path}: {const} in JSON")
+    return json.loads(path.read_text(), parse_constant=bad)
+
+
+@pytest.fixture(scope="module")
+def nominal_spec(tmp_path_factory):
+    """A spec for the plain arm as it is (the model the logs are replayed in)."""
+    raw = spec_dict(None, model_file=str(ARM))
+    raw["params"] = []
+    path = tmp_path_factory.mktemp("spec") / "spec.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.fixture(scope="module")
+def cases(tmp_path_factory):
+    """Logs of the plain arm and of two changed arms: 2 episodes x 2 s at 100 Hz each."""
+    root = tmp_path_factory.mktemp("cases")
+    return {str(e): write_case(root / str(e), e, episodes=2, duration=2.0, seed=0) / "logs"
+            for e in (None, "payload_mass", "viscous_damping")}
+
+
+@pytest.fixture(scope="module")
+def nominal_replay(cases, nominal_spec, tmp_path_factory):
+    out = tmp_path_factory.mktemp("replay")
+    assert main(["replay", f"logs={cases['None']}", f"spec={nominal_spec}", "k=10", f"out={out}"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("effect", ["payload_mass", "viscous_damping"])
+def test_logs_of_a_changed_arm_replay_with_a_larger_error(cases, nominal_spec, nominal_replay, tmp_path, effect):
+    """Measured: nominal logs 0.0023 / 0.0027 / 0.0017 (one-step / k-step / free-run NRMSE, the sensor noise);
+    payload 0.0027 / 0.044 / 1.23; damping 0.0038 / 0.093 / 0.76."""
+    assert main(["replay", f"logs={cases[effect]}", f"spec={nominal_spec}", "k=10", f"out={tmp_path}"]) == 0
+    nom = _strict_json(nominal_replay / "replay.json")["horizons"]
+    gap = _strict_json(tmp_path / "replay.json")["horizons"]
+    assert nom["free_run"]["nrmse"] < 0.01 and nom["k_step"]["nrmse"] < 0.01  # the plain arm replays to noise
+    assert gap["one_step"]["nrmse"] > nom["one_step"]["nrmse"]  # 10 ms ahead: mostly sensor noise
+    assert gap["k_step"]["nrmse"] > 5 * nom["k_step"]["nrmse"]
+    assert gap["free_run"]["nrmse"] > 20 * nom["free_run"]["nrmse"]
+    assert gap["free_run"]["nrmse"] > gap["k_step"]["nrmse"] > gap["one_step"]["nrmse"]  # errors grow with horizon
+
+
+def test_replay_json_and_plot(nominal_replay, cases):
+    doc = _strict_json(nominal_replay / "replay.json")
+    assert doc["schema"] == "bench.replay/1" and doc["backend"] == "mujoco.rollout"
+    assert doc["joints"] == ["j1", "j2", "j3"] and doc["episodes"] == [0, 1] and doc["frames"] == 400
+    assert doc["substeps"] == 5 and doc["k"] == 10
+    for h, k in zip(HORIZONS, (1, 10, None)):
+        entry = doc["horizons"][h]
+        assert entry["k"] == k and set(entry["per_joint"]) == {"j1", "j2", "j3"}
+        assert entry["nrmse"] == pytest.approx(np.mean([v["nrmse"] for v in entry["per_joint"].values()]))
+    assert doc["horizons"]["one_step"]["segments"] == 2 * 199  # every frame but the last, per episode
+    assert doc["horizons"]["free_run"]["segments"] == 2
+    assert [r["episode"] for r in doc["per_episode"]] == [0, 1]
+    png = nominal_replay / doc["plot"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
+def _step_loop(model, qpos, qvel, ctrl, start, length, substeps):
+    """What `mujoco.rollout` replaces: mj_step per substep from a logged state under the logged command."""
+    d = mujoco.MjData(model)
+    d.qpos[:], d.qvel[:] = qpos[start], qvel[start]
+    out = np.empty((length, model.nq))
+    for f in range(length):
+        d.ctrl[:] = ctrl[start + f]
+        for _ in range(substeps):
+            mujoco.mj_step(model, d)
+        out[f] = d.qpos
+    return out
+
+
+def test_batched_replay_equals_a_python_step_loop(nominal_spec):
+    from bench.calibrate.data import Window, extract
+    from bench.calibrate.metrics import horizon_errors
+    from bench.calibrate.model import Layout, Plant, load_model
+    from bench.calibrate.simulate import Simulator
+    from bench.calibrate.spec import load_spec
+
+    spec = load_spec(nominal_spec)
+    model = load_model(spec.model)
+    eps, _ = simulate_arm("coulomb_friction", episodes=2, duration=0.5, seed=1)
+    rec = extract(spec, eps, 100.0, nq=3, nv=3, nu=3)
+    plant = Plant(spec, model, rec)
+    sim = Simulator(plant)
+    errors = horizon_errors(sim, Layout(plant).realise(np.zeros(0)), rec, [Window(0, 0, 50), Window(1, 0, 50)], 7)
+    sim.close()
+    for h, e in errors.items():
+        for s, start in enumerate(e.start):
+            n = int(e.mask[s].sum())
+            ref = _step_loop(plant.model, rec.qpos, rec.qvel, rec.ctrl, int(start), n, plant.substeps)
+            np.testing.assert_allclose(e.pred[s, :n], ref, rtol=0, atol=1e-12, err_msg=f"{h} segment {s}")
+
+
+def test_k_of_one_is_the_one_step_error(cases, nominal_spec):
+    doc = run(ReplayConfig(logs=str(cases["None"]), spec=str(nominal_spec), k=1, episodes=[1])).doc
+    assert doc["episodes"] == [1]
+    assert doc["horizons"]["k_step"]["per_joint"] == doc["horizons"]["one_step"]["per_joint"]
+
+
+def test_a_joint_that_never_moves_has_no_nrmse(tmp_path, nominal_spec):
+    eps, _ = simulate_arm(None, episodes=1, duration=0.5, seed=0)
+    state = eps[0]["observation.state"].copy()
+    state[:, 2] = 0.0  # j3 logged as constant
+    write_dataset(tmp_path / "logs", from_arrays([{"observation.state": state, "action": eps[0]["action"]}], fps=100))
+    doc = run(ReplayConfig(logs=str(tmp_path / "logs"), spec=str(nominal_spec))).doc
+    j3 = doc["horizons"]["free_run"]["per_joint"]["j3"]
+    assert j3["nrmse"] is None and "does not move" in j3["nrmse_reason"] and j3["rmse"] > 0
+    assert doc["horizons"]["free_run"]["nrmse"] is not None  # the mean of the joints that move
+    json.dumps(doc, allow_nan=False)
+
+
+def _bad_spec(tmp_path, **change):
+    raw = spec_dict(None, model_file=str(ARM))
+    raw["params"] = []
+    raw["signals"] = {**raw["signals"], **change}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+BAD = [
+    (lambda t, logs, spec: [f"logs={t / 'nowhere'}", f"spec={spec}"], r"logs folder .*nowhere' does not exist"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={t / 'none.yaml'}"], r"spec file .*none.yaml' does not exist"),
+    (lambda t, logs, spec: [f"logs={logs}"], r"spec= is required"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "suite=held_out_robots"], r"not both"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
+     r"'signals.qpos.column': column 'observation.stat' is not in the log.*valid: action"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
+     r"'signals.ctrl.index' lists 2 columns; the model has nu=3"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
+     r"'signals.qvel.index': index 9 is out of range .* width 6"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k must be an integer >= 1"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[]"], r"episodes=\[\] selects nothing"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
+    (lambda t, logs, spec: [f"logs={logs}", f"suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
+]
+
+
+@pytest.mark.parametrize("make_argv, pattern", BAD, ids=[
+    "missing-logs", "missing-spec", "no-spec", "spec-and-suite", "column-not-in-log", "ctrl-width-vs-model",
+    "index-out-of-range", "k-zero", "unknown-episode", "no-episode", "unknown-key", "suite-needs-sim-state"])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nominal_spec, make_argv, pattern):
+    out = tmp_path / "out"
+    code = main(["replay", *make_argv(tmp_path, cases["None"], nominal_spec), f"out={out}"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert re.search(pattern, err), err
+    assert not out.exists()
+
+
+def test_help_names_every_key(capsys):
+    assert main(["replay", "--help"]) == 0
+    text = capsys.readouterr().out
+    for key in ("logs", "spec", "suite", "k", "episodes", "out", "plot", "threads"):
+        assert re.search(rf"^  {key}\s", text, re.M), key
+
+
+def test_robosuite_recording_replays_in_the_nominal_env(tmp_path):
+    """`bench run record=` logs: nominal episodes replay exactly, a heavier-link episode does not (~10 s)."""
+    rec = tmp_path / "rec"
+    assert main(["run", "robots=[Panda]", "episodes=1", "horizon=30", "workers=1", "run_id=r",
+                 f"out={tmp_path / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
+    doc = run(ReplayConfig(logs=str(rec), suite="held_out_robots", k=5)).doc
+    assert doc["backend"] == "held_out_robots step loop"
+    assert "robot0_joint1" in doc["joints"] and "cube_joint0.z" in doc["joints"]
+    by = {r["condition"]: r for r in doc["per_episode"]}
+    assert set(by) == {"nominal", "link_mass=3"}
+    for h in HORIZONS:
+        assert by["nominal"][f"{h}_nrmse"] < 1e-4, h  # the same simulator: float32 rounding of the log only
+    assert by["link_mass=3"]["k_step_nrmse"] > 0.05 and by["link_mass=3"]["free_run_nrmse"] > 0.1
+    json.dumps(doc, allow_nan=False)
