@@ -19,6 +19,7 @@ class LiftExpert:
 
     hover = 0.08      # m above the object before descending
     lift_to = 0.25    # m above the grasp height
+    lift_speed = 0.4  # action limit while lifting (1.0 = the controller's full step)
     gain = 10.0       # action per metre of error (saturates at 10 cm)
 
     def __init__(self, obs_names: list[tuple[str, int]], action_dim: int = 7):
@@ -69,6 +70,7 @@ class LiftExpert:
                 self._go("hover")
                 grip, target = -1.0, obj + [0.0, 0.0, self.hover]
         action = np.zeros(self.action_dim, dtype=np.float32)
-        action[:3] = np.clip(self.gain * (target - eef), -1.0, 1.0)
+        limit = self.lift_speed if self.phase == "lift" else 1.0  # a gentle lift keeps the grip
+        action[:3] = np.clip(self.gain * (target - eef), -limit, limit)
         action[-1] = grip
         return action
