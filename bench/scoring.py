@@ -149,3 +149,82 @@ def paired_gap(
 def one_sided_lower(samples: np.ndarray, confidence: float = 0.95) -> float:
     """Lower confidence bound at `confidence` (one-sided) from bootstrap samples."""
     return float(np.quantile(np.asarray(samples, float), 1.0 - confidence))
+
+
+def one_sided_upper(samples: np.ndarray, confidence: float = 0.95) -> float:
+    """Upper confidence bound at `confidence` (one-sided) from bootstrap samples."""
+    return float(np.quantile(np.asarray(samples, float), confidence))
+
+
+def _tango_z(b: int, c: int, n: int, delta: float) -> float:
+    """Tango's score statistic for H0: p10 - p01 = delta (paired binary outcomes)."""
+    a_ = 2.0 * n
+    b_ = -b - c + (2.0 * n - b + c) * delta
+    c_ = -c * delta * (1.0 - delta)
+    q = (np.sqrt(max(b_ * b_ - 4.0 * a_ * c_, 0.0)) - b_) / (2.0 * a_)  # constrained MLE of p01
+    var = n * (2.0 * q + delta * (1.0 - delta))
+    num = b - c - n * delta
+    if var <= 0:
+        return 0.0 if num == 0 else float(np.sign(num) * np.inf)
+    return float(num / np.sqrt(var))
+
+
+def paired_score_bound(b: int, c: int, n: int, confidence: float = 0.95, side: str = "lower") -> float:
+    """One-sided bound on p10 - p01 for n paired binary outcomes (Tango's score interval).
+
+    Unlike a percentile bootstrap it stays honest when few pairs disagree: with no
+    discordant pair out of n the upper bound is z²/(n + z²), not 0.
+
+    Args:
+        b: pairs where the first outcome is 1 and the second 0.
+        c: pairs where the first outcome is 0 and the second 1.
+        n: all pairs (concordant included).
+        confidence: one-sided level, e.g. 0.95.
+        side: "lower" or "upper".
+    """
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    if n <= 0:
+        raise ValueError("paired_score_bound needs n >= 1 pairs")
+    z = float(norm.ppf(confidence))
+    est, eps = (b - c) / n, 1e-12
+    if side == "upper":
+        f = lambda d: _tango_z(b, c, n, d) + z  # noqa: E731 - decreasing in d
+        if f(1.0 - eps) >= 0:
+            return 1.0
+        return float(brentq(f, est, 1.0 - eps)) if f(est) > 0 else est
+    if side != "lower":
+        raise ValueError(f"side={side!r}; valid: lower, upper")
+    f = lambda d: _tango_z(b, c, n, d) - z  # noqa: E731
+    if f(-1.0 + eps) <= 0:
+        return -1.0
+    return float(brentq(f, -1.0 + eps, est)) if f(est) < 0 else est
+
+
+def paired_stat_samples(
+    reference: Sequence[np.ndarray],
+    target: Sequence[np.ndarray],
+    rng: np.random.Generator,
+    statistic: str = "mean",
+    n_boot: int = 2000,
+) -> tuple[float, np.ndarray]:
+    """Point value and bootstrap samples of stat(reference cell rates) - stat(target cell rates), paired.
+
+    Cell j of `reference` and `target` hold outcomes of the same episodes (same seeds);
+    each resample draws episode indices within every cell and applies them to both sides.
+    """
+    stat = STATISTICS[statistic]
+    pairs = [(np.asarray(r, float), np.asarray(t, float)) for r, t in zip(reference, target)]
+    for r, t in pairs:
+        if r.shape != t.shape:
+            raise ValueError(f"paired cells differ in shape: {r.shape} vs {t.shape}")
+    pairs = [(r, t) for r, t in pairs if len(r)]
+    if not pairs:
+        raise ValueError("no paired episodes")
+    point = float(stat(np.array([r.mean() for r, _ in pairs])) - stat(np.array([t.mean() for _, t in pairs])))
+    ref_b, tgt_b = np.empty((n_boot, len(pairs))), np.empty((n_boot, len(pairs)))
+    for j, (r, t) in enumerate(pairs):
+        idx = rng.integers(0, len(r), size=(n_boot, len(r)))
+        ref_b[:, j], tgt_b[:, j] = r[idx].mean(axis=1), t[idx].mean(axis=1)
+    return point, stat(ref_b) - stat(tgt_b)

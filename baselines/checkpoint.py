@@ -1,0 +1,384 @@
+"""`policy=checkpoint checkpoint=PATH`: a torch policy loaded from weights plus a JSON spec, never unpickled.
+
+Format (two files side by side):
+    PATH        the weights: `NAME.safetensors` (preferred), or `NAME.pt` read with
+                `torch.load(weights_only=True)` (a flat dict name -> tensor); nothing
+                else is accepted, so an untrusted file cannot run code.
+    NAME.json   the policy spec, PATH with its suffix replaced by `.json`
+                (`bc/policy.safetensors` -> `bc/policy.json`):
+
+    {
+      "schema": "bench.policy/1",
+      "architecture": "mlp",                          # a name in baselines.architectures
+      "kwargs": {"hidden": [256, 256], "activation": "relu"},
+      "obs_names": [["eef_pos", 3], ["eef_quat_rel", 4], ...],   # the suite's env.obs_names
+      "action_names": ["dx", "dy", ...],                          # the suite's env.action_names
+      "obs_dim": 18, "action_dim": 7,                 # optional; must equal the sums of the names
+      "normalization": {                              # optional; absent = identity
+        "obs":    {"mean": [...obs_dim], "std": [...obs_dim]},
+        "action": {"mean": [...action_dim], "std": [...action_dim]}
+      },
+      "clip_actions": true,                           # optional (default true): clip to the env's bounds
+      "meta": {...}                                   # optional, free-form (training set, suite, seed ...)
+    }
+
+Inference: `a = model((obs - obs_mean) / obs_std) * act_std + act_mean`, clipped to the
+env's action bounds, on CPU with one torch thread per worker. The model must be
+deterministic (`reset(seed)` has nothing to reseed).
+
+`save_checkpoint` writes both files and also embeds the spec in the safetensors
+header metadata (key `bench.policy_spec`), so the checkpoint sha256 that every
+record carries covers the normalisation and architecture too; at load a
+sidecar that differs from the embedded copy is an error, and a missing sidecar
+falls back to the embedded copy. At load, the spec's obs/action names must equal
+the env's (ConfigError otherwise): a policy trained on another observation
+layout would silently read the wrong numbers.
+
+Bad input — missing file, malformed spec, unknown architecture, weights that do
+not fit the architecture — is a one-line SpecError/ConfigError (exit 2), raised
+by `preflight` before `bench run` starts any worker.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.errors import ConfigError, SpecError, did_you_mean
+
+SPEC_SCHEMA = "bench.policy/1"
+METADATA_KEY = "bench.policy_spec"
+WEIGHT_SUFFIXES = (".safetensors", ".pt")
+SPEC_KEYS = ("schema", "architecture", "kwargs", "obs_names", "action_names", "obs_dim", "action_dim",
+             "normalization", "clip_actions", "meta")
+
+
+def spec_path(path: str | Path) -> Path:
+    """The spec file beside the weights: PATH with its suffix replaced by `.json`."""
+    return Path(path).with_suffix(".json")
+
+
+def _canonical(spec: dict[str, Any]) -> str:
+    return json.dumps(spec, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def _floats(value: Any, n: int, where: str) -> list[float]:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SpecError(f"policy spec: {where} must be a list of {n} numbers, got {str(value)[:60]}") from None
+    if arr.shape != (n,):
+        raise SpecError(f"policy spec: {where} has shape {list(arr.shape)}; expected [{n}]")
+    if not np.all(np.isfinite(arr)):
+        raise SpecError(f"policy spec: {where} contains NaN or inf")
+    return [float(x) for x in arr]
+
+
+def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
+    """Check a spec dict and return it in canonical form (plain JSON types, dims filled in).
+
+    Raises:
+        SpecError: one line naming the bad field and what is valid.
+    """
+    from baselines.architectures import ARCHITECTURES
+
+    if not isinstance(spec, dict):
+        raise SpecError(f"{source}: must be a JSON object, got {type(spec).__name__}")
+    for key in spec:
+        if key not in SPEC_KEYS:
+            raise SpecError(f"{source}: unknown field {key!r}; valid: {', '.join(SPEC_KEYS)}.{did_you_mean(key, SPEC_KEYS)}")
+    schema = spec.get("schema", SPEC_SCHEMA)
+    if schema != SPEC_SCHEMA:
+        raise SpecError(f"{source}: schema={schema!r} is not supported; valid: {SPEC_SCHEMA}")
+    for key in ("architecture", "obs_names", "action_names"):
+        if key not in spec:
+            raise SpecError(f"{source}: missing field {key!r} (required: architecture, obs_names, action_names)")
+    arch = spec["architecture"]
+    if arch not in ARCHITECTURES:
+        valid = sorted(ARCHITECTURES)
+        raise SpecError(f"{source}: architecture={arch!r} is not registered; valid: {', '.join(valid)}."
+                        f"{did_you_mean(str(arch), valid)}")
+    kwargs = spec.get("kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise SpecError(f"{source}: kwargs must be an object, got {type(kwargs).__name__}")
+    try:
+        obs_names = [[str(n), int(w)] for n, w in spec["obs_names"]]
+    except (TypeError, ValueError):
+        raise SpecError(f"{source}: obs_names must be a list of [name, width] pairs") from None
+    if not obs_names or any(w < 1 for _, w in obs_names):
+        raise SpecError(f"{source}: obs_names must be non-empty with widths >= 1")
+    action_names = spec["action_names"]
+    if not isinstance(action_names, list) or not action_names or not all(isinstance(a, str) for a in action_names):
+        raise SpecError(f"{source}: action_names must be a non-empty list of strings")
+    obs_dim, action_dim = sum(w for _, w in obs_names), len(action_names)
+    for key, want in (("obs_dim", obs_dim), ("action_dim", action_dim)):
+        if key in spec and spec[key] != want:
+            raise SpecError(f"{source}: {key}={spec[key]!r} but the names give {want}")
+    out: dict[str, Any] = {
+        "schema": SPEC_SCHEMA, "architecture": arch, "kwargs": json.loads(json.dumps(kwargs, default=_jsonable)),
+        "obs_names": obs_names, "action_names": list(action_names), "obs_dim": obs_dim, "action_dim": action_dim,
+    }
+    norm = spec.get("normalization") or {}
+    if not isinstance(norm, dict):
+        raise SpecError(f"{source}: normalization must be an object with optional 'obs' and 'action'")
+    norm_out = {}
+    for side, n in (("obs", obs_dim), ("action", action_dim)):
+        if side not in norm or norm[side] is None:
+            continue
+        entry = norm[side]
+        if not isinstance(entry, dict) or set(entry) != {"mean", "std"}:
+            raise SpecError(f"{source}: normalization.{side} must have exactly 'mean' and 'std'")
+        mean = _floats(entry["mean"], n, f"normalization.{side}.mean")
+        std = _floats(entry["std"], n, f"normalization.{side}.std")
+        if min(std) <= 0:
+            raise SpecError(f"{source}: normalization.{side}.std must be > 0 everywhere (min {min(std)})")
+        norm_out[side] = {"mean": mean, "std": std}
+    for side in norm:
+        if side not in ("obs", "action"):
+            raise SpecError(f"{source}: normalization.{side} is not valid; valid: obs, action")
+    out["normalization"] = norm_out
+    clip = spec.get("clip_actions", True)
+    if not isinstance(clip, bool):
+        raise SpecError(f"{source}: clip_actions must be true or false, got {clip!r}")
+    out["clip_actions"] = clip
+    if "meta" in spec:
+        meta = spec["meta"]
+        if not isinstance(meta, dict):
+            raise SpecError(f"{source}: meta must be an object")
+        out["meta"] = json.loads(json.dumps(meta, default=_jsonable))
+    return out
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if hasattr(x, "tolist"):  # torch tensors
+        return x.tolist()
+    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_checkpoint(path: str | Path, model, spec: dict[str, Any]) -> Path:
+    """Write `model`'s weights to PATH (.safetensors) and the spec beside it (PATH with .json).
+
+    The weights must fit the spec's architecture (checked by loading them into a fresh
+    build), so what is saved always loads. Returns the weights path.
+
+    Args:
+        path: destination, ending in `.safetensors`.
+        model: an `nn.Module` built by `baselines.architectures.build` (or state-compatible).
+        spec: the policy spec (see the module docstring); numpy arrays are fine for
+            normalisation; `obs_dim`/`action_dim` are filled in from the names.
+    """
+    from safetensors.torch import save_file
+
+    from baselines.architectures import build
+
+    path = Path(path)
+    if path.suffix != ".safetensors":
+        raise ConfigError(f"save_checkpoint: path {str(path)!r} must end in .safetensors")
+    spec = normalize_spec(spec)
+    state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    fresh = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
+    _load_state(fresh, state, str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        save_file(state, tmp, metadata={METADATA_KEY: _canonical(spec)})
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    _write_text_atomic(spec_path(path), json.dumps(spec, indent=2) + "\n")
+    return path
+
+
+def _load_state(module, state: dict[str, Any], source: str) -> None:
+    try:
+        module.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        detail = "; ".join(lines[1:3]) if len(lines) > 1 else lines[0] if lines else "mismatch"
+        raise SpecError(f"{source}: weights do not fit the spec's architecture: {detail[:300]}") from None
+
+
+def read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, str]]:
+    """Tensors and header metadata of a `.safetensors` or weights-only `.pt` file (never unpickles code)."""
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"checkpoint={str(path)!r}: no such file")
+    if path.suffix not in WEIGHT_SUFFIXES:
+        raise ConfigError(f"checkpoint={str(path)!r}: unsupported file type {path.suffix!r}; valid: "
+                          f"{', '.join(WEIGHT_SUFFIXES)} (pickled checkpoints are never loaded)")
+    if path.suffix == ".safetensors":
+        from safetensors import safe_open
+
+        try:
+            with safe_open(str(path), framework="pt", device="cpu") as fh:
+                meta = dict(fh.metadata() or {})
+                tensors = {k: fh.get_tensor(k) for k in fh.keys()}
+        except Exception as exc:  # SafetensorError, OSError: corrupt or truncated file
+            raise SpecError(f"checkpoint={str(path)!r}: not a readable safetensors file "
+                            f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})") from None
+        return tensors, meta
+    try:
+        obj = torch.load(str(path), map_location="cpu", weights_only=True)
+    except Exception as exc:  # UnpicklingError for anything that is not plain tensors
+        raise SpecError(f"checkpoint={str(path)!r}: cannot be read with torch.load(weights_only=True) "
+                        f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})") from None
+    if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
+        obj = obj["state_dict"]
+    if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()):
+        raise SpecError(f"checkpoint={str(path)!r}: expected a flat dict of name -> tensor (a state_dict)")
+    return dict(obj), {}
+
+
+def load_spec(path: str | Path, meta: dict[str, str] | None = None) -> dict[str, Any]:
+    """The checked spec of the checkpoint at `path` (the sidecar, else the copy embedded in the weights)."""
+    sidecar = spec_path(path)
+    embedded = None
+    if meta and METADATA_KEY in meta:
+        try:
+            embedded = normalize_spec(json.loads(meta[METADATA_KEY]), f"{path} (embedded spec)")
+        except json.JSONDecodeError:
+            raise SpecError(f"checkpoint={str(path)!r}: embedded spec is not valid JSON") from None
+    if sidecar.is_file():
+        try:
+            raw = json.loads(sidecar.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise SpecError(f"{sidecar}: not valid JSON ({str(exc).splitlines()[0]})") from None
+        spec = normalize_spec(raw, str(sidecar))
+        if embedded is not None and _canonical(embedded) != _canonical(spec):
+            diff = next((k for k in SPEC_KEYS if embedded.get(k) != spec.get(k)), "?")
+            raise SpecError(f"{sidecar}: field {diff!r} differs from the spec embedded in {Path(path).name} at save "
+                            "time; the checkpoint sha256 would not identify this policy (re-save it)")
+        return spec
+    if embedded is not None:
+        return embedded
+    raise SpecError(f"checkpoint={str(path)!r}: policy spec {sidecar} not found (see baselines.checkpoint docs)")
+
+
+class CheckpointPolicy:
+    """A deterministic torch policy: normalise obs -> model -> de-normalise action -> clip."""
+
+    def __init__(self, model, spec: dict[str, Any], action_low=None, action_high=None):
+        self.model, self.spec = model.eval(), spec
+        norm = spec.get("normalization", {})
+        od, ad = spec["obs_dim"], spec["action_dim"]
+        o, a = norm.get("obs"), norm.get("action")
+        self.obs_mean = np.asarray(o["mean"] if o else np.zeros(od), np.float32)
+        self.obs_std = np.asarray(o["std"] if o else np.ones(od), np.float32)
+        self.act_mean = np.asarray(a["mean"] if a else np.zeros(ad), np.float32)
+        self.act_std = np.asarray(a["std"] if a else np.ones(ad), np.float32)
+        clip = spec.get("clip_actions", True)
+        self.low = None if action_low is None or not clip else np.asarray(action_low, np.float32)
+        self.high = None if action_high is None or not clip else np.asarray(action_high, np.float32)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: the policy is deterministic and stateless."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Action for one flat observation."""
+        import torch
+
+        x = (np.asarray(obs, np.float32) - self.obs_mean) / self.obs_std
+        with torch.inference_mode():
+            y = self.model(torch.from_numpy(x[None, :])).numpy()[0]
+        action = y * self.act_std + self.act_mean
+        if self.low is not None:
+            action = np.clip(action, self.low, self.high)
+        return action.astype(np.float32)
+
+
+def load_policy(path: str | Path, env=None) -> CheckpointPolicy:
+    """Load the checkpoint at `path`; with `env`, check its obs/action names and clip to its bounds.
+
+    Raises:
+        ConfigError: missing file, unsupported type, or names that differ from the env's.
+        SpecError: malformed spec or weights that do not fit the architecture.
+    """
+    from baselines.architectures import build
+
+    tensors, meta = read_weights(path)
+    spec = load_spec(path, meta)
+    model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
+    _load_state(model, {k: v.float() for k, v in tensors.items()}, f"checkpoint={str(path)!r}")
+    if env is not None:
+        check_names(spec, env, str(path))
+    return CheckpointPolicy(model, spec, getattr(env, "action_low", None), getattr(env, "action_high", None))
+
+
+def check_names(spec: dict[str, Any], env, source: str) -> None:
+    """ConfigError unless the env's obs_names/action_names equal the ones the policy was trained on."""
+    env_obs = [[str(n), int(w)] for n, w in env.obs_names]
+    if env_obs != spec["obs_names"]:
+        first = next((i for i, (a, b) in enumerate(zip(env_obs, spec["obs_names"])) if a != b),
+                     min(len(env_obs), len(spec["obs_names"])))
+        have = env_obs[first] if first < len(env_obs) else "(end)"
+        want = spec["obs_names"][first] if first < len(spec["obs_names"]) else "(end)"
+        raise ConfigError(f"checkpoint={source!r}: obs_names differ from the env's at field {first}: policy "
+                          f"expects {want}, env gives {have}; the policy was trained on another observation layout")
+    if list(env.action_names) != spec["action_names"]:
+        raise ConfigError(f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's "
+                          f"{list(env.action_names)}")
+
+
+def make(cell, env, cfg) -> CheckpointPolicy:
+    """Policy factory (entry point `bench.policies: checkpoint`); reads `cfg.checkpoint`."""
+    import torch
+
+    torch.set_num_threads(1)  # one core per worker: the runner parallelises across processes
+    path = getattr(cfg, "checkpoint", None)
+    if not path:
+        raise ConfigError("policy=checkpoint needs checkpoint=PATH (a .safetensors file with its .json spec beside it)")
+    return load_policy(path, env)
+
+
+def preflight(cfg, suite, cells) -> None:
+    """Check the checkpoint in the parent before any worker starts (called by `bench run`'s prepare).
+
+    Loads the weights into the spec's architecture and compares the names with the
+    env of the first cell (built once here: a mismatch must stop the run with exit 2,
+    not fill it with error records).
+    """
+    path = getattr(cfg, "checkpoint", None)
+    if not path:
+        raise ConfigError("policy=checkpoint needs checkpoint=PATH (a .safetensors file with its .json spec beside it)")
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        policy = load_policy(path)
+        if cells:
+            env = suite.make_env(cells[0], cfg.horizon or suite.default_horizon)
+            try:
+                check_names(policy.spec, env, str(path))
+            finally:
+                env.close()
+    finally:
+        torch.set_num_threads(threads)
+
+
+make.preflight = preflight  # type: ignore[attr-defined]  # optional hook: bench.run.prepare calls it before any worker

@@ -1,0 +1,100 @@
+"""`bench report`: HTML + PNG figures for runs (with sensitivity), leaderboards, calibration and verdicts."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from bench import cli
+from bench.leaderboard import merge
+from bench.records import EpisodeRecord
+from bench.summary import build
+
+from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ is on sys.path)
+
+
+def _perturbed_summary() -> dict:
+    recs = []
+    for robot, split in (("A", "seen"), ("C", "unseen")):
+        for cond, axis, level, p in (("nominal", None, None, 0.9), ("friction=0.5", "friction", 0.5, 0.6),
+                                     ("friction=2", "friction", 2.0, 0.8), ("mass=[1,3]", "mass", [1.0, 3.0], 0.3)):
+            for e in range(10):
+                ok = e < round(p * 10)
+                recs.append(EpisodeRecord(
+                    run_id="pert", job_id=f"Lift/{robot}/default|{cond}|{e}", suite="toy", suite_version="1",
+                    task="Lift", robot=robot, env="default", split=split, condition=cond, axis=axis, level=level,
+                    params={axis: 1.0} if axis else {}, episode=e, seed=e, init_state_hash="h", success_once=ok,
+                    success_at_end=ok, return_=float(ok), length=5, steps_to_success=None, error=None, policy="p",
+                    checkpoint_sha256=None, backend="b", wall_s=0.0, finished_at=0.0, worker_pid=0))
+    base = summary("tmp", "p", ALL)
+    meta = {k: base[k] for k in ("suite", "policy", "config", "provenance")}
+    meta["run_id"], meta["expected_episodes"] = "pert", len(recs)
+    return build(recs, run_meta=meta)
+
+
+def _pngs_ok(out: Path, names: set[str]) -> None:
+    assert {p.name for p in out.glob("*.png")} == names
+    for p in out.glob("*.png"):
+        with Image.open(p) as im:
+            assert im.size[0] > 300 and im.size[1] > 150
+            assert len(im.convert("L").getcolors(maxcolors=1 << 16) or []) > 5  # something is drawn
+    page = (out / "index.html").read_text()
+    for n in names:
+        assert f"src='{n}'" in page
+
+
+def test_run_report_with_sensitivity(tmp_path: Path, capsys):
+    s = _perturbed_summary()
+    assert s.get("sensitivity")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "summary.json").write_text(json.dumps(s))
+    out = tmp_path / "report"
+    assert cli.main(["report", str(run), f"out={out}"]) == 0
+    _pngs_ok(out, {"cells.png", "gaps.png", "sensitivity.png"})
+    page = (out / "index.html").read_text()
+    assert "Sensitivity per perturbation axis" in page and "friction" in page and "mass" in page
+    assert "seen" in page and "unseen" in page
+
+
+def test_leaderboard_report_with_calibration_and_verdict(tmp_path: Path):
+    board = merge([("a", summary("a", "expert", ALL)), ("b", summary("b", "random", {k: 0.1 for k in ALL}))])
+    (tmp_path / "lb.json").write_text(json.dumps(board))
+    cal = {"schema": "bench.calibration/1", "errors": {
+        stage: {"one_step_nrmse": v, "k_step_nrmse": 2 * v, "free_run_nrmse": 3 * v, "free_run_rmse": v, "r2": 1 - v}
+        for stage, v in (("nominal", 0.3), ("declared", 0.1), ("final", 0.05))}, "added": [{"name": "coulomb"}]}
+    (tmp_path / "cal").mkdir()
+    (tmp_path / "cal" / "calibration.json").write_text(json.dumps(cal))
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(tmp_path / "lb.json"), f"out={out}", f"calibration={tmp_path / 'cal'}"]) == 0
+    _pngs_ok(out, {"leaderboard.png", "calibration.png"})
+    page = (out / "index.html").read_text()
+    assert "coulomb" in page and "expert" in page and "declared" in page
+    # replacing an existing report leaves no stale figure behind
+    assert cli.main(["report", str(tmp_path / "lb.json"), f"out={out}"]) == 0
+    _pngs_ok(out, {"leaderboard.png"})
+
+
+@pytest.mark.parametrize("make_input, match", [
+    (lambda d: d / "missing", "no such file"),
+    (lambda d: (d / "x.json").write_text("{oops") and d / "x.json", "not valid JSON"),
+    (lambda d: (d / "y.json").write_text('{"a": 1}') and d / "y.json", "not a bench result"),
+], ids=["missing", "corrupt", "foreign"])
+def test_bad_input_exits_2_and_writes_nothing(tmp_path: Path, capsys, make_input, match):
+    src = make_input(tmp_path)
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(src), f"out={out}"]) == 2
+    err = capsys.readouterr().err
+    assert match in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_bad_calibration_exits_2(tmp_path: Path, capsys):
+    (tmp_path / "s.json").write_text(json.dumps(summary("s", "p", ALL)))
+    (tmp_path / "c.json").write_text(json.dumps({"schema": "bench.calibration/1", "errors": []}))
+    assert cli.main(["report", str(tmp_path / "s.json"), f"out={tmp_path / 'r'}",
+                     f"calibration={tmp_path / 'c.json'}"]) == 2
+    assert "errors must hold" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

@@ -1,0 +1,51 @@
+"""Committed reference results: every summary validates and re-scores identically from its own records,
+and results/leaderboard.json is exactly the merge of the committed runs."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench.leaderboard import load_json, merge, read_input, validate
+from bench.records import EPISODES, read_records
+from bench.summary import build
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "results"
+RUNS = sorted(p for p in (RESULTS / "runs").glob("*") if p.is_dir()) if (RESULTS / "runs").is_dir() else []
+
+
+def test_results_folder_has_runs_and_a_leaderboard():
+    assert RUNS, f"no committed reference runs under {RESULTS / 'runs'}"
+    assert (RESULTS / "leaderboard.json").is_file()
+
+
+@pytest.mark.parametrize("run", RUNS, ids=[p.name for p in RUNS])
+def test_summary_validates_and_rescores_identically(run: Path):
+    for name in (EPISODES, "run.json", "summary.json"):
+        assert (run / name).is_file(), f"{run.name}: {name} missing"
+    summary = load_json(run / "summary.json")
+    assert validate(summary, str(run)) == "bench.summary/1"
+    meta = load_json(run / "run.json")
+    records = read_records(run / EPISODES)
+    assert len(records) == summary["counts"]["episodes"]
+    assert {r.run_id for r in records} == {summary["run_id"]} == {run.name}
+    rescored = json.loads(json.dumps(build(records, run_meta=meta)))
+    assert rescored == summary
+
+
+@pytest.mark.parametrize("run", RUNS, ids=[p.name for p in RUNS])
+def test_records_carry_the_checkpoint_hash_of_the_run(run: Path):
+    meta = load_json(run / "run.json")
+    shas = {r.checkpoint_sha256 for r in read_records(run / EPISODES)}
+    assert shas == {meta["policy"]["checkpoint_sha256"]}
+
+
+def test_leaderboard_is_the_merge_of_the_committed_runs(monkeypatch):
+    board = load_json(RESULTS / "leaderboard.json")
+    assert validate(board) == "bench.leaderboard/1"
+    monkeypatch.chdir(REPO)  # sources are recorded relative to the repository root
+    inputs = [read_input(str(Path("results/runs") / r.name)) for r in RUNS]
+    assert json.loads(json.dumps(merge(inputs))) == board, \
+        "results/leaderboard.json is stale: bench leaderboard merge results/runs/* out=results/leaderboard.json"
