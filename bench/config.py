@@ -8,6 +8,7 @@ a one-line `ConfigError` (exit 2) that names the key and suggests the closest on
 from __future__ import annotations
 
 import dataclasses
+import re
 from typing import Any, Iterable, TypeVar
 
 from bench.errors import ConfigError, did_you_mean
@@ -85,3 +86,29 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         raise ConfigError(f"bad value for {key!r}: {msg}") from None
     except OmegaConfBaseException as exc:
         raise ConfigError(f"cannot parse overrides: {str(exc).splitlines()[0]}") from None
+
+
+def key_help(schema: type) -> str:
+    """One line per field of `schema`: its name and the comment beside it in the source.
+
+    Commands build their `--help` key list from their config dataclass with this, so the
+    help cannot drift from the keys that are actually accepted.
+    """
+    import inspect
+
+    defaults = {}
+    for f in dataclasses.fields(schema):
+        if f.default is not dataclasses.MISSING:
+            defaults[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+            defaults[f.name] = f.default_factory()  # type: ignore[misc]
+    rows = []
+    for line in inspect.getsource(schema).splitlines():
+        line = line.strip()
+        m = re.match(r"^(\w+)\s*:[^#]*#\s*(.*)$", line)
+        if m and m.group(1) in defaults:
+            d = defaults[m.group(1)]
+            shown = "" if d is None or d == {} else f"={str(d).lower() if isinstance(d, bool) else d}"
+            rows.append((m.group(1) + shown, m.group(2)))
+    width = max((len(k) for k, _ in rows), default=0) + 2
+    return "\n".join(f"  {k:<{width}}{doc}" for k, doc in rows)

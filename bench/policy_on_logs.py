@@ -59,6 +59,7 @@ def evaluate(cfg: ActionsConfig) -> dict:
     """Action errors of `cfg.policy` on the logged observations of `cfg.logs`."""
     from bench import registry
     from bench.logs import read_dataset
+    from bench.recording import episode_cell
 
     ds = read_dataset(cfg.logs)
     for feat in ("observation.state", "action"):
@@ -75,10 +76,7 @@ def evaluate(cfg: ActionsConfig) -> dict:
     action_names = ds.features["action"].get("names")
     try:
         for ep in episodes:
-            key = ep.tasks[0] if ep.tasks else ""
-            if key not in cells:
-                raise DataError(f"{cfg.logs}: episode {ep.index} task {key!r} is not a cell of suite {cfg.suite!r}; "
-                                f"valid: {', '.join(sorted(cells))}")
+            key = episode_cell(cells, ep, cfg.logs, cfg.suite).key
             if key not in built:
                 env = suite.make_env(cells[key], suite.default_horizon)
                 names = ds.features["observation.state"].get("names")

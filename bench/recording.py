@@ -71,3 +71,12 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
     ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type,
                      names={"observation.state": obs_names, "action": action_names})
     return write_dataset(out, ds)
+
+
+def episode_cell(cells: dict, episode, logs: str, suite_name: str):
+    """The suite cell a recorded episode belongs to: its task string is the cell key (`Lift/Panda/default`)."""
+    key = episode.tasks[0] if episode.tasks else ""
+    if key not in cells:
+        raise DataError(f"{logs}: episode {episode.index} task {key!r} is not a cell of suite {suite_name!r}; "
+                        f"valid: {', '.join(sorted(cells))}")
+    return cells[key]

@@ -71,11 +71,7 @@ class RegressConfig:
 
 
 def help_text() -> str:
-    import inspect
-
-    src = inspect.getsource(RegressConfig).splitlines()
-    rows = [ln.strip() for ln in src if ":" in ln and "#" in ln and not ln.strip().startswith('"""')]
-    keys = "\n".join(f"  {r.split(':')[0]:<14} {r.split('#', 1)[1].strip()}" for r in rows)
+    keys = config_mod.key_help(RegressConfig)
     return (
         "usage: bench regress candidate=X baseline=Y [key=value ...]\n\n"
         "CI regression gate: runs candidate and baseline on the same suite cells with the same episode\n"

@@ -245,6 +245,7 @@ def _set_state(env, state: np.ndarray) -> None:
 def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray]:
     """One nominal env per cell the episodes name; the compared coordinates (the same for all)."""
     from bench import registry
+    from bench.recording import episode_cell
 
     suite = registry.make_suite(cfg.suite)
     cells = {c.key: c for c in suite.all_cells()}
@@ -254,10 +255,7 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
     names = idx = None
     try:
         for ep in eps:
-            key = ep.tasks[0] if ep.tasks else ""
-            if key not in cells:
-                raise DataError(f"{cfg.logs}: episode {ep.index} task {key!r} is not a cell of suite {cfg.suite!r}; "
-                                f"valid: {', '.join(sorted(cells))}")
+            key = episode_cell(cells, ep, cfg.logs, cfg.suite).key
             if key not in built:
                 env = suite.make_env(cells[key], suite.default_horizon)
                 built[key] = env

@@ -47,11 +47,7 @@ RESUMABLE_KEYS = {"workers", "timeout", "out", "run_id"}
 
 
 def help_text() -> str:
-    import inspect
-
-    src = inspect.getsource(RunConfig).splitlines()
-    rows = [line.strip() for line in src if ":" in line and "#" in line and not line.strip().startswith('"""')]
-    keys = "\n".join(f"  {r.split(':')[0]:<22} {r.split('#', 1)[1].strip()}" for r in rows)
+    keys = config_mod.key_help(RunConfig)
     return (
         "usage: bench run [key=value ...]\n\n"
         "Runs a policy on every cell (task x robot x env) and condition of a suite, appends one\n"
