@@ -3,8 +3,9 @@
 Conventions:
 - A per-cell rate carries a Wilson score interval (`scipy.stats.binomtest(...).proportion_ci`).
 - Aggregates over cells (mean, IQM) and gaps between groups of cells carry a
-  stratified percentile bootstrap interval: episodes are resampled within each cell
-  (strata = cells), so every cell keeps its episode count in every resample.
+  stratified bootstrap interval (strata = cells): each cell's rate is redrawn from its
+  Jeffreys posterior (the Bayesian bootstrap of its 0/1 outcomes), so an all-success
+  cell still carries its uncertainty instead of a [1, 1] interval.
 - Paired gaps (same episode seeds under two conditions) resample episode indices
   jointly, so the shared initial state cancels out.
 - Anything that cannot be computed is `None` plus a reason: never NaN.
@@ -61,12 +62,18 @@ STATISTICS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 
 
 def _resampled_rates(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int) -> np.ndarray:
-    """(n_boot, n_cells) success rates with episodes resampled within each cell."""
+    """(n_boot, n_cells) plausible success rates, drawn independently per cell (strata = cells).
+
+    Each cell's rate is drawn from its Jeffreys posterior Beta(k + 1/2, n - k + 1/2): the
+    Bayesian bootstrap of 0/1 outcomes. It behaves like resampling episodes within the cell
+    but, unlike the percentile bootstrap, does not collapse to a single point when a cell is
+    all successes or all failures (10/10 is not proof of 100%).
+    """
     out = np.empty((n_boot, len(cells)))
     for j, outcomes in enumerate(cells):
         outcomes = np.asarray(outcomes, dtype=float)
-        idx = rng.integers(0, len(outcomes), size=(n_boot, len(outcomes)))
-        out[:, j] = outcomes[idx].mean(axis=1)
+        k, n = float(outcomes.sum()), float(len(outcomes))
+        out[:, j] = rng.beta(k + 0.5, n - k + 0.5, size=n_boot)
     return out
 
 
@@ -95,7 +102,8 @@ def aggregate(
     point = float(stat(np.array([c.mean() for c in cells])))
     boot = stat(_resampled_rates(cells, rng, n_boot))
     lo, hi = _interval(boot, confidence)
-    return Estimate(point, lo, hi)
+    # as for the Jeffreys interval at k = 0 or k = n: the interval always contains the observed value
+    return Estimate(point, min(lo, point), max(hi, point))
 
 
 def gap(
@@ -116,7 +124,7 @@ def gap(
     point = float(stat(np.array([c.mean() for c in reference])) - stat(np.array([c.mean() for c in target])))
     boot = stat(_resampled_rates(reference, rng, n_boot)) - stat(_resampled_rates(target, rng, n_boot))
     lo, hi = _interval(boot, confidence)
-    return Estimate(point, lo, hi)
+    return Estimate(point, min(lo, point), max(hi, point))
 
 
 def paired_gap(

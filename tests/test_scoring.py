@@ -41,10 +41,14 @@ def test_iqm_by_hand():
     assert float(scoring.iqm(x)) == pytest.approx(0.35)
 
 
-def test_constant_cells_give_degenerate_interval():
+def test_all_success_cells_keep_their_uncertainty():
     rng = np.random.default_rng(1)
-    est = scoring.aggregate([np.ones(5), np.ones(3)], rng)
-    assert (est.value, est.lo, est.hi) == (1.0, 1.0, 1.0)
+    est = scoring.aggregate([np.ones(10), np.ones(10)], rng)
+    # 10/10 twice: point 1.0; the lower bound is well below 1 (each cell's Jeffreys 2.5% quantile ~0.78)
+    assert est.value == 1.0 and est.hi == 1.0
+    assert 0.8 < est.lo < 0.97
+    more = scoring.aggregate([np.ones(200), np.ones(200)], rng)
+    assert more.lo > est.lo  # more episodes, tighter interval
 
 
 def test_paired_gap_by_hand():
