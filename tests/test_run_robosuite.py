@@ -102,3 +102,15 @@ def test_record_writes_lerobot_dataset(tmp_path):
     rand = evaluate(ActionsConfig(logs=str(out), policy="random"))
     grip = next(d for d in rand["per_dim"] if d["dim"] == "gripper")
     assert grip["mae"]["value"] > 0.3 and grip["mae"]["ci"][0] > 0.1
+
+
+def test_episode_timeout_is_recorded_and_the_run_goes_on(tmp_path):
+    code = main(["run", "robots=[Panda]", "episodes=2", "workers=1", "timeout=0.3", f"out={tmp_path}", "run_id=t"])
+    assert code == 0
+    recs = read_records(tmp_path / "t" / "episodes.jsonl")
+    assert len(recs) == 2
+    assert all(r.error and r.error.startswith("timeout after 0.3 s") and not r.success_once for r in recs)
+    summary = json.loads((tmp_path / "t" / "summary.json").read_text())
+    assert summary["counts"]["errors"] == 2
+    cell = summary["cells"][0]
+    assert cell["n"] == 0 and cell["success_once"]["value"] is None and cell["success_once"]["reason"]
