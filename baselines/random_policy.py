@@ -8,14 +8,15 @@ class RandomPolicy:
     """The floor every policy should beat; seeded by the episode seed for reproducibility."""
 
     def __init__(self, low: np.ndarray, high: np.ndarray):
-        self.low, self.high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+        self.low, self.high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+        self._span, self._n = self.high - self.low, len(self.low)
         self._rng = np.random.default_rng(0)
 
     def reset(self, seed: int | None = None) -> None:
         self._rng = np.random.default_rng(seed)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return self._rng.uniform(self.low, self.high).astype(np.float32)
+        return (self.low + self._span * self._rng.random(self._n)).astype(np.float32)
 
 
 def make(cell, env, cfg) -> RandomPolicy:

@@ -181,11 +181,14 @@ class RobosuiteEnv:
             ends.append(last)
         self._grip_open, self._grip_closed = ends
         self._grip_mask = np.abs(self._grip_open - self._grip_closed) > 1e-3  # joints that move
+        # per-step opening = mean((q - closed) / (open - closed)) over the moving joints
+        self._grip_qidx = self._grip_idx[self._grip_mask]
+        self._grip_c = self._grip_closed[self._grip_mask]
+        self._grip_inv_span = 1.0 / (self._grip_open - self._grip_closed)[self._grip_mask]
 
     def _opening(self) -> float:
-        q = self.data.qpos[self._grip_idx][self._grip_mask]
-        o, c = self._grip_open[self._grip_mask], self._grip_closed[self._grip_mask]
-        return float(np.clip(np.mean((q - c) / (o - c)), 0.0, 1.0))
+        frac = float(((self.data.qpos[self._grip_qidx] - self._grip_c) * self._grip_inv_span).mean())
+        return min(1.0, max(0.0, frac))
 
     # -- contract ----------------------------------------------------------------------------
     def _raw_reset(self, seed: int) -> dict:
@@ -199,7 +202,7 @@ class RobosuiteEnv:
 
     def reset(self, seed: int) -> np.ndarray:
         raw = self._raw_reset(int(seed))
-        self._quat0 = np.asarray(raw["robot0_eef_quat"], dtype=np.float64)
+        self._quat0_conj = _quat_conj(np.asarray(raw["robot0_eef_quat"], dtype=np.float64))
         self._init_state = np.concatenate([self.data.qpos, self.data.qvel, self._scene_vec]).copy()
         return self._obs(raw)
 
@@ -221,15 +224,13 @@ class RobosuiteEnv:
 
     def _obs(self, raw: dict) -> np.ndarray:
         obj = self._object
-        quat_rel = _quat_mul(_quat_conj(self._quat0), np.asarray(raw["robot0_eef_quat"], dtype=np.float64))
-        if quat_rel[3] < 0:  # one hemisphere, so the same rotation reads the same
-            quat_rel = -quat_rel
-        parts = [
-            raw["robot0_eef_pos"],
-            quat_rel,
-            [self._opening()],
-            raw[f"{obj}_pos"],
-            raw[f"{obj}_quat"],
-            np.asarray(raw[f"{obj}_pos"]) - np.asarray(raw["robot0_eef_pos"]),
-        ]
-        return np.concatenate([np.asarray(p, dtype=np.float32).ravel() for p in parts])
+        out = np.empty(18, dtype=np.float32)  # layout: OBS_NAMES
+        eef, pos = raw["robot0_eef_pos"], raw[f"{obj}_pos"]
+        quat_rel = _quat_mul(self._quat0_conj, raw["robot0_eef_quat"])
+        out[0:3] = eef
+        out[3:7] = quat_rel if quat_rel[3] >= 0 else -quat_rel  # one hemisphere: same rotation, same numbers
+        out[7] = self._opening()
+        out[8:11] = pos
+        out[11:15] = raw[f"{obj}_quat"]
+        out[15:18] = pos - eef
+        return out
