@@ -112,8 +112,12 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
     except EpisodeTimeout:
         error = f"timeout after {ctx.timeout_s:g} s at step {length}"
     except Exception as exc:  # recorded, the run goes on
-        tb = traceback.extract_tb(exc.__traceback__)[-1]
-        error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
+        if ctx.timeout_s and time.perf_counter() - t0 >= ctx.timeout_s:
+            # the alarm fired inside a library that re-raised it as its own exception type
+            error = f"timeout after {ctx.timeout_s:g} s at step {length} (surfaced as {type(exc).__name__})"
+        else:
+            tb = traceback.extract_tb(exc.__traceback__)[-1]
+            error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
     if error:
         success_once = success_at_end = False
     elif traj is not None and length:
