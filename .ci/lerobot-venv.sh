@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Build a side virtual environment with lerobot 0.4.4 in it, to check that lerobot itself loads the
+# LeRobot v3 datasets bench writes (tests/test_lerobot_interop.py). It is never bench's own environment:
+# lerobot brings pandas, and its pins (torch<2.11, torchvision<0.26) would pull a CUDA torch of several GB.
+# So: torch 2.13.0 CPU first, lerobot without its dependencies, then the part of its dependency list that
+# dataset loading imports, within lerobot's own version ranges where the registry has them.
+#
+#   bash .ci/lerobot-venv.sh [DIR]          # default DIR: .lerobot-venv (git-ignored)
+#   BENCH_LEROBOT_PYTHON=DIR/bin/python pytest tests/test_lerobot_interop.py
+#
+# One adjustment, stated: the torchvision wheel that matches torch 2.13.0 (0.28.0) links its compiled ops
+# against CUDA libraries the CPU torch lacks, so `import torchvision` fails while registering fake kernels
+# for nms/roi_align. The script makes those two registration modules load only when the compiled ops
+# loaded. lerobot's dataset code uses torchvision's pure-Python transforms only, never these ops.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DIR="${1:-.lerobot-venv}"
+python3 -m venv "$DIR"
+PY="$DIR/bin/python"
+"$PY" -m pip install -q torch==2.13.0
+"$PY" -m pip install -q --no-deps lerobot==0.4.4 torchvision==0.28.0
+"$PY" -m pip install -q "datasets>=4,<5" "huggingface-hub>=0.34.2,<0.36" "accelerate>=1.10,<2" "av>=15,<16" \
+    "deepdiff>=7,<9" "packaging>=24.2,<26" "draccus==0.10.0" "jsonlines>=4,<5" "einops>=0.8,<0.9" \
+    "termcolor>=2.4,<4" "gymnasium>=1.1,<2" "imageio>=2.34,<3" "numpy<2" "pyarrow<26" pillow
+"$PY" - <<'PYEOF'
+import importlib.util, pathlib
+init = pathlib.Path(importlib.util.find_spec("torchvision").origin)
+s = init.read_text()
+old = "    _autograd_registrations,\n    _meta_registrations,\n"
+if old in s:
+    s = s.replace(old, "", 1).replace(
+        ")  # usort:skip\n",
+        ")  # usort:skip\nif extension._has_ops():\n    from torchvision import _autograd_registrations, _meta_registrations\n", 1)
+    init.write_text(s)
+PYEOF
+HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"
