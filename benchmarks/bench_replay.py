@@ -15,9 +15,15 @@ logged commands:
 
 Prints the best of `repeats` wall times of each (interleaved; on a shared machine the best is the one
 least disturbed by other processes), their ratio, and the largest difference between the trajectories.
+
+It also prints the ceiling any batching can reach on this machine: the physics alone (`mj_step` with
+`nstep`, one C call, no Python per step) costs F us/step, so a batched replay on c cores cannot beat
+F / c us/step, and the loop / batched ratio cannot exceed loop us/step / (F / c). On the 3-joint arm
+F is about 0.9 us and the loop about 2 us, so 2 cores cap the ratio near 4-5x whatever the batching.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -52,6 +58,19 @@ def step_loop(plant: Plant, segments: dict) -> tuple[dict[str, np.ndarray], int]
             steps += n * s
         out[label] = pred
     return out, steps
+
+
+def physics_floor(plant: Plant, steps: int = 100_000) -> float:
+    """Seconds per step of the physics alone: one `mj_step(nstep=...)` C call, no Python per step."""
+    d = mujoco.MjData(plant.model)
+    d.ctrl[:] = plant.rec.ctrl[0]
+    best = float("inf")
+    for _ in range(3):
+        mujoco.mj_resetData(plant.model, d)
+        t0 = time.perf_counter()
+        mujoco.mj_step(plant.model, d, nstep=steps)
+        best = min(best, time.perf_counter() - t0)
+    return best / steps
 
 
 def _timed(fn) -> tuple[float, object]:
@@ -104,6 +123,10 @@ def main(argv: list[str]) -> int:
         print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} {t_batch:8.3f} s   {steps:,} steps   "
               f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}")
     print(f"  max |qpos difference| between the two: {diff:.1e} rad (all segments of all three horizons)")
+    floor, cores = physics_floor(plant), os.cpu_count() or 1
+    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} core{'s' if cores > 1 else ''} "
+          f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
+          f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)")
     return 0
 
 

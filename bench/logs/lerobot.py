@@ -100,11 +100,28 @@ class _Index:
     start: np.ndarray  # dataset_from_index
     stop: np.ndarray  # dataset_to_index
     base: np.ndarray  # dataset_from_index of the first row of the episode's data file
-    ep_tasks: list[list[str]]
-    ep_meta: list[dict]
+    order: np.ndarray  # episode e's row in the episodes file(s) (rows may be in any order)
+    raw_tasks: pa.ChunkedArray  # per row: the episode's task strings
+    raw_meta: pa.ChunkedArray | None  # per row: bench's JSON metadata, if the column exists
 
     def data_file(self, e: int) -> str:
         return self.info["data_path"].format(chunk_index=int(self.chunk[e]), file_index=int(self.file[e]))
+
+    def episode_tasks(self, e: int) -> list[str]:
+        """Task strings of episode e (parsed on demand: opening a dataset stays cheap)."""
+        return list(self.raw_tasks[int(self.order[e])].as_py() or [])
+
+    def episode_meta(self, e: int) -> dict:
+        """bench's per-episode metadata of episode e ({} for datasets written by other tools)."""
+        raw = None if self.raw_meta is None else self.raw_meta[int(self.order[e])].as_py()
+        try:
+            meta = json.loads(raw) if raw else {}
+        except json.JSONDecodeError:
+            meta = None
+        if not isinstance(meta, dict):
+            where = _where(self.root, self.episodes_file)
+            raise DataError(f"{where}: column {META_COLUMN!r} is not a JSON object for episode {e}")
+        return meta
 
 
 _INDEX_CACHE: dict[Path, tuple[tuple, _Index]] = {}
@@ -246,8 +263,9 @@ def _episode_files(root: Path) -> list[str]:
     return [_rel(root, f) for f in files]
 
 
-def _load_episodes(root: Path, rels: list[str]) -> dict[str, list]:
-    cols: dict[str, list] = {c: [] for c in (*EPISODE_COLUMNS, META_COLUMN)}
+def _load_episodes(root: Path, rels: list[str]) -> dict[str, pa.ChunkedArray | None]:
+    """The episode table's columns over all episodes files, as arrow columns (no per-row Python objects)."""
+    parts: dict[str, list] = {c: [] for c in (*EPISODE_COLUMNS, META_COLUMN)}
     for rel in rels:
         pf = _parquet_file(root, rel)
         present = pf.schema_arrow.names
@@ -255,11 +273,17 @@ def _load_episodes(root: Path, rels: list[str]) -> dict[str, list]:
             if c not in present:
                 raise DataError(f"{_where(root, rel)}: column {c!r} is missing")
         wanted = list(EPISODE_COLUMNS) + ([META_COLUMN] if META_COLUMN in present else [])
-        table = _read(root, rel, pf.read, columns=wanted)
-        for c in EPISODE_COLUMNS:
-            cols[c].extend(table.column(c).to_pylist())
-        metas = table.column(META_COLUMN).to_pylist() if META_COLUMN in present else [None] * len(table)
-        cols[META_COLUMN].extend(metas)
+        table = _read(root, rel, pf.read, columns=wanted, use_threads=False)
+        for c in wanted:
+            parts[c].append(table.column(c))
+        if META_COLUMN not in present:
+            parts[META_COLUMN].append(pa.chunked_array([pa.nulls(len(table), pa.string())]))
+    cols: dict[str, pa.ChunkedArray | None] = {}
+    for c, columns in parts.items():
+        try:
+            cols[c] = pa.chunked_array([chunk for col in columns for chunk in col.chunks], type=columns[0].type)
+        except (pa.ArrowException, TypeError):  # files disagree on a column's type: fall back to Python values
+            cols[c] = pa.chunked_array([pa.array([v for col in columns for v in col.to_pylist()])])
     return cols
 
 
@@ -269,7 +293,16 @@ def _build_index(root: Path) -> _Index:
     rels = _episode_files(root)
     cols = _load_episodes(root, rels)
     where = _where(root, rels[0])
-    ep = np.asarray(cols["episode_index"], dtype=np.int64)
+    def ints(name: str) -> np.ndarray:
+        column = cols[name]
+        try:
+            if column.null_count or not pa.types.is_integer(column.type):
+                raise ValueError
+            return np.asarray(column.to_numpy(), dtype=np.int64)
+        except (TypeError, ValueError, pa.ArrowException):
+            raise DataError(f"{where}: column {name!r} has missing or non-integer values") from None
+
+    ep = ints("episode_index")
     order = np.argsort(ep, kind="stable")
     ep = ep[order]
     n = len(ep)
@@ -286,10 +319,7 @@ def _build_index(root: Path) -> _Index:
         raise DataError(f"{root / INFO_PATH}: field 'total_episodes' is {info['total_episodes']} but {where} lists {n}")
 
     def col(name: str) -> np.ndarray:
-        try:
-            return np.asarray(cols[name], dtype=np.int64)[order]
-        except (TypeError, ValueError):
-            raise DataError(f"{where}: column {name!r} has missing or non-integer values") from None
+        return ints(name)[order]
 
     length, start, stop = col("length"), col("dataset_from_index"), col("dataset_to_index")
     bad = first_bad_row((stop - start != length) | (length <= 0))
@@ -302,13 +332,6 @@ def _build_index(root: Path) -> _Index:
         total = int(length.sum())
         declared = info["total_frames"]
         raise DataError(f"{root / INFO_PATH}: field 'total_frames' is {declared} but the episodes sum to {total}")
-    meta: list[dict] = []
-    for e in order.tolist():
-        raw = cols[META_COLUMN][e]
-        try:
-            meta.append(json.loads(raw) if raw else {})
-        except json.JSONDecodeError:
-            raise DataError(f"{where}: column {META_COLUMN!r} is not JSON for episode {len(meta)}") from None
     features = {k: v for k, v in info["features"].items() if v["dtype"] != "video"}
     chunk, file = col("data/chunk_index"), col("data/file_index")
     base = start.copy()
@@ -318,7 +341,7 @@ def _build_index(root: Path) -> _Index:
     return _Index(
         root=root, info=info, features=features, tasks=tasks, episodes_file=rels[0], episode_index=ep,
         length=length, chunk=chunk, file=file, start=start, stop=stop, base=base,
-        ep_tasks=[list(cols["tasks"][e] or []) for e in order.tolist()], ep_meta=meta,
+        order=order, raw_tasks=cols["tasks"], raw_meta=cols[META_COLUMN],
     )
 
 
@@ -508,7 +531,7 @@ def _check_rows(idx: _Index, rel: str, cols: dict[str, np.ndarray], eps: np.ndar
 
 def _episode(idx: _Index, e: int, cols: dict[str, np.ndarray], lo: int, hi: int) -> Episode:
     data = {n: a[lo:hi] for n, a in cols.items() if n != "episode_index"}
-    return Episode(index=e, data=data, tasks=list(idx.ep_tasks[e]), meta=dict(idx.ep_meta[e]))
+    return Episode(index=e, data=data, tasks=idx.episode_tasks(e), meta=idx.episode_meta(e))
 
 
 def _dataset(idx: _Index, episodes: list[Episode]) -> LogDataset:
