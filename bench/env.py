@@ -24,6 +24,11 @@ class Env(Protocol):
         action_low, action_high: bounds of the action vector.
         horizon: number of control steps in one episode.
         model, data: the `mujoco.MjModel` / `MjData` for MuJoCo backends, else None.
+
+    Optional, for MuJoCo backends whose controller runs in Python between physics steps (robosuite):
+    `log_ctrl(on: bool)` starts/stops logging `data.ctrl` at every physics step, and `take_ctrl()`
+    returns the (substeps, nu) commands applied during the last `step` (what `record=` stores as
+    `action.ctrl`, so `bench replay` can re-apply them batched in `mujoco.rollout`).
     """
 
     backend: str

@@ -9,6 +9,9 @@ into one dataset with these features:
 - `next.reward` (T, 1), `next.success` (T, 1): per step, after the action
 - `observation.sim_state` (T, nq+nv): MuJoCo qpos and qvel before the step (for replay);
   only when every episode has the same state size (one robot), since a feature has one shape
+- `action.ctrl` (T, substeps x nu): the actuator commands (MuJoCo `data.ctrl`) the env's controller
+  applied at each physics step of the control step, named `<actuator>@<substep>` (robosuite envs;
+  same one-shape rule). `bench replay` re-applies them batched in `mujoco.rollout`.
 
 and per-episode metadata (task, robot, env, split, condition, seed, sampled
 parameters, success_once/at_end). The task string is the cell key, e.g. `Lift/Panda/default`.
@@ -37,7 +40,7 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
     from bench.logs import from_arrays, write_dataset
 
     episodes, tasks, meta = [], [], []
-    obs_names = action_names = None
+    obs_names = action_names = ctrl_names = None
     fps = 0.0
     for r in sorted(records, key=lambda r: r.job_id):
         if r.error is not None or r.length == 0:
@@ -54,6 +57,14 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
             }
             if z["sim_state"].size:
                 ep["observation.sim_state"] = z["sim_state"]
+            if "ctrl" in z.files and z["ctrl"].size:
+                ep["action.ctrl"] = z["ctrl"]
+                substeps = z["ctrl"].shape[1] // len(z["ctrl_names"])
+                mine = [f"{a}@{k}" for k in range(substeps) for a in z["ctrl_names"]]
+                if ctrl_names is None:
+                    ctrl_names = mine
+                elif mine != ctrl_names:  # another robot's actuators: one feature cannot name both
+                    ctrl_names = []
             obs_names = obs_names or _expand([str(x) for x in z["obs_names"]])
             action_names = action_names or [str(x) for x in z["action_names"]]
             fps = fps or float(z["fps"][0])
@@ -64,12 +75,18 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
                      "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id})
     if not episodes:
         raise DataError("record: the run has no completed episode to record")
-    widths = {ep["observation.sim_state"].shape[1] for ep in episodes if "observation.sim_state" in ep}
-    if len(widths) > 1 or (widths and not all("observation.sim_state" in ep for ep in episodes)):
-        for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
-            ep.pop("observation.sim_state", None)
-    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type,
-                     names={"observation.state": obs_names, "action": action_names})
+    for feature in ("observation.sim_state", "action.ctrl"):
+        widths = {ep[feature].shape[1] for ep in episodes if feature in ep}
+        if len(widths) > 1 or (widths and not all(feature in ep for ep in episodes)):
+            for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
+                ep.pop(feature, None)
+    names = {"observation.state": obs_names, "action": action_names}
+    if not ctrl_names:
+        for ep in episodes:
+            ep.pop("action.ctrl", None)
+    elif all("action.ctrl" in ep for ep in episodes):
+        names["action.ctrl"] = ctrl_names
+    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names)
     return write_dataset(out, ds)
 
 

@@ -17,9 +17,15 @@ Two backends:
   effects are not used); all segments of one horizon run in one batched `mujoco.rollout` call
   (`bench.calibrate.simulate`, `bench.calibrate.metrics.horizon_errors`).
 - **suite** (`suite=`): datasets written by `bench run ... record=DIR` carry the MuJoCo state
-  before every step (`observation.sim_state`) and the policy's action. The controller (robosuite's
-  OSC) is Python, so these replay in a Python step loop through the suite's nominal env: set the
-  state from the log at each segment start, step with the logged actions, compare qpos.
+  before every step (`observation.sim_state`), the policy's action and, for robosuite envs, the
+  actuator commands of every physics step (`action.ctrl`). Two ways to replay them in the suite's
+  nominal env (`commands=`):
+  - `ctrl` (default when logged): the logged actuator commands, re-applied physics step by physics
+    step from the logged states, all segments of a horizon batched in `mujoco.rollout`. This
+    replays the physics alone: what the controller did is taken from the log.
+  - `action`: the logged policy actions through the env's own controller (robosuite's OSC is
+    Python), in a Python step loop: set the state at each segment start, `env.step` the actions.
+    This also replays the controller, so a gap in what it computes shows up too.
 """
 from __future__ import annotations
 
@@ -40,6 +46,9 @@ from bench.errors import ConfigError, DataError
 SCHEMA = "bench.replay/1"
 HORIZON_LABELS = {"one_step": "one-step", "k_step": "k-step", "free_run": "free run"}
 STATIC = 1e-9  # a joint whose logged position spreads less than this has no NRMSE
+COMMANDS = ("ctrl", "action")
+CTRL = "action.ctrl"
+ROLLOUT_BYTES = 256 * 2**20  # states returned by one mujoco.rollout call, at most
 
 
 @dataclass(frozen=True)
@@ -54,6 +63,7 @@ class ReplayConfig:
     out: Optional[str] = None             # folder for replay.json and replay.png
     plot: int = 2                         # episodes drawn in replay.png (0: no plot)
     threads: int = 1                      # mujoco.rollout threads (results do not depend on it)
+    commands: Optional[str] = None        # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
 
 
 @dataclass
@@ -107,6 +117,11 @@ def _check_cfg(cfg: ReplayConfig) -> None:
         raise ConfigError(f"plot must be an integer >= 0 (episodes drawn); got {cfg.plot}")
     if not 1 <= cfg.threads <= 64:
         raise ConfigError(f"threads must be an integer in [1, 64]; got {cfg.threads}")
+    if cfg.commands is not None and cfg.commands not in COMMANDS:
+        raise ConfigError(f"commands is {cfg.commands!r}; valid: {', '.join(COMMANDS)} (suite logs only)")
+    if cfg.commands is not None and not cfg.suite:
+        raise ConfigError("commands= applies to suite= replays of `bench run record=` datasets; an MJCF replay "
+                          "(spec=) applies the ctrl columns the spec names")
 
 
 def _num(v: float) -> float | None:
@@ -205,7 +220,7 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
         "joints": joints,
         "horizons": horizons,
         "per_episode": per_episode,
-        "sim_steps": int(steps),
+        "sim_steps": int(steps),  # physics steps for ctrl, control steps for action
         "wall_s": round(time.perf_counter() - t0, 4),
         "notes": notes,
     }
@@ -295,69 +310,197 @@ def _back_to_back(rec, windows, k: int):
     return Segments(np.array(starts, dtype=np.int64), k, np.array(masks, dtype=bool).reshape(-1, k))
 
 
-def replay_suite(cfg: ReplayConfig) -> Replay:
-    """Replay a `bench run record=` dataset through the suite's nominal env, one Python step at a time.
+def _ctrl_layout(cfg: ReplayConfig, ds, envs) -> int:
+    """Physics steps per frame of the logged `action.ctrl`; its names must be the models' actuators."""
+    width = ds.feature_shape(CTRL)[0]
+    names = ds.features[CTRL].get("names") or []
+    for env in {id(e): e for e in envs}.values():
+        nu = env.model.nu
+        actuators = [env.model.actuator(a).name or f"actuator{a}" for a in range(nu)]
+        if nu == 0 or width % nu:
+            raise DataError(f"{cfg.logs}: feature {CTRL!r} has width {width}, not a multiple of the model's {nu} "
+                            f"actuators; was it recorded with suite {cfg.suite!r}?")
+        logged = [str(n).rsplit("@", 1)[0] for n in names[:nu]]
+        if names and logged != actuators:
+            raise DataError(f"{cfg.logs}: feature {CTRL!r} names actuators {logged}, the model has {actuators}; "
+                            f"replay with commands=action or with the suite that recorded it")
+    return width // envs[0].model.nu
 
-    Each segment sets the MuJoCo state from `observation.sim_state` and applies the logged
-    actions; positions after each step are compared with the next logged state. Segments run in
-    time order without overlap (state the log lacks, such as the gripper's command, carries over). At each
-    episode's start the env is reset with the episode's seed; when that state equals the logged
-    one to float32 precision (the log stores float32), the exact reset state is used instead.
+
+def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets: np.ndarray, segments: dict,
+                    idx: np.ndarray) -> tuple[dict[str, np.ndarray], int]:
+    """Positions after each frame of every segment, from logged actions stepped through the env in Python."""
+    out, steps = {}, 0
+    for label, segs in segments.items():
+        pred = np.zeros((len(segs), segs.length, len(idx)))
+        episode = np.searchsorted(offsets, segs.start, side="right") - 1
+        current = -1
+        for s, (start, e) in enumerate(zip(segs.start, episode)):
+            env = envs[e]
+            if e != current:  # fresh episode counters (step limits) for each episode and horizon kind
+                env.reset(seeds[e] if seeds[e] is not None else 0)
+                current = e
+            n = segs.length if segs.mask is None else int(segs.mask[s].sum())
+            _set_state(env, full[start])
+            for f in range(n):
+                env.step(act[start + f])
+                pred[s, f] = env.data.qpos[idx]
+            steps += n
+        out[label] = pred
+    return out, steps
+
+
+def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets: np.ndarray, segments: dict,
+                 substeps: int, idx: np.ndarray) -> tuple[dict[str, np.ndarray], int]:
+    """Positions after each frame of every segment, from logged ctrl batched in `mujoco.rollout`.
+
+    Each segment starts from the logged qpos/qvel (the rest of the state, e.g. mocap bodies, is the
+    env's after reset) and applies the logged commands of each physics step. Segments of one model
+    run in one call (chunked to bound memory); `threads` rollout threads share them.
+    """
+    import mujoco
+    from mujoco import rollout
+
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    by_env: dict[int, Any] = {id(e): e for e in envs}
+    pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
+    datas: dict[int, list] = {k: [mujoco.MjData(e.model) for _ in range(threads)] for k, e in by_env.items()}
+    out, steps = {}, 0
+    try:
+        for label, segs in segments.items():
+            n_frames = segs.mask.sum(axis=1) if segs.mask is not None else np.full(len(segs), segs.length)
+            episode = np.searchsorted(offsets, segs.start, side="right") - 1
+            pred = np.zeros((len(segs), segs.length, len(idx)))
+            nstep = segs.length * substeps
+            for key, env in by_env.items():
+                m, d = env.model, env.data
+                members = np.flatnonzero([id(envs[e]) == key for e in episode])
+                if not len(members):
+                    continue
+                size = mujoco.mj_stateSize(m, spec)
+                per = max(1, ROLLOUT_BYTES // (8 * nstep * (size + m.nsensordata)))
+                for lo in range(0, len(members), per):
+                    chunk = members[lo:lo + per]
+                    init = np.zeros((len(chunk), size))
+                    control = np.zeros((len(chunk), nstep, m.nu))
+                    for row, sgi in enumerate(chunk):
+                        start, n = int(segs.start[sgi]), int(n_frames[sgi])
+                        d.qpos[:] = full[start, : m.nq]
+                        d.qvel[:] = full[start, m.nq:]
+                        d.time = 0.0
+                        mujoco.mj_getState(m, d, init[row], spec)
+                        control[row, : n * substeps] = ctrl[start:start + n].reshape(n * substeps, m.nu)
+                    state, _ = pool.rollout(m, datas[key], init, control, nstep=nstep)
+                    qpos = state[:, substeps - 1::substeps, 1:1 + m.nq]  # after each frame's last physics step
+                    pred[chunk] = qpos[:, :, idx]
+                    steps += int(n_frames[chunk].sum()) * substeps
+            out[label] = pred
+    finally:
+        pool.close()
+    return out, steps
+
+
+@dataclass
+class SuiteLogs:
+    """A `bench run record=` dataset made ready to replay: nominal envs plus the logged arrays, concatenated."""
+
+    eps: list                  # dataset episodes, in replay order
+    envs: list                 # the nominal env of each episode (shared by episodes of one cell)
+    seeds: list                # each episode's reset seed (None if not logged)
+    joints: list[str]          # compared coordinates
+    idx: np.ndarray            # their qpos addresses
+    full: np.ndarray           # (N, nq + nv) logged MuJoCo state before each frame
+    act: np.ndarray            # (N, A) logged policy actions
+    ctrl: np.ndarray | None    # (N, substeps * nu) logged actuator commands, if recorded
+    substeps: int              # physics steps per frame (0 without ctrl)
+    offsets: np.ndarray        # (E + 1,)
+    rec: Any                   # bench.calibrate.data.Recording of the compared positions
+    windows: list
+    exact: int                 # episodes whose first state is the exact reset(seed) state
+
+    def close(self) -> None:
+        for env in {id(e): e for e in self.envs}.values():
+            env.close()
+
+
+def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
+    """Build the suite's nominal envs for `eps` and gather their logs (the caller closes them).
+
+    At each episode's start the env is reset with the episode's seed; when that state equals the
+    logged one to float32 precision (the log stores float32), the exact reset state is used instead.
     """
     from bench.calibrate.data import Recording, Window
-    from bench.calibrate.metrics import horizon_segments, segment_errors
 
-    t0 = time.perf_counter()
-    ds, eps = _read_logs(cfg)
-    for feat in ("observation.sim_state", "action"):
+    for feat in ("observation.sim_state", "action", *((CTRL,) if need_ctrl else ())):
         if feat not in ds.features:
-            raise DataError(f"{cfg.logs}: feature {feat!r} missing; suite replay needs a dataset written by "
-                            f"`bench run ... record=DIR` with one robot (or give spec= for MJCF replay)")
+            hint = ("recorded by an env without a Python controller, or by robots with different actuators; "
+                    "use commands=action") if feat == CTRL else \
+                "suite replay needs a dataset written by `bench run ... record=DIR` with one robot (or spec=)"
+            raise DataError(f"{cfg.logs}: feature {feat!r} missing; {hint}")
     lengths = [len(ep.data["action"]) for ep in eps]
     short = next((ep.index for ep, n in zip(eps, lengths) if n < 2), None)
     if short is not None:
         raise DataError(f"{cfg.logs}: episode {short} has fewer than 2 frames; nothing to replay")
     envs, joints, idx = _suite_envs(cfg, ds, eps)
-    states = [np.asarray(ep.data["observation.sim_state"], dtype=np.float64) for ep in eps]
-    actions = [np.asarray(ep.data["action"], dtype=np.float64) for ep in eps]
-    seeds = [int(ep.meta["seed"]) if isinstance(ep.meta, dict) and "seed" in ep.meta else None for ep in eps]
-    exact = 0
     try:
+        substeps = _ctrl_layout(cfg, ds, envs) if need_ctrl else 0
+        states = [np.asarray(ep.data["observation.sim_state"], dtype=np.float64) for ep in eps]
+        seeds = [int(ep.meta["seed"]) if isinstance(ep.meta, dict) and "seed" in ep.meta else None for ep in eps]
+        exact = 0
         for i, (env, seed) in enumerate(zip(envs, seeds)):
             env.reset(seed if seed is not None else 0)
             s0 = np.concatenate([env.data.qpos, env.data.qvel])
             if seed is not None and np.all(np.abs(s0 - states[i][0]) <= 1e-6 * np.maximum(1.0, np.abs(s0))):
                 states[i][0] = s0  # the same state, without the float32 rounding of the log
                 exact += 1
-        offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-        full = np.concatenate(states)
-        act = np.concatenate(actions)
-        rec = Recording(fps=float(ds.fps), qpos=full[:, idx], qvel=np.zeros((len(full), 0)), ctrl=act, inputs=None,
-                        offsets=offsets, train=[], holdout=[], qvel_logged=True)
-        windows = [Window(i, 0, n) for i, n in enumerate(lengths)]
-        spread = np.maximum(rec.qpos.std(axis=0), 1e-12)
-        errors, steps = {}, 0
-        segments = horizon_segments(rec, windows, cfg.k)
-        segments["k_step"] = _back_to_back(rec, windows, cfg.k)
-        for label, segs in segments.items():
-            pred = np.zeros((len(segs), segs.length, len(idx)))
-            episode = np.searchsorted(offsets, segs.start, side="right") - 1
-            current = -1
-            for s, (start, e) in enumerate(zip(segs.start, episode)):
-                env = envs[e]
-                if e != current:  # fresh episode counters (step limits) for each episode and horizon kind
-                    env.reset(seeds[e] if seeds[e] is not None else 0)
-                    current = e
-                n = segs.length if segs.mask is None else int(segs.mask[s].sum())
-                _set_state(env, full[start])
-                for f in range(n):
-                    env.step(act[start + f])
-                    pred[s, f] = env.data.qpos[idx]
-                steps += n
-            errors[label] = segment_errors(pred, rec, segs, spread)
-    finally:
+    except BaseException:
         for env in {id(e): e for e in envs}.values():
             env.close()
+        raise
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    full = np.concatenate(states)
+    act = np.concatenate([np.asarray(ep.data["action"], dtype=np.float64) for ep in eps])
+    ctrl = np.concatenate([np.asarray(ep.data[CTRL], dtype=np.float64) for ep in eps]) if need_ctrl else None
+    rec = Recording(fps=float(ds.fps), qpos=full[:, idx], qvel=np.zeros((len(full), 0)), ctrl=act, inputs=None,
+                    offsets=offsets, train=[], holdout=[], qvel_logged=True)
+    windows = [Window(i, 0, n) for i, n in enumerate(lengths)]
+    return SuiteLogs(eps, envs, seeds, joints, idx, full, act, ctrl, substeps, offsets, rec, windows, exact)
+
+
+def suite_segments(logs: SuiteLogs, k: int, commands: str) -> dict:
+    """The segments each horizon replays (the action loop steps k-step segments back to back)."""
+    from bench.calibrate.metrics import horizon_segments
+
+    segments = horizon_segments(logs.rec, logs.windows, k)
+    if commands == "action":
+        segments["k_step"] = _back_to_back(logs.rec, logs.windows, k)
+    return segments
+
+
+def replay_suite(cfg: ReplayConfig) -> Replay:
+    """Replay a `bench run record=` dataset in the suite's nominal env (`commands=`: ctrl or action).
+
+    Each segment sets the MuJoCo state from `observation.sim_state` and applies the logged
+    commands; positions after each frame are compared with the next logged state.
+    """
+    from bench.calibrate.metrics import segment_errors
+
+    t0 = time.perf_counter()
+    ds, eps = _read_logs(cfg)
+    commands = cfg.commands or ("ctrl" if CTRL in ds.features else "action")
+    logs = load_suite_logs(cfg, ds, eps, need_ctrl=commands == "ctrl")
+    try:
+        segments = suite_segments(logs, cfg.k, commands)
+        if commands == "ctrl":
+            preds, steps = replay_ctrl(cfg.threads, logs.envs, logs.full, logs.ctrl, logs.offsets, segments,
+                                       logs.substeps, logs.idx)
+        else:
+            preds, steps = replay_actions(logs.envs, logs.seeds, logs.full, logs.act, logs.offsets, segments, logs.idx)
+    finally:
+        logs.close()
+    rec, offsets, joints = logs.rec, logs.offsets, logs.joints
+    spread = np.maximum(rec.qpos.std(axis=0), 1e-12)
+    errors = {label: segment_errors(preds[label], rec, segs, spread) for label, segs in segments.items()}
     index = [ep.index for ep in eps]
     horizons, per_episode = summarise(errors, rec.qpos, offsets, joints, index, cfg.k)
     for row, ep in zip(per_episode, eps):
@@ -365,21 +508,23 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
         row.update({k: meta[k] for k in ("condition", "params", "robot", "task") if k in meta})
     doc = {
         "schema": SCHEMA,
-        "backend": f"{cfg.suite} step loop",
+        "backend": (f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
+                    if commands == "ctrl" else f"{cfg.suite} step loop"),
+        "commands": commands,
         "logs": str(cfg.logs),
         "suite": cfg.suite,
         "spec": None,
         "fps": float(ds.fps),
         "k": int(cfg.k),
         "episodes": [int(i) for i in index],
-        "frames": int(len(full)),
+        "frames": int(len(logs.full)),
         "joints": joints,
         "horizons": horizons,
         "per_episode": per_episode,
-        "sim_steps": int(steps),
+        "sim_steps": int(steps),  # physics steps for ctrl, control steps for action
         "wall_s": round(time.perf_counter() - t0, 4),
-        "notes": [f"positions of hinge and slide joints, x/y/z of free joints; {exact} of {len(eps)} episode(s) "
-                  f"start from the exact state of reset(seed), the rest from the logged float32 state"],
+        "notes": [f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} "
+                  f"episode(s) start from the exact state of reset(seed), the rest from the logged float32 state"],
     }
     return Replay(doc, errors, rec.qpos, offsets, float(ds.fps), joints, index)
 
@@ -465,7 +610,7 @@ def write(rep: Replay, out: Path, n_plot: int) -> Path:
 
 
 HELP = """usage: bench replay logs=DIR spec=SPEC [k=10] [episodes=[0,3]] [out=DIR] [plot=2] [threads=1]
-       bench replay logs=DIR suite=held_out_robots [k=10] [episodes=[..]] [out=DIR]
+       bench replay logs=DIR suite=held_out_robots [commands=ctrl|action] [k=10] [episodes=[..]] [out=DIR] [threads=1]
 
 Open-loop replay: each logged episode is replayed from its logged states under its logged
 commands, and the simulated joint positions are compared with the logged ones, per joint:
@@ -480,7 +625,11 @@ keys:
   spec      calibration spec (YAML/JSON, docs/calibration.md): the MJCF model and the log columns of
             qpos, qvel (optional) and ctrl; all segments run batched in mujoco.rollout
   suite     instead of spec, for datasets written by `bench run ... record=DIR` (they carry the
-            MuJoCo state before each step): Python step loop through the suite's nominal env
+            MuJoCo state before each step): replayed in the suite's nominal env
+  commands  suite logs only: ctrl = the logged actuator commands of every physics step, batched in
+            mujoco.rollout (the physics alone; default when the log has action.ctrl, as robosuite
+            recordings do); action = the logged policy actions through the env's controller in a
+            Python step loop (physics and controller)
   k         frames per k-step horizon (default 10)
   episodes  dataset episode indices to replay, e.g. [0,3] (default: all)
   out       folder for replay.json (schema bench.replay/1) and replay.png (logged vs replayed)

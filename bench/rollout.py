@@ -84,8 +84,9 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
     success_once = success_at_end = False
     ret, length, first_success = 0.0, 0, None
     init_hash, params, error = None, {}, None
-    traj: dict[str, list] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": []} \
-        if ctx.trajectory_dir else None
+    traj: dict[str, list] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
+                                    "ctrl": []} if ctx.trajectory_dir else None
+    log_ctrl = traj is not None and hasattr(env, "log_ctrl")  # actuator commands of every physics step
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)
@@ -93,11 +94,15 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
             obs = stepper.reset(job.seed)
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
+            if log_ctrl:
+                env.log_ctrl(True)
             for t in range(ctx.horizon):
                 action = policy.act(obs)
                 if traj is not None:
                     _append_frame(traj, env, obs, action)
                 obs, reward, done, info = stepper.step(action)
+                if log_ctrl:
+                    traj["ctrl"].append(env.take_ctrl().astype(np.float32).ravel())
                 ret += reward
                 length = t + 1
                 success_at_end = bool(info.get("success", False))
@@ -118,12 +123,17 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
         else:
             tb = traceback.extract_tb(exc.__traceback__)[-1]
             error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
+    finally:
+        if log_ctrl:
+            env.log_ctrl(False)
     if error:
         success_once = success_at_end = False
     elif traj is not None and length:
         traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_names]
         traj["action_names"] = list(env.action_names)
         traj["fps"] = [float(getattr(env, "fps", 0.0) or 0.0)]
+        if log_ctrl:
+            traj["ctrl_names"] = [env.model.actuator(a).name or f"actuator{a}" for a in range(env.model.nu)]
         _save_trajectory(trajectory_path(ctx.trajectory_dir, job.job_id), traj)
     cell = job.cell
     record = EpisodeRecord(

@@ -153,9 +153,42 @@ class RobosuiteEnv:
         self.action_low, self.action_high = np.asarray(low, np.float32), np.asarray(high, np.float32)
         if len(self.action_low) != len(ACTION_NAMES):
             raise ValueError(f"{robot}: action size {len(self.action_low)}, expected {len(ACTION_NAMES)}")
+        self._ctrl_log: list[np.ndarray] | None = None
+        self._wrap_physics_steps()
         self._grip_idx = np.asarray(self._env.robots[0]._ref_gripper_joint_pos_indexes["right"])
         self._grip_open = self._grip_closed = None
         self._calibrate_gripper()
+
+    # -- actuator commands at every physics step (for batched replay) -------------------------
+    def _wrap_physics_steps(self) -> None:
+        """Note `data.ctrl` just before each physics step, when logging is on.
+
+        robosuite's controller writes ctrl between `sim.step1()` and `sim.step2()` (or before
+        `sim.step()`), once per physics step; `mj_step` with the noted ctrl from the same state
+        reproduces the step exactly (checked in tests/test_replay.py).
+        """
+        sim, data = self._env.sim, self.data
+        for name in ("step", "step2"):
+            original = getattr(sim, name)
+
+            def stepped(*args, _original=original, **kwargs):
+                if self._ctrl_log is not None:
+                    self._ctrl_log.append(data.ctrl.copy())
+                return _original(*args, **kwargs)
+
+            setattr(sim, name, stepped)
+
+    def log_ctrl(self, on: bool) -> None:
+        """Start (empty) or stop logging the actuator commands of every physics step."""
+        self._ctrl_log = [] if on else None
+
+    def take_ctrl(self) -> np.ndarray:
+        """(substeps, nu) commands applied since the last call; empties the log."""
+        if self._ctrl_log is None:
+            raise RuntimeError("take_ctrl: call log_ctrl(True) first")
+        out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self.model.nu)
+        self._ctrl_log.clear()
+        return out
 
     # -- gripper normalisation -------------------------------------------------------------
     def _calibrate_gripper(self) -> None:

@@ -1,8 +1,23 @@
-"""Batched replay (`mujoco.rollout`) against a Python `mj_step` loop on the same episodes, measured in one run.
+"""Batched replay (`mujoco.rollout`) against Python step loops on the same episodes, measured in one run.
 
-    python benchmarks/bench_replay.py [episodes=8] [duration=6] [fps=100] [k=10] [repeats=5] [threads=1,2]
+    python benchmarks/bench_replay.py [case=both|arm|suite] [k=10] [repeats=5] [threads=1,2]
+        arm:   [episodes=8] [duration=6] [fps=100]
+        suite: [suite_episodes=6] [horizon=100]
 
-Data: `bench.calibrate.generate` logs of the 3-joint arm (models/arm3.xml, plain, no hidden effect),
+case=suite (what `bench replay suite=held_out_robots` runs on `bench run record=` logs): Panda Lift
+episodes of the scripted policy are recorded (`bench run ... record=`, nominal), then the same
+segments of all three horizons are replayed in the nominal env three ways:
+
+- action loop (`commands=action`): `env.step` with the logged policy actions, robosuite's OSC
+  controller in Python at every physics step (25 per frame);
+- mj_step loop: a Python loop calling `mujoco.mj_step` with the logged ctrl of every physics step;
+- batched (`commands=ctrl`, `bench.replay.replay_ctrl`): the same logged ctrl, every segment of a
+  horizon in one `mujoco.rollout` call, `threads` threads.
+
+It prints seconds per replayed frame for each, the speed-ups of the batched replay over both
+loops, the physics floor, and the largest difference between the loops' and the batched positions.
+
+case=arm, data: `bench.calibrate.generate` logs of the 3-joint arm (models/arm3.xml, plain, no hidden effect),
 `episodes` x `duration` s at `fps` Hz, 5 substeps per frame (2 ms steps). Both sides replay the
 same segments of all three horizons (one-step, k-step, free run: one segment per frame, per k
 frames and per episode) in the same model from the same logged initial states under the same
@@ -23,6 +38,8 @@ F is about 0.9 us and the loop about 2 us, so 2 cores cap the ratio near 4-5x wh
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import sys
 import time
@@ -60,33 +77,136 @@ def step_loop(plant: Plant, segments: dict) -> tuple[dict[str, np.ndarray], int]
     return out, steps
 
 
-def physics_floor(plant: Plant, steps: int = 100_000) -> float:
-    """Seconds per step of the physics alone: one `mj_step(nstep=...)` C call, no Python per step."""
-    d = mujoco.MjData(plant.model)
-    d.ctrl[:] = plant.rec.ctrl[0]
-    best = float("inf")
-    for _ in range(3):
-        mujoco.mj_resetData(plant.model, d)
-        t0 = time.perf_counter()
-        mujoco.mj_step(plant.model, d, nstep=steps)
-        best = min(best, time.perf_counter() - t0)
-    return best / steps
-
-
 def _timed(fn) -> tuple[float, object]:
     t0 = time.perf_counter()
     result = fn()
     return time.perf_counter() - t0, result
 
 
+def mj_step_loop(logs, segments: dict) -> tuple[dict[str, np.ndarray], int]:
+    """Predicted positions per segment from a Python loop over physics steps applying the logged ctrl."""
+    env = logs.envs[0]
+    m = env.model
+    d = mujoco.MjData(m)
+    d.mocap_pos[:], d.mocap_quat[:] = env.data.mocap_pos, env.data.mocap_quat
+    sub, nu = logs.substeps, m.nu
+    out, frames = {}, 0
+    for label, segs in segments.items():
+        pred = np.zeros((len(segs), segs.length, len(logs.idx)))
+        for i, start in enumerate(segs.start):
+            n = segs.length if segs.mask is None else int(segs.mask[i].sum())
+            d.qpos[:] = logs.full[start, : m.nq]
+            d.qvel[:] = logs.full[start, m.nq:]
+            for f in range(n):
+                u = logs.ctrl[start + f].reshape(sub, nu)
+                for j in range(sub):
+                    d.ctrl[:] = u[j]
+                    mujoco.mj_step(m, d)
+                pred[i, f] = d.qpos[logs.idx]
+            frames += n
+        out[label] = pred
+    return out, frames
+
+
+def _frames(segments: dict) -> int:
+    return int(sum(len(s) * s.length if s.mask is None else s.mask.sum() for s in segments.values()))
+
+
+def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
+    import tempfile
+    from pathlib import Path
+
+    from bench.cli import main as bench_main
+    from bench.logs import read_dataset
+    from bench.replay import ReplayConfig, load_suite_logs, replay_actions, replay_ctrl, suite_segments
+
+    n_eps, horizon = int(kv.get("suite_episodes", 6)), int(kv.get("horizon", 100))
+    with tempfile.TemporaryDirectory() as tmp:
+        rec_dir = Path(tmp) / "rec"
+        t0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):  # the run's own tables are not the benchmark's
+            rc = bench_main(["run", "robots=[Panda]", f"episodes={n_eps}", f"horizon={horizon}", "workers=2",
+                             "policy=scripted", "run_id=bench", f"out={Path(tmp) / 'runs'}", f"record={rec_dir}"])
+        assert rc == 0, rc
+        t_record = time.perf_counter() - t0
+        ds = read_dataset(rec_dir)
+        cfg = ReplayConfig(logs=str(rec_dir), suite="held_out_robots", k=k)
+        logs = load_suite_logs(cfg, ds, list(ds.episodes), need_ctrl=True)
+    try:
+        seg_a, seg_c = suite_segments(logs, k, "action"), suite_segments(logs, k, "ctrl")
+        fr_a, fr_c = _frames(seg_a), _frames(seg_c)
+        best = {key: float("inf") for key in ["action", "mj_step", *threads]}
+        preds = {}
+        for _ in range(repeats):  # interleaved
+            t, (preds["action"], _) = _timed(lambda: replay_actions(logs.envs, logs.seeds, logs.full, logs.act,
+                                                                    logs.offsets, seg_a, logs.idx))
+            best["action"] = min(best["action"], t)
+            t, (preds["mj_step"], _) = _timed(lambda: mj_step_loop(logs, seg_c))
+            best["mj_step"] = min(best["mj_step"], t)
+            for n in threads:
+                t, (preds[n], _) = _timed(lambda: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
+                                                              seg_c, logs.substeps, logs.idx))
+                best[n] = min(best[n], t)
+        m = logs.envs[0].model
+        floor = physics_floor(m, logs.ctrl[0, : m.nu])
+    finally:
+        logs.close()
+    sub = logs.substeps
+    print(f"\nsuite: held_out_robots Panda Lift, {n_eps} scripted episodes x {horizon} frames recorded in "
+          f"{t_record:.1f} s; {sub} physics steps/frame (dt {m.opt.timestep * 1e3:g} ms), k = {k}; frames replayed "
+          f"over the three horizons: action loop {fr_a:,}, ctrl {fr_c:,}; best of {repeats}")
+    per = {"action": best["action"] / fr_a, "mj_step": best["mj_step"] / fr_c,
+           **{n: best[n] / fr_c for n in threads}}
+    print(f"  action loop (env.step, OSC in Python)  {best['action']:7.2f} s   {per['action'] * 1e3:6.3f} ms/frame")
+    print(f"  mj_step loop (logged ctrl)             {best['mj_step']:7.2f} s   {per['mj_step'] * 1e3:6.3f} ms/frame")
+    for n in threads:
+        print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} (logged ctrl)  {best[n]:7.2f} s   "
+              f"{per[n] * 1e3:6.3f} ms/frame   speed-up x{per['action'] / per[n]:5.1f} over the action loop, "
+              f"x{per['mj_step'] / per[n]:4.2f} over the mj_step loop")
+    diff = max(float(np.abs(preds[n][h] - preds["mj_step"][h]).max()) for n in threads for h in seg_c)
+    same = max(float(np.abs(preds[threads[0]][h] - preds["action"][h]).max()) for h in ("one_step", "free_run"))
+    cores = os.cpu_count() or 1
+    print(f"  max |qpos difference|: batched vs mj_step loop {diff:.1e}; batched vs action loop (one-step, free "
+          f"run; nominal logs) {same:.1e}")
+    print(f"  physics alone: {floor * 1e6:.1f} us/step = {floor * sub * 1e3:.3f} ms/frame -> on {cores} cores the "
+          f"ceiling over the mj_step loop is x{per['mj_step'] / (floor * sub / cores):.1f}, over the action loop "
+          f"x{per['action'] / (floor * sub / cores):.1f}")
+
+
+def physics_floor(model, ctrl: np.ndarray, steps: int = 20_000) -> float:
+    """Seconds per step of the physics alone: one `mj_step(nstep=...)` C call, no Python per step."""
+    d = mujoco.MjData(model)
+    d.ctrl[:] = ctrl
+    best = float("inf")
+    for _ in range(3):
+        mujoco.mj_resetData(model, d)
+        d.ctrl[:] = ctrl
+        t0 = time.perf_counter()
+        mujoco.mj_step(model, d, nstep=steps)
+        best = min(best, time.perf_counter() - t0)
+    return best / steps
+
+
 def main(argv: list[str]) -> int:
     from bench.config import parse_kv
 
     _, kv = parse_kv(argv)
-    episodes, duration, fps = int(kv.get("episodes", 8)), float(kv.get("duration", 6.0)), float(kv.get("fps", 100.0))
+    case = str(kv.get("case", "both"))
+    if case not in ("both", "arm", "suite"):
+        print(f"case is {case!r}; valid: both, arm, suite", file=sys.stderr)
+        return 2
     k, repeats = int(kv.get("k", 10)), int(kv.get("repeats", 5))
     threads = kv.get("threads", [1, 2])
     threads = threads if isinstance(threads, list) else [threads]
+    if case in ("both", "arm"):
+        arm_case(kv, k, repeats, threads)
+    if case in ("both", "suite"):
+        suite_case(kv, k, repeats, threads)
+    return 0
+
+
+def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
+    episodes, duration, fps = int(kv.get("episodes", 8)), float(kv.get("duration", 6.0)), float(kv.get("fps", 100.0))
 
     eps, _ = simulate_arm(None, episodes=episodes, duration=duration, fps=fps, seed=0)
     raw = spec_dict(None, model_file=str(ARM))
@@ -123,11 +243,10 @@ def main(argv: list[str]) -> int:
         print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} {t_batch:8.3f} s   {steps:,} steps   "
               f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}")
     print(f"  max |qpos difference| between the two: {diff:.1e} rad (all segments of all three horizons)")
-    floor, cores = physics_floor(plant), os.cpu_count() or 1
+    floor, cores = physics_floor(plant.model, plant.rec.ctrl[0], 100_000), os.cpu_count() or 1
     print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} core{'s' if cores > 1 else ''} "
           f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
           f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)")
-    return 0
 
 
 if __name__ == "__main__":

@@ -159,12 +159,14 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[]"], r"episodes=\[\] selects nothing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
     (lambda t, logs, spec: [f"logs={logs}", f"suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "commands=ctrl"], r"commands= applies to suite= replays"),
 ]
 
 
 @pytest.mark.parametrize("make_argv, pattern", BAD, ids=[
     "missing-logs", "missing-spec", "no-spec", "spec-and-suite", "column-not-in-log", "ctrl-width-vs-model",
-    "index-out-of-range", "k-zero", "unknown-episode", "no-episode", "unknown-key", "suite-needs-sim-state"])
+    "index-out-of-range", "k-zero", "unknown-episode", "no-episode", "unknown-key", "suite-needs-sim-state",
+    "commands-with-spec"])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nominal_spec, make_argv, pattern):
     out = tmp_path / "out"
     code = main(["replay", *make_argv(tmp_path, cases["None"], nominal_spec), f"out={out}"])
@@ -178,21 +180,100 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nomi
 def test_help_names_every_key(capsys):
     assert main(["replay", "--help"]) == 0
     text = capsys.readouterr().out
-    for key in ("logs", "spec", "suite", "k", "episodes", "out", "plot", "threads"):
+    for key in ("logs", "spec", "suite", "commands", "k", "episodes", "out", "plot", "threads"):
         assert re.search(rf"^  {key}\s", text, re.M), key
 
 
-def test_robosuite_recording_replays_in_the_nominal_env(tmp_path):
-    """`bench run record=` logs: nominal episodes replay exactly, a heavier-link episode does not (~10 s)."""
-    rec = tmp_path / "rec"
+@pytest.fixture(scope="module")
+def robosuite_rec(tmp_path_factory):
+    """`bench run record=` logs of Panda Lift: one nominal episode, one with 3x heavier links (~5 s)."""
+    tmp = tmp_path_factory.mktemp("rec")
+    rec = tmp / "rec"
     assert main(["run", "robots=[Panda]", "episodes=1", "horizon=30", "workers=1", "run_id=r",
-                 f"out={tmp_path / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
-    doc = run(ReplayConfig(logs=str(rec), suite="held_out_robots", k=5)).doc
-    assert doc["backend"] == "held_out_robots step loop"
+                 f"out={tmp / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
+    return rec
+
+
+def _by_condition(doc):
+    return {r["condition"]: r for r in doc["per_episode"]}
+
+
+@pytest.mark.parametrize("commands", ["ctrl", "action"])
+def test_robosuite_recording_replays_in_the_nominal_env(robosuite_rec, commands):
+    """Nominal episodes replay exactly, a heavier-link episode does not, with either kind of command."""
+    doc = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, commands=commands)).doc
+    assert doc["commands"] == commands
+    assert doc["backend"] == ("held_out_robots ctrl, mujoco.rollout (1 thread)" if commands == "ctrl"
+                              else "held_out_robots step loop")
     assert "robot0_joint1" in doc["joints"] and "cube_joint0.z" in doc["joints"]
-    by = {r["condition"]: r for r in doc["per_episode"]}
+    by = _by_condition(doc)
     assert set(by) == {"nominal", "link_mass=3"}
     for h in HORIZONS:
         assert by["nominal"][f"{h}_nrmse"] < 1e-4, h  # the same simulator: float32 rounding of the log only
     assert by["link_mass=3"]["k_step_nrmse"] > 0.05 and by["link_mass=3"]["free_run_nrmse"] > 0.1
     json.dumps(doc, allow_nan=False)
+
+
+def test_ctrl_is_the_default_and_threads_do_not_change_it(robosuite_rec):
+    one = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5)).doc
+    two = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, threads=2)).doc
+    assert one["commands"] == two["commands"] == "ctrl"
+    # 25 physics steps per frame; 2 episodes x (29 one-step + 6 k-step segments of 5 + 29 free-run frames)
+    assert one["sim_steps"] == two["sim_steps"] == 25 * 2 * (29 + 30 + 29)
+    assert one["per_episode"] == two["per_episode"]
+
+
+def test_recording_logs_ctrl_that_reproduce_the_physics(robosuite_rec):
+    """`action.ctrl` holds every physics step's ctrl: mj_step with them from a logged state reaches the next one."""
+    from bench import registry
+    from bench.logs import read_dataset
+
+    ds = read_dataset(robosuite_rec)
+    feature = ds.features["action.ctrl"]
+    assert feature["shape"] == [25 * 9]
+    assert feature["names"][:2] == ["robot0_torq_j1@0", "robot0_torq_j2@0"] and feature["names"][-1].endswith("@24")
+    suite = registry.make_suite("held_out_robots")
+    cell = next(c for c in suite.all_cells() if c.robot == "Panda")
+    env = suite.make_env(cell, 30)
+    try:
+        m = env.model
+        d = mujoco.MjData(m)
+        ep = next(e for e in ds.episodes if e.meta["condition"] == "nominal")
+        state, ctrl = ep.data["observation.sim_state"].astype(np.float64), ep.data["action.ctrl"].astype(np.float64)
+        worst = 0.0
+        for t in range(len(state) - 1):
+            d.qpos[:], d.qvel[:] = state[t, : m.nq], state[t, m.nq:]
+            for u in ctrl[t].reshape(25, m.nu):
+                d.ctrl[:] = u
+                mujoco.mj_step(m, d)
+            worst = max(worst, float(np.abs(d.qpos - state[t + 1, : m.nq]).max()))
+        assert worst < 1e-4  # float32 rounding of the logged states and commands only
+    finally:
+        env.close()
+
+
+def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
+    from bench.logs import read_dataset
+
+    ds = read_dataset(robosuite_rec)
+    names = ds.features["action.ctrl"]["names"]
+    for ep in ds.episodes:  # the same log, without the commands feature
+        del ep.data["action.ctrl"]
+    del ds.features["action.ctrl"]
+    plain = write_dataset(tmp_path / "plain", ds)
+    renamed = read_dataset(robosuite_rec)
+    renamed.features["action.ctrl"]["names"] = ["motor" + n for n in names]
+    renamed = write_dataset(tmp_path / "renamed", renamed)
+    cases = [
+        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"], r"commands is 'torque'; valid: ctrl, action"),
+        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"], r"feature 'action.ctrl' missing.*commands=action"),
+        ([f"logs={renamed}", "suite=held_out_robots"], r"'action.ctrl' names actuators \['motorrobot0_torq_j1'"),
+    ]
+    for argv, pattern in cases:
+        out = tmp_path / "out"
+        assert main(["replay", *argv, f"out={out}"]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and re.search(pattern, err), err
+        assert not out.exists()
+    doc = run(ReplayConfig(logs=str(plain), suite="held_out_robots", k=5)).doc  # falls back to the action loop
+    assert doc["commands"] == "action"
