@@ -360,10 +360,7 @@ def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
         print(help_text())
         return 0
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; baselines.bc takes key=value only (see --help)")
-    args: Args = config_mod.build(Args, overrides)
+    args: Args = config_mod.build_from_argv(Args, argv, "python -m baselines.bc")
     path, info = train(args)
     print(f"{info['run_name']}: {info['episodes']} episodes, {info['frames']} frames, robots {info['robots']}; "
           f"loss {info['final']['loss']:.4f}, gripper accuracy {info['gripper_accuracy']}, "

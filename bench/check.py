@@ -25,7 +25,7 @@ import numpy as np
 
 from bench import config as config_mod
 from bench.env import state_hash
-from bench.errors import ConfigError, SplitError
+from bench.errors import ConfigError
 from bench.suite import Cell, Job, episode_seed
 
 
@@ -214,10 +214,7 @@ def main(argv: list[str]) -> int:
         return 0
     from bench import registry
 
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench check takes key=value only")
-    cfg: CheckConfig = config_mod.build(CheckConfig, overrides)
+    cfg: CheckConfig = config_mod.build_from_argv(CheckConfig, argv, "bench check")
     problems: list[Problem] = []
     t0 = time.perf_counter()
     if cfg.manifest:

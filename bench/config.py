@@ -27,6 +27,15 @@ def split_args(argv: Iterable[str]) -> tuple[list[str], list[str]]:
     return positional, overrides
 
 
+def build_from_argv(cls: type, argv: Iterable[str], command: str):
+    """`key=value` arguments of a command that takes no positional ones -> a frozen `cls` (ConfigError if not)."""
+    positional, overrides = split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; {command} takes key=value only "
+                          f"(see {command} --help)")
+    return build(cls, overrides)
+
+
 def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
     """Positional arguments and a nested dict of the `key=value` overrides (untyped).
 

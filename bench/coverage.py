@@ -933,10 +933,7 @@ def sweep_main(argv: list[str]) -> int:
     from bench import config as config_mod
     from bench import registry
 
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench coverage sweep takes key=value only")
-    cfg: SweepConfig = config_mod.build(SweepConfig, overrides)
+    cfg: SweepConfig = config_mod.build_from_argv(SweepConfig, argv, "bench coverage sweep")
     suite = registry.make_suite(cfg.suite)
     _check_sweep(cfg, suite)
     console = Console(stderr=True)
@@ -1111,19 +1108,12 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
 
 
 # ---------------------------------------------------------------------------- output
-def _fmt(e: dict | None, pct: bool = True) -> str:
-    if not e or e.get("value") is None:
-        return "n/a"
-    v, ci = e["value"], e.get("ci")
-    if pct:
-        return f"{100 * v:.0f}% [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]" if ci else f"{100 * v:.0f}%"
-    return f"{v:+.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else f"{v:+.3f}"
-
-
 def render_sweep(doc: dict[str, Any], console=None) -> None:
     """Print the sweep's tables: each series with its slope, then the surrogate comparison."""
     from rich.console import Console
     from rich.table import Table
+
+    from bench.summary import fmt_estimate
 
     console = console or Console(width=None if Console().is_terminal else 140)
     conf = int(round(100 * doc.get("confidence", 0.95)))
@@ -1138,13 +1128,13 @@ def render_sweep(doc: dict[str, Any], console=None) -> None:
         for p in s["points"]:
             c = p["coverage"]
             t.add_row(p["name"], f"{p['x']:g}", ",".join(p["train_robots"]), str(p["training"]["episodes"]),
-                      _fmt(p["held_out"]), _fmt(p.get("held_out_vs_first"), pct=False) if "held_out_vs_first" in p else "-",
-                      _fmt(p["in_distribution"]), _fmt(p["gap"], pct=False),
+                      fmt_estimate(p["held_out"]), fmt_estimate(p.get("held_out_vs_first"), pct=False) if "held_out_vs_first" in p else "-",
+                      fmt_estimate(p["in_distribution"]), fmt_estimate(p["gap"], pct=False),
                       _pct(c.get("state_unseen_covered")),
                       "/".join(f"{w:.0f}" for w in np.atleast_1d(p["training"]["train_wall_s"])))
         console.print(t)
-        console.print(f"  held-out success slope per unit x: {_fmt(s['held_out_slope'], pct=False)}; "
-                      f"gap slope: {_fmt(s['gap_slope'], pct=False)}")
+        console.print(f"  held-out success slope per unit x: {fmt_estimate(s['held_out_slope'], pct=False)}; "
+                      f"gap slope: {fmt_estimate(s['gap_slope'], pct=False)}")
     sg = doc.get("surrogate")
     if sg:
         t = Table(title=f"surrogate data: {sg['in_domain_episodes']} in-domain episodes on {sg['target']} "
@@ -1153,7 +1143,7 @@ def render_sweep(doc: dict[str, Any], console=None) -> None:
             t.add_column(col)
         for name, v in sg["variants"].items():
             d = v.get("vs_in_domain")
-            t.add_row(name, str(v["training"]["episodes"]), _fmt(v["success"]), _fmt(d, pct=False) if d else "-",
+            t.add_row(name, str(v["training"]["episodes"]), fmt_estimate(v["success"]), fmt_estimate(d, pct=False) if d else "-",
                       d.get("verdict", "") if d else "")
         console.print(t)
 

@@ -13,7 +13,6 @@ observation layout: the dataset's observation names must match the env's.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -129,10 +128,7 @@ def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
         print(HELP)
         return 0
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; use logs=DIR")
-    cfg: ActionsConfig = config_mod.build(ActionsConfig, overrides)
+    cfg: ActionsConfig = config_mod.build_from_argv(ActionsConfig, argv, "bench actions")
     if not cfg.logs:
         raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
     result = evaluate(cfg)

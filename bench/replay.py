@@ -205,26 +205,19 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
         notes.append("qvel is not logged: initial velocities are estimated from qpos (Savitzky-Golay)")
     if given.params:
         notes.append("the spec's free parameters keep the model's values (replay uses the model as given)")
-    doc = {
-        "schema": SCHEMA,
-        "backend": "mujoco.rollout",
-        "logs": str(cfg.logs),
-        "spec": given.to_json(),  # as written; its params, effects and inputs are not used
-        "model": str(spec.model),
-        "fps": float(rec.fps),
-        "substeps": int(plant.substeps),
-        "timestep": float(plant.model.opt.timestep),
-        "k": int(cfg.k),
-        "episodes": [int(i) for i in index],
-        "frames": int(len(rec.qpos)),
-        "joints": joints,
-        "horizons": horizons,
-        "per_episode": per_episode,
-        "sim_steps": int(steps),  # physics steps for ctrl, control steps for action
-        "wall_s": round(time.perf_counter() - t0, 4),
-        "notes": notes,
-    }
+    doc = _doc(cfg, "mujoco.rollout", rec.fps, index, len(rec.qpos), joints, horizons, per_episode, steps, t0, notes,
+               spec=given.to_json(),  # as written; its params, effects and inputs are not used
+               model=str(spec.model), substeps=int(plant.substeps), timestep=float(plant.model.opt.timestep))
     return Replay(doc, errors, rec.qpos, rec.offsets, float(rec.fps), joints, index)
+
+
+def _doc(cfg: ReplayConfig, backend: str, fps: float, index: list[int], frames: int, joints: list[str],
+         horizons: dict, per_episode: list[dict], steps: int, t0: float, notes: list[str], **extra) -> dict:
+    """The replay.json document (schema bench.replay/1): fields common to both backends, then `extra`."""
+    head = {"schema": SCHEMA, "backend": backend, "logs": str(cfg.logs)}
+    return {**head, **extra, "fps": float(fps), "k": int(cfg.k), "episodes": [int(i) for i in index],
+            "frames": int(frames), "joints": joints, "horizons": horizons, "per_episode": per_episode,
+            "sim_steps": int(steps), "wall_s": round(time.perf_counter() - t0, 4), "notes": notes}
 
 
 # --- suite backend (Python step loop) ------------------------------------------------------------------
@@ -506,26 +499,13 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     for row, ep in zip(per_episode, eps):
         meta = ep.meta if isinstance(ep.meta, dict) else {}
         row.update({k: meta[k] for k in ("condition", "params", "robot", "task") if k in meta})
-    doc = {
-        "schema": SCHEMA,
-        "backend": (f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
-                    if commands == "ctrl" else f"{cfg.suite} step loop"),
-        "commands": commands,
-        "logs": str(cfg.logs),
-        "suite": cfg.suite,
-        "spec": None,
-        "fps": float(ds.fps),
-        "k": int(cfg.k),
-        "episodes": [int(i) for i in index],
-        "frames": int(len(logs.full)),
-        "joints": joints,
-        "horizons": horizons,
-        "per_episode": per_episode,
-        "sim_steps": int(steps),  # physics steps for ctrl, control steps for action
-        "wall_s": round(time.perf_counter() - t0, 4),
-        "notes": [f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} "
-                  f"episode(s) start from the exact state of reset(seed), the rest from the logged float32 state"],
-    }
+    backend = (f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
+               if commands == "ctrl" else f"{cfg.suite} step loop")
+    notes = [f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} episode(s) "
+             f"start from the exact state of reset(seed), the rest from the logged float32 state"]
+    # sim_steps: physics steps for commands=ctrl, control (env) steps for commands=action
+    doc = _doc(cfg, backend, ds.fps, index, len(logs.full), joints, horizons, per_episode, steps, t0, notes,
+               commands=commands, suite=cfg.suite, spec=None)
     return Replay(doc, errors, rec.qpos, offsets, float(ds.fps), joints, index)
 
 
@@ -656,10 +636,7 @@ def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help", "help"):
         print(HELP)
         return 0
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; use key=value (logs=DIR spec=SPEC)")
-    cfg: ReplayConfig = config_mod.build(ReplayConfig, overrides)
+    cfg: ReplayConfig = config_mod.build_from_argv(ReplayConfig, argv, "bench replay")
     rep = run(cfg)
     render(rep.doc)
     if cfg.out:

@@ -89,10 +89,7 @@ def prepare(argv: list[str]):
     """Parse and check everything a run needs; writes nothing. Returns a dict of run pieces."""
     from bench import perturb, registry
 
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench run takes key=value only (see bench run --help)")
-    cfg: RunConfig = config_mod.build(RunConfig, overrides)
+    cfg: RunConfig = config_mod.build_from_argv(RunConfig, argv, "bench run")
     if cfg.episodes < 1:
         raise ConfigError(f"episodes={cfg.episodes}: must be >= 1")
     if cfg.workers < 0:

@@ -117,7 +117,8 @@ def write_atomic(path: Path, obj: Any) -> None:
         raise
 
 
-def _fmt(est: dict | None, pct: bool = True) -> str:
+def fmt_estimate(est: dict | None, pct: bool = True) -> str:
+    """An estimate {"value", "ci"} as text: `82% [70, 91]`, or `+0.120 [+0.010, +0.230]` with pct=False."""
     if not est or est.get("value") is None:
         return "n/a"
     v, ci = est["value"], est.get("ci")
@@ -141,7 +142,7 @@ def render(summary: dict[str, Any], console=None) -> None:
         t.add_column(col, justify="right" if col in ("n", "err") else "left")
     for c in summary["cells"]:
         t.add_row(c["task"], c["robot"], *((str(c.get("env")),) if show_env else ()), c["split"], c["condition"],
-                  str(c["n"]), _fmt(c["success_once"]), _fmt(c["success_at_end"]), str(c["errors"]) if c["errors"] else "")
+                  str(c["n"]), fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]), str(c["errors"]) if c["errors"] else "")
     console.print(t)
     if summary["splits"]:
         a = Table(title=f"aggregates over nominal cells (mean of cell rates, {conf}% stratified bootstrap)",
@@ -149,15 +150,15 @@ def render(summary: dict[str, Any], console=None) -> None:
         for col in ("split", "success once", "success at end", "IQM once"):
             a.add_column(col)
         for s, v in summary["splits"].items():
-            a.add_row(s, _fmt(v.get("success_once", {}).get("mean")), _fmt(v.get("success_at_end", {}).get("mean")),
-                      _fmt(v.get("success_once", {}).get("iqm")))
+            a.add_row(s, fmt_estimate(v.get("success_once", {}).get("mean")), fmt_estimate(v.get("success_at_end", {}).get("mean")),
+                      fmt_estimate(v.get("success_once", {}).get("iqm")))
         console.print(a)
     if summary["gaps"]:
         g_t = Table(title=f"transfer gaps (reference − target, {conf}% bootstrap)", title_justify="left")
         for col in ("gap", "metric", "value [CI]"):
             g_t.add_column(col)
         for g in summary["gaps"]:
-            g_t.add_row(f"{g['reference']} → {g['target']}", g["metric"], _fmt(g, pct=False) if g.get("value") is not None
+            g_t.add_row(f"{g['reference']} → {g['target']}", g["metric"], fmt_estimate(g, pct=False) if g.get("value") is not None
                         else f"n/a ({g.get('reason')})")
         console.print(g_t)
     if summary.get("sensitivity"):

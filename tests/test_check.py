@@ -1,7 +1,7 @@
 """bench check: split hygiene catches overlaps and seed wrap-around; clean suites pass."""
 import pytest
 
-from bench.check import check_cells, check_manifest, check_seeds, fast_check
+from bench.check import check_cells, check_manifest, check_seeds
 from bench.cli import main
 from bench.suite import NOMINAL, Cell, Job, Suite
 

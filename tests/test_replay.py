@@ -158,7 +158,7 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[]"], r"episodes=\[\] selects nothing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
-    (lambda t, logs, spec: [f"logs={logs}", f"suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
+    (lambda t, logs, spec: [f"logs={logs}", "suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "commands=ctrl"], r"commands= applies to suite= replays"),
 ]
 
