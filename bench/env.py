@@ -25,10 +25,12 @@ class Env(Protocol):
         horizon: number of control steps in one episode.
         model, data: the `mujoco.MjModel` / `MjData` for MuJoCo backends, else None.
 
-    Optional, for MuJoCo backends whose controller runs in Python between physics steps (robosuite):
-    `log_ctrl(on: bool)` starts/stops logging `data.ctrl` at every physics step, and `take_ctrl()`
-    returns the (substeps, nu) commands applied during the last `step` (what `record=` stores as
-    `action.ctrl`, so `bench replay` can re-apply them batched in `mujoco.rollout`).
+    Optional, for MuJoCo backends whose controller runs in Python (robosuite's OSC, Meta-World's
+    mocap action): `ctrl_spec`, an `mjtState` mask of the inputs the env drives (CTRL, plus
+    MOCAP_POS | MOCAP_QUAT for Meta-World); `log_ctrl(on: bool)` starts/stops logging those inputs
+    at every physics step; `take_ctrl()` returns the (substeps, size) inputs applied during the last
+    `step`, each row as `mj_getState(model, data, row, ctrl_spec)` gives it. `record=` stores them
+    as `action.ctrl`, and `bench replay` re-applies them batched in `mujoco.rollout`.
     """
 
     backend: str
@@ -66,3 +68,35 @@ def state_hash(state: np.ndarray, decimals: int = 6) -> str:
     """A short, platform-stable hash of a state vector, rounded so float noise does not matter."""
     arr = np.round(np.asarray(state, dtype=np.float64), decimals) + 0.0  # +0.0 folds -0.0 into 0.0
     return hashlib.sha256(arr.tobytes()).hexdigest()[:16]
+
+
+# the input parts of an mjtState mask a logged `action.ctrl` may hold, in mj_getState order
+_INPUT_PARTS = (("CTRL", None), ("MOCAP_POS", "xyz"), ("MOCAP_QUAT", "wxyz"))
+
+
+def mj_input_names(model, spec: int) -> list[str]:
+    """Element names of `mj_getState(model, data, out, spec)` for an input-only mask.
+
+    CTRL -> actuator names; MOCAP_POS -> `<body>.mocap_x|y|z`; MOCAP_QUAT -> `<body>.mocap_qw|qx|qy|qz`.
+    """
+    import mujoco
+
+    names: list[str] = []
+    left = int(spec)
+    for part, axes in _INPUT_PARTS:
+        bit = int(getattr(mujoco.mjtState, f"mjSTATE_{part}"))
+        if not left & bit:
+            continue
+        left &= ~bit
+        if axes is None:
+            names += [model.actuator(a).name or f"actuator{a}" for a in range(model.nu)]
+            continue
+        mocap_bodies = [b for b in range(model.nbody) if model.body_mocapid[b] >= 0]
+        mocap_bodies.sort(key=lambda b: int(model.body_mocapid[b]))
+        prefix = "q" if part == "MOCAP_QUAT" else ""
+        for b in mocap_bodies:
+            body = model.body(b).name or f"body{b}"
+            names += [f"{body}.mocap_{prefix}{a}" for a in axes]
+    if left:
+        raise ValueError(f"mjtState mask {spec} holds parts other than CTRL, MOCAP_POS, MOCAP_QUAT")
+    return names

@@ -9,9 +9,11 @@ into one dataset with these features:
 - `next.reward` (T, 1), `next.success` (T, 1): per step, after the action
 - `observation.sim_state` (T, nq+nv): MuJoCo qpos and qvel before the step (for replay);
   only when every episode has the same state size (one robot), since a feature has one shape
-- `action.ctrl` (T, substeps x nu): the actuator commands (MuJoCo `data.ctrl`) the env's controller
-  applied at each physics step of the control step, named `<actuator>@<substep>` (robosuite envs;
-  same one-shape rule). `bench replay` re-applies them batched in `mujoco.rollout`.
+- `action.ctrl` (T, substeps x size): the MuJoCo inputs the env applied at each physics step of the
+  control step, as `mj_getState(..., ctrl_spec)` gives them: actuator commands (`data.ctrl`, named
+  `<actuator>@<substep>`) and, for Meta-World, the hand's mocap pose (`<body>.mocap_x@<substep>`
+  ...); the mask is each episode's `ctrl_spec` metadata (same one-shape rule). `bench replay`
+  re-applies them batched in `mujoco.rollout`.
 
 and per-episode metadata (task, robot, env, split, condition, seed, sampled
 parameters, success_once/at_end). The task string is the cell key, e.g. `Lift/Panda/default`.
@@ -41,6 +43,7 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
 
     episodes, tasks, meta = [], [], []
     obs_names = action_names = ctrl_names = None
+    ctrl_specs = []
     fps = 0.0
     for r in sorted(records, key=lambda r: r.job_id):
         if r.error is not None or r.length == 0:
@@ -61,6 +64,7 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
                 ep["action.ctrl"] = z["ctrl"]
                 substeps = z["ctrl"].shape[1] // len(z["ctrl_names"])
                 mine = [f"{a}@{k}" for k in range(substeps) for a in z["ctrl_names"]]
+                ctrl_specs.append(int(z["ctrl_spec"][0]))
                 if ctrl_names is None:
                     ctrl_names = mine
                 elif mine != ctrl_names:  # another robot's actuators: one feature cannot name both
@@ -69,10 +73,11 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
             action_names = action_names or [str(x) for x in z["action_names"]]
             fps = fps or float(z["fps"][0])
         episodes.append(ep)
+        spec = {"ctrl_spec": ctrl_specs[-1]} if "action.ctrl" in ep else {}
         tasks.append(f"{r.task}/{r.robot}/{r.env}")
         meta.append({"task": r.task, "robot": r.robot, "env": r.env, "split": r.split, "condition": r.condition,
                      "seed": r.seed, "episode": r.episode, "params": r.params, "success_once": r.success_once,
-                     "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id})
+                     "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id, **spec})
     if not episodes:
         raise DataError("record: the run has no completed episode to record")
     for feature in ("observation.sim_state", "action.ctrl"):
@@ -81,11 +86,12 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
             for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
                 ep.pop(feature, None)
     names = {"observation.state": obs_names, "action": action_names}
-    if not ctrl_names:
-        for ep in episodes:
-            ep.pop("action.ctrl", None)
-    elif all("action.ctrl" in ep for ep in episodes):
+    if ctrl_names and len(set(ctrl_specs)) == 1 and all("action.ctrl" in ep for ep in episodes):
         names["action.ctrl"] = ctrl_names
+    else:  # inputs of different robots or envs: one feature cannot name both
+        for ep, m in zip(episodes, meta):
+            ep.pop("action.ctrl", None)
+            m.pop("ctrl_spec", None)
     ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names)
     return write_dataset(out, ds)
 

@@ -303,21 +303,35 @@ def _back_to_back(rec, windows, k: int):
     return Segments(np.array(starts, dtype=np.int64), k, np.array(masks, dtype=bool).reshape(-1, k))
 
 
-def _ctrl_layout(cfg: ReplayConfig, ds, envs) -> int:
-    """Physics steps per frame of the logged `action.ctrl`; its names must be the models' actuators."""
+def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
+    """(mjtState mask, physics steps per frame) of the logged `action.ctrl`; its names must match the models."""
+    import mujoco
+
+    from bench.env import mj_input_names
+
+    specs = {int(ep.meta.get("ctrl_spec", mujoco.mjtState.mjSTATE_CTRL)) if isinstance(ep.meta, dict)
+             else int(mujoco.mjtState.mjSTATE_CTRL) for ep in eps}
+    if len(specs) != 1:
+        raise DataError(f"{cfg.logs}: episodes log different inputs in {CTRL!r} (ctrl_spec {sorted(specs)}); "
+                        f"replay them separately (episodes=[...]) or use commands=action")
+    spec = specs.pop()
     width = ds.feature_shape(CTRL)[0]
     names = ds.features[CTRL].get("names") or []
     for env in {id(e): e for e in envs}.values():
-        nu = env.model.nu
-        actuators = [env.model.actuator(a).name or f"actuator{a}" for a in range(nu)]
-        if nu == 0 or width % nu:
-            raise DataError(f"{cfg.logs}: feature {CTRL!r} has width {width}, not a multiple of the model's {nu} "
-                            f"actuators; was it recorded with suite {cfg.suite!r}?")
-        logged = [str(n).rsplit("@", 1)[0] for n in names[:nu]]
-        if names and logged != actuators:
-            raise DataError(f"{cfg.logs}: feature {CTRL!r} names actuators {logged}, the model has {actuators}; "
-                            f"replay with commands=action or with the suite that recorded it")
-    return width // envs[0].model.nu
+        try:
+            inputs = mj_input_names(env.model, spec)
+        except ValueError as exc:
+            raise DataError(f"{cfg.logs}: episode metadata 'ctrl_spec': {exc}") from None
+        size = len(inputs)
+        if size == 0 or width % size:
+            raise DataError(f"{cfg.logs}: feature {CTRL!r} has width {width}, not a multiple of the model's {size} "
+                            f"inputs ({', '.join(inputs[:4])}...); was it recorded with suite {cfg.suite!r}?")
+        logged = [str(n).rsplit("@", 1)[0] for n in names[:size]]
+        if names and logged != inputs:
+            i = next(i for i, (a, b) in enumerate(zip(logged + [None] * size, inputs)) if a != b)
+            raise DataError(f"{cfg.logs}: feature {CTRL!r} element {i} is {names[i]!r}, but input {i} of the model "
+                            f"is {inputs[i]!r}; replay with commands=action or with the suite that recorded it")
+    return spec, width // size
 
 
 def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets: np.ndarray, segments: dict,
@@ -344,17 +358,18 @@ def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets
 
 
 def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets: np.ndarray, segments: dict,
-                 substeps: int, idx: np.ndarray) -> tuple[dict[str, np.ndarray], int]:
+                substeps: int, idx: np.ndarray, ctrl_spec: int | None = None) -> tuple[dict[str, np.ndarray], int]:
     """Positions after each frame of every segment, from logged ctrl batched in `mujoco.rollout`.
 
-    Each segment starts from the logged qpos/qvel (the rest of the state, e.g. mocap bodies, is the
-    env's after reset) and applies the logged commands of each physics step. Segments of one model
+    Each segment starts from the logged qpos/qvel (the rest of the state is the env's current one)
+    and applies the logged inputs of each physics step (`ctrl_spec`, an mjtState mask; default CTRL). Segments of one model
     run in one call (chunked to bound memory); `threads` rollout threads share them.
     """
     import mujoco
     from mujoco import rollout
 
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    inputs = int(mujoco.mjtState.mjSTATE_CTRL) if ctrl_spec is None else int(ctrl_spec)
     by_env: dict[int, Any] = {id(e): e for e in envs}
     pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
     datas: dict[int, list] = {k: [mujoco.MjData(e.model) for _ in range(threads)] for k, e in by_env.items()}
@@ -375,15 +390,16 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
                 for lo in range(0, len(members), per):
                     chunk = members[lo:lo + per]
                     init = np.zeros((len(chunk), size))
-                    control = np.zeros((len(chunk), nstep, m.nu))
+                    width = mujoco.mj_stateSize(m, inputs)
+                    control = np.zeros((len(chunk), nstep, width))
                     for row, sgi in enumerate(chunk):
                         start, n = int(segs.start[sgi]), int(n_frames[sgi])
                         d.qpos[:] = full[start, : m.nq]
                         d.qvel[:] = full[start, m.nq:]
                         d.time = 0.0
                         mujoco.mj_getState(m, d, init[row], spec)
-                        control[row, : n * substeps] = ctrl[start:start + n].reshape(n * substeps, m.nu)
-                    state, _ = pool.rollout(m, datas[key], init, control, nstep=nstep)
+                        control[row, : n * substeps] = ctrl[start:start + n].reshape(n * substeps, width)
+                    state, _ = pool.rollout(m, datas[key], init, control, control_spec=inputs, nstep=nstep)
                     qpos = state[:, substeps - 1::substeps, 1:1 + m.nq]  # after each frame's last physics step
                     pred[chunk] = qpos[:, :, idx]
                     steps += int(n_frames[chunk].sum()) * substeps
@@ -404,7 +420,8 @@ class SuiteLogs:
     idx: np.ndarray            # their qpos addresses
     full: np.ndarray           # (N, nq + nv) logged MuJoCo state before each frame
     act: np.ndarray            # (N, A) logged policy actions
-    ctrl: np.ndarray | None    # (N, substeps * nu) logged actuator commands, if recorded
+    ctrl: np.ndarray | None    # (N, substeps * size) logged inputs (actuator commands, mocap poses), if recorded
+    ctrl_spec: int             # their mjtState mask (0 without ctrl)
     substeps: int              # physics steps per frame (0 without ctrl)
     offsets: np.ndarray        # (E + 1,)
     rec: Any                   # bench.calibrate.data.Recording of the compared positions
@@ -436,7 +453,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
         raise DataError(f"{cfg.logs}: episode {short} has fewer than 2 frames; nothing to replay")
     envs, joints, idx = _suite_envs(cfg, ds, eps)
     try:
-        substeps = _ctrl_layout(cfg, ds, envs) if need_ctrl else 0
+        ctrl_spec, substeps = _ctrl_layout(cfg, ds, eps, envs) if need_ctrl else (0, 0)
         states = [np.asarray(ep.data["observation.sim_state"], dtype=np.float64) for ep in eps]
         seeds = [int(ep.meta["seed"]) if isinstance(ep.meta, dict) and "seed" in ep.meta else None for ep in eps]
         exact = 0
@@ -457,7 +474,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
     rec = Recording(fps=float(ds.fps), qpos=full[:, idx], qvel=np.zeros((len(full), 0)), ctrl=act, inputs=None,
                     offsets=offsets, train=[], holdout=[], qvel_logged=True)
     windows = [Window(i, 0, n) for i, n in enumerate(lengths)]
-    return SuiteLogs(eps, envs, seeds, joints, idx, full, act, ctrl, substeps, offsets, rec, windows, exact)
+    return SuiteLogs(eps, envs, seeds, joints, idx, full, act, ctrl, ctrl_spec, substeps, offsets, rec, windows, exact)
 
 
 def suite_segments(logs: SuiteLogs, k: int, commands: str) -> dict:
@@ -486,7 +503,7 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
         segments = suite_segments(logs, cfg.k, commands)
         if commands == "ctrl":
             preds, steps = replay_ctrl(cfg.threads, logs.envs, logs.full, logs.ctrl, logs.offsets, segments,
-                                       logs.substeps, logs.idx)
+                                       logs.substeps, logs.idx, logs.ctrl_spec)
         else:
             preds, steps = replay_actions(logs.envs, logs.seeds, logs.full, logs.act, logs.offsets, segments, logs.idx)
     finally:

@@ -133,7 +133,10 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
         traj["action_names"] = list(env.action_names)
         traj["fps"] = [float(getattr(env, "fps", 0.0) or 0.0)]
         if log_ctrl:
-            traj["ctrl_names"] = [env.model.actuator(a).name or f"actuator{a}" for a in range(env.model.nu)]
+            from bench.env import mj_input_names
+
+            traj["ctrl_names"] = mj_input_names(env.model, env.ctrl_spec)
+            traj["ctrl_spec"] = [int(env.ctrl_spec)]
         _save_trajectory(trajectory_path(ctx.trajectory_dir, job.job_id), traj)
     cell = job.cell
     record = EpisodeRecord(

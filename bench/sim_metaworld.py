@@ -169,6 +169,46 @@ class MetaWorldEnv:
         self.action_high = np.full(len(ACTION_NAMES), 1.0, dtype=np.float32)
         self._t = 0
         self._init_state: np.ndarray | None = None
+        # the inputs Meta-World drives: the gripper's two actuators and the hand's mocap body
+        st = mujoco.mjtState
+        self.ctrl_spec = int(st.mjSTATE_CTRL | st.mjSTATE_MOCAP_POS | st.mjSTATE_MOCAP_QUAT)
+        self._ctrl_size = mujoco.mj_stateSize(self.model, self.ctrl_spec)
+        self._ctrl_log: list[np.ndarray] | None = None
+        self._wrap_physics_steps()
+
+    # -- inputs at every physics step (for batched replay) -------------------------------------
+    def _wrap_physics_steps(self) -> None:
+        """Note ctrl and the mocap pose as each `do_simulation` applies them, when logging is on.
+
+        Meta-World's step moves the mocap body, then `_step_mujoco_simulation(ctrl, frame_skip)`
+        sets ctrl and calls `mj_step(nstep=frame_skip)`: the inputs hold for those physics steps.
+        """
+        import mujoco
+
+        env, model, data = self._env, self.model, self.data
+        original = env._step_mujoco_simulation
+
+        def stepped(ctrl, n_frames):
+            if self._ctrl_log is not None:
+                data.ctrl[:] = ctrl
+                row = np.empty(self._ctrl_size)
+                mujoco.mj_getState(model, data, row, self.ctrl_spec)
+                self._ctrl_log.extend([row] * int(n_frames))
+            return original(ctrl, n_frames)
+
+        env._step_mujoco_simulation = stepped
+
+    def log_ctrl(self, on: bool) -> None:
+        """Start (empty) or stop logging the inputs (ctrl_spec) of every physics step."""
+        self._ctrl_log = [] if on else None
+
+    def take_ctrl(self) -> np.ndarray:
+        """(substeps, size) inputs applied since the last call, rows as mj_getState(ctrl_spec); empties the log."""
+        if self._ctrl_log is None:
+            raise RuntimeError("take_ctrl: call log_ctrl(True) first")
+        out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self._ctrl_size)
+        self._ctrl_log.clear()
+        return out
 
     def reset(self, seed: int) -> np.ndarray:
         env = self._env

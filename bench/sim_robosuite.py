@@ -153,6 +153,7 @@ class RobosuiteEnv:
         self.action_low, self.action_high = np.asarray(low, np.float32), np.asarray(high, np.float32)
         if len(self.action_low) != len(ACTION_NAMES):
             raise ValueError(f"{robot}: action size {len(self.action_low)}, expected {len(ACTION_NAMES)}")
+        self.ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL)  # robosuite drives actuators only
         self._ctrl_log: list[np.ndarray] | None = None
         self._wrap_physics_steps()
         self._grip_idx = np.asarray(self._env.robots[0]._ref_gripper_joint_pos_indexes["right"])
@@ -183,7 +184,7 @@ class RobosuiteEnv:
         self._ctrl_log = [] if on else None
 
     def take_ctrl(self) -> np.ndarray:
-        """(substeps, nu) commands applied since the last call; empties the log."""
+        """(substeps, nu) commands applied since the last call (ctrl_spec = CTRL); empties the log."""
         if self._ctrl_log is None:
             raise RuntimeError("take_ctrl: call log_ctrl(True) first")
         out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self.model.nu)

@@ -145,7 +145,7 @@ def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
             best["mj_step"] = min(best["mj_step"], t)
             for n in threads:
                 t, (preds[n], _) = _timed(lambda: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
-                                                              seg_c, logs.substeps, logs.idx))
+                                                              seg_c, logs.substeps, logs.idx, logs.ctrl_spec))
                 best[n] = min(best[n], t)
         m = logs.envs[0].model
         floor = physics_floor(m, logs.ctrl[0, : m.nu])

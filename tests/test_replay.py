@@ -267,7 +267,7 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
     cases = [
         ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"], r"commands is 'torque'; valid: ctrl, action"),
         ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"], r"feature 'action.ctrl' missing.*commands=action"),
-        ([f"logs={renamed}", "suite=held_out_robots"], r"'action.ctrl' names actuators \['motorrobot0_torq_j1'"),
+        ([f"logs={renamed}", "suite=held_out_robots"], r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
     ]
     for argv, pattern in cases:
         out = tmp_path / "out"
@@ -277,3 +277,30 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
         assert not out.exists()
     doc = run(ReplayConfig(logs=str(plain), suite="held_out_robots", k=5)).doc  # falls back to the action loop
     assert doc["commands"] == "action"
+
+
+def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
+    """Meta-World drives a mocap body: `action.ctrl` holds ctrl and the mocap pose of every physics step."""
+    from bench.logs import read_dataset
+
+    rec = tmp_path / "rec"
+    assert main(["run", "suite=held_out_envs", "tasks=[reach-v3]", "episodes=1", "horizon=40", "workers=1",
+                 "run_id=m", f"out={tmp_path / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
+    ds = read_dataset(rec)
+    names = ds.features["action.ctrl"]["names"]
+    assert names[:4] == ["actuator0@0", "actuator1@0", "mocap.mocap_x@0", "mocap.mocap_y@0"]
+    assert ds.features["action.ctrl"]["shape"] == [5 * 9]  # frame_skip 5 x (2 ctrl + 3 pos + 4 quat)
+    assert {ep.meta["ctrl_spec"] for ep in ds.episodes} == {int(mujoco.mjtState.mjSTATE_CTRL
+                                                               | mujoco.mjtState.mjSTATE_MOCAP_POS
+                                                               | mujoco.mjtState.mjSTATE_MOCAP_QUAT)}
+    batched = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5)).doc
+    loop = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5, commands="action")).doc
+    assert batched["commands"] == "ctrl" and loop["commands"] == "action"
+    for doc in (batched, loop):
+        by = _by_condition(doc)
+        for h in HORIZONS:
+            assert by["nominal"][f"{h}_nrmse"] < 1e-3, (doc["commands"], h)
+        assert by["link_mass=3"]["k_step_nrmse"] > 0.01 and by["link_mass=3"]["free_run_nrmse"] > 0.05
+    one = {h: _by_condition(batched)["link_mass=3"][f"{h}_nrmse"] for h in ("one_step", "free_run")}
+    other = {h: _by_condition(loop)["link_mass=3"][f"{h}_nrmse"] for h in ("one_step", "free_run")}
+    assert one == pytest.approx(other, rel=1e-3)  # the mocap "controller" has no feedback: both replay the same
