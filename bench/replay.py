@@ -515,7 +515,7 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     horizons, per_episode = summarise(errors, rec.qpos, offsets, joints, index, cfg.k)
     for row, ep in zip(per_episode, eps):
         meta = ep.meta if isinstance(ep.meta, dict) else {}
-        row.update({k: meta[k] for k in ("condition", "params", "robot", "task") if k in meta})
+        row.update({k: meta[k] for k in ("condition", "params", "robot", "task", "env") if k in meta})
     backend = (f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
                if commands == "ctrl" else f"{cfg.suite} step loop")
     notes = [f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} episode(s) "

@@ -304,3 +304,16 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
     one = {h: _by_condition(batched)["link_mass=3"][f"{h}_nrmse"] for h in ("one_step", "free_run")}
     other = {h: _by_condition(loop)["link_mass=3"][f"{h}_nrmse"] for h in ("one_step", "free_run")}
     assert one == pytest.approx(other, rel=1e-3)  # the mocap "controller" has no feedback: both replay the same
+
+
+def test_recordings_from_several_scenes_replay_batched_per_model(tmp_path):
+    """Two robosuite scenes (two models, same joints) in one log: one rollout per model, both replay exactly."""
+    rec = tmp_path / "rec"
+    assert main(["run", "suite=held_out_scenes", "envs=[nominal,table_up_12cm]", "episodes=1", "horizon=20",
+                 "workers=1", "run_id=s", f"out={tmp_path / 'runs'}", f"record={rec}"]) == 0
+    doc = run(ReplayConfig(logs=str(rec), suite="held_out_scenes", k=5, threads=2)).doc
+    assert doc["commands"] == "ctrl" and len(doc["per_episode"]) == 2
+    for row in doc["per_episode"]:  # a wrong model (the other scene's table) would put the cube elsewhere
+        for h in HORIZONS:
+            assert row[f"{h}_nrmse"] < 1e-4, (row, h)
+    assert {row["env"] for row in doc["per_episode"]} == {"nominal", "table_up_12cm"}
