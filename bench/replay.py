@@ -17,12 +17,12 @@ Two backends:
   effects are not used); all segments of one horizon run in one batched `mujoco.rollout` call
   (`bench.calibrate.simulate`, `bench.calibrate.metrics.horizon_errors`).
 - **suite** (`suite=`): datasets written by `bench run ... record=DIR` carry the MuJoCo state
-  before every step (`observation.sim_state`), the policy's action and, for robosuite envs, the
-  actuator commands of every physics step (`action.ctrl`). Two ways to replay them in the suite's
-  nominal env (`commands=`):
-  - `ctrl` (default when logged): the logged actuator commands, re-applied physics step by physics
-    step from the logged states, all segments of a horizon batched in `mujoco.rollout`. This
-    replays the physics alone: what the controller did is taken from the log.
+  before every step (`observation.sim_state`), the policy's action and, for robosuite and
+  Meta-World envs, the MuJoCo inputs of every physics step (`action.ctrl`: actuator commands, and
+  Meta-World's mocap pose). Two ways to replay them in the suite's nominal env (`commands=`):
+  - `ctrl` (default when logged): the logged inputs, re-applied physics step by physics step
+    from the logged states, all segments of a horizon batched in `mujoco.rollout`. This replays
+    the physics alone: what the controller did is taken from the log.
   - `action`: the logged policy actions through the env's own controller (robosuite's OSC is
     Python), in a Python step loop: set the state at each segment start, `env.step` the actions.
     This also replays the controller, so a gap in what it computes shows up too.
@@ -220,7 +220,7 @@ def _doc(cfg: ReplayConfig, backend: str, fps: float, index: list[int], frames: 
             "sim_steps": int(steps), "wall_s": round(time.perf_counter() - t0, 4), "notes": notes}
 
 
-# --- suite backend (Python step loop) ------------------------------------------------------------------
+# --- suite backend (batched logged inputs, or the env's step loop) ------------------------------------
 def _coordinates(model) -> tuple[list[str], np.ndarray]:
     """Compared position coordinates: each hinge / slide joint, and the x, y, z of each free joint."""
     import mujoco
@@ -303,6 +303,11 @@ def _back_to_back(rec, windows, k: int):
     return Segments(np.array(starts, dtype=np.int64), k, np.array(masks, dtype=bool).reshape(-1, k))
 
 
+def _distinct(envs: list) -> list:
+    """Each env once (episodes of one cell share an env), in first-use order."""
+    return list({id(e): e for e in envs}.values())
+
+
 def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
     """(mjtState mask, physics steps per frame) of the logged `action.ctrl`; its names must match the models."""
     import mujoco
@@ -317,7 +322,7 @@ def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
     spec = specs.pop()
     width = ds.feature_shape(CTRL)[0]
     names = ds.features[CTRL].get("names") or []
-    for env in {id(e): e for e in envs}.values():
+    for env in _distinct(envs):
         try:
             inputs = mj_input_names(env.model, spec)
         except ValueError as exc:
@@ -370,7 +375,7 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
 
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     inputs = int(mujoco.mjtState.mjSTATE_CTRL) if ctrl_spec is None else int(ctrl_spec)
-    by_env: dict[int, Any] = {id(e): e for e in envs}
+    by_env: dict[int, Any] = {id(e): e for e in _distinct(envs)}
     pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
     datas: dict[int, list] = {k: [mujoco.MjData(e.model) for _ in range(threads)] for k, e in by_env.items()}
     out, steps = {}, 0
@@ -385,12 +390,11 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
                 members = np.flatnonzero([id(envs[e]) == key for e in episode])
                 if not len(members):
                     continue
-                size = mujoco.mj_stateSize(m, spec)
+                size, width = mujoco.mj_stateSize(m, spec), mujoco.mj_stateSize(m, inputs)
                 per = max(1, ROLLOUT_BYTES // (8 * nstep * (size + m.nsensordata)))
                 for lo in range(0, len(members), per):
                     chunk = members[lo:lo + per]
                     init = np.zeros((len(chunk), size))
-                    width = mujoco.mj_stateSize(m, inputs)
                     control = np.zeros((len(chunk), nstep, width))
                     for row, sgi in enumerate(chunk):
                         start, n = int(segs.start[sgi]), int(n_frames[sgi])
@@ -429,7 +433,7 @@ class SuiteLogs:
     exact: int                 # episodes whose first state is the exact reset(seed) state
 
     def close(self) -> None:
-        for env in {id(e): e for e in self.envs}.values():
+        for env in _distinct(self.envs):
             env.close()
 
 
@@ -464,7 +468,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
                 states[i][0] = s0  # the same state, without the float32 rounding of the log
                 exact += 1
     except BaseException:
-        for env in {id(e): e for e in envs}.values():
+        for env in _distinct(envs):
             env.close()
         raise
     offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
@@ -623,10 +627,11 @@ keys:
             qpos, qvel (optional) and ctrl; all segments run batched in mujoco.rollout
   suite     instead of spec, for datasets written by `bench run ... record=DIR` (they carry the
             MuJoCo state before each step): replayed in the suite's nominal env
-  commands  suite logs only: ctrl = the logged actuator commands of every physics step, batched in
-            mujoco.rollout (the physics alone; default when the log has action.ctrl, as robosuite
-            recordings do); action = the logged policy actions through the env's controller in a
-            Python step loop (physics and controller)
+  commands  suite logs only: ctrl = the logged inputs of every physics step (actuator commands;
+            Meta-World: and the mocap pose), batched in mujoco.rollout (the physics alone; default
+            when the log has action.ctrl, as robosuite and Meta-World recordings do); action = the
+            logged policy actions through the env's controller in a Python step loop (physics and
+            controller)
   k         frames per k-step horizon (default 10)
   episodes  dataset episode indices to replay, e.g. [0,3] (default: all)
   out       folder for replay.json (schema bench.replay/1) and replay.png (logged vs replayed)
