@@ -18,6 +18,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
 
 
 def main(root: str, out: str, episode: str | None = None) -> None:
+    if not os.path.isfile(os.path.join(root, "meta", "info.json")):  # else lerobot would go to the hub
+        print(f"error: {root}: not a LeRobot dataset folder (meta/info.json is missing)", file=sys.stderr)
+        sys.exit(2)
     ds = LeRobotDataset("bench/interop", root=root)
     frames = [ds[i] for i in range(len(ds))]
     arrays, tasks = {}, []
@@ -51,4 +54,7 @@ def main(root: str, out: str, episode: str | None = None) -> None:
 
 
 if __name__ == "__main__":
+    if not 3 <= len(sys.argv) <= 4:
+        print("usage: python tests/lerobot_load.py ROOT OUT_PREFIX [EPISODE]", file=sys.stderr)
+        sys.exit(2)
     main(*sys.argv[1:])
