@@ -230,17 +230,12 @@ def rank(entries: list[dict]) -> list[dict]:
     return out
 
 
-def _pct(est: dict | None) -> str:
-    if not est or est.get("value") is None:
-        return "n/a"
-    ci = est.get("ci")
-    return f"{est['value'] * 100:.0f}% [{ci[0] * 100:.0f}, {ci[1] * 100:.0f}]" if ci else f"{est['value'] * 100:.0f}%"
-
-
 def render(board: dict, console=None) -> None:
     """Terminal tables, one per group, ranked by the score's lower bound."""
     from rich.console import Console
     from rich.table import Table
+
+    from bench.summary import fmt_estimate as _pct
 
     console = console or Console(width=None if Console().is_terminal else 140)
     groups: dict[str, list[dict]] = {}

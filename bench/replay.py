@@ -29,9 +29,7 @@ Two backends:
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -600,13 +598,13 @@ def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
 
 def write(rep: Replay, out: Path, n_plot: int) -> Path:
     """OUT/replay.json (atomically, no NaN) and OUT/replay.png."""
+    from bench.summary import write_atomic
+
     out.mkdir(parents=True, exist_ok=True)
     png = plot(rep, out / "replay.png", n_plot)
     rep.doc["plot"] = png.name if png else None
     path = out / "replay.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(rep.doc, indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    write_atomic(path, rep.doc)
     return path
 
 

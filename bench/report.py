@@ -347,18 +347,21 @@ def _e(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _pct(est: dict | None) -> str:
+def _estimate(est: dict | None, pct: bool) -> str:
+    """`summary.fmt_estimate`, or n/a with the reason (escaped) when there is no value."""
+    from bench.summary import fmt_estimate
+
     if not est or est.get("value") is None:
         return f"n/a{' (' + _e(est.get('reason')) + ')' if est and est.get('reason') else ''}"
-    ci = est.get("ci")
-    return f"{est['value'] * 100:.0f}% [{ci[0] * 100:.0f}, {ci[1] * 100:.0f}]" if ci else f"{est['value'] * 100:.0f}%"
+    return fmt_estimate(est, pct)
+
+
+def _pct(est: dict | None) -> str:
+    return _estimate(est, pct=True)
 
 
 def _signed(est: dict | None) -> str:
-    if not est or est.get("value") is None:
-        return f"n/a{' (' + _e(est.get('reason')) + ')' if est and est.get('reason') else ''}"
-    ci = est.get("ci")
-    return f"{est['value']:+.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else f"{est['value']:+.3f}"
+    return _estimate(est, pct=False)
 
 
 def _table(header: list[str], rows: list[list[str]], num: set[int] = frozenset()) -> str:

@@ -99,17 +99,26 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     return summary
 
 
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)  # read the process umask (set and restored at import)
+
+
 def write_atomic(path: Path, obj: Any) -> None:
-    """Write JSON to `path` via a temp file in the same folder + rename (never a half-written file)."""
+    """Write JSON (indented, no NaN) to `path` atomically: see `write_text_atomic`."""
+    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n")
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write `text` to `path` via a temp file in the same folder + fsync + rename (never a half-written file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
+            fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
+            os.fchmod(fh.fileno(), 0o666 & ~_UMASK)  # mkstemp makes 0600; give what open() would
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

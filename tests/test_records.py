@@ -44,3 +44,15 @@ def test_dedupe_and_comparable():
     assert len(dedupe([a, b])) == 1
     assert comparable(a) == comparable(b)
     assert comparable(a) != comparable(_rec(0, success_once=False))
+
+
+def test_atomic_writes_get_the_usual_permissions(tmp_path):
+    """mkstemp creates 0600 files; results written atomically are as readable as open() would make them."""
+    import os
+
+    from bench.summary import write_atomic
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    write_atomic(tmp_path / "x.json", {"a": 1})
+    assert (tmp_path / "x.json").stat().st_mode & 0o777 == 0o666 & ~umask

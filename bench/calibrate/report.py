@@ -4,15 +4,14 @@ The JSON has no NaN or infinity anywhere: a value that cannot be computed is nul
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench.calibrate.trace import Calibration
+from bench.summary import write_atomic, write_text_atomic
 
 SCHEMA = "bench.calibration/1"
 ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse", "r2")
@@ -88,12 +87,6 @@ def to_json(cal: Calibration) -> dict:
         "versions": _versions(),
     }
     return clean(doc)
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def plots(cal: Calibration, out: Path) -> dict[str, str]:
@@ -241,6 +234,6 @@ def write_report(cal: Calibration, out: str | Path) -> Path:
     doc = to_json(cal)
     files = plots(cal, out)
     path = out / "calibration.json"
-    _write_atomic(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
-    _write_atomic(out / "report.md", markdown(doc, files))
+    write_atomic(path, doc)
+    write_text_atomic(out / "report.md", markdown(doc, files))
     return path
