@@ -70,6 +70,30 @@ def state_hash(state: np.ndarray, decimals: int = 6) -> str:
     return hashlib.sha256(arr.tobytes()).hexdigest()[:16]
 
 
+class InputLogging:
+    """`log_ctrl` / `take_ctrl` of the Env contract for MuJoCo adapters.
+
+    The adapter sets `ctrl_spec` and `_ctrl_size` (mj_stateSize of that mask), starts with
+    `_ctrl_log = None`, and appends one row per physics step to `_ctrl_log` while it is a list.
+    """
+
+    ctrl_spec: int
+    _ctrl_size: int
+    _ctrl_log: list | None = None
+
+    def log_ctrl(self, on: bool) -> None:
+        """Start (empty) or stop logging the inputs (ctrl_spec) of every physics step."""
+        self._ctrl_log = [] if on else None
+
+    def take_ctrl(self) -> np.ndarray:
+        """(substeps, size) inputs applied since the last call, rows as mj_getState(ctrl_spec); empties the log."""
+        if self._ctrl_log is None:
+            raise RuntimeError("take_ctrl: call log_ctrl(True) first")
+        out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self._ctrl_size)
+        self._ctrl_log.clear()
+        return out
+
+
 # the input parts of an mjtState mask a logged `action.ctrl` may hold, in mj_getState order
 _INPUT_PARTS = (("CTRL", None), ("MOCAP_POS", "xyz"), ("MOCAP_QUAT", "wxyz"))
 

@@ -86,7 +86,7 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
     init_hash, params, error = None, {}, None
     traj: dict[str, list] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
                                     "ctrl": []} if ctx.trajectory_dir else None
-    log_ctrl = traj is not None and hasattr(env, "log_ctrl")  # actuator commands of every physics step
+    log_ctrl = traj is not None and hasattr(env, "log_ctrl")  # MuJoCo inputs of every physics step
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)

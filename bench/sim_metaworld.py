@@ -34,6 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.env import InputLogging
 from bench.errors import ConfigError, did_you_mean
 
 MAX_PATH_LENGTH = 500  # Meta-World's truncation: one more step raises
@@ -141,7 +142,7 @@ class GoalFedExpert:
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
 
-class MetaWorldEnv:
+class MetaWorldEnv(InputLogging):
     """One Meta-World v3 task with the goal hidden; see the module docstring for seeding."""
 
     def __init__(self, task: str, horizon: int = MAX_PATH_LENGTH):
@@ -197,18 +198,6 @@ class MetaWorldEnv:
             return original(ctrl, n_frames)
 
         env._step_mujoco_simulation = stepped
-
-    def log_ctrl(self, on: bool) -> None:
-        """Start (empty) or stop logging the inputs (ctrl_spec) of every physics step."""
-        self._ctrl_log = [] if on else None
-
-    def take_ctrl(self) -> np.ndarray:
-        """(substeps, size) inputs applied since the last call, rows as mj_getState(ctrl_spec); empties the log."""
-        if self._ctrl_log is None:
-            raise RuntimeError("take_ctrl: call log_ctrl(True) first")
-        out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self._ctrl_size)
-        self._ctrl_log.clear()
-        return out
 
     def reset(self, seed: int) -> np.ndarray:
         env = self._env

@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.env import InputLogging
+
 OBS_NAMES: list[tuple[str, int]] = [
     ("eef_pos", 3),
     ("eef_quat_rel", 4),
@@ -109,7 +111,7 @@ def _scene_env_name(task: str) -> str:
     return name
 
 
-class RobosuiteEnv:
+class RobosuiteEnv(InputLogging):
     """A robosuite manipulation env behind the `bench.env.Env` contract."""
 
     def __init__(self, task: str, robot: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
@@ -154,6 +156,7 @@ class RobosuiteEnv:
         if len(self.action_low) != len(ACTION_NAMES):
             raise ValueError(f"{robot}: action size {len(self.action_low)}, expected {len(ACTION_NAMES)}")
         self.ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL)  # robosuite drives actuators only
+        self._ctrl_size = self.model.nu
         self._ctrl_log: list[np.ndarray] | None = None
         self._wrap_physics_steps()
         self._grip_idx = np.asarray(self._env.robots[0]._ref_gripper_joint_pos_indexes["right"])
@@ -178,18 +181,6 @@ class RobosuiteEnv:
                 return _original(*args, **kwargs)
 
             setattr(sim, name, stepped)
-
-    def log_ctrl(self, on: bool) -> None:
-        """Start (empty) or stop logging the actuator commands of every physics step."""
-        self._ctrl_log = [] if on else None
-
-    def take_ctrl(self) -> np.ndarray:
-        """(substeps, nu) commands applied since the last call (ctrl_spec = CTRL); empties the log."""
-        if self._ctrl_log is None:
-            raise RuntimeError("take_ctrl: call log_ctrl(True) first")
-        out = np.array(self._ctrl_log, dtype=np.float64).reshape(-1, self.model.nu)
-        self._ctrl_log.clear()
-        return out
 
     # -- gripper normalisation -------------------------------------------------------------
     def _calibrate_gripper(self) -> None:
