@@ -1,0 +1,40 @@
+"""`bench replay`: open-loop replay of logged commands in the simulator, per joint and per horizon.
+
+Each logged episode is replayed from its own logged states under its logged commands, and the
+simulated joint positions are compared with the logged ones at three horizons:
+
+- `one_step`: re-initialised from the logged state every frame, one frame ahead;
+- `k_step`: re-initialised every k frames, k frames ahead (truncated horizons: no drift);
+- `free_run`: initialised once at the episode's first frame, to its end.
+
+Reported per joint: RMSE (in the joint's units) and NRMSE (RMSE / std of the logged position over
+the replayed frames), plus the mean over joints, per episode and over all of them.
+
+Two backends:
+
+- **MJCF** (`spec=`): a calibration spec (docs/calibration.md) names the model and where qpos,
+  qvel and ctrl live in the log. The model is replayed *as given* (the spec's free parameters and
+  effects are not used); all segments of one horizon run in one batched `mujoco.rollout` call
+  (`bench.calibrate.simulate`, `bench.calibrate.metrics.horizon_errors`).
+- **suite** (`suite=`): datasets written by `bench run ... record=DIR` carry the MuJoCo state
+  before every step (`observation.sim_state`), the policy's action and, for robosuite and
+  Meta-World envs, the MuJoCo inputs of every physics step (`action.ctrl`: actuator commands, and
+  Meta-World's mocap pose). Two ways to replay them in the suite's nominal env (`commands=`):
+  - `ctrl` (default when logged): the logged inputs, re-applied physics step by physics step
+    from the logged states, all segments of a horizon batched in `mujoco.rollout`. This replays
+    the physics alone: what the controller did is taken from the log.
+  - `action`: the logged policy actions through the env's own controller (robosuite's OSC is
+    Python), in a Python step loop: set the state at each segment start, `env.step` the actions.
+    This also replays the controller, so a gap in what it computes shows up too.
+"""
+from __future__ import annotations
+
+from bench.replay.cli import HELP, main, plot, render, run, write
+from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, summarise
+from bench.replay.mjcf import replay_mjcf
+from bench.replay.suite import (SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite,
+                                suite_segments)
+
+__all__ = ["COMMANDS", "CTRL", "HELP", "SCHEMA", "Replay", "ReplayConfig", "SuiteLogs", "load_suite_logs", "main",
+           "plot", "render", "replay_actions", "replay_ctrl", "replay_mjcf", "replay_suite", "run", "suite_segments",
+           "summarise", "write"]
