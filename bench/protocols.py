@@ -175,6 +175,24 @@ class InputLog:
         return out
 
 
+class ModelAxes(Protocol):
+    """Capability of non-MuJoCo backends (e.g. PhysX through SAPIEN): model perturbation axes.
+
+    MuJoCo backends need none: `bench.perturb` edits the `MjModel` of their `MujocoHandle`.
+    `apply` scales the axis' nominal values (cached by the implementation) by `scale` on the
+    named targets ({"bodies": [...], "joints": [...], ...}; empty = the axis' default targets);
+    `restore` puts every nominal value back. Both are called before the episode's reset.
+    """
+
+    axes: frozenset[str]
+
+    def restore(self) -> None:
+        ...
+
+    def apply(self, axis: str, scale: float, targets: Mapping[str, Sequence[str]]) -> None:
+        ...
+
+
 @runtime_checkable
 class EnvAdapter(Protocol):
     """One simulator instance of one suite cell, built once per worker and reset per episode.
@@ -187,6 +205,7 @@ class EnvAdapter(Protocol):
         action_spec: names and bounds of the action.
         mujoco: a `MujocoHandle` for MuJoCo backends, else None.
         inputs: an `InputLog` when the env can log its per-physics-step inputs, else None.
+        model_axes: a `ModelAxes` for non-MuJoCo backends that support model perturbations, else None.
     """
 
     backend: str
@@ -196,6 +215,7 @@ class EnvAdapter(Protocol):
     action_spec: ActionSpec
     mujoco: MujocoHandle | None
     inputs: InputLog | None
+    model_axes: ModelAxes | None
 
     def reset(self, seed: int) -> Obs:
         """Reset to the initial state determined by `seed` alone; return the observation."""
@@ -310,9 +330,14 @@ class PolicyPlugin:
     worker starts), `identity` (checkpoint + sha256 for the records), `preflight` (checks in
     the parent before any worker starts) and `make` (one policy per cell and worker).
     A plain function `factory(cell, env, ctx) -> Policy` is accepted too (`FactoryPlugin`).
+
+    With `reports_stats = True`, the policies it makes implement `episode_stats() -> dict`
+    (JSON-able, finite numbers), called once at the end of every episode and stored in the
+    episode record under `extras["policy"]` (e.g. a remote policy's round-trip latencies).
     """
 
     Options: ClassVar[type] = NoOptions
+    reports_stats: ClassVar[bool] = False
 
     def obs_keys(self, options: Any) -> tuple[str, ...]:
         return (STATE,)
