@@ -278,7 +278,7 @@ def initial_states_from_suite(suite, cells: Sequence, seed: int, episodes: int, 
         env = suite.make_env(cell, horizon or suite.default_horizon)
         try:
             for i in range(episodes):
-                states.append(np.asarray(env.reset(episode_seed(seed, i)), float))
+                states.append(np.asarray(env.reset(episode_seed(seed, i))["state"], float))
                 groups.append(cell.key)
         finally:
             env.close()
@@ -388,7 +388,9 @@ def _eval_cells(suite, cfg) -> list:
     for s in cfg.splits or []:
         if s not in ("seen", "unseen"):
             raise ConfigError(f"splits: {s!r} is not a split; valid: seen, unseen")
-    cells = suite.cells(cfg)
+    from bench.suite import select_cells
+
+    cells = select_cells(suite, cfg)
     if not cells:
         raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to evaluate")
     return cells
@@ -431,7 +433,7 @@ def main(argv: list[str]) -> int:
            **report}
     render(doc)
     if cfg.out:
-        from bench.summary import write_atomic
+        from bench.io import write_atomic
 
         write_atomic(Path(cfg.out), doc)
         print(f"wrote {cfg.out}")
@@ -884,7 +886,7 @@ def _evaluate(name: str, ckpt: Path, cfg: SweepConfig, work: Path, episodes: int
 
 
 def _sha256(path: Path) -> str:
-    from bench.run import sha256_file
+    from bench.io import sha256_file
 
     return sha256_file(Path(path))
 
@@ -942,7 +944,7 @@ def sweep_main(argv: list[str]) -> int:
     t_start = time.perf_counter()
     doc = run_sweep(cfg, suite, work, log)
     doc["invocation_wall_s"] = round(time.perf_counter() - t_start, 1)  # reused artifacts cost nothing here
-    from bench.summary import write_atomic
+    from bench.io import write_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "sweep.json", doc)

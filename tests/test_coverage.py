@@ -243,7 +243,7 @@ def test_initial_states_use_the_runs_episode_seeds():
 
     class Env:
         def reset(self, seed):
-            return np.array([seed % 1000, 1.0])
+            return {"state": np.array([seed % 1000, 1.0])}
 
         def close(self):
             self.closed = True
