@@ -164,3 +164,19 @@ def key_help(schema: type) -> str:
             rows.append((m.group(1) + shown, m.group(2)))
     width = max((len(k) for k, _ in rows), default=0) + 2
     return "\n".join(f"  {k:<{width}}{doc}" for k, doc in rows)
+
+
+def command_help(usage: str, about: str, schema: type | None = None, examples: Iterable[str] = (),
+                 notes: str = "") -> str:
+    """The `--help` text of a command: usage, what it does, its keys (from `schema`, see `key_help`),
+    optional notes and examples. Every command builds its help here, so the key list cannot drift
+    from the keys it accepts."""
+    parts = [usage.rstrip(), about.strip("\n")]
+    if schema is not None:
+        parts.append("keys:\n" + key_help(schema))
+    if notes:
+        parts.append(notes.strip("\n"))
+    examples = list(examples)
+    if examples:
+        parts.append("examples:\n" + "\n".join(f"  {e}" for e in examples))
+    return "\n\n".join(parts) + "\n"
