@@ -180,17 +180,28 @@ def one_sided_upper(samples: np.ndarray, confidence: float = 0.95) -> float:
     return float(np.quantile(np.asarray(samples, float), confidence))
 
 
-def _tango_z(b: int, c: int, n: int, delta: float) -> float:
-    """Tango's score statistic for H0: p10 - p01 = delta (paired binary outcomes)."""
+def paired_score_z(b, c, n, delta) -> np.ndarray:
+    """Tango's score statistic for H0: p10 - p01 = delta over n paired binary outcomes (vectorised).
+
+    b: pairs where the first outcome is 1 and the second 0; c: the reverse; n: all pairs.
+    Large positive values speak for p10 - p01 > delta. Arguments broadcast (numpy arrays of
+    counts), so a test over every possible (b, c) is one call (the gate's power calculation).
+    """
+    b, c, n, delta = (np.asarray(x, dtype=float) for x in (b, c, n, delta))
     a_ = 2.0 * n
     b_ = -b - c + (2.0 * n - b + c) * delta
     c_ = -c * delta * (1.0 - delta)
-    q = (np.sqrt(max(b_ * b_ - 4.0 * a_ * c_, 0.0)) - b_) / (2.0 * a_)  # constrained MLE of p01
+    q = (np.sqrt(np.maximum(b_ * b_ - 4.0 * a_ * c_, 0.0)) - b_) / (2.0 * a_)  # constrained MLE of p01
     var = n * (2.0 * q + delta * (1.0 - delta))
     num = b - c - n * delta
-    if var <= 0:
-        return 0.0 if num == 0 else float(np.sign(num) * np.inf)
-    return float(num / np.sqrt(var))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = num / np.sqrt(var)
+        return np.where(var > 0, z, np.where(num == 0, 0.0, np.sign(num) * np.inf))
+
+
+def _tango_z(b: int, c: int, n: int, delta: float) -> float:
+    """Tango's score statistic for H0: p10 - p01 = delta (paired binary outcomes), as a float."""
+    return float(paired_score_z(b, c, n, delta))
 
 
 def paired_score_bound(b: int, c: int, n: int, confidence: float = 0.95, side: str = "lower") -> float:
@@ -252,3 +263,44 @@ def paired_stat_samples(
         idx = rng.integers(0, len(r), size=(n_boot, len(r)))
         ref_b[:, j], tgt_b[:, j] = r[idx].mean(axis=1), t[idx].mean(axis=1)
     return point, stat(ref_b) - stat(tgt_b)
+
+
+def paired_binary_stat_samples(
+    counts: np.ndarray,
+    rng: np.random.Generator,
+    statistic: str = "mean",
+    n_boot: int = 2000,
+) -> tuple[float, np.ndarray]:
+    """`paired_stat_samples` for 0/1 outcomes, from counts: same distribution, O(n_boot) per cell.
+
+    Resampling n pairs of 0/1 outcomes with replacement is drawing multinomial counts of the four
+    pair types, so nothing needs the episodes themselves (the regression gate's simulations
+    run it thousands of times).
+
+    Args:
+        counts: (n_cells, 4) pairs per cell that are (1, 1), (1, 0), (0, 1), (0, 0) as
+            (reference, target); every cell needs at least one pair.
+
+    Returns:
+        stat(reference cell rates) - stat(target cell rates), and `n_boot` resampled values of it.
+    """
+    stat = STATISTICS[statistic]
+    k = np.asarray(counts, dtype=np.int64).reshape(-1, 4)
+    n = k.sum(axis=1)
+    if len(k) == 0 or (n <= 0).any():
+        raise ValueError("every cell needs at least one pair")
+    p = k / n[:, None]
+    point = float(stat((k[:, 0] + k[:, 1]) / n) - stat((k[:, 0] + k[:, 2]) / n))
+    # multinomial(n, p) per cell and resample, as a chain of binomials (vectorised over cells)
+    left = np.broadcast_to(n, (n_boot, len(k))).copy()
+    mass = np.ones(len(k))
+    drawn = []
+    for j in range(3):
+        share = np.divide(p[:, j], mass, out=np.zeros(len(k)), where=mass > 1e-12).clip(0.0, 1.0)
+        x = rng.binomial(left, share)
+        drawn.append(x)
+        left -= x
+        mass = mass - p[:, j]
+    ref = (drawn[0] + drawn[1]) / n
+    tgt = (drawn[0] + drawn[2]) / n
+    return point, stat(ref) - stat(tgt)
