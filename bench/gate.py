@@ -155,12 +155,13 @@ def planned_pairs(design: Design, look: int) -> dict[str, int]:
 def spend(design: Design) -> list[dict[str, float]]:
     """Alpha spent on (test, look): per look, {test: threshold its p-value must go below}.
 
-    Test h gets alpha · w_h in all (`base_weights`), split evenly over the looks at which it can
-    reject: a Tango test from the first look k0 where even n_k lost pairs out of n_k reach
-    p < alpha · w_h / (looks from k0 on) (Tarone's rule: decided by pair counts, never by
-    outcomes); the IQM at the looks where it is used. A test that can reject at no look gives
-    its weight to the others. The thresholds sum to alpha over all tests and looks (Bonferroni
-    over looks and tests; within a look `holm` then recycles the alpha of rejected tests).
+    Test h gets alpha · w_h in all (`base_weights`), spent over the looks at which it can reject
+    in proportion to the episodes per cell each of them has seen (later looks, which see more,
+    get more): a Tango test from the first look k0 where even n lost pairs out of n reach its
+    threshold there (Tarone's rule: decided by pair counts, never by outcomes); the IQM at the
+    looks where it is used. A test that can reject at no look gives its weight to the others.
+    The thresholds sum to alpha over all tests and looks (Bonferroni over looks and tests;
+    within a look `holm` then recycles the alpha of rejected tests).
     """
     L = design.looks
     usable_iqm = [iqm_used([design.schedule[k]] * len(design.cells)) for k in range(L)]
@@ -172,8 +173,8 @@ def spend(design: Design) -> list[dict[str, float]]:
             if h == "iqm":
                 looks_of[h] = [k for k in range(L) if usable_iqm[k]]
                 continue
-            first = next((k0 for k0 in range(L) if pairs[k0][h] > 0 and
-                          float(min_p(pairs[k0][h], design.margin)) < design.alpha * w / (L - k0)), None)
+            first = next((k0 for k0 in range(L) if pairs[k0][h] > 0 and float(min_p(pairs[k0][h], design.margin))
+                          < design.alpha * w * design.schedule[k0] / sum(design.schedule[k0:])), None)
             looks_of[h] = [] if first is None else list(range(first, L))
         dead = [h for h in weights if not looks_of[h]]
         if not dead or len(dead) == len(weights):
@@ -182,8 +183,9 @@ def spend(design: Design) -> list[dict[str, float]]:
         weights = {h: w / total for h, w in weights.items() if h not in dead}
     out: list[dict[str, float]] = [{} for _ in range(L)]
     for h, ks in looks_of.items():
-        for k in ks:
-            out[k][h] = design.alpha * weights[h] / len(ks)
+        seen = np.array([design.schedule[k] for k in ks], dtype=float)
+        for k, share in zip(ks, seen / seen.sum()):
+            out[k][h] = design.alpha * weights[h] * float(share)
     return out
 
 

@@ -39,7 +39,10 @@ def test_cells_spend_their_alpha_only_where_they_can_reject():
     d = design(20, 5)
     cells = [[h for h in t if h.startswith("cell:")] for t in d.thresholds]
     assert [len(c) for c in cells] == [0, 0, 7, 7]  # 5 or 10 pairs out of 5 or 10 lost cannot reach the threshold
-    assert d.thresholds[3]["cell:Lift/Panda/default"] == pytest.approx(0.05 * 0.5 / 7 / 2)
+    # spent in proportion to the episodes each look has seen: 15 and 20 of 35
+    assert d.thresholds[2]["cell:Lift/Panda/default"] == pytest.approx(0.05 * 0.5 / 7 * 15 / 35)
+    assert d.thresholds[3]["cell:Lift/Panda/default"] == pytest.approx(0.05 * 0.5 / 7 * 20 / 35)
+    assert [t["pooled"] for t in d.thresholds] == pytest.approx([0.05 * 0.25 * n / 50 for n in (5, 10, 15, 20)])
     # with 5 episodes no cell test is ever possible: the aggregate tests get all of alpha
     small = design(5, 0)
     assert set(small.thresholds[0]) == {"pooled", "split:seen", "split:unseen"}
@@ -102,7 +105,7 @@ def test_identical_outcomes_never_fail_and_pass_once_the_budget_can_certify():
                                0, rng, 500)
     assert small["mean"]["value"] == 0 and small["decision"] == "continue" and not small["regressed"]
     # with no discordant pair the upper bound is z²/(n + z²), not 0 (a bootstrap would claim certainty)
-    z = 2.2414  # one-sided at 1 - 0.05 / 4 looks (the IQM is not used with 5 pairs per cell)
+    z = 2.2414  # certification: one-sided at 1 - 0.05 / 4 looks (the IQM is not used with 5 pairs per cell)
     assert small["mean"]["ucb"] == pytest.approx(z * z / (35 + z * z), rel=2e-3)
     full = gate.evaluate_look(same, d, 3, rng, gate.n_boot_needed(d, 2000))
     assert full["decision"] == "no_regression" and full["mean"]["ucb"] < 0.05
