@@ -6,31 +6,30 @@ started from the same initial state; outcomes are compared pair by pair. A
 baseline given as a recorded run directory is not re-run: its episodes are reused
 and the candidate runs with that run's settings.
 
-Rule (drop = baseline − candidate success, pooled over all pairs; and the drop in
-the IQM of per-cell success rates across cells):
-    regression     if a one-sided lower bound of the drop exceeds `margin`
-                   (we are confident the candidate lost more than `margin`);
-    no regression  if the upper bounds of both drops are below `margin`
-                   (we are confident it did not);
+Rule (drop = baseline − candidate success; the statistics are in `bench.gate`):
+    regression     if a one-sided test finds the drop above `margin` — pooled over all
+                   pairs, in the IQM of the per-cell rates, in a split, or in one cell
+                   (weighted Holm across those tests: the verdict names what regressed);
+    no regression  if the upper bounds of the pooled (and IQM) drop are below `margin`;
     inconclusive   otherwise, once the episode budget is spent: passes with a
                    warning (exit 0), or fails with `strict=true`.
-The pooled drop uses Tango's score bound for paired binary outcomes (honest with
-few discordant pairs); the IQM drop a paired bootstrap. Episodes run in batches
-(`batch` per cell) and the rule is applied after each batch, stopping as soon as
-the verdict is certain. Multiple looks and the two statistics are accounted for
-with Bonferroni: each bound is taken at level 1 − alpha / (2 · looks), so the
-chance of a false alarm when the true drop is at most `margin` is at most `alpha`
-(0.05: at most 1 gate in 20 cries wolf). Identical deterministic policies give
-identical paired outcomes and never fail. An errored or timed-out episode counts as a
-failure of its side (a candidate that crashes the simulator has regressed); pairs where
-both sides errored are left out. See docs/ci-gate.md.
+Episodes run in batches (`batch` per cell) and the rule is applied after each batch,
+stopping as soon as the verdict is certain; alpha is spent over tests and looks
+(Bonferroni across looks), so the chance of any false alarm when no drop exceeds
+`margin` is at most `alpha` whatever the number of cells. An errored or timed-out episode
+counts as a failure of its side; pairs where both sides errored are left out.
+Identical checkpoints (same sha256) are not simulated: they cannot regress.
+
+Outputs: the verdict JSON (schema bench.regress/2, with both checkpoints' sha256, size and
+training metadata) and, beside it, JUnit XML and a Markdown summary (`bench.gate_outputs`).
+`plan=true` prints the episodes per cell a power target needs (`bench.gate_power`). See
+docs/ci-gate.md.
 
 Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input.
 """
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from collections import defaultdict
@@ -42,94 +41,68 @@ from typing import Any, Optional
 import numpy as np
 
 from bench import config as config_mod
+from bench import gate
 from bench.errors import ConfigError, DataError, did_you_mean
+from bench.gate_inputs import cells_of_jobs, cells_of_records, check_outputs, check_pairable, load_recorded, resolve
 from bench.runner import LocalExecutor
 
-SCHEMA_ID = "bench.regress/1"
+SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"
 DEFAULT_EPISODES = 20
 # run keys that must be equal for candidate and baseline (they decide which episodes are played)
 SHARED_KEYS = ("suite", "seed", "horizon", "timeout", "robots", "tasks", "envs", "splits", "metric", "perturb",
                "env_id", "n_boot", "confidence", "allow_split_violation")
 FORBIDDEN_KEYS = {"policy": "candidate=/baseline=", "checkpoint": "candidate=/baseline=", "record": None}
-CHECKPOINT_SUFFIXES = (".safetensors", ".pt")
-IQM_MIN_PAIRS = 10  # pairs per cell before the IQM bootstrap bound may decide (see evaluate)
+BINARY_METRICS = ("success_once", "success_at_end")
 
 
 @dataclass(frozen=True)
 class RegressConfig:
     """Keys of `bench regress` besides the `bench run` keys it forwards."""
 
-    candidate: Optional[str] = None   # checkpoint file (.safetensors/.pt), registered policy name, or a recorded run dir
+    candidate: Optional[str] = None   # checkpoint (.safetensors/.pt), registered policy name, or a recorded run dir
     baseline: Optional[str] = None    # checkpoint file, policy name, or a recorded run dir (its episodes are reused)
     margin: float = 0.05              # tolerated drop in success (baseline - candidate) before it is a regression
-    alpha: float = 0.05               # false-alarm rate when the true drop <= margin (over all looks and statistics)
+    alpha: float = 0.05               # false-alarm rate when no drop exceeds margin (over all looks, tests and cells)
+    cell_alpha: float = 0.5           # share of alpha for the per-cell tests (Holm); 0 = pooled statistics only
     batch: int = 5                    # episodes per cell between looks (early stopping); 0 = one look at the end
     strict: bool = False              # inconclusive (budget spent, nothing certain) fails with exit 1
-    out: Optional[str] = None         # verdict JSON file; default RUNS/RUN_ID/verdict.json
+    out: Optional[str] = None         # verdict JSON (X.junit.xml, X.md beside it); default RUNS/RUN_ID/verdict.json
     runs: str = "runs"                # parent folder of the gate's run directories
     run_id: Optional[str] = None      # gate folder name; default regress-<timestamp>
+    plan: bool = False                # print the episodes per cell needed for `power` and exit (runs nothing)
+    power: float = 0.8                # plan: target chance to flag the drop below
+    drop: float = 0.6                 # plan: the drop to detect (one cell falls from rate to rate - drop)
+    rate: float = 0.9                 # plan: baseline success rate of the cell(s) that drop
+    cells: int = 0                    # plan: number of cells; 0 = those the suite/robots/tasks/envs/perturb keys select
 
 
 def help_text() -> str:
-    keys = config_mod.key_help(RegressConfig)
-    return (
-        "usage: bench regress candidate=X baseline=Y [key=value ...]\n\n"
+    return config_mod.command_help(
+        "usage: bench regress candidate=X baseline=Y [key=value ...]\n"
+        "       bench regress plan=true [cells=N] [power=0.8 drop=0.6 rate=0.9] [margin= alpha= batch= episodes=]",
         "CI regression gate: runs candidate and baseline on the same suite cells with the same episode\n"
         "seeds, pairs outcomes by (cell, episode), and fails when the candidate is confidently worse by\n"
-        "more than `margin` (one-sided bound of the paired drop in success and in the IQM across cells,\n"
-        "Bonferroni over looks). Episodes run in batches and stop once the verdict is certain.\n"
-        "A baseline run directory is reused (the candidate runs with its settings).\n\n"
-        f"keys:\n{keys}\n"
-        "  (and the `bench run` keys suite, episodes (default 20), seed, workers, horizon, timeout, robots,\n"
-        "   tasks, envs, splits, metric, n_boot, confidence, perturb.*, env_id; see bench run --help)\n\n"
-        "exit: 0 no regression (inconclusive passes unless strict=true), 1 regression, 2 bad input.\n"
-        "writes: RUNS/RUN_ID/RUN_ID-candidate/ (and -baseline/ unless reused) run dirs, and the verdict JSON.\n\n"
-        "examples:\n"
-        "  bench regress candidate=ckpt/new.safetensors baseline=ckpt/old.safetensors robots=[Panda,UR5e]\n"
-        "  bench regress candidate=ckpt/new.safetensors baseline=results/runs/<run_id> out=verdict.json\n"
-        "  bench regress candidate=random baseline=scripted episodes=4 batch=2\n"
-    )
-
-
-# -- inputs ------------------------------------------------------------------------------------
-def resolve(value: Optional[str], role: str) -> dict[str, Any]:
-    """Classify a candidate/baseline argument: a recorded run dir, a checkpoint file, or a policy name."""
-    from bench import registry
-
-    if not value:
-        raise ConfigError(f"{role}= is required: a checkpoint file, a registered policy name or a run directory")
-    path = Path(value)
-    if path.is_file() and path.name in ("run.json", "summary.json", "episodes.jsonl"):
-        path = path.parent  # a file of a run directory: the run directory
-    if path.is_dir():
-        if not (path / "run.json").is_file():
-            raise ConfigError(f"{role}={value!r}: directory has no run.json; give a run directory written by bench run")
-        return {"kind": "run", "spec": value, "run_dir": path}
-    if path.suffix in CHECKPOINT_SUFFIXES or path.is_file():
-        if not path.is_file():
-            raise ConfigError(f"{role}={value!r}: no such file")
-        if path.suffix not in CHECKPOINT_SUFFIXES:
-            raise DataError(f"{role}={value!r}: not a checkpoint ({', '.join(CHECKPOINT_SUFFIXES)}) nor a run "
-                            "directory's run.json/summary.json/episodes.jsonl")
-        return {"kind": "checkpoint", "spec": value, "policy": "checkpoint", "checkpoint": str(path)}
-    if "/" in value or value.endswith(".json"):
-        raise ConfigError(f"{role}={value!r}: no such file or directory")
-    registry.load_policy(value)  # RegistryError with the valid names
-    return {"kind": "policy", "spec": value, "policy": value, "checkpoint": None}
-
-
-def load_recorded(run_dir: Path, role: str):
-    """Records and run.json of a recorded run; foreign or corrupt files are a one-line DataError."""
-    from bench.summary import load_run
-
-    records, meta = load_run(run_dir)
-    for key in ("run_id", "suite", "policy", "config"):
-        if not isinstance(meta, dict) or key not in meta:
-            raise DataError(f"{run_dir / 'run.json'}: not a bench run.json (missing field {key!r})")
-    if not records:
-        raise DataError(f"{role}={str(run_dir)!r}: episodes.jsonl has no records")
-    return records, meta
+        "more than `margin`: pooled over all pairs, in the IQM across cells, in a split, or in any one cell\n"
+        "(one-sided paired tests, weighted Holm across them, alpha spent over the looks). Episodes run in\n"
+        "batches and stop once the verdict is certain. A baseline run directory is reused (the candidate\n"
+        "runs with its settings; different cells, horizon or seeds are refused). Identical checkpoints\n"
+        "(same sha256) are not simulated.",
+        RegressConfig,
+        notes=(
+            "  (and the `bench run` keys suite, episodes (default 20), seed, workers, horizon, timeout, robots,\n"
+            "   tasks, envs, splits, metric, n_boot, confidence, perturb.*, the suite's own keys; bench run --help)\n\n"
+            "exit: 0 no regression (inconclusive passes unless strict=true), 1 regression, 2 bad input.\n"
+            "writes: RUNS/RUN_ID/RUN_ID-candidate/ (and -baseline/ unless reused) run dirs, the verdict JSON\n"
+            "(schema bench.regress/2: verdict, regressed cells with drops and bounds, looks, checkpoint sha256,\n"
+            "size and training metadata), and beside it X.junit.xml (one test case per cell) and X.md (a\n"
+            "Markdown summary for a CI step summary). plan=true prints a budget table and writes nothing."),
+        examples=[
+            "bench regress candidate=ckpt/new.safetensors baseline=ckpt/old.safetensors robots=[Panda,UR5e]",
+            "bench regress candidate=ckpt/new.safetensors baseline=results/runs/<run_id> out=gate/verdict.json",
+            "bench regress candidate=random baseline=scripted episodes=4 batch=2",
+            "bench regress plan=true suite=held_out_robots power=0.9 drop=0.6 rate=0.9",
+        ])
 
 
 def _override(key: str, value: Any) -> str:
@@ -165,14 +138,32 @@ def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[st
             valid = sorted(own_names | (run_names - set(FORBIDDEN_KEYS) - {"out", "run_id"}))
             raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{did_you_mean(top, valid)}")
     cfg: RegressConfig = config_mod.build(RegressConfig, own)
-    if not 0 <= cfg.margin < 1:
-        raise ConfigError(f"margin={cfg.margin}: must be in [0, 1)")
-    if not 0 < cfg.alpha < 0.5:
-        raise ConfigError(f"alpha={cfg.alpha}: must be in (0, 0.5)")
+    for key, lo, hi, what in (("margin", 0.0, 1.0, "[0, 1)"), ("alpha", 0.0, 0.5, "(0, 0.5)"),
+                              ("cell_alpha", 0.0, 1.0, "[0, 1)"), ("power", 0.0, 1.0, "(0, 1)"),
+                              ("drop", 0.0, 1.0, "(0, 1]"), ("rate", 0.0, 1.0, "(0, 1]")):
+        v = getattr(cfg, key)
+        closed_lo, closed_hi = what[0] == "[", what[-1] == "]"
+        if not ((lo <= v if closed_lo else lo < v) and (v <= hi if closed_hi else v < hi)):
+            raise ConfigError(f"{key}={v}: must be in {what}")
     if cfg.batch < 0:
         raise ConfigError(f"batch={cfg.batch}: must be >= 0 (0 = a single look)")
+    if cfg.cells < 0:
+        raise ConfigError(f"cells={cfg.cells}: must be >= 0 (0 = count the suite selection's cells)")
     if cfg.run_id is not None and (not cfg.run_id or "/" in cfg.run_id or cfg.run_id.startswith(".")):
         raise ConfigError(f"run_id={cfg.run_id!r}: must be a plain folder name")
+    return cfg, forwarded, by_key
+
+
+def parse_args(argv: list[str]) -> tuple[RegressConfig, list[str], dict[str, str]]:
+    """Every key of a `bench regress` command line checked (names, types, ranges); nothing is run or read.
+
+    Returns the gate's own config, the `bench run` overrides it forwards, and those by key.
+    The forwarded keys are typed by the runner's and the suite's configs (bench.api).
+    """
+    from bench import api
+
+    cfg, forwarded, by_key = _split_overrides(argv)
+    api.config_from_argv(forwarded)
     return cfg, forwarded, by_key
 
 
@@ -220,73 +211,10 @@ def pair_records(candidate: list, baseline: list, max_episode: int | None = None
     return {"cells": dict(cells), "errors": errors, "unpaired": unpaired}
 
 
-def evaluate(cells: dict[tuple, list[tuple]], metric: str, margin: float, level: float,
-             rng: np.random.Generator, n_boot: int) -> dict[str, Any]:
-    """Drops (baseline − candidate) with one-sided bounds at `level`, and the decision for one look.
-
-    Args:
-        cells: {(task, robot, env, condition, split): [(baseline record, candidate record), ...]}.
-        level: one-sided confidence of each bound (already corrected for looks and statistics).
-    """
-    from bench import scoring
-
-    base_cells = [np.array([getattr(b, metric) for b, _ in prs], float) for prs in cells.values()]
-    cand_cells = [np.array([getattr(c, metric) for _, c in prs], float) for prs in cells.values()]
-    n = int(sum(len(x) for x in base_cells))
-    if n == 0:
-        return {"pairs": 0, "decision": "continue", "reason": "no paired episodes without errors"}
-    bo = int(sum(((x == 1) & (y == 0)).sum() for x, y in zip(base_cells, cand_cells)))
-    co = int(sum(((x == 0) & (y == 1)).sum() for x, y in zip(base_cells, cand_cells)))
-    mean = {"value": (bo - co) / n, "lcb": scoring.paired_score_bound(bo, co, n, level, "lower"),
-            "ucb": scoring.paired_score_bound(bo, co, n, level, "upper")}
-    point, samples = scoring.paired_stat_samples(base_cells, cand_cells, rng, "iqm", n_boot)
-    iqm = {"value": point, "lcb": scoring.one_sided_lower(samples, level),
-           "ucb": scoring.one_sided_upper(samples, level)}
-    # a percentile bootstrap of a few 0/1 pairs claims certainty it does not have (2 lost pairs -> LCB 1.0):
-    # the IQM bound takes part in the decision only once every cell has IQM_MIN_PAIRS pairs
-    iqm_used = min(len(x) for x in base_cells) >= IQM_MIN_PAIRS
-    if mean["lcb"] > margin or (iqm_used and iqm["lcb"] > margin):
-        decision = "regression"
-    elif mean["ucb"] < margin and (not iqm_used or iqm["ucb"] < margin):
-        decision = "no_regression"
-    else:
-        decision = "continue"
-    rnd = lambda d: {k: round(float(v), 6) for k, v in d.items()}  # noqa: E731
-    return {"pairs": n, "baseline_only": bo, "candidate_only": co, "mean": rnd(mean),
-            "iqm": {**rnd(iqm), "used": iqm_used}, "decision": decision}
-
-
-def cell_table(cells: dict[tuple, list[tuple]], metric: str, level: float) -> list[dict[str, Any]]:
-    """Per-cell rates and drop with a one-sided Tango lower bound (informative; not the verdict)."""
-    from bench import scoring
-
-    out = []
-    for (task, robot, env, cond, split), prs in cells.items():
-        b = np.array([getattr(x, metric) for x, _ in prs], bool)
-        c = np.array([getattr(y, metric) for _, y in prs], bool)
-        bo, co, n = int((b & ~c).sum()), int((~b & c).sum()), len(prs)
-        out.append({"task": task, "robot": robot, "env": env, "condition": cond, "split": split, "pairs": n,
-                    "baseline": round(float(b.mean()), 6), "candidate": round(float(c.mean()), 6),
-                    "drop": round((bo - co) / n, 6), "baseline_only": bo, "candidate_only": co,
-                    "drop_lcb": round(scoring.paired_score_bound(bo, co, n, level, "lower"), 6)})
-    return out
-
-
-def looks_schedule(episodes: int, batch: int) -> list[int]:
-    """Episodes per cell at each look: batch, 2·batch, ..., episodes (one look when batch is 0)."""
-    if batch <= 0 or batch >= episodes:
-        return [episodes]
-    return sorted({min(k * batch, episodes) for k in range(1, math.ceil(episodes / batch) + 1)})
-
-
-def decide(looks: list[dict[str, Any]], strict: bool) -> tuple[str, int]:
-    """Final verdict and exit code from the looks taken so far (the last one decides)."""
-    last = looks[-1]["decision"] if looks else "continue"
-    if last == "regression":
-        return "regression", 1
-    if last == "no_regression":
-        return "no_regression", 0
-    return "inconclusive", 1 if strict else 0
+def cell_counts(cells: dict[tuple, list[tuple]], metric: str) -> dict[gate.CellKey, gate.Pairs]:
+    """Paired (baseline, candidate) records per cell -> counts of the four outcome pairs in `metric`."""
+    return {k: gate.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
+            for k, prs in cells.items()}
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -345,11 +273,53 @@ def _check_same_settings(cand_cfg: dict[str, Any], base_config: dict[str, Any], 
                               f"{base_config.get(k)!r}){given}: paired episodes need the same settings")
 
 
+# -- checks before anything runs -----------------------------------------------------------------
+def _check_pairable(ref: _Side, others: list[_Side]) -> None:
+    """The recorded `ref` run holds the cells and seeds the other side plays (else ConfigError naming it)."""
+    for side in others:
+        cells = cells_of_jobs(side.p.jobs) if side.live else cells_of_records(side.records)
+        seeds = {j.job_id: j.seed for j in side.p.jobs} if side.live else {r.job_id: r.seed for r in side.records}
+        check_pairable(ref.records, f"the {ref.role} run {ref.info['run_dir']}", side.role, cells, seeds, side.live)
+
+
+def _input_paths(sides: list[_Side]) -> list[tuple[Path, str]]:
+    """Files and folders the gate reads, which no output may overwrite or lie inside."""
+    inputs: list[tuple[Path, str]] = []
+    for side in sides:
+        if side.info["kind"] == "run":
+            inputs.append((Path(side.info["run_dir"]).resolve(), f"the {side.role} run directory"))
+        elif side.info.get("checkpoint"):
+            ck = Path(side.info["checkpoint"]).resolve()
+            inputs += [(ck, f"the {side.role} checkpoint"), (ck.with_suffix(".json"), f"the {side.role} spec")]
+    return inputs
+
+
+def _checkpoint_of(side: _Side) -> tuple[str | None, str | None]:
+    """(checkpoint path, sha256) of a side's policy: from the live plan, or as its run recorded it."""
+    if side.live:
+        return side.p.identity.checkpoint, side.p.identity.checkpoint_sha256
+    pol = (side.meta or {}).get("policy", {})
+    return pol.get("checkpoint"), pol.get("checkpoint_sha256")
+
+
+def _describe(side: _Side, provenance: dict[str, Any] | None) -> dict[str, Any]:
+    d = side.describe()
+    if d["policy"] is None:
+        d["policy"] = side.p.config.policy if side.live else side.info.get("policy")
+    path, sha = _checkpoint_of(side)
+    d["checkpoint"], d["checkpoint_sha256"] = d["checkpoint"] or path, d["checkpoint_sha256"] or sha
+    return {**d, "provenance": provenance}
+
+
 @dataclass(frozen=True)
 class _Episodes:
     """Parses the forwarded `episodes=` value (typed like bench run's)."""
 
     episodes: int = DEFAULT_EPISODES
+
+
+def _episodes(user_keys: dict[str, str], default: int) -> int:
+    return int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys else default
 
 
 def main(argv: list[str]) -> int:
@@ -358,14 +328,20 @@ def main(argv: list[str]) -> int:
         return 0
     from rich.console import Console
 
+    from bench import gate_outputs
     from bench.api import finish, start
-    from bench.io import write_atomic
-    from bench.schema import validate
 
     if not argv:
         print(help_text())
         return 2
-    cfg, forwarded, user_keys = _split_overrides(argv)
+    cfg, forwarded, user_keys = parse_args(argv)
+    if cfg.plan:
+        from bench import gate_power
+
+        return gate_power.plan_command(cfg.power, cfg.rate, cfg.drop, cfg.cells, cfg.batch,
+                                       gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha),
+                                       _episodes(user_keys, DEFAULT_EPISODES), forwarded,
+                                       unused=bool(cfg.candidate or cfg.baseline))
     cand_info, base_info = resolve(cfg.candidate, "candidate"), resolve(cfg.baseline, "baseline")
     gate_id = cfg.run_id or f"regress-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     parent = Path(cfg.runs) / gate_id
@@ -428,110 +404,83 @@ def main(argv: list[str]) -> int:
         if not any(j.job_id in side.wanted for j in side.p.jobs):
             raise ConfigError("the recorded run has no episode of the selected cells; nothing to pair")
 
-    schedule = looks_schedule(episodes, cfg.batch) if live else [episodes]
-    level = 1.0 - cfg.alpha / (2 * len(schedule))
-    n_boot = max(int(any_cfg.n_boot if any_cfg else 2000), math.ceil(50 / (1.0 - level)))
+    # 3. checks of this gate (before anything is written), provenance, identical checkpoints
+    if metric not in BINARY_METRICS:
+        raise ConfigError(f"metric={metric!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
+    if ref is not None:
+        _check_pairable(ref, [s for s in (cand, base) if s is not ref])
+    paths = gate_outputs.output_paths(verdict_path)
+    check_outputs(paths, _input_paths([cand, base]))
+    planned = sorted(cells_of_jobs(live[0].p.jobs, live[0].wanted) if live else cells_of_records(recorded[0].records))
+    prov = {s.role: _provenance(s) for s in (cand, base)}
+    shas = [(prov[r] or {}).get("sha256") for r in ("candidate", "baseline")]
+    schedule = gate.looks_schedule(episodes, cfg.batch) if live else [episodes]
+    design = gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha, tuple(schedule), tuple(planned))
+    base_doc = {"schema": SCHEMA_ID, "margin": cfg.margin, "alpha": cfg.alpha, "cell_alpha": cfg.cell_alpha,
+                "metric": metric, "strict": cfg.strict,
+                "suite": {"name": suite_desc.get("name"), "version": suite_desc.get("version")}, "seed": seed,
+                "episodes_max": episodes, "schedule": schedule, "rule": gate.rule(design, metric)}
     console = Console(stderr=True)
+    if shas[0] is not None and shas[0] == shas[1]:
+        note = (f"candidate and baseline are the same checkpoint (sha256 {shas[0]}): identical policies cannot "
+                "regress; no episode was run")
+        doc = {**base_doc, "verdict": "no_regression", "exit_code": 0, "identical": True, "note": note,
+               "stopped_early": False, "candidate": _describe(cand, prov["candidate"]),
+               "baseline": _describe(base, prov["baseline"]), "looks": [], "cells": [], "splits": [],
+               "regressed": [], "planned_cells": [gate.cell_id(k)[5:] + f" ({k[4]})" for k in planned],
+               "errors": {"candidate": 0, "baseline": 0, "both": 0}, "unpaired": 0, "wall_s": 0.0}
+        gate_outputs.write(doc, paths, console)
+        return 0
+
+    # 4. looks
+    n_boot = gate.n_boot_needed(design, int(any_cfg.n_boot if any_cfg else 2000))
     workers = 1
     if live:
         workers = any_cfg.workers or os.cpu_count() or 1
         for side in live:
             side.meta, side.ctx = start(side.p, workers)
-    label = {"candidate": cand.info["spec"], "baseline": base.info["spec"]}
-    console.print(f"regress {gate_id}: candidate {label['candidate']} vs baseline {label['baseline']} "
-                  f"(reused: {', '.join(s.role for s in recorded) or 'none'}); looks at {schedule} episodes per "
-                  f"cell; each bound at {level:.4f}")
-
-    # 3. looks
+    console.print(f"regress {gate_id}: candidate {cand.info['spec']} vs baseline {base.info['spec']} "
+                  f"(reused: {', '.join(s.role for s in recorded) or 'none'}); {len(planned)} cells; looks at "
+                  f"{schedule} episodes per cell; alpha {cfg.alpha} ({cfg.cell_alpha:g} to the per-cell tests)")
     t0 = time.time()
     looks: list[dict[str, Any]] = []
     paired: dict[str, Any] = {"cells": {}, "errors": {"candidate": 0, "baseline": 0, "both": 0}, "unpaired": 0}
+    counts: dict[gate.CellKey, gate.Pairs] = {}
     for k, n_eps in enumerate(schedule):
         for side in live:
             _run_look(side, n_eps, workers, console)
         paired = pair_records(cand.records, base.records, max_episode=n_eps)
+        counts = cell_counts(paired["cells"], metric)
         rng = np.random.default_rng([int(seed), 6007, k])
-        look = {"look": k + 1, "episodes_per_cell": n_eps,
-                **evaluate(paired["cells"], metric, cfg.margin, level, rng, n_boot)}
+        look = {"look": k + 1, "episodes_per_cell": n_eps, **gate.evaluate_look(counts, design, k, rng, n_boot)}
         looks.append(look)
-        console.print(_look_line(look, len(schedule)))
+        console.print(gate_outputs.look_line(look, len(schedule)), soft_wrap=True)
         if look["decision"] != "continue":
             break
-    verdict, code = decide(looks, cfg.strict)
+    verdict, code = gate.decide(looks, cfg.strict)
     for side in live:
         finish(side.p, side.meta, workers)  # summary.json of each live run, for the leaderboard/report
 
-    doc = {
-        "schema": SCHEMA_ID,
-        "verdict": verdict,
-        "exit_code": code,
-        "rule": (f"regression if a one-sided {level:.4f} lower bound of the drop (baseline - candidate) in "
-                 f"{metric} or in its IQM across cells exceeds margin {cfg.margin}; no regression if both upper "
-                 f"bounds are below it; Bonferroni over {len(schedule)} look(s) x 2 statistics at alpha {cfg.alpha}"),
-        "margin": cfg.margin, "alpha": cfg.alpha, "level": round(level, 6), "metric": metric, "strict": cfg.strict,
-        "suite": {"name": suite_desc.get("name"), "version": suite_desc.get("version")},
-        "seed": seed, "episodes_max": episodes, "schedule": schedule,
-        "stopped_early": len(looks) < len(schedule),
-        "candidate": cand.describe(), "baseline": base.describe(),
-        "looks": looks,
-        "cells": cell_table(paired["cells"], metric, level) if paired["cells"] else [],
-        "errors": paired["errors"], "unpaired": paired["unpaired"],
-        "wall_s": round(time.time() - t0, 2),
-    }
-    validate(doc, "verdict")
-    write_atomic(verdict_path, doc)
-    render(doc)
-    console.print(f"verdict: {verdict_path}")
+    last = looks[-1]
+    tests = {t["id"]: t for t in last.get("tests", [])}
+    doc = {**base_doc, "verdict": verdict, "exit_code": code, "identical": False, "note": None,
+           "stopped_early": len(looks) < len(schedule),
+           "candidate": _describe(cand, prov["candidate"]), "baseline": _describe(base, prov["baseline"]),
+           "looks": looks, "cells": gate.cell_rows(counts, last), "splits": gate.split_rows(counts, last),
+           "regressed": [gate.regressed_entry(tests[h]) for h in sorted(last.get("regressed", []), key=_kind_order)],
+           "errors": paired["errors"], "unpaired": paired["unpaired"], "wall_s": round(time.time() - t0, 2)}
+    gate_outputs.write(doc, paths, console)
     return code
 
 
-def _look_line(look: dict[str, Any], n_looks: int) -> str:
-    if "mean" not in look:
-        return f"look {look['look']}/{n_looks}: {look.get('reason', 'no pairs')}"
-    m, q = look["mean"], look["iqm"]
-    return (f"look {look['look']}/{n_looks} ({look['episodes_per_cell']} ep/cell, {look['pairs']} pairs): "
-            f"drop {m['value']:+.3f} [{m['lcb']:+.3f}, {m['ucb']:+.3f}], IQM drop {q['value']:+.3f} "
-            f"[{q['lcb']:+.3f}, {q['ucb']:+.3f}] -> {look['decision']}")
+def _kind_order(test_id: str) -> tuple[int, str]:
+    return ("cell split pooled iqm".split().index(test_id.split(":")[0]), test_id)  # cells first: what users act on
 
 
-def render(doc: dict[str, Any], console=None) -> None:
-    """The per-cell table, the looks and the verdict, in the terminal."""
-    from rich.console import Console
-    from rich.table import Table
+def _provenance(side: _Side) -> dict[str, Any] | None:
+    from bench.provenance import checkpoint_provenance
 
-    console = console or Console(width=None if Console().is_terminal else 120)
-    t = Table(title=f"regress · {doc['suite']['name']} v{doc['suite']['version']} · metric {doc['metric']} · "
-                    f"candidate {doc['candidate']['spec']} vs baseline {doc['baseline']['spec']}",
-              title_justify="left")
-    for col in ("task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop",
-                f"drop LCB ({doc['level'] * 100:.1f}%)", "lost / gained"):
-        t.add_column(col, justify="left" if col in ("task", "robot", "condition", "split") else "right")
-    for c in doc["cells"]:
-        style = "red" if c["drop_lcb"] > doc["margin"] else None
-        t.add_row(c["task"], c["robot"], c["condition"], c["split"], str(c["pairs"]), f"{c['baseline'] * 100:.0f}%",
-                  f"{c['candidate'] * 100:.0f}%", f"{c['drop']:+.2f}", f"{c['drop_lcb']:+.2f}",
-                  f"{c['baseline_only']} / {c['candidate_only']}", style=style)
-    console.print(t)
-    lk = Table(title=f"looks (margin {doc['margin']}, alpha {doc['alpha']}, one-sided bounds at {doc['level']:.4f})",
-               title_justify="left")
-    for col in ("look", "ep/cell", "pairs", "drop [LCB, UCB]", "IQM drop [LCB, UCB]", "decision"):
-        lk.add_column(col)
-    for look in doc["looks"]:
-        if "mean" not in look:
-            lk.add_row(str(look["look"]), str(look["episodes_per_cell"]), "0", "n/a", "n/a", look["decision"])
-            continue
-        m, q = look["mean"], look["iqm"]
-        lk.add_row(str(look["look"]), str(look["episodes_per_cell"]), str(look["pairs"]),
-                   f"{m['value']:+.3f} [{m['lcb']:+.3f}, {m['ucb']:+.3f}]",
-                   f"{q['value']:+.3f} [{q['lcb']:+.3f}, {q['ucb']:+.3f}]", look["decision"])
-    console.print(lk)
-    colour = {"regression": "bold red", "no_regression": "bold green", "inconclusive": "bold yellow"}[doc["verdict"]]
-    extra = ""
-    if doc["verdict"] == "inconclusive":
-        extra = (" — the budget could not certify either way; " +
-                 ("strict=true: failing" if doc["strict"] else "passing (strict=true would fail); raise episodes="))
-    err = doc["errors"]
-    if any(err.values()):
-        extra += (f" (errored episodes, counted as failures: candidate {err['candidate']}, baseline "
-                  f"{err['baseline']}; {err['both']} pair(s) where both errored left out)")
-    console.print(f"[{colour}]{doc['verdict'].upper().replace('_', ' ')}[/] (exit {doc['exit_code']}){extra}")
+    path, sha = _checkpoint_of(side)
+    if not path:
+        return None
+    return checkpoint_provenance(path, sha, hash_file=not side.live)  # a live side's plan has just hashed it

@@ -97,8 +97,8 @@ def load_verdict(arg: str) -> dict:
 
     doc = load_json(Path(arg))
     sid = validate(doc, arg)
-    if sid != "bench.regress/1":
-        raise DataError(f"{arg}: schema {sid} is not a regress verdict (bench.regress/1)")
+    if sid not in ("bench.regress/1", "bench.regress/2"):
+        raise DataError(f"{arg}: schema {sid} is not a regress verdict (bench.regress/1 or /2)")
     return doc
 
 
@@ -452,17 +452,22 @@ def calibration_section(cal: dict, tmp: Path) -> str:
 def verdict_section(v: dict) -> str:
     cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note"}[v["verdict"]]
     rows = [[_e(c["task"]), _e(c["robot"]), _e(c["condition"]), _e(c["split"]), str(c["pairs"]),
-             f"{c['baseline'] * 100:.0f}%", f"{c['candidate'] * 100:.0f}%", f"{c['drop']:+.2f}", f"{c['drop_lcb']:+.2f}"]
+             f"{c['baseline'] * 100:.0f}%", f"{c['candidate'] * 100:.0f}%", f"{c['drop']:+.2f}",
+             "n/a" if c["drop_lcb"] is None else f"{c['drop_lcb']:+.2f}", "yes" if c.get("regressed") else ""]
             for c in v["cells"]]
-    last = v["looks"][-1]
+    last = v["looks"][-1] if v["looks"] else {}
     m = last.get("mean")
     bound = f" — drop {m['value']:+.3f}, one-sided bounds [{m['lcb']:+.3f}, {m['ucb']:+.3f}]" if m else ""
+    named = "".join(f"<li>{_e(r['kind'])} <b>{_e(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, "
+                    f"{r['ucb']:+.2f}]</li>" for r in v.get("regressed", []))
     return (f"<h2>Regression gate</h2><p>candidate <b>{_e(v['candidate']['spec'])}</b> vs baseline "
             f"<b>{_e(v['baseline']['spec'])}</b>: <span class='{cls}'>{_e(v['verdict'].replace('_', ' '))}</span>"
             f"{bound} (margin {v['margin']}, {len(v['looks'])} of {len(v['schedule'])} looks)</p>"
-            f"<p class='note'>{_e(v['rule'])}</p>" +
-            _table(["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB"], rows,
-                   {4, 5, 6, 7, 8}))
+            + (f"<p>Regressed:</p><ul>{named}</ul>" if named else "")
+            + (f"<p class='note'>{_e(v['note'])}</p>" if v.get("note") else "")
+            + f"<p class='note'>{_e(v['rule'])}</p>" +
+            _table(["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB",
+                    "regressed"], rows, {4, 5, 6, 7, 8}))
 
 
 def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None) -> str:

@@ -16,7 +16,7 @@ from bench.errors import DataError
 from bench.io import first_nonfinite
 
 SCHEMAS = {"bench.summary/1": "summary-1.json", "bench.leaderboard/1": "leaderboard-1.json",
-           "bench.regress/1": "regress-1.json"}
+           "bench.regress/1": "regress-1.json", "bench.regress/2": "regress-2.json"}
 
 
 @lru_cache(maxsize=None)

@@ -2,25 +2,25 @@
 
     python benchmarks/bench_regress.py                       # trains a tiny BC checkpoint first
     python benchmarks/bench_regress.py --checkpoint runs/bc/policy.safetensors --gates 20
-    python benchmarks/bench_regress.py --synthetic 300 --gates 0   # decision rule on synthetic pairs only
+
+(The decision rule's error rates on synthetic outcomes, with per-cell tests: benchmarks/bench_gate.py.)
 
 What it does (a benchmark, not a test: it prints counts and takes minutes):
 1. A checkpoint: `--checkpoint`, or a behaviour-cloning MLP trained here (40 scripted-expert
    demonstrations per robot recorded with `bench run record=`, fitted with `baselines.bc` defaults).
 2. A degraded copy: the same spec with Gaussian noise added to every weight tensor
    (`--noise` x that tensor's std), saved with `save_checkpoint` (another sha256).
-3. `--gates` gates of the checkpoint against itself, each with a fresh run seed: the false-alarm
-   count (target <= 1 of 20). Then `--gates` gates of the degraded copy against the checkpoint,
-   fresh seeds again: the detection count. Every gate is a full `bench regress` (both sides
-   simulated, paired by episode seed, sequential looks), run in this process with workers=1.
-4. `--synthetic N`: the decision rule alone on N synthetic gates per scenario (equal quality with
-   discordant pairs, a drop exactly at the margin, real drops), for the error rates no handful
-   of simulated gates can show.
+3. `--gates` gates of a re-saved copy of the checkpoint (same weights, one more metadata entry,
+   so another sha256: the gate cannot skip it as identical) against the checkpoint, each with a
+   fresh run seed: the false-alarm count (target <= 1 of 20). Then `--gates` gates of the
+   degraded copy against the checkpoint, fresh seeds again: the detection count. Every gate is a
+   full `bench regress` (both sides simulated, paired by episode seed, sequential looks), run in
+   this process with workers=1.
 
-Measured (2 shared cores, defaults: Panda+IIWA, up to 6 episodes per cell in looks of 3, horizon
-150; BC success 0.87): false alarms 0 / 20 (paired outcomes identical in every gate), detections
-20 / 20 (degraded success 0.00, 4.2 episodes per cell used on average); 1817 s in all.
-Synthetic rates: docs/ci-gate.md.
+Measured before the per-cell tests (2 shared cores, defaults: Panda+IIWA, up to 6 episodes per
+cell in looks of 3, horizon 150; BC success 0.87): false alarms 0 / 20 (paired outcomes
+identical in every gate), detections 20 / 20 (degraded success 0.00, 4.2 episodes per cell used
+on average); 1817 s in all. Synthetic rates: docs/ci-gate.md.
 """
 from __future__ import annotations
 
@@ -71,6 +71,20 @@ def degrade(ckpt: Path, out: Path, noise: float, seed: int = 0) -> Path:
     return save_checkpoint(out, model, spec)
 
 
+def resave(ckpt: Path, out: Path) -> Path:
+    """The same weights and spec saved again with one more `meta` entry: the same policy, another sha256."""
+    from safetensors.torch import load_file
+
+    from baselines.architectures import build
+    from baselines.checkpoint import load_spec, read_weights, save_checkpoint
+
+    _, meta = read_weights(ckpt)
+    spec = load_spec(ckpt, meta)
+    model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
+    model.load_state_dict(load_file(str(ckpt)))
+    return save_checkpoint(out, model, {**spec, "meta": {**(spec.get("meta") or {}), "resaved_from": ckpt.name}})
+
+
 @contextlib.contextmanager
 def _quiet():
     buf = io.StringIO()
@@ -112,49 +126,6 @@ def series(label: str, candidate: str, baseline: str, seeds: range, a, work: Pat
     return docs
 
 
-def synthetic(reps: int, seed: int = 0) -> None:
-    """Decision rule on synthetic paired outcomes (the gate's statistics without the simulator)."""
-    from bench.records import EpisodeRecord
-    from bench.regress import decide, evaluate, looks_schedule
-
-    def rec(c: int, e: int, s: bool) -> EpisodeRecord:
-        return EpisodeRecord("r", f"{c}|{e}", "s", "1", "T", f"R{c}", "e", "seen", "nominal", None, None, {}, e, e,
-                             None, s, s, 0.0, 1, None, None, "p", None, None, 0.0, 0.0, 0)
-
-    rng = np.random.default_rng(seed)
-    p7 = np.array([0.9, 0.8, 0.7, 0.6, 0.5, 0.95, 0.3])
-    print(f"\nsynthetic gates ({reps} per row; alpha 0.05, margin 0.05; 'equal' = same success rates, outcomes "
-          "independent or half sharing the initial state):")
-    print(f"  {'cells x episodes, batch':<24} {'scenario':<22} {'regression':>10} {'pass':>6} {'inconcl.':>8} "
-          f"{'ep/cell':>7}")
-    for cells, episodes, batch in ((7, 20, 5), (7, 10, 5), (2, 6, 3)):
-        pb = p7[:cells]
-        for label, drop, rho in (("equal, independent", 0.0, 0.0), ("equal, rho 0.5", 0.0, 0.5),
-                                 ("drop = margin", 0.05, 0.5), ("drop 0.15", 0.15, 0.5), ("drop 0.3", 0.3, 0.5),
-                                 ("one cell -> 0", None, 0.5)):
-            pc = np.clip(pb - drop, 0, 1) if drop is not None else np.where(np.arange(cells) == 0, 0.0, pb)
-            sched = looks_schedule(episodes, batch)
-            level = 1 - 0.05 / (2 * len(sched))
-            verdicts, used = [], []
-            for _ in range(reps):
-                u = rng.random((cells, episodes))
-                v = np.where(rng.random((cells, episodes)) < rho, u, rng.random((cells, episodes)))
-                base, cand = u < pb[:, None], v < pc[:, None]
-                looks = []
-                for n in sched:
-                    pairs = {("T", f"R{c}", "e", "nominal", "seen"): [(rec(c, e, bool(base[c, e])),
-                                                                         rec(c, e, bool(cand[c, e])))
-                                                                        for e in range(n)] for c in range(cells)}
-                    looks.append(evaluate(pairs, "success_once", 0.05, level, rng, 2000))
-                    if looks[-1]["decision"] != "continue":
-                        break
-                verdicts.append(decide(looks, False)[0])
-                used.append(sched[len(looks) - 1])
-            f = {k: verdicts.count(k) / reps for k in ("regression", "no_regression", "inconclusive")}
-            print(f"  {f'{cells} x {episodes}, batch {batch}':<24} {label:<22} {f['regression']:>10.3f} "
-                  f"{f['no_regression']:>6.3f} {f['inconclusive']:>8.3f} {np.mean(used):>7.1f}", flush=True)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", help="checkpoint to gate (default: train a tiny BC one)")
@@ -166,7 +137,6 @@ def main() -> int:
     ap.add_argument("--noise", type=float, default=1.0, help="degradation: weight noise in units of each tensor's std")
     ap.add_argument("--demo-episodes", type=int, default=40, help="expert episodes per robot for the BC checkpoint")
     ap.add_argument("--work", default="/tmp/bench_regress", help="scratch folder (demos, checkpoints, gate runs)")
-    ap.add_argument("--synthetic", type=int, default=0, help="also run N synthetic gates per scenario")
     a = ap.parse_args()
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -178,20 +148,19 @@ def main() -> int:
         print(f"config: suite held_out_robots, robots {robots}, up to {a.episodes} episodes per cell in looks of "
               f"{a.batch}, horizon {a.horizon}, margin 0.05, alpha 0.05, workers=1; checkpoint {ckpt}, degraded copy "
               f"{bad} (noise {a.noise} x std)")
-        same = series("identical", str(ckpt), str(ckpt), range(1000, 1000 + a.gates), a, work)
+        copy = resave(ckpt, work / "copy" / "policy.safetensors")
+        same = series("same weights", str(copy), str(ckpt), range(1000, 1000 + a.gates), a, work)
         worse = series("degraded", str(bad), str(ckpt), range(2000, 2000 + a.gates), a, work)
         fa = sum(d["exit_code"] == 1 for d in same)
         det = sum(d["exit_code"] == 1 for d in worse)
         base_rate = np.mean([c["baseline"] for d in same + worse for c in d["cells"]])
         bad_rate = np.mean([c["candidate"] for d in worse for c in d["cells"]])
         identical_pairs = all(d["looks"][-1]["baseline_only"] == d["looks"][-1]["candidate_only"] == 0 for d in same)
-        print(f"\nfalse alarms (identical checkpoints, fresh seeds): {fa} / {len(same)}   "
+        print(f"\nfalse alarms (re-saved copy vs checkpoint, fresh seeds): {fa} / {len(same)}   "
               f"[paired outcomes identical in every gate: {identical_pairs}]")
         print(f"detections (degraded copy vs checkpoint, fresh seeds): {det} / {len(worse)}   "
               f"[success: checkpoint {base_rate:.2f}, degraded {bad_rate:.2f}; mean ep/cell used "
               f"{np.mean([d['looks'][-1]['episodes_per_cell'] for d in worse]):.1f} of {a.episodes}]")
-    if a.synthetic:
-        synthetic(a.synthetic)
     print(f"\ntotal {time.time() - t0:.0f} s")
     return 0
 
