@@ -33,7 +33,8 @@ PROJECT_PACKAGES = ("bench", "suites", "baselines")
 DIST = "bench-harness"
 # driver environment variables that change what a worker computes or renders; passed to every actor
 PASS_ENV = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "MUJOCO_EGL_DEVICE_ID", "MS_SKIP_ASSET_DOWNLOAD_PROMPT")
-PROBE_TIMEOUT_S = 5.0
+PROBE_TIMEOUT_S = 5.0   # TCP connect to the head
+GCS_PROBE_S = 20.0      # the head's GCS answering (so a wrong address costs at most ~25 s, not minutes)
 
 
 def import_ray() -> Any:
@@ -84,6 +85,32 @@ def _probe(address: str, given: str) -> None:
                             f"--port={port}` there, or give another address") from None
 
 
+_GCS_PROBE = """
+import sys
+from ray._raylet import GcsClient
+GcsClient(address=sys.argv[1]).internal_kv_get(b"bench-probe", None)
+"""
+
+
+def _probe_gcs(address: str, given: str) -> None:
+    """Ask the GCS at `address` for its cluster id in a child process that can be stopped.
+
+    Something other than Ray listening there would keep `ray.init` retrying for minutes.
+    """
+    import subprocess
+
+    try:
+        res = subprocess.run([sys.executable, "-c", _GCS_PROBE, address], capture_output=True, text=True,
+                             timeout=GCS_PROBE_S)
+    except subprocess.TimeoutExpired:
+        raise ExecutorError(f"ray_address={given}: something listens at {address} but no Ray GCS answered within "
+                            f"{GCS_PROBE_S:g} s; give the head's --port (default 6379)") from None
+    if res.returncode != 0:
+        lines = [ln.strip() for ln in res.stderr.splitlines() if ln.strip() and not ln.startswith((" ", "["))]
+        raise ExecutorError(f"ray_address={given}: the Ray cluster at {address} refused this driver: "
+                            f"{lines[-1] if lines else 'exit code ' + str(res.returncode)}")
+
+
 def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | None = None) -> bool:
     """Join the cluster at `address` with the job's runtime `env`; True when this call connected.
 
@@ -102,6 +129,7 @@ def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | Non
         else:
             target = _bootstrap(ray, address)
             _probe(target, address)
+            _probe_gcs(target, address)
             ray.init(address=target, **quiet)
     except ExecutorError:
         raise
@@ -147,10 +175,10 @@ def code_paths(suite_ref: str, policy_ref: str) -> list[str]:
             continue
         if name in PROJECT_PACKAGES or not _installed(path):
             paths.append(str(path))
-    try:  # the project's dist-info: entry points (registered names) and its version, as on the driver
-        dist = distribution(DIST)
-        root = Path(str(dist.locate_file("")))
-        paths += [str(p) for p in sorted(root.glob(f"{DIST.replace('-', '_')}-*.dist-info"))[:1]]
+    try:  # the project's metadata (.dist-info or .egg-info): entry points and version, as on the driver
+        meta = getattr(distribution(DIST), "_path", None)  # PathDistribution's folder
+        if meta is not None and Path(meta).is_dir():
+            paths.append(str(meta))
     except PackageNotFoundError:
         pass
     return paths

@@ -3,7 +3,7 @@
 Each actor is a long-lived process holding one `bench.runner.Worker`, so it builds a cell's
 env once and reuses it for every episode of that cell it gets, as a local worker does. The
 driver hands out jobs through the same `JobQueue` as the local executor (cell-major, warm
-cells first, DEPTH jobs queued per actor) and writes every record itself, as it arrives:
+cells first, up to two jobs queued per actor) and writes every record itself, as it arrives:
 episodes.jsonl, resume, timeouts (SIGALRM in the actor's main thread), per-episode errors
 and summary.json are exactly those of a local run.
 
@@ -29,8 +29,8 @@ from typing import Any
 from bench import ray_env
 from bench.errors import BenchError, ConfigError, ExecutorError
 from bench.records import EpisodeRecord
-from bench.runner import DEPTH, Worker, WorkerSpec, given_up_record, with_retries
-from bench.scheduling import MAX_RETRIES, JobQueue
+from bench.runner import Worker, WorkerSpec, given_up_record, with_retries
+from bench.scheduling import MAX_RETRIES, JobQueue, depth
 from bench.suite import Job
 
 STALL_S = 300.0      # no actor alive and none placed for this long: give up (records so far are kept)
@@ -192,11 +192,13 @@ class RayExecutor:
         """Run `jobs` on the cluster's actors, calling `on_record` in this process for each finished episode."""
         if not jobs:
             return
+        opened = not self.connected  # who connects, closes: api.run connects first to check the cluster
         try:
             self.connect(len(jobs), spec.suite_ref, spec.policy_ref)
             _Run(self, jobs, spec, on_record).loop()
         finally:
-            self.close()
+            if opened:
+                self.close()
 
 
 class _Run:
@@ -276,8 +278,9 @@ class _Run:
             self._spawn()
 
     def _feed(self) -> None:
+        ready = sum(a.ready for a in self.actors)
         for actor in self.actors:
-            while actor.ready and len(actor.inflight) < DEPTH:
+            while actor.ready and len(actor.inflight) < depth(len(self.queue), ready):
                 job = self.queue.take(actor.warm)
                 if job is None:
                     return

@@ -47,6 +47,7 @@ def help_text(argv: list[str] | None = None) -> str:
         "  bench run suite=gym env_id=HalfCheetah-v5 perturb.gravity=[0.5,1.5] perturb.mass.bodies=[torso] "
         "perturb.mass.levels=[2]\n"
         "  bench run suite=my_pkg.suites:MySuite policy=my_pkg.policies:make   # out-of-tree plugins\n"
+        "  bench run executor=ray ray_address=10.0.0.5:6379 actors=64      # a Ray cluster (docs/ray.md)\n"
         + _perturb_help()
     )
 

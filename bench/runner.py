@@ -24,7 +24,7 @@ from bench.errors import BenchError, ExecutorError
 from bench.protocols import EnvAdapter, Policy, PolicyContext
 from bench.records import EpisodeRecord
 from bench.rollout import RunContext, run_episode
-from bench.scheduling import MAX_RETRIES, JobQueue, given_up_message
+from bench.scheduling import MAX_RETRIES, JobQueue, depth, given_up_message
 from bench.suite import Job
 
 
@@ -123,8 +123,6 @@ def given_up_record(job: Job, ctx: RunContext, reasons: list[str]) -> EpisodeRec
 
 
 # -- the local executor ----------------------------------------------------------------------
-DEPTH = 2  # jobs queued per child process: one running, one waiting, so it does not idle between episodes
-
 
 def _child_main(conn: Connection, spec: WorkerSpec) -> None:
     """A child process: build a Worker, report ready, then run the jobs the parent sends until None."""
@@ -169,7 +167,7 @@ class _Child:
 
 
 class _Children:
-    """Child processes fed by a dispatcher thread: each gets jobs as soon as it is ready, up to DEPTH at a time.
+    """Child processes fed by a dispatcher thread: each gets jobs as soon as it is ready (`scheduling.depth`).
 
     A child that dies has its unanswered jobs put back in the queue (bounded retries) and is
     replaced while jobs remain. Records go to `emit` as they arrive.
@@ -181,6 +179,8 @@ class _Children:
         self.ctx = mp.get_context("spawn")
         self.children = [_Child(self.ctx, spec) for _ in range(n)]
         self.respawns = n * (MAX_RETRIES + 1)
+        self.retired: list[_Child] = []  # told to stop (or killed); joined by close()
+        self.wake_r, self.wake_w = mp.Pipe(duplex=False)  # close() wakes the dispatcher out of its wait
         self.error: BaseException | None = None
         self.stopping = False
         self.thread = threading.Thread(target=self._serve, name="bench-dispatch", daemon=True)
@@ -193,12 +193,11 @@ class _Children:
     def _serve(self) -> None:
         try:
             while not self.stopping:
-                ready = wait([c.conn for c in self.children], timeout=0.5) if self.children else []
-                if not self.children:
-                    time.sleep(0.5)
+                ready = wait([self.wake_r, *(c.conn for c in self.children)], timeout=1.0)
                 for conn in ready:
-                    child = next(c for c in self.children if c.conn is conn)
-                    self._receive(child)
+                    child = next((c for c in self.children if c.conn is conn), None)
+                    if child is not None:
+                        self._receive(child)
                 self._feed()
         except BaseException as exc:  # surfaced in the main thread
             with self.cond:
@@ -239,27 +238,47 @@ class _Children:
 
     def _feed(self) -> None:
         for child in self.children:
-            while child.ready and len(child.inflight) < DEPTH:
+            while child.ready:
                 with self.cond:
+                    if len(child.inflight) >= depth(len(self.queue), len(self.children) + 1):  # + the parent
+                        break
                     job = self.queue.take(child.warm)
                     if job is None:
-                        return
+                        break
                     child.inflight.append(job)
                 child.warm.add(job.cell.key)
                 child.conn.send(job)
+        with self.cond:
+            idle = [] if self.queue else [c for c in self.children if not c.inflight]
+            for child in idle:  # nothing left for it: let it close its envs while the others finish
+                self.children.remove(child)
+        for child in idle:
+            self._retire(child)
 
-    def close(self) -> None:
-        """Stop the thread and the children (those still running an episode are terminated)."""
-        self.stopping = True
-        self.thread.join(5)
-        for child in self.children:
+    def _retire(self, child: _Child) -> None:
+        if child.ready:
             try:
                 child.conn.send(None)
             except OSError:
                 pass
+        else:  # still starting: it would only build a Worker to be told to stop
+            child.proc.kill()
+        self.retired.append(child)
+
+    def close(self) -> None:
+        """Stop the thread and the children (those still running an episode are killed)."""
+        self.stopping = True
+        self.wake_w.send(None)
+        self.thread.join(5)
+        self.wake_r.close()
+        self.wake_w.close()
+        for child in list(self.children):
+            if child.inflight:
+                child.proc.kill()
+            self._retire(child)
         deadline = time.time() + 10
-        for child in self.children:  # one still starting or mid-episode is not waited for
-            child.proc.join(max(0.0, deadline - time.time()) if child.ready and not child.inflight else 0)
+        for child in self.retired:
+            child.proc.join(max(0.0, deadline - time.time()))
             if child.proc.is_alive():
                 child.proc.kill()
                 child.proc.join(5)

@@ -16,6 +16,16 @@ from collections.abc import Collection
 from bench.suite import Job
 
 MAX_RETRIES = 2  # a job is tried at most 1 + MAX_RETRIES times when its workers keep getting lost
+DEPTH = 2        # jobs a remote worker may hold: one running, one waiting, so it never idles between episodes
+
+
+def depth(queued: int, workers: int) -> int:
+    """How many jobs a worker may hold now: DEPTH while every worker can get a waiting job, else 1.
+
+    Near the end of a run a job waiting behind another on a busy worker would leave an idle
+    worker with nothing to do; one job each then finishes sooner.
+    """
+    return DEPTH if queued >= workers else 1
 
 
 class JobQueue:

@@ -57,6 +57,14 @@ def basics(out: Path) -> dict[str, Any]:
     # before any cluster exists: ray_address=auto and a closed port
     facts["auto_none"] = bench(out, "auto", TOY, "executor=ray", "ray_address=auto")
     facts["closed_port"] = bench(out, "closed", TOY, "executor=ray", f"ray_address=127.0.0.1:{free_port()}")
+    port = free_port()  # something that is not Ray listening there
+    http = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1)
+        facts["not_ray"] = bench(out, "notray", TOY, "executor=ray", f"ray_address=127.0.0.1:{port}")
+    finally:
+        http.kill()
     with Cluster(head_cpus=2, log_dir=out) as cluster:
         ray = ["executor=ray", f"ray_address={cluster.address}"]
         facts["ray"] = bench(out, "ray", TOY, "episodes=4", "step_delay=0.01", "actors=2", *ray)

@@ -78,11 +78,13 @@ def test_timeouts_and_episode_errors_are_recorded_as_locally(basics):
     ("closed_port", "error: ray_address=127.0.0.1:{port}: no Ray cluster answers at 127.0.0.1:{port} "
                     "(Connection refused); start one with `ray start --head --port={port}` there"),
     ("auto_none", "error: ray_address=auto: no Ray cluster is running on this machine"),
+    ("not_ray", "error: ray_address=127.0.0.1:{port}: something listens at 127.0.0.1:{port} but no Ray GCS "
+                "answered within 20 s"),
 ])
 def test_no_cluster_is_one_line_within_30_s(basics, case, message):
     fact = basics[case]
     lines = bench_lines(fact["stderr"])
-    port = lines[0].split("127.0.0.1:")[1].split(":")[0] if case == "closed_port" else ""
+    port = lines[0].split("127.0.0.1:")[1].split(":")[0] if case != "auto_none" else ""
     assert fact["rc"] == 2 and len(lines) == 1 and lines[0].startswith(message.format(port=port)), lines
     assert fact["seconds"] < 30
 
