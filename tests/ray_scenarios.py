@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -57,15 +58,16 @@ def basics(out: Path) -> dict[str, Any]:
     # before any cluster exists: ray_address=auto and a closed port
     facts["auto_none"] = bench(out, "auto", TOY, "executor=ray", "ray_address=auto")
     facts["closed_port"] = bench(out, "closed", TOY, "executor=ray", f"ray_address=127.0.0.1:{free_port()}")
-    port = free_port()  # something that is not Ray listening there
+    port = free_port()  # something that is not Ray listening there (checked while the cluster starts)
     http = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        time.sleep(1)
-        facts["not_ray"] = bench(out, "notray", TOY, "executor=ray", f"ray_address=127.0.0.1:{port}")
-    finally:
-        http.kill()
+    time.sleep(1)
+    not_ray = threading.Thread(target=lambda: facts.update(
+        not_ray=bench(out, "notray", TOY, "executor=ray", f"ray_address=127.0.0.1:{port}")))
+    not_ray.start()
     with Cluster(head_cpus=2, log_dir=out) as cluster:
+        not_ray.join()
+        http.kill()
         ray = ["executor=ray", f"ray_address={cluster.address}"]
         facts["ray"] = bench(out, "ray", TOY, "episodes=4", "step_delay=0.01", "actors=2", *ray)
         facts["local"] = bench(out, "local", TOY, "episodes=4", "step_delay=0.01", "workers=2")
@@ -81,10 +83,12 @@ def basics(out: Path) -> dict[str, Any]:
         facts["plugin_code"] = bench(out, "plug_code", "suite=toyplug:ToySuite", "episodes=1", "actors=2",
                                      "ray_env=code", *ray, env=env)
         facts["mismatch"] = mismatch(out, cluster.address)
-        for run_id in ("ray", "local", "hang", "raise", "plug_code"):
-            facts[f"records_{run_id}"] = records(out, run_id)
-            summary = out / run_id / "summary.json"
-            facts[f"summary_{run_id}"] = json.loads(summary.read_text()) if summary.exists() else None
+        facts["no_gpu"] = bench(out, "nogpu", TOY, "actor_gpus=1", *ray)
+    facts["private"] = bench(out, "private", TOY, "episodes=1", "executor=ray", "ray_address=local", "actors=1")
+    for run_id in ("ray", "local", "hang", "raise", "plug_code", "private"):
+        facts[f"records_{run_id}"] = records(out, run_id)
+        summary = out / run_id / "summary.json"
+        facts[f"summary_{run_id}"] = json.loads(summary.read_text()) if summary.exists() else None
     return facts
 
 

@@ -105,6 +105,21 @@ def test_a_cluster_with_other_package_versions_is_refused_before_anything_is_wri
     assert "this driver 3.3" in fact["error"] and "\n" not in fact["error"] and fact["written"] == []
 
 
+@ray_missing
+def test_gpu_requests_are_checked_against_the_cluster(basics):
+    fact = basics["no_gpu"]
+    lines = bench_lines(fact["stderr"])
+    assert fact["rc"] == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("error: the Ray cluster at 127.0.0.1:") and \
+        lines[0].endswith("has 2 CPUs and 0 GPUs; one actor needs actor_cpus=1 actor_gpus=1")
+
+
+@ray_missing
+def test_a_private_cluster_for_one_run(basics):
+    assert basics["private"]["rc"] == 0, basics["private"]["stderr"]
+    assert len(basics["records_private"]) == 3 and basics["summary_private"]["provenance"]["executor"]["nodes"] == 1
+
+
 def test_executor_ray_without_ray_installed_gives_the_install_command(tmp_path):
     code = ("import sys; sys.modules['ray'] = None\n"  # what an environment without the extra looks like
             "from bench.cli import main\n"
