@@ -232,7 +232,9 @@ class _Run:
                 if not refs:
                     raise ExecutorError("no Ray actor left to run the remaining jobs (records so far are kept; "
                                         "rerun the same command to resume)")
-                done, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
+                done, rest = ray.wait(list(refs), num_returns=1, timeout=1.0)
+                if done and rest:  # everything else that is ready too, without waiting
+                    done += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
                 for ref in done:
                     actor, job = refs[ref]
                     if actor in self.actors:
@@ -249,8 +251,10 @@ class _Run:
         except ray.exceptions.RayTaskError as exc:  # a bug below Worker.run, which records episode errors
             cause = exc.cause if exc.cause is not None else exc
             raise ExecutorError(f"a Ray actor ({actor.where}) failed: {type(cause).__name__}: {cause}") from None
-        except (ray.exceptions.RayActorError, ray.exceptions.ActorUnavailableError, ray.exceptions.ObjectLostError,
-                ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as exc:
+        except ray.exceptions.RuntimeEnvSetupError as exc:
+            first = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
+            raise ExecutorError(f"executor=ray: preparing a worker failed (ray_env={self.ex.env}): {first}") from None
+        except ray.exceptions.RayError as exc:  # the actor died, its node died or is unreachable, the result lost
             self._lost(actor, f"Ray actor {actor.where} lost ({type(exc).__name__})")
             return
         if job is None:

@@ -329,6 +329,8 @@ class LocalExecutor:
                         break
                     reasons = queue.attempts(job)
                 emit(with_retries(worker.run(job), reasons))
+            if children is not None and children.error is not None:
+                raise children.error
         finally:
             if children is not None:
                 children.close()
