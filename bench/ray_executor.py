@@ -28,7 +28,9 @@ from typing import Any
 
 from bench import ray_env
 from bench.errors import BenchError, ConfigError, ExecutorError
+from bench.io import write_bytes_atomic
 from bench.records import EpisodeRecord
+from bench.rollout import trajectory_path
 from bench.runner import Worker, WorkerSpec, given_up_record, with_retries
 from bench.scheduling import MAX_RETRIES, JobQueue, depth
 from bench.suite import Job
@@ -73,6 +75,13 @@ class RayWorker:
     def __init__(self, spec: WorkerSpec):
         self.spec = spec
         self.worker: Worker | None = None
+        self.traj_dir: str | None = None
+        if spec.ctx.trajectory_dir:  # record=: trajectories go to a node-local folder and travel back with records
+            import dataclasses
+            import tempfile
+
+            self.traj_dir = tempfile.mkdtemp(prefix="bench-traj-")
+            self.spec = dataclasses.replace(spec, ctx=dataclasses.replace(spec.ctx, trajectory_dir=self.traj_dir))
 
     def start(self) -> dict[str, Any]:
         """Versions of this process, where it runs, and why the Worker could not be built (None if it was)."""
@@ -86,9 +95,18 @@ class RayWorker:
                 out["error"] = f"{type(exc).__name__}: {exc}"
         return out
 
-    def run(self, job: Job) -> EpisodeRecord:
+    def run(self, job: Job) -> tuple[EpisodeRecord, bytes | None]:
+        """The episode's record, and its trajectory file's bytes when the run records them (record=)."""
         assert self.worker is not None, "start() first"
-        return self.worker.run(job)
+        record = self.worker.run(job)
+        if self.traj_dir is None:
+            return record, None
+        path = trajectory_path(self.traj_dir, job.job_id)
+        if not path.exists():  # an episode that failed has no trajectory
+            return record, None
+        data = path.read_bytes()
+        path.unlink()
+        return record, data
 
 
 @dataclass
@@ -261,7 +279,10 @@ class _Run:
             self._started(actor, value)
             return
         actor.inflight.remove((ref, job))
-        self.on_record(with_retries(value, self.queue.attempts(job)))
+        record, trajectory = value
+        if trajectory is not None and self.spec.ctx.trajectory_dir:  # written before its record, as locally
+            write_bytes_atomic(trajectory_path(self.spec.ctx.trajectory_dir, job.job_id), trajectory)
+        self.on_record(with_retries(record, self.queue.attempts(job)))
 
     def _started(self, actor: _Actor, info: dict[str, Any]) -> None:
         actor.where = check_worker(self.driver, info)  # a node that joined after the preflight is checked here

@@ -73,6 +73,9 @@ def basics(out: Path) -> dict[str, Any]:
         facts["local"] = bench(out, "local", TOY, "episodes=4", "step_delay=0.01", "workers=2")
         facts["hang"] = bench(out, "hang", TOY, "episodes=2", "fault=hang", "timeout=0.5", "actors=2", *ray)
         facts["raise"] = bench(out, "raise", TOY, "episodes=2", "fault=raise", "actors=2", *ray)
+        # record=: trajectories written on the actors' nodes travel back to the driver's dataset
+        facts["rec_ray"] = bench(out / "rray", "rec", TOY, "episodes=2", "actors=2", f"record={out / 'ds_ray'}", *ray)
+        facts["rec_local"] = bench(out / "rlocal", "rec", TOY, "episodes=2", "workers=2", f"record={out / 'ds_local'}")
         # a plugin the driver imports from its PYTHONPATH, which the cluster's nodes do not have
         plugins = out / "plugins"
         plugins.mkdir()

@@ -24,7 +24,7 @@ def scenario(name: str, out: Path, timeout: float) -> dict:
         pytest.skip(why)
     res = ray_sandbox.run([sys.executable, "-m", "tests.ray_scenarios", name, str(out)], timeout=timeout)
     assert res.returncode == 0, res.stderr[-4000:]
-    return json.loads((out / "facts.json").read_text())
+    return {**json.loads((out / "facts.json").read_text()), "out": str(out)}
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +103,18 @@ def test_a_cluster_with_other_package_versions_is_refused_before_anything_is_wri
     fact = basics["mismatch"]
     assert fact["error"].startswith("executor=ray: the cluster has mujoco 0.0.1 (pid ")
     assert "this driver 3.3" in fact["error"] and "\n" not in fact["error"] and fact["written"] == []
+
+
+@ray_missing
+def test_record_writes_the_same_dataset_as_a_local_run(basics):
+    pq = pytest.importorskip("pyarrow.parquet")
+    assert basics["rec_ray"]["rc"] == 0, basics["rec_ray"]["stderr"]
+    out = Path(basics["out"])
+    ray_files = sorted(p.relative_to(out / "ds_ray") for p in (out / "ds_ray").rglob("*.parquet"))
+    local_files = sorted(p.relative_to(out / "ds_local") for p in (out / "ds_local").rglob("*.parquet"))
+    assert ray_files == local_files and any(str(f).startswith("data") for f in ray_files)
+    for f in ray_files:
+        assert pq.read_table(out / "ds_ray" / f).equals(pq.read_table(out / "ds_local" / f)), f
 
 
 @ray_missing
