@@ -113,7 +113,6 @@ class RayWorker:
 class _Actor:
     handle: Any
     start_ref: Any
-    since: float
     ready: bool = False
     where: str = "not placed yet"
     inflight: deque = field(default_factory=deque)   # (ref, job) in submission order
@@ -238,7 +237,7 @@ class _Run:
 
     def _spawn(self) -> None:
         handle = self.cls.remote(self.spec)
-        self.actors.append(_Actor(handle, handle.start.remote(), time.time()))
+        self.actors.append(_Actor(handle, handle.start.remote()))
 
     def loop(self) -> None:
         ray = self.ray
