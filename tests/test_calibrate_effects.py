@@ -8,10 +8,11 @@ import pytest
 from bench.calibrate.data import extract
 from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, saturation_limit, stribeck_force
 from bench.calibrate.generate import declared_files, simulate_arm
-from bench.calibrate.model import Candidate, Layout, Plant, load_model
+from bench.calibrate.model import Candidate, Layout, Plant
 from bench.calibrate.report import clean
-from bench.calibrate.simulate import Simulator, free_runs, horizons
 from bench.calibrate.spec import load_spec
+from bench.replay.simulate import free_runs, horizons
+from bench.replay.spec import load_model
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,7 @@ def _candidate(plant: Plant, name: str) -> Candidate:
 @pytest.mark.parametrize("name", list(EFFECTS))
 def test_effect_is_nested_and_realised_in_simulation(plant, name):
     cand = _candidate(plant, name)
-    sim = Simulator(plant)
+    sim = plant.simulator()
     segs = horizons(plant.rec, plant.rec.train, 20)
     declared = plant.declared_init()
     base = sim.run([Layout(plant, []).realise(declared)], segs)[0]
@@ -74,11 +75,11 @@ def test_mass_edits_reach_the_mass_matrix(plant, name, field):
 
 def test_stepped_and_batched_rollouts_agree_without_stribeck(plant):
     """The stepped path (used for Stribeck friction) integrates exactly like one rollout call."""
-    sim = Simulator(plant)
+    sim = plant.simulator()
     v = Layout(plant, []).realise(plant.declared_init())
     segs = free_runs(plant.rec, plant.rec.train[:1])
     a = sim._rollout([v], segs)
-    b = sim._stepped([type(v)(v.model, v.ctrl, v.qfrc_const, v.input_gain, (np.zeros(3), np.ones(3)))], segs)
+    b = sim._stepped([type(v)(v.model, v.ctrl, v.qfrc_const, v.input_gain, lambda q, qd, u: np.zeros_like(qd))], segs)
     assert np.allclose(a, b, atol=1e-9)
 
 
@@ -146,7 +147,7 @@ def test_collinear_declared_parameters_are_flagged(tmp_path):
     spec = parse_spec(raw, base_dir=MODELS)
     rec = extract(spec, [{"q": q, "u": u}], 1000.0, nq=1, nv=1, nu=1)
     plant = Plant(spec, load_model(spec.model), rec)
-    sim = Simulator(plant)
+    sim = plant.simulator()
     scale = np.array([q.std(), 1.0])
     f = fit(Objective(sim, Layout(plant, []), horizons(rec, rec.train, 200), rec, scale, np.arange(1)),
             plant.declared_init())

@@ -2,7 +2,8 @@
 
 Entry points: `load_spec`; `bench.calibrate.trace.run` (the loop, on arrays of shape (T, n));
 `bench.calibrate.report.write_report`; the CLI `bench calibrate spec=SPEC logs=DIR out=DIR`.
-Modules: spec -> data -> model (+ effects) -> simulate -> fit -> signature -> trace -> report;
+Modules: spec -> data -> model (+ effects) -> fit -> signature -> trace -> report, on replay's
+signal map, recording and batched simulator (`bench.replay.spec`, `.data`, `.simulate`, `.metrics`);
 generate writes synthetic cases. See docs/calibration.md.
 """
 from __future__ import annotations

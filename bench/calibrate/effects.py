@@ -11,7 +11,7 @@ attaches to one target (a joint, an actuator or a body) and is realised in the s
 - through `qfrc_applied` for generalised forces (bias, a known extra input, the offset part of
   asymmetric friction), constant or precomputed;
 - only the Stribeck excess depends on the simulated velocity: it is added to `qfrc_applied` at
-  every substep in a stepped rollout (see `bench.calibrate.simulate`).
+  every substep in a stepped rollout (see `bench.replay.simulate`).
 
 Bounds are scaled to the system from the logs (`Scales`), so one library serves a 1 kg arm and a
 95 kg carriage; a spec can override them per effect.

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench.calibrate.data import Recording
 from bench.calibrate.model import Layout
-from bench.calibrate.simulate import Segments, Simulator, logged
+from bench.replay.data import Recording
+from bench.replay.simulate import Segments, Simulator, logged
 
 Z_STEP = 1e-3  # finite-difference step in normalised units
 VIF_WARN = 100.0  # variance inflation above which a parameter is reported ill-conditioned

@@ -1,8 +1,9 @@
 """The simulated plant: an `MjModel` plus the recipe that turns a parameter vector into a simulation variant.
 
-A *variant* is what one rollout needs: a model copy with the declared parameters and model-field
-effects written in, the command actually applied at every substep (after delay / deadband /
-saturation), the applied generalised forces, and the Stribeck terms (the only state-dependent part).
+A variant (`bench.replay.simulate.Variant`) is what one rollout needs; here it is built from a
+parameter vector: a model copy with the declared parameters and model-field effects written in, the
+command actually applied at every substep (after delay / deadband / saturation), the applied
+generalised forces, and the Stribeck force (the only state-dependent part) as the variant's force hook.
 """
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench.calibrate.data import Recording
-from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate
+from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate, stribeck_force
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
 from bench.errors import SpecError, did_you_mean
+from bench.replay.data import Recording
+from bench.replay.simulate import Simulator, StateForce, Variant, hold, prepare_model
 
 # field prefix -> (MuJoCo object type, words for messages, model count attribute)
 _PREFIX = {
@@ -29,14 +31,6 @@ _PREFIX = {
 }
 # edits of these need mj_setConst, or MuJoCo keeps using the constants derived at compile time
 _SETCONST_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
-
-
-def load_model(path: Path) -> mujoco.MjModel:
-    """Compile an MJCF file; compile errors become a one-line SpecError."""
-    try:
-        return mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as exc:
-        raise SpecError(f"spec field 'model': cannot compile {str(path)!r}: {str(exc).splitlines()[0]}") from None
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
@@ -109,15 +103,9 @@ class Candidate:
         return self.effect.start(self.bounds)
 
 
-@dataclass
-class Variant:
-    """Everything one rollout needs for one parameter vector."""
-
-    model: mujoco.MjModel
-    ctrl: np.ndarray  # (N*S, nu) applied command per substep, all episodes concatenated
-    qfrc_const: np.ndarray  # (nv,)
-    input_gain: np.ndarray | None  # (m, nv): qfrc += inputs @ input_gain
-    stribeck: tuple[np.ndarray, np.ndarray] | None  # (fs, vs) per dof
+def _stribeck(fs: np.ndarray, vs: np.ndarray) -> StateForce:
+    """The Stribeck excess of every dof as a force hook of the stepped rollout."""
+    return lambda qpos, qvel, ctrl: stribeck_force(qvel, fs, vs)
 
 
 class Edits:
@@ -161,21 +149,17 @@ class Plant:
     def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording) -> None:
         self.spec = spec
         self.rec = rec
-        if np.any((model.jnt_type == mujoco.mjtJoint.mjJNT_FREE) | (model.jnt_type == mujoco.mjtJoint.mjJNT_BALL)):
-            raise SpecError("spec field 'model': free and ball joints are not supported; use hinge and slide joints")
-        if model.na:
-            raise SpecError("spec field 'model': actuators with activation state are not supported")
-        self.substeps = spec.substeps or max(1, int(round(1.0 / (rec.fps * model.opt.timestep))))
-        self.model = copy.copy(model)
-        self.model.opt.timestep = 1.0 / (rec.fps * self.substeps)  # exactly one log frame per `substeps`
+        self.model, self.substeps = prepare_model(model, rec.fps, spec.substeps)
         self.slots = resolve_params(spec.params, self.model, spec.model.name)
         for slot, value in zip(self.slots, self.declared_nominal()):  # the nominal model, within bounds
             self._write(self.model, slot, value)
         mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
-        self.base_ctrl = np.repeat(rec.ctrl, self.substeps, axis=0)  # zero-order hold per frame
-        self.base_inputs = None if rec.inputs is None else np.repeat(rec.inputs, self.substeps, axis=0)
+        self.base_ctrl = hold(rec.ctrl, self.substeps)
         self.scales = self._scales()
-        self.nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+
+    def simulator(self, threads: int = 1) -> Simulator:
+        """A batched simulator of this plant's variants over its recording."""
+        return Simulator(self.model, self.rec, self.substeps, threads)
 
     # --- parameters ------------------------------------------------------------------------
     @staticmethod
@@ -204,7 +188,7 @@ class Plant:
             cand.effect.apply(b, cand.target, np.asarray(x, dtype=float), self.scales)
         gain = b.input_gain if b.input_gain is not None and np.any(b.input_gain) else None
         return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
-                       (b.fs, b.vs) if np.any(b.fs != 0) else None)
+                       _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None)
 
     # --- the applied command -----------------------------------------------------------------
     def applied_ctrl(self, ops: list[tuple[str, int, float]]) -> np.ndarray:

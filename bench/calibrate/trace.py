@@ -21,14 +21,16 @@ from typing import Callable
 
 import numpy as np
 
-from bench.calibrate.data import Recording, extract
+from bench.calibrate.data import extract
 from bench.calibrate.effects import EFFECTS, MERGES
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
 from bench.calibrate.metrics import evaluate, heldout_errors
-from bench.calibrate.model import Candidate, Layout, Plant, load_model
+from bench.calibrate.model import Candidate, Layout, Plant
 from bench.calibrate.signature import Score, score_candidates, trial_starts
-from bench.calibrate.simulate import Segments, Simulator, horizons
 from bench.calibrate.spec import CalibrationSpec, EffectRequest
+from bench.replay.data import Recording
+from bench.replay.simulate import Segments, Simulator, horizons
+from bench.replay.spec import load_model
 
 TRIAL_TOL = 1e-4  # least-squares tolerance when judging a candidate (the accepted one is then polished)
 
@@ -245,7 +247,7 @@ def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
     plant = Plant(spec, model, rec)
-    sim = Simulator(plant, threads or spec.threads)
+    sim = plant.simulator(threads or spec.threads)
     try:
         cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
     finally:
