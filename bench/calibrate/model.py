@@ -15,10 +15,11 @@ import mujoco
 import numpy as np
 
 from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate, stribeck_force
+from bench.calibrate.play import Play, PlayModel, build, coordinates, set_play
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
 from bench.errors import SpecError, did_you_mean
 from bench.replay.data import Recording
-from bench.replay.simulate import Simulator, StateForce, Variant, hold, prepare_model
+from bench.replay.simulate import Coordinates, Simulator, StateForce, Variant, hold, prepare_model
 
 # field prefix -> (MuJoCo object type, words for messages, model count attribute)
 _PREFIX = {
@@ -31,6 +32,7 @@ _PREFIX = {
 }
 # edits of these need mj_setConst, or MuJoCo keeps using the constants derived at compile time
 _SETCONST_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
+PLAY_WARMUP = 0.1  # seconds simulated before each segment to find the unlogged side of a play
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
@@ -111,8 +113,10 @@ def _stribeck(fs: np.ndarray, vs: np.ndarray) -> StateForce:
 class Edits:
     """What the effects of one parameter vector change (implements `effects.Builder`)."""
 
-    def __init__(self, model: mujoco.MjModel, n_inputs: int) -> None:
+    def __init__(self, model: mujoco.MjModel, n_inputs: int, play: PlayModel | None = None) -> None:
         self.model = model
+        self.play = play
+        self.plays: list[tuple[Play, float]] = []
         self.qfrc = np.zeros(model.nv)
         self.input_gain = np.zeros((n_inputs, model.nv)) if n_inputs else None
         self.fs = np.zeros(model.nv)
@@ -136,6 +140,18 @@ class Edits:
     def mark_setconst(self) -> None:
         self.setconst = True
 
+    def set_play(self, act: int, width: float, inertia: float) -> None:
+        if width <= 0 or self.play is None:  # no play: the declared drive, exactly
+            return
+        p = self.play.play(act)
+        set_play(self.model, p, width, inertia)
+        self.plays.append((p, width))
+        self.setconst = True
+
+    def coordinates(self, nq: int, warmup: int) -> Coordinates | None:
+        """Where the logged coordinates are in a model rebuilt with play (None: the model's own)."""
+        return coordinates(self.model, self.plays, nq, warmup) if self.plays else None
+
     def finish_model(self) -> mujoco.MjModel:
         """The edited model, with derived constants recomputed where mass edits need it."""
         if self.setconst:
@@ -156,6 +172,13 @@ class Plant:
         mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
         self.base_ctrl = hold(rec.ctrl, self.substeps)
         self.scales = self._scales()
+        self._plays: dict[tuple[tuple[int, str], ...], PlayModel] = {}
+
+    def play_model(self, plays: tuple[tuple[int, str], ...]) -> PlayModel:
+        """The model rebuilt with play on these (actuator, measured side) pairs (built once each)."""
+        if plays not in self._plays:
+            self._plays[plays] = build(self.spec.model, plays, self.model)
+        return self._plays[plays]
 
     def simulator(self, threads: int = 1) -> Simulator:
         """A batched simulator of this plant's variants over its recording."""
@@ -179,7 +202,11 @@ class Plant:
 
     def realise(self, declared: np.ndarray, effects: list[tuple[Candidate, np.ndarray]]) -> Variant:
         """Model copy + applied signals for declared values and active effects with their parameters."""
-        b = Edits(copy.copy(self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1])
+        plays = tuple(sorted((c.target.index, str(c.effect.play_side)) for c, x in effects
+                             if c.effect.play_side and x[0] > 0))
+        pm = self.play_model(plays) if plays else None
+        b = Edits(copy.copy(pm.model if pm else self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1],
+                  pm)
         for slot, value in zip(self.slots, declared):
             self._write(b.model, slot, float(value))
             if slot.field in _SETCONST_FIELDS:
@@ -187,8 +214,9 @@ class Plant:
         for cand, x in effects:
             cand.effect.apply(b, cand.target, np.asarray(x, dtype=float), self.scales)
         gain = b.input_gain if b.input_gain is not None and np.any(b.input_gain) else None
+        coords = b.coordinates(self.model.nq, max(1, round(PLAY_WARMUP * self.rec.fps)))
         return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
-                       _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None)
+                       _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None, coords)
 
     # --- the applied command -----------------------------------------------------------------
     def applied_ctrl(self, ops: list[tuple[str, int, float]]) -> np.ndarray:
@@ -257,6 +285,7 @@ class Plant:
             input_max=np.abs(rec.inputs).max(axis=0) if rec.inputs is not None else np.zeros(0),
             mass=float(m.body_mass[1:].sum()),
             dt=1.0 / rec.fps,
+            spring_ref=m.qpos_spring[m.jnt_qposadr[m.dof_jntid]].copy(),
         )
 
     def targets(self, kind: str) -> list[Target]:
@@ -325,6 +354,18 @@ class Layout:
         b = [s.bounds for s in self.plant.slots] + [bd for c in self.active for bd in c.bounds]
         arr = np.array(b, dtype=float).reshape(-1, 2)
         return arr[:, 0], arr[:, 1]
+
+    @property
+    def smooth(self) -> bool:
+        """Whether the output moves smoothly and near-linearly with every parameter: no effect with shape
+        parameters (Stribeck velocity) or with output jumps (contact events: a coarse difference step)."""
+        return all(c.effect.fd_step is None and not c.effect.shape for c in self.active)
+
+    def fd_steps(self, default: float) -> np.ndarray:
+        """Finite-difference step of each parameter in normalised units: `default`, or the coarser one an
+        effect whose output moves in jumps asks for (then for every parameter: the jumps move them all)."""
+        coarse = [c.effect.fd_step for c in self.active if c.effect.fd_step is not None]
+        return np.full(len(self.plant.slots) + sum(len(c.effect.params) for c in self.active), max([default, *coarse]))
 
     def split(self, x: np.ndarray) -> tuple[np.ndarray, list[tuple[Candidate, np.ndarray]]]:
         n = len(self.plant.slots)

@@ -26,13 +26,14 @@ from bench.calibrate.effects import EFFECTS, MERGES
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
 from bench.calibrate.metrics import evaluate, heldout_errors
 from bench.calibrate.model import Candidate, Layout, Plant
-from bench.calibrate.signature import Score, score_candidates, trial_starts
+from bench.calibrate.signature import Score, scan, score_candidates, trial_starts
 from bench.calibrate.spec import CalibrationSpec, EffectRequest
 from bench.replay.data import Recording
 from bench.replay.simulate import Segments, Simulator, horizons
 from bench.replay.spec import load_model
 
-TRIAL_TOL = 1e-4  # least-squares tolerance when judging a candidate (the accepted one is then polished)
+TRIAL_TOL = 1e-3  # least-squares tolerance when judging a candidate (the accepted one is then polished)
+JUDGE_SHARE, JUDGE_MIN = 0.5, 20  # candidates are judged on a seeded share (at least JUDGE_MIN) of the training horizons
 
 
 @dataclass
@@ -94,6 +95,8 @@ def _physical(cand: Candidate, f: FitResult, off: int, plant: Plant) -> tuple[di
     val = cand.effect.physical(x, plant.scales, cand.target)
     if not np.all(np.isfinite(sd)):
         return val, {p: None for p in val}
+    if cand.effect.intervals is not None:
+        return val, cand.effect.intervals(x, f.cov[off:off + k, off:off + k], plant.scales, cand.target)
     a = cand.effect.physical(x - 1.96 * sd, plant.scales, cand.target)
     b = cand.effect.physical(x + 1.96 * sd, plant.scales, cand.target)
     return val, {p: sorted([a[p], b[p]]) for p in val}
@@ -108,16 +111,29 @@ class _Loop:
     """State of one calibration: the simulator, the data split and the current model."""
 
     def __init__(self, plant: Plant, sim: Simulator, train: Segments, hold: Segments, scale: np.ndarray,
-                 channels: np.ndarray, log: Callable[[str], None]) -> None:
+                 channels: np.ndarray, log: Callable[[str], None], seed: int = 0) -> None:
         self.plant, self.sim, self.train, self.hold = plant, sim, train, hold
         self.scale, self.channels, self.log = scale, channels, log
         self.tr = plant.spec.trace
+        m = min(len(train), max(JUDGE_MIN, int(np.ceil(JUDGE_SHARE * len(train)))))
+        pick = np.random.default_rng([seed, 1]).choice(len(train), size=m, replace=False)
+        self.judged = Segments(train.start[np.sort(pick)], train.length)  # where candidates are refitted
+        self._base: tuple[int, float, float] | None = None  # (id of the current fit, its SSR and n_eff there)
+
+    def base(self, layout: Layout, cur: FitResult) -> tuple[float, float]:
+        """SSR and n_eff of the current fit on the judging horizons (once per current fit)."""
+        if self._base is None or self._base[0] != id(cur):
+            obj = self.objective(layout, self.judged)
+            grid = obj.residual_grid(cur.x[None])[0]
+            r = grid[obj.mask]
+            self._base = (id(cur), float(r @ r), len(r) / autocorrelation_time(grid))
+        return self._base[1], self._base[2]
 
     def objective(self, layout: Layout, segs: Segments) -> Objective:
         return Objective(self.sim, layout, segs, self.plant.rec, self.scale, self.channels)
 
-    def fit(self, layout: Layout, x0: np.ndarray, tol: float = 1e-6) -> FitResult:
-        return fit(self.objective(layout, self.train), x0, tol=tol)
+    def fit(self, layout: Layout, x0: np.ndarray, broyden: bool = False) -> FitResult:
+        return fit(self.objective(layout, self.train), x0, broyden=broyden)
 
     def heldout(self, pairs: list[tuple[Layout, np.ndarray]]) -> list[float]:
         return heldout_errors(self.sim, pairs, self.hold, self.plant.rec, self.scale, self.channels)
@@ -127,19 +143,21 @@ class _Loop:
         n_eff = obj.size / autocorrelation_time(obj.residual_grid(x[None])[0])
         return score_candidates(obj, layout, x, cands, self.tr.criterion, n_eff)
 
-    def judge(self, sc: Score, start: tuple[Layout, np.ndarray, int], cur: FitResult, err0: float,
+    def judge(self, sc: Score, start: tuple[Layout, np.ndarray, int], layout: Layout, cur: FitResult, err0: float,
               rnd: int, step: float) -> tuple[dict, FitResult, Layout, list[str]]:
-        """Refit with the candidate in; the entry for the report and the reasons it fails (none: passes)."""
+        """Refit with the candidate in (on the judging horizons); the entry for the report and the
+        reasons it fails (none: passes)."""
         new, xinit, off = start
-        f = self.fit(new, xinit, tol=TRIAL_TOL)
+        ssr0, n_eff = self.base(layout, cur)
+        f = fit(self.objective(new, self.judged), xinit, tol=TRIAL_TOL, broyden=True)
         err = self.heldout([(new, f.x)])[0]
         drop = 1.0 - err / err0
         crit = self.tr.criterion
-        d_ic = information(f.ssr, len(f.x), cur.n_eff, crit) - information(cur.ssr, len(cur.x), cur.n_eff, crit)
+        d_ic = information(f.ssr, len(f.x), n_eff, crit) - information(ssr0, len(cur.x), n_eff, crit)
         if sc.replaces is not None:  # the generalisation itself must be non-zero
             excl = f.contrast_excludes_zero(off, np.array(sc.cand.effect.contrast))
         else:
-            excl = all(f.excludes_zero(off + i) for i in range(sc.cand.effect.n_nested))
+            excl = all(f.excludes_zero(off + i) for i in sc.cand.effect.gated)
         reasons = []
         if drop < self.tr.margin:
             reasons.append(f"held-out error drop {100 * drop:.1f}% < {100 * self.tr.margin:.0f}%")
@@ -159,6 +177,7 @@ class _Loop:
               tried: dict[str, dict]) -> tuple[Score, dict, FitResult, Layout] | None:
         """Check, refit and judge the shortlisted candidates; the winner, if any passes."""
         shortlist = [s for s in scores if s.score >= self.tr.min_score and s.predicted < 0][: self.tr.max_tries]
+        scan(self.objective(layout, self.hold), layout, cur.x, shortlist)
         options = [trial_starts(sc, layout, cur.x) for sc in shortlist]
         errs = self.heldout([(new, xi) for opts in options for new, xi, _ in opts])
         checked, i0 = [], 0
@@ -174,7 +193,7 @@ class _Loop:
                 continue
             if best is not None and step < 0.5 * best[4]:
                 break  # not competitive with the one that already passed
-            entry, f, new, reasons = self.judge(sc, start, cur, err0, rnd, step)
+            entry, f, new, reasons = self.judge(sc, start, layout, cur, err0, rnd, step)
             if reasons:
                 tried[sc.cand.key] = {**entry, "reason": "; ".join(reasons)}
             elif best is None or entry["heldout_drop"] > best[1]["heldout_drop"]:
@@ -190,13 +209,13 @@ class _Loop:
         """Drop effects accepted earlier that the new one made redundant (no amplitude excludes zero)."""
         while True:
             weak = [c for c in layout.active if c is not keep and not any(
-                cur.excludes_zero(layout.offset(c) + i) for i in range(c.effect.n_nested))]
+                cur.excludes_zero(layout.offset(c) + i) for i in c.effect.gated)]
             if not weak:
                 return layout, cur
             c = weak[0]
             off, kc = layout.offset(c), len(c.effect.params)
             layout = Layout(self.plant, [a for a in layout.active if a is not c])
-            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc:]]))
+            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc:]]), broyden=True)
             gone = next(a for a in added if f"{a['name']}@{a['target']}" == c.key)
             added.remove(gone)
             tried[c.key] = {**gone, "reason": f"removed after {keep.key} was added: interval includes zero"}
@@ -207,7 +226,7 @@ class _Loop:
         layout, x, merged = _merge(layout, cur.x)
         if not merged:
             return layout, cur
-        cur = self.fit(layout, x)
+        cur = self.fit(layout, x, broyden=True)
         for a, b, m in merged:
             parts = [e for e in added if f"{e['name']}@{e['target']}" in (a.key, b.key)]
             for e in parts:
@@ -267,7 +286,7 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
     scale = np.maximum(np.concatenate([rec.qpos[train_frames], rec.qvel[train_frames]], axis=1).std(axis=0), 1e-9)
     train = horizons(rec, rec.train, k, limit=spec.trace.max_segments, seed=seed)
     hold = horizons(rec, rec.holdout, k)
-    loop = _Loop(plant, sim, train, hold, scale, channels, log)
+    loop = _Loop(plant, sim, train, hold, scale, channels, log, seed)
     names = [model.joint(i).name or f"q{i}" for i in range(model.njnt)]
 
     layout = Layout(plant, [])
@@ -296,7 +315,7 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
         if won is None:
             break
         sc, entry, _, layout = won
-        cur = loop.fit(layout, won[2].x)  # polish the winner's fit
+        cur = loop.fit(layout, won[2].x, broyden=True)  # polish the winner's fit on all training horizons
         log(f"round {rnd}: accepted {sc.cand.key}")
         if sc.replaces is not None:
             cal.added = [a for a in cal.added if f"{a['name']}@{a['target']}" != sc.replaces.key]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -46,12 +46,28 @@ class Coordinates:
 
     `init(qpos, qvel, ctrl)` maps logged rows (n, nq_log), (n, nv_log) and the command of the
     first frame (n, nu) to full rows (n, model.nq), (n, model.nv); the simulated output is read
-    back at `qpos_adr` and `dof_adr`.
+    back at `qpos_adr` and `dof_adr`. The unlogged coordinates (`hidden`, each moving with the logged
+    coordinate `follows`) can be found by simulation instead: with `warmup` > 0 each segment is
+    preceded by up to that many frames simulated from `init` at an earlier logged frame; at the
+    segment's start the logged coordinates are set to the log and the hidden ones keep their
+    simulated offset from the coordinate they follow (an open-loop observer of the hidden state).
     """
 
     qpos_adr: np.ndarray
     dof_adr: np.ndarray
     init: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    hidden: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # full qpos (= dof) adr
+    follows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # logged index
+    warmup: int = 0
+
+    def anchor(self, q: np.ndarray, v: np.ndarray, log_q: np.ndarray, log_v: np.ndarray) \
+            -> tuple[np.ndarray, np.ndarray]:
+        """Simulated full rows moved onto the logged coordinates, hidden ones keeping their offsets."""
+        q, v = q.copy(), v.copy()
+        q[:, self.hidden] += log_q[:, self.follows] - q[:, self.qpos_adr[self.follows]]
+        v[:, self.hidden] += log_v[:, self.follows] - v[:, self.dof_adr[self.follows]]
+        q[:, self.qpos_adr], v[:, self.dof_adr] = log_q, log_v
+        return q, v
 
 
 @dataclass
@@ -165,16 +181,29 @@ class Simulator:
         return self._datas[key], self._templates[key]
 
     def _initial(self, v: Variant, segs: Segments) -> np.ndarray:
+        """Initial full states of one variant's segments: the logged state (mapped, warmed up)."""
         m, rec = v.model, self.rec
         _, template = self._prepare(m)
         st = np.repeat(template[None, :], len(segs), axis=0)
+        qp, qv = slice(1, 1 + m.nq), slice(1 + m.nq, 1 + m.nq + m.nv)
         if v.coords is None:
-            st[:, 1:1 + m.nq] = rec.qpos[segs.start]
-            st[:, 1 + m.nq:1 + m.nq + m.nv] = rec.qvel[segs.start]
-        else:
-            qpos, qvel = v.coords.init(rec.qpos[segs.start], rec.qvel[segs.start], rec.ctrl[segs.start])
-            st[:, 1:1 + m.nq] = qpos
-            st[:, 1 + m.nq:1 + m.nq + m.nv] = qvel
+            st[:, qp] = rec.qpos[segs.start]
+            st[:, qv] = rec.qvel[segs.start]
+            return st
+        st[:, qp], st[:, qv] = v.coords.init(rec.qpos[segs.start], rec.qvel[segs.start], rec.ctrl[segs.start])
+        w = v.coords.warmup
+        if w <= 0:
+            return st
+        episode = np.searchsorted(rec.offsets, segs.start, side="right") - 1
+        first = np.maximum(rec.offsets[episode], segs.start - w)
+        lead = segs.start - first  # frames of warm-up each segment gets (0 at an episode's start)
+        pre = Segments(first, w)
+        unwarmed = replace(v, coords=replace(v.coords, warmup=0))
+        frames = self._full([unwarmed], pre, self._initial(unwarmed, pre))
+        has = lead > 0
+        sim = frames[has, lead[has] - 1]
+        st[has, qp], st[has, qv] = v.coords.anchor(sim[:, :m.nq], sim[:, m.nq:], rec.qpos[segs.start[has]],
+                                                   rec.qvel[segs.start[has]])
         return st
 
     def _controls(self, v: Variant, segs: Segments) -> np.ndarray:
@@ -196,52 +225,56 @@ class Simulator:
         nq = v.model.nq
         return np.concatenate([qv[..., v.coords.qpos_adr], qv[..., nq + v.coords.dof_adr]], axis=-1)
 
-    def _readouts(self, variants: list[Variant], frames: np.ndarray) -> np.ndarray:
-        if all(v.coords is None for v in variants):
-            return frames
-        return np.stack([self._readout(v, f) for v, f in zip(variants, frames)])
-
     def run(self, variants: list[Variant], segs: Segments) -> np.ndarray:
         """Simulated [qpos, qvel] at the frames each segment predicts: (V, n, length, nq + nv)."""
         out = np.empty((len(variants), len(segs), segs.length, self.nq + self.nv))
         groups: dict[tuple, list[int]] = {}
         for i, v in enumerate(variants):
             groups.setdefault((v.force is not None, self._structure(v.model)), []).append(i)
-        for (stepped, _), group in groups.items():
-            fn = self._stepped if stepped else self._rollout
-            out[group] = fn([variants[i] for i in group], segs)
+        for group in groups.values():
+            out[group] = self._logged([variants[i] for i in group], segs)
         return out
 
-    def _batch(self, variants: list[Variant], segs: Segments) -> tuple[list, np.ndarray, np.ndarray]:
-        n = len(segs)
-        models = [v.model for v in variants for _ in range(n)]
-        init = np.concatenate([self._initial(v, segs) for v in variants])
-        ctrl = np.concatenate([self._controls(v, segs) for v in variants])
-        return models, np.ascontiguousarray(init), np.ascontiguousarray(ctrl)
+    def _logged(self, variants: list[Variant], segs: Segments) -> np.ndarray:
+        """Logged coordinates of variants of one structure: (V, n, length, nq + nv)."""
+        init = np.ascontiguousarray(np.concatenate([self._initial(v, segs) for v in variants]))
+        frames = self._full(variants, segs, init).reshape(len(variants), len(segs), segs.length, -1)
+        if all(v.coords is None for v in variants):
+            return frames
+        return np.stack([self._readout(v, f) for v, f in zip(variants, frames)])
 
+    # the two paths of `_full`, by name (the stepped one is compared with the plain one in tests)
     def _rollout(self, variants: list[Variant], segs: Segments) -> np.ndarray:
-        s, m = self.substeps, variants[0].model
-        datas, template = self._prepare(m)
-        models, init, ctrl = self._batch(variants, segs)
-        nstep = segs.length * s
-        state = np.empty((len(models), nstep, len(template)))
-        sens = np.empty((len(models), nstep, m.nsensordata))
-        self.pool.rollout(models, datas, init, ctrl, control_spec=CONTROL_SPEC, skip_checks=True,
-                          nstep=nstep, state=state, sensordata=sens)
-        self.steps += len(models) * nstep
-        frames = state[:, s - 1::s, 1:1 + m.nq + m.nv].reshape(len(variants), len(segs), segs.length, -1)
-        return self._readouts(variants, frames)
+        return self._logged([replace(v, force=None) for v in variants], segs)
 
     def _stepped(self, variants: list[Variant], segs: Segments) -> np.ndarray:
+        assert all(v.force is not None for v in variants)
+        return self._logged(variants, segs)
+
+    def _full(self, variants: list[Variant], segs: Segments, init: np.ndarray) -> np.ndarray:
+        """Full [qpos, qvel] of the variants' models after each frame: (V * n, length, nq + nv).
+
+        One rollout call for all; with a force hook, one call per substep with the force added.
+        """
         s, n, m = self.substeps, len(segs), variants[0].model
         datas, template = self._prepare(m)
-        models, st, ctrl = self._batch(variants, segs)
+        models = [v.model for v in variants for _ in range(n)]
+        ctrl = np.ascontiguousarray(np.concatenate([self._controls(v, segs) for v in variants]))
+        nstep = segs.length * s
+        self.steps += len(models) * nstep
+        if all(v.force is None for v in variants):
+            state = np.empty((len(models), nstep, len(template)))
+            sens = np.empty((len(models), nstep, m.nsensordata))
+            self.pool.rollout(models, datas, init, ctrl, control_spec=CONTROL_SPEC, skip_checks=True,
+                              nstep=nstep, state=state, sensordata=sens)
+            return state[:, s - 1::s, 1:1 + m.nq + m.nv]
+        st = init
         frames = np.empty((len(models), segs.length, m.nq + m.nv))
         state = np.empty((len(models), 1, len(template)))
         sens = np.empty((len(models), 1, m.nsensordata))
         qp, qv = slice(1, 1 + m.nq), slice(1 + m.nq, 1 + m.nq + m.nv)
         rows = [slice(i * n, (i + 1) * n) for i in range(len(variants))]
-        for k in range(segs.length * s):
+        for k in range(nstep):
             u = ctrl[:, k:k + 1].copy()
             for v, r in zip(variants, rows):
                 if v.force is not None:
@@ -251,5 +284,4 @@ class Simulator:
             st = np.ascontiguousarray(state[:, 0])
             if k % s == s - 1:
                 frames[:, k // s] = st[:, 1:1 + m.nq + m.nv]
-        self.steps += len(models) * segs.length * s
-        return self._readouts(variants, frames.reshape(len(variants), n, segs.length, -1))
+        return frames
