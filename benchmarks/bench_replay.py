@@ -142,7 +142,7 @@ def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
             t, (preds["mj_step"], _) = _timed(lambda: mj_step_loop(logs, seg_c))
             best["mj_step"] = min(best["mj_step"], t)
             for n in threads:
-                t, (preds[n], _) = _timed(lambda: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
+                t, (preds[n], _) = _timed(lambda n=n: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
                                                               seg_c, logs.substeps, logs.idx, logs.ctrl_spec))
                 best[n] = min(best[n], t)
         m = logs.envs[0].model
@@ -226,7 +226,7 @@ def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
             t, (ref, steps) = _timed(lambda: step_loop(model, rec, substeps, segments))
             best["loop"] = min(best["loop"], t)
             for n, sim in sims.items():
-                t, errors = _timed(lambda: horizon_errors(sim, variant, rec, windows, k))
+                t, errors = _timed(lambda sim=sim: horizon_errors(sim, variant, rec, windows, k))
                 best[n] = min(best[n], t)
     finally:
         for sim in sims.values():
@@ -240,7 +240,8 @@ def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
               f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}")
     print(f"  max |qpos difference| between the two: {diff:.1e} rad (all segments of all three horizons)")
     floor, cores = physics_floor(model, rec.ctrl[0], 100_000), os.cpu_count() or 1
-    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} core{'s' if cores > 1 else ''} "
+    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} "
+          f"core{'s' if cores > 1 else ''} "
           f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
           f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)")
 

@@ -52,7 +52,7 @@ def test_effect_is_nested_and_realised_in_simulation(plant, name):
     assert np.abs(moved - base).max() > 1e-3, f"{name} switched on must move the simulated output"
     lo = [b[0] for b in cand.bounds]
     hi = [b[1] for b in cand.bounds]
-    assert all(l < h for l, h in zip(lo, hi))
+    assert all(a < b for a, b in zip(lo, hi))
     sim.close()
 
 

@@ -154,11 +154,14 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={t / 'none.yaml'}"], r"spec file .*none.yaml' does not exist"),
     (lambda t, logs, spec: [f"logs={logs}"], r"spec= is required"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "suite=held_out_robots"], r"not both"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
      r"'signals.qpos.column': column 'observation.stat' is not in the log.*valid: action"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
      r"'signals.ctrl.index' lists 2 columns; the model has nu=3"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
      r"'signals.qvel.index': index 9 is out of range .* width 6"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k must be an integer >= 1"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
@@ -166,7 +169,8 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
     (lambda t, logs, spec: [f"logs={logs}", "suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "commands=ctrl"], r"commands= applies to suite= replays"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_typo_spec(t)}"], r"unknown spec field 'substep'.*Did you mean 'substeps'"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={_typo_spec(t)}"],
+     r"unknown spec field 'substep'.*Did you mean 'substeps'"),
 ]
 
 
@@ -299,9 +303,12 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
     renamed.features["action.ctrl"]["names"] = ["motor" + n for n in names]
     renamed = write_dataset(tmp_path / "renamed", renamed)
     cases = [
-        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"], r"commands is 'torque'; valid: ctrl, action"),
-        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"], r"feature 'action.ctrl' missing.*commands=action"),
-        ([f"logs={renamed}", "suite=held_out_robots"], r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
+        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"],
+         r"commands is 'torque'; valid: ctrl, action"),
+        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"],
+         r"feature 'action.ctrl' missing.*commands=action"),
+        ([f"logs={renamed}", "suite=held_out_robots"],
+         r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
     ]
     for argv, pattern in cases:
         out = tmp_path / "out"

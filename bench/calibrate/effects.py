@@ -20,8 +20,9 @@ Bounds are scaled to the system from the logs (`Scales`), so one library serves 
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -63,7 +64,7 @@ class Target:
 class Builder(Protocol):
     """What an effect may change while a parameter vector is realised (see `bench.calibrate.model`)."""
 
-    model: object
+    model: Any  # the mujoco.MjModel being edited
 
     def add_qfrc(self, dof: int, value: float) -> None: ...
     def add_input(self, col: int, dof: int, gain: float) -> None: ...

@@ -153,6 +153,7 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
     for j in range(nv):
         ref[:, j], dref[:, j] = _multisine(rng, t, amps[j])
     extra, _ = _multisine(rng, t, 1.0, n=3)  # a measured external load (cable, hose) in arbitrary units
+    gain = np.zeros(true.nv) if b.input_gain is None else b.input_gain[0]  # the extra load's gain per dof
     coords = b.coordinates(nv, 0)  # the logged coordinates (a rebuilt plant with play has more)
     qadr = np.arange(nv) if coords is None else coords.qpos_adr
     vadr = np.arange(nv) if coords is None else coords.dof_adr
@@ -188,7 +189,7 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
                 elif kind == "saturation":
                     applied[a] = saturate(applied[a], value)
             d.ctrl[:] = applied
-            d.qfrc_applied[:] = b.qfrc + b.input_gain[0] * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
+            d.qfrc_applied[:] = b.qfrc + gain * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
             mujoco.mj_step(true, d)
     extra_meas = (extra + rng.normal(0, 0.01, nT)).astype(np.float32)[:, None]
     return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas,
@@ -241,7 +242,7 @@ def declared_files(out: str | Path, effect: str | None, target: str | None = Non
     xml = declared_xml(text=arm_xml(effect, target))
     if effect == "viscous_damping":  # the damping that is not declared free keeps its true value
         joint = target or DEFAULTS[effect][0]
-        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)
+        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)  # type: ignore[union-attr]
         xml = re.sub(rf'(<joint name="{joint}") damping="[0-9.]+"', rf'\1 damping="{true}"', xml)
     (out / "arm3_declared.xml").write_text(xml)
     path = out / "spec.yaml"

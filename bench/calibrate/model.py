@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -128,6 +127,7 @@ class Edits:
         self.qfrc[dof] += value
 
     def add_input(self, col: int, dof: int, gain: float) -> None:
+        assert self.input_gain is not None, "input_channel needs logged inputs"
         self.input_gain[col, dof] += gain
 
     def add_stribeck(self, dof: int, fs: float, vs: float) -> None:

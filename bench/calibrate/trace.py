@@ -16,8 +16,8 @@ no candidate passes or `trace.max_effects` are in.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -33,7 +33,8 @@ from bench.replay.simulate import Segments, Simulator, horizons
 from bench.replay.spec import load_model
 
 TRIAL_TOL = 1e-3  # least-squares tolerance when judging a candidate (the accepted one is then polished)
-JUDGE_SHARE, JUDGE_MIN = 0.5, 20  # candidates are judged on a seeded share (at least JUDGE_MIN) of the training horizons
+# candidates are judged on a seeded share (at least JUDGE_MIN) of the training horizons
+JUDGE_SHARE, JUDGE_MIN = 0.5, 20
 
 
 @dataclass
@@ -301,7 +302,7 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
         f"{errors['declared']['free_run_nrmse']:.4g}")
     t2 = time.perf_counter()
 
-    cands, notes = plant.candidates(spec.effects if effects == "spec" else effects)
+    cands, notes = plant.candidates(spec.effects if isinstance(effects, str) else effects)
     cal = Calibration(spec, plant, seed, layout, declared, declared, x_nom, errors, traces, notes=notes, k=k)
     cur, err0 = declared, loop.heldout([(layout, declared.x)])[0]
     tried: dict[str, dict] = {}

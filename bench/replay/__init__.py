@@ -37,8 +37,7 @@ from __future__ import annotations
 from bench.replay.cli import HELP, main, plot, render, run, write
 from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, summarise
 from bench.replay.mjcf import replay_mjcf
-from bench.replay.suite import (SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite,
-                                suite_segments)
+from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
 __all__ = ["COMMANDS", "CTRL", "HELP", "SCHEMA", "Replay", "ReplayConfig", "SuiteLogs", "load_suite_logs", "main",
            "plot", "render", "replay_actions", "replay_ctrl", "replay_mjcf", "replay_suite", "run", "suite_segments",

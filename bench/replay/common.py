@@ -108,7 +108,7 @@ def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[
     for label, e in errors.items():
         per_joint = {}
         for j, name in enumerate(joints):
-            entry = {"rmse": finite(e.rmse[j]), "nrmse": finite(e.nrmse[j]) if moving[j] else None}
+            entry: dict[str, Any] = {"rmse": finite(e.rmse[j]), "nrmse": finite(e.nrmse[j]) if moving[j] else None}
             if not moving[j]:
                 entry["nrmse_reason"] = "the joint does not move in the replayed logs (position std 0)"
             per_joint[name] = entry
