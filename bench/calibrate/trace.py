@@ -35,6 +35,7 @@ from bench.replay.spec import load_model
 TRIAL_TOL = 1e-3  # least-squares tolerance when judging a candidate (the accepted one is then polished)
 # candidates are judged on a seeded share (at least JUDGE_MIN) of the training horizons
 JUDGE_SHARE, JUDGE_MIN = 0.5, 20
+SCORE_MAX = 40  # held-out horizons the signatures are scored on (a seeded subset beyond; acceptance uses all)
 
 
 @dataclass
@@ -119,6 +120,8 @@ class _Loop:
         m = min(len(train), max(JUDGE_MIN, int(np.ceil(JUDGE_SHARE * len(train)))))
         pick = np.random.default_rng([seed, 1]).choice(len(train), size=m, replace=False)
         self.judged = Segments(train.start[np.sort(pick)], train.length)  # where candidates are refitted
+        pick = np.random.default_rng([seed, 2]).choice(len(hold), size=min(len(hold), SCORE_MAX), replace=False)
+        self.scored = Segments(hold.start[np.sort(pick)], hold.length)  # where signatures are scored
         self._base: tuple[int, float, float] | None = None  # (id of the current fit, its SSR and n_eff there)
 
     def base(self, layout: Layout, cur: FitResult) -> tuple[float, float]:
@@ -140,7 +143,7 @@ class _Loop:
         return heldout_errors(self.sim, pairs, self.hold, self.plant.rec, self.scale, self.channels)
 
     def score(self, layout: Layout, x: np.ndarray, cands: list[Candidate]) -> list[Score]:
-        obj = self.objective(layout, self.hold)
+        obj = self.objective(layout, self.scored)
         n_eff = obj.size / autocorrelation_time(obj.residual_grid(x[None])[0])
         return score_candidates(obj, layout, x, cands, self.tr.criterion, n_eff)
 
@@ -178,7 +181,7 @@ class _Loop:
               tried: dict[str, dict]) -> tuple[Score, dict, FitResult, Layout] | None:
         """Check, refit and judge the shortlisted candidates; the winner, if any passes."""
         shortlist = [s for s in scores if s.score >= self.tr.min_score and s.predicted < 0][: self.tr.max_tries]
-        scan(self.objective(layout, self.hold), layout, cur.x, shortlist)
+        scan(self.objective(layout, self.scored), layout, cur.x, shortlist)
         options = [trial_starts(sc, layout, cur.x) for sc in shortlist]
         errs = self.heldout([(new, xi) for opts in options for new, xi, _ in opts])
         checked, i0 = [], 0
