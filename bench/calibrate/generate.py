@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -34,6 +34,23 @@ INPUT_COLUMN = "observation.extra"
 # in the plant and in the declared model (with arm3's 0.01 the PD loop, closed on the motor alone
 # while it crosses the gap, would be unstable at 100 Hz)
 GEARED = {"backlash_link": 0.1, "backlash_motor": 0.1}
+
+# forces no family of the library describes (what the learned residual is for): name -> (joint, doc)
+DISTURBANCES = {
+    "cogging": ("j2", "cogging torque 0.8 sin(6 q) N·m of a motor with 6 pole pairs per radian on j2"),
+}
+
+
+def _disturbance(name: str | None, model: mujoco.MjModel) -> np.ndarray | None:
+    """(dof, amplitude, spatial frequency) of a disturbance, or None."""
+    if name is None:
+        return None
+    if name not in DISTURBANCES:
+        raise ConfigError(f"unknown disturbance {name!r}; valid: {', '.join(DISTURBANCES)}."
+                          f"{did_you_mean(name, DISTURBANCES)}")
+    dof = int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, DISTURBANCES[name][0])])
+    return np.array([dof, 0.8, 6.0])
+
 
 # hidden effect -> (target name, true physical parameters)
 DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
@@ -93,16 +110,21 @@ class Truth:
     target: str | None
     joint: str | None
     params: dict[str, float]
+    disturbance: str | None = None  # a force outside the effect library (`DISTURBANCES`)
 
     def to_json(self) -> dict:
-        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params}
+        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params,
+                **({"disturbance": self.disturbance} if self.disturbance else {})}
 
 
 def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0, fps: float = 100.0,
                  substeps: int = 5, seed: int = 0, target: str | None = None,
-                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2)) \
-        -> tuple[list[dict[str, np.ndarray]], Truth]:
-    """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays."""
+                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2),
+                 disturbance: str | None = None) -> tuple[list[dict[str, np.ndarray]], Truth]:
+    """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays.
+
+    `disturbance` adds a force outside the effect library (`DISTURBANCES`) on top.
+    """
     if effect is not None and effect not in EFFECTS:
         raise ConfigError(f"unknown effect {effect!r}; valid: none, {', '.join(EFFECTS)}."
                           f"{did_you_mean(effect, EFFECTS)}")
@@ -137,15 +159,18 @@ def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0
             eff.apply(b, tgt, np.array([p[k] for k in eff.params], dtype=float), None)  # type: ignore[arg-type]
         truth = Truth(effect, tgt.label, tgt.joint or None, p)
     b.finish_model()
+    dist = _disturbance(disturbance, true)
+    truth = replace(truth, disturbance=disturbance)
     t = np.arange(int(round(duration * fps))) / fps
     out = []
     for _ in range(episodes):
-        out.append(_episode(b.model, declared, b, t, fps, substeps, rng, noise))
+        out.append(_episode(b.model, declared, b, t, fps, substeps, rng, noise, dist))
     return out, truth
 
 
 def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.ndarray, fps: float,
-             substeps: int, rng: np.random.Generator, noise: tuple[float, float]) -> dict[str, np.ndarray]:
+             substeps: int, rng: np.random.Generator, noise: tuple[float, float],
+             dist: np.ndarray | None) -> dict[str, np.ndarray]:
     nT, nu, nv = len(t), declared.nu, declared.nv
     amps = (0.6, 0.8, 1.0)
     ref = np.empty((nT, nv))
@@ -190,6 +215,9 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
                     applied[a] = saturate(applied[a], value)
             d.ctrl[:] = applied
             d.qfrc_applied[:] = b.qfrc + gain * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
+            if dist is not None:
+                dof = int(dist[0])
+                d.qfrc_applied[dof] += dist[1] * np.sin(dist[2] * d.qpos[dof])
             mujoco.mj_step(true, d)
     extra_meas = (extra + rng.normal(0, 0.01, nT)).astype(np.float32)[:, None]
     return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas,

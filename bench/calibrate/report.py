@@ -80,6 +80,7 @@ def to_json(cal: Calibration) -> dict:
         "fit": {"declared": {"ssr": decl.ssr, "n": decl.n, "tau": decl.tau, "evaluations": decl.nfev},
                 "final": {"ssr": final.ssr, "n": final.n, "tau": final.tau, "evaluations": final.nfev,
                           "parameters": final.labels}},
+        "learned_residual": cal.learned,
         "warnings": cal.warnings,
         "notes": cal.notes,
         "wall_seconds": cal.wall.get("total"),
@@ -216,6 +217,7 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         lines.append(f"| {e['name']} | {e['target']} | {_fmt(e.get('score'))} | {e.get('reason', '')} |")
     if len(doc["effects_rejected"]) > 15:
         lines.append(f"| … | | | {len(doc['effects_rejected']) - 15} more in calibration.json |")
+    lines += _learned(doc.get("learned_residual"))
     if doc["warnings"]:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in doc["warnings"]]
     lines += ["", "## Plots", ""]
@@ -225,6 +227,23 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         if key in files:
             lines += [f"![{caption}]({files[key]})", "", f"*{caption}.*", ""]
     return "\n".join(lines) + "\n"
+
+
+def _learned(res: dict | None) -> list[str]:
+    """The learned residual's section: held-out errors of the physics with and without it."""
+    if not res:
+        return []
+    h = res["heldout"]
+    lines = ["", "## Learned residual (not part of the physical model)", "",
+             f"{res['model']}; target: {res['target']}. {res['samples']} training samples, ridge strength "
+             f"{_fmt(res['lambda'])} (cross-validated R² {_fmt(res['cv_r2'])}), seed {res['seed']}.", "",
+             "| held-out | one-step NRMSE | k-step NRMSE | free-run NRMSE |", "|---|---|---|---|"]
+    for key, label in (("physics", "physics (final)"), ("physics_plus_residual", "physics + learned residual")):
+        lines.append(f"| {label} | " + " | ".join(_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run"))
+                     + " |")
+    lines += ["", "The effects above and their errors are the physics alone; the residual says how much the "
+              "library leaves unexplained, not which effect it is."]
+    return lines
 
 
 def write_report(cal: Calibration, out: str | Path) -> Path:

@@ -59,6 +59,7 @@ class Calibration:
     wall: dict[str, float] = field(default_factory=dict)
     k: int = 1
     residual: dict[str, np.ndarray] = field(default_factory=dict)
+    learned: dict | None = None  # the learned residual (`bench.calibrate.residual`), apart from the physics
 
     @property
     def rec(self) -> Recording:
@@ -261,10 +262,11 @@ def _rejected(scores: list[Score], tried: dict[str, dict], added: list[dict], mi
 
 def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float, *, seed: int = 0,
         effects: tuple[EffectRequest, ...] | None | str = "spec", threads: int | None = None,
-        log: Callable[[str], None] = lambda msg: None) -> Calibration:
+        log: Callable[[str], None] = lambda msg: None, residual: bool = False) -> Calibration:
     """Run the whole loop on logged episodes (arrays keyed by column) and return what it found.
 
-    `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests.
+    `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests. With `residual`,
+    a learned residual is fitted after the loop and reported apart from the physics (`Calibration.learned`).
     """
     t0 = time.perf_counter()
     model = load_model(spec.model)
@@ -273,11 +275,25 @@ def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float
     sim = plant.simulator(threads or spec.threads)
     try:
         cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
+        if residual:
+            from bench.calibrate.residual import learn
+
+            t1 = time.perf_counter()
+            cal.learned = learn(sim, cal.layout.realise(cal.final_fit.x), cal.k, seed)
+            cal.wall["residual"] = time.perf_counter() - t1
+            h = cal.learned["heldout"]
+            log("learned residual (apart from the physics): held-out NRMSE, physics -> physics + residual: " +
+                ", ".join(f"{lb.replace('_', '-')} {_fmt(h['physics'][f'{lb}_nrmse'])} -> "
+                          f"{_fmt(h['physics_plus_residual'][f'{lb}_nrmse'])}" for lb in ("k_step", "free_run")))
     finally:
         sim.close()
     log(f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE "
         f"{cal.errors['final']['free_run_nrmse']:.4g} ({cal.wall['total']:.1f} s)")
     return cal
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.4g}"
 
 
 def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
