@@ -39,7 +39,8 @@ def test_residual_is_kept_apart_from_the_physics(cogging, tmp_path):
     assert [(a["name"], a["target"], a["params"]) for a in plain.added] == \
         [(a["name"], a["target"], a["params"]) for a in cogging.added]
     assert plain.errors == cogging.errors  # `final` is the physics alone
-    assert cogging.learned["heldout"]["physics"]["k_step_nrmse"] == pytest.approx(cogging.errors["final"]["k_step_nrmse"])
+    physics = cogging.learned["heldout"]["physics"]
+    assert physics["k_step_nrmse"] == pytest.approx(cogging.errors["final"]["k_step_nrmse"])
 
 
 def test_residual_adds_nothing_to_clean_data(tmp_path):

@@ -239,8 +239,8 @@ def _learned(res: dict | None) -> list[str]:
              f"{_fmt(res['lambda'])} (cross-validated R² {_fmt(res['cv_r2'])}), seed {res['seed']}.", "",
              "| held-out | one-step NRMSE | k-step NRMSE | free-run NRMSE |", "|---|---|---|---|"]
     for key, label in (("physics", "physics (final)"), ("physics_plus_residual", "physics + learned residual")):
-        lines.append(f"| {label} | " + " | ".join(_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run"))
-                     + " |")
+        cells = [_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run")]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines += ["", "The effects above and their errors are the physics alone; the residual says how much the "
               "library leaves unexplained, not which effect it is."]
     return lines

@@ -126,7 +126,8 @@ def _hook(model: Residual, v: Variant, nq: int) -> StateForce:
 
 
 def _summary(errors: dict) -> dict[str, Any]:
-    return {f"{label}_{m}": finite(float(getattr(e, m).mean())) for label, e in errors.items() for m in ("nrmse", "rmse")}
+    return {f"{label}_{m}": finite(float(getattr(e, m).mean()))
+            for label, e in errors.items() for m in ("nrmse", "rmse")}
 
 
 def learn(sim: Simulator, v: Variant, k: int, seed: int) -> dict[str, Any]:
