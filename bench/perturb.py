@@ -385,6 +385,33 @@ def _set_const(mj: MujocoHandle) -> None:
     d.qpos[:], d.qvel[:], d.act[:] = qpos, qvel, act
 
 
+def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
+    """Set model values by name ({field, element, value}: dof_* by joint, body_*, actuator_* [column 0]),
+    e.g. a suite calibration's (`bench.calibrate.apply`). Call before the first episode, so the nominal
+    values `apply` restores are these."""
+    import mujoco
+
+    m = mj.model
+    objs = {"dof_": mujoco.mjtObj.mjOBJ_JOINT, "jnt_": mujoco.mjtObj.mjOBJ_JOINT, "body_": mujoco.mjtObj.mjOBJ_BODY,
+            "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR}
+    setconst = False
+    for e in edits:
+        prefix = next(p for p in objs if e["field"].startswith(p))
+        idx = mujoco.mj_name2id(m, objs[prefix], e["element"])
+        if idx < 0:
+            raise ConfigError(f"model edit of {e['field']}: {e['element']!r} is not in the model")
+        row = int(m.jnt_dofadr[idx]) if prefix == "dof_" else idx
+        arr = getattr(m, e["field"])
+        if arr.ndim == 2:
+            arr[row, 0] = e["value"]
+        else:
+            arr[row] = e["value"]
+        setconst |= e["field"] in ("body_mass", "body_inertia", "dof_armature")
+    if setconst:
+        _set_const(mj)
+    mj.forward()
+
+
 def _scale_model(mj: MujocoHandle, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
     m = mj.model
     if axis == "friction":

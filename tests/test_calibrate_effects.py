@@ -175,7 +175,8 @@ def test_play_model_appends_a_rotor_and_keeps_every_index():
         assert m.dof_armature[p.rotor_dof] == base.dof_armature[1] and m.dof_armature[p.link_dof] == 0.0
         c = coordinates(m, [(p, 0.04)], 3, warmup=0)
         assert list(c.qpos_adr) == ([0, 1, 2] if side == "link" else [0, 3, 2])
-        q, v = c.init(np.array([[0.1, 0.2, 0.3]]), np.array([[1.0, 2.0, 3.0]]), np.array([[0.0, 5.0, 0.0]]))
+        q, v = c.init(np.array([0]), np.array([[0.1, 0.2, 0.3]]), np.array([[1.0, 2.0, 3.0]]),
+                      np.array([[0.0, 5.0, 0.0]]))
         assert np.allclose(q[0, 3] - q[0, 1], 0.02)  # pushing forwards: the rotor leads by half the play
         assert np.allclose(q[0, c.qpos_adr], [0.1, 0.2, 0.3]) and np.allclose(v[0, [1, 3]], 2.0)
 

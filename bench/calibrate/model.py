@@ -40,7 +40,8 @@ def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
 
 @dataclass(frozen=True)
 class Slot:
-    """One declared free value: `model.<field>[row, col]`."""
+    """One declared free value: `model.<field>[row, col]`, or with `scaled` a factor on the nominal
+    value of each (row, nominal) it lists."""
 
     label: str
     field: str
@@ -49,6 +50,11 @@ class Slot:
     bounds: tuple[float, float]
     nominal: float
     init: float
+    scaled: tuple[tuple[int, float], ...] = ()
+
+    @property
+    def rows(self) -> list[int]:
+        return [r for r, _ in self.scaled] if self.scaled else [self.row]
 
 
 def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_name: str) -> list[Slot]:
@@ -72,6 +78,8 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
         col = p.column if arr.ndim == 2 else None
         valid = _names(model, obj, {"joint": model.njnt, "body": model.nbody, "actuator": model.nu,
                                     "geom": model.ngeom, "tendon": model.ntendon}[word])
+        lo, hi = p.bounds
+        scaled = []
         for name in p.elements:
             idx = mujoco.mj_name2id(model, obj, name)
             if idx < 0:
@@ -79,12 +87,20 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
                                 f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}")
             row = int(model.jnt_dofadr[idx]) if prefix == "dof_" else idx
             nominal = float(arr[row] if col is None else arr[row, col])
-            lo, hi = p.bounds
+            if p.scale:
+                scaled.append((row, nominal))
+                continue
             init = p.init if p.init is not None else min(max(nominal, lo), hi)
             if not lo <= init <= hi:
                 raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}]")
             label = p.name if len(p.elements) == 1 and p.name != p.field else f"{p.name}[{name}]"
             slots.append(Slot(label, p.field, row, col, (lo, hi), nominal, float(init)))
+        if p.scale:  # one factor, 1 = the model as given
+            init = 1.0 if p.init is None else p.init
+            if not lo <= init <= hi:
+                raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}] "
+                                "(a scale: 1 is the model as given)")
+            slots.append(Slot(p.name, p.field, scaled[0][0], col, (lo, hi), 1.0, float(init), tuple(scaled)))
     return slots
 
 
@@ -159,18 +175,40 @@ class Edits:
         return self.model
 
 
+@dataclass(frozen=True)
+class Scene:
+    """A model whose logged coordinates are some of its own: a suite's robot in its scene.
+
+    The logged joints must be the model's leading dofs (robosuite puts the arm first); the rest of
+    each segment's initial state (gripper, objects) comes from the full logged state (`coords.init`).
+    """
+
+    coords: Coordinates          # the logged coordinates in the model
+    ctrl: np.ndarray             # (N * substeps, nu) logged command of every physics step
+    substeps: int
+    joints: tuple[int, ...]      # the calibrated joints: effects attach to them, their actuators and bodies
+
+
 class Plant:
     """Nominal model, log-derived scales and the declared parameter slots for one calibration."""
 
-    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording) -> None:
+    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording, scene: Scene | None = None) \
+            -> None:
         self.spec = spec
         self.rec = rec
-        self.model, self.substeps = prepare_model(model, rec.fps, spec.substeps)
+        self.scene = scene
+        if scene is None:
+            self.model, self.substeps = prepare_model(model, rec.fps, spec.substeps)
+        else:  # joints outside the logged ones may be free (objects): they start from the logged state
+            self.model, self.substeps = copy.copy(model), scene.substeps
+            self.model.opt.timestep = 1.0 / (rec.fps * self.substeps)
         self.slots = resolve_params(spec.params, self.model, spec.model.name)
         for slot, value in zip(self.slots, self.declared_nominal()):  # the nominal model, within bounds
             self._write(self.model, slot, value)
         mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
-        self.base_ctrl = hold(rec.ctrl, self.substeps)
+        self.base_ctrl = hold(rec.ctrl, self.substeps) if scene is None else scene.ctrl
+        self.joint_names = [self.model.joint(int(j)).name for j in
+                            (range(self.model.njnt) if scene is None else scene.joints)]
         self.scales = self._scales()
         self._plays: dict[tuple[tuple[int, str], ...], PlayModel] = {}
 
@@ -188,10 +226,12 @@ class Plant:
     @staticmethod
     def _write(model: mujoco.MjModel, slot: Slot, value: float) -> None:
         arr = getattr(model, slot.field)
-        if slot.col is None:
-            arr[slot.row] = value
-        else:
-            arr[slot.row, slot.col] = value
+        for row, nominal in slot.scaled or ((slot.row, 1.0),):
+            v = nominal * value if slot.scaled else value
+            if slot.col is None:
+                arr[row] = v
+            else:
+                arr[row, slot.col] = v
 
     def declared_nominal(self) -> np.ndarray:
         """Declared values of the model as given (clipped into the bounds)."""
@@ -215,6 +255,10 @@ class Plant:
             cand.effect.apply(b, cand.target, np.asarray(x, dtype=float), self.scales)
         gain = b.input_gain if b.input_gain is not None and np.any(b.input_gain) else None
         coords = b.coordinates(self.model.nq, max(1, round(PLAY_WARMUP * self.rec.fps)))
+        if self.scene is not None:
+            if coords is not None:
+                raise ValueError("backlash (a rebuilt model) is not supported in a suite's scene")
+            coords = self.scene.coords
         return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
                        _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None, coords)
 
@@ -269,7 +313,8 @@ class Plant:
         else:
             force[:] = 1.0
         d = mujoco.MjData(m)
-        d.qpos[:] = rec.qpos[train].mean(axis=0)
+        qadr = np.arange(m.nq) if self.scene is None else self.scene.coords.qpos_adr
+        d.qpos[qadr] = rec.qpos[train].mean(axis=0)
         mujoco.mj_forward(m, d)
         mass_matrix = np.zeros((m.nv, m.nv))
         mujoco.mj_fullM(m, mass_matrix, d.qM)
@@ -292,24 +337,26 @@ class Plant:
         """Every place an effect of this kind can attach in the model."""
         m = self.model
         jname = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt)
+        scope = set(range(m.njnt)) if self.scene is None else set(self.scene.joints)
         if kind == "joint":
-            return [Target("joint", jname[j], j, int(m.jnt_dofadr[j]), jname[j]) for j in range(m.njnt)]
+            return [Target("joint", jname[j], j, int(m.jnt_dofadr[j]), jname[j]) for j in range(m.njnt) if j in scope]
         if kind == "actuator":
             out = []
             for a, name in enumerate(_names(m, mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu)):
-                if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and int(m.actuator_trnid[a, 0]) in scope:
                     j = int(m.actuator_trnid[a, 0])
                     out.append(Target("actuator", name, a, int(m.jnt_dofadr[j]), jname[j]))
             return out
-        if kind == "body":  # bodies that move (not welded to the world)
+        if kind == "body":  # bodies that move (not welded to the world); in a scene, those of its joints
             names = _names(m, mujoco.mjtObj.mjOBJ_BODY, m.nbody)
-            return [Target("body", names[b], b) for b in range(1, m.nbody) if m.body_weldid[b] != 0]
+            bodies = range(1, m.nbody) if self.scene is None else sorted({int(m.jnt_bodyid[j]) for j in scope})
+            return [Target("body", names[b], b) for b in bodies if m.body_weldid[b] != 0]
         raise ValueError(kind)
 
     def candidates(self, requests: tuple[EffectRequest, ...] | None) -> tuple[list[Candidate], list[str]]:
         """All (effect, target) pairs to trace, and notes on families that cannot apply here."""
         reqs = requests if requests is not None else tuple(EffectRequest(n) for n in EFFECTS)
-        declared = {(s.field, s.row) for s in self.slots}
+        declared = {(s.field, r) for s in self.slots for r in s.rows}
         out, notes = [], []
         for i, req in enumerate(reqs):
             eff = EFFECTS[req.name]

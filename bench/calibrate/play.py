@@ -111,7 +111,8 @@ def coordinates(model: mujoco.MjModel, plays: list[tuple[Play, float]], nq: int,
         follows.append(p.link_dof)
     sign = np.sign(model.actuator_gear[:, 0] * model.actuator_gainprm[:, 0])
 
-    def init(qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def init(frames: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray) \
+            -> tuple[np.ndarray, np.ndarray]:
         n = len(qpos)
         full_q, full_v = np.zeros((n, model.nq)), np.zeros((n, model.nv))
         full_q[:, :nq], full_v[:, :nq] = qpos, qvel

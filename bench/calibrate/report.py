@@ -98,7 +98,7 @@ def plots(cal: Calibration, out: Path) -> dict[str, str]:
     import matplotlib.pyplot as plt
 
     rec, fps = cal.rec, cal.rec.fps
-    names = [cal.plant.model.joint(i).name for i in range(cal.plant.model.njnt)]
+    names = cal.plant.joint_names
     files = {}
     nq = rec.qpos.shape[1]
 
@@ -218,6 +218,7 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
     if len(doc["effects_rejected"]) > 15:
         lines.append(f"| … | | | {len(doc['effects_rejected']) - 15} more in calibration.json |")
     lines += _learned(doc.get("learned_residual"))
+    lines += _apply(doc.get("suite"), doc.get("apply"))
     if doc["warnings"]:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in doc["warnings"]]
     lines += ["", "## Plots", ""]
@@ -227,6 +228,20 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         if key in files:
             lines += [f"![{caption}]({files[key]})", "", f"*{caption}.*", ""]
     return "\n".join(lines) + "\n"
+
+
+def _apply(suite: dict | None, apply: dict | None) -> list[str]:
+    """A suite calibration's model edits and how to run with them."""
+    if not suite or not apply:
+        return []
+    lines = ["", f"## Applying it: `bench run suite={suite['name']} ... calibration=FILE`", "",
+             f"Suite {suite['name']} version {suite['version']}, robot {apply['robot']} (model fingerprint "
+             f"{apply['model_hash'][:12]}); the cells of that robot run with these values:", "",
+             "| field | element | nominal | calibrated |", "|---|---|---|---|"]
+    lines += [f"| {e['field']} | {e['element']} | {_fmt(e['nominal'])} | {_fmt(e['value'])} |" for e in apply["edits"]]
+    if not apply["edits"]:
+        lines.append("| – | – | – | nothing changes |")
+    return lines
 
 
 def _learned(res: dict | None) -> list[str]:
@@ -241,16 +256,17 @@ def _learned(res: dict | None) -> list[str]:
     for key, label in (("physics", "physics (final)"), ("physics_plus_residual", "physics + learned residual")):
         cells = [_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run")]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", "The effects above and their errors are the physics alone; the residual says how much the "
-              "library leaves unexplained, not which effect it is."]
+    lines += ["", f"The residual {res['verdict']}. The effects above and their errors are the physics alone; the "
+              "residual says how much the library leaves unexplained, not which effect it is."]
     return lines
 
 
-def write_report(cal: Calibration, out: str | Path) -> Path:
-    """Write calibration.json, report.md and the plots into `out`; returns the JSON path."""
+def write_report(cal: Calibration, out: str | Path, extra: dict | None = None) -> Path:
+    """Write calibration.json (with `extra` sections, e.g. a suite calibration's `suite` and `apply`),
+    report.md and the plots into `out`; returns the JSON path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = to_json(cal)
+    doc = {**to_json(cal), **clean(extra or {})}
     files = plots(cal, out)
     path = out / "calibration.json"
     write_atomic(path, doc)

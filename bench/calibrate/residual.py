@@ -101,7 +101,8 @@ def _targets(sim: Simulator, v: Variant, nq: int) -> tuple[np.ndarray, np.ndarra
     d = mujoco.MjData(m)
     force = np.empty_like(accel)
     full = np.zeros((m.nv, m.nv))
-    qpos = rec.qpos[start] if v.coords is None else v.coords.init(rec.qpos[start], rec.qvel[start], rec.ctrl[start])[0]
+    qpos = rec.qpos[start] if v.coords is None else \
+        v.coords.init(start, rec.qpos[start], rec.qvel[start], rec.ctrl[start])[0]
     for i, q in enumerate(qpos):
         d.qpos[:] = q
         mujoco.mj_forward(m, d)
@@ -141,6 +142,13 @@ def learn(sim: Simulator, v: Variant, k: int, seed: int) -> dict[str, Any]:
     without, with_ = _summary(physics), _summary(hybrid)
     cut = {label: (None if not without[f"{label}_nrmse"] or with_[f"{label}_nrmse"] is None
                    else 1.0 - with_[f"{label}_nrmse"] / without[f"{label}_nrmse"]) for label in physics}
+    k_cut = cut["k_step"]
+    verdict = ("cannot be evaluated" if k_cut is None else
+               f"lowers the held-out k-step error by {100 * k_cut:.0f}%: the effect library leaves this much "
+               "unexplained"
+               if k_cut > 0.05 else
+               f"does not help on held-out data (k-step error {100 * -k_cut:+.0f}%): nothing the library misses is "
+               "learnable from these logs")
     return {
         "model": f"ridge regression on {FEATURES} random Fourier features of each input (frequencies drawn from "
                  f"N(0, {FREQUENCY:g}²) per standardised unit; an additive model) of the logged qpos, qvel and the "
@@ -150,5 +158,6 @@ def learn(sim: Simulator, v: Variant, k: int, seed: int) -> dict[str, Any]:
         "samples": int(len(x)), "seed": seed, "lambda": stats["lambda"], "cv_r2": finite(stats["cv_r2"]),
         "train_r2": [finite(v) for v in stats["train_r2"]],
         "heldout": {"physics": without, "physics_plus_residual": with_, "nrmse_cut": cut, "k": k},
+        "verdict": verdict,
         "note": "not part of the physical model: effects_added and errors.final are the physics alone",
     }

@@ -16,7 +16,7 @@ from bench.errors import SpecError, did_you_mean
 from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
 SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads")
-PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init")
+PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init", "scale")
 EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
 
@@ -31,6 +31,7 @@ class ParamSpec:
     bounds: tuple[float, float]
     column: int | None = None
     init: float | None = None
+    scale: bool = False  # one factor on every element's nominal value instead of one value per element
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,8 @@ class CalibrationSpec(SignalMap):
             "params": [
                 {"name": p.name, "field": p.field, "elements": list(p.elements), "bounds": list(p.bounds),
                  **({"column": p.column} if p.column is not None else {}),
-                 **({"init": p.init} if p.init is not None else {})}
+                 **({"init": p.init} if p.init is not None else {}),
+                 **({"scale": True} if p.scale else {})}
                 for p in self.params
             ],
             "effects": "all" if self.effects is None else [
@@ -169,8 +171,12 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         seen.add(name)
         column = number(p["column"], where + ".column", lo=0, integer=True) if "column" in p else None
         init = number(p["init"], where + ".init") if "init" in p else None
+        scale = p.get("scale", False)
+        if not isinstance(scale, bool):
+            raise SpecError(f"spec field {where + '.scale'!r} must be true or false; got {scale!r}")
         params.append(ParamSpec(name=name, field=p["field"], elements=_names(p["elements"], where + ".elements"),
-                                bounds=_bounds(p["bounds"], where + ".bounds"), column=column, init=init))
+                                bounds=_bounds(p["bounds"], where + ".bounds"), column=column, init=init,
+                                scale=scale))
     trace_raw = check_keys(raw.get("trace") or {}, TRACE_KEYS, "trace")
     trace_kw: dict[str, Any] = {}
     for key, value in trace_raw.items():

@@ -271,7 +271,17 @@ def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float
     t0 = time.perf_counter()
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
-    plant = Plant(spec, model, rec)
+    return calibrate(Plant(spec, model, rec), seed=seed, effects=effects, threads=threads, log=log,
+                     residual=residual, t0=t0)
+
+
+def calibrate(plant: Plant, *, seed: int = 0, effects: tuple[EffectRequest, ...] | None | str = "spec",
+              threads: int | None = None, log: Callable[[str], None] = lambda msg: None, residual: bool = False,
+              t0: float | None = None) -> Calibration:
+    """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
+    suite's robot in its scene); arguments as `run`."""
+    t0 = time.perf_counter() if t0 is None else t0
+    spec = plant.spec
     sim = plant.simulator(threads or spec.threads)
     try:
         cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
@@ -299,15 +309,16 @@ def _fmt(v: float | None) -> str:
 def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
                effects: tuple[EffectRequest, ...] | None | str, log: Callable[[str], None], t0: float) -> Calibration:
     """Nominal errors, declared fit, the add / refit / accept rounds, final errors."""
-    rec, model = plant.rec, plant.model
+    rec = plant.rec
     k = max(1, int(round(spec.horizon * rec.fps)))
-    channels = np.arange(model.nq + (model.nv if rec.qvel_logged else 0))  # velocities only when logged
+    nq, nv = rec.qpos.shape[1], rec.qvel.shape[1]  # the logged coordinates
+    channels = np.arange(nq + (nv if rec.qvel_logged else 0))  # velocities only when logged
     train_frames = rec.frames(rec.train)
     scale = np.maximum(np.concatenate([rec.qpos[train_frames], rec.qvel[train_frames]], axis=1).std(axis=0), 1e-9)
     train = horizons(rec, rec.train, k, limit=spec.trace.max_segments, seed=seed)
     hold = horizons(rec, rec.holdout, k)
     loop = _Loop(plant, sim, train, hold, scale, channels, log, seed)
-    names = [model.joint(i).name or f"q{i}" for i in range(model.njnt)]
+    names = [n or f"q{i}" for i, n in enumerate(plant.joint_names)]
 
     layout = Layout(plant, [])
     x_nom = plant.declared_nominal()

@@ -44,8 +44,10 @@ class Segments:
 class Coordinates:
     """Where the logged coordinates sit in a model that has more of them (e.g. a motor behind a play).
 
-    `init(qpos, qvel, ctrl)` maps logged rows (n, nq_log), (n, nv_log) and the command of the
-    first frame (n, nu) to full rows (n, model.nq), (n, model.nv); the simulated output is read
+    `init(frames, qpos, qvel, ctrl)` maps the logged rows of global frames `frames` (n,): positions
+    (n, nq_log), velocities (n, nv_log) and commands (n, nu), to full rows (n, model.nq),
+    (n, model.nv) (from the rows, or from whatever else the caller keeps of those frames, e.g. the
+    full logged MuJoCo state of a suite's scene); the simulated output is read
     back at `qpos_adr` and `dof_adr`. The unlogged coordinates (`hidden`, each moving with the logged
     coordinate `follows`) can be found by simulation instead: with `warmup` > 0 each segment is
     preceded by up to that many frames simulated from `init` at an earlier logged frame; at the
@@ -55,7 +57,7 @@ class Coordinates:
 
     qpos_adr: np.ndarray
     dof_adr: np.ndarray
-    init: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    init: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
     hidden: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # full qpos (= dof) adr
     follows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # logged index
     warmup: int = 0
@@ -148,13 +150,13 @@ def logged(rec: Recording, segs: Segments) -> np.ndarray:
 class Simulator:
     """Runs variants over segments of a recording; owns the rollout thread pool and MjData instances.
 
-    `model` is the prepared model (`prepare_model`) whose coordinates are the logged ones; variants
-    may carry other models of the same structure, or of another one with `Variant.coords`.
+    `model` is the prepared model (`prepare_model`); the output is the recording's (logged)
+    coordinates: the model's own, or where `Variant.coords` puts them in a larger model.
     """
 
     def __init__(self, model: mujoco.MjModel, rec: Recording, substeps: int, threads: int = 1) -> None:
         self.model, self.rec, self.substeps = model, rec, substeps
-        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
+        self.nq, self.nv, self.nu = rec.qpos.shape[1], rec.qvel.shape[1], model.nu  # the logged coordinates
         self.threads = max(1, threads)
         self.pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
         self.base_inputs = None if rec.inputs is None else hold(rec.inputs, substeps)
@@ -190,7 +192,8 @@ class Simulator:
             st[:, qp] = rec.qpos[segs.start]
             st[:, qv] = rec.qvel[segs.start]
             return st
-        st[:, qp], st[:, qv] = v.coords.init(rec.qpos[segs.start], rec.qvel[segs.start], rec.ctrl[segs.start])
+        st[:, qp], st[:, qv] = v.coords.init(segs.start, rec.qpos[segs.start], rec.qvel[segs.start],
+                                             rec.ctrl[segs.start])
         w = v.coords.warmup
         if w <= 0:
             return st
