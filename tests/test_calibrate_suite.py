@@ -94,8 +94,8 @@ BAD_RUNS = [
 
 @pytest.mark.parametrize("make, pattern", BAD_RUNS, ids=["other-robot", "other-suite", "other-model", "missing"])
 def test_run_refuses_a_calibration_that_does_not_fit(calibrated, tmp_path, capsys, make, pattern):
-    code = main(["run", "policy=scripted", "episodes=1", "horizon=5", "workers=1", "run_id=x", f"out={tmp_path / 'runs'}",
-                 *make(calibrated, tmp_path)])
+    code = main(["run", "policy=scripted", "episodes=1", "horizon=5", "workers=1", "run_id=x",
+                 f"out={tmp_path / 'runs'}", *make(calibrated, tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and re.search(pattern, err), err
     assert not (tmp_path / "runs" / "x").exists()
