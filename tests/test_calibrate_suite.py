@@ -116,3 +116,21 @@ def test_suite_calibration_bad_input(logs, tmp_path, capsys, argv, pattern):
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and re.search(pattern, err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_card_counts_episodes_that_start_where_the_evaluation_starts(logs, capsys):
+    """The log was recorded with run seed 0, so its episodes start from the evaluation's first states."""
+    assert main(["logs", "card", str(logs), "suite=held_out_robots", "episodes=3", "seed=0"]) == 0
+    assert re.search(r"c\s+1\.000", capsys.readouterr().out)  # 3 seeds x (nominal, damped): all six overlap
+    assert main(["logs", "card", str(logs), "suite=held_out_robots", "episodes=3", "seed=1"]) == 0
+    assert re.search(r"c\s+0\.000", capsys.readouterr().out)  # another evaluation seed: no overlap
+
+
+def test_rank_puts_the_undamped_episodes_first_under_the_damped_calibration(logs, calibrated):
+    from bench.calibrate.rank import rank
+    from bench.logs import read_dataset
+
+    cond = {ep.index: ep.meta["condition"] for ep in read_dataset(logs).episodes}
+    doc = rank(calibrated, logs)
+    order = [cond[r["episode"]] for r in doc["episodes"]]
+    assert order == ["nominal"] * 3 + [f"damping={DAMPING:g}"] * 3, order

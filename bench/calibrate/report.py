@@ -79,7 +79,7 @@ def to_json(cal: Calibration) -> dict:
         },
         "fit": {"declared": {"ssr": decl.ssr, "n": decl.n, "tau": decl.tau, "evaluations": decl.nfev},
                 "final": {"ssr": final.ssr, "n": final.n, "tau": final.tau, "evaluations": final.nfev,
-                          "parameters": final.labels}},
+                          "parameters": final.labels, "x": final.x}},
         "learned_residual": cal.learned,
         "warnings": cal.warnings,
         "notes": cal.notes,
