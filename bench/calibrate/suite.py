@@ -37,6 +37,7 @@ from bench.replay.spec import SignalSpec
 # effects realised in MjModel fields (a run's env carries them without any change to its step loop)
 EFFECTS = ("coulomb_friction", "payload_mass", "actuator_gain")
 HOLDOUT, HORIZON = 0.3, 0.25  # share of episodes held out; seconds per truncated horizon
+MAX_EFFECTS = 6  # a robot has several joints: room for an effect on each of a few
 
 
 def torque_joints(model: mujoco.MjModel) -> list[int]:
@@ -124,7 +125,7 @@ def suite_plant(suite: str, robot: str, logs: str | Path, seed: int = 0, threads
         params=(ParamSpec("damping_scale", "dof_damping", tuple(names), (0.1, 100.0), scale=True),
                 ParamSpec("armature_scale", "dof_armature", tuple(names), (0.25, 4.0), scale=True)),
         effects=tuple(EffectRequest(e) for e in EFFECTS), holdout=HOLDOUT, horizon=HORIZON,
-        trace=TraceSpec(), threads=threads, source=path)
+        trace=TraceSpec(max_effects=MAX_EFFECTS), threads=threads, source=path)
     info = {"suite": {"name": cls.name, "version": cls.version, "robot": robot, "logs": str(path.resolve()),
                       "condition": condition, "episodes": [int(ep.index) for ep in sl.eps]},
             "nominal": copy.copy(model), "joints": names, "model_hash": model_hash(model, names)}
