@@ -22,7 +22,9 @@ reading the logs and importing happen before the clock starts. Cases:
     own library (without the spring's rest position and the position-play backlash families).
 
 Each line gives wall and CPU seconds of both sides, their ratio, what each added and the held-out
-free-run NRMSE it reached; a summary gives the slowest case and the median ratio.
+free-run NRMSE it reached; a summary gives the slowest case and the median ratio. The targets are
+judged on CPU seconds: each side runs on one core, and on a shared machine the wall clock also
+counts the time that core spent on other processes (wall is printed beside it).
 """
 from __future__ import annotations
 
@@ -141,8 +143,8 @@ def main(argv: list[str]) -> int:
                     if side not in best or r["wall"] < best[side]["wall"]:
                         best[side] = r
             rows.append((label, k, best))
-            verdict = "ok" if best["after"]["wall"] < TARGETS[k] else "MISSED"
-            print(f"{label}  (target < {TARGETS[k]:g} s: {verdict})")
+            verdict = "ok" if best["after"]["cpu"] < TARGETS[k] else "MISSED"
+            print(f"{label}  (target < {TARGETS[k]:g} s on one core: {verdict})")
             for side, r in best.items():
                 print(f"  {side:6s} {fmt(r)}")
             if "before" in best:
@@ -152,13 +154,13 @@ def main(argv: list[str]) -> int:
         mine = [(label, b) for label, kk, b in rows if kk == k]
         if not mine:
             continue
-        worst = max(mine, key=lambda lb: lb[1]["after"]["wall"])
-        line = f"{k}: slowest after {worst[1]['after']['wall']:.2f} s ({worst[0]}; target < {TARGETS[k]:g} s)"
+        worst = max(mine, key=lambda lb: lb[1]["after"]["cpu"])
+        line = f"{k}: slowest after {worst[1]['after']['cpu']:.2f} cpu-s ({worst[0]}; target < {TARGETS[k]:g} s)"
         if "before" in worst[1]:
-            ratios = [b["before"]["wall"] / b["after"]["wall"] for _, b in mine]
-            slowest_before = max(b["before"]["wall"] for _, b in mine)
-            line += (f"; slowest before {slowest_before:.2f} s; median speed-up x{statistics.median(ratios):.2f} "
-                     f"over {len(mine)} case(s)")
+            ratios = [b["before"]["cpu"] / b["after"]["cpu"] for _, b in mine]
+            slowest = max(mine, key=lambda lb: lb[1]["before"]["cpu"])
+            line += (f"; slowest before {slowest[1]['before']['cpu']:.2f} cpu-s ({slowest[0]}); median speed-up "
+                     f"x{statistics.median(ratios):.2f} (cpu) over {len(mine)} case(s)")
         print(line)
     return 0
 
