@@ -99,7 +99,7 @@ def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -
     err = np.where(mask[..., None], pred[..., :nq] - logged(rec, segs)[..., :nq], 0.0)  # (n, length, nq)
     spread = np.maximum(rec.qpos.std(axis=0), 1e-12)
     episode = np.searchsorted(rec.offsets, segs.start, side="right") - 1
-    rows = []
+    rows: list[dict[str, Any]] = []
     for e in range(rec.n_episodes):
         sel = episode == e
         rmse = np.sqrt(np.sum(err[sel] ** 2, axis=(0, 1)) / max(int(mask[sel].sum()), 1))
