@@ -120,7 +120,7 @@ class ActionSpec:
         return len(self.names)
 
 
-@dataclass
+@dataclass(eq=False)  # identity semantics: a handle is hashable (perturb caches nominal values per handle)
 class MujocoHandle:
     """Capability of MuJoCo-backed adapters: the live model and data (perturbations, replay, recording).
 
