@@ -1,8 +1,10 @@
 """Offscreen cameras of a MuJoCo env: `rgb.<camera>` images from the model's named cameras.
 
 One `CameraRig` per env instance, made when the env is built (once per worker) and closed with
-it: it owns an OpenGL context, a MuJoCo render context and one scene, and renders every
-requested camera of the current `MjData` into (H, W, 3) uint8 arrays. Every MuJoCo backend
+it: it owns an OpenGL context, a MuJoCo render context and one scene (made at the first render,
+so an env that never renders costs nothing), and renders every requested camera of the current
+`MjData` into (H, W, 3) uint8 arrays. `hook` (a `bench.perturb_visual.VisualScene`, set per
+episode) edits the scene before each render. Every MuJoCo backend
 (robosuite, Meta-World, Gymnasium MuJoCo, raw MJCF) goes through it, so the images, the
 scene settings and the visual perturbations (`bench.perturb_visual`, applied through
 `render(hook=...)`) are the same everywhere.
@@ -110,6 +112,22 @@ def _gl_context(width: int, height: int) -> Any:
     return ctx
 
 
+_RENDERER_OK: bool = False
+
+
+def check_renderer() -> None:
+    """Raise RendererError (one line, how to enable one) unless an offscreen OpenGL context can start here.
+
+    Makes and frees a tiny context once per process; called before a run that needs images.
+    """
+    global _RENDERER_OK
+    if _RENDERER_OK:
+        return
+    ctx = _gl_context(16, 16)
+    ctx.free()
+    _RENDERER_OK = True
+
+
 class CameraRig:
     """Renders the named cameras of one MuJoCo model into `rgb.<camera>` images.
 
@@ -130,14 +148,10 @@ class CameraRig:
         # The offscreen framebuffer is allocated from these model fields when the render context is made.
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), self.width)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), self.height)
-        self._gl = _gl_context(self.width, self.height)
+        self._gl: Any = None
         self._ctx: Any = None
-        try:
-            self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
-            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
-        except Exception as exc:  # e.g. a backend that "started" without a display: MuJoCo finds no GL
-            self.close()
-            raise _no_renderer(exc) from None
+        self._closed = False
+        self.hook: SceneHook | None = None
         self.scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom + 100))
         self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = SCENE_FLAGS["shadows"]
         self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = SCENE_FLAGS["reflections"]
@@ -148,13 +162,31 @@ class CameraRig:
         self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
         self._rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
 
+    def start(self) -> None:
+        """Make the OpenGL and MuJoCo render contexts now (else at the first render); RendererError if none can start."""
+        import mujoco
+
+        if self._ctx is not None:
+            return
+        if self._closed:
+            raise RuntimeError("CameraRig used after close")
+        self._gl = _gl_context(self.width, self.height)
+        try:
+            self._ctx = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
+        except Exception as exc:  # e.g. a backend that "started" without a display: MuJoCo finds no GL
+            self.close()
+            raise _no_renderer(exc) from None
+
     @property
     def context(self) -> Any:
         """The `mujoco.MjrContext` (textures are uploaded to it after the model's are edited)."""
+        self.start()
         return self._ctx
 
     def make_current(self) -> None:
         """Make this rig's OpenGL context current (before uploading textures or rendering)."""
+        self.start()
         self._gl.make_current()
 
     def spec(self) -> dict[str, Feature]:
@@ -167,11 +199,11 @@ class CameraRig:
                 "scene": dict(SCENE_FLAGS), "gl": _backend()}
 
     def render_one(self, camera: str, hook: SceneHook | None = None) -> np.ndarray:
-        """One camera's image of the current state, as a new (H, W, 3) uint8 array."""
+        """One camera's image of the current state, as a new (H, W, 3) uint8 array (`hook` default: `self.hook`)."""
         import mujoco
 
-        if self._ctx is None:
-            raise RuntimeError("CameraRig.render after close")
+        self.start()
+        hook = hook if hook is not None else self.hook
         self._camera.fixedcamid = self._ids[self.cameras.index(camera)]
         mujoco.mjv_updateScene(self.model, self.data, self._option, None, self._camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
@@ -188,10 +220,11 @@ class CameraRig:
 
     def close(self) -> None:
         """Free the render and OpenGL contexts (idempotent)."""
+        self._closed = True
         if self._ctx is not None:
             self._ctx.free()
             self._ctx = None
-        if getattr(self, "_gl", None) is not None:
+        if self._gl is not None:
             self._gl.free()
             self._gl = None
 

@@ -19,9 +19,11 @@ and re-uploaded before the next episode). Levels follow the physics axes' gramma
     distractors   count: objects (boxes, spheres, cylinders, capsules of random size and colour) placed
                   on the table top away from the manipulated object; visual only (no collisions)
 
-A `VisualScene` holds one episode's perturbation of one rig and is passed to the rig as its
-render hook; `clear()` puts the nominal scene back. `check` validates conditions against a model
-before a run writes anything.
+A `VisualScene` holds one episode's perturbation of one rig and is the rig's render hook;
+`clear()` puts the nominal scene back. `bench.perturb` owns the grammar and the per-episode flow:
+its axis table includes `AXIS_TABLE` (kind "visual"), and its `apply` / `validate` call `clear`,
+`apply` and `validate` here. Visual axes need the env's camera rig (`env.mujoco.cameras`, suites
+built on `bench.camera_env`) and a policy that sees images (`obs=rgb` or `obs=state+rgb`).
 """
 from __future__ import annotations
 
@@ -34,32 +36,31 @@ import numpy as np
 from bench.errors import ConfigError, did_you_mean
 
 
-@dataclass(frozen=True)
-class VisualAxis:
-    """One visual axis: unit, valid levels and optional name targets (same grammar as the physics axes)."""
-
-    name: str
-    unit: str
-    help: str
-    minimum: float = 0.0
-    maximum: float = math.inf
-    integer: bool = False
-    targets: tuple[str, ...] = ()
-
-
 TEXTURES = ("checker", "stripes", "noise", "rings")
-AXES: dict[str, VisualAxis] = {a.name: a for a in (
-    VisualAxis("light", "scale of nominal", "light intensity"),
-    VisualAxis("light_dir", "degrees", "light direction tilt", maximum=90.0),
-    VisualAxis("camera_pos", "metres", "camera position offset", maximum=1.0, targets=("cameras",)),
-    VisualAxis("camera_rot", "degrees", "camera orientation offset", maximum=90.0, targets=("cameras",)),
-    VisualAxis("object_color", "blend 0..1", "object colour", maximum=1.0, targets=("geoms", "bodies")),
-    VisualAxis("table_color", "blend 0..1", "table colour", maximum=1.0, targets=("geoms", "bodies")),
-    VisualAxis("background", "blend 0..1", "floor and wall colour", maximum=1.0, targets=("geoms", "bodies")),
-    VisualAxis("texture", f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})", "unseen table texture",
-               minimum=1.0, maximum=float(len(TEXTURES)), integer=True, targets=("geoms", "bodies")),
-    VisualAxis("distractors", "objects", "distractor objects on the table", maximum=20.0, integer=True),
-)}
+_GEOMS = ("geoms", "bodies")
+# Keyword arguments of `bench.perturb.Axis` (kind "visual"); `nominal` is the level that changes nothing.
+AXIS_TABLE: tuple[dict[str, Any], ...] = (
+    dict(name="light", unit="scale of nominal", short="light intensity",
+         doc="ambient, diffuse and specular intensity of every light, headlight included", nominal=1.0),
+    dict(name="light_dir", unit="degrees", short="light direction tilt", maximum=90.0, nominal=0.0,
+         doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)"),
+    dict(name="camera_pos", unit="metres", short="camera position offset", maximum=1.0, targets=("cameras",),
+         nominal=0.0, doc="every (or the named) camera moved this far in a direction drawn per episode"),
+    dict(name="camera_rot", unit="degrees", short="camera orientation offset", maximum=90.0, targets=("cameras",),
+         nominal=0.0, doc="every (or the named) camera rotated this much about an axis drawn per episode"),
+    dict(name="object_color", unit="blend 0..1", short="object colour", maximum=1.0, targets=_GEOMS, nominal=0.0,
+         doc="the manipulated object's colour blended toward a colour drawn per episode"),
+    dict(name="table_color", unit="blend 0..1", short="table colour", maximum=1.0, targets=_GEOMS, nominal=0.0,
+         doc="the table's colour (geoms/bodies named like 'table') blended toward a colour drawn per episode"),
+    dict(name="background", unit="blend 0..1", short="floor and wall colour", maximum=1.0, targets=_GEOMS,
+         nominal=0.0, doc="floor and walls (world-body geoms other than the table) blended toward a drawn colour"),
+    dict(name="texture", unit=f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})", short="unseen table texture",
+         minimum=1.0, maximum=float(len(TEXTURES)), integer=True, targets=_GEOMS, nominal=0.0,
+         doc="the table's texture replaced by a procedural one in colours drawn per episode"),
+    dict(name="distractors", unit="objects", short="distractor objects on the table", maximum=20.0, integer=True,
+         nominal=0.0, doc="boxes, spheres, cylinders and capsules of random size and colour on the table (visual only)"),
+)
+AXES = tuple(a["name"] for a in AXIS_TABLE)
 
 
 def _names(model: Any, kind: str, count: int) -> list[str]:
@@ -116,7 +117,7 @@ def target_geoms(model: Any, axis: str, object_bodies: Sequence[str], named: dic
 
 
 def _textures_of(model: Any, geoms: Sequence[int], field: str, where: str) -> list[int]:
-    """The 2-D RGB textures the geoms' materials use (ConfigError when the geoms have none)."""
+    """The 2-D or cube RGB textures the geoms' materials use (ConfigError when the geoms have none)."""
     import mujoco
 
     out: set[int] = set()
@@ -126,11 +127,12 @@ def _textures_of(model: Any, geoms: Sequence[int], field: str, where: str) -> li
             continue
         for role in (mujoco.mjtTextureRole.mjTEXROLE_RGB, mujoco.mjtTextureRole.mjTEXROLE_RGBA):
             t = int(model.mat_texid[mat, int(role)])
-            if t >= 0 and int(model.tex_type[t]) == int(mujoco.mjtTexture.mjTEXTURE_2D):
+            kinds = (int(mujoco.mjtTexture.mjTEXTURE_2D), int(mujoco.mjtTexture.mjTEXTURE_CUBE))
+            if t >= 0 and int(model.tex_type[t]) in kinds:  # not the skybox
                 out.add(t)
     if not out:
-        raise ConfigError(f"{field}: the targeted geoms of {where} have no 2-D texture to replace (a material with "
-                          f"a texture); use table_color, or target textured geoms with {field}.geoms=[...]")
+        raise ConfigError(f"{field}: the targeted geoms of {where} have no texture to replace (a material with "
+                          f"a 2-D or cube texture); use table_color, or target textured geoms with {field}.geoms=[...]")
     return sorted(out)
 
 
@@ -373,3 +375,55 @@ class VisualScene:
                     break
                 mujoco.mjv_initGeom(scene.geoms[scene.ngeom], kind, size, pos, mat, rgba)
                 scene.ngeom += 1
+
+
+# -- the per-episode flow, called by bench.perturb -------------------------------------------------
+def _rig(env: Any) -> Any:
+    mj = env.mujoco
+    return None if mj is None else mj.cameras
+
+
+def clear(env: Any) -> None:
+    """Put the env's rendered scene back to nominal (every episode, whatever its condition)."""
+    rig = _rig(env)
+    if rig is not None and isinstance(rig.hook, VisualScene):
+        rig.hook.clear()
+
+
+def apply(env: Any, axis: str, value: float, named: dict[str, list[str]], rng: np.random.Generator) -> dict[str, Any]:
+    """Apply one visual axis at `value` for this episode; returns the params to record."""
+    rig = _rig(env)
+    if rig is None:
+        raise ConfigError(f"perturb.{axis}: env {env.backend} has no cameras to perturb")
+    if not isinstance(rig.hook, VisualScene):
+        rig.hook = VisualScene(rig, tuple(env.mujoco.object_bodies), where=env.backend)
+    return rig.hook.apply(axis, value, named, rng)
+
+
+def suites_with_cameras() -> list[str]:
+    """Registered suites that take the camera keys (`bench.camera_env.CameraOptions`)."""
+    from bench import registry
+    from bench.camera_env import CameraOptions
+
+    out = []
+    for name in registry.names(registry.SUITES):
+        try:
+            if issubclass(registry.suite_class(name).Options, CameraOptions):
+                out.append(name)
+        except Exception:  # a broken plugin is reported by `bench list`, not here
+            continue
+    return out
+
+
+def validate(env: Any, axis: str, named: dict[str, list[str]], where: str) -> None:
+    """ConfigError naming the axis (and the suites that can apply it) unless `env` can apply it this run."""
+    from bench.camera_env import CameraEnv
+
+    rig = _rig(env)
+    if rig is None:
+        raise ConfigError(f"perturb.{axis}: {where} ({env.backend}) has no camera rig, so a visual axis changes "
+                          f"nothing; suites that render cameras: {', '.join(suites_with_cameras()) or 'none'}")
+    if isinstance(env, CameraEnv) and env.mode == "state":
+        raise ConfigError(f"perturb.{axis} changes only what the cameras see, and obs=state gives the policy no "
+                          f"image; use obs=rgb or obs=state+rgb")
+    check(env.mujoco.model, tuple(env.mujoco.object_bodies), axis, named, list(rig.cameras), where)

@@ -107,7 +107,7 @@ def test_no_renderer_is_one_line_naming_mujoco_gl():
     """With a backend that cannot start here (GLFW needs a display), the error says how to enable EGL."""
     code = ("import mujoco\nfrom bench.camera import CameraRig, RendererError\n"
             "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><camera name='c'/></worldbody></mujoco>\")\n"
-            "try:\n    CameraRig(m, mujoco.MjData(m), ['c'], (32, 32))\nexcept RendererError as e:\n    print('ERR', e)\n")
+            "try:\n    CameraRig(m, mujoco.MjData(m), ['c'], (32, 32)).start()\nexcept RendererError as e:\n    print('ERR', e)\n")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["MUJOCO_GL"] = "glfw"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120).stdout
@@ -167,7 +167,7 @@ def test_visual_axes_that_cannot_apply_say_why(scene):
         check(model, ["cube"], "camera_pos", {"cameras": ["top"]}, ["front", "wrist"], "scene")
     with pytest.raises(ConfigError, match="perturb.object_color: scene declares no manipulated object"):
         check(model, [], "object_color", {}, ["front"], "scene")
-    with pytest.raises(ConfigError, match=r"perturb.texture: the targeted geoms of scene have no 2-D texture"):
+    with pytest.raises(ConfigError, match=r"perturb.texture: the targeted geoms of scene have no texture to replace"):
         check(model, ["cube"], "texture", {"geoms": ["cube_g"]}, ["front"], "scene")
     with pytest.raises(ConfigError, match=r"perturb.table_color.geoms: 'tabel' is not a geom of scene.*Did you mean"):
         check(model, ["cube"], "table_color", {"geoms": ["tabel"]}, ["front"], "scene")
