@@ -22,6 +22,7 @@ give bit-identical images.
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -98,17 +99,22 @@ def _no_renderer(reason: BaseException | str) -> RendererError:
 def _gl_context(width: int, height: int) -> Any:
     """An OpenGL context for offscreen rendering, from the backend MUJOCO_GL names (EGL by default)."""
     backend = _backend()
-    try:
-        if backend == "egl":
-            from mujoco.egl import GLContext
-        elif backend == "osmesa":
-            from mujoco.osmesa import GLContext
-        else:
-            from mujoco.glfw import GLContext
-        ctx = GLContext(width, height)
-        ctx.make_current()
-    except Exception as exc:  # ImportError, RuntimeError, OpenGL errors: all mean "no context"
-        raise _no_renderer(exc) from None
+    with warnings.catch_warnings(record=True) as caught:  # GLFW reports "no display" as warnings: one line instead
+        warnings.simplefilter("always")
+        try:
+            if backend == "egl":
+                from mujoco.egl import GLContext
+            elif backend == "osmesa":
+                from mujoco.osmesa import GLContext
+            else:
+                from mujoco.glfw import GLContext
+            ctx = GLContext(width, height)
+            ctx.make_current()
+        except Exception as exc:  # ImportError, RuntimeError, OpenGL errors: all mean "no context"
+            raise _no_renderer(exc) from None
+    if caught and backend == "glfw":
+        ctx.free()
+        raise _no_renderer(str(caught[0].message))
     return ctx
 
 
@@ -123,8 +129,14 @@ def check_renderer() -> None:
     global _RENDERER_OK
     if _RENDERER_OK:
         return
-    ctx = _gl_context(16, 16)
-    ctx.free()
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><camera name='c'/></worldbody></mujoco>")
+    rig = CameraRig(model, mujoco.MjData(model), ["c"], (16, 16))
+    try:
+        rig.start()  # an OpenGL context, and MuJoCo's render context on it (GLFW without a display fails here)
+    finally:
+        rig.close()
     _RENDERER_OK = True
 
 

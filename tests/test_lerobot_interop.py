@@ -216,3 +216,13 @@ def test_lerobot_loads_bench_run_recording(lerobot_python, tmp_path):
                  f"out={tmp_path / 'runs'}", f"record={root}", "perturb.link_mass=[3]"]) == 0
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert doc["total_episodes"] == 2
+
+
+def test_lerobot_loads_bench_run_recording_with_cameras(lerobot_python, tmp_path):
+    """`bench run obs=state+rgb record=`: both cameras become video features lerobot decodes like bench."""
+    root = tmp_path / "rec_cam"
+    assert main(["run", "robots=[Panda]", "episodes=2", "horizon=12", "workers=1", "run_id=rc", "obs=state+rgb",
+                 "image_size=48", f"out={tmp_path / 'runs'}", f"record={root}"]) == 0
+    doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
+    assert {k for k, v in doc["features"].items() if v["dtype"] == "video"} == {
+        "observation.images.agentview", "observation.images.robot0_eye_in_hand"}
