@@ -39,7 +39,7 @@ class EpisodeVideo:
         self.rig = env.mujoco.cameras
         self.keys = [k for k in obs_keys if k.startswith(RGB)]
         fps = float(env.fps) if env.fps and env.fps > 0 else 20.0
-        self.fps = max(1, int(round(fps)))
+        self.fps = max(1, round(fps))
         # crf 23 and one keyframe a second: a file to watch, not a dataset to seek in
         self.writer = BackgroundMp4Writer(path, fps=self.fps, crf=23, gop=self.fps, pad_odd=True, queue_size=32)
         self.frames = 0

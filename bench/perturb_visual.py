@@ -35,7 +35,6 @@ import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
 
-
 TEXTURES = ("checker", "stripes", "noise", "rings")
 _GEOMS = ("geoms", "bodies")
 # Keyword arguments of `bench.perturb.Axis` (kind "visual"); `nominal` is the level that changes nothing.
@@ -408,7 +407,8 @@ def suites_with_cameras() -> list[str]:
     out = []
     for name in registry.names(registry.SUITES):
         try:
-            if issubclass(registry.suite_class(name).Options, CameraOptions):
+            cls: Any = registry.suite_class(name)
+            if issubclass(cls.Options, CameraOptions):
                 out.append(name)
         except Exception:  # a broken plugin is reported by `bench list`, not here
             continue

@@ -42,7 +42,7 @@ def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generato
             by_axis[r.axis][key][r.episode] = r
             levels[r.axis].add(r.condition)
             cell_of[key] = cell
-    rows = []
+    rows: list[dict[str, Any]] = []
     for axis, target in by_axis.items():
         ref_by_key = {key: nominal.get(cell_of[key], {}) for key in target}
         ref, tgt = _paired(ref_by_key, target, metric)
@@ -56,5 +56,5 @@ def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generato
             "perturbed": round(float(tgt.mean()), 6) if n else None, "drop": est,
             "relative_drop": round(drop / base, 6) if drop is not None and base else None,
         })
-    rows.sort(key=lambda row: -(row["drop"].get("value") or 0.0))
+    rows.sort(key=lambda row: -(row["drop"].get("value") or 0.0))  # type: ignore[union-attr]
     return rows

@@ -28,7 +28,7 @@ import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -427,7 +427,8 @@ def info(root: str | os.PathLike) -> dict:
 def _feature_summary(idx: _Index, name: str, feat: dict) -> dict:
     out = {"dtype": feat["dtype"], "shape": list(feat["shape"]), "names": feat.get("names")}
     if feat["dtype"] == "video":
-        vinfo = feat.get("info") if isinstance(feat.get("info"), dict) else {}
+        raw = feat.get("info")
+        vinfo: dict = raw if isinstance(raw, dict) else {}
         cols = idx.video_index[name]
         files = len(set(zip(cols["chunk_index"].tolist(), cols["file_index"].tolist())))
         out["video"] = {"codec": vinfo.get("video.codec"), "pix_fmt": vinfo.get("video.pix_fmt"),
@@ -852,7 +853,7 @@ class _VideoFiles:
         self.tmp, self.key, self.fps, self.codec, self.crf = tmp, key, fps, codec, crf
         self.file_no = 0
         self.frames = 0  # frames in the current file
-        self.writer = None
+        self.writer: Any = None  # the current file's bench.video.Mp4Writer
         self.first: Path | None = None
 
     def add(self, frames: np.ndarray) -> tuple[int, int, float, float]:
