@@ -335,7 +335,8 @@ class _Progress:
     """A rich progress bar on stderr (done/total, successes, errors, elapsed, ETA), or nothing."""
 
     def __init__(self, show: bool, cfg: RunConfig, todo: int, done: int, total: int, run_dir: Path, workers: int):
-        self.show, self.metric = show, str(cfg.metric)
+        self.show = show
+        self.metric = "success_once" if cfg.metric == "return" else str(cfg.metric)
         self.counts = {"succ": 0, "err": 0}
         self.console = self.progress = None
         if not show:
@@ -346,8 +347,8 @@ class _Progress:
 
         self.console = Console(stderr=True)
         if done:
-            self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded")
-        self.console.print(f"run {cfg.run_id}: {todo} episodes on {workers} worker(s) -> {run_dir}")
+            self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
+        self.console.print(f"run {cfg.run_id}: {todo} episodes on {workers} worker(s) -> {run_dir}", soft_wrap=True)
         columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                    TextColumn("successes {task.fields[succ]}"), TextColumn("errors {task.fields[err]}"),
                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn()]
@@ -366,13 +367,13 @@ class _Progress:
     def advance(self, record: EpisodeRecord) -> None:
         if self.progress is None:
             return
-        self.counts["succ"] += int(bool(getattr(record, self.metric, False))) if self.metric != "return" else 0
+        self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
         self.counts["err"] += int(record.error is not None)
         self.progress.update(self.task, advance=1, **self.counts)
 
     def note(self, text: str) -> None:
         if self.console is not None:
-            self.console.print(text)
+            self.console.print(text, soft_wrap=True)
 
 
 def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:

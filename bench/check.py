@@ -242,27 +242,22 @@ class CheckConfig:
     wrap_seeds: int = 0                  # inject a bug: reset with seed % wrap_seeds (shows the check works)
 
 
-HELP = """usage: bench check [suite=NAME] [key=value ...]
-
-Checks that "unseen really is unseen" and that suites honour the plugin contract:
-  - seen/unseen manifests disjoint on every axis, cells consistent with the manifest,
-  - episode seeds distinct; initial-state hashes: no two seeds with the same initial state
-    (seed wrap-around) and no initial state shared by a seen and an unseen cell,
-  - the suite against the Suite protocol, and on one cell its env against EnvAdapter: declared
-    observation spec, spaces, reset/step/success, finite numbers, same seed -> same trajectory.
-Exit 0 when clean, 2 when a problem is found. `bench run` runs the manifest/seed part first.
-A suite's own keys (e.g. env_id= for suite=gym) are accepted when suite= names it; checking
-every suite skips those whose required keys are not given.
-
-keys:
-{keys}
-
-examples:
-  bench check suite=held_out_robots robots=[Panda,UR5e]
-  bench check suite=gym env_id=CartPole-v1
-  bench check manifest=metaworld:ML25
-  bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false
-"""
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench check [suite=NAME] [key=value ...]",
+        "Checks that \"unseen really is unseen\" and that suites honour the plugin contract:\n"
+        "  - seen/unseen manifests disjoint on every axis, cells consistent with the manifest,\n"
+        "  - episode seeds distinct; initial-state hashes: no two seeds with the same initial state\n"
+        "    (seed wrap-around) and no initial state shared by a seen and an unseen cell,\n"
+        "  - the suite against the Suite protocol, and on one cell its env against EnvAdapter: declared\n"
+        "    observation spec, spaces, reset/step/success, finite numbers, same seed -> same trajectory.\n"
+        "Exit 0 when clean, 2 when a problem is found. `bench run` runs the manifest/seed part first.\n"
+        "A suite's own keys (e.g. env_id= for suite=gym) are accepted when suite= names it; checking\n"
+        "every suite skips those whose required keys are not given.",
+        CheckConfig,
+        ["bench check suite=held_out_robots robots=[Panda,UR5e]", "bench check suite=gym env_id=CartPole-v1",
+         "bench check manifest=metaworld:ML25",
+         "bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false"])
 
 
 def _required(options_type: type) -> list[str]:
@@ -274,7 +269,7 @@ def _required(options_type: type) -> list[str]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(HELP.format(keys=config_mod.key_help(CheckConfig)))
+        print(help_text())
         return 0
     from bench import registry
 

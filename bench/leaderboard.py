@@ -168,7 +168,7 @@ def render(board: dict, console=None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from bench.summary import fmt_estimate as _pct
+    from bench.summary import fmt_estimate
 
     console = console or Console(width=None if Console().is_terminal else 140)
     groups: dict[str, list[dict]] = {}
@@ -181,6 +181,10 @@ def render(board: dict, console=None) -> None:
             t.add_column(col, justify="right" if col in ("#", "episodes") else "left")
         for e in entries:
             m = e["metric"]
+
+            def _pct(est, _m=m):  # returns are plain numbers, success rates percentages
+                return fmt_estimate(est, pct=_m != "return", signed=False)
+
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
             gap_s = "n/a" if not gap or gap.get("value") is None else (
                 f"{gap['value']:+.2f} [{gap['ci'][0]:+.2f}, {gap['ci'][1]:+.2f}]" if gap.get("ci") else f"{gap['value']:+.2f}")

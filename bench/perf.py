@@ -180,22 +180,18 @@ def video_overhead(p: Any) -> dict[str, float]:
     return {"plain_steps_per_s": plain_rate, "video_steps_per_s": video_rate, "wall_ratio": plain_rate / video_rate}
 
 
-HELP = """usage: bench perf [suite=held_out_robots] [robot=Panda] [episodes=8] [horizon=0] [workers=2] [scaling_episodes=40]
-
-{doc}
-keys:
-{keys}
-
-examples:
-  bench perf                                   # held_out_robots, first cell (Panda)
-  bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0
-  bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost
-"""
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench perf [suite=held_out_robots] [robot=Panda] [episodes=8] [workers=2] [scaling_episodes=40]",
+        __doc__ or "", PerfConfig,
+        ["bench perf                                   # held_out_robots, first cell (Panda)",
+         "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0",
+         "bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost"])
 
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(HELP.format(doc=__doc__, keys=config_mod.key_help(PerfConfig)))
+        print(help_text())
         return 0
     from bench.errors import ConfigError
 

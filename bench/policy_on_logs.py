@@ -128,14 +128,17 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
             "interval": "bootstrap over episodes" if reason is None else reason, "per_dim": per_dim}
 
 
-HELP = """usage: bench actions logs=DIR [policy=scripted] [checkpoint=PATH] [suite=held_out_robots] [out=FILE]
-
-Policy on logs: feeds each episode's logged observation.state to the policy (open loop) and
-compares its actions with the logged action, per dimension: mean absolute error and RMSE with
-a bootstrap interval over episodes. Episodes name their suite cell in the task string
-(`Lift/Panda/default`, as `bench run record=` writes).
-keys: logs, policy, checkpoint, suite, episodes=[0,3], seed, n_boot, confidence, out
-"""
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench actions logs=DIR [policy=scripted] [suite=held_out_robots] [out=FILE] [policy keys ...]",
+        "Policy on logs: feeds each episode's logged observation.state to the policy (open loop) and\n"
+        "compares its actions with the logged action, per dimension: mean absolute error and RMSE with\n"
+        "a bootstrap interval over episodes. Episodes name their suite cell in the task string\n"
+        "(`Lift/Panda/default`, as `bench run record=` writes). The policy's own keys (e.g.\n"
+        "checkpoint= for policy=checkpoint) are accepted too.",
+        ActionsConfig,
+        ["bench actions logs=demos policy=scripted",
+         "bench actions logs=demos policy=checkpoint checkpoint=bc/policy.safetensors out=actions.json"])
 
 
 def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
@@ -159,7 +162,7 @@ def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(HELP)
+        print(help_text())
         return 0
     cfg, policy_options = parse_args(argv)
     if not cfg.logs:

@@ -18,28 +18,15 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
-from bench.protocols import EnvAdapter, NoOptions, ObsSpec, Policy
+from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
+
+__all__ = ["Cell", "Condition", "Job", "NOMINAL", "SPLITS", "SPLIT_AXES", "METRICS", "SuiteBase", "episode_seed",
+           "condition_rng", "select_cells", "expand_jobs", "summary_line", "cell_to_dict"]
 
 SPLITS = ("seen", "unseen")
 # selection key (`robots=[...]`) -> the Cell attribute it selects on; also the manifest's axes
 SPLIT_AXES: dict[str, str] = {"robots": "robot", "tasks": "task", "envs": "env"}
 METRICS = ("success_once", "success_at_end", "return")
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One (task, robot, env) cell of a suite and the split it belongs to."""
-
-    suite: str
-    task: str
-    robot: str
-    env: str
-    split: str
-    options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
-
-    @property
-    def key(self) -> str:
-        return f"{self.task}/{self.robot}/{self.env}"
 
 
 @dataclass(frozen=True)

@@ -169,11 +169,14 @@ def render(summary: dict[str, Any], console=None) -> None:
         for s, v in summary["splits"].items():
             a.add_row(s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols])
         console.print(a)
-    if summary["gaps"]:
+    gaps = [g for g in summary["gaps"] if (g["metric"] == "return") == by_return]
+    if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
+        console.print("no held-out (unseen) cell was scored in this run: no seen → unseen transfer gap")
+    elif gaps:
         g_t = Table(title=f"transfer gaps (reference − target, {conf}% bootstrap)", title_justify="left")
         for col in ("gap", "metric", "value [CI]"):
             g_t.add_column(col)
-        for g in summary["gaps"]:
+        for g in gaps:
             g_t.add_row(f"{g['reference']} → {g['target']}", g["metric"], fmt_estimate(g, pct=False) if g.get("value") is not None
                         else f"n/a ({g.get('reason')})")
         console.print(g_t)
