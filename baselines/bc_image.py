@@ -244,6 +244,8 @@ def train(args: Args) -> dict[str, Any]:
             sched.step()
             total += float(loss.detach()) * len(idx)
         losses.append(total / max(1, (n // args.batch_size) * args.batch_size))
+        print(f"epoch {_epoch + 1}/{args.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t_start:.0f} s)",
+              file=sys.stderr, flush=True)
     out_path = Path(args.out or f"runs/bc_image/{'+'.join(Path(d).name for d in args.data)}__bc_image__s{args.seed}/"
                                  f"policy.safetensors")
     out_path.parent.mkdir(parents=True, exist_ok=True)
