@@ -400,15 +400,15 @@ def apply(env: Any, axis: str, value: float, named: dict[str, list[str]], rng: n
 
 
 def suites_with_cameras() -> list[str]:
-    """Registered suites that take the camera keys (`bench.camera_env.CameraOptions`)."""
+    """Registered suites that take the camera keys (`obs`, `cameras`, `image_size`: `bench.camera_env.CameraOptions`)."""
     from bench import registry
-    from bench.camera_env import CameraOptions
+    from bench.protocols import option_keys
 
     out = []
     for name in registry.names(registry.SUITES):
         try:
             cls: Any = registry.suite_class(name)
-            if issubclass(cls.Options, CameraOptions):
+            if {"obs", "cameras", "image_size"} <= set(option_keys(cls.Options)):
                 out.append(name)
         except Exception:  # a broken plugin is reported by `bench list`, not here
             continue

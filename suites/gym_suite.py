@@ -24,7 +24,7 @@ Metric:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
 from bench.camera_env import CameraOptions, check_options
 from bench.errors import ConfigError, did_you_mean
@@ -32,11 +32,15 @@ from bench.protocols import ObsSpec
 from bench.suite import Cell, SuiteBase
 
 
-@dataclass(frozen=True, kw_only=True)
-class GymOptions(CameraOptions):
-    """Keys of suite=gym (camera keys: MuJoCo envs with cameras; default camera: the model's first)."""
+@dataclass(frozen=True)
+class GymOptions:
+    """Keys of suite=gym (the camera keys as `bench.camera_env.CameraOptions`, after env_id so that
+    `GymOptions("HalfCheetah-v5")` keeps working; default camera: the model's first)."""
 
     env_id: str  # Gymnasium env id, e.g. HalfCheetah-v5, or module:Env-v0 to import the module that registers it
+    obs: str = CameraOptions.obs  # state | rgb | state+rgb: the state vector, camera images (rgb.<camera>), or both
+    cameras: Optional[list[str]] = None  # cameras rendered as rgb.<camera>; default: the model's first camera
+    image_size: int = CameraOptions.image_size  # image height and width in pixels, in [16, 1024]
 
 
 class GymSuite(SuiteBase):
