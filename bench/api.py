@@ -57,7 +57,8 @@ class RunConfig:
     n_boot: int = 2000                      # bootstrap resamples for aggregate and gap intervals
     confidence: float = 0.95                # two-sided interval level
     perturb: dict[str, Any] = field(default_factory=dict)  # perturbation axes, e.g. perturb.friction=[0.5,1,2]
-    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here
+    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here (camera images as video)
+    video: int = 0                          # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
     calibration: Optional[str] = None       # a `bench calibrate suite=` result: its robot's cells run the calibrated model
     allow_split_violation: bool = False     # run even if `bench check` finds a split problem
     suite_options: dict[str, Any] = field(default_factory=dict)
@@ -160,7 +161,7 @@ def config_from_argv(argv: list[str]) -> RunConfig:
 def _check_runner(cfg: RunConfig) -> None:
     """Ranges of the runner's own keys (one line each, naming the limit)."""
     for key, lo, hi in (("episodes", 1, MAX_EPISODES), ("workers", 0, MAX_WORKERS), ("horizon", 0, MAX_HORIZON),
-                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1)):
+                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1), ("video", 0, MAX_EPISODES)):
         v = getattr(cfg, key)
         if not lo <= v <= hi:
             raise ConfigError(f"{key}={v}: must be in [{lo}, {hi}]")
@@ -217,6 +218,10 @@ def plan(cfg: RunConfig) -> Plan:
         verify(suite, cells, horizon, calibration)
     conditions = perturb.conditions_from_config(cfg.perturb)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    if cfg.video:
+        from bench.episode_video import check_run
+
+        check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
     problems = fast_check(suite, cells, jobs)
     if problems and not cfg.allow_split_violation:
@@ -269,7 +274,8 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     else:
         write_atomic(meta_path, meta)
     ctx = dataclasses.replace(context(p), timeout_s=cfg.timeout,
-                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None)
+                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None,
+                              video_dir=str(p.run_dir) if cfg.video else None, video_episodes=cfg.video)
     return meta, ctx
 
 

@@ -12,7 +12,9 @@ MJCF); other backends apply them through their `model_axes` capability (PhysX). 
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
 drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
-observation noise and a slower control rate (action hold).
+observation noise and a slower control rate (action hold). Visual axes (kind "visual":
+light, camera pose, colours, textures, background, distractors) change only what the
+env's cameras render; they live in `bench.perturb_visual`, which this module calls.
 
 Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
     perturb.friction=[0.25,0.5,2]             level grid: one condition per level
@@ -32,6 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench import perturb_visual
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
 from bench.suite import NOMINAL, Condition
@@ -42,7 +45,7 @@ class Axis:
     """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
 
     name: str
-    kind: str                        # "model" (edits the simulator's model) or "interface" (wraps the env)
+    kind: str                        # "model" (edits the simulator's model), "interface" (wraps the env) or "visual"
     unit: str                        # what a level means
     short: str                       # a few words for `bench run --help`
     doc: str
@@ -53,6 +56,7 @@ class Axis:
     field: str | None = None         # the MjModel field a model axis scales (gravity: model.opt.gravity)
     setconst: bool = False           # derived constants depend on it: mj_setConst after editing
     nominal: float = 1.0             # the level that means "unperturbed"
+    maximum: float = math.inf        # largest valid level
 
 
 AXES: dict[str, Axis] = {a.name: a for a in (
@@ -90,8 +94,10 @@ AXES: dict[str, Axis] = {a.name: a for a in (
          "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
          minimum=1.0, integer=True),
 )}
+AXES.update({a["name"]: Axis(kind="visual", **a) for a in perturb_visual.AXIS_TABLE})  # bench.perturb_visual
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
+VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
 DISTRIBUTIONS = ("uniform", "loguniform")
 _SHORT = {"uniform": "U", "loguniform": "logU"}
 _DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
@@ -114,6 +120,8 @@ def _num(axis: Axis, field: str, value: Any) -> float | int:
         raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}")
     if axis.integer and value != int(value):
         raise ConfigError(f"{field}: {value:g} is not a whole number; {axis.name} is in {axis.unit}")
+    if value > axis.maximum:
+        raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be <= {axis.maximum:g}")
     return int(value) if axis.integer else value
 
 
@@ -296,6 +304,9 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     Raises ConfigError (exit 2) with the field, the bad value and what is valid.
     """
     for cond in conditions:
+        if cond.axis in VISUAL_AXES:
+            perturb_visual.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
+            continue
         if cond.axis not in MODEL_AXES:
             continue
         mj = env.mujoco
@@ -323,7 +334,7 @@ def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizo
     (names differ between robots). Nothing is built when only interface axes are used.
     An env that cannot be built here is left to the workers, which record the error.
     """
-    model_conds = [c for c in conditions if c.axis in MODEL_AXES]
+    model_conds = [c for c in conditions if c.axis in MODEL_AXES or c.axis in VISUAL_AXES]
     if not model_conds or not cells:
         return
     named = any((c.spec or {}).get("targets") for c in model_conds)
@@ -464,7 +475,15 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         nom.restore()
     if env.model_axes is not None:
         env.model_axes.restore()
+    perturb_visual.clear(env)
     axis = _axis(condition.axis) if condition.axis is not None else None
+    if axis is not None and axis.kind == "visual":
+        if nom is not None and nom.const_dirty:
+            _set_const(mj)  # type: ignore[arg-type]
+            nom.const_dirty = False
+            mj.forward()  # type: ignore[union-attr]
+        value = _draw(condition, rng)
+        return env, perturb_visual.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
     if axis is None or axis.kind == "interface":
         if mj is not None and nom is not None and nom.const_dirty:
             _set_const(mj)

@@ -60,6 +60,8 @@ INFO_USAGE = """usage: bench logs info DIR
 
 Print a LeRobot v3.0 dataset's summary from its metadata (no frames are read): episodes,
 frames, episode lengths, fps, robot type, every feature with dtype and shape, the tasks.
+Camera features are dtype `image` (PNG inside the parquet) or `video` (MP4 files; shown with
+codec, pixel format, fps and number of files).
 """
 
 IMPORT_USAGE = """usage: bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]
@@ -224,6 +226,11 @@ def format_info(summary: dict) -> str:
             shown = ", ".join(map(str, names[:8])) + (", ..." if len(names) > 8 else "")
         elif isinstance(names, dict):
             shown = ", ".join(f"{k}: {v}" for k, v in names.items())
+        video = feat.get("video")
+        if video:  # frames in MP4 files beside the parquet data
+            files = video["files"]
+            shown = (f"{video.get('codec') or '?'} {video.get('pix_fmt') or '?'}, {video.get('fps') or '?'} fps, "
+                     f"{files} mp4 file{'s' if files != 1 else ''}")
         lines.append(f"  {name.ljust(width)}  {feat['dtype']:<8} {str(feat['shape']):<14} {shown}".rstrip())
     lines.append(f"tasks     {len(summary['tasks'])}")
     for i, task in enumerate(summary["tasks"][:20]):

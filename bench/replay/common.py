@@ -54,7 +54,7 @@ def _read_logs(cfg: ReplayConfig):
     path = Path(str(cfg.logs)).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")
-    ds = read_dataset(path)
+    ds = read_dataset(path, videos=False)  # replay needs the numeric features only: do not decode camera videos
     if not ds.episodes:
         raise DataError(f"{path}: the dataset holds no episodes")
     if cfg.episodes is None:
