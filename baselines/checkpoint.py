@@ -36,19 +36,20 @@ layout would silently read the wrong numbers.
 
 Bad input — missing file, malformed spec, unknown architecture, weights that do
 not fit the architecture — is a one-line SpecError/ConfigError (exit 2), raised
-by `preflight` before `bench run` starts any worker.
+by the plugin's `preflight` before `bench run` starts any worker.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from bench.errors import ConfigError, SpecError, did_you_mean
+from bench.io import sha256_file, write_bytes_atomic, write_text_atomic
+from bench.protocols import STATE, Obs, PolicyContext, PolicyIdentity, PolicyPlugin
 
 SPEC_SCHEMA = "bench.policy/1"
 METADATA_KEY = "bench.policy_spec"
@@ -163,18 +164,6 @@ def _jsonable(x: Any) -> Any:
     raise TypeError(f"{type(x).__name__} is not JSON serialisable")
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def save_checkpoint(path: str | Path, model, spec: dict[str, Any]) -> Path:
     """Write `model`'s weights to PATH (.safetensors) and the spec beside it (PATH with .json).
 
@@ -187,8 +176,6 @@ def save_checkpoint(path: str | Path, model, spec: dict[str, Any]) -> Path:
         spec: the policy spec (see the module docstring); numpy arrays are fine for
             normalisation; `obs_dim`/`action_dim` are filled in from the names.
     """
-    from safetensors.torch import save_file
-
     from baselines.architectures import build
 
     path = Path(path)
@@ -198,17 +185,10 @@ def save_checkpoint(path: str | Path, model, spec: dict[str, Any]) -> Path:
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     fresh = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
     _load_state(fresh, state, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        save_file(state, tmp, metadata={METADATA_KEY: _canonical(spec)})
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    _write_text_atomic(spec_path(path), json.dumps(spec, indent=2) + "\n")
+    from safetensors.torch import save as to_bytes
+
+    write_bytes_atomic(path, to_bytes(state, metadata={METADATA_KEY: _canonical(spec)}))
+    write_text_atomic(spec_path(path), json.dumps(spec, indent=2) + "\n")
     return path
 
 
@@ -280,7 +260,7 @@ def load_spec(path: str | Path, meta: dict[str, str] | None = None) -> dict[str,
 
 
 class CheckpointPolicy:
-    """A deterministic torch policy: normalise obs -> model -> de-normalise action -> clip."""
+    """A deterministic torch policy: normalise the state -> model -> de-normalise action -> clip."""
 
     def __init__(self, model, spec: dict[str, Any], action_low=None, action_high=None):
         self.model, self.spec = model.eval(), spec
@@ -298,11 +278,11 @@ class CheckpointPolicy:
     def reset(self, seed: int | None = None) -> None:
         """Nothing to reset: the policy is deterministic and stateless."""
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """Action for one flat observation."""
+    def act(self, obs: Obs) -> np.ndarray:
+        """Action for one observation (its flat `state`)."""
         import torch
 
-        x = (np.asarray(obs, np.float32) - self.obs_mean) / self.obs_std
+        x = (np.asarray(obs[STATE], np.float32) - self.obs_mean) / self.obs_std
         with torch.inference_mode():
             y = self.model(torch.from_numpy(x[None, :])).numpy()[0]
         action = y * self.act_std + self.act_mean
@@ -324,14 +304,15 @@ def load_policy(path: str | Path, env=None) -> CheckpointPolicy:
     spec = load_spec(path, meta)
     model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
     _load_state(model, {k: v.float() for k, v in tensors.items()}, f"checkpoint={str(path)!r}")
-    if env is not None:
-        check_names(spec, env, str(path))
-    return CheckpointPolicy(model, spec, getattr(env, "action_low", None), getattr(env, "action_high", None))
+    if env is None:
+        return CheckpointPolicy(model, spec)
+    check_names(spec, env, str(path))
+    return CheckpointPolicy(model, spec, env.action_spec.low, env.action_spec.high)
 
 
 def check_names(spec: dict[str, Any], env, source: str) -> None:
-    """ConfigError unless the env's obs_names/action_names equal the ones the policy was trained on."""
-    env_obs = [[str(n), int(w)] for n, w in env.obs_names]
+    """ConfigError unless the env's state fields and action names equal the ones the policy was trained on."""
+    env_obs = [[str(n), int(w)] for n, w in env.obs_spec[STATE].fields]
     if env_obs != spec["obs_names"]:
         first = next((i for i, (a, b) in enumerate(zip(env_obs, spec["obs_names"])) if a != b),
                      min(len(env_obs), len(spec["obs_names"])))
@@ -339,46 +320,69 @@ def check_names(spec: dict[str, Any], env, source: str) -> None:
         want = spec["obs_names"][first] if first < len(spec["obs_names"]) else "(end)"
         raise ConfigError(f"checkpoint={source!r}: obs_names differ from the env's at field {first}: policy "
                           f"expects {want}, env gives {have}; the policy was trained on another observation layout")
-    if list(env.action_names) != spec["action_names"]:
+    if list(env.action_spec.names) != spec["action_names"]:
         raise ConfigError(f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's "
-                          f"{list(env.action_names)}")
+                          f"{list(env.action_spec.names)}")
 
 
-def make(cell, env, cfg) -> CheckpointPolicy:
-    """Policy factory (entry point `bench.policies: checkpoint`); reads `cfg.checkpoint`."""
-    import torch
+@dataclass(frozen=True)
+class CheckpointOptions:
+    """Keys of policy=checkpoint."""
 
-    torch.set_num_threads(1)  # one core per worker: the runner parallelises across processes
-    path = getattr(cfg, "checkpoint", None)
-    if not path:
-        raise ConfigError("policy=checkpoint needs checkpoint=PATH (a .safetensors file with its .json spec beside it)")
-    return load_policy(path, env)
+    checkpoint: str  # the weights (.safetensors, or a weights-only .pt) with NAME.json, the spec, beside them
 
 
-def preflight(cfg, suite, cells) -> None:
-    """Check the checkpoint in the parent before any worker starts (called by `bench run`'s prepare).
+class CheckpointPlugin(PolicyPlugin):
+    """`policy=checkpoint checkpoint=PATH` (entry point `bench.policies: checkpoint`)."""
 
-    Loads the weights into the spec's architecture and compares the names with the
-    env of the first cell (built once here: a mismatch must stop the run with exit 2,
-    not fill it with error records).
-    """
-    path = getattr(cfg, "checkpoint", None)
-    if not path:
-        raise ConfigError("policy=checkpoint needs checkpoint=PATH (a .safetensors file with its .json spec beside it)")
-    import torch
+    Options = CheckpointOptions
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        policy = load_policy(path)
-        if cells:
-            env = suite.make_env(cells[0], cfg.horizon or suite.default_horizon)
-            try:
-                check_names(policy.spec, env, str(path))
-            finally:
-                env.close()
-    finally:
-        torch.set_num_threads(threads)
+    def identity(self, options: Any) -> PolicyIdentity:
+        path = Path(options.checkpoint)
+        if not path.is_file():
+            raise ConfigError(f"checkpoint={options.checkpoint!r}: no such file")
+        return PolicyIdentity(str(options.checkpoint), sha256_file(path))
+
+    def preflight(self, options: Any, suite: Any, cells: Sequence[Any], horizon: int) -> None:
+        """Load the weights and compare the names with the first cell's env, before any worker starts.
+
+        A mismatch must stop the run with exit 2, not fill it with error records. The names
+        come from the suite's declared observation; the env is built only for the action names.
+        """
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            policy = load_policy(options.checkpoint)
+            if cells:
+                env = suite.make_env(cells[0], horizon)
+                try:
+                    check_names(policy.spec, env, str(options.checkpoint))
+                finally:
+                    env.close()
+        finally:
+            torch.set_num_threads(threads)
+
+    def make(self, cell: Any, env: Any, ctx: PolicyContext) -> CheckpointPolicy:
+        import torch
+
+        torch.set_num_threads(1)  # one core per worker: the runner parallelises across processes
+        return load_policy(ctx.options.checkpoint, env)
 
 
-make.preflight = preflight  # type: ignore[attr-defined]  # optional hook: bench.run.prepare calls it before any worker
+# the behaviour-cloning checkpoint committed with results/coverage (Lift, trained on the seen arms only)
+PACKAGED_BC = Path(__file__).resolve().parent / "checkpoints" / "bc_lift_seen40.safetensors"
+
+
+@dataclass(frozen=True)
+class BCOptions:
+    """Keys of policy=bc."""
+
+    checkpoint: str = str(PACKAGED_BC)  # default: the packaged Lift BC checkpoint (results/coverage/README.md)
+
+
+class PackagedBC(CheckpointPlugin):
+    """`policy=bc`: the behaviour-cloning MLP trained on held_out_robots' seen arms (results/coverage)."""
+
+    Options = BCOptions

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.protocols import Obs
+
 
 class RandomPolicy:
     """The floor every policy should beat; seeded by the episode seed for reproducibility."""
@@ -15,10 +17,10 @@ class RandomPolicy:
     def reset(self, seed: int | None = None) -> None:
         self._rng = np.random.default_rng(seed)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act(self, obs: Obs | None) -> np.ndarray:
         return (self.low + self._span * self._rng.random(self._n)).astype(np.float32)
 
 
-def make(cell, env, cfg) -> RandomPolicy:
+def make(cell, env, ctx) -> RandomPolicy:
     """Policy factory (entry point `bench.policies: random`)."""
-    return RandomPolicy(env.action_low, env.action_high)
+    return RandomPolicy(env.action_spec.low, env.action_spec.high)

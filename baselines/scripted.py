@@ -1,20 +1,18 @@
 """`policy=scripted`: the suite's own scripted expert for the cell's task.
 
-Dispatches by task so one registry name serves every suite: robosuite Lift uses
-`scripted_lift.LiftExpert` (agnostic observation only); other suites provide an
-expert through `env.make_expert()`.
+One registry name serves every suite: a suite that declares the "expert" capability
+builds its expert (`Suite.make_expert`), e.g. the Lift expert of `baselines/scripted_lift.py`
+for the robosuite suites and Meta-World's own policies for the Meta-World suites.
 """
 from __future__ import annotations
 
 from bench.errors import RegistryError
 
 
-def make(cell, env, cfg):
+def make(cell, env, ctx):
     """Policy factory (entry point `bench.policies: scripted`)."""
-    if hasattr(env, "make_expert"):
-        return env.make_expert()
-    if cell.task == "Lift":
-        from baselines.scripted_lift import LiftExpert
-
-        return LiftExpert(env.obs_names, len(env.action_names))
-    raise RegistryError(f"policy 'scripted' has no expert for task {cell.task!r} (suite {cell.suite!r})")
+    suite = ctx.suite
+    if "expert" not in suite.capabilities:
+        raise RegistryError(f"policy 'scripted': suite {suite.name!r} declares no scripted expert "
+                            f"(its reference policy is {suite.reference_policy!r})")
+    return suite.make_expert(cell, env)

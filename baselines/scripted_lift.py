@@ -5,13 +5,14 @@ the grasp position (zero deltas let the hand drift) until the fingers stop ->
 lift. Position action = clip(gain * error, -1, 1); rotation deltas 0; gripper
 +1 closes, -1 opens. If the object falls out of the hand while lifting, it starts
 over. Works unchanged on all 7 robosuite single arms because it uses nothing
-robot-specific (see `bench.sim_robosuite.OBS_NAMES`).
+robot-specific (see `suites/lift.py`, OBS_FIELDS).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from bench.env import obs_slices
+from bench.protocols import STATE, Obs
 
 
 class LiftExpert:
@@ -35,8 +36,8 @@ class LiftExpert:
     def _go(self, phase: str) -> None:
         self.phase, self.steps_in_phase = phase, 0
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        s = self._s
+    def act(self, observation: Obs) -> np.ndarray:
+        s, obs = self._s, observation[STATE]
         eef, obj = obs[s["eef_pos"]].astype(np.float64), obs[s["object_pos"]].astype(np.float64)
         opening = float(obs[s["gripper_opening"]][0])
         grip = -1.0

@@ -25,7 +25,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -267,26 +267,30 @@ def agreement(
 
 # ----------------------------------------------------------------------------- CLI
 
-USAGE = """usage: bench correlate sim=FILE real=FILE [seed=0 n_boot=2000 level=0.95 out=FILE.json]
+@dataclass(frozen=True)
+class CorrelateConfig:
+    """Keys of `bench correlate`."""
 
-Sim-real agreement across policies: Pearson, Spearman, Kendall and MMRV (mean maximum
-rank violation; lower is better) of the per-policy success rates, each with a percentile
-bootstrap interval that resamples the trials of every policy in sim and in real.
+    sim: Optional[str] = None   # outcome table from simulation: JSON rows {policy, trials, successes} or CSV policy,trials,successes
+    real: Optional[str] = None  # outcome table from the real robot, same format and the same policies
+    seed: int = 0               # seed of the bootstrap generator
+    n_boot: int = 2000          # bootstrap replicates
+    level: float = 0.95         # interval coverage
+    out: Optional[str] = None   # also write the report as JSON (undefined values are null with a reason)
 
-keys:
-  sim     outcome table from simulation: JSON rows {policy, trials, successes} or a CSV
-          with the header policy,trials,successes
-  real    outcome table from the real robot, same format and the same policies
-  seed    seed of the bootstrap generator (default 0)
-  n_boot  bootstrap replicates (default 2000)
-  level   interval coverage (default 0.95)
-  out     also write the report as JSON (undefined values are null with a reason)
 
-MMRV weights each rank violation by the REAL gap between the two policies, so sim= and
-real= are not interchangeable.
-"""
+def help_text() -> str:
+    from bench.config import command_help
 
-_KEYS = ("sim", "real", "seed", "n_boot", "level", "out")
+    return command_help(
+        "usage: bench correlate sim=FILE real=FILE [seed=0 n_boot=2000 level=0.95 out=FILE.json]",
+        "Sim-real agreement across policies: Pearson, Spearman, Kendall and MMRV (mean maximum\n"
+        "rank violation; lower is better) of the per-policy success rates, each with a percentile\n"
+        "bootstrap interval that resamples the trials of every policy in sim and in real.",
+        CorrelateConfig,
+        ["bench correlate sim=sim.csv real=real.csv out=agreement.json"],
+        notes="MMRV weights each rank violation by the REAL gap between the two policies, so sim= and\n"
+              "real= are not interchangeable.")
 
 
 def format_report(report: dict) -> str:
@@ -314,34 +318,22 @@ def format_report(report: dict) -> str:
 
 def main(argv: list[str]) -> int:
     """`bench correlate sim=FILE real=FILE [seed=0 n_boot=2000 level=0.95 out=FILE.json]`."""
-    from bench.config import parse_kv
+    from bench.config import build_from_argv
+    from bench.io import write_atomic
 
     if not argv or any(a in ("-h", "--help", "help") for a in argv):
-        print(USAGE)
+        print(help_text())
         return 0
-    positional, kv = parse_kv(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; use sim=FILE real=FILE")
-    for key in kv:
-        if key not in _KEYS:
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(_KEYS)}.{did_you_mean(key, _KEYS)}")
+    cfg: CorrelateConfig = build_from_argv(CorrelateConfig, argv, "bench correlate")
     for key in ("sim", "real"):
-        if not kv.get(key):
+        if not getattr(cfg, key):
             raise ConfigError(f"missing key {key!r}: bench correlate sim=FILE real=FILE")
-    try:
-        seed, n_boot, level = int(kv.get("seed", 0)), int(kv.get("n_boot", 2000)), float(kv.get("level", 0.95))
-    except (TypeError, ValueError):
-        raise ConfigError("seed and n_boot must be integers, level a number") from None
-    sim_path, real_path = str(kv["sim"]), str(kv["real"])
-    report = agreement(load_outcomes(sim_path), load_outcomes(real_path), n_boot=n_boot, seed=seed, level=level,
-                       sim_name=sim_path, real_name=real_path)
+    sim_path, real_path = str(cfg.sim), str(cfg.real)
+    report = agreement(load_outcomes(sim_path), load_outcomes(real_path), n_boot=cfg.n_boot, seed=cfg.seed,
+                       level=cfg.level, sim_name=sim_path, real_name=real_path)
     report = {"sim": sim_path, "real": real_path, **report}
     print(format_report(report))
-    if kv.get("out"):
-        out = Path(str(kv["out"]))
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
-        tmp.replace(out)
-        print(f"wrote {out}", file=sys.stderr)
+    if cfg.out:
+        write_atomic(Path(cfg.out), report)
+        print(f"wrote {cfg.out}", file=sys.stderr)
     return 0

@@ -10,15 +10,17 @@ Hygiene ("unseen really is unseen"):
 The first three run before every `bench run` (fast path, nothing built); a violation stops the run
 with exit 2 unless `allow_split_violation=true`.
 
-Contract (Gymnasium-checker style), on one cell of every registered suite: observation size and
-dtype match `obs_names`, actions have the declared bounds, `info["success"]` is a bool, and the
-same seed and actions give the same trajectory twice.
+Contract (Gymnasium-checker style): the suite against the `Suite` protocol (attributes, options,
+declared capabilities, cells), and on one cell of every suite its env against `EnvAdapter`: the
+observation matches the declared spec (the suite's and the env's), actions have the declared
+bounds, `step` returns (obs, reward, terminated, truncated, info), `success()` is a bool, numbers
+are finite, and the same seed and actions give the same trajectory twice.
 """
 from __future__ import annotations
 
 import time
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields
 from typing import Any, Optional
 
 import numpy as np
@@ -26,7 +28,8 @@ import numpy as np
 from bench import config as config_mod
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.suite import Cell, Job, episode_seed
+from bench.protocols import CAPABILITIES, STATE, EnvAdapter, check_obs, option_keys
+from bench.suite import METRICS, NOMINAL, SPLIT_AXES, SPLITS, Cell, Job, episode_seed, select_cells
 
 
 @dataclass(frozen=True)
@@ -52,15 +55,12 @@ def check_manifest(manifest: dict[str, dict[str, list]], source: str = "manifest
     return problems
 
 
-_AXIS_ATTR = {"robots": "robot", "tasks": "task", "envs": "env", "scenes": "env"}
-
-
 def check_cells(cells: list[Cell], manifest: dict[str, dict[str, list]]) -> list[Problem]:
     """Each cell's split must match what the manifest says about its robot/task/env."""
     problems = []
     for cell in cells:
         for axis, split in manifest.items():
-            attr = _AXIS_ATTR.get(axis)
+            attr = SPLIT_AXES.get(axis)
             if attr is None:
                 continue
             value = getattr(cell, attr)
@@ -123,42 +123,103 @@ def check_init_states(suite, cells: list[Cell], seeds: list[int], horizon: int,
     return problems, hashes
 
 
-def check_contract(suite, cell: Cell, horizon: int, steps: int = 20, seed: int = 123) -> list[Problem]:
-    """Gymnasium-checker-like test of one cell's env: spaces, reset/step, determinism."""
+def check_suite(suite: Any) -> list[Problem]:
+    """The suite against the `Suite` protocol: attributes, options, capabilities, cells and their specs."""
+    import dataclasses
+
+    where = f"suite {getattr(suite, 'name', '?')}"
+    problems: list[Problem] = []
+
+    def bad(msg: str) -> None:
+        problems.append(Problem("contract", f"{where}: {msg}"))
+
+    for attr, kind in (("name", str), ("version", str), ("reference_policy", str), ("default_policy", str),
+                       ("default_horizon", int), ("default_metric", str)):
+        if not isinstance(getattr(suite, attr, None), kind):
+            bad(f"{attr} must be a {kind.__name__}, got {getattr(suite, attr, None)!r}")
+    if not dataclasses.is_dataclass(getattr(suite, "Options", None)):
+        bad("Options must be a dataclass of the suite's keys")
+    if getattr(suite, "default_metric", None) not in METRICS:
+        bad(f"default_metric {getattr(suite, 'default_metric', None)!r} is not one of {', '.join(METRICS)}")
+    unknown = sorted(set(getattr(suite, "capabilities", frozenset())) - set(CAPABILITIES))
+    if unknown:
+        bad(f"capabilities {unknown} are not known; valid: {', '.join(CAPABILITIES)}")
+    max_h = getattr(suite, "max_horizon", None)
+    if max_h is not None and (not isinstance(max_h, int) or max_h < getattr(suite, "default_horizon", 0)):
+        bad(f"max_horizon {max_h!r} must be None or an int >= default_horizon")
+    cells = suite.all_cells()
+    if not cells or not all(isinstance(c, Cell) for c in cells):
+        bad("all_cells() must return a non-empty list of bench.suite.Cell")
+        return problems
+    for c in cells:
+        if c.suite != suite.name or c.split not in SPLITS:
+            bad(f"cell {c.key}: suite {c.suite!r} / split {c.split!r} (expected {suite.name!r} / seen|unseen)")
+            break
+    if len({c.key for c in cells}) != len(cells):
+        bad("two cells share a key (task/robot/env)")
+    for c in cells[:1]:
+        spec = suite.obs_spec(c)
+        if STATE in spec and not spec[STATE].fields:
+            bad(f"obs_spec({c.key})['state'] names no fields")
+    return problems
+
+
+def check_contract(suite: Any, cell: Cell, horizon: int, steps: int = 20, seed: int = 123) -> list[Problem]:
+    """Gymnasium-checker-like test of one cell's env: spec, reset/step, success, finiteness, determinism."""
     problems: list[Problem] = []
     env = suite.make_env(cell, horizon)
     where = f"{suite.name}:{cell.key}"
+
+    def bad(msg: str) -> None:
+        problems.append(Problem("contract", f"{where}: {msg}"))
+
     try:
-        width = sum(w for _, w in env.obs_names)
-        low, high = np.asarray(env.action_low), np.asarray(env.action_high)
-        if low.shape != (len(env.action_names),) or high.shape != low.shape or np.any(low > high):
-            problems.append(Problem("contract", f"{where}: action bounds {low.shape}/{high.shape} do not match "
-                                                f"{len(env.action_names)} action names"))
+        if not isinstance(env, EnvAdapter):
+            missing = [a for a in ("backend", "horizon", "fps", "obs_spec", "action_spec", "mujoco", "inputs",
+                                   "model_axes", "reset", "step", "success", "init_state", "close") if not hasattr(env, a)]
+            bad(f"the env is not an EnvAdapter (missing: {', '.join(missing)})")
+            return problems
+        declared = dict(suite.obs_spec(cell))
+        if dict(env.obs_spec) != declared:
+            bad(f"env.obs_spec {sorted(env.obs_spec)} differs from the suite's declared obs_spec {sorted(declared)}")
+        low, high = np.asarray(env.action_spec.low), np.asarray(env.action_spec.high)
+        if low.shape != (env.action_spec.dim,) or high.shape != low.shape or np.any(low > high):
+            bad(f"action bounds {low.shape}/{high.shape} do not match {env.action_spec.dim} action names")
         rng = np.random.default_rng(seed)
-        actions = rng.uniform(low, high, size=(steps, len(low))).astype(np.float32)
+        finite = np.isfinite(low) & np.isfinite(high)
+        actions = np.where(finite, rng.uniform(np.where(finite, low, -1), np.where(finite, high, 1),
+                                               size=(steps, len(low))), 0.0).astype(np.float32)
         runs = []
         for _ in range(2):
             obs = env.reset(seed)
-            traj = [np.asarray(obs, np.float64).copy()]
-            if np.shape(obs) != (width,) or np.asarray(obs).dtype != np.float32:
-                problems.append(Problem("contract", f"{where}: reset returned shape {np.shape(obs)} dtype "
-                                                    f"{np.asarray(obs).dtype}, expected ({width},) float32"))
+            why = check_obs(env.obs_spec, obs)
+            if why:
+                bad(f"reset: {why}")
                 break
+            traj = [np.asarray(obs[STATE], np.float64).copy()] if STATE in obs else []
             for a in actions:
-                obs, reward, done, info = env.step(a)
-                if not isinstance(info.get("success"), (bool, np.bool_)):
-                    problems.append(Problem("contract", f"{where}: info['success'] is "
-                                                        f"{type(info.get('success')).__name__}, expected bool"))
+                out = env.step(a)
+                if not isinstance(out, tuple) or len(out) != 5:
+                    bad("step must return (obs, reward, terminated, truncated, info)")
                     break
-                if not np.all(np.isfinite(obs)) or not np.isfinite(reward):
-                    problems.append(Problem("contract", f"{where}: non-finite observation or reward"))
+                obs, reward, terminated, truncated, info = out
+                why = check_obs(env.obs_spec, obs)
+                if why:
+                    bad(f"step: {why}")
                     break
-                traj.append(np.asarray(obs, np.float64).copy())
-                if done:
+                if not isinstance(env.success(), (bool, np.bool_)):
+                    bad(f"success() returned {type(env.success()).__name__}, expected bool")
                     break
-            runs.append(np.stack(traj))
+                if not np.isfinite(reward) or (STATE in obs and not np.all(np.isfinite(obs[STATE]))):
+                    bad("non-finite observation or reward")
+                    break
+                if STATE in obs:
+                    traj.append(np.asarray(obs[STATE], np.float64).copy())
+                if terminated or truncated:
+                    break
+            runs.append(np.stack(traj) if traj else np.zeros((0,)))
         if len(runs) == 2 and (runs[0].shape != runs[1].shape or not np.allclose(runs[0], runs[1], atol=1e-9)):
-            problems.append(Problem("contract", f"{where}: same seed and actions gave different trajectories"))
+            bad("same seed and actions gave different trajectories")
     finally:
         env.close()
     return problems
@@ -168,7 +229,7 @@ def check_contract(suite, cell: Cell, horizon: int, steps: int = 20, seed: int =
 class CheckConfig:
     """Keys of `bench check`."""
 
-    suite: Optional[str] = None          # a registered suite; default: every registered suite
+    suite: Optional[str] = None          # a suite (registered or package.module:Class); default: every registered suite
     robots: Optional[list[str]] = None   # only these robots
     tasks: Optional[list[str]] = None    # only these tasks
     envs: Optional[list[str]] = None     # only these envs/scenes
@@ -179,42 +240,48 @@ class CheckConfig:
     contract: bool = True                # run the contract test on one cell per suite
     manifest: Optional[str] = None       # check an external manifest instead, e.g. metaworld:ML25
     wrap_seeds: int = 0                  # inject a bug: reset with seed % wrap_seeds (shows the check works)
-    env_id: Optional[str] = None         # for suite=gym
-    perturb: dict[str, Any] = field(default_factory=dict)  # unused; accepted so run configs can be reused
 
 
-HELP = """usage: bench check [suite=NAME] [key=value ...]
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench check [suite=NAME] [key=value ...]",
+        "Checks that \"unseen really is unseen\" and that suites honour the plugin contract:\n"
+        "  - seen/unseen manifests disjoint on every axis, cells consistent with the manifest,\n"
+        "  - episode seeds distinct; initial-state hashes: no two seeds with the same initial state\n"
+        "    (seed wrap-around) and no initial state shared by a seen and an unseen cell,\n"
+        "  - the suite against the Suite protocol, and on one cell its env against EnvAdapter: declared\n"
+        "    observation spec, spaces, reset/step/success, finite numbers, same seed -> same trajectory.\n"
+        "Exit 0 when clean, 2 when a problem is found. `bench run` runs the manifest/seed part first.\n"
+        "A suite's own keys (e.g. env_id= for suite=gym) are accepted when suite= names it; checking\n"
+        "every suite skips those whose required keys are not given.",
+        CheckConfig,
+        ["bench check suite=held_out_robots robots=[Panda,UR5e]", "bench check suite=gym env_id=CartPole-v1",
+         "bench check manifest=metaworld:ML25",
+         "bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false"])
 
-Checks that "unseen really is unseen" and that suites honour the simulator contract:
-  - seen/unseen manifests disjoint on every axis, cells consistent with the manifest,
-  - episode seeds distinct; initial-state hashes: no two seeds with the same initial state
-    (seed wrap-around) and no initial state shared by a seen and an unseen cell,
-  - contract on one cell per suite: spaces, reset/step, same seed -> same trajectory.
-Exit 0 when clean, 2 when a problem is found. `bench run` runs the manifest/seed part first.
 
-keys:
-  suite=NAME          a registered suite (default: all)
-  robots/tasks/envs/splits=[...]   restrict the cells
-  episodes=5 seed=0   episode seeds per cell for the initial-state check
-  states=false        skip building envs (manifest and seeds only)
-  contract=false      skip the contract test
-  manifest=metaworld:ML25   check Meta-World's own ML10/ML25/ML45 definition
-  wrap_seeds=N        inject a seed wrap-around bug (reset with seed % N) to see it caught
+def _required(options_type: type) -> list[str]:
+    import dataclasses
 
-examples:
-  bench check suite=held_out_robots robots=[Panda,UR5e]
-  bench check manifest=metaworld:ML25
-  bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false
-"""
+    return [f.name for f in dataclasses.fields(options_type)
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
 
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(HELP)
+        print(help_text())
         return 0
     from bench import registry
 
-    cfg: CheckConfig = config_mod.build_from_argv(CheckConfig, argv, "bench check")
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; bench check takes key=value only")
+    own = [f.name for f in fields(CheckConfig)]
+    head = config_mod.build(CheckConfig, [o for o in overrides if config_mod.top_key(o) == "suite"])
+    names = [head.suite] if head.suite else registry.names(registry.SUITES)
+    suite_keys = option_keys(registry.suite_class(head.suite).Options) if head.suite else []
+    parts = config_mod.partition(overrides, {"check": own, f"suite {head.suite}": suite_keys}, "bench check")
+    cfg: CheckConfig = config_mod.build(CheckConfig, parts["check"])
     problems: list[Problem] = []
     t0 = time.perf_counter()
     if cfg.manifest:
@@ -225,17 +292,18 @@ def main(argv: list[str]) -> int:
 
         problems += check_manifest(metaworld_manifest(name), f"Meta-World {name.upper()}")
         return _report(problems, t0)
-    names = [cfg.suite] if cfg.suite else registry.names(registry.SUITES)
     for name in names:
-        suite = registry.make_suite(name)
-        if hasattr(suite, "configure"):
-            if name == "gym" and not cfg.env_id and not cfg.suite:
-                print(f"{name}: skipped (needs env_id=)")
-                continue
-            suite.configure(cfg)
-        cells = suite.cells(cfg)
+        cls = registry.suite_class(name)
+        required = _required(cls.Options)
+        given = parts.get(f"suite {head.suite}", []) if head.suite else []
+        if required and not head.suite:
+            print(f"{name}: skipped (needs {', '.join(f'{k}=' for k in required)})")
+            continue
+        suite = cls(config_mod.build(cls.Options, given))
+        problems += check_suite(suite)
+        cells = select_cells(suite, cfg)
         seeds = [episode_seed(cfg.seed, e) for e in range(cfg.episodes)]
-        jobs = [Job(c, _nominal(), e, s) for c in cells for e, s in enumerate(seeds)]
+        jobs = [Job(c, NOMINAL, e, s) for c in cells for e, s in enumerate(seeds)]
         found = fast_check(suite, cells, jobs)
         print(f"{name}: manifest and {len(cells)} cells: {'ok' if not found else f'{len(found)} problem(s)'}")
         problems += found
@@ -250,12 +318,6 @@ def main(argv: list[str]) -> int:
             print(f"{name}: contract on {cells[0].key}: {'ok' if not found else f'{len(found)} problem(s)'}")
             problems += found
     return _report(problems, t0)
-
-
-def _nominal():
-    from bench.suite import NOMINAL
-
-    return NOMINAL
 
 
 def _report(problems: list[Problem], t0: float) -> int:

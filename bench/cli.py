@@ -20,7 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("bench.run:main", "run a policy across a suite's tasks and conditions; writes records + summary"),
     "list": ("bench.registry:main_list", "list registered suites (with their seen/unseen manifest) and policies"),
     "check": ("bench.check:main", "check a suite's split hygiene and its simulator contract"),
-    "score": ("bench.summary:main_score", "re-score a run directory from its episodes.jsonl"),
+    "score": ("bench.run:main_score", "re-score a run directory from its episodes.jsonl"),
     "leaderboard": ("bench.leaderboard:main", "leaderboard tools: validate FILE | merge RUN... out=FILE | show FILE"),
     "perf": ("bench.perf:main", "measure harness throughput against raw simulator stepping"),
     "logs": ("bench.logs.cli:main", "real-log tools: info DIR | import SRC out=DIR format=csv|mat|rlds"),

@@ -36,6 +36,35 @@ def build_from_argv(cls: type, argv: Iterable[str], command: str):
     return build(cls, overrides)
 
 
+def top_key(override: str) -> str:
+    """`perturb.friction=[1,2]` -> `perturb`: the key a `key=value` override sets (or sets inside)."""
+    return override.split("=", 1)[0].split(".", 1)[0]
+
+
+def partition(overrides: Iterable[str], owners: dict[str, list[str]], context: str) -> dict[str, list[str]]:
+    """Route each `key=value` override to the one owner (runner, suite, policy ...) that declares its key.
+
+    A key no owner declares is a ConfigError listing every owner's keys; a key two owners
+    declare is a plugin conflict (ConfigError naming both).
+    """
+    out: dict[str, list[str]] = {name: [] for name in owners}
+    claimed: dict[str, str] = {}
+    for name, keys in owners.items():
+        for k in keys:
+            if k in claimed:
+                raise ConfigError(f"key {k!r} is declared by both {claimed[k]} and {name}; the plugins conflict")
+            claimed[k] = name
+    for item in overrides:
+        if "=" not in item or not item.split("=", 1)[0]:
+            raise ConfigError(f"argument {item!r} is not key=value ({context})")
+        key = top_key(item)
+        if key not in claimed:
+            listing = "; ".join(f"{name}: {', '.join(keys) or '(none)'}" for name, keys in owners.items())
+            raise ConfigError(f"unknown key {key!r} ({context}); valid keys — {listing}.{did_you_mean(key, claimed)}")
+        out[claimed[key]].append(item)
+    return out
+
+
 def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
     """Positional arguments and a nested dict of the `key=value` overrides (untyped).
 
@@ -66,12 +95,18 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
     from omegaconf import OmegaConf
     from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
 
+    from omegaconf.errors import MissingMandatoryValue
+
     overrides = list(overrides)
     for item in overrides:
         key = item.split("=", 1)[0]
         if "=" not in item or not key:
             raise ConfigError(f"argument {item!r} is not key=value; valid keys: {', '.join(_fields(schema))}")
     keys = [item.split("=", 1)[0] for item in overrides]
+    twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
+    if twice is not None:
+        given = [item for item in overrides if item.split("=", 1)[0] == twice]
+        raise ConfigError(f"key {twice!r} is given twice ({' and '.join(given)}); give it once")
     for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
         child = next((k for k in keys if k.startswith(key + ".")), None)
         if child:
@@ -83,6 +118,9 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
             cfg = OmegaConf.merge(cfg, base)
         cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
         return OmegaConf.to_object(cfg)  # type: ignore[return-value]
+    except MissingMandatoryValue as exc:
+        key = str(getattr(exc, "full_key", None) or getattr(exc, "key", "?"))
+        raise ConfigError(f"{key}: required, and not given ({key}=...)") from None
     except ConfigKeyError as exc:
         key = str(getattr(exc, "full_key", None) or getattr(exc, "key", "?"))
         top = key.split(".")[0]
@@ -105,19 +143,40 @@ def key_help(schema: type) -> str:
     """
     import inspect
 
-    defaults = {}
+    defaults: dict[str, Any] = {}
+    required = set()
     for f in dataclasses.fields(schema):
         if f.default is not dataclasses.MISSING:
             defaults[f.name] = f.default
         elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
             defaults[f.name] = f.default_factory()  # type: ignore[misc]
+        else:
+            required.add(f.name)
     rows = []
     for line in inspect.getsource(schema).splitlines():
         line = line.strip()
         m = re.match(r"^(\w+)\s*:[^#]*#\s*(.*)$", line)
-        if m and m.group(1) in defaults:
+        if m and m.group(1) in required:
+            rows.append((m.group(1) + " (required)", m.group(2)))
+        elif m and m.group(1) in defaults:
             d = defaults[m.group(1)]
             shown = "" if d is None or d == {} else f"={str(d).lower() if isinstance(d, bool) else d}"
             rows.append((m.group(1) + shown, m.group(2)))
     width = max((len(k) for k, _ in rows), default=0) + 2
     return "\n".join(f"  {k:<{width}}{doc}" for k, doc in rows)
+
+
+def command_help(usage: str, about: str, schema: type | None = None, examples: Iterable[str] = (),
+                 notes: str = "") -> str:
+    """The `--help` text of a command: usage, what it does, its keys (from `schema`, see `key_help`),
+    optional notes and examples. Every command builds its help here, so the key list cannot drift
+    from the keys it accepts."""
+    parts = [usage.rstrip(), about.strip("\n")]
+    if schema is not None:
+        parts.append("keys:\n" + key_help(schema))
+    if notes:
+        parts.append(notes.strip("\n"))
+    examples = list(examples)
+    if examples:
+        parts.append("examples:\n" + "\n".join(f"  {e}" for e in examples))
+    return "\n\n".join(parts) + "\n"

@@ -1,7 +1,4 @@
-"""Leaderboard files: JSON Schema validation, merging run summaries, ranking.
-
-Schemas ship inside the package (`bench/schemas/*.json`) and are versioned by the
-file's `"schema"` field, e.g. `bench.summary/1`.
+"""Leaderboard files: merging run summaries, ranking, the table.
 
 A leaderboard (`bench.leaderboard/1`) has one entry per policy x checkpoint (sha256)
 x suite version (x headline metric x cell selection, for runs limited with robots=,
@@ -18,75 +15,11 @@ do not compare. Nothing is written unless every input is valid.
 from __future__ import annotations
 
 import json
-import math
-from functools import lru_cache
-from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError, DataError, did_you_mean
-
-SCHEMAS = {"bench.summary/1": "summary-1.json", "bench.leaderboard/1": "leaderboard-1.json",
-           "bench.regress/1": "regress-1.json"}
-
-
-@lru_cache(maxsize=None)
-def schema(schema_id: str) -> dict:
-    """The JSON Schema for `schema_id` (e.g. "bench.summary/1")."""
-    if schema_id not in SCHEMAS:
-        raise DataError(f"unknown schema {schema_id!r}; known: {', '.join(SCHEMAS)}")
-    return json.loads(files("bench").joinpath("schemas", SCHEMAS[schema_id]).read_text())
-
-
-def _find_nan(obj: Any, path: str = "$") -> str | None:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return path
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            p = _find_nan(v, f"{path}.{k}")
-            if p:
-                return p
-    if isinstance(obj, list):
-        for i, v in enumerate(obj):
-            p = _find_nan(v, f"{path}[{i}]")
-            if p:
-                return p
-    return None
-
-
-def validate(doc: Any, source: str = "document") -> str:
-    """Validate `doc` against the schema its `"schema"` field names; return that id.
-
-    Raises DataError with one line naming the failing field.
-    """
-    import jsonschema
-
-    if not isinstance(doc, dict) or "schema" not in doc:
-        raise DataError(f"{source}: not a bench result (no 'schema' field); known schemas: {', '.join(SCHEMAS)}")
-    sid = doc["schema"]
-    nan_at = _find_nan(doc)
-    if nan_at:
-        raise DataError(f"{source}: field {nan_at} is NaN/inf; results must use null with a reason")
-    validator = jsonschema.Draft202012Validator(schema(sid))
-    errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
-    if errors:
-        e = errors[0]
-        where = "$" + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e.absolute_path)
-        raise DataError(f"{source}: field {where}: {e.message.splitlines()[0][:200]} (schema {sid})")
-    return sid
-
-
-def load_json(path: Path) -> Any:
-    """Parse a JSON file; a missing or corrupt file is a one-line DataError."""
-    path = Path(path)
-    try:
-        return json.loads(path.read_text(), parse_constant=lambda c: float(c))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0]})") from None
-
-
+from bench.schema import load_json, validate
 
 # -- merging ------------------------------------------------------------------------------------
 LEADERBOARD_ID = "bench.leaderboard/1"
@@ -235,7 +168,7 @@ def render(board: dict, console=None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from bench.summary import fmt_estimate as _pct
+    from bench.summary import fmt_estimate
 
     console = console or Console(width=None if Console().is_terminal else 140)
     groups: dict[str, list[dict]] = {}
@@ -248,6 +181,10 @@ def render(board: dict, console=None) -> None:
             t.add_column(col, justify="right" if col in ("#", "episodes") else "left")
         for e in entries:
             m = e["metric"]
+
+            def _pct(est, _m=m):  # returns are plain numbers, success rates percentages
+                return fmt_estimate(est, pct=_m != "return", signed=False)
+
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
             gap_s = "n/a" if not gap or gap.get("value") is None else (
                 f"{gap['value']:+.2f} [{gap['ci'][0]:+.2f}, {gap['ci'][1]:+.2f}]" if gap.get("ci") else f"{gap['value']:+.2f}")
@@ -296,7 +233,7 @@ def main(argv: list[str]) -> int:
         return 0
     if cmd == "merge":
         from bench.config import split_args
-        from bench.summary import write_atomic
+        from bench.io import write_atomic
 
         inputs, overrides = split_args(rest)
         out = None

@@ -1,117 +1,115 @@
-"""`bench perf`: harness throughput against raw robosuite stepping, measured in one run.
+"""`bench perf`: harness throughput against a bare loop over the same env, measured in one run.
 
-Two ratios, both printed with their raw figures:
+Works on any suite (one cell, the random policy, whose actions depend only on the episode seed):
 
-1. harness ÷ raw, one process: the same env (Lift on one arm), the same seeds and the
-   same action sequences (the random policy's, which depend only on the episode seed);
-   raw = `robosuite.make(...)` + soft reset + `env.step` in a bare loop; harness = the
-   runner's serial path (policy, agnostic observation, success check, record written,
-   flushed and fsynced). Both time steady state: each env is built and warmed first.
-2. 2 workers ÷ 1 worker: `bench.runner.execute` on the same jobs, reported in steady
-   state (each worker's steps over its episodes' wall time, summed over workers) and end
-   to end (worker start-up and env builds included: what a short run gets).
+1. harness ÷ bare loop, one process: the same env object, the same seeds and the same action
+   sequences. Bare loop = `env.reset(seed)` + `env.step(action)` in a Python loop (the env
+   adapter and simulator alone); harness = the runner's path per episode (policy, perturbation
+   wrapper, non-finite checks, success, record written, flushed and fsynced). Episodes alternate
+   harness / bare so drifts in machine speed hit both alike; both time steady state (env built
+   and warmed first).
+2. N workers ÷ 1 worker on the same jobs, in steady state (each worker's steps over its episodes'
+   wall time, summed over workers) and end to end (worker start-up and env builds included: what
+   a short run gets).
+
+`benchmarks/bench_robosuite_raw.py` compares against bare robosuite (`robosuite.make` + step).
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Optional
 
 import numpy as np
 
 from bench import config as config_mod
-from bench.errors import ConfigError
 
 
-def _jobs(suite, robot: str, episodes: int, seed: int):
-    from bench.run import RunConfig
-    from bench.suite import NOMINAL
+@dataclass(frozen=True)
+class PerfConfig:
+    """Keys of `bench perf`."""
 
-    cfg = config_mod.build(RunConfig, [f"robots=[{robot}]", f"episodes={episodes}", f"seed={seed}", "policy=random"])
-    return cfg, suite.jobs(cfg, [NOMINAL])
+    suite: str = "held_out_robots"   # suite (registered or package.module:Class)
+    robot: Optional[str] = None      # the cell's robot (default: the suite's first cell)
+    task: Optional[str] = None       # the cell's task
+    env: Optional[str] = None        # the cell's env
+    episodes: int = 8                # episodes for harness ÷ bare loop
+    horizon: int = 0                 # control steps per episode (0 = the suite's default)
+    seed: int = 0                    # run seed
+    workers: int = 2                 # workers for the scaling measurement
+    scaling_episodes: int = 40       # episodes for the scaling measurement (0 = skip it)
 
 
-def _ctx(suite, horizon: int):
-    from bench.provenance import package_versions
-    from bench.rollout import RunContext
+def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None = None) -> Any:
+    """A random-policy plan of one cell; nothing is written."""
+    from bench import api
 
-    return RunContext(run_id="perf", suite_version=suite.version, policy_id="random", checkpoint_sha256=None,
-                      versions=package_versions(), horizon=horizon, timeout_s=0)
+    sel = {k: [v] for k, v in (("robots", cfg.robot), ("tasks", cfg.task), ("envs", cfg.env)) if v}
+    run = api.RunConfig(suite=cfg.suite, policy="random", episodes=episodes, seed=cfg.seed, horizon=cfg.horizon,
+                        out=tempfile.gettempdir(), run_id="perf", suite_options=dict(suite_options or {}), **sel)
+    p = api.plan(run)
+    first = p.cells[0]
+    return dataclasses.replace(p, cells=[first], jobs=[j for j in p.jobs if j.cell == first])
 
 
-def harness_vs_raw(robot: str, episodes: int, horizon: int, seed: int) -> dict:
-    """Steps/s of the harness's serial path and of bare robosuite on identical work."""
-    from baselines.random_policy import RandomPolicy
-    from bench import registry, runner
+def harness_vs_bare(p: Any) -> dict[str, float]:
+    """Steps/s of the harness's per-episode path and of a bare loop over the same env and actions."""
+    from bench import api
     from bench.records import RecordWriter
-    from bench.sim_robosuite import _quiet_robosuite
 
-    suite = registry.make_suite("held_out_robots")
-    cfg, jobs = _jobs(suite, robot, episodes, seed)
-    ctx = _ctx(suite, horizon)
-
-    # both envs built and warmed first; then episodes alternate harness / raw so that drifts in
-    # machine speed (other processes, frequency) hit both sides alike
-    runner._init_worker("held_out_robots", "random", cfg, ctx)
-    runner._run_job(jobs[0])
-    env = runner._W["cache"][jobs[0].cell.key][0]
-    _quiet_robosuite()
-    import robosuite
-
-    raw = robosuite.make("Lift", robots=robot, has_renderer=False, has_offscreen_renderer=False,
-                         use_camera_obs=False, hard_reset=False, ignore_done=True, reward_shaping=True,
-                         horizon=horizon, seed=0)
-    policy = RandomPolicy(env.action_low, env.action_high)
+    worker = api.worker(p)
+    jobs = p.jobs
+    env, policy = worker.built(jobs[0])
     actions = []
     for job in jobs:  # the random policy's actions depend only on the episode seed
         policy.reset(job.seed)
-        actions.append(np.stack([policy.act(None) for _ in range(horizon)]).astype(np.float64))
-    raw.reset()
+        actions.append(np.stack([policy.act(None) for _ in range(p.horizon)]))
+    worker.run(jobs[0])  # warm-up: env built, caches filled
+    env.reset(jobs[0].seed)
     for a in actions[0][:20]:
-        raw.step(a)  # warm-up
-    harness_s = raw_s = 0.0
-    steps = raw_steps = 0
-    with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
-        for job, acts in zip(jobs, actions):
-            t0 = time.perf_counter()
-            rec = runner._run_job(job)
-            writer.write(rec)
-            harness_s += time.perf_counter() - t0
-            steps += rec.length
-            t0 = time.perf_counter()
-            raw.rng = np.random.default_rng(job.seed)
-            raw.placement_initializer.rng = raw.rng
-            raw.reset()
-            for a in acts:
-                raw.step(a)
-            raw_s += time.perf_counter() - t0
-            raw_steps += len(acts)
-    runner._close_cache()
-    raw.close()
-    return {"harness_steps_per_s": steps / harness_s, "raw_steps_per_s": raw_steps / raw_s,
-            "ratio": (steps / harness_s) / (raw_steps / raw_s), "steps": steps}
+        env.step(a)
+    harness_s = bare_s = 0.0
+    steps = bare_steps = 0
+    try:
+        with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
+            for job, acts in zip(jobs, actions):
+                t0 = time.perf_counter()
+                rec = worker.run(job)
+                writer.write(rec)
+                harness_s += time.perf_counter() - t0
+                steps += rec.length
+                t0 = time.perf_counter()
+                env.reset(job.seed)
+                for a in acts[: rec.length or len(acts)]:
+                    env.step(a)
+                bare_s += time.perf_counter() - t0
+                bare_steps += rec.length or len(acts)
+    finally:
+        worker.close()
+    return {"harness_steps_per_s": steps / harness_s, "bare_steps_per_s": bare_steps / bare_s,
+            "ratio": (steps / harness_s) / (bare_steps / bare_s), "steps": steps}
 
 
-def workers_scaling(robot: str, episodes: int, horizon: int, seed: int, workers: int) -> dict:
+def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
     """Env-steps/s with 1 worker and with `workers` workers on the same jobs, two ways.
 
-    end to end: all steps / wall time of `execute`, worker start-up (spawn, imports, env
+    end to end: all steps / wall time of the executor, worker start-up (spawn, imports, env
     builds) included. steady state: for each worker process, its steps / the wall time of its
-    episodes (from the records), summed over the workers that ran at the same time.
+    episodes (from the records), summed over the workers.
     """
-    from bench import registry
-    from bench.runner import execute
+    from bench import api
+    from bench.runner import LocalExecutor
 
-    suite = registry.make_suite("held_out_robots")
-    cfg, jobs = _jobs(suite, robot, episodes, seed)
-    ctx = _ctx(suite, horizon)
+    spec = p.worker_spec(api.context(p))
     out = {}
     for w in (1, workers):
-        records = []
+        records: list = []
         t0 = time.perf_counter()
-        execute(jobs, suite_name="held_out_robots", policy_name="random", cfg=cfg, ctx=ctx, workers=w,
-                on_record=records.append)
+        LocalExecutor(w).execute(p.jobs, spec, records.append)
         wall = time.perf_counter() - t0
         per_pid: dict[int, list[float]] = {}
         for r in records:
@@ -125,30 +123,38 @@ def workers_scaling(robot: str, episodes: int, horizon: int, seed: int, workers:
             "ratio_steady": out[workers]["steady"] / out[1]["steady"]}
 
 
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench perf [suite=held_out_robots] [robot=Panda] [episodes=8] [workers=2] [scaling_episodes=40]",
+        __doc__ or "", PerfConfig,
+        ["bench perf                                   # held_out_robots, first cell (Panda)",
+         "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0"])
+
+
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print("usage: bench perf [robot=Panda] [episodes=8] [horizon=250] [seed=0] [workers=2] [scaling_episodes=40]\n\n"
-              + __doc__)
+        print(help_text())
         return 0
-    from bench.config import parse_kv
+    from bench.errors import ConfigError
 
-    positional, kv = parse_kv(argv)
-    allowed = {"robot", "episodes", "horizon", "seed", "workers", "scaling_episodes"}
-    bad = [k for k in kv if k not in allowed] + positional
-    if bad:
-        raise ConfigError(f"perf: unknown argument {bad[0]!r}; valid keys: {', '.join(sorted(allowed))}")
-    robot = str(kv.get("robot", "Panda"))
-    episodes, horizon = int(kv.get("episodes", 8)), int(kv.get("horizon", 250))
-    seed, workers = int(kv.get("seed", 0)), int(kv.get("workers", 2))
-    scaling_episodes = int(kv.get("scaling_episodes", 40))
-    print(f"machine: {os.cpu_count()} cores; robosuite Lift/{robot}, horizon {horizon}, random policy")
-    a = harness_vs_raw(robot, episodes, horizon, seed)
-    print(f"harness {a['harness_steps_per_s']:.1f} env-steps/s, raw robosuite {a['raw_steps_per_s']:.1f} env-steps/s "
-          f"({a['steps']} steps each): harness / raw = {a['ratio']:.3f}  (target >= 0.97)")
-    b = workers_scaling(robot, scaling_episodes, horizon, seed, workers)
-    print(f"steady state: 1 worker {b['one']['steady']:.1f} env-steps/s, {workers} workers {b['many']['steady']:.1f} "
-          f"env-steps/s: {workers} / 1 = {b['ratio_steady']:.3f}  (target >= 1.8 on 2 cores)")
-    print(f"end to end ({scaling_episodes} episodes, worker start-up and env builds included): 1 worker "
-          f"{b['one']['end_to_end']:.1f}, {workers} workers {b['many']['end_to_end']:.1f} env-steps/s: "
-          f"{workers} / 1 = {b['ratio_end_to_end']:.3f}")
+    cfg: PerfConfig = config_mod.build_from_argv(PerfConfig, argv, "bench perf")
+    for key in ("episodes", "workers"):
+        if not 1 <= getattr(cfg, key) <= 10_000:
+            raise ConfigError(f"{key}={getattr(cfg, key)}: must be in [1, 10000]")
+    if not 0 <= cfg.scaling_episodes <= 10_000:
+        raise ConfigError(f"scaling_episodes={cfg.scaling_episodes}: must be in [0, 10000]")
+    p = make_plan(cfg, cfg.episodes)
+    cell = p.cells[0]
+    print(f"machine: {os.cpu_count()} cores; suite {p.suite.name}, cell {cell.key}, horizon {p.horizon}, random policy")
+    a = harness_vs_bare(p)
+    print(f"harness {a['harness_steps_per_s']:.1f} env-steps/s, bare loop {a['bare_steps_per_s']:.1f} env-steps/s "
+          f"({a['steps']} steps each): harness / bare = {a['ratio']:.3f}")
+    if cfg.scaling_episodes:
+        b = workers_scaling(make_plan(cfg, cfg.scaling_episodes), cfg.workers)
+        w = cfg.workers
+        print(f"steady state: 1 worker {b['one']['steady']:.1f} env-steps/s, {w} workers {b['many']['steady']:.1f} "
+              f"env-steps/s: {w} / 1 = {b['ratio_steady']:.3f}")
+        print(f"end to end ({cfg.scaling_episodes} episodes, worker start-up and env builds included): 1 worker "
+              f"{b['one']['end_to_end']:.1f}, {w} workers {b['many']['end_to_end']:.1f} env-steps/s: "
+              f"{w} / 1 = {b['ratio_end_to_end']:.3f}")
     return 0

@@ -6,8 +6,9 @@ restores the env's nominal values, applies the condition with draws from `rng`
 a wrapper for interface axes) plus the sampled values to record. It is called
 before the env's reset, so the initial state is the one the episode seed gives.
 
-Model axes edit the `mujoco.MjModel` (`env.model`), so one implementation serves
-every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJoCo, raw MJCF). Their
+Model axes edit the `mujoco.MjModel` of the env's `mujoco` capability, so one
+implementation serves every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJoCo, raw
+MJCF); other backends apply them through their `model_axes` capability (PhysX). Their
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
 drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
@@ -32,70 +33,67 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
+from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
 from bench.suite import NOMINAL, Condition
 
 
 @dataclass(frozen=True)
 class Axis:
-    """One perturbation axis: what it changes, its unit and the levels it accepts."""
+    """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
 
     name: str
-    kind: str                        # "model" (edits the MjModel) or "interface" (wraps the env)
+    kind: str                        # "model" (edits the simulator's model) or "interface" (wraps the env)
     unit: str                        # what a level means
+    short: str                       # a few words for `bench run --help`
     doc: str
     minimum: float = 0.0             # smallest valid level
     strict: bool = False             # level must be > minimum (not >=)
     integer: bool = False            # levels are whole numbers
     targets: tuple[str, ...] = ()    # optional name lists: "bodies", "joints", "geoms", "actuators"
+    field: str | None = None         # the MjModel field a model axis scales (gravity: model.opt.gravity)
+    setconst: bool = False           # derived constants depend on it: mj_setConst after editing
+    nominal: float = 1.0             # the level that means "unperturbed"
 
 
 AXES: dict[str, Axis] = {a.name: a for a in (
-    Axis("friction", "model", "scale of nominal",
+    Axis("friction", "model", "scale of nominal", "friction of every geom",
          "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
          "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
-         targets=("geoms", "bodies")),
-    Axis("mass", "model", "scale of nominal",
-         "mass and inertia of the manipulated object's bodies (env.object_bodies) or of the named bodies",
-         strict=True, targets=("bodies",)),
-    Axis("link_mass", "model", "scale of nominal",
-         "mass and inertia of the robot's moving bodies (every moving body not in env.object_bodies) "
-         "or of the named bodies", strict=True, targets=("bodies",)),
-    Axis("damping", "model", "scale of nominal", "joint damping of the robot's joints or of the named joints",
-         targets=("joints",)),
-    Axis("armature", "model", "scale of nominal", "joint armature (rotor inertia) of the robot's joints or the named ones",
-         targets=("joints",)),
-    Axis("frictionloss", "model", "scale of nominal", "joint dry friction (frictionloss) of the robot's joints or the named ones",
-         targets=("joints",)),
-    Axis("gain", "model", "scale of nominal",
+         targets=("geoms", "bodies"), field="geom_friction"),
+    Axis("mass", "model", "scale of nominal", "mass + inertia of the manipulated object",
+         "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
+         strict=True, targets=("bodies",), field="body_mass", setconst=True),
+    Axis("link_mass", "model", "scale of nominal", "mass + inertia of the robot's links",
+         "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
+         "or of the named bodies", strict=True, targets=("bodies",), field="body_mass", setconst=True),
+    Axis("damping", "model", "scale of nominal", "joint damping",
+         "joint damping of the robot's joints or of the named joints", targets=("joints",), field="dof_damping"),
+    Axis("armature", "model", "scale of nominal", "joint armature",
+         "joint armature (rotor inertia) of the robot's joints or the named ones", targets=("joints",),
+         field="dof_armature", setconst=True),
+    Axis("frictionloss", "model", "scale of nominal", "joint dry friction",
+         "joint dry friction (frictionloss) of the robot's joints or the named ones", targets=("joints",),
+         field="dof_frictionloss"),
+    Axis("gain", "model", "scale of nominal", "actuator gain (servo stiffness)",
          "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
          "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
-         targets=("actuators",)),
-    Axis("gravity", "model", "scale of nominal", "the gravity vector (1 = nominal, 0 = weightless)"),
-    Axis("latency", "interface", "control steps",
+         targets=("actuators",), field="actuator_gainprm"),
+    Axis("gravity", "model", "scale of nominal", "gravity vector", "the gravity vector (1 = nominal, 0 = weightless)"),
+    Axis("latency", "interface", "control steps", "action delay",
          "the env executes the action commanded this many control steps ago (neutral action at the start)",
-         integer=True),
-    Axis("action_noise", "interface", "std as a fraction of the action half-range",
-         "Gaussian noise added to every executed action, then clipped to the bounds"),
-    Axis("obs_noise", "interface", "std in observation units",
-         "Gaussian noise added to every observation the policy sees"),
-    Axis("action_hold", "interface", "control steps",
+         integer=True, nominal=0.0),
+    Axis("action_noise", "interface", "std as a fraction of the action half-range", "Gaussian action noise",
+         "Gaussian noise added to every executed action, then clipped to the bounds", nominal=0.0),
+    Axis("obs_noise", "interface", "std in observation units", "Gaussian observation noise",
+         "Gaussian noise added to every state observation the policy sees", nominal=0.0),
+    Axis("action_hold", "interface", "control steps", "command held k steps (control rate / k)",
          "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
          minimum=1.0, integer=True),
 )}
-_HELP = {
-    "friction": "friction of every geom", "mass": "mass + inertia of the manipulated object",
-    "link_mass": "mass + inertia of the robot's links", "damping": "joint damping", "armature": "joint armature",
-    "frictionloss": "joint dry friction", "gain": "actuator gain (servo stiffness)", "gravity": "gravity vector",
-    "latency": "action delay", "action_noise": "Gaussian action noise", "obs_noise": "Gaussian observation noise",
-    "action_hold": "command held k steps (control rate / k)",
-}
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 DISTRIBUTIONS = ("uniform", "loguniform")
 _SHORT = {"uniform": "U", "loguniform": "logU"}
-_CONST_AXES = ("mass", "link_mass", "armature")  # derived constants: need mj_setConst
-_FIELD = {"friction": "geom_friction", "mass": "body_mass", "link_mass": "body_mass", "damping": "dof_damping",
-          "armature": "dof_armature", "frictionloss": "dof_frictionloss", "gain": "actuator_gainprm"}
 _DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
 
 
@@ -223,14 +221,14 @@ def _moving_bodies(model) -> list[int]:
     return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
 
 
-def _object_body_ids(env, model) -> list[int]:
-    names = list(getattr(env, "object_bodies", None) or [])
+def _object_body_ids(mj: MujocoHandle, model) -> list[int]:
+    names = list(mj.object_bodies)
     all_names = _names(model, "body", model.nbody)
     return [all_names.index(n) for n in names if n in all_names]
 
 
-def _robot_body_ids(env, model) -> list[int]:
-    objects = set(_object_body_ids(env, model))
+def _robot_body_ids(mj: MujocoHandle, model) -> list[int]:
+    objects = set(_object_body_ids(mj, model))
     return [b for b in _moving_bodies(model) if b not in objects and model.body_mass[b] > 0]
 
 
@@ -246,12 +244,12 @@ def _resolve(names: Sequence[str], valid: list[str], what: str, field: str, wher
     return out
 
 
-def targets(env, condition: Condition, where: str = "the env") -> np.ndarray:
-    """Indices (geoms, bodies, dofs or actuators) a model-axis condition edits in `env.model`.
+def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> np.ndarray:
+    """Indices (geoms, bodies, dofs or actuators) a model-axis condition edits in the MuJoCo model.
 
     Raises ConfigError when a named target does not exist or the default target set is empty.
     """
-    model, axis = env.model, condition.axis
+    model, axis = mj.model, condition.axis
     named = (condition.spec or {}).get("targets") or {}
     field = f"perturb.{axis}"
     if axis == "friction":
@@ -268,18 +266,18 @@ def targets(env, condition: Condition, where: str = "the env") -> np.ndarray:
         if "bodies" in named:
             ids = _resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where)
         elif axis == "mass":
-            ids = _object_body_ids(env, model)
+            ids = _object_body_ids(mj, model)
             if not ids:
-                raise ConfigError(f"{field}: {where} declares no manipulated object (env.object_bodies); "
+                raise ConfigError(f"{field}: {where} declares no manipulated object (object bodies); "
                                   f"name the bodies with {field}.bodies=[...]")
         else:
-            ids = _robot_body_ids(env, model)
+            ids = _robot_body_ids(mj, model)
         return np.array(ids, dtype=int)
     if axis in ("damping", "armature", "frictionloss"):
         if "joints" in named:
             jids = _resolve(named["joints"], _names(model, "joint", model.njnt), "joint", f"{field}.joints", where)
         else:
-            robot = set(_robot_body_ids(env, model))
+            robot = set(_robot_body_ids(mj, model))
             jids = [j for j in range(model.njnt) if model.jnt_bodyid[j] in robot]
         dofs = [d for d in range(model.nv) if model.dof_jntid[d] in set(jids)]
         return np.array(dofs, dtype=int)
@@ -291,21 +289,26 @@ def targets(env, condition: Condition, where: str = "the env") -> np.ndarray:
     return np.arange(0)
 
 
-def validate(env, conditions: Sequence[Condition], where: str = "the env") -> None:
-    """Check `conditions` against a built env: a MuJoCo model for model axes, names that exist,
-    and targets whose nominal value is not zero (a scale of zero changes nothing).
+def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the env") -> None:
+    """Check `conditions` against a built env: a model for model axes, names that exist, and
+    targets whose nominal value is not zero (a scale of zero changes nothing).
 
     Raises ConfigError (exit 2) with the field, the bad value and what is valid.
     """
     for cond in conditions:
         if cond.axis not in MODEL_AXES:
             continue
-        if getattr(env, "model", None) is None:
-            raise ConfigError(f"perturb.{cond.axis}: {where} ({getattr(env, 'backend', '?')}) has no MuJoCo model; "
-                              f"only interface axes work there: {', '.join(INTERFACE_AXES)}")
-        idx = targets(env, cond, where)
-        nominal = nominal_of(env)
-        values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, _FIELD[cond.axis])[idx]
+        mj = env.mujoco
+        if mj is None:
+            other = env.model_axes
+            if other is not None and cond.axis in other.axes:
+                continue
+            can = sorted(other.axes) if other is not None else []
+            raise ConfigError(f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
+                              f"{', '.join(can) or 'none'}; interface axes work everywhere: {', '.join(INTERFACE_AXES)}")
+        idx = targets(mj, cond, where)
+        nominal = nominal_of(mj)
+        values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, str(AXES[cond.axis].field))[idx]
         if cond.axis == "gain":
             values = values[:, 0]
         if values.size == 0 or not np.any(values != 0):
@@ -330,7 +333,7 @@ def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizo
         except Exception:
             continue
         try:
-            validate(env, model_conds, where=getattr(cell, "key", str(cell)))
+            validate(env, model_conds, where=cell.key)
         finally:
             try:
                 env.close()
@@ -359,50 +362,31 @@ class _Nominal:
         m.opt.gravity[:] = self.gravity
 
 
-_CACHE: "weakref.WeakKeyDictionary[Any, _Nominal]" = weakref.WeakKeyDictionary()
-_CACHE_BY_ID: dict[int, _Nominal] = {}  # envs that cannot be weakly referenced
+_CACHE: "weakref.WeakKeyDictionary[MujocoHandle, _Nominal]" = weakref.WeakKeyDictionary()
 
 
-def nominal_of(env) -> _Nominal:
-    """The env's nominal model values, cached the first time they are asked for (and again if the
-    env's model object was replaced, e.g. by a hard reset that rebuilt it from XML)."""
-    try:
-        entry = _CACHE.get(env)
-    except TypeError:
-        entry = _CACHE_BY_ID.get(id(env))
-    if entry is None or entry.model is not env.model:
-        entry = _Nominal(env.model)
-        try:
-            _CACHE[env] = entry
-        except TypeError:
-            _CACHE_BY_ID[id(env)] = entry
+def nominal_of(mj: MujocoHandle) -> _Nominal:
+    """The model's nominal values, cached the first time they are asked for (and again if the
+    handle's model object was replaced, e.g. by a hard reset that rebuilt it from XML)."""
+    entry = _CACHE.get(mj)
+    if entry is None or entry.model is not mj.model:
+        entry = _CACHE[mj] = _Nominal(mj.model)
     return entry
 
 
-def _set_const(env) -> None:
+def _set_const(mj: MujocoHandle) -> None:
     """Recompute derived constants (body/dof inverse weights, subtree masses, ...) after mass or
     armature edits, keeping the current state (mj_setConst overwrites it with qpos0)."""
     import mujoco
 
-    m, d = env.model, env.data
-    if d is None:
-        return
+    m, d = mj.model, mj.data
     qpos, qvel, act = d.qpos.copy(), d.qvel.copy(), d.act.copy()
     mujoco.mj_setConst(m, d)
     d.qpos[:], d.qvel[:], d.act[:] = qpos, qvel, act
 
 
-def _forward(env) -> None:
-    if hasattr(env, "sim_forward"):
-        env.sim_forward()
-    elif getattr(env, "data", None) is not None:
-        import mujoco
-
-        mujoco.mj_forward(env.model, env.data)
-
-
-def _scale_model(env, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
-    m = env.model
+def _scale_model(mj: MujocoHandle, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
+    m = mj.model
     if axis == "friction":
         m.geom_friction[idx] = nom.geom_friction[idx] * s
         if m.npair and len(idx) == m.ngeom:  # explicit contact pairs override geom friction
@@ -439,7 +423,7 @@ def _draw(condition: Condition, rng: np.random.Generator) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def apply(env, condition: Condition, rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
+def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
     """Apply `condition` to `env` for one episode; call before the env's reset.
 
     Restores the nominal model first (the env may have run another condition), draws
@@ -447,36 +431,37 @@ def apply(env, condition: Condition, rng: np.random.Generator) -> tuple[Any, dic
     the env itself for model axes and nominal, an `Interface` wrapper for interface
     axes; `params` = {axis: value applied} for the episode record.
     """
-    has_model = getattr(env, "model", None) is not None
-    nom = nominal_of(env) if has_model else None
+    mj = env.mujoco
+    nom = nominal_of(mj) if mj is not None else None
     if nom is not None:
         nom.restore()
-    if condition.axis is None:
-        if nom is not None and nom.const_dirty:
-            _set_const(env)
+    if env.model_axes is not None:
+        env.model_axes.restore()
+    axis = _axis(condition.axis) if condition.axis is not None else None
+    if axis is None or axis.kind == "interface":
+        if mj is not None and nom is not None and nom.const_dirty:
+            _set_const(mj)
             nom.const_dirty = False
-            _forward(env)
-        return env, {}
-    axis = _axis(condition.axis)
-    value = _draw(condition, rng)
-    params = {axis.name: value}
-    if axis.kind == "interface":
-        if nom is not None and nom.const_dirty:
-            _set_const(env)
-            nom.const_dirty = False
-            _forward(env)
+            mj.forward()
+        if axis is None:
+            return env, {}
+        value = _draw(condition, rng)
         kw = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
         kw[axis.name] = value
-        return Interface(env, rng, **kw), params
-    if not has_model:
-        raise ConfigError(f"perturb.{axis.name}: env {getattr(env, 'backend', '?')} has no MuJoCo model")
-    idx = targets(env, condition)
-    _scale_model(env, nom, axis.name, idx, float(value))
-    if axis.name in _CONST_AXES or nom.const_dirty:
-        _set_const(env)
-    nom.const_dirty = axis.name in _CONST_AXES
-    _forward(env)
-    return env, params
+        return Interface(env, rng, **kw), {axis.name: value}
+    value = _draw(condition, rng)
+    if mj is None or nom is None:
+        if env.model_axes is None or axis.name not in env.model_axes.axes:
+            raise ConfigError(f"perturb.{axis.name}: env {env.backend} cannot apply this model axis")
+        env.model_axes.apply(axis.name, float(value), (condition.spec or {}).get("targets") or {})
+        return env, {axis.name: value}
+    idx = targets(mj, condition)
+    _scale_model(mj, nom, axis.name, idx, float(value))
+    if axis.setconst or nom.const_dirty:
+        _set_const(mj)
+    nom.const_dirty = axis.setconst
+    mj.forward()
+    return env, {axis.name: value}
 
 
 # -- interface axes --------------------------------------------------------------------------
@@ -486,17 +471,17 @@ class Interface:
     Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
     delayed by `latency` steps (the queue starts with the neutral action: zeros clipped to
     the bounds), perturbed by Gaussian noise with std `action_noise` x half-range and
-    clipped to the bounds; observations get Gaussian noise with std `obs_noise`. All draws
-    come from the episode's generator.
+    clipped to the bounds; the state observation gets Gaussian noise with std `obs_noise`.
+    All draws come from the episode's generator.
     """
 
-    def __init__(self, env, rng: np.random.Generator, latency: int = 0, action_noise: float = 0.0,
+    def __init__(self, env: EnvAdapter, rng: np.random.Generator, latency: int = 0, action_noise: float = 0.0,
                  obs_noise: float = 0.0, action_hold: int = 1):
         self.env, self.rng = env, rng
         self.latency, self.action_noise = int(latency), float(action_noise)
         self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))
-        self.low = np.asarray(env.action_low, dtype=np.float64)
-        self.high = np.asarray(env.action_high, dtype=np.float64)
+        self.low = np.asarray(env.action_spec.low, dtype=np.float64)
+        self.high = np.asarray(env.action_spec.high, dtype=np.float64)
         half = (self.high - self.low) / 2.0
         self._half = np.where(np.isfinite(half), half, 1.0)
         self.neutral = np.clip(np.zeros_like(self.low), self.low, self.high)
@@ -507,17 +492,18 @@ class Interface:
         self._held = self.neutral.copy()
         self._t = 0
 
-    def _obs(self, obs: np.ndarray) -> np.ndarray:
-        if self.obs_noise <= 0:
+    def _obs(self, obs: Obs) -> Obs:
+        if self.obs_noise <= 0 or STATE not in obs:
             return obs
-        noisy = obs + self.rng.normal(0.0, self.obs_noise, size=np.shape(obs))
-        return noisy.astype(np.asarray(obs).dtype, copy=False)
+        state = obs[STATE]
+        noisy = state + self.rng.normal(0.0, self.obs_noise, size=np.shape(state))
+        return {**obs, STATE: noisy.astype(np.asarray(state).dtype, copy=False)}
 
-    def reset(self, seed: int) -> np.ndarray:
+    def reset(self, seed: int) -> Obs:
         self._reset_state()
         return self._obs(self.env.reset(seed))
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
         if self._t % self.action_hold == 0:
             self._held = np.asarray(action, dtype=np.float64).copy()
         self._t += 1
@@ -526,14 +512,8 @@ class Interface:
         if self.action_noise > 0:
             executed = executed + self.rng.normal(0.0, 1.0, size=executed.shape) * self.action_noise * self._half
             executed = np.clip(executed, self.low, self.high)
-        obs, reward, done, info = self.env.step(executed.astype(np.float32))
-        return self._obs(obs), reward, done, info
-
-    def init_state(self) -> np.ndarray:
-        return self.env.init_state()
-
-    def close(self) -> None:
-        self.env.close()
+        obs, reward, terminated, truncated, info = self.env.step(executed.astype(np.float32))
+        return self._obs(obs), reward, terminated, truncated, info
 
 
 def axes_help() -> str:
@@ -541,5 +521,5 @@ def axes_help() -> str:
     rows = []
     for a in AXES.values():
         tgt = f" [targets: {', '.join(a.targets)}]" if a.targets else ""
-        rows.append(f"  {a.name:<13} {_HELP[a.name]} ({a.unit}){tgt}")
+        rows.append(f"  {a.name:<13} {a.short} ({a.unit}){tgt}")
     return "\n".join(rows)

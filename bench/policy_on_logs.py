@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -28,8 +28,7 @@ class ActionsConfig:
     """Keys of `bench actions`."""
 
     logs: Optional[str] = None        # LeRobot v3 dataset folder
-    policy: str = "scripted"          # registered policy name
-    checkpoint: Optional[str] = None  # for policy=checkpoint
+    policy: str = "scripted"          # registered policy name or package.module:attr (its own keys are accepted too)
     suite: str = "held_out_robots"    # suite whose cells name the episodes' tasks
     episodes: Optional[list[int]] = None  # only these episode indices
     seed: int = 0                     # bootstrap seed
@@ -40,6 +39,12 @@ class ActionsConfig:
 
 def _expand(obs_names: list[tuple[str, int]]) -> list[str]:
     return [n if w == 1 else f"{n}_{i}" for n, w in obs_names for i in range(w)]
+
+
+def _first_action(out: Any) -> np.ndarray:
+    """A policy's action for this frame: the action, or the first row of an action chunk."""
+    arr = np.asarray(out, np.float64)
+    return arr[0] if arr.ndim == 2 else arr
 
 
 def _bootstrap(per_episode: np.ndarray, weights: np.ndarray, rng, n_boot: int, conf: float):
@@ -54,10 +59,11 @@ def _bootstrap(per_episode: np.ndarray, weights: np.ndarray, rng, n_boot: int, c
     return value, np.quantile(boot, a, axis=0), np.quantile(boot, 1 - a, axis=0)
 
 
-def evaluate(cfg: ActionsConfig) -> dict:
-    """Action errors of `cfg.policy` on the logged observations of `cfg.logs`."""
+def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
+    """Action errors of `cfg.policy` (built with `policy_options`) on the logged observations of `cfg.logs`."""
     from bench import registry
     from bench.logs import read_dataset
+    from bench.protocols import STATE, PolicyContext
     from bench.recording import episode_cell
 
     ds = read_dataset(cfg.logs)
@@ -65,7 +71,12 @@ def evaluate(cfg: ActionsConfig) -> dict:
         if feat not in ds.features:
             raise DataError(f"{cfg.logs}: feature {feat!r} missing; bench actions needs observation.state and action")
     suite = registry.make_suite(cfg.suite)
-    factory = registry.policy_factory(cfg.policy)
+    plugin = registry.load_policy(cfg.policy)
+    options = policy_options if policy_options is not None else config_mod.build(plugin.Options, [])
+    needs = [k for k in plugin.obs_keys(options) if k != STATE]
+    if needs:
+        raise ConfigError(f"policy {cfg.policy!r} needs observation keys {needs}; the logs give {STATE!r} only")
+    identity = plugin.identity(options)
     cells = {c.key: c for c in suite.all_cells()}
     episodes = ds.episodes if cfg.episodes is None else [e for e in ds.episodes if e.index in set(cfg.episodes)]
     if not episodes:
@@ -73,20 +84,23 @@ def evaluate(cfg: ActionsConfig) -> dict:
     built: dict[str, tuple] = {}
     mae, mse, frames = [], [], []
     action_names = ds.features["action"].get("names")
+    ctx = PolicyContext(options, suite, cfg.seed, suite.default_horizon)
     try:
         for ep in episodes:
             key = episode_cell(cells, ep, cfg.logs, cfg.suite).key
             if key not in built:
                 env = suite.make_env(cells[key], suite.default_horizon)
                 names = ds.features["observation.state"].get("names")
-                if names and list(names) != _expand(env.obs_names):
+                fields = list(env.obs_spec[STATE].fields)
+                if names and list(names) != _expand(fields):
+                    env.close()
                     raise DataError(f"{cfg.logs}: observation.state names do not match suite {cfg.suite!r}'s "
-                                    f"observation ({names[:3]}... vs {_expand(env.obs_names)[:3]}...)")
-                built[key] = (env, factory(cells[key], env, cfg))
+                                    f"observation ({names[:3]}... vs {_expand(fields)[:3]}...)")
+                built[key] = (env, plugin.make(cells[key], env, ctx))
             env, policy = built[key]
             obs, act = ep.data["observation.state"], ep.data["action"]
             policy.reset(int(ep.meta.get("seed", 0)) if isinstance(ep.meta, dict) else 0)
-            pred = np.stack([np.asarray(policy.act(o), np.float64) for o in obs])
+            pred = np.stack([_first_action(policy.act({STATE: np.asarray(o, np.float32)})) for o in obs])
             if pred.shape != act.shape:
                 raise DataError(f"{cfg.logs}: policy actions have shape {pred.shape[1:]}, logged {act.shape[1:]}")
             err = pred - act
@@ -109,29 +123,51 @@ def evaluate(cfg: ActionsConfig) -> dict:
             "rmse": {"value": float(np.sqrt(s[i])), "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))]},
         })
     reason = None if len(episodes) > 1 else "one episode: no interval"
-    return {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy, "checkpoint": cfg.checkpoint,
+    return {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy, "checkpoint": identity.checkpoint,
             "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()), "confidence": cfg.confidence,
             "interval": "bootstrap over episodes" if reason is None else reason, "per_dim": per_dim}
 
 
-HELP = """usage: bench actions logs=DIR [policy=scripted] [checkpoint=PATH] [suite=held_out_robots] [out=FILE]
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench actions logs=DIR [policy=scripted] [suite=held_out_robots] [out=FILE] [policy keys ...]",
+        "Policy on logs: feeds each episode's logged observation.state to the policy (open loop) and\n"
+        "compares its actions with the logged action, per dimension: mean absolute error and RMSE with\n"
+        "a bootstrap interval over episodes. Episodes name their suite cell in the task string\n"
+        "(`Lift/Panda/default`, as `bench run record=` writes). The policy's own keys (e.g.\n"
+        "checkpoint= for policy=checkpoint) are accepted too.",
+        ActionsConfig,
+        ["bench actions logs=demos policy=scripted",
+         "bench actions logs=demos policy=checkpoint checkpoint=bc/policy.safetensors out=actions.json"])
 
-Policy on logs: feeds each episode's logged observation.state to the policy (open loop) and
-compares its actions with the logged action, per dimension: mean absolute error and RMSE with
-a bootstrap interval over episodes. Episodes name their suite cell in the task string
-(`Lift/Panda/default`, as `bench run record=` writes).
-keys: logs, policy, checkpoint, suite, episodes=[0,3], seed, n_boot, confidence, out
-"""
+
+def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
+    """The command's own keys and the policy plugin's (e.g. checkpoint=), each typed by its owner."""
+    import dataclasses
+
+    from bench import registry
+    from bench.protocols import option_keys
+
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; bench actions takes key=value only")
+    head = config_mod.build(ActionsConfig, [o for o in overrides if config_mod.top_key(o) == "policy"])
+    plugin = registry.load_policy(head.policy)
+    own = [f.name for f in dataclasses.fields(ActionsConfig)]
+    parts = config_mod.partition(overrides, {"actions": own, f"policy {head.policy}": option_keys(plugin.Options)},
+                                 "bench actions")
+    return config_mod.build(ActionsConfig, parts["actions"]), config_mod.build(plugin.Options,
+                                                                               parts[f"policy {head.policy}"])
 
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(HELP)
+        print(help_text())
         return 0
-    cfg: ActionsConfig = config_mod.build_from_argv(ActionsConfig, argv, "bench actions")
+    cfg, policy_options = parse_args(argv)
     if not cfg.logs:
         raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
-    result = evaluate(cfg)
+    result = evaluate(cfg, policy_options)
     from rich.console import Console
     from rich.table import Table
 
@@ -145,7 +181,7 @@ def main(argv: list[str]) -> int:
         t.add_row(row["dim"], fmt(row["mae"]), fmt(row["rmse"]))
     Console().print(t)
     if cfg.out:
-        from bench.summary import write_atomic
+        from bench.io import write_atomic
 
         write_atomic(Path(cfg.out), result)
         print(f"wrote {cfg.out}")

@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from bench.suite import Cell
 
 Obs = dict[str, Any]
 
@@ -33,6 +30,22 @@ STATE = "state"
 TASK = "task"
 RGB = "rgb."      # prefix of camera-image keys: "rgb.agentview"
 DEPTH = "depth."  # prefix of depth-image keys
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One (task, robot, env) cell of a suite and the split it belongs to (`seen` or `unseen`)."""
+
+    suite: str
+    task: str
+    robot: str
+    env: str
+    split: str
+    options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def key(self) -> str:
+        return f"{self.task}/{self.robot}/{self.env}"
 
 
 @dataclass(frozen=True)
@@ -120,7 +133,7 @@ class ActionSpec:
         return len(self.names)
 
 
-@dataclass
+@dataclass(eq=False)  # identity semantics: a handle is hashable (perturb caches nominal values per handle)
 class MujocoHandle:
     """Capability of MuJoCo-backed adapters: the live model and data (perturbations, replay, recording).
 
@@ -278,19 +291,19 @@ class Suite(Protocol):
     capabilities: frozenset[str]
     options: Any
 
-    def all_cells(self) -> list["Cell"]:
+    def all_cells(self) -> list[Cell]:
         """Every cell of the suite (the runner selects among them)."""
         ...
 
-    def obs_spec(self, cell: "Cell") -> ObsSpec:
+    def obs_spec(self, cell: Cell) -> ObsSpec:
         """The observation a cell's env will return, declared without building it."""
         ...
 
-    def make_env(self, cell: "Cell", horizon: int) -> EnvAdapter:
+    def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
         """Build the cell's env (called once per worker and cell)."""
         ...
 
-    def make_expert(self, cell: "Cell", env: EnvAdapter) -> Policy:
+    def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
         """The suite's scripted expert for a cell (only with the "expert" capability)."""
         ...
 
@@ -345,10 +358,10 @@ class PolicyPlugin:
     def identity(self, options: Any) -> PolicyIdentity:
         return PolicyIdentity()
 
-    def preflight(self, options: Any, suite: Suite, cells: Sequence["Cell"], horizon: int) -> None:
+    def preflight(self, options: Any, suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
         """Raise a BenchError (exit 2) for anything that would fail every episode."""
 
-    def make(self, cell: "Cell", env: EnvAdapter, ctx: PolicyContext) -> Policy:
+    def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy:
         raise NotImplementedError
 
 
@@ -358,7 +371,7 @@ class FactoryPlugin(PolicyPlugin):
     def __init__(self, factory: Callable[..., Policy]):
         self.factory = factory
 
-    def make(self, cell: "Cell", env: EnvAdapter, ctx: PolicyContext) -> Policy:
+    def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy:
         return self.factory(cell, env, ctx)
 
 

@@ -51,10 +51,13 @@ class EpisodeRecord:
     finished_at: float
     worker_pid: int
     versions: dict[str, str] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)  # e.g. {"policy": policy stats}; omitted when empty
 
     def to_json(self) -> str:
         d = asdict(self)
         d["return"] = d.pop("return_")
+        if not d["extras"]:
+            del d["extras"]
         return json.dumps(d, sort_keys=True, allow_nan=False)
 
     @classmethod

@@ -43,6 +43,7 @@ import numpy as np
 
 from bench import config as config_mod
 from bench.errors import ConfigError, DataError, did_you_mean
+from bench.runner import LocalExecutor
 
 SCHEMA_ID = "bench.regress/1"
 VERDICT_FILE = "verdict.json"
@@ -114,7 +115,7 @@ def resolve(value: Optional[str], role: str) -> dict[str, Any]:
         return {"kind": "checkpoint", "spec": value, "policy": "checkpoint", "checkpoint": str(path)}
     if "/" in value or value.endswith(".json"):
         raise ConfigError(f"{role}={value!r}: no such file or directory")
-    registry.policy_factory(value)  # RegistryError with the valid names
+    registry.load_policy(value)  # RegistryError with the valid names
     return {"kind": "policy", "spec": value, "policy": value, "checkpoint": None}
 
 
@@ -136,15 +137,18 @@ def _override(key: str, value: Any) -> str:
 
 
 def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[str, str]]:
-    """Own keys -> RegressConfig; `bench run` keys forwarded verbatim (and by top-level key)."""
-    from bench.run import RunConfig
+    """Own keys -> RegressConfig; `bench run` keys (the runner's and the suite's) forwarded verbatim."""
+    from bench import registry
+    from bench.api import RUNNER_KEYS, RunConfig
+    from bench.protocols import option_keys
 
     positional, overrides = config_mod.split_args(argv)
     if positional:
         raise ConfigError(f"unexpected argument {positional[0]!r}; bench regress takes key=value only "
                           "(see bench regress --help)")
     own_names = {f.name for f in fields(RegressConfig)}
-    run_names = {f.name for f in fields(RunConfig)}
+    suite = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) == "suite"]).suite
+    run_names = set(RUNNER_KEYS) | set(option_keys(registry.suite_class(suite).Options))
     own, forwarded, by_key = [], [], {}
     for item in overrides:
         key = item.split("=", 1)[0]
@@ -291,7 +295,7 @@ class _Side:
 
     def __init__(self, role: str, info: dict[str, Any]):
         self.role, self.info = role, info
-        self.p: dict[str, Any] | None = None
+        self.p: Any = None  # a bench.api.Plan for a live side
         self.meta: dict[str, Any] | None = None
         self.ctx = None
         self.records: list = []
@@ -304,7 +308,7 @@ class _Side:
     def describe(self) -> dict[str, Any]:
         meta = self.meta or {}
         pol = meta.get("policy", {})
-        run_dir = self.p["run_dir"] if self.live else self.info.get("run_dir")
+        run_dir = self.p.run_dir if self.p is not None else self.info.get("run_dir")
         return {"spec": self.info["spec"], "kind": self.info["kind"], "policy": pol.get("name"),
                 "checkpoint": pol.get("checkpoint"), "checkpoint_sha256": pol.get("checkpoint_sha256"),
                 "run_id": meta.get("run_id"), "run_dir": str(run_dir) if run_dir else None,
@@ -312,41 +316,28 @@ class _Side:
 
 
 def _prepare_live(side: _Side, shared: list[str], forwarded: list[str], run_id: str, parent: Path) -> None:
-    from bench.run import prepare
+    from bench import api
 
-    argv = [*shared, *forwarded, f"policy={side.info['policy']}", f"out={parent}", f"run_id={run_id}"]
+    given = {config_mod.top_key(f) for f in forwarded}  # a key the user gave wins; the settings check names it
+    argv = [*(o for o in shared if config_mod.top_key(o) not in given), *forwarded, f"policy={side.info['policy']}",
+            f"out={parent}", f"run_id={run_id}"]
     if side.info.get("checkpoint"):
         argv.append(f"checkpoint={side.info['checkpoint']}")
-    side.p = prepare(argv)
+    side.p = api.plan(api.config_from_argv(argv))
 
 
 def _run_look(side: _Side, n_episodes: int, workers: int, console) -> None:
-    from bench.records import EPISODES, RecordWriter, read_records
-    from bench.runner import execute
+    from bench import api
 
-    path = side.p["run_dir"] / EPISODES
-    done = {r.job_id for r in read_records(path)}
-    todo = [j for j in side.p["jobs"] if j.episode < n_episodes and j.job_id not in done and j.job_id in side.wanted]
-    if todo:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        cfg = side.p["cfg"]
-        with RecordWriter(path) as writer, Progress(TextColumn(f"[bold]{side.role}"), BarColumn(),
-                                                    MofNCompleteColumn(), TimeElapsedColumn(), console=console,
-                                                    transient=True) as progress:
-            task = progress.add_task(side.role, total=len(todo))
-
-            def on_record(record) -> None:
-                writer.write(record)
-                progress.update(task, advance=1)
-
-            execute(todo, suite_name=cfg.suite, policy_name=side.ctx.policy_id, cfg=cfg, ctx=side.ctx,
-                    workers=min(workers, len(todo)), on_record=on_record)
-    side.records = read_records(path)
+    wanted = side.wanted
+    result = api.run(side.p, only=lambda j: j.episode < n_episodes and j.job_id in wanted, summarize=False,
+                     executor=LocalExecutor(workers))
+    side.records = result.records
 
 
-def _check_same_settings(cand_cfg, base_config: dict[str, Any], user_keys: dict[str, str], base_dir: Path) -> None:
-    mine = json.loads(json.dumps({k: getattr(cand_cfg, k) for k in SHARED_KEYS}))
+def _check_same_settings(cand_cfg: dict[str, Any], base_config: dict[str, Any], user_keys: dict[str, str],
+                         base_dir: Path) -> None:
+    mine = {k: cand_cfg.get(k) for k in SHARED_KEYS}
     for k in (k for k in SHARED_KEYS if k in base_config):  # keys an older run.json lacks are not compared
         if mine.get(k) != base_config.get(k):
             given = f" (you gave {user_keys[k]})" if k in user_keys else ""
@@ -367,9 +358,9 @@ def main(argv: list[str]) -> int:
         return 0
     from rich.console import Console
 
-    from bench.leaderboard import validate
-    from bench.run import finish, start
-    from bench.summary import write_atomic
+    from bench.api import finish, start
+    from bench.io import write_atomic
+    from bench.schema import validate
 
     if not argv:
         print(help_text())
@@ -410,7 +401,7 @@ def main(argv: list[str]) -> int:
         if side.info["kind"] != "run":
             _prepare_live(side, shared, forwarded, f"{gate_id}-{side.role}", parent)
             if ref is not None:
-                _check_same_settings(side.p["cfg"], ref.meta["config"], user_keys, ref.info["run_dir"])
+                _check_same_settings(side.p.config_dict(), ref.meta["config"], user_keys, ref.info["run_dir"])
     if len(recorded) == 2:
         a, b = (s.meta["config"] for s in recorded)
         diff = [k for k in SHARED_KEYS if a.get(k) != b.get(k)]
@@ -418,10 +409,10 @@ def main(argv: list[str]) -> int:
             raise ConfigError(f"candidate and baseline runs differ in {diff[0]} ({a.get(diff[0])!r} vs "
                               f"{b.get(diff[0])!r}): paired episodes need the same settings")
     live = [s for s in (cand, base) if s.live]
-    any_cfg = live[0].p["cfg"] if live else None
+    any_cfg = live[0].p.config if live else None
     metric = any_cfg.metric if any_cfg else recorded[0].meta["config"].get("metric", "success_once")
     seed = any_cfg.seed if any_cfg else int(recorded[0].meta["config"].get("seed", 0))
-    suite_desc = live[0].p["suite"].describe() if live else recorded[0].meta["suite"]
+    suite_desc = live[0].p.suite.describe() if live else recorded[0].meta["suite"]
     for side in recorded:
         if side.meta["suite"].get("version") != suite_desc.get("version") or \
                 side.meta["suite"].get("name") != suite_desc.get("name"):
@@ -433,8 +424,8 @@ def main(argv: list[str]) -> int:
     if recorded:
         wanted = {r.job_id for r in recorded[0].records}
     for side in live:
-        side.wanted = wanted if wanted is not None else {j.job_id for j in side.p["jobs"]}
-        if not any(j.job_id in side.wanted for j in side.p["jobs"]):
+        side.wanted = wanted if wanted is not None else {j.job_id for j in side.p.jobs}
+        if not any(j.job_id in side.wanted for j in side.p.jobs):
             raise ConfigError("the recorded run has no episode of the selected cells; nothing to pair")
 
     schedule = looks_schedule(episodes, cfg.batch) if live else [episodes]

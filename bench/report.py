@@ -60,7 +60,7 @@ examples:
 # -- inputs -------------------------------------------------------------------------------------
 def load_input(arg: str) -> tuple[str, dict, Path]:
     """(kind, document, path) for a run dir, summary.json or leaderboard.json; validated."""
-    from bench.leaderboard import load_json, validate
+    from bench.schema import load_json, validate
 
     path = Path(arg)
     if path.is_dir():
@@ -77,7 +77,7 @@ def load_input(arg: str) -> tuple[str, dict, Path]:
 
 def load_calibration(arg: str) -> dict:
     """A calibration result (calibration.json, schema bench.calibration/1) with errors.nominal/declared/final."""
-    from bench.leaderboard import load_json
+    from bench.schema import load_json
 
     path = Path(arg)
     if path.is_dir():
@@ -93,7 +93,7 @@ def load_calibration(arg: str) -> dict:
 
 
 def load_verdict(arg: str) -> dict:
-    from bench.leaderboard import load_json, validate
+    from bench.schema import load_json, validate
 
     doc = load_json(Path(arg))
     sid = validate(doc, arg)

@@ -1,4 +1,10 @@
-"""One episode: reset with the episode's seed, apply its condition, step the policy, record."""
+"""One episode: reset with the episode's seed, apply its condition, step the policy, record.
+
+The rollout is the boundary between plugins and the records: an exception, a timeout, or a
+non-finite number coming out of the env (reward, observation) or the policy (action) ends
+the episode with its reason in `error` (the run goes on), and never reaches a summary.
+A policy may return an action chunk (T, A): its rows are executed open loop, one per step.
+"""
 from __future__ import annotations
 
 import os
@@ -12,13 +18,19 @@ from typing import Any
 
 import numpy as np
 
-from bench.env import state_hash
+from bench.env import mj_input_names, state_hash
+from bench.io import jsonable
+from bench.protocols import STATE, EnvAdapter, Obs, Policy
 from bench.records import EpisodeRecord
 from bench.suite import Job, condition_rng
 
 
 class EpisodeTimeout(Exception):
     """The episode ran past its wall-clock limit."""
+
+
+class NonFinite(Exception):
+    """The env or the policy produced a NaN or infinite number."""
 
 
 @contextmanager
@@ -56,6 +68,7 @@ class RunContext:
     horizon: int
     timeout_s: float
     trajectory_dir: str | None = None   # set when `record=` asks for the rollouts
+    policy_stats: bool = False          # the policy reports `episode_stats()` (PolicyPlugin.reports_stats)
 
 
 def trajectory_path(directory: str | Path, job_id: str) -> Path:
@@ -64,7 +77,7 @@ def trajectory_path(directory: str | Path, job_id: str) -> Path:
     return Path(directory) / f"{safe}.npz"
 
 
-def _save_trajectory(path: Path, traj: dict[str, list]) -> None:
+def _save_trajectory(path: Path, traj: dict[str, Any]) -> None:
     """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
@@ -72,50 +85,85 @@ def _save_trajectory(path: Path, traj: dict[str, list]) -> None:
     os.replace(tmp, path)
 
 
-def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
+def _check_obs(obs: Obs, t: int) -> None:
+    for key, value in obs.items():
+        if isinstance(value, np.ndarray) and value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+            raise NonFinite(f"non-finite observation {key!r} at step {t}")
+
+
+class _Actions:
+    """The policy's commands one step at a time: a chunk (T, A) is executed open loop, row by row."""
+
+    def __init__(self, policy: Policy, dim: int):
+        self.policy, self.dim = policy, dim
+        self.queue: list[np.ndarray] = []
+
+    def next(self, obs: Obs, t: int) -> np.ndarray:
+        if not self.queue:
+            out = np.asarray(self.policy.act(obs))
+            if out.ndim == 1 and out.shape[0] == self.dim:
+                self.queue = [out]
+            elif out.ndim == 2 and out.shape[1] == self.dim and out.shape[0] >= 1:
+                self.queue = list(out)
+            else:
+                raise ValueError(f"policy returned an action of shape {out.shape}; expected ({self.dim},) or "
+                                 f"a chunk (T, {self.dim})")
+            if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
+                raise NonFinite(f"policy returned a non-finite action at step {t}")
+        return self.queue.pop(0)
+
+
+def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
     """Run `job` on an already-built env; return its record and whether the env is still usable.
 
-    An exception or timeout is recorded in `error` (the run goes on); the env is then
-    reported unusable so the caller rebuilds it.
+    An exception, a timeout or a non-finite number is recorded in `error` (the run goes on);
+    the env is then reported unusable so the caller rebuilds it.
     """
     from bench import perturb
 
     t0 = time.perf_counter()
     success_once = success_at_end = False
     ret, length, first_success = 0.0, 0, None
-    init_hash, params, error = None, {}, None
-    traj: dict[str, list] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
-                                    "ctrl": []} if ctx.trajectory_dir else None
-    log_ctrl = traj is not None and hasattr(env, "log_ctrl")  # MuJoCo inputs of every physics step
+    init_hash, params, error, stats = None, {}, None, {}
+    traj: dict[str, Any] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
+                                   "ctrl": []} if ctx.trajectory_dir else None
+    log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)
             stepper, params = perturb.apply(env, job.condition, rng)
             obs = stepper.reset(job.seed)
+            _check_obs(obs, 0)
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
-            if log_ctrl:
-                env.log_ctrl(True)
+            actions = _Actions(policy, env.action_spec.dim)
+            if log is not None:
+                log.start()
             for t in range(ctx.horizon):
-                action = policy.act(obs)
+                action = actions.next(obs, t)
                 if traj is not None:
                     _append_frame(traj, env, obs, action)
-                obs, reward, done, info = stepper.step(action)
-                if log_ctrl:
-                    traj["ctrl"].append(env.take_ctrl().astype(np.float32).ravel())
+                obs, reward, terminated, truncated, _ = stepper.step(action)
+                if log is not None and traj is not None:
+                    traj["ctrl"].append(log.take().astype(np.float32).ravel())
+                if not np.isfinite(reward):
+                    raise NonFinite(f"non-finite reward ({reward}) at step {t}")
+                _check_obs(obs, t + 1)
                 ret += reward
                 length = t + 1
-                success_at_end = bool(info.get("success", False))
+                success_at_end = bool(env.success())
                 if traj is not None:
                     traj["reward"].append(float(reward))
                     traj["success"].append(success_at_end)
                 if success_at_end and first_success is None:
                     first_success = length
                     success_once = True
-                if done:
+                if terminated or truncated:
                     break
     except EpisodeTimeout:
         error = f"timeout after {ctx.timeout_s:g} s at step {length}"
+    except NonFinite as exc:
+        error = str(exc)
     except Exception as exc:  # recorded, the run goes on
         if ctx.timeout_s and time.perf_counter() - t0 >= ctx.timeout_s:
             # the alarm fired inside a library that re-raised it as its own exception type
@@ -124,53 +172,53 @@ def run_episode(job: Job, env, policy, ctx: RunContext) -> tuple[EpisodeRecord, 
             tb = traceback.extract_tb(exc.__traceback__)[-1]
             error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
     finally:
-        if log_ctrl:
-            env.log_ctrl(False)
+        if log is not None:
+            log.stop()
+    if ctx.policy_stats:
+        stats = _policy_stats(policy)
     if error:
         success_once = success_at_end = False
+        ret = 0.0 if not np.isfinite(ret) else ret
     elif traj is not None and length:
-        traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_names]
-        traj["action_names"] = list(env.action_names)
-        traj["fps"] = [float(getattr(env, "fps", 0.0) or 0.0)]
-        if log_ctrl:
-            from bench.env import mj_input_names
-
-            traj["ctrl_names"] = mj_input_names(env.model, env.ctrl_spec)
-            traj["ctrl_spec"] = [int(env.ctrl_spec)]
-        _save_trajectory(trajectory_path(ctx.trajectory_dir, job.job_id), traj)
+        traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
+        traj["action_names"] = list(env.action_spec.names)
+        traj["fps"] = [float(env.fps)]
+        if log is not None and env.mujoco is not None:
+            traj["ctrl_names"] = mj_input_names(env.mujoco.model, log.spec)
+            traj["ctrl_spec"] = [int(log.spec)]
+        _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
     cell = job.cell
     record = EpisodeRecord(
         run_id=ctx.run_id, job_id=job.job_id, suite=cell.suite, suite_version=ctx.suite_version,
         task=cell.task, robot=cell.robot, env=cell.env, split=cell.split,
-        condition=job.condition.name, axis=job.condition.axis, level=_jsonable(job.condition.level),
-        params=_jsonable(params), episode=job.episode, seed=job.seed, init_state_hash=init_hash,
+        condition=job.condition.name, axis=job.condition.axis, level=jsonable(job.condition.level, 10),
+        params=jsonable(params, 10), episode=job.episode, seed=job.seed, init_state_hash=init_hash,
         success_once=success_once, success_at_end=success_at_end, return_=float(ret), length=length,
         steps_to_success=first_success, error=error, policy=ctx.policy_id,
-        checkpoint_sha256=ctx.checkpoint_sha256, backend=getattr(env, "backend", None),
+        checkpoint_sha256=ctx.checkpoint_sha256, backend=env.backend,
         wall_s=round(time.perf_counter() - t0, 4), finished_at=round(time.time(), 3), worker_pid=os.getpid(),
-        versions=ctx.versions,
+        versions=ctx.versions, extras={"policy": stats} if stats else {},
     )
     return record, error is None
 
 
-def _append_frame(traj: dict[str, list], env, obs: np.ndarray, action: np.ndarray) -> None:
-    traj["obs"].append(np.asarray(obs, np.float32))
+def _policy_stats(policy: Any) -> dict[str, Any]:
+    """The policy's `episode_stats()`, made JSON-safe; a failure is reported in place of the stats."""
+    from bench.io import first_nonfinite
+
+    try:
+        stats = jsonable(policy.episode_stats(), 10)
+    except Exception as exc:
+        return {"error": f"episode_stats failed: {type(exc).__name__}: {exc}"}
+    bad = first_nonfinite(stats)
+    if bad is not None or not isinstance(stats, dict):
+        return {"error": f"episode_stats returned a non-finite number at {bad}" if bad else "episode_stats is not a dict"}
+    return stats
+
+
+def _append_frame(traj: dict[str, Any], env: EnvAdapter, obs: Obs, action: np.ndarray) -> None:
+    traj["obs"].append(np.asarray(obs[STATE], np.float32))
     traj["action"].append(np.asarray(action, np.float32))
-    data = getattr(env, "data", None)
-    if data is not None and hasattr(data, "qpos"):  # MuJoCo state, so logs can be replayed in simulation
+    if env.mujoco is not None:  # MuJoCo state, so logs can be replayed in simulation
+        data = env.mujoco.data
         traj["sim_state"].append(np.concatenate([data.qpos, data.qvel]).astype(np.float32))
-
-
-def _jsonable(x: Any) -> Any:
-    """numpy scalars/arrays -> plain Python, so records serialise without surprises."""
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, float):
-        return round(x, 10)
-    return x

@@ -1,8 +1,10 @@
-"""Execute jobs on an executor (serial or a process pool), envs built once per worker.
+"""Execute jobs on an executor (in process or a local process pool), envs built once per worker.
 
-Each worker keeps a cache cell -> (env, policy); jobs arrive cell-major, so a worker
-builds each cell's simulator once and soft-resets it for every episode. Finished
-records stream back to the parent, which appends them to episodes.jsonl as they land.
+A `Worker` keeps a cache cell -> (env, policy); jobs arrive cell-major, so a worker builds
+each cell's simulator once and soft-resets it for every episode. Finished records stream
+back to the parent, which appends them to episodes.jsonl as they land. Everything a worker
+needs travels in one picklable `WorkerSpec`, so any executor (local pool, Ray) can build
+the same workers and produce the same records.
 """
 from __future__ import annotations
 
@@ -10,51 +12,85 @@ import multiprocessing as mp
 import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from typing import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, Callable
 
+from bench.protocols import EnvAdapter, Policy, PolicyContext
 from bench.records import EpisodeRecord
 from bench.rollout import RunContext, run_episode
 from bench.suite import Job
 
-# -- worker side -----------------------------------------------------------------------------
-_W: dict = {}
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """Everything a worker process needs to rebuild the run's suite and policy (picklable)."""
+
+    suite_ref: str           # registry name or package.module:Class
+    suite_options: Any       # an instance of the suite's Options
+    policy_ref: str          # registry name or package.module:attr
+    policy_options: Any      # an instance of the policy plugin's Options
+    seed: int                # the run seed
+    ctx: RunContext
 
 
-def _init_worker(suite_name: str, policy_name: str, cfg, ctx: RunContext) -> None:
-    import warnings
+class Worker:
+    """Runs jobs in this process: builds each cell's env and policy once, then one episode per job."""
 
-    warnings.filterwarnings("ignore")
-    from bench import registry
+    def __init__(self, spec: WorkerSpec):
+        import warnings
 
-    _W.clear()
-    _W.update(suite=registry.make_suite(suite_name), factory=registry.policy_factory(policy_name),
-              cfg=cfg, ctx=ctx, cache={})
+        warnings.filterwarnings("ignore")
+        from bench import registry
 
+        self.spec = spec
+        self.suite = registry.make_suite(spec.suite_ref, spec.suite_options)
+        self.plugin = registry.load_policy(spec.policy_ref)
+        self.policy_ctx = PolicyContext(spec.policy_options, self.suite, spec.seed, spec.ctx.horizon)
+        self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
+        self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
 
-def _run_job(job: Job) -> EpisodeRecord:
-    cache = _W["cache"]
-    key = job.cell.key
-    built = cache.get(key)
-    if built is None:
+    def built(self, job: Job) -> tuple[EnvAdapter, Policy]:
+        """The (env, policy) of the job's cell, built on first use."""
+        key = job.cell.key
+        if key not in self.cache:
+            env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
+            try:
+                missing = [k for k in self.needs if k not in env.obs_spec]
+                if missing:  # the suite declared them (checked before the run), but its env does not give them
+                    raise RuntimeError(f"the policy needs observation keys {missing}; the env gives {sorted(env.obs_spec)}")
+                policy = self.plugin.make(job.cell, env, self.policy_ctx)
+            except BaseException:
+                env.close()
+                raise
+            self.cache[key] = (env, policy)
+        return self.cache[key]
+
+    def run(self, job: Job) -> EpisodeRecord:
+        """One episode; a cell whose env or policy cannot be built is recorded as an error."""
         try:
-            env = _W["suite"].make_env(job.cell, _W["ctx"].horizon)
-            policy = _W["factory"](job.cell, env, _W["cfg"])
+            env, policy = self.built(job)
         except Exception as exc:  # a cell whose env cannot be built: record, go on
-            return _error_record(job, f"building env/policy failed: {type(exc).__name__}: {exc}")
-        built = cache[key] = (env, policy)
-    env, policy = built
-    record, usable = run_episode(job, env, policy, _W["ctx"])
-    if not usable:  # the env may be in a bad state after an error: rebuild next time
-        cache.pop(key, None)
-        try:
-            env.close()
-        except Exception:
-            pass
-    return record
+            return error_record(job, self.spec.ctx, f"building env/policy failed: {type(exc).__name__}: {exc}")
+        record, usable = run_episode(job, env, policy, self.spec.ctx)
+        if not usable:  # the env may be in a bad state after an error: rebuild next time
+            self.drop(job.cell.key)
+        return record
+
+    def drop(self, key: str) -> None:
+        env, _ = self.cache.pop(key, (None, None))
+        if env is not None:
+            try:
+                env.close()
+            except Exception:
+                pass
+
+    def close(self) -> None:
+        for key in list(self.cache):
+            self.drop(key)
 
 
-def _error_record(job: Job, error: str) -> EpisodeRecord:
-    ctx = _W["ctx"]
+def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
+    """The record of an episode that could not start (its env or policy failed to build)."""
     c = job.cell
     return EpisodeRecord(
         run_id=ctx.run_id, job_id=job.job_id, suite=c.suite, suite_version=ctx.suite_version, task=c.task,
@@ -66,53 +102,57 @@ def _error_record(job: Job, error: str) -> EpisodeRecord:
     )
 
 
-# -- parent side -----------------------------------------------------------------------------
-def execute(
-    jobs: list[Job],
-    *,
-    suite_name: str,
-    policy_name: str,
-    cfg,
-    ctx: RunContext,
-    workers: int,
-    on_record: Callable[[EpisodeRecord], None],
-) -> None:
-    """Run `jobs`, calling `on_record` in the parent for each finished episode (in finish order)."""
-    if not jobs:
-        return
-    if workers <= 1:
-        _init_worker(suite_name, policy_name, cfg, ctx)
+# -- the local executor ----------------------------------------------------------------------
+_W: dict[str, Worker] = {}  # the worker of this process (pool workers)
+
+
+def _init_pool_worker(spec: WorkerSpec) -> None:
+    _W.clear()
+    _W["w"] = Worker(spec)
+
+
+def _run_pool_job(job: Job) -> EpisodeRecord:
+    return _W["w"].run(job)
+
+
+class LocalExecutor:
+    """In process (`workers <= 1`) or a spawned process pool of `workers` workers."""
+
+    def __init__(self, workers: int):
+        self.workers = max(1, int(workers))
+
+    def execute(self, jobs: list[Job], spec: WorkerSpec, on_record: Callable[[EpisodeRecord], None]) -> None:
+        """Run `jobs`, calling `on_record` in the parent for each finished episode (in finish order)."""
+        if not jobs:
+            return
+        if self.workers <= 1:
+            worker = Worker(spec)
+            try:
+                for job in jobs:
+                    on_record(worker.run(job))
+            finally:
+                worker.close()
+            return
+        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=mp.get_context("spawn"),
+                                   initializer=_init_pool_worker, initargs=(spec,))
         try:
+            pending: set = set()
+            # keep a bounded window in flight so an interrupt loses little and order stays cell-major
+            window = self.workers * 4
             for job in jobs:
-                on_record(_run_job(job))
-        finally:
-            _close_cache()
-        return
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                               initializer=_init_worker, initargs=(suite_name, policy_name, cfg, ctx))
-    try:
-        pending = set()
-        queue: Iterable[Job] = iter(jobs)
-        # keep a bounded window in flight so an interrupt loses little and order stays cell-major
-        window = workers * 4
-        for job in queue:
-            pending.add(pool.submit(_run_job, job))
-            if len(pending) >= window:
+                pending.add(pool.submit(_run_pool_job, job))
+                if len(pending) >= window:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        on_record(fut.result())
+            while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     on_record(fut.result())
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                on_record(fut.result())
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _close_cache() -> None:
-    for env, _ in _W.get("cache", {}).values():
-        try:
-            env.close()
-        except Exception:
-            pass
-    _W.get("cache", {}).clear()
+def execute(jobs: list[Job], spec: WorkerSpec, workers: int, on_record: Callable[[EpisodeRecord], None]) -> None:
+    """Run `jobs` on the local executor with `workers` processes (1 = in process)."""
+    LocalExecutor(workers).execute(jobs, spec, on_record)

@@ -77,6 +77,19 @@ def _resampled_rates(cells: Sequence[np.ndarray], rng: np.random.Generator, n_bo
     return out
 
 
+def _resampled_means(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int, binary: bool) -> np.ndarray:
+    """(n_boot, n_cells) resampled cell means: Jeffreys draws for 0/1 outcomes, else episodes
+    resampled with replacement within each cell (strata = cells), for continuous values (returns)."""
+    if binary:
+        return _resampled_rates(cells, rng, n_boot)
+    out = np.empty((n_boot, len(cells)))
+    for j, values in enumerate(cells):
+        values = np.asarray(values, dtype=float)
+        idx = rng.integers(0, len(values), size=(n_boot, len(values)))
+        out[:, j] = values[idx].mean(axis=1)
+    return out
+
+
 def _interval(samples: np.ndarray, confidence: float) -> tuple[float, float]:
     alpha = (1.0 - confidence) / 2.0
     lo, hi = np.quantile(samples, [alpha, 1.0 - alpha])
@@ -89,18 +102,19 @@ def aggregate(
     statistic: str = "mean",
     n_boot: int = 2000,
     confidence: float = 0.95,
+    binary: bool = True,
 ) -> Estimate:
-    """Mean or IQM of per-cell success rates, with a stratified bootstrap interval.
+    """Mean or IQM of per-cell success rates (or mean returns), with a stratified bootstrap interval.
 
     Args:
-        cells: one array of 0/1 outcomes per cell (episodes of that cell).
+        cells: one array of outcomes per cell (episodes of that cell): 0/1, or returns with binary=False.
     """
     cells = [np.asarray(c, dtype=float) for c in cells if len(c)]
     if not cells:
         return Estimate(None, reason="no cell has completed episodes")
     stat = STATISTICS[statistic]
     point = float(stat(np.array([c.mean() for c in cells])))
-    boot = stat(_resampled_rates(cells, rng, n_boot))
+    boot = stat(_resampled_means(cells, rng, n_boot, binary))
     lo, hi = _interval(boot, confidence)
     # as for the Jeffreys interval at k = 0 or k = n: the interval always contains the observed value
     return Estimate(point, min(lo, point), max(hi, point))
@@ -113,6 +127,7 @@ def gap(
     statistic: str = "mean",
     n_boot: int = 2000,
     confidence: float = 0.95,
+    binary: bool = True,
 ) -> Estimate:
     """Transfer gap = stat(reference cells) - stat(target cells), independent stratified bootstrap."""
     reference = [np.asarray(c, dtype=float) for c in reference if len(c)]
@@ -122,7 +137,8 @@ def gap(
         return Estimate(None, reason=f"the {side} group has no completed episodes")
     stat = STATISTICS[statistic]
     point = float(stat(np.array([c.mean() for c in reference])) - stat(np.array([c.mean() for c in target])))
-    boot = stat(_resampled_rates(reference, rng, n_boot)) - stat(_resampled_rates(target, rng, n_boot))
+    boot = (stat(_resampled_means(reference, rng, n_boot, binary))
+            - stat(_resampled_means(target, rng, n_boot, binary)))
     lo, hi = _interval(boot, confidence)
     return Estimate(point, min(lo, point), max(hi, point))
 

@@ -9,13 +9,16 @@ action with equal probability (MultiDiscrete: the same per dimension).
 env's generator and so fixes the initial state. Success is `info["success"]` or
 `info["is_success"]` when the env reports one, else False (most control tasks
 have no success predicate; their score is the return). MuJoCo-backed envs expose
-`env.unwrapped.model` / `.data`, so the model perturbation axes work on them.
+`env.unwrapped.model` / `.data` (the `mujoco` capability), so the model perturbation axes
+work on them.
 """
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+
+from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs
 
 
 class GymEnv:
@@ -31,45 +34,44 @@ class GymEnv:
         obs_space, act_space = self._env.observation_space, self._env.action_space
         self._obs_space = obs_space
         if isinstance(obs_space, spaces.Dict):
-            self.obs_names = [(str(k), int(spaces.flatdim(s))) for k, s in obs_space.spaces.items()]
+            fields = [(str(k), int(spaces.flatdim(s))) for k, s in obs_space.spaces.items()]
         else:
-            self.obs_names = [("obs", int(spaces.flatdim(obs_space)))]
+            fields = [("obs", int(spaces.flatdim(obs_space)))]
+        self.obs_spec = {STATE: Feature.state(fields)}
         self._act_space = act_space
         if isinstance(act_space, spaces.Box):
-            self.action_low = np.asarray(act_space.low, np.float32).ravel()
-            self.action_high = np.asarray(act_space.high, np.float32).ravel()
-            self.action_names = [f"a{i}" for i in range(self.action_low.size)]
+            low = np.asarray(act_space.low, np.float32).ravel()
+            self.action_spec = ActionSpec.box([f"a{i}" for i in range(low.size)], low,
+                                              np.asarray(act_space.high, np.float32).ravel())
         elif isinstance(act_space, spaces.Discrete):
             start, n = int(act_space.start), int(act_space.n)
-            self.action_low = np.array([start - 0.5], np.float32)
-            self.action_high = np.array([start + n - 0.5], np.float32)
-            self.action_names = ["action"]
+            self.action_spec = ActionSpec.box(["action"], start - 0.5, start + n - 0.5)
         elif isinstance(act_space, spaces.MultiDiscrete):
             nvec = np.asarray(act_space.nvec).ravel()
             start = np.asarray(getattr(act_space, "start", np.zeros_like(nvec))).ravel()
-            self.action_low = (start - 0.5).astype(np.float32)
-            self.action_high = (start + nvec - 0.5).astype(np.float32)
-            self.action_names = [f"a{i}" for i in range(nvec.size)]
+            self.action_spec = ActionSpec.box([f"a{i}" for i in range(nvec.size)], start - 0.5, start + nvec - 0.5)
         else:
             self._env.close()
             raise ValueError(f"{env_id}: action space {type(act_space).__name__} is not supported "
                              "(Box, Discrete, MultiDiscrete are)")
         unwrapped = self._env.unwrapped
-        self.model = getattr(unwrapped, "model", None)
-        self.data = getattr(unwrapped, "data", None)
+        model, data = getattr(unwrapped, "model", None), getattr(unwrapped, "data", None)  # MuJoCo-backed envs
+        self.mujoco: MujocoHandle | None = None
+        self.backend = f"gymnasium-{gym.__version__}"
         try:
             import mujoco
 
-            if not isinstance(self.model, mujoco.MjModel) or not isinstance(self.data, mujoco.MjData):
-                self.model = self.data = None
+            if isinstance(model, mujoco.MjModel) and isinstance(data, mujoco.MjData):
+                self.mujoco = MujocoHandle(model, data)  # no manipulated object declared
+                self.backend += f"/mujoco-{mujoco.__version__}"
         except ImportError:
-            self.model = self.data = None
-        self.object_bodies: list[str] = []  # a Gymnasium env declares no manipulated object
-        self.backend = f"gymnasium-{gym.__version__}"
-        if self.model is not None:
-            import mujoco
-
-            self.backend += f"/mujoco-{mujoco.__version__}"
+            pass
+        self.inputs = None
+        self.model_axes = None
+        dt = getattr(unwrapped, "dt", None)
+        self.fps = 1.0 / float(dt) if isinstance(dt, (int, float)) and dt > 0 else 0.0
+        self._low, self._high = self.action_spec.low, self.action_spec.high
+        self._success = False
         self._init_state = np.zeros(0)
 
     def _flat_obs(self, obs: Any) -> np.ndarray:
@@ -79,28 +81,32 @@ class GymEnv:
         a = np.asarray(action, dtype=np.float64).ravel()
         space = self._act_space
         if isinstance(space, self._spaces.Box):
-            return np.clip(a, self.action_low, self.action_high).astype(space.dtype).reshape(space.shape)
-        rounded = np.clip(np.rint(a), self.action_low + 0.5, self.action_high - 0.5).astype(np.int64)
+            return np.clip(a, self._low, self._high).astype(space.dtype).reshape(space.shape)
+        rounded = np.clip(np.rint(a), self._low + 0.5, self._high - 0.5).astype(np.int64)
         if isinstance(space, self._spaces.Discrete):
             return int(rounded[0])
         return rounded.reshape(space.shape)
 
     def _state(self, obs: np.ndarray) -> np.ndarray:
-        if self.data is not None:
-            return np.concatenate([self.data.qpos, self.data.qvel]).copy()
+        if self.mujoco is not None:
+            return np.concatenate([self.mujoco.data.qpos, self.mujoco.data.qvel]).copy()
         return np.asarray(obs, dtype=np.float64).copy()
 
-    def reset(self, seed: int) -> np.ndarray:
+    def reset(self, seed: int) -> Obs:
         obs, _ = self._env.reset(seed=int(seed))
         flat = self._flat_obs(obs)
         self._init_state = self._state(flat)
-        return flat
+        self._success = False
+        return {STATE: flat}
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self._env.step(self._action(action))
         info = dict(info)
-        info["success"] = bool(info.get("success", info.get("is_success", False)))
-        return self._flat_obs(obs), float(reward), bool(terminated or truncated), info
+        self._success = bool(info.get("success", info.get("is_success", False)))
+        return {STATE: self._flat_obs(obs)}, float(reward), bool(terminated), bool(truncated), info
+
+    def success(self) -> bool:
+        return self._success
 
     def init_state(self) -> np.ndarray:
         return self._init_state

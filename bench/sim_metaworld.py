@@ -22,20 +22,18 @@ Seeding — how initial states are pinned:
     constructed straight from Meta-World's class table (~0.15 s each instead of 8-9 s
     for `metaworld.ML10()`).
 
-The scripted expert (`make_expert`) is Meta-World's own policy for the task
-(`metaworld.policies.ENV_POLICY_MAP`); it reads the goal from the last 3 observation
-values, so it is given the true goal through its input only — the observation the
-harness records and other policies see stays goal-free.
+The hidden goal stays available to privileged code through `true_goal()`: the suite's
+scripted expert (`baselines/metaworld_expert.py`, Meta-World's own policy for the task)
+reads the goal from the last 3 observation values, so it is given the true goal through
+its input only — the observation the harness records and other policies see stays goal-free.
 """
 from __future__ import annotations
 
 import warnings
-from typing import Any, Callable
-
 import numpy as np
 
-from bench.env import InputLogging
 from bench.errors import ConfigError, did_you_mean
+from bench.protocols import STATE, ActionSpec, Feature, InputLog, MujocoHandle, Obs
 
 MAX_PATH_LENGTH = 500  # Meta-World's truncation: one more step raises
 BENCHMARKS = ("ML10", "ML25", "ML45")
@@ -51,7 +49,7 @@ _FRAME: list[tuple[str, int]] = [
 ]
 OBS_NAMES: list[tuple[str, int]] = _FRAME + [(f"prev_{n}", w) for n, w in _FRAME] + [("goal_pos", 3)]
 ACTION_NAMES = ["dx", "dy", "dz", "grip"]
-_TOO_HIGH = r"Constant\(s\) may be too high"  # metaworld.policies.policy.move, on every saturated step
+TOO_HIGH = r"Constant\(s\) may be too high"  # metaworld.policies.policy.move, on every saturated step
 
 
 def quiet_metaworld() -> None:
@@ -62,7 +60,7 @@ def quiet_metaworld() -> None:
     `gym.make` (not used here, filtered in case a caller does), warns about observations
     outside the space and about the hidden goal's zero-width bounds.
     """
-    warnings.filterwarnings("ignore", message=_TOO_HIGH, category=UserWarning)
+    warnings.filterwarnings("ignore", message=TOO_HIGH, category=UserWarning)
     warnings.filterwarnings("ignore", message=r".*is not within the observation space", category=UserWarning)
     warnings.filterwarnings("ignore", message=r".*Box observation space maximum and minimum values are equal",
                             category=UserWarning)
@@ -124,25 +122,7 @@ def _parse_env_dict(name: str) -> dict[str, list[str]] | None:
     return None
 
 
-class GoalFedExpert:
-    """Meta-World's scripted policy, given the true goal in place of the hidden one."""
-
-    def __init__(self, policy: Any, true_goal: Callable[[], np.ndarray]):
-        self._policy, self._true_goal = policy, true_goal
-
-    def reset(self, seed: int | None = None) -> None:
-        """Meta-World's policies are stateless; nothing to reset."""
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        full = np.array(obs, dtype=np.float64)
-        full[-3:] = self._true_goal()
-        with warnings.catch_warnings():  # per call: holds even when the caller resets the filters
-            warnings.filterwarnings("ignore", message=_TOO_HIGH, category=UserWarning)
-            action = self._policy.get_action(full)
-        return np.clip(action, -1.0, 1.0).astype(np.float32)
-
-
-class MetaWorldEnv(InputLogging):
+class MetaWorldEnv:
     """One Meta-World v3 task with the goal hidden; see the module docstring for seeding."""
 
     def __init__(self, task: str, horizon: int = MAX_PATH_LENGTH):
@@ -162,84 +142,75 @@ class MetaWorldEnv(InputLogging):
         env._set_task_called = True       # the task vector is drawn at every reset instead (module doc)
         env._partially_observable = True  # goal hidden, as in the ML benchmarks
         env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute for the new observability
-        self.model, self.data = env.model, env.data
         self.backend = f"metaworld-{version('metaworld')}/mujoco-{mujoco.__version__}"
-        self.obs_names = list(OBS_NAMES)
-        self.action_names = list(ACTION_NAMES)
-        self.action_low = np.full(len(ACTION_NAMES), -1.0, dtype=np.float32)
-        self.action_high = np.full(len(ACTION_NAMES), 1.0, dtype=np.float32)
+        self.fps = 1.0 / float(env.dt)  # control steps per second
+        self.obs_spec = {STATE: Feature.state(OBS_NAMES)}
+        self.action_spec = ActionSpec.box(ACTION_NAMES, -1.0, 1.0)
+        self.mujoco = MujocoHandle(env.model, env.data)
+        self.model_axes = None
         self._t = 0
+        self._success = False
         self._init_state: np.ndarray | None = None
         # the inputs Meta-World drives: the gripper's two actuators and the hand's mocap body
         st = mujoco.mjtState
-        self.ctrl_spec = int(st.mjSTATE_CTRL | st.mjSTATE_MOCAP_POS | st.mjSTATE_MOCAP_QUAT)
-        self._ctrl_size = mujoco.mj_stateSize(self.model, self.ctrl_spec)
-        self._ctrl_log: list[np.ndarray] | None = None
+        self.inputs = InputLog(env.model, int(st.mjSTATE_CTRL | st.mjSTATE_MOCAP_POS | st.mjSTATE_MOCAP_QUAT))
         self._wrap_physics_steps()
 
     # -- inputs at every physics step (for batched replay) -------------------------------------
     def _wrap_physics_steps(self) -> None:
-        """Note ctrl and the mocap pose as each `do_simulation` applies them, when logging is on.
+        """Note ctrl and the mocap pose as each `do_simulation` applies them, while the input log is active.
 
         Meta-World's step moves the mocap body, then `_step_mujoco_simulation(ctrl, frame_skip)`
         sets ctrl and calls `mj_step(nstep=frame_skip)`: the inputs hold for those physics steps.
         """
         import mujoco
 
-        env, model, data = self._env, self.model, self.data
+        env, log = self._env, self.inputs
+        model, data = env.model, env.data
         original = env._step_mujoco_simulation
 
         def stepped(ctrl, n_frames):
-            if self._ctrl_log is not None:
+            if log.rows is not None:
                 data.ctrl[:] = ctrl
-                row = np.empty(self._ctrl_size)
-                mujoco.mj_getState(model, data, row, self.ctrl_spec)
-                self._ctrl_log.extend([row] * int(n_frames))
+                row = np.empty(log.size)
+                mujoco.mj_getState(model, data, row, log.spec)
+                log.rows.extend([row] * int(n_frames))
             return original(ctrl, n_frames)
 
         env._step_mujoco_simulation = stepped
 
-    def reset(self, seed: int) -> np.ndarray:
+    def reset(self, seed: int) -> Obs:
         env = self._env
         env._freeze_rand_vec = False
         env.seeded_rand_vec = True
         env.seed(int(seed))
         obs, _ = env.reset()
         self._t = 0
-        self._init_state = np.concatenate([self.data.qpos, self.data.qvel, self.data.mocap_pos.ravel(),
-                                           self.true_goal()]).copy()
-        return np.asarray(obs, dtype=np.float32)
+        self._success = False
+        data = self.mujoco.data
+        self._init_state = np.concatenate([data.qpos, data.qvel, data.mocap_pos.ravel(), self.true_goal()]).copy()
+        return {STATE: np.asarray(obs, dtype=np.float32)}
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
         if self._t >= self.horizon:
             raise RuntimeError(f"{self.task}: episode is over after {self.horizon} steps; reset first")
-        a = np.clip(np.asarray(action, dtype=np.float64), self.action_low, self.action_high)
+        a = np.clip(np.asarray(action, dtype=np.float64), self.action_spec.low, self.action_spec.high)
         obs, reward, terminated, truncated, info = self._env.step(a)
         self._t += 1
-        info = dict(info)
-        info["success"] = bool(info.get("success", 0.0))
-        done = bool(terminated or truncated or self._t >= self.horizon)
-        return np.asarray(obs, dtype=np.float32), float(reward), done, info
+        self._success = bool(info.get("success", 0.0))
+        truncated = bool(truncated or self._t >= self.horizon)
+        return {STATE: np.asarray(obs, dtype=np.float32)}, float(reward), bool(terminated), truncated, dict(info)
+
+    def success(self) -> bool:
+        return self._success
 
     def init_state(self) -> np.ndarray:
         """qpos, qvel, mocap position and the (hidden) goal right after reset."""
         return self._init_state
 
     def true_goal(self) -> np.ndarray:
-        """The goal position the observation hides (for the scripted expert only)."""
+        """The goal position the observation hides (for privileged code such as the scripted expert)."""
         return np.array(self._env._get_pos_goal(), dtype=np.float64)
-
-    def make_expert(self) -> GoalFedExpert:
-        """Meta-World's scripted policy for this task, fed the true goal (`policy=scripted`)."""
-        from metaworld.policies import ENV_POLICY_MAP
-
-        return GoalFedExpert(ENV_POLICY_MAP[self.task](), self.true_goal)
-
-    def sim_forward(self) -> None:
-        """Recompute derived quantities after the model was edited (perturbations)."""
-        import mujoco
-
-        mujoco.mj_forward(self.model, self.data)
 
     def close(self) -> None:
         self._env.close()

@@ -1,12 +1,9 @@
-"""robosuite adapter: one arm, one task, an embodiment-agnostic observation.
+"""robosuite adapter: one arm, one task, behind the `bench.protocols.EnvAdapter` contract.
 
-The observation is the same 18 numbers on every arm (see `OBS_NAMES`):
-end-effector position (world), end-effector orientation relative to its own
-orientation at reset (robosuite's eef frames differ per arm, so only relative
-orientation compares), gripper opening normalised to 1 = fully open, 0 = fully closed in free
-air (both measured once when the env is built), object pose, and the
-gripper-to-object vector. The action is what robosuite's default controller takes
-on all 7 single arms: 6 OSC end-effector deltas (position in the world frame,
+What the policy observes is task code and comes from the suite: an `Observer` turns
+robosuite's raw observation dict into the observation dict (e.g. the embodiment-agnostic
+Lift observation of `suites/lift.py`). The action is what robosuite's default controller
+takes on all 7 single arms: 6 OSC end-effector deltas (position in the world frame,
 rotation) and a gripper command (+1 closes, -1 opens).
 
 Envs are built once and soft-reset (`hard_reset=False`, ~2 ms instead of ~1 s);
@@ -19,23 +16,14 @@ import logging
 import os
 import sys
 import types
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from bench.env import InputLogging
+from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
 
-OBS_NAMES: list[tuple[str, int]] = [
-    ("eef_pos", 3),
-    ("eef_quat_rel", 4),
-    ("gripper_opening", 1),
-    ("object_pos", 3),
-    ("object_quat", 4),
-    ("gripper_to_object", 3),
-]
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
-_OBJECT = {"Lift": "cube", "Stack": "cubeA"}
 # Scene keys `env_kwargs` may carry besides robosuite's own (table_full_size, table_friction):
 #   table_offset (x, y, z): table-top centre in metres (robosuite hard-codes (0, 0, 0.8));
 #   placement_x_range / placement_y_range (lo, hi): object spawn region, metres relative to
@@ -58,22 +46,6 @@ def _quiet_robosuite() -> None:
         private.CONSOLE_LOGGING_LEVEL = "ERROR"
         sys.modules["robosuite.macros_private"] = private
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (x, y, z, w) quaternions (robosuite's convention)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ])
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return np.array([-q[0], -q[1], -q[2], q[3]])
 
 
 def _scene_env_name(task: str) -> str:
@@ -111,25 +83,45 @@ def _scene_env_name(task: str) -> str:
     return name
 
 
-class RobosuiteEnv(InputLogging):
-    """A robosuite manipulation env behind the `bench.env.Env` contract."""
+class Observer(Protocol):
+    """The task's view of a robosuite env (owned by a suite): spec, one-time binding, observation."""
 
-    def __init__(self, task: str, robot: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
+    obs_spec: ObsSpec
+
+    def bind(self, env: "RobosuiteEnv") -> tuple[str, ...]:
+        """Called once after the env is built (may step it to measure things); returns the
+        manipulated object's bodies (`perturb.mass` targets)."""
+        ...
+
+    def reset(self, raw: dict) -> None:
+        """Called after every reset with robosuite's raw observation."""
+        ...
+
+    def observe(self, raw: dict) -> Obs:
+        """The observation dict from robosuite's raw observation."""
+        ...
+
+
+class RobosuiteEnv:
+    """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
+
+    model_axes = None  # MuJoCo: bench.perturb edits the model through `mujoco`
+
+    def __init__(self, task: str, robot: str, horizon: int, observer: Observer,
+                 env_kwargs: dict[str, Any] | None = None):
         _quiet_robosuite()
         import mujoco
         import robosuite
 
-        if task not in _OBJECT:
-            raise ValueError(f"task {task!r} not supported; valid: {sorted(_OBJECT)}")
         self.task, self.robot, self.horizon = task, robot, int(horizon)
-        self._object = _OBJECT[task]
+        self.observer = observer
         env_kwargs = dict(env_kwargs or {})
         scene = {k: env_kwargs.pop(k) for k in SCENE_KEYS if k in env_kwargs}
         # the scene is part of the initial state: two scenes with the same joint state are not the same start
         described = {**{k: v for k, v in env_kwargs.items() if k in ("table_full_size", "table_friction")}, **scene}
         self._scene_vec = np.concatenate([np.ravel(np.asarray(described[k], dtype=np.float64)) for k in sorted(described)]
                                          ) if described else np.zeros(0)
-        self._env = robosuite.make(
+        self.raw = robosuite.make(
             _scene_env_name(task) if scene else task,
             **scene,
             robots=robot,
@@ -143,81 +135,42 @@ class RobosuiteEnv(InputLogging):
             seed=0,
             **env_kwargs,
         )
-        self.model = self._env.sim.model._model
-        self.data = self._env.sim.data._data
-        # bodies of the manipulated object (bench.perturb: perturb.mass scales these by default)
-        self.object_bodies = [getattr(self._env, self._object).root_body]
+        model, data = self.raw.sim.model._model, self.raw.sim.data._data
         self.backend = f"robosuite-{robosuite.__version__}/mujoco-{mujoco.__version__}"
-        self.fps = float(self._env.control_freq)  # control steps per second
-        self.obs_names = list(OBS_NAMES)
-        self.action_names = list(ACTION_NAMES)
-        low, high = self._env.action_spec
-        self.action_low, self.action_high = np.asarray(low, np.float32), np.asarray(high, np.float32)
-        if len(self.action_low) != len(ACTION_NAMES):
-            raise ValueError(f"{robot}: action size {len(self.action_low)}, expected {len(ACTION_NAMES)}")
-        self.ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL)  # robosuite drives actuators only
-        self._ctrl_size = self.model.nu
-        self._ctrl_log: list[np.ndarray] | None = None
-        self._wrap_physics_steps()
-        self._grip_idx = np.asarray(self._env.robots[0]._ref_gripper_joint_pos_indexes["right"])
-        self._grip_open = self._grip_closed = None
-        self._calibrate_gripper()
+        self.fps = float(self.raw.control_freq)  # control steps per second
+        self.obs_spec = dict(observer.obs_spec)
+        low, high = self.raw.action_spec
+        if len(low) != len(ACTION_NAMES):
+            raise ValueError(f"{robot}: action size {len(low)}, expected {len(ACTION_NAMES)}")
+        self.action_spec = ActionSpec.box(ACTION_NAMES, low, high)
+        self.inputs = InputLog(model, int(mujoco.mjtState.mjSTATE_CTRL))  # robosuite drives actuators only
+        self._wrap_physics_steps(data)
+        self._success = False
+        self.mujoco = MujocoHandle(model, data, observer.bind(self))
 
     # -- actuator commands at every physics step (for batched replay) -------------------------
-    def _wrap_physics_steps(self) -> None:
-        """Note `data.ctrl` just before each physics step, when logging is on.
+    def _wrap_physics_steps(self, data) -> None:
+        """Note `data.ctrl` just before each physics step, while the input log is active.
 
         robosuite's controller writes ctrl between `sim.step1()` and `sim.step2()` (or before
         `sim.step()`), once per physics step; `mj_step` with the noted ctrl from the same state
         reproduces the step exactly (checked in tests/test_replay.py).
         """
-        sim, data = self._env.sim, self.data
+        sim, log = self.raw.sim, self.inputs
         for name in ("step", "step2"):
             original = getattr(sim, name)
 
             def stepped(*args, _original=original, **kwargs):
-                if self._ctrl_log is not None:
-                    self._ctrl_log.append(data.ctrl.copy())
+                if log.rows is not None:
+                    log.rows.append(data.ctrl.copy())
                 return _original(*args, **kwargs)
 
             setattr(sim, name, stepped)
 
-    # -- gripper normalisation -------------------------------------------------------------
-    def _calibrate_gripper(self) -> None:
-        """Measure the finger joints fully open and fully closed in free air, once per build.
-
-        Reset poses are not fully open on every hand (Jaco starts half-closed), so both
-        ends are driven to; Jaco's three fingers need ~105 steps each way.
-        """
-        self._raw_reset(0)
-        command = np.zeros(len(ACTION_NAMES))
-        ends = []
-        for grip in (-1.0, 1.0):
-            command[-1] = grip
-            last = self.data.qpos[self._grip_idx].copy()
-            still = 0
-            for _ in range(300):  # Jaco needs ~200 steps from open to closed
-                self._env.step(command)
-                q = self.data.qpos[self._grip_idx].copy()
-                still = still + 1 if np.max(np.abs(q - last)) < 1e-4 else 0
-                last = q
-                if still >= 10:  # the fingers reached their end
-                    break
-            ends.append(last)
-        self._grip_open, self._grip_closed = ends
-        self._grip_mask = np.abs(self._grip_open - self._grip_closed) > 1e-3  # joints that move
-        # per-step opening = mean((q - closed) / (open - closed)) over the moving joints
-        self._grip_qidx = self._grip_idx[self._grip_mask]
-        self._grip_c = self._grip_closed[self._grip_mask]
-        self._grip_inv_span = 1.0 / (self._grip_open - self._grip_closed)[self._grip_mask]
-
-    def _opening(self) -> float:
-        frac = float(((self.data.qpos[self._grip_qidx] - self._grip_c) * self._grip_inv_span).mean())
-        return min(1.0, max(0.0, frac))
-
     # -- contract ----------------------------------------------------------------------------
-    def _raw_reset(self, seed: int) -> dict:
-        env = self._env
+    def raw_reset(self, seed: int) -> dict:
+        """Soft reset with `seed` pinning the object placement; robosuite's raw observation."""
+        env = self.raw
         env.rng = np.random.default_rng(seed)
         if getattr(env, "placement_initializer", None) is not None:
             env.placement_initializer.rng = env.rng
@@ -225,37 +178,24 @@ class RobosuiteEnv(InputLogging):
                 sampler.rng = env.rng
         return env.reset()
 
-    def reset(self, seed: int) -> np.ndarray:
-        raw = self._raw_reset(int(seed))
-        self._quat0_conj = _quat_conj(np.asarray(raw["robot0_eef_quat"], dtype=np.float64))
-        self._init_state = np.concatenate([self.data.qpos, self.data.qvel, self._scene_vec]).copy()
-        return self._obs(raw)
+    def reset(self, seed: int) -> Obs:
+        raw = self.raw_reset(int(seed))
+        self.observer.reset(raw)
+        data = self.mujoco.data
+        self._init_state = np.concatenate([data.qpos, data.qvel, self._scene_vec]).copy()
+        self._success = False
+        return self.observer.observe(raw)
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, dict]:
-        raw, reward, done, info = self._env.step(np.asarray(action, dtype=np.float64))
-        info = dict(info)
-        info["success"] = bool(self._env._check_success())
-        return self._obs(raw), float(reward), bool(done), info
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+        raw, reward, done, info = self.raw.step(np.asarray(action, dtype=np.float64))
+        self._success = bool(self.raw._check_success())
+        return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
+
+    def success(self) -> bool:
+        return self._success
 
     def init_state(self) -> np.ndarray:
         return self._init_state
 
-    def sim_forward(self) -> None:
-        """Recompute derived quantities after the model was edited (perturbations)."""
-        self._env.sim.forward()
-
     def close(self) -> None:
-        self._env.close()
-
-    def _obs(self, raw: dict) -> np.ndarray:
-        obj = self._object
-        out = np.empty(18, dtype=np.float32)  # layout: OBS_NAMES
-        eef, pos = raw["robot0_eef_pos"], raw[f"{obj}_pos"]
-        quat_rel = _quat_mul(self._quat0_conj, raw["robot0_eef_quat"])
-        out[0:3] = eef
-        out[3:7] = quat_rel if quat_rel[3] >= 0 else -quat_rel  # one hemisphere: same rotation, same numbers
-        out[7] = self._opening()
-        out[8:11] = pos
-        out[11:15] = raw[f"{obj}_quat"]
-        out[15:18] = pos - eef
-        return out
+        self.raw.close()

@@ -1,40 +1,32 @@
 """Suites, cells and jobs: what a run is made of.
 
-A suite is a named set of cells (task x robot x environment) with a declared split
-manifest: for each axis (robots, envs, tasks) which values are `seen` (allowed in
-training data) and which are `unseen` (held out). A run expands a suite into jobs
-(cell, condition, episode index); the episode seed depends only on the run seed
-and the episode index, so the same episode index starts from the same initial
-state in every condition (pairing by seed).
+A suite (the `bench.protocols.Suite` contract) is a named set of cells (task x robot x
+environment) with a declared split manifest: for each axis (robots, envs, tasks) which
+values are `seen` (allowed in training data) and which are `unseen` (held out). A run
+selects cells (`select_cells`) and expands them into jobs (cell, condition, episode index;
+`expand_jobs`); the episode seed depends only on the run seed and the episode index, so
+the same episode index starts from the same initial state in every condition (pairing by
+seed). `SuiteBase` gives a suite the contract's defaults; subclassing it is optional.
 """
 from __future__ import annotations
 
 import dataclasses
 import zlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
+from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
+
+__all__ = ["Cell", "Condition", "Job", "NOMINAL", "SPLITS", "SPLIT_AXES", "METRICS", "SuiteBase", "episode_seed",
+           "condition_rng", "select_cells", "expand_jobs", "summary_line", "cell_to_dict"]
 
 SPLITS = ("seen", "unseen")
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One (task, robot, env) cell of a suite and the split it belongs to."""
-
-    suite: str
-    task: str
-    robot: str
-    env: str
-    split: str
-    options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
-
-    @property
-    def key(self) -> str:
-        return f"{self.task}/{self.robot}/{self.env}"
+# selection key (`robots=[...]`) -> the Cell attribute it selects on; also the manifest's axes
+SPLIT_AXES: dict[str, str] = {"robots": "robot", "tasks": "task", "envs": "env"}
+METRICS = ("success_once", "success_at_end", "return")
 
 
 @dataclass(frozen=True)
@@ -74,56 +66,79 @@ def condition_rng(seed: int, condition: Condition) -> np.random.Generator:
     return np.random.default_rng([int(seed), zlib.crc32(condition.name.encode())])
 
 
-class Suite:
-    """Base class of built-in suites; third-party suites may follow the same attributes.
+class SuiteBase:
+    """Defaults of the `Suite` contract; a suite sets the class attributes and implements
+    `all_cells`, `obs_spec` and `make_env` (and `make_expert` with the "expert" capability)."""
 
-    Subclasses set the class attributes and implement `all_cells` and `make_env`.
-    """
-
-    name: str = ""
-    version: str = "1"
+    name: ClassVar[str] = ""
+    version: ClassVar[str] = "1"
+    Options: ClassVar[type] = NoOptions
     reference_policy: str = "scripted"
+    default_policy: str = ""          # "" = the reference policy
     default_horizon: int = 200
-    manifest: dict[str, dict[str, list[str]]] = {}
+    max_horizon: int | None = None
+    default_metric: str = "success_once"
+    manifest: Mapping[str, Mapping[str, Sequence[str]]] = {}
+    capabilities: frozenset[str] = frozenset()
+
+    def __init__(self, options: Any = None) -> None:
+        self.options = self.Options() if options is None else options
+        if not self.default_policy:
+            self.default_policy = self.reference_policy
 
     def all_cells(self) -> list[Cell]:
         raise NotImplementedError
 
-    def make_env(self, cell: Cell, horizon: int):
+    def obs_spec(self, cell: Cell) -> ObsSpec:
         raise NotImplementedError
 
-    def summary_line(self) -> str:
-        doc = (self.__doc__ or "").strip().splitlines()
-        return doc[0] if doc else ""
+    def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
+        raise NotImplementedError
 
-    def cells(self, cfg) -> list[Cell]:
-        """The cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset)."""
-        cells = self.all_cells()
-        for key, attr in (("robots", "robot"), ("tasks", "task"), ("envs", "env"), ("splits", "split")):
-            wanted = getattr(cfg, key, None)
-            if not wanted:
-                continue
-            valid = sorted({getattr(c, attr) for c in cells})
-            for w in wanted:
-                if w not in valid:
-                    raise ConfigError(
-                        f"{key}: {w!r} is not in suite {self.name!r}; valid: {', '.join(valid)}.{did_you_mean(w, valid)}"
-                    )
-            cells = [c for c in cells if getattr(c, attr) in wanted]
-        return cells
-
-    def jobs(self, cfg, conditions: list[Condition]) -> list[Job]:
-        """Expand into jobs, cell-major so each worker reuses its env across consecutive episodes."""
-        return [
-            Job(cell, cond, ep, episode_seed(cfg.seed, ep))
-            for cell in self.cells(cfg)
-            for cond in conditions
-            for ep in range(cfg.episodes)
-        ]
+    def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
+        raise ConfigError(f"suite {self.name!r} declares no scripted expert")
 
     def describe(self) -> dict[str, Any]:
-        """JSON-able identity of the suite: name, version and split manifest."""
-        return {"name": self.name, "version": self.version, "manifest": self.manifest}
+        """JSON-able identity of the suite: name, version, split manifest and its non-default options."""
+        out: dict[str, Any] = {"name": self.name, "version": self.version,
+                               "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()}}
+        if dataclasses.is_dataclass(self.options):
+            out.update({k: v for k, v in dataclasses.asdict(self.options).items()})
+        return out
+
+
+def summary_line(suite: Any) -> str:
+    """The first line of a suite's (class or instance) docstring (what `bench list` prints)."""
+    doc = (suite.__doc__ or "").strip().splitlines()
+    return doc[0] if doc else ""
+
+
+def select_cells(suite: Any, selection: Any) -> list[Cell]:
+    """The suite's cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset).
+
+    An empty list selects nothing and is refused, as is a value the suite does not have.
+    """
+    cells = suite.all_cells()
+    for key, attr in (*SPLIT_AXES.items(), ("splits", "split")):
+        wanted = getattr(selection, key, None)
+        if wanted is None:
+            continue
+        valid = sorted({getattr(c, attr) for c in cells})
+        if not wanted:
+            raise ConfigError(f"{key}=[] selects nothing; list some of: {', '.join(valid)} (or leave {key} out)")
+        for w in wanted:
+            if w not in valid:
+                raise ConfigError(
+                    f"{key}: {w!r} is not in suite {suite.name!r}; valid: {', '.join(valid)}.{did_you_mean(w, valid)}"
+                )
+        cells = [c for c in cells if getattr(c, attr) in wanted]
+    return cells
+
+
+def expand_jobs(cells: Sequence[Cell], conditions: Sequence[Condition], episodes: int, seed: int) -> list[Job]:
+    """Jobs in cell-major order, so each worker reuses its env across consecutive episodes."""
+    return [Job(cell, cond, ep, episode_seed(seed, ep)) for cell in cells for cond in conditions
+            for ep in range(episodes)]
 
 
 def cell_to_dict(cell: Cell) -> dict[str, Any]:

@@ -8,8 +8,6 @@ recomputes exactly what `bench run` wrote.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from bench import scoring
-from bench.errors import ConfigError, DataError
+from bench.errors import DataError
 from bench.records import EPISODES, EpisodeRecord, dedupe, read_records
 
 SCHEMA_ID = "bench.summary/1"
@@ -34,7 +32,8 @@ def _cells(records: list[EpisodeRecord]) -> dict[tuple, list[EpisodeRecord]]:
 
 
 def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
-    return np.array([getattr(r, metric) for r in recs if r.error is None], dtype=float)
+    attr = "return_" if metric == "return" else metric
+    return np.array([getattr(r, attr) for r in recs if r.error is None], dtype=float)
 
 
 def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str, Any]:
@@ -74,6 +73,8 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
             continue
         gaps_out.append({"kind": "seen-unseen", "metric": m, "statistic": "mean", "reference": "seen",
                          "target": "unseen", **g.to_dict()})
+    if cfg.get("metric") == "return":  # envs without a success signal are scored by their return
+        _score_returns(groups, nominal, cells_out, splits_out, gaps_out, cfg, n_boot, conf)
 
     expected = run_meta.get("expected_episodes")
     n_err = sum(1 for r in records if r.error is not None)
@@ -99,77 +100,89 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     return summary
 
 
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)  # read the process umask (set and restored at import)
+def _score_returns(groups: dict, nominal: dict, cells_out: list, splits_out: dict, gaps_out: list,
+                   cfg: dict[str, Any], n_boot: int, conf: float) -> None:
+    """Mean return per cell (bootstrap over episodes), per split and the seen-unseen gap (stratified bootstrap).
+
+    Draws from a generator of their own, so the success scores of a run are the same whatever its metric.
+    """
+    rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 1])
+    for entry, recs in zip(cells_out, groups.values()):
+        values = _outcomes(recs, "return")
+        est = scoring.aggregate([values], rng, "mean", n_boot, conf, binary=False) if len(values) else \
+            scoring.Estimate(None, reason="no completed episodes")
+        entry["return"] = est.to_dict()
+    by_split = {s: [_outcomes(v, "return") for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
+    for split, cells in by_split.items():
+        if any(len(c) for c in cells):
+            splits_out.setdefault(split, {})["return"] = {
+                stat: scoring.aggregate(cells, rng, stat, n_boot, conf, binary=False).to_dict() for stat in ("mean", "iqm")}
+    if any(len(c) for c in by_split["seen"]) and any(len(c) for c in by_split["unseen"]):
+        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, "mean", n_boot, conf, binary=False)
+        gaps_out.append({"kind": "seen-unseen", "metric": "return", "statistic": "mean", "reference": "seen",
+                         "target": "unseen", **g.to_dict()})
 
 
-def write_atomic(path: Path, obj: Any) -> None:
-    """Write JSON (indented, no NaN) to `path` atomically: see `write_text_atomic`."""
-    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n")
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write `text` to `path` via a temp file in the same folder + fsync + rename (never a half-written file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-            os.fchmod(fh.fileno(), 0o666 & ~_UMASK)  # mkstemp makes 0600; give what open() would
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def fmt_estimate(est: dict | None, pct: bool = True) -> str:
-    """An estimate {"value", "ci"} as text: `82% [70, 91]`, or `+0.120 [+0.010, +0.230]` with pct=False."""
+def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str:
+    """An estimate {"value", "ci"} as text: `82% [70, 91]`, or `+0.120 [+0.010, +0.230]` with pct=False
+    (`-1.2e+03 [...]`-style three significant digits for unsigned values such as returns)."""
     if not est or est.get("value") is None:
         return "n/a"
     v, ci = est["value"], est.get("ci")
     if pct:
         return f"{v * 100:.0f}% [{ci[0] * 100:.0f}, {ci[1] * 100:.0f}]" if ci else f"{v * 100:.0f}%"
+    if not signed:
+        return f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"{v:.4g}"
     return f"{v:+.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else f"{v:+.3f}"
 
 
 def render(summary: dict[str, Any], console=None) -> None:
-    """Print the per-cell table, the split aggregates and the gaps."""
+    """Print the per-cell table, the split aggregates, the gaps and one sentence on how to read the gap."""
     from rich.console import Console
     from rich.table import Table
 
     console = console or Console(width=None if Console().is_terminal else 120)
     conf = int(round(summary.get("confidence", 0.95) * 100))
+    by_return = summary.get("metric") == "return"
     t = Table(title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
               title_justify="left")
     show_env = len({c.get("env") for c in summary["cells"]}) > 1  # e.g. scenes: rows differ only by env
-    for col in ("task", "robot", *(("env",) if show_env else ()), "split", "condition", "n",
-                f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]", "err"):
+    scores = (f"return [{conf}% bootstrap]",) if by_return else \
+        (f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]")
+    for col in ("task", "robot", *(("env",) if show_env else ()), "split", "condition", "n", *scores, "err"):
         t.add_column(col, justify="right" if col in ("n", "err") else "left")
     for c in summary["cells"]:
+        values = (fmt_estimate(c.get("return"), pct=False, signed=False),) if by_return else \
+            (fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]))
         t.add_row(c["task"], c["robot"], *((str(c.get("env")),) if show_env else ()), c["split"], c["condition"],
-                  str(c["n"]), fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]), str(c["errors"]) if c["errors"] else "")
+                  str(c["n"]), *values, str(c["errors"]) if c["errors"] else "")
     console.print(t)
     if summary["splits"]:
-        a = Table(title=f"aggregates over nominal cells (mean of cell rates, {conf}% stratified bootstrap)",
-                  title_justify="left")
-        for col in ("split", "success once", "success at end", "IQM once"):
-            a.add_column(col)
+        what = "mean return of cells" if by_return else "mean of cell rates"
+        a = Table(title=f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)", title_justify="left")
+        cols = (("return", "return", "mean"), ("IQM return", "return", "iqm")) if by_return else \
+            (("success once", "success_once", "mean"), ("success at end", "success_at_end", "mean"),
+             ("IQM once", "success_once", "iqm"))
+        a.add_column("split")
+        for name, _, _ in cols:
+            a.add_column(name)
         for s, v in summary["splits"].items():
-            a.add_row(s, fmt_estimate(v.get("success_once", {}).get("mean")), fmt_estimate(v.get("success_at_end", {}).get("mean")),
-                      fmt_estimate(v.get("success_once", {}).get("iqm")))
+            a.add_row(s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols])
         console.print(a)
-    if summary["gaps"]:
+    gaps = [g for g in summary["gaps"] if (g["metric"] == "return") == by_return]
+    if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
+        console.print("no held-out (unseen) cell was scored in this run: no seen → unseen transfer gap")
+    elif gaps:
         g_t = Table(title=f"transfer gaps (reference − target, {conf}% bootstrap)", title_justify="left")
         for col in ("gap", "metric", "value [CI]"):
             g_t.add_column(col)
-        for g in summary["gaps"]:
+        for g in gaps:
             g_t.add_row(f"{g['reference']} → {g['target']}", g["metric"], fmt_estimate(g, pct=False) if g.get("value") is not None
                         else f"n/a ({g.get('reason')})")
         console.print(g_t)
+        sentence = gap_sentence(summary)
+        if sentence:
+            console.print(sentence)
     if summary.get("sensitivity"):
         from bench.sensitivity import render as render_sensitivity
 
@@ -177,6 +190,32 @@ def render(summary: dict[str, Any], console=None) -> None:
     counts = summary["counts"]
     if counts["errors"]:
         console.print(f"[yellow]{counts['errors']} episode(s) errored or timed out; see 'error' in episodes.jsonl[/]")
+
+
+_HELD_OUT_WORDS = {"robots": "robots", "envs": "environments", "tasks": "tasks"}
+
+
+def gap_sentence(summary: dict[str, Any]) -> str | None:
+    """How to read the headline seen -> unseen gap, in one sentence built from its numbers."""
+    metric = summary.get("metric", "success_once")
+    g = next((g for g in summary["gaps"] if g["metric"] == metric and g["kind"] == "seen-unseen"), None)
+    if g is None or g.get("value") is None or not g.get("ci"):
+        return None
+    axes = [a for a, split in summary["suite"].get("manifest", {}).items() if split.get("unseen")]
+    held = _HELD_OUT_WORDS.get(axes[0], axes[0]) if axes else "cells"
+    conf = int(round(summary.get("confidence", 0.95) * 100))
+    v, (lo, hi) = g["value"], g["ci"]
+    if metric == "return":
+        size = f"mean return is {abs(v):.3g} {'lower' if v > 0 else 'higher'}"
+    else:
+        size = f"success rate is {abs(v) * 100:.0f} points {'lower' if v > 0 else 'higher'}"
+    where = f"on {held} it never saw, the policy's {size} than on the seen ones (gap {fmt_estimate(g, pct=False)})"
+    if lo > 0:
+        return f"How to read this: {where}; the {conf}% interval excludes 0, so it transfers worse to unseen {held}."
+    if hi < 0:
+        return f"How to read this: {where}; the {conf}% interval excludes 0, so it does better on unseen {held}."
+    return (f"How to read this: {where}; the {conf}% interval includes 0, so no transfer gap is detectable at this "
+            "many episodes (more episodes narrow it).")
 
 
 def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
@@ -190,21 +229,3 @@ def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
     except json.JSONDecodeError as exc:
         raise DataError(f"{meta_path}: not valid JSON ({exc})") from None
     return read_records(run_dir / EPISODES), meta
-
-
-def main_score(argv: list[str]) -> int:
-    """`bench score RUN_DIR`: recompute summary.json from episodes.jsonl and print the table."""
-    if not argv or argv[0] in ("-h", "--help"):
-        print("usage: bench score RUN_DIR\n\nRecomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are\n"
-              "the source of truth) and prints the table.")
-        return 0 if argv else 2
-    if len(argv) != 1:
-        raise ConfigError(f"score takes one RUN_DIR, got {argv}")
-    records, meta = load_run(Path(argv[0]))
-    summary = build(records, run_meta=meta)
-    from bench.leaderboard import validate
-
-    validate(summary)
-    write_atomic(Path(argv[0]) / "summary.json", summary)
-    render(summary)
-    return 0

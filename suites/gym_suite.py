@@ -14,54 +14,76 @@ Conditions:
 Success:
     `info["success"]` or `info["is_success"]` when the env reports one, else False.
 Metric:
-    success rate with a Wilson interval, and the return (mean_return in the summary);
-    per-axis sensitivity paired by episode seed.
+    the return (mean per episode with a bootstrap interval; `metric=return`, the default),
+    and the success rate with a Wilson interval for envs that report success
+    (`metric=success_once`); per-axis sensitivity paired by episode seed.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from bench.errors import ConfigError, did_you_mean
-from bench.suite import Cell, Suite
+from bench.protocols import ObsSpec
+from bench.suite import Cell, SuiteBase
 
 
-class GymSuite(Suite):
+@dataclass(frozen=True)
+class GymOptions:
+    """Keys of suite=gym."""
+
+    env_id: str  # Gymnasium env id, e.g. HalfCheetah-v5, or module:Env-v0 to import the module that registers it
+
+
+class GymSuite(SuiteBase):
     """Any Gymnasium env id as a one-cell suite (env_id=...); reference policy: random."""
 
     name = "gym"
     version = "1"
+    Options = GymOptions
     reference_policy = "random"
     default_horizon = 1000
+    default_metric = "return"  # most Gymnasium envs have no success predicate
     manifest: dict[str, dict[str, list[str]]] = {}
 
-    def __init__(self) -> None:
-        self.env_id: str | None = None
-
-    def configure(self, cfg) -> None:
-        """Read `env_id` (required) and take the default horizon from the env's registered spec."""
-        env_id = getattr(cfg, "env_id", None)
-        if not env_id:
+    def __init__(self, options: Any = None) -> None:
+        if options is None:
             raise ConfigError("env_id: suite=gym needs a Gymnasium env id, e.g. env_id=HalfCheetah-v5")
-        import gymnasium as gym
-
-        try:
-            spec = gym.spec(env_id)
-        except gym.error.Error as exc:
-            valid = sorted(gym.registry)
-            raise ConfigError(f"env_id={env_id!r}: not a registered Gymnasium env ({type(exc).__name__})."
-                              f"{did_you_mean(env_id, valid)}") from None
-        self.env_id = env_id
-        self.default_horizon = int(spec.max_episode_steps or type(self).default_horizon)
+        super().__init__(options)
+        self.env_id = str(options.env_id)
+        self.default_horizon = int(_spec(self.env_id).max_episode_steps or type(self).default_horizon)
+        self._obs_spec: ObsSpec | None = None
 
     def all_cells(self) -> list[Cell]:
-        if not self.env_id:
-            raise ConfigError("env_id: suite=gym needs a Gymnasium env id, e.g. env_id=HalfCheetah-v5")
         return [Cell(self.name, self.env_id, "default", "default", "seen")]
+
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        if self._obs_spec is None:  # the space is only known once the env is made (cheap for Gymnasium envs)
+            env = self.make_env(cell, 1)
+            try:
+                self._obs_spec = dict(env.obs_spec)
+            finally:
+                env.close()
+        return self._obs_spec
 
     def make_env(self, cell: Cell, horizon: int):
         from bench.sim_gym import GymEnv
 
-        return GymEnv(cell.task, horizon)  # the cell's task is the env id: workers need no configure()
+        return GymEnv(cell.task, horizon)  # the cell's task is the env id
 
-    def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "env_id": self.env_id}
+
+def _spec(env_id: str):
+    """Gymnasium's spec of `env_id`; `module:Env-v0` imports `module` first (as `gymnasium.make` does)."""
+    import gymnasium as gym
+
+    from bench.registry import import_module
+
+    module, _, name = env_id.rpartition(":")
+    if module:
+        import_module(module, "env_id")
+    try:
+        return gym.spec(name)
+    except gym.error.Error as exc:
+        valid = sorted(gym.registry)
+        raise ConfigError(f"env_id={env_id!r}: not a registered Gymnasium env ({type(exc).__name__})."
+                          f"{did_you_mean(name, valid)}") from None

@@ -37,8 +37,8 @@ Reference policy:
 """
 from __future__ import annotations
 
-from bench.errors import ConfigError
-from bench.suite import Cell, Suite
+from bench.protocols import STATE, Feature, ObsSpec
+from bench.suite import Cell, SuiteBase
 
 MAX_PATH_LENGTH = 500  # = bench.sim_metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
 
@@ -65,29 +65,34 @@ ML45 = {
 }
 
 
-class _MetaWorldSplit(Suite):
+class _MetaWorldSplit(SuiteBase):
     """Shared body of the Meta-World suites; subclasses set `benchmark` and `manifest`."""
 
     benchmark: str = ""
     version = "1"
     reference_policy = "scripted"
     default_horizon = MAX_PATH_LENGTH
+    max_horizon = MAX_PATH_LENGTH  # Meta-World raises on step 501
+    capabilities = frozenset({"expert"})
 
     def all_cells(self) -> list[Cell]:
         split = self.manifest["tasks"]
         return [Cell(self.name, t, "Sawyer", self.benchmark, side) for side in ("seen", "unseen") for t in split[side]]
 
-    def configure(self, cfg) -> None:
-        """Reject a horizon Meta-World cannot run (it raises on step 501); configs without one pass."""
-        horizon = getattr(cfg, "horizon", 0) or 0
-        if horizon > MAX_PATH_LENGTH:
-            raise ConfigError(f"horizon={horizon}: Meta-World episodes last at most {MAX_PATH_LENGTH} steps "
-                              f"(0 = the suite default, {MAX_PATH_LENGTH})")
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        from bench.sim_metaworld import OBS_NAMES
+
+        return {STATE: Feature.state(OBS_NAMES)}
 
     def make_env(self, cell: Cell, horizon: int):
         from bench.sim_metaworld import MetaWorldEnv
 
         return MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
+
+    def make_expert(self, cell: Cell, env):
+        from baselines.metaworld_expert import make_expert
+
+        return make_expert(env)
 
 
 class HeldOutEnvs(_MetaWorldSplit):

@@ -19,37 +19,54 @@ Action:
     robosuite's default OSC_POSE delta controller: 6 end-effector deltas in [-1, 1]
     (position deltas are world-frame on every arm) + gripper (+1 close, -1 open).
 Conditions:
-    nominal; perturbations via `perturb.*` when the perturbation library is present.
+    nominal; perturbations via `perturb.*` act on the MuJoCo model.
 Success:
     success_once = the cube was lifted 4 cm above the table at any step;
     success_at_end = it is still lifted at the last step (horizon 250 steps, 20 Hz).
 Metric:
     success rate per (task, robot) with Wilson intervals; mean over seen and unseen
     robots with a stratified bootstrap interval; transfer gap = seen - unseen.
+Policies:
+    `scripted` (the reference expert, suites/lift.py) succeeds on every arm; the default,
+    `bc`, is the committed behaviour-cloning checkpoint trained on the seen arms only
+    (results/coverage), so the default run shows a real seen -> unseen transfer gap.
 """
 from __future__ import annotations
 
-from bench.suite import Cell, Suite
+from bench.protocols import ObsSpec
+from bench.suite import Cell, SuiteBase
 
 SEEN = ["Panda", "Sawyer", "IIWA"]
 UNSEEN = ["UR5e", "Kinova3", "Jaco", "XArm7"]
 
 
-class HeldOutRobots(Suite):
+class HeldOutRobots(SuiteBase):
     """Lift on 7 robosuite arms; 3 seen, 4 held out (RoboNet style)."""
 
     name = "held_out_robots"
     version = "1"
     reference_policy = "scripted"
+    default_policy = "bc"
     default_horizon = 250
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
+    capabilities = frozenset({"expert"})
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, "Lift", r, "default", "seen") for r in SEEN] + [
             Cell(self.name, "Lift", r, "default", "unseen") for r in UNSEEN
         ]
 
-    def make_env(self, cell: Cell, horizon: int):
-        from bench.sim_robosuite import RobosuiteEnv
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        from suites.lift import LiftObserver
 
-        return RobosuiteEnv(cell.task, cell.robot, horizon)
+        return LiftObserver.obs_spec
+
+    def make_env(self, cell: Cell, horizon: int):
+        from suites import lift
+
+        return lift.make_env(cell.task, cell.robot, horizon)
+
+    def make_expert(self, cell: Cell, env):
+        from suites import lift
+
+        return lift.make_expert(env)

@@ -28,7 +28,7 @@ on at least one parameter, with spawn regions that do not overlap the seen squar
     Cells: task = "Lift", robot = "Panda", env = scene name; cell.options = the scene's
     parameters. Select scenes with `envs=[nominal,spawn_far]`.
 Observation / Action:
-    as held_out_robots (bench.sim_robosuite): 18 embodiment-agnostic numbers; 7-D OSC
+    as held_out_robots (suites/lift.py): 18 embodiment-agnostic numbers; 7-D OSC
     delta action.
 Conditions:
     nominal; perturbations via `perturb.*` act on the MuJoCo model.
@@ -43,7 +43,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.suite import Cell, Suite
+from bench.protocols import ObsSpec
+from bench.suite import Cell, SuiteBase
 
 NOMINAL: dict[str, Any] = {
     "table_height": 0.80,
@@ -126,7 +127,7 @@ def env_kwargs(params: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-class HeldOutScenes(Suite):
+class HeldOutScenes(SuiteBase):
     """Panda Lift in 12 robosuite scenes (table height/size/friction, spawn region); 6 seen, 6 held out."""
 
     name = "held_out_scenes"
@@ -134,6 +135,7 @@ class HeldOutScenes(Suite):
     reference_policy = "scripted"
     default_horizon = 250
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
+    capabilities = frozenset({"expert"})
 
     def all_cells(self) -> list[Cell]:
         return [
@@ -142,7 +144,17 @@ class HeldOutScenes(Suite):
             for scene in scenes
         ]
 
-    def make_env(self, cell: Cell, horizon: int):
-        from bench.sim_robosuite import RobosuiteEnv
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        from suites.lift import LiftObserver
 
-        return RobosuiteEnv(cell.task, cell.robot, horizon, env_kwargs=env_kwargs(cell.options or scene_params(cell.env)))
+        return LiftObserver.obs_spec
+
+    def make_env(self, cell: Cell, horizon: int):
+        from suites import lift
+
+        return lift.make_env(cell.task, cell.robot, horizon, env_kwargs(cell.options or scene_params(cell.env)))
+
+    def make_expert(self, cell: Cell, env):
+        from suites import lift
+
+        return lift.make_expert(env)

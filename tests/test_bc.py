@@ -16,7 +16,9 @@ from baselines.checkpoint import load_policy, spec_path
 from bench.errors import ConfigError, DataError
 from bench.logs import from_arrays, write_dataset
 from bench.recording import _expand
-from bench.sim_robosuite import ACTION_NAMES, OBS_NAMES
+from bench.protocols import STATE, ActionSpec, Feature
+from bench.sim_robosuite import ACTION_NAMES
+from suites.lift import OBS_FIELDS as OBS_NAMES
 
 OBS_FLAT = _expand([f"{n}:{w}" for n, w in OBS_NAMES])
 
@@ -78,12 +80,12 @@ def test_learns_the_expert_and_saves_a_loadable_checkpoint(tmp_path: Path):
     assert spec["normalization"]["action"]["std"][6] == 20.0  # gripper logit sharpness
 
     class Env:
-        obs_names, action_names = OBS_NAMES, ACTION_NAMES
-        action_low, action_high = -np.ones(7, np.float32), np.ones(7, np.float32)
+        obs_spec = {STATE: Feature.state(OBS_NAMES)}
+        action_spec = ActionSpec.box(ACTION_NAMES, -1.0, 1.0)
 
     policy = load_policy(path, Env())
     demos = bc.load_demos([data])  # the checkpoint, de-normalised and clipped, reproduces the expert's actions
-    acts = np.array([policy.act(o) for o in demos.obs])
+    acts = np.array([policy.act({STATE: o}) for o in demos.obs])
     assert np.mean(np.abs(acts[:, :3] - demos.action[:, :3])) < 0.1
     assert np.abs(acts[:, 3:6]).max() < 1e-6
     assert np.mean(acts[:, -1] == demos.action[:, -1]) > 0.9  # the sign head gives exactly +-1

@@ -3,7 +3,7 @@ import pytest
 
 from bench.check import check_cells, check_manifest, check_seeds
 from bench.cli import main
-from bench.suite import NOMINAL, Cell, Job, Suite
+from bench.suite import NOMINAL, Cell, Job
 
 
 def test_manifest_overlap_and_duplicates():
@@ -28,19 +28,39 @@ def test_repeated_seeds():
 
 
 def test_run_refuses_a_dirty_split(tmp_path, capsys, monkeypatch):
-    class Leaky(Suite):
-        name = "leaky"
-        manifest = {"robots": {"seen": ["Panda"], "unseen": ["Panda"]}}
-
-        def all_cells(self):
-            return [Cell(self.name, "Lift", "Panda", "default", "seen")]
-
-    from bench import registry
-
-    monkeypatch.setattr(registry, "make_suite", lambda name: Leaky())
-    assert main(["run", "suite=leaky", f"out={tmp_path}", "policy=random"]) == 2
+    (tmp_path / "leaky_suite.py").write_text(
+        "from tests.toy_suite import ToySuite\n\n\n"
+        "class Leaky(ToySuite):\n"
+        "    name = 'leaky'\n"
+        "    manifest = {'robots': {'seen': ['a', 'b'], 'unseen': ['a', 'c']}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "runs"
+    assert main(["run", "suite=leaky_suite:Leaky", f"out={out}"]) == 2
     assert "listed as both seen and unseen" in capsys.readouterr().err
-    assert not any(tmp_path.iterdir())
+    assert not out.exists()
+
+
+def test_check_verifies_the_suite_contract(tmp_path, capsys, monkeypatch):
+    (tmp_path / "broken_suite.py").write_text(
+        "from tests.toy_suite import ToySuite\n\n\n"
+        "class Broken(ToySuite):\n"
+        "    name = 'broken'\n"
+        "    default_metric = 'speed'\n"
+        "    capabilities = frozenset({'expert', 'teleport'})\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["check", "suite=broken_suite:Broken", "states=false"]) == 2
+    out = capsys.readouterr().out
+    assert "default_metric 'speed' is not one of success_once, success_at_end, return" in out
+    assert "capabilities ['teleport'] are not known; valid: expert" in out
+    assert main(["check", "suite=tests.toy_suite:ToySuite"]) == 0
+    out = capsys.readouterr().out
+    assert "contract on reach/a/line: ok" in out and "clean" in out
+
+
+def test_check_passes_suite_keys_and_skips_suites_that_need_them(capsys):
+    assert main(["check", "suite=tests.toy_suite:ToySuite", "goal=0.2", "contract=false", "states=false"]) == 0
+    assert main(["check", "suite=tests.toy_suite:ToySuite", "goal=far"]) == 2
+    assert "bad value for 'goal'" in capsys.readouterr().err
 
 
 def test_metaworld_ml25_overlap_is_caught(capsys):

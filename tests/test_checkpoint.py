@@ -13,9 +13,11 @@ import pytest
 import torch
 
 from baselines.architectures import build
-from baselines.checkpoint import load_policy, load_spec, make, save_checkpoint, spec_path
+from baselines.checkpoint import load_policy, load_spec, save_checkpoint, spec_path
 from bench.errors import ConfigError, SpecError
-from bench.sim_robosuite import ACTION_NAMES, OBS_NAMES
+from bench.protocols import STATE, ActionSpec, Feature
+from bench.sim_robosuite import ACTION_NAMES
+from suites.lift import OBS_FIELDS as OBS_NAMES
 
 
 def _spec(**extra) -> dict:
@@ -36,8 +38,7 @@ def ckpt(tmp_path: Path) -> Path:
 
 
 def _env(obs_names=OBS_NAMES, action_names=ACTION_NAMES):
-    return SimpleNamespace(obs_names=obs_names, action_names=action_names,
-                           action_low=-np.ones(len(action_names)), action_high=np.ones(len(action_names)))
+    return SimpleNamespace(obs_spec={STATE: Feature.state(obs_names)}, action_spec=ActionSpec.box(action_names, -1, 1))
 
 
 def test_round_trip_applies_normalisation_exactly(ckpt: Path):
@@ -51,12 +52,12 @@ def test_round_trip_applies_normalisation_exactly(ckpt: Path):
     on, an = spec["normalization"]["obs"], spec["normalization"]["action"]
     x = (obs - np.float32(on["mean"])) / np.float32(on["std"])
     want = model(torch.from_numpy(x[None]).float()).detach().numpy()[0] * np.float32(an["std"]) + np.float32(an["mean"])
-    np.testing.assert_allclose(policy.act(obs), want, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(policy.act({STATE: obs}), want, rtol=1e-5, atol=1e-6)
 
 
 def test_actions_are_clipped_to_env_bounds(ckpt: Path):
     policy = load_policy(ckpt, _env())
-    acts = np.array([policy.act(o) for o in np.random.default_rng(2).normal(scale=100, size=(50, 18))])
+    acts = np.array([policy.act({STATE: o}) for o in np.random.default_rng(2).normal(scale=100, size=(50, 18))])
     assert acts.min() >= -1 and acts.max() <= 1
     assert np.isclose(np.abs(acts).max(), 1.0)  # large inputs do saturate
 
@@ -68,7 +69,7 @@ def test_weights_only_pt_file_loads(ckpt: Path, tmp_path: Path):
     torch.save(load_file(str(ckpt)), pt)
     spec_path(pt).write_text(spec_path(ckpt).read_text())
     obs = np.ones(18, np.float32)
-    np.testing.assert_array_equal(load_policy(pt).act(obs), load_policy(ckpt).act(obs))
+    np.testing.assert_array_equal(load_policy(pt).act({STATE: obs}), load_policy(ckpt).act({STATE: obs}))
 
 
 def test_pickled_object_is_refused(tmp_path: Path):
@@ -131,9 +132,9 @@ def test_sidecar_that_differs_from_embedded_spec_is_refused(ckpt: Path):
 
 def test_missing_sidecar_falls_back_to_embedded_spec(ckpt: Path):
     obs = np.ones(18, np.float32)
-    before = load_policy(ckpt).act(obs)
+    before = load_policy(ckpt).act({STATE: obs})
     spec_path(ckpt).unlink()
-    np.testing.assert_array_equal(load_policy(ckpt).act(obs), before)
+    np.testing.assert_array_equal(load_policy(ckpt).act({STATE: obs}), before)
     with pytest.raises(SpecError, match="not found"):
         load_spec(ckpt, meta={})  # the fallback is the embedded copy, nothing else
 
@@ -155,9 +156,13 @@ def test_obs_names_mismatch_is_config_error(ckpt: Path):
         load_policy(ckpt, _env(action_names=ACTION_NAMES[::-1]))
 
 
-def test_factory_needs_checkpoint_key():
-    with pytest.raises(ConfigError, match="policy=checkpoint needs checkpoint=PATH"):
-        make(None, _env(), SimpleNamespace(checkpoint=None))
+def test_policy_checkpoint_needs_its_key_and_others_refuse_it(tmp_path: Path, ckpt: Path):
+    res = _bench("run", "policy=checkpoint", "robots=[Panda]", "episodes=1", f"out={tmp_path / 'runs'}", cwd=tmp_path)
+    assert res.returncode == 2 and "checkpoint: required" in res.stderr, res.stderr
+    res = _bench("run", "policy=scripted", f"checkpoint={ckpt}", "robots=[Panda]", f"out={tmp_path / 'runs'}",
+                 cwd=tmp_path)
+    assert res.returncode == 2 and "unknown key 'checkpoint'" in res.stderr and "policy scripted: (none)" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "runs").exists()
 
 
 def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -165,7 +170,7 @@ def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_bench_run_records_checkpoint_sha(ckpt: Path, tmp_path: Path):
-    from bench.run import sha256_file
+    from bench.io import sha256_file
 
     res = _bench("run", "policy=checkpoint", f"checkpoint={ckpt}", "robots=[Panda]", "episodes=1", "workers=1",
                  "horizon=20", "run_id=r", f"out={tmp_path / 'runs'}", cwd=tmp_path)

@@ -12,15 +12,23 @@ from bench.cli import main
     [
         (["run", "episods=3"], "unknown key 'episods'.*Did you mean 'episodes'"),
         (["run", "episodes=abc"], "bad value for 'episodes'"),
-        (["run", "episodes=0"], "episodes=0: must be >= 1"),
+        (["run", "episodes=0"], r"episodes=0: must be in \[1, "),
+        (["run", "episodes=3", "episodes=5"], "key 'episodes' is given twice"),
+        (["run", "env_id=HalfCheetah-v5"], "unknown key 'env_id'.*suite held_out_robots: \\(none\\)"),
+        (["run", "suite=gym"], "env_id: required"),
+        (["run", "robots=[]"], r"robots=\[\] selects nothing"),
+        (["run", "timeout=0"], "timeout=0.0: must be > 0"),
+        (["run", "seed=-1"], r"seed=-1: must be in \[0, "),
+        (["run", "horizon=-5"], r"horizon=-5: must be in \[0, "),
         (["run", "suite=held_out_robot"], "suite='held_out_robot' is not registered.*Did you mean 'held_out_robots'"),
         (["run", "policy=scriptd"], "policy='scriptd' is not registered.*Did you mean 'scripted'"),
         (["run", "robots=[Pandaa]"], "robots: 'Pandaa' is not in suite.*Did you mean 'Panda'"),
         (["run", "splits=[held]"], "splits: 'held' is not a split"),
         (["runn"], "unknown command 'runn'.*Did you mean 'run'"),
     ],
-    ids=["misspelled-key", "bad-type", "zero-episodes", "unknown-suite", "unknown-policy", "unknown-robot",
-         "bad-split", "unknown-command"],
+    ids=["misspelled-key", "bad-type", "zero-episodes", "key-twice", "key-of-no-part", "missing-suite-key",
+         "empty-selection", "zero-timeout", "negative-seed", "negative-horizon", "unknown-suite", "unknown-policy",
+         "unknown-robot", "bad-split", "unknown-command"],
 )
 def test_bad_input_exit_2_nothing_written(tmp_path, capsys, argv, pattern):
     out = tmp_path / "runs"
@@ -44,9 +52,11 @@ def test_console_script_help_is_fast_and_lists_commands():
 def test_run_help_documents_every_key(capsys):
     import dataclasses
 
-    from bench.run import RunConfig
+    from bench.api import RUNNER_KEYS
 
     assert main(["run", "--help"]) == 0
     text = capsys.readouterr().out
-    for f in dataclasses.fields(RunConfig):
-        assert f"  {f.name}" in text, f.name
+    for name in RUNNER_KEYS:
+        assert f"  {name}" in text, name
+    assert main(["run", "suite=gym", "--help"]) == 0  # the suite's own keys
+    assert "keys of suite gym:\n  env_id (required)" in capsys.readouterr().out

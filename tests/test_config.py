@@ -5,7 +5,7 @@ import pytest
 
 from bench.config import build, parse_kv, split_args
 from bench.errors import ConfigError
-from bench.run import RunConfig
+from bench.api import RunConfig
 
 
 def test_overrides_nested_and_lists():

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from baselines import coverage_sweep as sweep
 from bench import coverage as cov
+from bench import trend
 from bench.errors import ConfigError
 from bench.logs import from_arrays, write_dataset
 from bench.perturb import conditions_from_config
@@ -82,12 +84,12 @@ def test_param_coverage_of_ranges_grids_and_nominal():
 
 # -- slope ------------------------------------------------------------------------------------
 def test_wls_slope_recovers_a_line_and_weights_matter():
-    assert cov.wls_slope([0, 1, 2], [1, 3, 5], [1, 1, 1]) == pytest.approx((2.0, 1.0))
+    assert trend.wls_slope([0, 1, 2], [1, 3, 5], [1, 1, 1]) == pytest.approx((2.0, 1.0))
     # a noisy outlier with a huge variance barely moves the fit
-    b, _ = cov.wls_slope([0, 1, 2, 3], [0, 1, 2, 30], [1, 1, 1, 1e6])
+    b, _ = trend.wls_slope([0, 1, 2, 3], [0, 1, 2, 30], [1, 1, 1, 1e6])
     assert b == pytest.approx(1.0, abs=0.01)
     with pytest.raises(ValueError):
-        cov.wls_slope([1, 1], [0, 1], [1, 1])
+        trend.wls_slope([1, 1], [0, 1], [1, 1])
 
 
 def _outcomes(p: float, n: int, rng) -> np.ndarray:
@@ -105,10 +107,10 @@ def _series(rates, seeds=1, n=200, cells=("a", "b"), seed=0):
 
 
 def _slope(pts, x, seed=1, n_boot=500):
-    boot = cov.SeriesBootstrap(pts, np.random.default_rng(seed), n_boot)
+    boot = trend.SeriesBootstrap(pts, np.random.default_rng(seed), n_boot)
     means = [boot.mean(k, ["a", "b"]) for k in range(len(pts))]
     n = [sum(len(v) for s in pt for v in s.values()) for pt in pts]
-    return cov.slope_with_interval(x, [m[0] for m in means], [m[1] for m in means], n)
+    return trend.slope_with_interval(x, [m[0] for m in means], [m[1] for m in means], n)
 
 
 def test_slope_interval_covers_a_real_trend_and_zero_for_none():
@@ -116,13 +118,13 @@ def test_slope_interval_covers_a_real_trend_and_zero_for_none():
     assert s["ci"][0] < 0.3 < s["ci"][1] and s["ci"][0] > 0.15
     s = _slope(_series([0.5, 0.5, 0.5], n=100, seed=3), [1, 2, 3])
     assert s["ci"][0] < 0 < s["ci"][1]
-    assert cov.slope_with_interval([1, 1], [0.2, 0.3], [np.zeros(3), np.zeros(3)], [10, 10])["value"] is None
+    assert trend.slope_with_interval([1, 1], [0.2, 0.3], [np.zeros(3), np.zeros(3)], [10, 10])["value"] is None
 
 
 def test_training_seed_spread_widens_the_interval():
     # same pooled rate (0.5), but one point's seeds disagree (0.1 vs 0.9): its interval must be far wider
-    calm = cov.SeriesBootstrap(_series([0.5], seeds=2), np.random.default_rng(0), 1000)
-    split = cov.SeriesBootstrap(_series([[0.1, 0.9]]), np.random.default_rng(0), 1000)
+    calm = trend.SeriesBootstrap(_series([0.5], seeds=2), np.random.default_rng(0), 1000)
+    split = trend.SeriesBootstrap(_series([[0.1, 0.9]]), np.random.default_rng(0), 1000)
     (_, r1), (_, r2) = calm.mean(0, ["a", "b"]), split.mean(0, ["a", "b"])
     w1, w2 = np.ptp(calm.interval(r1)), np.ptp(split.interval(r2))
     assert w2 > 4 * w1 and calm.interval(r1)[0] < 0.5 < calm.interval(r1)[1]
@@ -131,7 +133,7 @@ def test_training_seed_spread_widens_the_interval():
 def test_episodes_are_paired_across_points():
     # two points with identical outcomes: every replicate of their difference is exactly 0
     pts = _series([0.4], seeds=1)
-    boot = cov.SeriesBootstrap([pts[0], pts[0]], np.random.default_rng(0), 300)
+    boot = trend.SeriesBootstrap([pts[0], pts[0]], np.random.default_rng(0), 300)
     (a, ra), (b, rb) = boot.mean(0, ["a"]), boot.mean(1, ["a"])
     assert a == b and np.all(ra == rb) and np.ptp(ra) > 0
 
@@ -140,7 +142,7 @@ def test_bootstrap_is_reproducible_from_the_seed_and_skips_missing_cells():
     pts = _series([0.3, 0.6], seeds=2, n=10)
     a = _slope(pts, [0, 1], seed=7)
     assert a == _slope(pts, [0, 1], seed=7)
-    boot = cov.SeriesBootstrap(pts, np.random.default_rng(0), 100)
+    boot = trend.SeriesBootstrap(pts, np.random.default_rng(0), 100)
     assert boot.mean(0, ["nope"]) == (None, None)
     assert boot.estimate(None, None)["reason"] == "no completed episodes"
 
@@ -181,7 +183,7 @@ def test_cli_writes_the_report_with_known_values(tmp_path: Path, capsys):
     (["data=x", "quantil=0.9"], "Did you mean 'quantile'"),
     (["data=x", "robots=[UR5]"], "Did you mean 'UR5e'"),
     (["data=x", "quantile=1.5"], "quantile=1.5: must be in"),
-    (["sweeep"], "Did you mean 'sweep'"),
+    (["sweep"], "the coverage sweep is an experiment script now: python -m baselines.coverage_sweep"),
 ])
 def test_bad_input_is_a_one_line_error(argv, match):
     with pytest.raises(ConfigError, match=match):
@@ -201,13 +203,13 @@ def test_bad_input_is_a_one_line_error(argv, match):
 ])
 def test_sweep_arguments_are_checked_before_any_work(argv, match, tmp_path: Path):
     with pytest.raises(ConfigError, match=match):
-        cov.main(["sweep", f"workdir={tmp_path / 'w'}", f"out={tmp_path / 'o'}", *argv])
+        sweep.main([f"workdir={tmp_path / 'w'}", f"out={tmp_path / 'o'}", *argv])
     assert not (tmp_path / "w").exists() and not (tmp_path / "o").exists()
 
 
 def test_help_lists_keys():
     assert "eval_data" in cov.help_text() and "reference radius" in cov.help_text()
-    assert "surrogate_perturb" in cov.sweep_help() and "total_episodes" in cov.sweep_help()
+    assert "surrogate_perturb" in sweep.sweep_help() and "total_episodes" in sweep.sweep_help()
 
 
 def _point(name, x, held, ind):
@@ -228,12 +230,12 @@ def test_plot_and_table_render_a_sweep_document(tmp_path: Path):
                                                             "success": {"value": 0.6, "ci": [0.4, 0.8]},
                                                             "vs_in_domain": {"value": 0.1, "ci": [-0.1, 0.3],
                                                                              "verdict": "no detectable effect"}}}}}
-    path = cov.plot_sweep(doc, tmp_path / "s.png")
+    path = sweep.plot_sweep(doc, tmp_path / "s.png")
     assert path.stat().st_size > 10_000 and path.read_bytes()[:4] == b"\x89PNG"
     from rich.console import Console
 
     console = Console(record=True, width=200)
-    cov.render_sweep(doc, console)
+    sweep.render_sweep(doc, console)
     text = console.export_text()
     assert "+0.100 [+0.000, +0.200]" in text and "no detectable effect" in text
 
@@ -243,7 +245,7 @@ def test_initial_states_use_the_runs_episode_seeds():
 
     class Env:
         def reset(self, seed):
-            return np.array([seed % 1000, 1.0])
+            return {"state": np.array([seed % 1000, 1.0])}
 
         def close(self):
             self.closed = True
@@ -263,22 +265,22 @@ def test_sweep_selects_the_first_episodes_across_sources(tmp_path: Path):
     s = np.zeros((3, 2), np.float32)
     a = _dataset(tmp_path / "a", [("Panda", s, {}), ("Panda", s, {"success_once": False}), ("Sawyer", s, {})])
     b = _dataset(tmp_path / "b", [("Panda", s + 1, {}), ("Panda", s + 2, {"condition": "gain=2", "success_once": False})])
-    d = cov._select([a, b], [("Panda", "nominal", 2), ("Sawyer", "nominal", 1)])
+    d = sweep._select([a, b], [("Panda", "nominal", 2), ("Sawyer", "nominal", 1)])
     assert [(Path(e["source"]).name, e["index"]) for e in d.episodes] == [("a", 0), ("b", 0), ("a", 2)]
     # under a perturbation failed demonstrations are kept (no truncation of the randomised range)
-    assert [e["index"] for e in cov._select([a, b], [("Panda", "gain=2", 1)]).episodes] == [1]
+    assert [e["index"] for e in sweep._select([a, b], [("Panda", "gain=2", 1)]).episodes] == [1]
     with pytest.raises(Exception, match="only 2 usable Panda demonstrations under nominal, 3 wanted"):
-        cov._select([a, b], [("Panda", "nominal", 3)])
+        sweep._select([a, b], [("Panda", "nominal", 3)])
 
 
 @pytest.mark.slow
 def test_tiny_sweep_end_to_end(tmp_path: Path):
     """Every part on real robosuite at a toy budget (minutes): records, trains, evaluates, writes JSON + PNG."""
     out = tmp_path / "out"
-    argv = ["sweep", "order=[Panda,Sawyer]", "total_episodes=2", "eval_episodes=1", "horizon=30", "dr_widths=[0.3]",
+    argv = ["order=[Panda,Sawyer]", "total_episodes=2", "eval_episodes=1", "horizon=30", "dr_widths=[0.3]",
             "surrogate_in_domain=1", "surrogate_episodes=1", "surrogate_eval_episodes=2", "bc.successful_only=false",
             "bc.epochs=1", "workers=1", "n_boot=200", f"workdir={tmp_path / 'work'}", f"out={out}"]
-    assert cov.main(argv + ["seeds=[0,1]"]) == 0
+    assert sweep.main(argv + ["seeds=[0,1]"]) == 0
     doc = json.loads((out / "sweep.json").read_text())
     assert [p["name"] for p in doc["robots"]["points"]] == ["robots1", "robots2"]
     assert [p["x"] for p in doc["dr"]["points"]] == [0.0, 0.3]
@@ -286,6 +288,6 @@ def test_tiny_sweep_end_to_end(tmp_path: Path):
     assert all(len(p["cells"]) == 7 for p in doc["robots"]["points"])
     assert (out / "sweep.png").stat().st_size > 10_000
     assert doc["robots"]["points"][0]["cells"]["Lift/Panda/default"]["n"] == 2  # 1 episode x 2 training seeds
-    assert cov.main(argv + ["seeds=[0,1]"]) == 0  # a rerun reuses every artifact and scores the same
+    assert sweep.main(argv + ["seeds=[0,1]"]) == 0  # a rerun reuses every artifact and scores the same
     again = json.loads((out / "sweep.json").read_text())
     assert again["robots"] == doc["robots"] and again["surrogate"] == doc["surrogate"]

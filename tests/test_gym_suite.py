@@ -1,58 +1,69 @@
 """suite=gym: any Gymnasium env id as a one-cell suite, with perturbations; bad input exits 2 writing nothing."""
 import json
-import types
 
 import numpy as np
 import pytest
 
 from bench.cli import main
 from bench.errors import ConfigError
-from bench.leaderboard import validate
+from bench.schema import validate
 from bench.records import comparable, read_records
 
 pytest.importorskip("gymnasium")
 
 
-def cfg(**kw):
-    return types.SimpleNamespace(**{"env_id": None, "robots": None, "tasks": None, "envs": None, "splits": None, **kw})
-
-
-def run(tmp_path, run_id, *extra):
-    return main(["run", "suite=gym", "env_id=InvertedPendulum-v5", "episodes=3", "workers=1", "horizon=40",
+def run(tmp_path, run_id, *extra, env_id="InvertedPendulum-v5"):
+    return main(["run", "suite=gym", f"env_id={env_id}", "episodes=3", "workers=1", "horizon=40",
                  f"out={tmp_path}", f"run_id={run_id}", *extra])
 
 
 def test_suite_needs_a_registered_env_id():
-    from suites.gym_suite import GymSuite
+    from suites.gym_suite import GymOptions, GymSuite
 
-    suite = GymSuite()
     with pytest.raises(ConfigError, match=r"env_id: suite=gym needs a Gymnasium env id"):
-        suite.configure(cfg())
+        GymSuite()
     with pytest.raises(ConfigError, match=r"env_id='HalfCheeta-v5': not a registered Gymnasium env .*Did you mean 'HalfCheetah-v5'\?"):
-        suite.configure(cfg(env_id="HalfCheeta-v5"))
-    suite.configure(cfg(env_id="HalfCheetah-v5"))
-    assert suite.default_horizon == 1000
-    (cell,) = suite.cells(cfg(env_id="HalfCheetah-v5"))
+        GymSuite(GymOptions("HalfCheeta-v5"))
+    suite = GymSuite(GymOptions("HalfCheetah-v5"))
+    assert suite.default_horizon == 1000 and suite.default_metric == "return"
+    (cell,) = suite.all_cells()
     assert (cell.task, cell.split) == ("HalfCheetah-v5", "seen")
     assert suite.describe()["env_id"] == "HalfCheetah-v5"
+
+
+def test_env_id_module_prefix_imports_the_registering_module(tmp_path, monkeypatch):
+    """`env_id=module:Env-v0` imports the module that registers the env, as gymnasium.make accepts."""
+    from suites.gym_suite import GymOptions, GymSuite
+
+    (tmp_path / "my_envs_mod.py").write_text(
+        "import gymnasium\n"
+        "gymnasium.register(id='MyPendulum-v0', entry_point='gymnasium.envs.classic_control:PendulumEnv', "
+        "max_episode_steps=77)\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    suite = GymSuite(GymOptions("my_envs_mod:MyPendulum-v0"))
+    assert suite.default_horizon == 77
+    assert run(tmp_path / "runs", "mod", env_id="my_envs_mod:MyPendulum-v0") == 0
+    recs = read_records(tmp_path / "runs" / "mod" / "episodes.jsonl")
+    assert len(recs) == 3 and all(r.error is None and r.task == "my_envs_mod:MyPendulum-v0" for r in recs)
 
 
 def test_box_env_contract_and_seeded_reset():
     from bench.sim_gym import GymEnv
 
     env = GymEnv("HalfCheetah-v5", 20)
-    assert env.obs_names == [("obs", 17)] and len(env.action_names) == 6 and env.model is not None
+    assert env.obs_spec["state"].fields == (("obs", 17),) and env.action_spec.dim == 6 and env.mujoco is not None
     assert env.backend.startswith("gymnasium-") and "/mujoco-" in env.backend
     actions = np.random.default_rng(0).uniform(-1, 1, size=(20, 6))
 
     def trajectory(seed):
-        obs = [env.reset(seed)]
+        obs = [env.reset(seed)["state"]]
         init = env.init_state().copy()
         for a in actions:
-            o, r, done, info = env.step(a)
-            obs.append(o)
-            assert info["success"] is False
-        assert done  # truncated at the horizon
+            o, r, terminated, truncated, info = env.step(a)
+            obs.append(o["state"])
+            assert env.success() is False
+        assert truncated and not terminated  # truncated at the horizon
         return init, np.array(obs)
 
     (i1, t1), (i2, t2), (i3, _) = trajectory(7), trajectory(7), trajectory(8)
@@ -67,11 +78,11 @@ def test_discrete_actions_are_rounded_within_bounds():
     from bench.sim_gym import GymEnv
 
     env = GymEnv("CartPole-v1", 50)
-    assert env.model is None and env.action_names == ["action"]
-    assert (env.action_low[0], env.action_high[0]) == (-0.5, 1.5)
+    assert env.mujoco is None and env.action_spec.names == ("action",)
+    assert (env.action_spec.low[0], env.action_spec.high[0]) == (-0.5, 1.5)
     assert env._action(np.array([0.49])) == 0 and env._action(np.array([0.51])) == 1
     assert env._action(np.array([9.0])) == 1
-    policy = RandomPolicy(env.action_low, env.action_high)
+    policy = RandomPolicy(env.action_spec.low, env.action_spec.high)
     policy.reset(0)
     picks = [env._action(policy.act(None)) for _ in range(400)]
     assert 0.4 < np.mean(picks) < 0.6
@@ -120,13 +131,14 @@ def test_same_seed_with_domain_randomisation_gives_identical_records(tmp_path):
     (["perturb.mass.levels=[2]", "perturb.mass.bodies=[pole2]"],
      r"perturb.mass.bodies: 'pole2' is not a body of InvertedPendulum-v5/default/default; valid: world, cart, pole.*Did you mean 'pole'\?"),
     (["perturb.mass=[2]"], r"perturb.mass: InvertedPendulum-v5/default/default declares no manipulated object"),
-    (["env_id=CartPole-v1", "perturb.damping=[2]"], r"perturb.damping: .* has no MuJoCo model"),
+    (["perturb.damping=[2]", "CartPole-v1"], r"perturb.damping: .* cannot apply it; model axes there: none"),
     (["perturb.friction=[0.5]", "perturb.friction.bodies=[pole]"],
      r"perturb.friction is set to a value and also given the sub-key perturb.friction.bodies; .*perturb.friction.levels="),
 ], ids=["unknown-axis", "negative-scale", "unknown-body", "mass-without-object", "model-axis-on-non-mujoco",
         "levels-and-subkeys-mixed"])
 def test_bad_perturbation_exits_2_and_writes_nothing(tmp_path, capsys, extra, match):
-    assert run(tmp_path, "bad", *extra) == 2
+    env_id = extra[-1] if extra[-1] == "CartPole-v1" else "InvertedPendulum-v5"
+    assert run(tmp_path, "bad", *[e for e in extra if e != env_id], env_id=env_id) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "\n" not in err
     import re

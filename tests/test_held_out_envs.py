@@ -8,7 +8,8 @@ import pytest
 
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.run import RunConfig
+from bench.api import RunConfig
+from bench.suite import select_cells
 from suites.held_out_envs import ML10, ML45, HeldOutEnvs, HeldOutEnvsML45
 
 pytest.importorskip("metaworld")
@@ -63,19 +64,20 @@ def test_metaworld_manifest_rejects_unknown_benchmark():
 
 def test_cell_selection_by_split_and_task():
     suite = HeldOutEnvs()
-    cells = suite.cells(RunConfig(splits=["unseen"]))
+    cells = select_cells(suite, RunConfig(splits=["unseen"]))
     assert [c.task for c in cells] == ML10["unseen"]
-    cells = suite.cells(RunConfig(tasks=["drawer-open-v3", "reach-v3"]))
+    cells = select_cells(suite, RunConfig(tasks=["drawer-open-v3", "reach-v3"]))
     assert {(c.task, c.split) for c in cells} == {("drawer-open-v3", "unseen"), ("reach-v3", "seen")}
     with pytest.raises(ConfigError, match="tasks: 'drawer-open' is not in suite.*Did you mean 'drawer-open-v3'"):
-        suite.cells(RunConfig(tasks=["drawer-open"]))
+        select_cells(suite, RunConfig(tasks=["drawer-open"]))
 
 
 def test_horizon_over_500_rejected():
-    with pytest.raises(ConfigError, match="horizon=600"):
-        HeldOutEnvs().configure(RunConfig(horizon=600))
-    HeldOutEnvs().configure(RunConfig(horizon=0))
-    HeldOutEnvs().configure(object())  # e.g. `bench check`'s config has no horizon
+    from bench import api
+
+    assert HeldOutEnvs.max_horizon == 500
+    with pytest.raises(ConfigError, match="horizon=600: suite 'held_out_envs' episodes last at most 500 steps"):
+        api.plan(RunConfig(suite="held_out_envs", horizon=600, tasks=["reach-v3"]))
 
 
 def test_listing_does_not_import_metaworld():
@@ -93,11 +95,11 @@ def drawer_open():
 
 def test_seed_pins_initial_state(drawer_open):
     env = drawer_open
-    obs_a = env.reset(7)
+    obs_a = env.reset(7)["state"]
     hash_a = state_hash(env.init_state())
     for _ in range(30):  # move things, then come back with the same seed
         env.step(np.array([1.0, -1.0, 0.5, 1.0]))
-    obs_b = env.reset(7)
+    obs_b = env.reset(7)["state"]
     assert state_hash(env.init_state()) == hash_a
     np.testing.assert_array_equal(obs_a, obs_b)
     env.reset(8)
@@ -108,7 +110,7 @@ def test_seed_pins_initial_state(drawer_open):
 
 
 def test_goal_hidden_and_layout(drawer_open):
-    obs = drawer_open.reset(0)
+    obs = drawer_open.reset(0)["state"]
     assert obs.shape == (sum(w for _, w in OBS_NAMES),) == (39,) and obs.dtype == np.float32
     assert np.all(obs[-3:] == 0.0)
     assert np.linalg.norm(drawer_open.true_goal()) > 0.1  # the goal exists, it is only hidden
@@ -116,7 +118,7 @@ def test_goal_hidden_and_layout(drawer_open):
 
 def test_expert_solves_a_test_task_quietly(drawer_open):
     env = drawer_open
-    expert = env.make_expert()
+    expert = HeldOutEnvs().make_expert(None, env)
     obs = env.reset(3)
     expert.reset(3)
     successes, done, steps = [], False, 0
@@ -125,17 +127,18 @@ def test_expert_solves_a_test_task_quietly(drawer_open):
         while not done:
             action = expert.act(obs)
             assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
-            obs, _, done, info = env.step(action)
-            successes.append(info["success"])
+            obs, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            successes.append(env.success())
             steps += 1
     assert steps == 500 and any(successes)
-    assert np.all(obs[-3:] == 0.0)  # the expert's goal never leaks into the observation
+    assert np.all(obs["state"][-3:] == 0.0)  # the expert's goal never leaks into the observation
 
 
 def test_short_horizon_ends_episode():
     env = MetaWorldEnv("reach-v3", horizon=5)
     env.reset(0)
-    dones = [env.step(np.zeros(4))[2] for _ in range(5)]
+    dones = [env.step(np.zeros(4))[3] for _ in range(5)]  # truncated at the horizon
     assert dones == [False] * 4 + [True]
     with pytest.raises(RuntimeError, match="reset first"):
         env.step(np.zeros(4))

@@ -4,7 +4,8 @@ import pytest
 
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.run import RunConfig
+from bench.api import RunConfig
+from bench.suite import select_cells
 from suites.held_out_scenes import (
     NOMINAL,
     SEEN_SCENES,
@@ -46,10 +47,10 @@ def test_straddling_spawn_region_is_flagged():
 
 def test_env_selection():
     suite = HeldOutScenes()
-    cells = suite.cells(RunConfig(envs=["nominal", "spawn_far"]))
+    cells = select_cells(suite, RunConfig(envs=["nominal", "spawn_far"]))
     assert [(c.env, c.split) for c in cells] == [("nominal", "seen"), ("spawn_far", "unseen")]
     with pytest.raises(ConfigError, match="envs: 'spawn_fra' is not in suite.*Did you mean 'spawn_far'"):
-        suite.cells(RunConfig(envs=["spawn_fra"]))
+        select_cells(suite, RunConfig(envs=["spawn_fra"]))
 
 
 def test_env_kwargs_of_a_scene():
@@ -78,21 +79,21 @@ def scene_env():
 
 def test_raised_table_scene_builds_where_declared(scene_env):
     env = scene_env("table_up_12cm")
-    m = env.model
-    assert env.data.site_xpos[m.site("table_top").id][2] == pytest.approx(0.92)
+    m = env.mujoco.model
+    assert env.mujoco.data.site_xpos[m.site("table_top").id][2] == pytest.approx(0.92)
     table = m.geom("table_collision").id
     assert m.geom_priority[table] == 1 and m.geom_friction[table][0] == pytest.approx(1.0)
     obs = env.reset(0)
     for _ in range(10):  # let the cube settle on the table
-        obs, _, _, info = env.step(np.zeros(7))
-    cube_z = obs[8 + 2]  # object_pos z (see bench.sim_robosuite.OBS_NAMES)
+        obs, *_ = env.step(np.zeros(7))
+    cube_z = obs["state"][8 + 2]  # object_pos z (see suites/lift.py OBS_FIELDS)
     assert cube_z == pytest.approx(0.92 + 0.021, abs=0.004)  # resting on the raised table (half-size 2-2.2 cm)
-    assert not info["success"]  # success is measured from this table's height, not robosuite's 0.8 m
+    assert not env.success()  # success is measured from this table's height, not robosuite's 0.8 m
 
 
 def test_spawn_region_is_where_declared(scene_env):
     env = scene_env("spawn_side")
-    ys = [env.reset(s)[9] for s in range(5)]  # object_pos y
+    ys = [env.reset(s)["state"][9] for s in range(5)]  # object_pos y
     assert all(-0.13 - 1e-6 <= y <= -0.07 + 1e-6 for y in ys), ys
     assert len(set(np.round(ys, 6))) == 5  # seeds give different placements
 
@@ -100,11 +101,11 @@ def test_spawn_region_is_where_declared(scene_env):
 def test_scene_is_part_of_the_initial_state(scene_env):
     """Nominal and the slippery table start from the same joint state; the hashes must still differ."""
     nominal, slippery = scene_env("nominal"), scene_env("table_slippery")
-    assert slippery.model.geom_friction[slippery.model.geom("table_collision").id][0] == pytest.approx(0.2)
+    assert slippery.mujoco.model.geom_friction[slippery.mujoco.model.geom("table_collision").id][0] == pytest.approx(0.2)
     nominal.reset(4)
     slippery.reset(4)
     n_state, s_state = nominal.init_state(), slippery.init_state()
-    nq = nominal.model.nq + nominal.model.nv
+    nq = nominal.mujoco.model.nq + nominal.mujoco.model.nv
     np.testing.assert_allclose(n_state[:nq], s_state[:nq])  # same placement, same robot pose
     assert state_hash(n_state) != state_hash(s_state)
     nominal.reset(4)

@@ -10,7 +10,8 @@ import pytest
 
 from bench import cli
 from bench.errors import DataError
-from bench.leaderboard import merge, read_input, validate
+from bench.leaderboard import merge, read_input
+from bench.schema import validate
 from bench.records import EpisodeRecord
 from bench.summary import build
 

@@ -130,7 +130,7 @@ def test_lerobot_loads_rlds_import(lerobot_python, tmp_path):
 def test_lerobot_loads_bench_run_recording(lerobot_python, tmp_path):
     """`bench run record=` (robosuite rollouts, nominal and perturbed, success per episode)."""
     root = tmp_path / "rec"
-    assert main(["run", "robots=[Panda]", "episodes=1", "horizon=15", "workers=1", "run_id=r",
+    assert main(["run", "policy=scripted", "robots=[Panda]", "episodes=1", "horizon=15", "workers=1", "run_id=r",
                  f"out={tmp_path / 'runs'}", f"record={root}", "perturb.link_mass=[3]"]) == 0
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert doc["total_episodes"] == 2

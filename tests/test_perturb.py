@@ -7,6 +7,7 @@ import pytest
 
 from bench import perturb
 from bench.errors import ConfigError
+from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle
 from bench.suite import Condition, condition_rng
 
 pytest.importorskip("gymnasium")
@@ -39,30 +40,34 @@ MJCF = """
 
 
 class MjcfEnv:
-    """A raw MJCF behind the Env contract (what bench.perturb needs: model, data, reset/step)."""
+    """A raw MJCF behind the EnvAdapter contract (`model`/`data` kept as attributes for the tests)."""
 
     backend = f"mujoco-{mujoco.__version__}"
+    inputs = None
+    model_axes = None
+    fps = 0.0
 
     def __init__(self, xml: str = MJCF):
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
-        self.object_bodies = ["box"]
-        self.action_low = np.array([-1.0, -5.0], np.float32)
-        self.action_high = np.array([1.0, 5.0], np.float32)
-        self.obs_names = [("qpos", self.model.nq)]
-        self.action_names = ["servo1", "motor2"]
+        self.mujoco = MujocoHandle(self.model, self.data, ("box",))
+        self.action_spec = ActionSpec.box(["servo1", "motor2"], [-1.0, -5.0], [1.0, 5.0])
+        self.obs_spec = {STATE: Feature.state([("qpos", self.model.nq)])}
         self.horizon = 100
 
-    def reset(self, seed: int) -> np.ndarray:
+    def reset(self, seed: int):
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[0] = np.random.default_rng(seed).uniform(-0.1, 0.1)
         mujoco.mj_forward(self.model, self.data)
-        return self.data.qpos.astype(np.float32).copy()
+        return {STATE: self.data.qpos.astype(np.float32).copy()}
 
     def step(self, action):
         self.data.ctrl[:] = action
         mujoco.mj_step(self.model, self.data)
-        return self.data.qpos.astype(np.float32).copy(), 0.0, False, {"success": False}
+        return {STATE: self.data.qpos.astype(np.float32).copy()}, 0.0, False, False, {}
+
+    def success(self):
+        return False
 
     def init_state(self):
         return np.concatenate([self.data.qpos, self.data.qvel])
@@ -99,7 +104,7 @@ def test_grid_and_range_conditions_are_named_and_nominal_first():
 
 def test_cli_grammar_through_the_run_config():
     from bench import config
-    from bench.run import RunConfig
+    from bench.api import RunConfig
 
     cfg = config.build(RunConfig, ["perturb.friction=[0.5,2]", "perturb.gravity=uniform(0.9,1.1)",
                                    "perturb.mass.levels=[2]", "perturb.mass.bodies=[box]", "perturb.link_mass.uniform=[0.5,1.5]"])
@@ -144,7 +149,7 @@ def test_validate_names_against_the_model():
 
 def test_mass_without_declared_object_asks_for_bodies():
     env = MjcfEnv()
-    env.object_bodies = []
+    env.mujoco.object_bodies = ()
     with pytest.raises(ConfigError, match=r"declares no manipulated object .*perturb.mass.bodies=\[...\]"):
         perturb.validate(env, perturb.conditions_from_config({"mass": [2]}))
 
@@ -282,7 +287,7 @@ def test_latency_delays_the_executed_action(cheetah):
     for t, a in enumerate(cmds):
         stepper.step(a)
         expected = np.zeros(6) if t < 3 else cmds[t - 3]
-        np.testing.assert_allclose(cheetah.data.ctrl, expected, atol=1e-6)
+        np.testing.assert_allclose(cheetah.mujoco.data.ctrl, expected, atol=1e-6)
 
 
 def test_action_hold_lowers_the_control_rate(cheetah):
@@ -290,7 +295,7 @@ def test_action_hold_lowers_the_control_rate(cheetah):
     cmds = _commands(12, 6)
     for t, a in enumerate(cmds):
         stepper.step(a)
-        np.testing.assert_allclose(cheetah.data.ctrl, cmds[(t // 4) * 4], atol=1e-6)
+        np.testing.assert_allclose(cheetah.mujoco.data.ctrl, cmds[(t // 4) * 4], atol=1e-6)
 
 
 def test_action_and_observation_noise(cheetah):
@@ -299,13 +304,13 @@ def test_action_and_observation_noise(cheetah):
     executed = []
     for a in cmds:
         stepper.step(a)
-        executed.append(cheetah.data.ctrl.copy())
+        executed.append(cheetah.mujoco.data.ctrl.copy())
     assert np.std(executed) == pytest.approx(0.1, rel=0.15)  # half-range is 1 on HalfCheetah
 
     clean_env = apply(cheetah, perturb.NOMINAL)[0]
-    clean = [clean_env.reset(5)] + [clean_env.step(a)[0] for a in cmds[:20]]
+    clean = [clean_env.reset(5)[STATE]] + [clean_env.step(a)[0][STATE] for a in cmds[:20]]
     noisy_env, _ = perturb.apply(cheetah, cond("obs_noise", [0.05]), np.random.default_rng(0))
-    noisy = [noisy_env.reset(5)] + [noisy_env.step(a)[0] for a in cmds[:20]]
+    noisy = [noisy_env.reset(5)[STATE]] + [noisy_env.step(a)[0][STATE] for a in cmds[:20]]
     diff = np.array(noisy) - np.array(clean)  # noise on what the policy sees, the dynamics are untouched
     assert np.std(diff) == pytest.approx(0.05, rel=0.2)
     np.testing.assert_allclose(cheetah.init_state(), clean_env.init_state())
@@ -315,10 +320,11 @@ def test_model_axis_needs_a_mujoco_model():
     from bench.sim_gym import GymEnv
 
     env = GymEnv("CartPole-v1", 20)
-    with pytest.raises(ConfigError, match=r"perturb.friction: the env \(gymnasium-.*\) has no MuJoCo model; only interface"):
+    with pytest.raises(ConfigError, match=r"perturb.friction: the env \(gymnasium-.*\) cannot apply it; model axes "
+                                          r"there: none; interface axes work everywhere"):
         perturb.validate(env, perturb.conditions_from_config({"friction": [0.5]}))
     stepper, params = apply(env, cond("latency", [1]))  # interface axes work on any env
-    assert params == {"latency": 1} and stepper.step(np.array([1.0]))[0].shape == (4,)
+    assert params == {"latency": 1} and stepper.step(np.array([1.0]))[0][STATE].shape == (4,)
 
 
 def test_robosuite_object_mass_survives_soft_reset_and_names_are_checked():
@@ -326,17 +332,18 @@ def test_robosuite_object_mass_survives_soft_reset_and_names_are_checked():
 
     if importlib.util.find_spec("robosuite") is None:  # not importorskip: the adapter quiets robosuite's import
         pytest.skip("robosuite is not installed")
-    from bench.sim_robosuite import RobosuiteEnv
+    from suites.lift import make_env
 
-    env = RobosuiteEnv("Lift", "Panda", 20)
+    env = make_env("Lift", "Panda", 20)
     try:
-        assert env.object_bodies == ["cube_main"]
-        cube = env.model.body("cube_main").id
-        m0 = env.model.body_mass[cube]
+        assert env.mujoco.object_bodies == ("cube_main",)
+        model = env.mujoco.model
+        cube = model.body("cube_main").id
+        m0 = model.body_mass[cube]
         apply(env, cond("mass", [3.0]))  # apply, then robosuite's soft reset
-        assert env.model.body_mass[cube] == pytest.approx(3 * m0)
+        assert model.body_mass[cube] == pytest.approx(3 * m0)
         apply(env, perturb.NOMINAL)
-        assert env.model.body_mass[cube] == pytest.approx(m0)
+        assert model.body_mass[cube] == pytest.approx(m0)
         # the check `bench run` makes before writing anything (exit 2 path: tests/test_gym_suite.py)
         with pytest.raises(ConfigError, match=r"perturb.mass.bodies: 'cube' is not a body of Lift/Panda/default; "
                                               r"valid: .*Did you mean 'cube_main'\?"):

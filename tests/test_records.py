@@ -50,7 +50,7 @@ def test_atomic_writes_get_the_usual_permissions(tmp_path):
     """mkstemp creates 0600 files; results written atomically are as readable as open() would make them."""
     import os
 
-    from bench.summary import write_atomic
+    from bench.io import write_atomic
 
     umask = os.umask(0o022)
     os.umask(umask)

@@ -15,9 +15,9 @@ def test_builtins_registered_through_entry_points():
 
 @pytest.mark.parametrize("name", registry.names(registry.SUITES))
 def test_every_suite_declares_identity(name):
-    suite = registry.make_suite(name)
-    assert suite.name == name and suite.version
-    for axis, split in suite.manifest.items():
+    cls = registry.suite_class(name)  # entry-point name == Suite.name is checked here
+    assert cls.name == name and cls.version
+    for axis, split in cls.manifest.items():
         assert not set(split.get("seen", [])) & set(split.get("unseen", [])), axis
 
 
@@ -29,7 +29,11 @@ def test_suite_miss_lists_valid_names():
 
 def test_policy_miss():
     with pytest.raises(RegistryError, match="policy='nope' is not registered"):
-        registry.policy_factory("nope")
+        registry.load_policy("nope")
+    with pytest.raises(RegistryError, match=r"policy='bench.nope:x': cannot import 'bench.nope'"):
+        registry.load_policy("bench.nope:x")
+    with pytest.raises(RegistryError, match=r"policy='tests.toy_suite:nope': module 'tests.toy_suite' has no 'nope'"):
+        registry.load_policy("tests.toy_suite:nope")
 
 
 def test_list_imports_no_simulator():

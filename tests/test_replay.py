@@ -236,7 +236,7 @@ def test_recording_logs_ctrl_that_reproduce_the_physics(robosuite_rec):
     cell = next(c for c in suite.all_cells() if c.robot == "Panda")
     env = suite.make_env(cell, 30)
     try:
-        m = env.model
+        m = env.mujoco.model
         d = mujoco.MjData(m)
         ep = next(e for e in ds.episodes if e.meta["condition"] == "nominal")
         state, ctrl = ep.data["observation.sim_state"].astype(np.float64), ep.data["action.ctrl"].astype(np.float64)

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.leaderboard import load_json, merge, read_input, validate
+from bench.leaderboard import merge, read_input
+from bench.schema import load_json, validate
 from bench.records import EPISODES, read_records
 from bench.summary import build
 

@@ -9,14 +9,14 @@ import time
 import pytest
 
 from bench.cli import main
-from bench.leaderboard import validate
+from bench.schema import validate
 from bench.records import comparable, read_records
 
 pytest.importorskip("robosuite")
 
 
 def _run(tmp_path, run_id, *extra):
-    return main(["run", "suite=held_out_robots", "robots=[Panda,UR5e]", "episodes=1", "workers=1",
+    return main(["run", "suite=held_out_robots", "policy=scripted", "robots=[Panda,UR5e]", "episodes=1", "workers=1",
                  f"out={tmp_path}", f"run_id={run_id}", *extra])
 
 

@@ -125,7 +125,7 @@ def test_return_drop_for_tasks_without_success():
 
 
 def test_summary_with_sensitivity_validates_against_the_schema():
-    from bench.leaderboard import validate
+    from bench.schema import validate
     from bench.summary import build
 
     recs = run_records([1, 1, 0, 1], [0, 1, 0, 0])

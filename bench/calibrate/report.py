@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from bench.calibrate.trace import Calibration
-from bench.summary import write_atomic, write_text_atomic
+from bench.io import write_atomic, write_text_atomic
 
 SCHEMA = "bench.calibration/1"
 ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse", "r2")

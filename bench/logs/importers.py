@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.errors import DataError, did_you_mean
 from bench.logs.dataset import LogDataset, first_bad_row, from_arrays
-from bench.logs import tfrecord
+import bench.logs.tfrecord as tfrecord
 
 TIME_NAMES = ("t", "time", "Time", "timestamp")
 

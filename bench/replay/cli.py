@@ -81,7 +81,7 @@ def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
 
 def write(rep: Replay, out: Path, n_plot: int) -> Path:
     """OUT/replay.json (atomically, no NaN) and OUT/replay.png."""
-    from bench.summary import write_atomic
+    from bench.io import write_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     png = plot(rep, out / "replay.png", n_plot)

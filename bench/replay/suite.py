@@ -33,15 +33,12 @@ def _coordinates(model) -> tuple[list[str], np.ndarray]:
 
 
 def _set_state(env, state: np.ndarray) -> None:
-    import mujoco
 
-    nq = env.model.nq
-    env.data.qpos[:] = state[:nq]
-    env.data.qvel[:] = state[nq:]
-    if hasattr(env, "sim_forward"):
-        env.sim_forward()
-    else:
-        mujoco.mj_forward(env.model, env.data)
+    mj = env.mujoco
+    nq = mj.model.nq
+    mj.data.qpos[:] = state[:nq]
+    mj.data.qvel[:] = state[nq:]
+    mj.forward()
 
 
 def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray]:
@@ -61,12 +58,12 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
             if key not in built:
                 env = suite.make_env(cells[key], suite.default_horizon)
                 built[key] = env
-                if getattr(env, "model", None) is None or getattr(env, "data", None) is None:
+                if env.mujoco is None:
                     raise DataError(f"suite {cfg.suite!r}: cell {key} has no MuJoCo model/data to set states in")
-                if env.model.nq + env.model.nv != width:
+                if env.mujoco.model.nq + env.mujoco.model.nv != width:
                     raise DataError(f"{cfg.logs}: observation.sim_state has width {width}, but cell {key}'s model "
-                                    f"has nq + nv = {env.model.nq + env.model.nv}; was it recorded with this suite?")
-                n, i = _coordinates(env.model)
+                                    f"has nq + nv = {env.mujoco.model.nq + env.mujoco.model.nv}; was it recorded with this suite?")
+                n, i = _coordinates(env.mujoco.model)
                 if names is None:
                     names, idx = n, i
                 elif n != names:
@@ -118,7 +115,7 @@ def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
     names = ds.features[CTRL].get("names") or []
     for env in _distinct(envs):
         try:
-            inputs = mj_input_names(env.model, spec)
+            inputs = mj_input_names(env.mujoco.model, spec)
         except ValueError as exc:
             raise DataError(f"{cfg.logs}: episode metadata 'ctrl_spec': {exc}") from None
         size = len(inputs)
@@ -150,7 +147,7 @@ def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets
             _set_state(env, full[start])
             for f in range(n):
                 env.step(act[start + f])
-                pred[s, f] = env.data.qpos[idx]
+                pred[s, f] = env.mujoco.data.qpos[idx]
             steps += n
         out[label] = pred
     return out, steps
@@ -171,7 +168,7 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
     inputs = int(mujoco.mjtState.mjSTATE_CTRL) if ctrl_spec is None else int(ctrl_spec)
     by_env: dict[int, Any] = {id(e): e for e in _distinct(envs)}
     pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
-    datas: dict[int, list] = {k: [mujoco.MjData(e.model) for _ in range(threads)] for k, e in by_env.items()}
+    datas: dict[int, list] = {k: [mujoco.MjData(e.mujoco.model) for _ in range(threads)] for k, e in by_env.items()}
     out, steps = {}, 0
     try:
         for label, segs in segments.items():
@@ -180,7 +177,7 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
             pred = np.zeros((len(segs), segs.length, len(idx)))
             nstep = segs.length * substeps
             for key, env in by_env.items():
-                m, d = env.model, env.data
+                m, d = env.mujoco.model, env.mujoco.data
                 members = np.flatnonzero([id(envs[e]) == key for e in episode])
                 if not len(members):
                     continue
@@ -257,7 +254,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
         exact = 0
         for i, (env, seed) in enumerate(zip(envs, seeds)):
             env.reset(seed if seed is not None else 0)
-            s0 = np.concatenate([env.data.qpos, env.data.qvel])
+            s0 = np.concatenate([env.mujoco.data.qpos, env.mujoco.data.qvel])
             if seed is not None and np.all(np.abs(s0 - states[i][0]) <= 1e-6 * np.maximum(1.0, np.abs(s0))):
                 states[i][0] = s0  # the same state, without the float32 rounding of the log
                 exact += 1

@@ -1,0 +1,659 @@
+"""The coverage sweep: does wider training coverage buy held-out success? (an experiment on bench.api)
+
+Records scripted demonstrations (`bench.api.run` with `record=`), trains the behaviour-cloning
+baseline (`baselines.bc`) on nested training sets of increasing coverage — 1, 2, 3 seen robots at a
+fixed demonstration budget; domain-randomisation widths on one perturbation axis — evaluates every
+checkpoint on the suite's cells with the same seeds, and reports held-out success and the transfer
+gap against coverage with intervals, the fitted slope with a paired bootstrap interval
+(`bench.trend`), a plot, and the surrogate-data question (adding mismatched data to a fixed
+in-domain set). Coverage metrics are `bench.coverage`'s; rollouts, records and intervals are the
+harness's. Everything under `workdir` is reused on a rerun.
+
+    python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage-sweep
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from bench import scoring
+from bench.api import RunConfig
+from bench.coverage import TrainingData, coverage_report, fmt_pct, initial_states_from_suite
+from bench.errors import BenchError, ConfigError, DataError, did_you_mean
+from bench.trend import SeriesBootstrap, slope_with_interval
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Keys of the coverage sweep (`python -m baselines.coverage_sweep --help`)."""
+
+    suite: str = "held_out_robots"          # suite with a scripted expert and a seen/unseen robot split
+    order: list[str] = field(default_factory=lambda: ["Panda", "Sawyer", "IIWA"])  # seen robots, added one at a time
+    total_episodes: int = 36                # demonstrations per training set (budget=fixed), split evenly over robots
+    budget: str = "fixed"                   # fixed: total_episodes over the set's robots; per_robot: total_episodes each
+    dr_axis: str = "gain"                   # domain-randomisation axis ('' skips the DR part)
+    dr_widths: list[float] = field(default_factory=lambda: [0.1, 0.3])  # DR widths w besides 0: uniform(1-w, 1+w)
+    surrogate_target: str = "Panda"         # in-domain robot of the surrogate-data experiment
+    surrogate_in_domain: int = 12           # fixed in-domain demonstrations (target robot, nominal)
+    surrogate_episodes: int = 24            # mismatched demonstrations added to them
+    surrogate_perturb: str = "latency=4"    # strongly perturbed simulator on the target robot: AXIS=LEVEL
+    surrogate_eval_episodes: int = 30       # evaluation episodes on the target robot per surrogate model
+    eval_episodes: int = 10                 # evaluation episodes per cell (all robots) per sweep model
+    demo_seed: int = 0                      # seed of the demonstration runs (the extra run uses demo_seed+1)
+    eval_seed: int = 1                      # seed of every evaluation run (same initial states for every model)
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])  # BC training seeds per training set (spread enters every interval)
+    workers: int = 2                        # worker processes of each bench run
+    horizon: int = 0                        # control steps per episode, demonstrations and evaluations (0 = suite default)
+    parts: list[str] = field(default_factory=lambda: ["robots", "dr", "surrogate"])  # experiments to run
+    bc: dict[str, Any] = field(default_factory=dict)  # baselines.bc Args overrides, e.g. bc.epochs=50
+    workdir: str = "runs/coverage"          # demonstrations, checkpoints, evaluation runs (reused when present)
+    out: str = "results/coverage"           # sweep.json and sweep.png go here
+    n_boot: int = 2000                      # bootstrap resamples
+    confidence: float = 0.95                # two-sided interval level
+
+
+PARTS = ("robots", "dr", "surrogate")
+BUDGETS = ("fixed", "per_robot")
+
+
+def sweep_help() -> str:
+    from bench.config import command_help
+
+    return command_help(
+        "usage: python -m baselines.coverage_sweep [key=value ...]",
+        "Does wider training coverage buy held-out success? Records scripted demonstrations\n"
+        "(bench run ... record=), trains baselines.bc on nested training sets — 1, 2, 3 seen robots at a\n"
+        "fixed demonstration budget (robots); domain randomisation of one axis at widths 0, ±w (dr) —\n"
+        "evaluates each checkpoint on every cell with policy=checkpoint (same seeds for all),\n"
+        "and reports held-out (unseen) success, in-distribution success on the training robots and the\n"
+        "transfer gap against coverage, with intervals, the WLS slope with a paired bootstrap interval,\n"
+        "and a plot. surrogate: a fixed in-domain set (target robot) alone, plus other robots' data, plus\n"
+        "data from a strongly perturbed simulator; success on the target robot, paired differences.\n"
+        "Everything under workdir is reused on a rerun (runs resume; datasets and checkpoints are kept\n"
+        "when their inputs match), so an interrupted sweep continues where it stopped.",
+        SweepConfig,
+        ["python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage",
+         "python -m baselines.coverage_sweep parts=[robots] total_episodes=24 eval_episodes=5 workers=2",
+         "python -m baselines.coverage_sweep dr_axis=friction dr_widths=[0.5] bc.epochs=60"])
+
+
+def _check_sweep(cfg: SweepConfig, suite) -> None:
+    for p in cfg.parts:
+        if p not in PARTS:
+            raise ConfigError(f"parts: {p!r} is not a part; valid: {', '.join(PARTS)}.{did_you_mean(p, PARTS)}")
+    if cfg.budget not in BUDGETS:
+        raise ConfigError(f"budget={cfg.budget!r}: valid: {', '.join(BUDGETS)}")
+    robots = suite.manifest.get("robots", {})
+    seen, unseen = robots.get("seen", []), robots.get("unseen", [])
+    if not seen or not unseen:
+        raise ConfigError(f"suite {suite.name!r} has no seen/unseen robot split; the sweep needs one")
+    if not cfg.order:
+        raise ConfigError("order: give the seen robots to add one at a time, e.g. order=[Panda,Sawyer,IIWA]")
+    if not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds):
+        raise ConfigError(f"seeds={cfg.seeds}: give one or more distinct training seeds, e.g. seeds=[0,1,2]")
+    for r in cfg.order + [cfg.surrogate_target]:
+        if r not in seen:
+            raise ConfigError(f"order/surrogate_target: {r!r} is not a seen robot of {suite.name!r}; valid: "
+                              f"{', '.join(seen)}.{did_you_mean(r, seen)}")
+    if len(set(cfg.order)) != len(cfg.order):
+        raise ConfigError(f"order={cfg.order}: repeats a robot")
+    for key in ("total_episodes", "eval_episodes", "surrogate_in_domain", "surrogate_episodes",
+                "surrogate_eval_episodes", "workers"):
+        if getattr(cfg, key) < 1:
+            raise ConfigError(f"{key}={getattr(cfg, key)}: must be >= 1")
+    if cfg.budget == "fixed" and cfg.total_episodes < len(cfg.order):
+        raise ConfigError(f"total_episodes={cfg.total_episodes}: must be >= len(order)={len(cfg.order)} (budget=fixed)")
+    if "dr" in cfg.parts and cfg.dr_axis:
+        from bench.perturb import AXES
+
+        if cfg.dr_axis not in AXES:
+            raise ConfigError(f"dr_axis={cfg.dr_axis!r}: valid: {', '.join(AXES)}.{did_you_mean(cfg.dr_axis, AXES)}")
+        if AXES[cfg.dr_axis].kind != "model":
+            raise ConfigError(f"dr_axis={cfg.dr_axis!r}: DR widths are scales of nominal; valid: model axes "
+                              f"({', '.join(a for a, v in AXES.items() if v.kind == 'model')})")
+        for w in cfg.dr_widths:
+            if not 0 < w < 1:
+                raise ConfigError(f"dr_widths: {w} must be in (0, 1): the range is uniform(1-w, 1+w)")
+    if "surrogate" in cfg.parts:
+        _surrogate_condition(cfg.surrogate_perturb)
+    if not 0.5 <= cfg.confidence < 1:
+        raise ConfigError(f"confidence={cfg.confidence}: must be in [0.5, 1)")
+    if cfg.n_boot < 100:
+        raise ConfigError(f"n_boot={cfg.n_boot}: must be >= 100")
+    from baselines.bc import Args
+
+    valid = [f.name for f in dataclasses.fields(Args)]
+    for k in cfg.bc:
+        if k not in valid or k in ("data", "out", "robots", "conditions", "max_episodes"):
+            raise ConfigError(f"bc.{k}: not a training argument the sweep passes on; valid: "
+                              f"{', '.join(v for v in valid if v not in ('data', 'out', 'robots', 'conditions', 'max_episodes'))}"
+                              f".{did_you_mean(k, valid)}")
+
+
+def _surrogate_condition(text: str):
+    """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.perturb's grammar."""
+    from bench.perturb import conditions_from_config
+
+    if "=" not in text:
+        raise ConfigError(f"surrogate_perturb={text!r}: write AXIS=LEVEL, e.g. latency=4 or gain=0.6")
+    axis, level = text.split("=", 1)
+    try:
+        value: Any = float(level)
+    except ValueError:
+        value = level
+    conds = conditions_from_config({axis.strip(): [value]})
+    if len(conds) != 2 or conds[1].level is None or isinstance(conds[1].level, list):
+        raise ConfigError(f"surrogate_perturb={text!r}: give one level, e.g. latency=4")
+    return conds[1]
+
+
+def _dr_condition_names(cfg: SweepConfig) -> list[tuple[float, str, str]]:
+    """(width, condition name, perturb grammar) per DR width, names as bench.perturb forms them."""
+    from bench.perturb import conditions_from_config
+
+    out = []
+    for w in cfg.dr_widths:
+        text = f"uniform({1 - w:g},{1 + w:g})"
+        name = conditions_from_config({cfg.dr_axis: [text]})[1].name
+        out.append((float(w), name, text))
+    return out
+
+
+def _per_robot(cfg: SweepConfig, k: int) -> int:
+    return cfg.total_episodes // k if cfg.budget == "fixed" else cfg.total_episodes
+
+
+def _run(cfg: RunConfig) -> None:
+    from bench import api
+
+    api.run(cfg, progress=True)
+
+
+def _record_demos(cfg: SweepConfig, work: Path, log) -> list[Path]:
+    """Record the demonstrations every part needs; returns the dataset folders in selection order.
+
+    `base`: every robot of `order`, `min(per-robot need)` nominal episodes each, plus the DR
+    conditions (one run: the same seeds under every condition). `extra_R`: for a robot that
+    needs more nominal episodes (or the surrogate target, for the strongly perturbed
+    condition), one more run with seed demo_seed+1, so no episode is recorded twice.
+    """
+    parts = set(cfg.parts)
+    k_max = len(cfg.order)
+    need: dict[str, int] = {}
+    for k in (range(1, k_max + 1) if "robots" in parts else [k_max]):
+        for r in cfg.order[:k]:
+            need[r] = max(need.get(r, 0), _per_robot(cfg, k))
+    if "surrogate" in parts:
+        need[cfg.surrogate_target] = max(need[cfg.surrogate_target], cfg.surrogate_in_domain)
+        others = [r for r in cfg.order if r != cfg.surrogate_target]
+        for r in others:
+            need[r] = max(need[r], cfg.surrogate_episodes // len(others))
+    base_n = _per_robot(cfg, k_max)
+    dr = "dr" in parts and bool(cfg.dr_axis)
+    common = dict(suite=cfg.suite, policy="scripted", workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs"))
+    sources = []
+    perturb = {cfg.dr_axis: [t for _, _, t in _dr_condition_names(cfg)]} if dr else {}
+    base = RunConfig(**common, robots=list(cfg.order), episodes=base_n, seed=cfg.demo_seed, run_id="demos-base",
+                     perturb=perturb)
+    sources.append(_recorded(work / "demos" / "base", base, log))
+    for r in cfg.order:
+        extra = max(0, need.get(r, 0) - base_n)
+        strong = "surrogate" in parts and r == cfg.surrogate_target
+        n = max(extra, cfg.surrogate_episodes if strong else 0)
+        if n == 0:
+            continue
+        perturb = {}
+        if strong:
+            axis, level = cfg.surrogate_perturb.split("=", 1)
+            perturb = {axis.strip(): [_surrogate_condition(cfg.surrogate_perturb).level]}
+        run = RunConfig(**common, robots=[r], episodes=n, seed=cfg.demo_seed + 1, run_id=f"demos-extra-{r}",
+                        perturb=perturb)
+        sources.append(_recorded(work / "demos" / f"extra-{r}", run, log))
+    return sources
+
+
+def _recorded(dataset: Path, run: RunConfig, log) -> Path:
+    """Run `run` with record=DATASET unless the dataset is already there (recorded with the same config)."""
+    stamp = dataset.parent / f"{dataset.name}.run.json"
+    wanted = json.loads(json.dumps(dataclasses.asdict(run)))
+    if (dataset / "meta" / "info.json").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == wanted:
+        log(f"demonstrations: reusing {dataset}")
+        return dataset
+    if dataset.exists() and any(dataset.iterdir()):
+        raise ConfigError(f"workdir: {dataset} exists but was recorded with other arguments; give a new workdir")
+    log(f"demonstrations: {run.suite} {run.policy} robots={run.robots} episodes={run.episodes} -> {dataset}")
+    _run(dataclasses.replace(run, record=str(dataset)))
+    dataset.parent.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(json.dumps(wanted))
+    return dataset
+
+
+def _select(sources: Sequence[Path], want: Sequence[tuple[str, str, int]], successful_only: bool = True):
+    """Demos of the first n episodes of (robot, condition) for each (robot, condition, n), across sources in order.
+
+    `successful_only` applies to nominal demonstrations only. Under a perturbation every episode
+    is kept: the expert's command is still the label of the state it saw, and keeping only the
+    draws where it succeeded would truncate the randomisation range towards its easy end (under
+    gain~U(0.7,1.3) the Lift expert succeeds in about 60-90% of the episodes, depending on the arm).
+    """
+    from baselines.bc import Demos, load_demos
+
+    out: Demos | None = None
+    for robot, cond, n in want:
+        d = load_demos([str(s) for s in sources], robots=[robot], conditions=[cond], max_episodes=n,
+                       successful_only=successful_only and cond == "nominal")
+        if len(d.episodes) < n:
+            raise DataError(f"sweep: only {len(d.episodes)} usable {robot} demonstrations under {cond}, {n} wanted "
+                            f"(successful_only={successful_only})")
+        out = d if out is None else out + d
+    assert out is not None
+    return out
+
+
+def _demo_stats(sources: Sequence[Path]) -> dict[str, Any]:
+    """Expert success per robot and condition in the recorded demonstrations (from the episode meta)."""
+    from bench.logs import read_dataset
+
+    counts: dict[str, list[int]] = {}
+    for src in sources:
+        for ep in read_dataset(src).episodes:
+            m = ep.meta or {}
+            c = counts.setdefault(f"{m.get('robot')}|{m.get('condition', 'nominal')}", [0, 0])
+            c[0] += int(bool(m.get("success_once")))
+            c[1] += 1
+    return {k: {"successes": v[0], "episodes": v[1]} for k, v in sorted(counts.items())}
+
+
+def _fingerprint(demos, args) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps([[e["source"], e["index"]] for e in demos.episodes]).encode())
+    h.update(json.dumps(dataclasses.asdict(args), sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def _bc_args(cfg: SweepConfig, seed: int):
+    from baselines.bc import Args
+
+    return Args(data=[], seed=int(seed), **cfg.bc)
+
+
+def _train(name: str, demos, cfg: SweepConfig, seed: int, work: Path, log) -> tuple[Path, dict[str, Any]]:
+    """Train (or reuse) the BC checkpoint of one training set and seed; returns (path, training info)."""
+    from baselines.bc import train
+
+    args = _bc_args(cfg, seed)
+    path = work / "checkpoints" / name / "policy.safetensors"
+    info_path = path.with_name("train.json")
+    fp = _fingerprint(demos, args)
+    if path.is_file() and info_path.is_file():
+        info = json.loads(info_path.read_text())
+        if info.get("fingerprint") == fp:
+            log(f"checkpoint {name}: reusing {path}")
+            return path, info
+    args = dataclasses.replace(args, out=str(path))
+    t0 = time.perf_counter()
+    path, info = train(args, demos)
+    info = {k: v for k, v in info.items() if k != "history"}
+    info.update(fingerprint=fp, name=name, total_wall_s=round(time.perf_counter() - t0, 3),
+                robots_episodes=dict(Counter(f"{e['robot']}|{e['condition']}" for e in demos.episodes)))
+    info_path.write_text(json.dumps(info, indent=2))
+    log(f"checkpoint {name}: {info['episodes']} episodes, {info['frames']} frames, {info['train_wall_s']:.1f} s")
+    return path, info
+
+
+def _evaluate(name: str, ckpt: Path, cfg: SweepConfig, work: Path, episodes: int, robots: Sequence[str] | None,
+              log) -> dict[str, np.ndarray]:
+    """The checkpoint on the suite's cells (or `robots`); cell key -> 0/1 outcomes by episode."""
+    from bench.records import EPISODES, dedupe, read_records
+
+    run_id = f"eval-{name}" + (f"-{'-'.join(robots)}-n{episodes}" if robots else "")
+    run = RunConfig(suite=cfg.suite, policy="checkpoint", policy_options={"checkpoint": str(ckpt)}, episodes=episodes,
+                    seed=cfg.eval_seed, workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs"),
+                    run_id=run_id, n_boot=cfg.n_boot, robots=list(robots) if robots else None)
+    run_dir = work / "runs" / run_id
+    if (run_dir / "run.json").is_file():
+        old = json.loads((run_dir / "run.json").read_text())
+        if old.get("policy", {}).get("checkpoint_sha256") != _sha256(ckpt):
+            raise ConfigError(f"workdir: {run_dir} evaluated another checkpoint; give a new workdir")
+    log(f"evaluate {name}: checkpoint {ckpt} on {robots or 'every robot'}, {episodes} episodes per cell")
+    _run(run)
+    records = dedupe(read_records(run_dir / EPISODES))
+    cells: dict[str, list] = {}
+    for r in sorted(records, key=lambda r: r.episode):
+        if r.error is None and r.condition == "nominal":
+            cells.setdefault(f"{r.task}/{r.robot}/{r.env}", []).append(float(r.success_once))
+    return {k: np.asarray(v) for k, v in cells.items()}
+
+
+def _sha256(path: Path) -> str:
+    from bench.io import sha256_file
+
+    return sha256_file(Path(path))
+
+
+
+def _training_summary(infos: Sequence[dict]) -> dict[str, Any]:
+    return {"episodes": infos[0]["episodes"], "frames": infos[0]["frames"],
+            "robots_episodes": infos[0].get("robots_episodes"),
+            "train_wall_s": [round(float(i["train_wall_s"]), 3) for i in infos]}
+
+
+def _per_seed_cells(outcomes: Sequence[dict[str, np.ndarray]], cfg: SweepConfig) -> dict[str, Any]:
+    """Per cell: successes and episodes pooled over the training seeds, with a Wilson interval."""
+    out = {}
+    for key in outcomes[0]:
+        k = int(sum(int(o[key].sum()) for o in outcomes if key in o))
+        n = int(sum(len(o[key]) for o in outcomes if key in o))
+        out[key] = {"n": n, "successes": k, "per_seed": [int(o[key].sum()) if key in o else None for o in outcomes],
+                    **scoring.wilson(k, n, cfg.confidence).to_dict()}
+    return out
+
+
+def _coverage_summary(demos, cells, manifest, conditions, states, groups) -> dict[str, Any]:
+    train = TrainingData(demos.obs.astype(float), demos.episode,
+                         [{"task": e.get("task"), "robot": e["robot"], "env": e.get("env"),
+                           "condition": e["condition"], "params": e["params"]} for e in demos.episodes], [])
+    rep = coverage_report(train, cells, manifest, conditions, states, groups)
+    held = rep["state"]["splits"].get("unseen", {})
+    out = {"robots_covered": rep["support"]["robots"]["covered"],
+           "state_unseen_mean_distance": held.get("mean"), "state_unseen_covered": held.get("covered"),
+           "reference_radius": rep["state"]["reference_radius"],
+           "state_by_cell": {k: {"mean_distance": v.get("mean"), "covered": v.get("covered")}
+                             for k, v in (rep["state"].get("groups") or {}).items()}}
+    if rep["params"]:
+        out["params"] = rep["params"]
+    return out
+
+
+def main(argv: list[str]) -> int:
+    """`python -m baselines.coverage_sweep ...`: see `sweep_help()`."""
+    if argv and argv[0] in ("-h", "--help"):
+        print(sweep_help())
+        return 0
+    from rich.console import Console
+
+    from bench import config as config_mod
+    from bench import registry
+
+    cfg: SweepConfig = config_mod.build_from_argv(SweepConfig, argv, "python -m baselines.coverage_sweep")
+    suite = registry.make_suite(cfg.suite)
+    _check_sweep(cfg, suite)
+    console = Console(stderr=True)
+    log = lambda msg: console.print(f"[bold]sweep[/] {msg}")  # noqa: E731
+    work, out = Path(cfg.workdir), Path(cfg.out)
+    t_start = time.perf_counter()
+    doc = run_sweep(cfg, suite, work, log)
+    doc["invocation_wall_s"] = round(time.perf_counter() - t_start, 1)  # reused artifacts cost nothing here
+    from bench.io import write_atomic
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(out / "sweep.json", doc)
+    plot_sweep(doc, out / "sweep.png")
+    render_sweep(doc)
+    log(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({doc['invocation_wall_s']:.0f} s)")
+    return 0
+
+
+
+def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
+    """Record, train, evaluate and score every part of the sweep; returns the sweep document."""
+    from bench.perturb import conditions_from_config
+    from bench.suite import NOMINAL
+
+    rng = np.random.default_rng([cfg.eval_seed, 4242])
+    parts = set(cfg.parts)
+    cells = suite.all_cells()
+    unseen_keys = [c.key for c in cells if c.split == "unseen"]
+    key_of = {c.robot: c.key for c in cells}
+    sources = _record_demos(cfg, work, log)
+    log("evaluation initial states: resetting the unseen cells' envs with the evaluation seeds")
+    unseen_cells = [c for c in cells if c.split == "unseen"]
+    states, groups = initial_states_from_suite(suite, unseen_cells, cfg.eval_seed, cfg.eval_episodes, cfg.horizon)
+    doc: dict[str, Any] = {
+        "schema": "bench.coverage-sweep/1", "suite": suite.describe(), "config": dataclasses.asdict(cfg),
+        "demonstrations": [str(s) for s in sources], "expert_success": _demo_stats(sources),
+        "metric": "success_once", "confidence": cfg.confidence, "seeds": list(cfg.seeds),
+    }
+    successful_only = bool(cfg.bc.get("successful_only", True))
+    trained: dict[str, tuple[Path, dict]] = {}
+
+    def model(name: str, want: list[tuple[str, str, int]]):
+        """(demos, [(checkpoint, info) per training seed]) of one training set."""
+        demos = _select(sources, want, successful_only)
+        out = []
+        for seed in cfg.seeds:
+            key = f"{name}-s{seed}"
+            if key not in trained:
+                fp = _fingerprint(demos, _bc_args(cfg, seed))
+                same = next((v for v in trained.values() if v[1]["fingerprint"] == fp), None)
+                if same is not None:  # the same episodes and arguments train the same weights: reuse them
+                    log(f"checkpoint {key}: same training set as {same[1]['name']}, reusing {same[0]}")
+                trained[key] = same or _train(key, demos, cfg, seed, work, log)
+            out.append(trained[key])
+        return demos, out
+
+    def evaluate(name: str, models, episodes: int, robots=None) -> list[dict[str, np.ndarray]]:
+        return [_evaluate(f"{name}-s{seed}", ckpt, cfg, work, episodes, robots, log)
+                for seed, (ckpt, _) in zip(cfg.seeds, models)]
+
+    def series(entries: list[dict], xlabel: str) -> dict[str, Any]:
+        return _series(entries, xlabel, unseen_keys, rng, cfg)
+
+    k_max = len(cfg.order)
+    entries: dict[str, dict] = {}
+    if "robots" in parts or "dr" in parts:
+        for k in (range(1, k_max + 1) if "robots" in parts else [k_max]):
+            robots = cfg.order[:k]
+            name = f"robots{k}"
+            demos, models = model(name, [(r, "nominal", _per_robot(cfg, k)) for r in robots])
+            entries[name] = {"name": name, "x": float(k), "train_keys": [key_of[r] for r in robots],
+                             "outcomes": evaluate(name, models, cfg.eval_episodes),
+                             "training": _training_summary([m[1] for m in models]),
+                             "coverage": _coverage_summary(demos, cells, suite.manifest, [NOMINAL], states, groups)}
+        if "robots" in parts:
+            doc["robots"] = series([entries[f"robots{k}"] for k in range(1, k_max + 1)],
+                                   "number of seen robots in the training set")
+    if "dr" in parts and cfg.dr_axis:
+        n = _per_robot(cfg, k_max)
+        dr_conds = _dr_condition_names(cfg)
+        eval_conds = conditions_from_config({cfg.dr_axis: [t for _, _, t in dr_conds]})
+        base = dict(entries[f"robots{k_max}"], x=0.0)
+        demos0 = _select(sources, [(r, "nominal", n) for r in cfg.order], successful_only)
+        base["coverage"] = _coverage_summary(demos0, cells, suite.manifest, eval_conds, states, groups)
+        dr_entries = [base]
+        for w, cond, _ in dr_conds:
+            name = f"dr-{cfg.dr_axis}-{w:g}"
+            demos, models = model(name, [(r, cond, n) for r in cfg.order])
+            dr_entries.append({"name": name, "x": w, "train_keys": [key_of[r] for r in cfg.order],
+                               "outcomes": evaluate(name, models, cfg.eval_episodes),
+                               "training": _training_summary([m[1] for m in models]),
+                               "coverage": _coverage_summary(demos, cells, suite.manifest, eval_conds, states, groups)})
+        doc["dr"] = series(dr_entries, f"domain-randomisation width on {cfg.dr_axis} (uniform(1-w, 1+w))")
+    if "surrogate" in parts:
+        doc["surrogate"] = _surrogate(cfg, model, evaluate, key_of, rng)
+    return doc
+
+
+def _series(entries: list[dict], xlabel: str, unseen_keys: Sequence[str], rng, cfg: SweepConfig) -> dict[str, Any]:
+    """Held-out and in-distribution success, gap, difference to the first point, and slopes of one series."""
+    boot = SeriesBootstrap([e["outcomes"] for e in entries], rng, cfg.n_boot, cfg.confidence)
+    points, held, held_reps, gaps, gap_reps, n_held, n_gap = [], [], [], [], [], [], []
+    for k, e in enumerate(entries):
+        h, h_r = boot.mean(k, unseen_keys)
+        i, i_r = boot.mean(k, e["train_keys"])
+        g, g_r = (None, None) if h is None or i is None else (i - h, i_r - h_r)
+        nh = sum(len(o.get(key, ())) for o in e["outcomes"] for key in unseen_keys)
+        ni = sum(len(o.get(key, ())) for o in e["outcomes"] for key in e["train_keys"])
+        point = {
+            "name": e["name"], "x": e["x"], "train_robots": sorted({key.split("/")[1] for key in e["train_keys"]}),
+            "seeds": list(cfg.seeds), "held_out": boot.estimate(h, h_r), "in_distribution": boot.estimate(i, i_r),
+            "gap": boot.estimate(g, g_r), "cells": _per_seed_cells(e["outcomes"], cfg),
+            "training": e["training"], "coverage": e["coverage"],
+        }
+        if k > 0 and h is not None and held[0] is not None:
+            d = boot.estimate(h - held[0], h_r - held_reps[0])
+            point["held_out_vs_first"] = {"reference": entries[0]["name"], **d}
+        points.append(point)
+        held.append(h)
+        held_reps.append(h_r)
+        gaps.append(g)
+        gap_reps.append(g_r)
+        n_held.append(nh)
+        n_gap.append(min(nh, ni))
+    xs = [e["x"] for e in entries]
+    return {"x_label": xlabel, "points": points,
+            "held_out_slope": slope_with_interval(xs, held, held_reps, n_held, cfg.confidence),
+            "gap_slope": slope_with_interval(xs, gaps, gap_reps, n_gap, cfg.confidence)}
+
+
+def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str, Any]:
+    """In-domain alone vs + other robots' data vs + strongly perturbed simulator data, on the target robot."""
+    target = cfg.surrogate_target
+    others = [r for r in cfg.order if r != target]
+    strong = _surrogate_condition(cfg.surrogate_perturb)
+    base = [(target, "nominal", cfg.surrogate_in_domain)]
+    variants = {"in_domain": base}
+    if others:
+        per_other = cfg.surrogate_episodes // len(others)
+        variants["plus_other_robots"] = base + [(r, "nominal", per_other) for r in others]
+    variants["plus_perturbed_sim"] = base + [(target, strong.name, cfg.surrogate_episodes)]
+    key = key_of[target]
+    names, outcomes, trainings = list(variants), [], []
+    for name in names:
+        _, models = model(f"surrogate-{name}", variants[name])
+        outcomes.append(evaluate(f"surrogate-{name}", models, cfg.surrogate_eval_episodes, [target]))
+        trainings.append(_training_summary([m[1] for m in models]))
+    boot = SeriesBootstrap(outcomes, rng, cfg.n_boot, cfg.confidence)
+    results: dict[str, Any] = {}
+    base_v, base_r = boot.mean(0, [key])
+    for k, name in enumerate(names):
+        v, r = boot.mean(k, [key])
+        results[name] = {"training": trainings[k], "success": boot.estimate(v, r),
+                         "cells": _per_seed_cells(outcomes[k], cfg)}
+        if k == 0:
+            continue
+        if v is None or base_v is None:
+            d = {"value": None, "ci": None, "reason": "no completed episodes"}
+        else:
+            d = boot.estimate(v - base_v, r - base_r)
+        a = np.concatenate([o.get(key, np.zeros(0)) for o in outcomes[k]])
+        b = np.concatenate([o.get(key, np.zeros(0)) for o in outcomes[0]])
+        if len(a) == len(b):  # episode pairs (same seed index and training-seed slot)
+            d.update(gained=int(np.sum((a == 1) & (b == 0))), lost=int(np.sum((a == 0) & (b == 1))))
+        ci = d.get("ci")
+        d["verdict"] = ("helps" if ci and ci[0] > 0 else "hurts" if ci and ci[1] < 0 else
+                        "no detectable effect" if ci else "n/a")
+        results[name]["vs_in_domain"] = d
+    return {"target": key, "in_domain_episodes": cfg.surrogate_in_domain, "surrogate_episodes": cfg.surrogate_episodes,
+            "perturbed_condition": strong.name, "other_robots": others, "eval_episodes": cfg.surrogate_eval_episodes,
+            "variants": results}
+
+
+# ---------------------------------------------------------------------------- output
+def render_sweep(doc: dict[str, Any], console=None) -> None:
+    """Print the sweep's tables: each series with its slope, then the surrogate comparison."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from bench.summary import fmt_estimate
+
+    console = console or Console(width=None if Console().is_terminal else 140)
+    conf = int(round(100 * doc.get("confidence", 0.95)))
+    for part in ("robots", "dr"):
+        s = doc.get(part)
+        if not s:
+            continue
+        t = Table(title=f"{part}: {s['x_label']} ({conf}% intervals)", title_justify="left")
+        for col in ("model", "x", "train robots", "episodes", "held-out success", "vs first (paired)",
+                    "in-distribution", "gap", "unseen states covered", "train s"):
+            t.add_column(col)
+        for p in s["points"]:
+            c = p["coverage"]
+            t.add_row(p["name"], f"{p['x']:g}", ",".join(p["train_robots"]), str(p["training"]["episodes"]),
+                      fmt_estimate(p["held_out"]), fmt_estimate(p.get("held_out_vs_first"), pct=False) if "held_out_vs_first" in p else "-",
+                      fmt_estimate(p["in_distribution"]), fmt_estimate(p["gap"], pct=False),
+                      fmt_pct(c.get("state_unseen_covered")),
+                      "/".join(f"{w:.0f}" for w in np.atleast_1d(p["training"]["train_wall_s"])))
+        console.print(t)
+        console.print(f"  held-out success slope per unit x: {fmt_estimate(s['held_out_slope'], pct=False)}; "
+                      f"gap slope: {fmt_estimate(s['gap_slope'], pct=False)}")
+    sg = doc.get("surrogate")
+    if sg:
+        t = Table(title=f"surrogate data: {sg['in_domain_episodes']} in-domain episodes on {sg['target']} "
+                        f"+ {sg['surrogate_episodes']} mismatched ({conf}% intervals)", title_justify="left")
+        for col in ("training set", "episodes", "success on target", "difference vs in-domain (paired)", "verdict"):
+            t.add_column(col)
+        for name, v in sg["variants"].items():
+            d = v.get("vs_in_domain")
+            t.add_row(name, str(v["training"]["episodes"]), fmt_estimate(v["success"]), fmt_estimate(d, pct=False) if d else "-",
+                      d.get("verdict", "") if d else "")
+        console.print(t)
+
+
+def plot_sweep(doc: dict[str, Any], path: Path) -> Path:
+    """PNG: held-out and in-distribution success against coverage with intervals and the WLS line; surrogate bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [p for p in ("robots", "dr", "surrogate") if doc.get(p)]
+    fig, axes = plt.subplots(1, max(1, len(panels)), figsize=(5.2 * max(1, len(panels)), 4.2), squeeze=False)
+    for ax, part in zip(axes[0], panels):
+        if part == "surrogate":
+            sg = doc[part]
+            names = list(sg["variants"])
+            vals = [sg["variants"][n]["success"] for n in names]
+            y = [v["value"] or 0 for v in vals]
+            err = [[max(0.0, (v["value"] or 0) - v["ci"][0]) if v.get("ci") else 0 for v in vals],
+                   [max(0.0, v["ci"][1] - (v["value"] or 0)) if v.get("ci") else 0 for v in vals]]
+            ax.bar(range(len(names)), y, yerr=err, capsize=4, color=["#4c72b0", "#dd8452", "#55a868"][:len(names)])
+            ax.set_xticks(range(len(names)), [n.replace("_", "\n") for n in names], fontsize=8)
+            ax.set_ylim(0, 1.05)
+            ax.set_ylabel(f"success on {sg['target'].split('/')[1]}")
+            ax.set_title(f"surrogate data (+{sg['surrogate_episodes']} eps to {sg['in_domain_episodes']} in-domain)",
+                         fontsize=9)
+            continue
+        s = doc[part]
+        xs = np.array([p["x"] for p in s["points"]])
+        nudge = 0.015 * (np.ptp(xs) or 1.0)  # side by side, so the intervals do not hide each other
+        for key, label, color, off in (("held_out", "held-out (unseen robots)", "#c44e52", -nudge),
+                                       ("in_distribution", "in-distribution (training robots)", "#4c72b0", nudge)):
+            ys = np.array([p[key]["value"] if p[key]["value"] is not None else np.nan for p in s["points"]])
+            lo = np.array([p[key]["ci"][0] if p[key].get("ci") else np.nan for p in s["points"]])
+            hi = np.array([p[key]["ci"][1] if p[key].get("ci") else np.nan for p in s["points"]])
+            ax.errorbar(xs + off, ys, yerr=[ys - lo, hi - ys], fmt="o", color=color, capsize=4, label=label)
+        sl = s["held_out_slope"]
+        if sl.get("value") is not None:
+            grid = np.linspace(xs.min(), xs.max(), 20)
+            ax.plot(grid, sl["intercept"] + sl["value"] * grid, "--", color="#c44e52",
+                    label=f"WLS slope {sl['value']:+.3f} [{sl['ci'][0]:+.3f}, {sl['ci'][1]:+.3f}]")
+        ax.set_xlabel(s["x_label"], fontsize=9)
+        ax.set_ylabel("success rate (success_once)")
+        ax.set_ylim(-0.02, 1.05)
+        ax.set_xticks(xs)
+        ax.legend(fontsize=7, loc="best")
+        ax.set_title({"robots": "robot coverage (fixed demo budget)", "dr": "domain-randomisation width"}[part],
+                     fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+if __name__ == "__main__":
+    try:
+        raise SystemExit(main(sys.argv[1:]))
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(exc.exit_code)

@@ -1,0 +1,399 @@
+"""The typed Python API: plan and run a suite, score a run, load plugins (docs/api.md).
+
+    from bench import api
+
+    result = api.run(api.RunConfig(suite="held_out_robots", policy="scripted", robots=["Panda"], episodes=2))
+    print(result.summary["splits"]["seen"]["success_once"]["mean"])
+
+`plan` checks everything a run needs and writes nothing; `run` executes a plan (or a
+config) into OUT/RUN_ID (episodes.jsonl, run.json, summary.json), resuming recorded
+episodes. The CLI (`bench run`), the regression gate, benchmarks and experiments all go
+through these functions.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Mapping, Optional
+
+from bench import config as config_mod
+from bench.errors import ConfigError, SplitError
+from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, option_keys
+from bench.records import EPISODES, EpisodeRecord
+from bench.runner import LocalExecutor, Worker, WorkerSpec
+from bench.suite import METRICS, SPLITS, Cell, Condition, Job, expand_jobs, select_cells
+
+# limits that keep a typo from starting an absurd job (the message names the limit)
+MAX_EPISODES = 100_000
+MAX_HORIZON = 100_000
+MAX_WORKERS = 1024
+MAX_N_BOOT = 1_000_000
+MAX_TIMEOUT_S = 7 * 24 * 3600.0
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Keys of `bench run` (all optional; `bench run --help` prints these docs)."""
+
+    suite: str = "held_out_robots"          # registered suite name (`bench list`) or package.module:Class
+    policy: Optional[str] = None            # registered policy or package.module:attr; default: the suite's default
+    episodes: int = 10                      # episodes per cell and condition
+    seed: int = 0                           # run seed: episode seeds, perturbation draws, bootstrap
+    workers: int = 0                        # worker processes; 0 = all cores
+    out: str = "runs"                       # parent folder of run directories
+    run_id: Optional[str] = None            # run directory name; an existing one is resumed
+    horizon: int = 0                        # control steps per episode; 0 = the suite's default
+    timeout: float = 600.0                  # wall seconds per episode before it is recorded as timed out
+    robots: Optional[list[str]] = None      # only these robots (suite-dependent)
+    tasks: Optional[list[str]] = None       # only these tasks
+    envs: Optional[list[str]] = None        # only these environments/scenes
+    splits: Optional[list[str]] = None      # only these splits: seen, unseen
+    metric: Optional[str] = None            # headline metric: success_once, success_at_end, return; default: the suite's
+    n_boot: int = 2000                      # bootstrap resamples for aggregate and gap intervals
+    confidence: float = 0.95                # two-sided interval level
+    perturb: dict[str, Any] = field(default_factory=dict)  # perturbation axes, e.g. perturb.friction=[0.5,1,2]
+    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here
+    allow_split_violation: bool = False     # run even if `bench check` finds a split problem
+    suite_options: dict[str, Any] = field(default_factory=dict)
+    policy_options: dict[str, Any] = field(default_factory=dict)
+
+
+# keys that may differ when a run is resumed (they do not change any record)
+RESUMABLE_KEYS = {"workers", "timeout", "out", "run_id"}
+RUNNER_KEYS = [f.name for f in dataclasses.fields(RunConfig) if f.name not in ("suite_options", "policy_options")]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A checked run: everything `run` needs, resolved; nothing has been written yet."""
+
+    config: RunConfig            # with run_id, policy and metric resolved
+    suite: Any                   # the Suite, built with `suite_options`
+    plugin: PolicyPlugin
+    suite_options: Any           # an instance of the suite's Options
+    policy_options: Any          # an instance of the policy plugin's Options
+    identity: PolicyIdentity
+    cells: list[Cell]
+    conditions: list[Condition]
+    jobs: list[Job]
+    horizon: int
+    run_dir: Path
+
+    def config_dict(self) -> dict[str, Any]:
+        """The flat config stored in run.json and the summary: runner keys, then the suite's and policy's."""
+        cfg = {k: getattr(self.config, k) for k in RUNNER_KEYS}
+        for opts in (self.suite_options, self.policy_options):
+            if dataclasses.is_dataclass(opts):
+                cfg.update(dataclasses.asdict(opts))  # type: ignore[call-overload]
+        return json.loads(json.dumps(cfg))
+
+    def worker_spec(self, ctx: Any) -> WorkerSpec:
+        return WorkerSpec(self.config.suite, self.suite_options, str(self.config.policy), self.policy_options,
+                          self.config.seed, ctx)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What `run` produced: the run directory, its summary and all its records."""
+
+    run_dir: Path
+    summary: dict[str, Any] | None
+    records: list[EpisodeRecord]
+    ran: int          # episodes run by this call
+    resumed: int      # episodes found already recorded
+
+
+def load_suite(ref: str, **options: Any) -> Any:
+    """The suite `ref` (registered name or package.module:Class) built with typed `options`."""
+    from bench import registry
+
+    cls = registry.suite_class(ref)
+    return cls(_options(cls.Options, options, f"suite {ref}"))
+
+
+def load_policy(ref: str) -> PolicyPlugin:
+    """The policy plugin `ref` (registered name or package.module:attr)."""
+    from bench import registry
+
+    return registry.load_policy(ref)
+
+
+def _options(schema: type, values: Mapping[str, Any], owner: str) -> Any:
+    """`values` validated into an instance of the Options dataclass `schema` (types, required keys)."""
+    bad = [k for k in values if k not in option_keys(schema)]
+    if bad:
+        raise ConfigError(f"unknown key {bad[0]!r} for {owner}; valid: {', '.join(option_keys(schema)) or '(none)'}")
+    return config_mod.build(schema, [], base=dict(values))
+
+
+def config_from_argv(argv: list[str]) -> RunConfig:
+    """`key=value` arguments of `bench run` -> a RunConfig, each key routed to the runner, the suite or the policy.
+
+    A key that none of them declares is refused with every owner's keys listed (e.g.
+    `checkpoint=` without a policy that takes one, or `env_id=` for a suite other than gym).
+    """
+    from bench import registry
+
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; bench run takes key=value only (bench run --help)")
+    head = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) in ("suite", "policy")])
+    suite_cls = registry.suite_class(head.suite)
+    policy_ref = head.policy or suite_cls.default_policy or suite_cls.reference_policy
+    plugin = registry.load_policy(policy_ref)
+    owners = {"runner": RUNNER_KEYS, f"suite {head.suite}": option_keys(suite_cls.Options),
+              f"policy {policy_ref}": option_keys(plugin.Options)}
+    parts = list(config_mod.partition(overrides, owners, f"suite={head.suite} policy={policy_ref}").values())
+    cfg = config_mod.build(RunConfig, parts[0])
+    suite_opts = dataclasses.asdict(config_mod.build(suite_cls.Options, parts[1])) if parts[1] else {}
+    policy_opts = dataclasses.asdict(config_mod.build(plugin.Options, parts[2])) if parts[2] else {}
+    return dataclasses.replace(cfg, suite_options=suite_opts, policy_options=policy_opts)
+
+
+def _check_runner(cfg: RunConfig) -> None:
+    """Ranges of the runner's own keys (one line each, naming the limit)."""
+    for key, lo, hi in (("episodes", 1, MAX_EPISODES), ("workers", 0, MAX_WORKERS), ("horizon", 0, MAX_HORIZON),
+                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1)):
+        v = getattr(cfg, key)
+        if not lo <= v <= hi:
+            raise ConfigError(f"{key}={v}: must be in [{lo}, {hi}]")
+    if not (0 < cfg.timeout <= MAX_TIMEOUT_S):
+        raise ConfigError(f"timeout={cfg.timeout}: must be > 0 and at most {MAX_TIMEOUT_S:g} s (a week)")
+    if cfg.metric is not None and cfg.metric not in METRICS:
+        raise ConfigError(f"metric={cfg.metric!r}: valid: {', '.join(METRICS)}")
+    if not 0.5 <= cfg.confidence < 1:
+        raise ConfigError(f"confidence={cfg.confidence}: must be in [0.5, 1)")
+    for s in cfg.splits or []:
+        if s not in SPLITS:
+            raise ConfigError(f"splits: {s!r} is not a split; valid: {', '.join(SPLITS)}")
+    rid = cfg.run_id
+    if rid is not None and (not rid or "/" in rid or "\\" in rid or rid.startswith(".") or len(rid) > 200):
+        raise ConfigError(f"run_id={rid!r}: must be a plain folder name of at most 200 characters")
+
+
+def plan(cfg: RunConfig) -> Plan:
+    """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing."""
+    from bench import perturb, registry
+    from bench.check import fast_check
+
+    _check_runner(cfg)
+    suite_cls = registry.suite_class(cfg.suite)
+    suite_options = _options(suite_cls.Options, cfg.suite_options, f"suite {cfg.suite}")
+    suite = suite_cls(suite_options)
+    policy_ref = cfg.policy or suite.default_policy
+    plugin = registry.load_policy(policy_ref)
+    policy_options = _options(plugin.Options, cfg.policy_options, f"policy {policy_ref}")
+    horizon = cfg.horizon or suite.default_horizon
+    if suite.max_horizon is not None and horizon > suite.max_horizon:
+        raise ConfigError(f"horizon={horizon}: suite {suite.name!r} episodes last at most {suite.max_horizon} steps "
+                          f"(0 = the suite default, {suite.default_horizon})")
+    cells = select_cells(suite, cfg)
+    if not cells:
+        raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
+    needs = tuple(plugin.obs_keys(policy_options))
+    for cell in cells:
+        spec = suite.obs_spec(cell)
+        missing = [k for k in needs if k not in spec]
+        if missing:
+            raise ConfigError(f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
+                              f"{cell.key} provides {describe_spec(spec)}")
+    identity = plugin.identity(policy_options)
+    plugin.preflight(policy_options, suite, cells, horizon)
+    if cfg.record and Path(cfg.record).exists() and (not Path(cfg.record).is_dir() or any(Path(cfg.record).iterdir())):
+        raise ConfigError(f"record={cfg.record!r} exists and is not an empty folder; give a new folder "
+                          "(nothing is overwritten)")
+    conditions = perturb.conditions_from_config(cfg.perturb)
+    perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
+    problems = fast_check(suite, cells, jobs)
+    if problems and not cfg.allow_split_violation:
+        raise SplitError(f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
+                         "lists them; allow_split_violation=true runs anyway)")
+    run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
+    return Plan(resolved, suite, plugin, suite_options, policy_options, identity, cells, conditions, jobs, horizon,
+                Path(cfg.out) / run_id)
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
+    """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
+    from bench import __version__, provenance
+    from bench.io import write_atomic
+
+    cfg = p.config
+    meta = {
+        "run_id": cfg.run_id,
+        "suite": p.suite.describe(),
+        "policy": {"name": cfg.policy, "checkpoint": p.identity.checkpoint,
+                   "checkpoint_sha256": p.identity.checkpoint_sha256},
+        "config": p.config_dict(),
+        "expected_episodes": len(p.jobs),
+        "provenance": {
+            "bench_version": __version__, "git_sha": provenance.git_sha(), "packages": provenance.package_versions(),
+            **provenance.machine(), "workers": workers, "backend": [], "seed": cfg.seed,
+            "episode_seeds": sorted({j.seed for j in p.jobs}), "started_at": _now(), "finished_at": None,
+        },
+    }
+    meta_path = p.run_dir / "run.json"
+    if meta_path.exists():
+        from bench.schema import load_json
+
+        old = load_json(meta_path)
+        new_cfg = meta["config"]
+        diffs = [k for k in sorted(set(old.get("config", {})) | set(new_cfg))
+                 if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)]
+        if diffs:
+            k = diffs[0]
+            raise ConfigError(f"run_id={cfg.run_id!r} exists with {k}={old.get('config', {}).get(k)!r} (now "
+                              f"{new_cfg.get(k)!r}); use the same settings to resume it, or a new run_id")
+        meta = old
+    else:
+        write_atomic(meta_path, meta)
+    ctx = dataclasses.replace(context(p), timeout_s=cfg.timeout,
+                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None)
+    return meta, ctx
+
+
+def finish(p: Plan, meta: dict[str, Any], workers: int) -> dict[str, Any]:
+    """Stamp run.json (finish time, workers, backends), write and return the validated summary.json."""
+    from bench.io import write_atomic
+    from bench.records import read_records
+    from bench.schema import validate
+    from bench.summary import build
+
+    records = read_records(p.run_dir / EPISODES)
+    meta["provenance"]["finished_at"] = _now()
+    meta["provenance"]["workers"] = workers
+    meta["provenance"]["backend"] = sorted({r.backend for r in records if r.backend})
+    write_atomic(p.run_dir / "run.json", meta)
+    summary = build(records, run_meta=meta)
+    validate(summary, "summary")
+    write_atomic(p.run_dir / "summary.json", summary)
+    return summary
+
+
+def run(cfg: RunConfig | Plan, *, only: Callable[[Job], bool] | None = None, progress: bool = False,
+        summarize: bool = True, executor: Any = None,
+        on_record: Callable[[EpisodeRecord], None] | None = None) -> RunResult:
+    """Run a config or a plan into its run directory; recorded episodes are skipped (resume).
+
+    Args:
+        cfg: a RunConfig (planned here) or a Plan from `plan`.
+        only: run only the jobs it accepts (e.g. the first k episodes); the others stay to do.
+        progress: show a progress bar on stderr.
+        summarize: write summary.json when done (and assemble `record=` datasets).
+        executor: an object with `execute(jobs, worker_spec, on_record)`; default: local processes.
+        on_record: called with each new record after it is written.
+    """
+    from bench.records import RecordWriter, read_records
+
+    p = cfg if isinstance(cfg, Plan) else plan(cfg)
+    c = p.config
+    episodes_path = p.run_dir / EPISODES
+    done_ids = {r.job_id for r in read_records(episodes_path)}
+    todo = [j for j in p.jobs if j.job_id not in done_ids and (only is None or only(j))]
+    workers = min(c.workers or os.cpu_count() or 1, max(1, len(todo)))
+    meta, ctx = start(p, workers)
+    executor = executor or LocalExecutor(workers)
+    t0 = time.time()
+    with RecordWriter(episodes_path) as writer, _Progress(progress, c, len(todo), len(done_ids), len(p.jobs),
+                                                          p.run_dir, workers) as bar:
+        def write(record: EpisodeRecord) -> None:
+            writer.write(record)
+            bar.advance(record)
+            if on_record is not None:
+                on_record(record)
+
+        executor.execute(todo, p.worker_spec(ctx), write)
+    summary = finish(p, meta, workers) if summarize else None
+    records = read_records(episodes_path)
+    if summarize and c.record:
+        from bench.recording import assemble
+
+        path = assemble(records, p.run_dir / "trajectories", Path(c.record))
+        bar.note(f"recorded {sum(r.error is None for r in records)} episodes as a LeRobot v3 dataset: {path}")
+    bar.note(f"{len(todo)} episodes in {time.time() - t0:.1f} s; records: {episodes_path}")
+    return RunResult(p.run_dir, summary, records, len(todo), len(done_ids))
+
+
+class _Progress:
+    """A rich progress bar on stderr (done/total, successes, errors, elapsed, ETA), or nothing."""
+
+    def __init__(self, show: bool, cfg: RunConfig, todo: int, done: int, total: int, run_dir: Path, workers: int):
+        self.show = show
+        self.metric = "success_once" if cfg.metric == "return" else str(cfg.metric)
+        self.counts = {"succ": 0, "err": 0}
+        self.console = self.progress = None
+        if not show:
+            return
+        from rich.console import Console
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        self.console = Console(stderr=True)
+        if done:
+            self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
+        self.console.print(f"run {cfg.run_id}: {todo} episodes on {workers} worker(s) -> {run_dir}", soft_wrap=True)
+        columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("successes {task.fields[succ]}"), TextColumn("errors {task.fields[err]}"),
+                   TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn()]
+        self.progress = Progress(*columns, console=self.console, transient=False)
+        self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
+
+    def __enter__(self) -> "_Progress":
+        if self.progress is not None:
+            self.progress.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.progress is not None:
+            self.progress.stop()
+
+    def advance(self, record: EpisodeRecord) -> None:
+        if self.progress is None:
+            return
+        self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
+        self.counts["err"] += int(record.error is not None)
+        self.progress.update(self.task, advance=1, **self.counts)
+
+    def note(self, text: str) -> None:
+        if self.console is not None:
+            self.console.print(text, soft_wrap=True)
+
+
+def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
+    """Recompute, validate and write RUN_DIR/summary.json from its episodes.jsonl (the source of truth)."""
+    from bench.io import write_atomic
+    from bench.schema import validate
+    from bench.summary import build, load_run
+
+    records, meta = load_run(Path(run_dir))
+    summary = build(records, run_meta=meta)
+    validate(summary, "summary")
+    write_atomic(Path(run_dir) / "summary.json", summary)
+    return summary
+
+
+def context(p: Plan, run_id: str | None = None) -> Any:
+    """The RunContext workers of plan `p` share, for runs that write no run directory (benchmarks)."""
+    from bench import provenance
+    from bench.rollout import RunContext
+
+    return RunContext(run_id=run_id or str(p.config.run_id), suite_version=p.suite.version,
+                      policy_id=str(p.config.policy), checkpoint_sha256=p.identity.checkpoint_sha256,
+                      versions=provenance.package_versions(), horizon=p.horizon, timeout_s=0,
+                      policy_stats=bool(p.plugin.reports_stats))
+
+
+def worker(p: Plan, ctx: Any = None) -> Worker:
+    """An in-process worker of a plan (benchmarks time episodes with it; nothing is written)."""
+    return Worker(p.worker_spec(ctx or context(p)))

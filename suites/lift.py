@@ -1,0 +1,127 @@
+"""robosuite Lift as an embodiment-agnostic task: its observation and its scripted expert.
+
+Shared by `held_out_robots` and `held_out_scenes`. The observation is the same 18 numbers
+on every arm (`OBS_FIELDS`): end-effector position (world), end-effector orientation
+relative to its own orientation at reset (robosuite's eef frames differ per arm, so only
+relative orientation compares), gripper opening normalised to 1 = fully open, 0 = fully
+closed in free air (both measured once when the env is built), object pose, and the
+gripper-to-object vector.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.protocols import STATE, Feature, Obs, Policy
+
+if TYPE_CHECKING:
+    from bench.sim_robosuite import RobosuiteEnv
+
+OBS_FIELDS: list[tuple[str, int]] = [
+    ("eef_pos", 3),
+    ("eef_quat_rel", 4),
+    ("gripper_opening", 1),
+    ("object_pos", 3),
+    ("object_quat", 4),
+    ("gripper_to_object", 3),
+]
+OBJECT = {"Lift": "cube", "Stack": "cubeA"}
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (x, y, z, w) quaternions (robosuite's convention)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ])
+
+
+def _quat_conj(q: np.ndarray) -> np.ndarray:
+    return np.array([-q[0], -q[1], -q[2], q[3]])
+
+
+class LiftObserver:
+    """The 18-number agnostic observation (a `bench.sim_robosuite.Observer`)."""
+
+    obs_spec = {STATE: Feature.state(OBS_FIELDS)}
+
+    def __init__(self, task: str = "Lift"):
+        if task not in OBJECT:
+            raise ValueError(f"task {task!r} not supported; valid: {sorted(OBJECT)}")
+        self._object = OBJECT[task]
+        self._quat0_conj = np.array([0.0, 0.0, 0.0, 1.0])
+
+    def bind(self, env: "RobosuiteEnv") -> tuple[str, ...]:
+        self._env = env
+        self._data = env.raw.sim.data._data
+        self._grip_idx = np.asarray(env.raw.robots[0]._ref_gripper_joint_pos_indexes["right"])
+        self._calibrate_gripper()
+        return (getattr(env.raw, self._object).root_body,)
+
+    def _calibrate_gripper(self) -> None:
+        """Measure the finger joints fully open and fully closed in free air, once per build.
+
+        Reset poses are not fully open on every hand (Jaco starts half-closed), so both
+        ends are driven to; Jaco's three fingers need ~105 steps each way.
+        """
+        env, data = self._env, self._data
+        env.raw_reset(0)
+        command = np.zeros(env.action_spec.dim)
+        ends = []
+        for grip in (-1.0, 1.0):
+            command[-1] = grip
+            last = data.qpos[self._grip_idx].copy()
+            still = 0
+            for _ in range(300):  # Jaco needs ~200 steps from open to closed
+                env.raw.step(command)
+                q = data.qpos[self._grip_idx].copy()
+                still = still + 1 if np.max(np.abs(q - last)) < 1e-4 else 0
+                last = q
+                if still >= 10:  # the fingers reached their end
+                    break
+            ends.append(last)
+        grip_open, grip_closed = ends
+        mask = np.abs(grip_open - grip_closed) > 1e-3  # joints that move
+        # per-step opening = mean((q - closed) / (open - closed)) over the moving joints
+        self._grip_qidx = self._grip_idx[mask]
+        self._grip_c = grip_closed[mask]
+        self._grip_inv_span = 1.0 / (grip_open - grip_closed)[mask]
+
+    def _opening(self) -> float:
+        frac = float(((self._data.qpos[self._grip_qidx] - self._grip_c) * self._grip_inv_span).mean())
+        return min(1.0, max(0.0, frac))
+
+    def reset(self, raw: dict) -> None:
+        self._quat0_conj = _quat_conj(np.asarray(raw["robot0_eef_quat"], dtype=np.float64))
+
+    def observe(self, raw: dict) -> Obs:
+        obj = self._object
+        out = np.empty(18, dtype=np.float32)  # layout: OBS_FIELDS
+        eef, pos = raw["robot0_eef_pos"], raw[f"{obj}_pos"]
+        quat_rel = _quat_mul(self._quat0_conj, raw["robot0_eef_quat"])
+        out[0:3] = eef
+        out[3:7] = quat_rel if quat_rel[3] >= 0 else -quat_rel  # one hemisphere: same rotation, same numbers
+        out[7] = self._opening()
+        out[8:11] = pos
+        out[11:15] = raw[f"{obj}_quat"]
+        out[15:18] = pos - eef
+        return {STATE: out}
+
+
+def make_env(task: str, robot: str, horizon: int, env_kwargs: dict | None = None) -> "RobosuiteEnv":
+    """A robosuite env of `task` on `robot` with the agnostic observation."""
+    from bench.sim_robosuite import RobosuiteEnv
+
+    return RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
+
+
+def make_expert(env: "RobosuiteEnv") -> Policy:
+    """The scripted pick-and-lift expert reading the agnostic observation."""
+    from baselines.scripted_lift import LiftExpert
+
+    return LiftExpert(list(env.obs_spec[STATE].fields), env.action_spec.dim)

@@ -1,0 +1,150 @@
+"""The runner on the pure-numpy toy suite (tests/toy_suite.py, loaded as suite=tests.toy_suite:ToySuite):
+workers, resume after kill -9, timeouts, envs that raise or return NaN, action chunks, plugin keys."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from bench import api, registry
+from bench.cli import main
+from bench.errors import ConfigError, RegistryError
+from bench.records import comparable, read_records
+from bench.schema import validate
+
+REPO = Path(__file__).resolve().parents[1]
+TOY = "suite=tests.toy_suite:ToySuite"
+
+
+def run(tmp_path: Path, run_id: str, *extra: str) -> int:
+    given = {e.split("=", 1)[0] for e in extra}
+    defaults = [d for d in ("episodes=4", "workers=1") if d.split("=")[0] not in given]
+    return main(["run", TOY, *defaults, f"out={tmp_path}", f"run_id={run_id}", *extra])
+
+
+def records(tmp_path: Path, run_id: str) -> list:
+    return sorted(read_records(tmp_path / run_id / "episodes.jsonl"), key=lambda r: r.job_id)
+
+
+def test_runs_out_of_tree_suite_with_its_own_key(tmp_path):
+    assert run(tmp_path, "a", "goal=0.9") == 0
+    recs = records(tmp_path, "a")
+    assert len(recs) == 12 and all(r.error is None for r in recs)
+    meta = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert meta["config"]["goal"] == 0.9 and meta["suite"]["goal"] == 0.9 and meta["suite"]["name"] == "toy"
+    assert run(tmp_path, "b", "goal=-0.9") == 0
+    assert [r.return_ for r in records(tmp_path, "a")] != [r.return_ for r in records(tmp_path, "b")]
+
+
+def test_two_workers_give_the_records_of_one(tmp_path):
+    # episodes slow enough (0.15 s) that both spawned workers get some, whatever the machine's load
+    assert run(tmp_path, "one", "episodes=6", "step_delay=0.005") == 0
+    assert run(tmp_path, "two", "episodes=6", "workers=2", "step_delay=0.005") == 0
+    one, two = records(tmp_path, "one"), records(tmp_path, "two")
+    assert [comparable(r) for r in one] == [comparable(r) for r in two]
+    assert len({r.worker_pid for r in two}) == 2  # two spawned processes really ran episodes
+
+
+def test_resume_after_kill_9(tmp_path):
+    """Kill the whole process group mid-run; the rerun finishes it, and equals an uninterrupted run."""
+    args = [sys.executable, "-m", "bench", "run", TOY, "episodes=20", "workers=2", "step_delay=0.01",
+            f"out={tmp_path}", "run_id=k"]
+    proc = subprocess.Popen(args, cwd=REPO, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    path = tmp_path / "k" / "episodes.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and (not path.exists() or len(path.read_bytes().splitlines()) < 8):
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = len(read_records(path))
+    assert 8 <= done < 60, done
+    res = subprocess.run(args, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert f"resuming {tmp_path / 'k'}: {done} of 60 episodes already recorded" in " ".join(res.stderr.split())
+    resumed = records(tmp_path, "k")
+    assert len(resumed) == 60 and len({r.job_id for r in resumed}) == 60
+    assert run(tmp_path, "whole", "episodes=20") == 0
+    assert [comparable(r) for r in resumed] == [comparable(r) for r in records(tmp_path, "whole")]
+
+
+def test_a_hanging_env_times_out_and_the_run_goes_on(tmp_path):
+    assert run(tmp_path, "t", "fault=hang", "timeout=0.3", "episodes=2") == 0
+    recs = records(tmp_path, "t")
+    hung = [r for r in recs if r.robot == "c"]
+    assert len(hung) == 2 and all(r.error.startswith("timeout after 0.3 s at step 2") for r in hung)
+    assert all(r.error is None for r in recs if r.robot != "c")
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("raise", "RuntimeError: toy env exploded (toy_suite.py:"),
+    ("nan_reward", "non-finite reward (nan) at step 2"),
+    ("nan_obs", "non-finite observation 'state' at step 3"),
+])
+def test_env_faults_are_recorded_and_the_run_goes_on(tmp_path, fault, message):
+    assert run(tmp_path, "f", f"fault={fault}") == 0
+    recs = records(tmp_path, "f")
+    bad = [r for r in recs if r.robot == "c"]
+    assert len(bad) == 4 and all(r.error and r.error.startswith(message) for r in bad), bad[0].error
+    assert all(r.error is None for r in recs if r.robot != "c")
+    summary = json.loads((tmp_path / "f" / "summary.json").read_text())  # no NaN anywhere: it validates
+    assert validate(summary) == "bench.summary/1" and summary["counts"]["errors"] == 4
+    unseen = summary["splits"].get("unseen")
+    assert unseen is None  # every unseen episode failed: no rate, and no NaN pretending to be one
+
+
+def test_non_finite_action_is_recorded(tmp_path):
+    assert run(tmp_path, "n", "policy=tests.toy_suite:nan_policy", "episodes=1") == 0
+    assert all(r.error == "policy returned a non-finite action at step 1" for r in records(tmp_path, "n"))
+
+
+def test_action_chunks_run_open_loop(tmp_path):
+    assert run(tmp_path, "c", "policy=tests.toy_suite:chunk_policy", "robots=[a]") == 0
+    recs = records(tmp_path, "c")
+    assert all(r.error is None and r.length == 30 for r in recs) and any(r.success_once for r in recs)
+
+
+def test_policy_obs_keys_are_checked_before_anything_is_written(tmp_path, capsys):
+    assert run(tmp_path, "cam", "policy=tests.toy_suite:NeedsCamera") == 2
+    err = capsys.readouterr().err
+    assert "policy 'tests.toy_suite:NeedsCamera' needs observation keys ['rgb.front']; suite 'toy' cell " \
+           "reach/a/line provides state(2) float32" in err
+    assert not (tmp_path / "cam").exists()
+
+
+def test_keys_nobody_owns_are_refused(tmp_path, capsys):
+    assert run(tmp_path, "k", "env_id=X") == 2
+    err = capsys.readouterr().err
+    assert "unknown key 'env_id'" in err and "suite tests.toy_suite:ToySuite: goal, fault" in err
+    assert run(tmp_path, "k", "fault=boom") == 2
+    assert "fault='boom': valid: none, raise" in capsys.readouterr().err
+    assert not (tmp_path / "k").exists()
+
+
+def test_entry_point_name_must_equal_suite_name(monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    ep = EntryPoint(name="toy2", value="tests.toy_suite:ToySuite", group=registry.SUITES)
+    monkeypatch.setattr(registry, "_group", lambda group: {"toy2": ep})
+    with pytest.raises(RegistryError, match=r"suite='toy2': the entry point loads tests.toy_suite.ToySuite, whose "
+                                            r"name is 'toy'; an entry-point name must equal its Suite.name"):
+        registry.suite_class("toy2")
+
+
+def test_typed_api(tmp_path):
+    result = api.run(api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", episodes=3, workers=1,
+                                   out=str(tmp_path), run_id="api", suite_options={"goal": 0.2}))
+    assert result.ran == 9 and result.resumed == 0 and len(result.records) == 9
+    assert result.summary["splits"]["seen"]["success_once"]["mean"]["value"] == 1.0
+    again = api.run(api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", episodes=3, workers=1,
+                                  out=str(tmp_path), run_id="api", suite_options={"goal": 0.2}))
+    assert again.ran == 0 and again.resumed == 9
+    assert api.score(tmp_path / "api") == again.summary
+    with pytest.raises(ConfigError, match="unknown key 'goals' for suite tests.toy_suite:ToySuite; valid: goal"):
+        api.plan(api.RunConfig(suite="tests.toy_suite:ToySuite", suite_options={"goals": 1}))
