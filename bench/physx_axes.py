@@ -182,12 +182,12 @@ class PhysxAxes:
                       if key in named else list(nom.joints))
             col = 0 if axis == "gain" else 1
             self._check_nonzero(field, [nom.drives[j][col] for j in joints])
-            for j in joints:
-                stiffness, damping = nom.drives[j]
+            for j in joints:  # the other drive parameter keeps its current value: axes compose
+                joint, (stiffness, damping) = nom.joints[j], nom.drives[j]
                 if axis == "gain":
-                    self._set_drive(nom.joints[j], stiffness * s, damping)
+                    self._set_drive(joint, stiffness * s, float(joint.damping))
                 else:
-                    self._set_drive(nom.joints[j], stiffness, damping * s)
+                    self._set_drive(joint, float(joint.stiffness), damping * s)
 
     def _friction(self, nom: _Nominal, s: float, bodies: list[str] | None, field: str) -> None:
         import sapien.physx as physx

@@ -11,6 +11,16 @@ and the control mode's own action. Episodes run the full horizon: `terminated` i
 ManiSkill task that succeeds keeps simulating, as robosuite's `ignore_done`), `truncated` is set at
 the horizon; success is `info["success"]` of the last step, a plain bool.
 
+Resets: ManiSkill's ordinary reset (`reset="soft"`) restores the seed's initial state exactly, but
+PhysX solves contacts in an order that depends on the scene's history, so after a hard contact
+(the hand hitting the table) the same seed and actions can continue differently depending on the
+episodes the worker ran before (measured: PickCube, random joint targets, the same initial state
+twice, diverging at step 9). The default, `reset="rebuild"`, rebuilds the PhysX scene at every
+reset (ManiSkill's `reconfigure`): the same seed and actions then give the same trajectory
+whatever ran before, for ~20 ms per episode. ManiSkill frees the old scene with a full
+`gc.collect()`, ~200 ms in a process that has imported torch; the adapter calls `gc.freeze()`
+once after its first build so those collections skip the long-lived objects of the imports.
+
 Assets are never downloaded: a robot or task whose assets are not on disk is refused with one
 line naming them (and `MS_SKIP_ASSET_DOWNLOAD_PROMPT=1` is set so ManiSkill never prompts).
 """
@@ -22,9 +32,10 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
-from bench.protocols import RGB, STATE, ActionSpec, Feature
+from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature
 
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
+RESETS = ("rebuild", "soft")
 OBS_MODES = ("state", "rgb", "state+rgb")
 EXTRA_HINT = "pip install -e '.[maniskill]'"
 # cameras every table-top task mounts, and the ones a robot brings (ManiSkill 3.0.1)
@@ -53,6 +64,22 @@ def _require() -> None:
     if why:
         raise ConfigError(f"ManiSkill suites {why}")
     os.environ["MS_SKIP_ASSET_DOWNLOAD_PROMPT"] = "1"  # never an interactive prompt
+    import logging
+
+    # ManiSkill warns on every scene build ("No initial pose set for actor builder ..."): not the user's concern
+    logging.getLogger("mani_skill").setLevel(logging.ERROR)
+
+
+def check_backend(sim_backend: str) -> None:
+    """Refuse a backend ManiSkill cannot run here (physx_cuda needs a CUDA device)."""
+    if sim_backend not in SIM_BACKENDS:
+        raise ConfigError(f"sim_backend={sim_backend!r}: valid: {', '.join(SIM_BACKENDS)}")
+    if sim_backend == "physx_cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ConfigError("sim_backend=physx_cuda: this machine has no CUDA device (torch.cuda.is_available() "
+                              "is False); use sim_backend=physx_cpu")
 
 
 def cameras_of(robot: str) -> tuple[str, ...]:
@@ -193,6 +220,19 @@ def _action_names(controller: Any, width: int) -> list[str]:
     return names
 
 
+_FROZEN = {"done": False}
+
+
+def _freeze_imports() -> None:
+    """Move every object alive now out of the cyclic GC's reach, once per process (see the module doc)."""
+    import gc
+
+    if not _FROZEN["done"]:
+        gc.collect()
+        gc.freeze()
+        _FROZEN["done"] = True
+
+
 class ManiSkillEnv:
     """One ManiSkill3 env behind the `EnvAdapter` contract (built once per worker and cell)."""
 
@@ -201,18 +241,18 @@ class ManiSkillEnv:
 
     def __init__(self, env_id: str, robot: str, horizon: int, *, interface: Interface | None = None,
                  obs: str = "state", cameras: Sequence[str] | None = None, image_size: int | None = None,
-                 object_names: Sequence[str] = (), sim_backend: str = "physx_cpu", env_kwargs: dict | None = None):
+                 object_names: Sequence[str] = (), instruction: str | None = None, sim_backend: str = "physx_cpu",
+                 reset: str = "rebuild", env_kwargs: dict | None = None):
         if obs not in OBS_MODES:
             raise ConfigError(f"obs={obs!r}: valid: {', '.join(OBS_MODES)}")
-        if sim_backend not in SIM_BACKENDS:
-            raise ConfigError(f"sim_backend={sim_backend!r}: valid: {', '.join(SIM_BACKENDS)}")
-        if sim_backend == "physx_cuda":
-            raise ConfigError("sim_backend=physx_cuda: one-env adapters run on physx_cpu; the GPU path is "
-                              "bench.maniskill_vec.ManiSkillVecEnv (num_envs=N)")
+        if reset not in RESETS:
+            raise ConfigError(f"reset={reset!r}: valid: {', '.join(RESETS)}")
+        self.reset_mode = reset
+        check_backend(sim_backend)
         check_buildable(env_id, robot)
         self.env_id, self.robot, self.horizon = env_id, robot, int(horizon)
         self.interface: Interface = interface or NativeInterface()
-        self.obs_mode, self.object_names = obs, tuple(object_names)
+        self.obs_mode, self.object_names, self.instruction = obs, tuple(object_names), instruction
         self.want_state, want_rgb = "state" in obs, "rgb" in obs
         valid_cams = cameras_of(robot)
         self.cameras = tuple(cameras) if cameras else (valid_cams if want_rgb else ())
@@ -241,12 +281,15 @@ class ManiSkillEnv:
         self.fps = float(self.base.control_freq)
         from bench.physx_axes import PhysxAxes
 
-        self.model_axes = PhysxAxes(self)
+        # PhysX parameters can be edited between steps on the CPU backend only (GPU buffers are fixed at start)
+        self.model_axes = PhysxAxes(self) if sim_backend == "physx_cpu" else None
         spec: dict[str, Feature] = {}
         if self.want_state:
             spec[STATE] = Feature.state(self.interface.state_fields)
         for cam in self.cameras:
             spec[RGB + cam] = Feature.rgb(self.image_size, self.image_size)
+        if instruction is not None:
+            spec[TASK] = Feature.text()
         self.obs_spec = spec
         self.action_spec = self.interface.action_spec
         self._success = False
@@ -269,6 +312,7 @@ class ManiSkillEnv:
             raise
         self.base = self._gym.unwrapped
         self.interface.bind(self)
+        _freeze_imports()
 
     def _control_modes(self) -> list[str]:
         import gymnasium as gym
@@ -286,10 +330,14 @@ class ManiSkillEnv:
     # -- contract ----------------------------------------------------------------------------
     def reset(self, seed: int) -> dict[str, Any]:
         seed = int(seed)
-        rebuild = self.model_axes.needs_reconfigure()
+        axes = self.model_axes
+        gravity_changed = axes is not None and axes.needs_reconfigure()
+        rebuild = self.reset_mode == "rebuild" or gravity_changed
         raw, info = self.reconfigure(seed) if rebuild else self.base.reset(seed=seed)
         if rebuild:
-            self.model_axes.after_reconfigure()
+            self.interface.bind(self)  # new scene, new actors
+            if axes is not None:
+                axes.after_reconfigure()
         self.interface.on_reset()
         self._t = 0
         self._success = bool(info["success"][0])
@@ -320,4 +368,6 @@ class ManiSkillEnv:
             out[STATE] = self.interface.state(ms_state)
         for cam in self.cameras:
             out[RGB + cam] = raw["sensor_data"][cam]["rgb"][0].cpu().numpy()
+        if self.instruction is not None:
+            out[TASK] = self.instruction
         return out
