@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import queue
 import threading
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,8 @@ class MotionPlanExpert:
 
     def __init__(self, env: Any, solve: Callable[..., Any], name: str = ""):
         if env.base.control_mode != CONTROL_MODE:
-            raise ConfigError(f"control_mode={env.base.control_mode!r}: the motion-planning expert{' for ' + name if name else ''} "
+            which = f" for {name}" if name else ""
+            raise ConfigError(f"control_mode={env.base.control_mode!r}: the motion-planning expert{which} "
                               f"commands {CONTROL_MODE}; run it with control_mode={CONTROL_MODE}")
         self.env, self.solve, self.name = env, solve, name
         self._thread: threading.Thread | None = None

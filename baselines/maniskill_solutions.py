@@ -7,7 +7,8 @@ into policies. `SOLUTIONS` maps every ManiSkill task id the suites use to its so
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -25,8 +25,9 @@ ConfigError listing what is valid.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -53,7 +54,7 @@ class _Nominal:
 class PhysxAxes:
     """Scales PhysX model parameters of one `ManiSkillEnv` relative to their nominal values."""
 
-    axes = AXES
+    axes: frozenset[str] = AXES
 
     def __init__(self, env: Any):
         self.env = env

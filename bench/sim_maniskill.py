@@ -27,12 +27,16 @@ line naming them (and `MS_SKIP_ASSET_DOWNLOAD_PROMPT=1` is set so ManiSkill neve
 from __future__ import annotations
 
 import os
-from typing import Any, Protocol, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
-from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature
+from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
+
+if TYPE_CHECKING:
+    from bench.physx_axes import PhysxAxes
 
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 RESETS = ("rebuild", "soft")
@@ -66,8 +70,10 @@ def _require() -> None:
     os.environ["MS_SKIP_ASSET_DOWNLOAD_PROMPT"] = "1"  # never an interactive prompt
     import logging
 
+    from mani_skill import logger  # named "mani_skill " (sic): take the object, not the name
+
     # ManiSkill warns on every scene build ("No initial pose set for actor builder ..."): not the user's concern
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)
+    logger.setLevel(logging.ERROR)
 
 
 def check_backend(sim_backend: str) -> None:
@@ -236,8 +242,12 @@ def _freeze_imports() -> None:
 class ManiSkillEnv:
     """One ManiSkill3 env behind the `EnvAdapter` contract (built once per worker and cell)."""
 
-    mujoco = None
-    inputs = None
+    mujoco: MujocoHandle | None = None
+    inputs: InputLog | None = None
+    model_axes: ModelAxes | None
+    physx: PhysxAxes | None  # the same object, with the adapter's reset hooks
+    obs_spec: ObsSpec
+    base: Any  # the unwrapped ManiSkill env (mani_skill.envs.sapien_env.BaseEnv)
 
     def __init__(self, env_id: str, robot: str, horizon: int, *, interface: Interface | None = None,
                  obs: str = "state", cameras: Sequence[str] | None = None, image_size: int | None = None,
@@ -282,7 +292,8 @@ class ManiSkillEnv:
         from bench.physx_axes import PhysxAxes
 
         # PhysX parameters can be edited between steps on the CPU backend only (GPU buffers are fixed at start)
-        self.model_axes = PhysxAxes(self) if sim_backend == "physx_cpu" else None
+        self.physx = PhysxAxes(self) if sim_backend == "physx_cpu" else None
+        self.model_axes = self.physx
         spec: dict[str, Feature] = {}
         if self.want_state:
             spec[STATE] = Feature.state(self.interface.state_fields)
@@ -317,7 +328,7 @@ class ManiSkillEnv:
     def _control_modes(self) -> list[str]:
         import gymnasium as gym
 
-        probe = gym.make(self.env_id, **{**self._kwargs, "obs_mode": "none", "render_backend": "none"})
+        probe: Any = gym.make(self.env_id, **{**self._kwargs, "obs_mode": "none", "render_backend": "none"})
         try:
             return list(probe.unwrapped.agent.supported_control_modes)
         finally:
@@ -330,7 +341,7 @@ class ManiSkillEnv:
     # -- contract ----------------------------------------------------------------------------
     def reset(self, seed: int) -> dict[str, Any]:
         seed = int(seed)
-        axes = self.model_axes
+        axes = self.physx
         gravity_changed = axes is not None and axes.needs_reconfigure()
         rebuild = self.reset_mode == "rebuild" or gravity_changed
         raw, info = self.reconfigure(seed) if rebuild else self.base.reset(seed=seed)
@@ -345,7 +356,7 @@ class ManiSkillEnv:
         return self._obs(raw)
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
-        raw, reward, _, _, info = self.base.step(self.interface.command(action))
+        raw, reward, _, _, info = self.base.step(self.interface.command(action))  # batched tensors (1, ...)
         self._t += 1
         self._success = bool(info["success"][0])
         return self._obs(raw), float(reward[0]), False, self._t >= self.horizon, {"success": self._success}

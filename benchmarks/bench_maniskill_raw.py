@@ -53,7 +53,7 @@ def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> Non
     actions = []
     for job in p.jobs:
         policy.reset(job.seed)
-        actions.append(np.stack([policy.act(None) for _ in range(p.horizon)]))
+        actions.append(np.stack([policy.act({}) for _ in range(p.horizon)]))  # random: ignores the observation
     worker.run(p.jobs[0])  # warm-up both
     raw.reset(seed=p.jobs[0].seed)
     for a in actions[0][:20]:
@@ -79,7 +79,7 @@ def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> Non
         raw.close()
     h, b = steps / harness_s, bare_steps / bare_s
     print(f"{env_id} on physx_cpu, {episodes} episodes x {p.horizon} steps, random actions (pd_joint_pos), "
-          f"renderer: {env.render}, suite reset={mode}")
+          f"renderer: {getattr(env, 'render', '?')}, suite reset={mode}")
     print(f"  harness {h:.0f} env-steps/s, bare ManiSkill loop {b:.0f} env-steps/s: harness / bare = {h / b:.3f}")
 
 

@@ -1,8 +1,9 @@
 """Embodiment-agnostic observation and action for ManiSkill robots (the `Interface` of maniskill_held_out_robots).
 
 Observation (the same 24 numbers on every robot, `STATE_FIELDS`): tool-centre-point position
-(world; the point between the fingertips when the gripper is closed), its orientation relative to the orientation at reset (a robot's TCP frame is its own, so
-only relative orientation compares), gripper opening (1 = fully open, 0 = fully closed, from the
+(world; the point between the fingertips when the gripper is closed), its orientation relative to
+the orientation at reset (a robot's TCP frame is its own, so only relative orientation compares),
+gripper opening (1 = fully open, 0 = fully closed, from the
 gripper's joint range), object position and orientation, TCP-to-object vector, goal position and
 object-to-goal vector.
 
@@ -71,7 +72,7 @@ class AgnosticInterface:
         if robot not in ROBOTS:
             raise ValueError(f"robot {robot!r}: the agnostic interface knows {', '.join(ROBOTS)}")
         self.robot, self.object_attr, self.goal_attr = robot, object_attr, goal_attr
-        self.control_mode = "pd_ee_delta_pos" if robot in CARTESIAN else "pd_joint_pos"
+        self.control_mode: str | None = "pd_ee_delta_pos" if robot in CARTESIAN else "pd_joint_pos"
         self._quat0_conj = np.array([1.0, 0.0, 0.0, 0.0])
 
     # -- Interface ---------------------------------------------------------------------------
@@ -113,7 +114,7 @@ class AgnosticInterface:
     def command(self, action: np.ndarray) -> np.ndarray:
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         delta, grip = a[:3] * STEP_M, float(a[3])
-        out = []
+        out: list[Any] = []
         for name, ctrl in self._parts.items():
             if name == "arm" and self.robot in CARTESIAN:  # root-frame translation, normalised to +-0.1 m
                 root_q = _np(ctrl.root_link.pose.q)
@@ -153,7 +154,7 @@ class AgnosticInterface:
         self._pin = robot._objs[0].create_pinocchio_model()
         names = [link.name for link in robot.links]  # same order as the PhysX articulation's links
         self._tcp_links = [names.index(n) for n in JOINT_DLS[self.robot]]
-        ctrl = self._parts.get("arm", self._parts.get("joints"))
+        ctrl: Any = self._parts.get("arm", self._parts.get("joints"))
         arm = [int(i) for i in ctrl.active_joint_indices]
         self._arm = np.array(arm if "arm" in self._parts else arm[:-1])  # SO-100: all but the jaw
         self._arm_limits = limits[self._arm]

@@ -6,12 +6,13 @@ built envs.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Optional
 
+from bench import sim_maniskill
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, Feature, ObsSpec
-from bench import sim_maniskill
 from bench.sim_maniskill import OBS_MODES, RESETS, cameras_of, check_backend
 
 IMAGE_SIZES = (16, 1024)

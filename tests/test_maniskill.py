@@ -346,3 +346,26 @@ def test_perturb_module_dispatches_to_model_axes():
     stepper.reset(0)
     assert env.base.cube._bodies[0].mass == pytest.approx(0.064, rel=1e-4)  # restored for the next condition
     env.close()
+
+
+# -- the GPU path's batched env, on the CPU backend (one env) -------------------------------------
+def test_vec_env_per_env_seed_matches_the_one_env_adapter():
+    """ManiSkillVecEnv resets env i alone with its own seed: the start is the one-env adapter's for that seed."""
+    from bench.maniskill_vec import ManiSkillVecEnv
+    from bench.sim_maniskill import NativeInterface
+
+    vec = ManiSkillVecEnv("PickCube-v1", "panda", 1, interface=NativeInterface("pd_joint_pos"), sim_backend="physx_cpu")
+    one = make(reset="soft")
+    (obs,) = vec.reset([21])
+    ref = one.reset(21)
+    assert np.array_equal(vec.init_states()[0], one.init_state())
+    assert np.array_equal(obs[STATE], ref[STATE])
+    acts = actions(one, 5)
+    for a in acts:
+        (obs,), reward, success = vec.step(a[None])
+        ref, r, *_ = one.step(a)
+        assert np.array_equal(obs[STATE], ref[STATE]) and reward[0] == pytest.approx(r) and success[0] == one.success()
+    with pytest.raises(ConfigError, match=r"num_envs=4: ManiSkill's physx_cpu backend holds one env"):
+        ManiSkillVecEnv("PickCube-v1", "panda", 4, sim_backend="physx_cpu")
+    vec.close()
+    one.close()
