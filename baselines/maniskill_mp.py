@@ -94,13 +94,16 @@ class MotionPlanExpert:
     def close(self) -> None:
         self._stop()
 
+    def __del__(self) -> None:  # a policy dropped mid-episode (e.g. after a timeout) must not leave its thread blocked
+        self._stop()
+
     def _start(self) -> None:
         proxy = _EnvProxy(self.env.base, self._to_harness, self._to_solver, self.env.success)
-        out = self._to_harness
+        out, solve = self._to_harness, self.solve  # the thread holds no reference to the policy itself
 
         def run() -> None:
             try:
-                self.solve(proxy, seed=None, debug=False, vis=False)
+                solve(proxy, seed=None, debug=False, vis=False)
                 out.put(("done", None))
             except _Abort:
                 pass
@@ -111,10 +114,11 @@ class MotionPlanExpert:
         self._thread.start()
 
     def _stop(self) -> None:
-        thread, self._thread = self._thread, None
+        thread, self._thread = getattr(self, "_thread", None), None
         if thread is not None and thread.is_alive():
             self._to_solver.put(_ABORT)
-            thread.join(timeout=10)
+            if thread is not threading.current_thread():
+                thread.join(timeout=10)
         self._waiting = False
 
     def _hold_action(self) -> np.ndarray:
