@@ -313,6 +313,13 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
         if mj is None:
             other = env.model_axes
             if other is not None and cond.axis in other.axes:
+                # the backend checks the named targets (and refuses zero-valued ones) by applying once
+                level = cond.level[0] if isinstance(cond.level, (list, tuple)) else cond.level
+                try:
+                    other.apply(str(cond.axis), float(level if level is not None else 1.0),
+                                (cond.spec or {}).get("targets") or {})
+                finally:
+                    other.restore()
                 continue
             can = sorted(other.axes) if other is not None else []
             raise ConfigError(f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "

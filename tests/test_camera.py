@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from bench.camera import CameraRig, RendererError, check_cameras, parse_image_size
+from bench.camera import CameraRig, check_cameras, parse_image_size
 from bench.errors import ConfigError
 from bench.perturb_visual import AXES, VisualScene, check
 

@@ -14,7 +14,7 @@ import pytest
 from bench import api
 from bench.cli import main
 from bench.errors import BenchError, ConfigError
-from bench.records import comparable, read_records
+from bench.records import comparable
 from bench.video import decode_frames, probe
 
 pytest.importorskip("robosuite")

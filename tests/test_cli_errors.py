@@ -50,7 +50,6 @@ def test_console_script_help_is_fast_and_lists_commands():
 
 
 def test_run_help_documents_every_key(capsys):
-    import dataclasses
 
     from bench.api import RUNNER_KEYS
 
