@@ -181,7 +181,7 @@ def _check_runner(cfg: RunConfig) -> None:
 
 def plan(cfg: RunConfig) -> Plan:
     """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing."""
-    from bench import perturb, registry
+    from bench import axes, perturb, registry
     from bench.check import fast_check
 
     _check_runner(cfg)
@@ -216,7 +216,7 @@ def plan(cfg: RunConfig) -> Plan:
 
         calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
         verify(suite, cells, horizon, calibration)
-    conditions = perturb.conditions_from_config(cfg.perturb)
+    conditions = axes.conditions_from_config(cfg.perturb)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     if cfg.video:
         from bench.episode_video import check_run

@@ -37,7 +37,7 @@ from bench.errors import ConfigError, did_you_mean
 
 TEXTURES = ("checker", "stripes", "noise", "rings")
 _GEOMS = ("geoms", "bodies")
-# Keyword arguments of `bench.perturb.Axis` (kind "visual"); `nominal` is the level that changes nothing.
+# Keyword arguments of `bench.axes.Axis` (kind "visual"); `nominal` is the level that changes nothing.
 AXIS_TABLE: tuple[dict[str, Any], ...] = (
     dict(name="light", unit="scale of nominal", short="light intensity",
          doc="ambient, diffuse and specular intensity of every light, headlight included", nominal=1.0),

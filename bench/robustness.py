@@ -26,7 +26,7 @@ def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generato
     perturbed success over the paired episodes, drop = nominal - perturbed with its interval, and
     relative drop = drop / nominal (null when nominal is 0).
     """
-    from bench.perturb import AXES
+    from bench.axes import AXES
 
     recs = [r for r in dedupe(records) if r.error is None]
     nominal: dict[str, dict[int, EpisodeRecord]] = defaultdict(dict)

@@ -54,7 +54,7 @@ def help_text(argv: list[str] | None = None) -> str:
 
 
 def _perturb_help() -> str:
-    from bench.perturb import axes_help
+    from bench.axes import axes_help
 
     return ("\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
             "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n")

@@ -333,10 +333,10 @@ def test_friction_on_named_bodies_leaves_shared_materials_of_others_alone():
 
 def test_perturb_module_dispatches_to_model_axes():
     """bench.perturb.apply (the runner's entry) reaches the PhysX axes and records the value."""
-    from bench import perturb
+    from bench import axes, perturb
 
     env = make()
-    conds = perturb.conditions_from_config({"mass": [2.0], "latency": [2]})
+    conds = axes.conditions_from_config({"mass": [2.0], "latency": [2]})
     stepper, params = perturb.apply(env, conds[1], np.random.default_rng(0))
     assert stepper is env and params == {"mass": 2.0}
     stepper.reset(0)
