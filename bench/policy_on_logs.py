@@ -125,7 +125,7 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
             "rmse": {"value": float(np.sqrt(s[i])), "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))]},
         })
     reason = None if len(episodes) > 1 else "one episode: no interval"
-    out = {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy,
+    out: dict[str, Any] = {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy,
            "checkpoint": identity.checkpoint, "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()),
            "confidence": cfg.confidence, "interval": "bootstrap over episodes" if reason is None else reason,
            "per_dim": per_dim}

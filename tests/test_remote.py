@@ -169,7 +169,9 @@ def test_openpi_client_against_bench_serve_command():
                             text=True)
     try:
         line = proc.stdout.readline()
-        assert "bench serve: policy scripted on ws://127.0.0.1:" in line, line + proc.stderr.read()
+        if "bench serve: policy scripted on ws://127.0.0.1:" not in line:
+            proc.kill()
+            pytest.fail(f"bench serve did not start: {line!r} {proc.communicate()[1][-2000:]}")
         port = int(line.split("ws://127.0.0.1:")[1].split(" ")[0])
         client = WebsocketClientPolicy("127.0.0.1", port)
         meta = client.get_server_metadata()
@@ -383,3 +385,25 @@ def test_bench_actions_accepts_a_remote_policy(tmp_path):
                        RemoteOptions(port=port))
     assert got["per_dim"] == ref["per_dim"] and got["frames"] == ref["frames"] > 0
     assert got["policy_latency"]["requests"] == got["frames"]
+
+
+# -- latency: records, summary (composed with perturb.latency), report ------------------------------------
+def test_latency_in_summary_composes_with_perturb_latency_and_is_reported(tmp_path):
+    with bench_server() as port:
+        res = api.run(run_cfg(tmp_path, "lat", "remote", port=port, episodes=2, perturb={"latency": [2, 5]}))
+        local = api.run(run_cfg(tmp_path, "loc", "scripted", episodes=2, perturb={"latency": [2, 5]}))
+    assert same(local.records, res.records)  # the measured latency never changes a rollout
+    block = res.summary["policy_latency"]
+    assert block["requests"] == sum(r.extras["policy"]["requests"] for r in res.records) and block["fps"] == 10.0
+    conds = {c["condition"]: c for c in block["conditions"]}
+    assert list(conds)[0] == "nominal" and conds["nominal"]["injected_steps"] == 0
+    five = next(c for name, c in conds.items() if "5" in name)
+    assert five["injected_steps"] == 5
+    assert five["effective_steps"]["p50"] == pytest.approx(5 + five["rtt_steps"]["p50"], abs=1e-3)
+    assert five["rtt_steps"]["p50"] == pytest.approx(five["rtt_ms"]["p50"] * 10 / 1000, abs=1e-3)
+    assert main(["report", str(tmp_path / "lat"), f"out={tmp_path / 'rep'}"]) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "Policy latency (remote policy)" in page and (tmp_path / "rep" / "latency.png").stat().st_size > 5000
+    assert "effective steps (injected + measured)" in page
+    assert main(["report", str(tmp_path / "loc"), f"out={tmp_path / 'rep2'}"]) == 0  # in process: no section
+    assert "Policy latency" not in (tmp_path / "rep2" / "index.html").read_text()

@@ -109,7 +109,7 @@ class Connection:
             left = deadline - time.monotonic()
             if left <= 0:
                 raise RemoteError(f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
-                                  f"timeout_s={self.timeout_s:g} s; is `bench serve` or the server running?)")
+                                  f"timeout_s={self.timeout_s:g} s; is bench serve or the server running?)")
             time.sleep(min(delay, left))
             delay = min(delay * 2, BACKOFF_MAX_S)
 

@@ -103,3 +103,36 @@ def pool(stats: Iterable[dict[str, Any]]) -> dict[str, Any] | None:
         out["fps"] = fps
         out["rtt_steps"] = {k: round(v * fps / 1000.0, 4) for k, v in out["rtt_ms"].items()}
     return out
+
+
+def run_latency(records: Iterable[Any]) -> dict[str, Any] | None:
+    """The `policy_latency` block of a run's summary: pooled over the run and per condition; None without stats.
+
+    Per condition, `injected_steps` is the mean `latency` the perturbation applied (perturb.latency,
+    control steps; 0 without one) and `effective_steps` = injected + measured round trip in control
+    steps (rtt x fps): the command delay a real robot at the env's rate would see if the policy ran
+    as fast as here. Simulated time stands still during a round trip, so the measured latency never
+    changes the rollout itself (docs/remote-policies.md, "latency").
+    """
+    by_condition: dict[str, list[tuple[dict[str, Any], float]]] = {}
+    for r in records:
+        stats = (getattr(r, "extras", None) or {}).get("policy")
+        if not isinstance(stats, dict) or "rtt_hist" not in stats or getattr(r, "error", None) is not None:
+            continue
+        injected = float((getattr(r, "params", None) or {}).get("latency", 0) or 0)
+        by_condition.setdefault(str(r.condition), []).append((stats, injected))
+    everything = pool(s for rows in by_condition.values() for s, _ in rows)
+    if everything is None:
+        return None
+    out = dict(everything)
+    out["conditions"] = []
+    for name, rows in sorted(by_condition.items(), key=lambda kv: (kv[0] != "nominal", kv[0])):
+        pooled = pool(s for s, _ in rows)
+        if pooled is None:
+            continue
+        injected = round(float(np.mean([k for _, k in rows])), 4)
+        entry = {"condition": name, "injected_steps": injected, **pooled}
+        if "rtt_steps" in pooled:
+            entry["effective_steps"] = {k: round(injected + v, 4) for k, v in pooled["rtt_steps"].items()}
+        out["conditions"].append(entry)
+    return out
