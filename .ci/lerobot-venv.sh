@@ -12,6 +12,11 @@
 #   bash .ci/lerobot-venv.sh [DIR]          # default DIR: .lerobot-venv (git-ignored)
 #   BENCH_LEROBOT_PYTHON=DIR/bin/python pytest tests/test_lerobot_interop.py
 #
+# Video features: lerobot decodes them with torchcodec, which loads FFmpeg's shared libraries from the system.
+# The torchcodec built against torch 2.13 is 0.12.0 (0.10, the newest inside lerobot's range <0.11, fails to
+# load: its compiled core was linked against an older torch); the FFmpeg it finds is Debian 12's (5.1), installed
+# with apt when missing (these machines run as root).
+#
 # One adjustment, stated: the torchvision wheel that matches torch 2.13.0 (0.28.0) links its compiled ops
 # against CUDA libraries the CPU torch lacks, so `import torchvision` fails while registering fake kernels
 # for nms/roi_align. The script makes those two registration modules load only when the compiled ops
@@ -27,6 +32,13 @@ PY="$DIR/bin/python"
     "deepdiff>=7,<9" "packaging>=24.2,<26" "draccus==0.10.0" "jsonlines>=4,<5" "einops>=0.8,<0.9" \
     "termcolor>=2.4,<4" "gymnasium>=1.1,<2" "imageio>=2.34,<3" "numpy<2" "pyarrow<26" pillow \
     "pyserial>=3.5,<4" "diffusers>=0.27.2,<0.36" "websockets>=15,<18" "msgpack>=1.0.5"
+"$PY" -m pip install -q --no-deps torchcodec==0.12.0
+FFMPEG_LIBS="libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4"
+if ! ldconfig -p | grep -q 'libavdevice\.so\.59'; then
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get install -y -q --no-install-recommends $FFMPEG_LIBS >/dev/null \
+    || { apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $FFMPEG_LIBS >/dev/null; }
+fi
 "$PY" - <<'PYEOF'
 import importlib.util, pathlib
 init = pathlib.Path(importlib.util.find_spec("torchvision").origin)
@@ -38,4 +50,4 @@ if old in s:
         ")  # usort:skip\nif extension._has_ops():\n    from torchvision import _autograd_registrations, _meta_registrations\n", 1)
     init.write_text(s)
 PYEOF
-HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; import lerobot.scripts.lerobot_train, websockets, msgpack; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"
+HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; from torchcodec.decoders import VideoDecoder; import lerobot.scripts.lerobot_train, websockets, msgpack; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"

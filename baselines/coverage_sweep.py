@@ -112,7 +112,7 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
     if cfg.budget == "fixed" and cfg.total_episodes < len(cfg.order):
         raise ConfigError(f"total_episodes={cfg.total_episodes}: must be >= len(order)={len(cfg.order)} (budget=fixed)")
     if "dr" in cfg.parts and cfg.dr_axis:
-        from bench.perturb import AXES
+        from bench.axes import AXES
 
         if cfg.dr_axis not in AXES:
             raise ConfigError(f"dr_axis={cfg.dr_axis!r}: valid: {', '.join(AXES)}.{did_you_mean(cfg.dr_axis, AXES)}")
@@ -140,7 +140,7 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
 
 def _surrogate_condition(text: str):
     """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.perturb's grammar."""
-    from bench.perturb import conditions_from_config
+    from bench.axes import conditions_from_config
 
     if "=" not in text:
         raise ConfigError(f"surrogate_perturb={text!r}: write AXIS=LEVEL, e.g. latency=4 or gain=0.6")
@@ -157,7 +157,7 @@ def _surrogate_condition(text: str):
 
 def _dr_condition_names(cfg: SweepConfig) -> list[tuple[float, str, str]]:
     """(width, condition name, perturb grammar) per DR width, names as bench.perturb forms them."""
-    from bench.perturb import conditions_from_config
+    from bench.axes import conditions_from_config
 
     out = []
     for w in cfg.dr_widths:
@@ -405,7 +405,7 @@ def main(argv: list[str]) -> int:
 
 def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
     """Record, train, evaluate and score every part of the sweep; returns the sweep document."""
-    from bench.perturb import conditions_from_config
+    from bench.axes import conditions_from_config
     from bench.suite import NOMINAL
 
     rng = np.random.default_rng([cfg.eval_seed, 4242])

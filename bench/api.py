@@ -57,7 +57,9 @@ class RunConfig:
     n_boot: int = 2000                      # bootstrap resamples for aggregate and gap intervals
     confidence: float = 0.95                # two-sided interval level
     perturb: dict[str, Any] = field(default_factory=dict)  # perturbation axes, e.g. perturb.friction=[0.5,1,2]
-    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here
+    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here (camera images as video)
+    video: int = 0                          # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
+    calibration: Optional[str] = None       # a `bench calibrate suite=` result: its robot's cells run the calibrated model
     allow_split_violation: bool = False     # run even if `bench check` finds a split problem
     suite_options: dict[str, Any] = field(default_factory=dict)
     policy_options: dict[str, Any] = field(default_factory=dict)
@@ -78,6 +80,7 @@ class Plan:
     suite_options: Any           # an instance of the suite's Options
     policy_options: Any          # an instance of the policy plugin's Options
     identity: PolicyIdentity
+    calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load), or None
     cells: list[Cell]
     conditions: list[Condition]
     jobs: list[Job]
@@ -94,7 +97,7 @@ class Plan:
 
     def worker_spec(self, ctx: Any) -> WorkerSpec:
         return WorkerSpec(self.config.suite, self.suite_options, str(self.config.policy), self.policy_options,
-                          self.config.seed, ctx)
+                          self.config.seed, ctx, self.calibration)
 
 
 @dataclass(frozen=True)
@@ -158,7 +161,7 @@ def config_from_argv(argv: list[str]) -> RunConfig:
 def _check_runner(cfg: RunConfig) -> None:
     """Ranges of the runner's own keys (one line each, naming the limit)."""
     for key, lo, hi in (("episodes", 1, MAX_EPISODES), ("workers", 0, MAX_WORKERS), ("horizon", 0, MAX_HORIZON),
-                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1)):
+                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1), ("video", 0, MAX_EPISODES)):
         v = getattr(cfg, key)
         if not lo <= v <= hi:
             raise ConfigError(f"{key}={v}: must be in [{lo}, {hi}]")
@@ -178,7 +181,7 @@ def _check_runner(cfg: RunConfig) -> None:
 
 def plan(cfg: RunConfig) -> Plan:
     """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing."""
-    from bench import perturb, registry
+    from bench import axes, perturb, registry
     from bench.check import fast_check
 
     _check_runner(cfg)
@@ -207,8 +210,18 @@ def plan(cfg: RunConfig) -> Plan:
     if cfg.record and Path(cfg.record).exists() and (not Path(cfg.record).is_dir() or any(Path(cfg.record).iterdir())):
         raise ConfigError(f"record={cfg.record!r} exists and is not an empty folder; give a new folder "
                           "(nothing is overwritten)")
-    conditions = perturb.conditions_from_config(cfg.perturb)
+    calibration = None
+    if cfg.calibration:
+        from bench.calibrate.apply import load, verify
+
+        calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
+        verify(suite, cells, horizon, calibration)
+    conditions = axes.conditions_from_config(cfg.perturb)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    if cfg.video:
+        from bench.episode_video import check_run
+
+        check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
     problems = fast_check(suite, cells, jobs)
     if problems and not cfg.allow_split_violation:
@@ -216,8 +229,8 @@ def plan(cfg: RunConfig) -> Plan:
                          "lists them; allow_split_violation=true runs anyway)")
     run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
-    return Plan(resolved, suite, plugin, suite_options, policy_options, identity, cells, conditions, jobs, horizon,
-                Path(cfg.out) / run_id)
+    return Plan(resolved, suite, plugin, suite_options, policy_options, identity, calibration, cells, conditions, jobs,
+                horizon, Path(cfg.out) / run_id)
 
 
 def _now() -> str:
@@ -241,6 +254,8 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
             "bench_version": __version__, "git_sha": provenance.git_sha(), "packages": provenance.package_versions(),
             **provenance.machine(), "workers": workers, "backend": [], "seed": cfg.seed,
             "episode_seeds": sorted({j.seed for j in p.jobs}), "started_at": _now(), "finished_at": None,
+            **({"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
+               if p.calibration else {}),
         },
     }
     meta_path = p.run_dir / "run.json"
@@ -259,7 +274,8 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     else:
         write_atomic(meta_path, meta)
     ctx = dataclasses.replace(context(p), timeout_s=cfg.timeout,
-                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None)
+                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None,
+                              video_dir=str(p.run_dir) if cfg.video else None, video_episodes=cfg.video)
     return meta, ctx
 
 

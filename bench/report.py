@@ -9,7 +9,9 @@ For a leaderboard: each entry's score, seen and unseen success and gap, ranked.
 With `calibration=DIR|FILE` (a `bench calibrate` output with calibration.json,
 schema `bench.calibration/1`): held-out error before/after calibration (nominal,
 declared fit, final) as a table and bars. With `verdict=FILE` (a `bench regress`
-verdict): the per-cell paired comparison.
+verdict): the per-cell paired comparison. Given a run directory, the page also embeds the
+run's episode videos (`bench run video=N`) in the cell table, next to their cell, and a
+per-axis robustness table (`bench.robustness`: each axis' levels pooled, drop from nominal).
 
 Everything is read and validated before anything is written; figures are PNGs
 next to index.html, so the folder can be published as it is (CI artifact, Pages).
@@ -23,6 +25,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
+
+import numpy as np
 
 from bench import config as config_mod
 from bench.errors import ConfigError, DataError
@@ -47,7 +51,9 @@ Writes DIR/index.html with matplotlib figures (PNG, next to it):
   run:          success per task x robot/env with Wilson intervals, seen and unseen side by side; split
                 means and transfer gaps with intervals; sensitivity curves per perturbation axis when
                 the run has perturbed conditions; round-trip latency distribution for remote policies;
-                per-cell table.
+                per-cell table. Given a run directory: its episode videos (bench run video=N) in the
+                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:
+                nominal vs perturbed success, drop with its interval).
   leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.
   calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.
   verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.
@@ -342,6 +348,7 @@ table{border-collapse:collapse;font-size:12px;margin:8px 0} th,td{border-bottom:
 text-align:left} th{background:#f6f6f6} td.num{text-align:right;font-variant-numeric:tabular-nums}
 .seen{color:#3b6fb6;font-weight:600} .unseen{color:#e07b28;font-weight:600} .bad{color:#b00020;font-weight:600}
 .good{color:#1b7f3b;font-weight:600} .note{color:#555;font-size:12px}
+figure{display:inline-block;margin:2px 4px} figcaption{font-size:11px}
 """
 
 
@@ -377,8 +384,59 @@ def _img(name: str, alt: str) -> str:
     return f"<img src='{_e(name)}' alt='{_e(alt)}'>"
 
 
-def run_sections(summary: dict, tmp: Path) -> list[str]:
+def _records(run_dir: Path | None) -> list:
+    """The run's episode records when the report was given a run directory (else none)."""
+    from bench.records import EPISODES, read_records
+
+    if run_dir is None or not (run_dir / EPISODES).is_file():
+        return []
+    return read_records(run_dir / EPISODES)
+
+
+def _videos(records: list, run_dir: Path | None, tmp: Path) -> dict[tuple[str, str], list[str]]:
+    """Copy the run's episode videos into tmp/videos; per (cell key, condition), their <video> elements."""
+    out: dict[tuple[str, str], list[str]] = {}
+    for r in sorted(records, key=lambda r: (r.job_id.rsplit("|", 1)[0], r.episode)):
+        video = (r.extras or {}).get("video") or {}
+        src = run_dir / str(video["path"]) if run_dir is not None and video.get("path") else None
+        if src is None or not src.is_file():
+            continue
+        (tmp / "videos").mkdir(exist_ok=True)
+        shutil.copyfile(src, tmp / "videos" / src.name)
+        outcome = "error" if r.error else ("success" if r.success_once else "failure")
+        label = f"episode {r.episode}: {outcome}"
+        out.setdefault((f"{r.task}/{r.robot}/{r.env}", r.condition), []).append(
+            f"<figure><video controls preload='metadata' width='192' src='videos/{_e(src.name)}' title='{_e(label)}'>"
+            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>")
+    return out
+
+
+def robustness_section(summary: dict, records: list) -> str:
+    """Per-axis robustness table (levels pooled), in the style of robustness benchmarks."""
+    from bench.robustness import table
+
+    if not records or not any(r.axis for r in records):
+        return ""
+    metric = summary["metric"] if summary["metric"] != "return" else "success_once"
+    conf = float(summary.get("confidence", 0.95) or 0.95)
+    rows = []
+    for row in table(records, metric, np.random.default_rng(0), confidence=conf):
+        rel = row["relative_drop"]
+        rows.append([_e(row["axis"]), _e(row["kind"]), _e(", ".join(row["levels"])), str(row["pairs"]),
+                     f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
+                     f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
+                     _signed(row["drop"]), f"{rel * 100:+.0f}%" if rel is not None else "n/a"])
+    return ("<h2>Robustness per axis</h2>" +
+            _table(["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]",
+                    "relative drop"], rows, {3, 4, 5, 7}) +
+            "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
+            "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>")
+
+
+def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[str]:
     metric = summary["metric"]
+    records = _records(run_dir)
+    videos = _videos(records, run_dir, tmp)
     parts = []
     if fig_cells(summary, tmp / "cells.png"):
         parts.append("<h2>Success per cell</h2>" + _img("cells.png", "success per cell") +
@@ -401,6 +459,9 @@ def run_sections(summary: dict, tmp: Path) -> list[str]:
         parts.append("<h2>Sensitivity per perturbation axis</h2>" + _img("sensitivity.png", "sensitivity") +
                      _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows,
                             {2}))
+    robust = robustness_section(summary, records)
+    if robust:
+        parts.append(robust)
     from bench.remote.report import latency_section
 
     section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
@@ -408,9 +469,12 @@ def run_sections(summary: dict, tmp: Path) -> list[str]:
         parts.append(section)
     rows = [[_e(c["task"]), _e(c["robot"]), _e(c["env"]), f"<span class='{c['split']}'>{_e(c['split'])}</span>",
              _e(c["condition"]), str(c["n"]), _pct(c["success_once"]), _pct(c["success_at_end"]),
-             str(c["errors"] or "")] for c in summary["cells"]]
+             str(c["errors"] or "")] + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]),
+                                                             []))] if videos else [])
+            for c in summary["cells"]]
     parts.append("<h2>All cells</h2>" + _table(["task", "robot", "env", "split", "condition", "n", "success once",
-                                                "success at end", "errors"], rows, {5, 8}))
+                                                "success at end", "errors"] + (["episode videos"] if videos else []),
+                                               rows, {5, 8}))
     return parts
 
 
@@ -472,7 +536,8 @@ def verdict_section(v: dict) -> str:
                    {4, 5, 6, 7, 8}))
 
 
-def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None) -> str:
+def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None,
+               run_dir: Path | None = None) -> str:
     """Write the figures into `tmp` and return the HTML text."""
     if kind == "run":
         default = f"{doc['suite']['name']} · {doc['policy']['name']} · run {doc['run_id']}"
@@ -482,7 +547,7 @@ def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict 
                 + (f" (checkpoint {_e(sha[:12])})" if sha else "") +
                 f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
                 f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}")
-        parts = run_sections(doc, tmp)
+        parts = run_sections(doc, tmp, run_dir)
     else:
         default = "leaderboard"
         meta = (f"{len(doc['entries'])} entries · suites "
@@ -518,7 +583,8 @@ def main(argv: list[str]) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        (tmp / "index.html").write_text(build_page(kind, doc, tmp, cal, verdict, cfg.title), encoding="utf-8")
+        run_dir = src.parent if kind == "run" else None
+        (tmp / "index.html").write_text(build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8")
         os.chmod(tmp, 0o755)
         if out.exists():
             old = out.with_name(f".{out.name}.old")

@@ -31,6 +31,7 @@ class WorkerSpec:
     policy_options: Any      # an instance of the policy plugin's Options
     seed: int                # the run seed
     ctx: RunContext
+    calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
 
 
 class Worker:
@@ -55,6 +56,11 @@ class Worker:
         if key not in self.cache:
             env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
             try:
+                cal = self.spec.calibration
+                if cal is not None and job.cell.robot == cal["robot"]:  # checked against this model by `plan`
+                    from bench.perturb import write_fields
+
+                    write_fields(env.mujoco, cal["edits"])
                 missing = [k for k in self.needs if k not in env.obs_spec]
                 if missing:  # the suite declared them (checked before the run), but its env does not give them
                     raise RuntimeError(f"the policy needs observation keys {missing}; the env gives {sorted(env.obs_spec)}")
