@@ -2,20 +2,20 @@
 
     python benchmarks/bench_remote.py [requests=2000] [robots=[Panda,UR5e]] [episodes=6] [horizon=150]
 
-1. Round trip: `bench serve` runs in its own process on 127.0.0.1; the `policy=remote` client (the same
-   `RemotePolicy.act` a run calls: obs_map, msgpack-numpy, validation of the (T, A) answer, latency
-   bookkeeping) sends `requests` observations of two sizes and the median is reported:
-     state   an 18-float32 state (held_out_robots' observation) + the task string
-     images  the same plus two 224x224x3 uint8 cameras (LIBERO/DROID-sized)
-   The observations are seeded random numbers of exactly those shapes from `WireSuite` below (no robosuite
-   suite renders cameras yet); the served policy answers a 10x7 float32 chunk computed from the state,
-   as openpi's LIBERO policies do. openpi-client's own `WebsocketClientPolicy` against the same server is
+1. Round trip: `bench serve policy=scripted` (held_out_robots, Panda) runs in its own process on 127.0.0.1;
+   the `policy=remote` client (the same `RemotePolicy.act` a run calls: obs_map, msgpack-numpy, the
+   server's checks of the observation against the cell's spec, validation of the answer, latency
+   bookkeeping) sends the cell's first observation `requests` times, in two sizes:
+     state   obs=state: the 18-float32 agnostic state + the task string
+     images  obs=state+rgb image_size=224: the same plus the two default cameras (agentview,
+             robot0_eye_in_hand), 224x224x3 uint8 each, rendered by the suite (LIBERO/DROID-sized)
+   and the median is reported. openpi-client's own `WebsocketClientPolicy` against the same server is
    printed for reference (the floor: no validation, no bookkeeping).
 2. Throughput: held_out_robots with the scripted expert, in process vs `policy=remote` against
    `bench serve policy=scripted` in another process (state observations), same seeds; envs built and
-   warmed on both sides first (steady state), episodes alternate in-process / remote so drifts in
-   machine speed hit both alike. The remote records must equal the in-process ones (policy name and
-   latency extras aside); the script says so.
+   warmed on both sides first (steady state), each episode runs both ways back to back (which goes first
+   alternates) so drifts in machine speed hit both alike. The remote records must equal the in-process
+   ones (policy name and latency extras aside); the script says so.
 
 Targets (issue 16): round-trip median <= 1 ms (state), <= 5 ms (two images); remote >= 0.9x in-process.
 """
@@ -27,88 +27,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bench.protocols import STATE, ActionSpec, Feature
-from bench.suite import Cell, SuiteBase
-
 REPO = Path(__file__).resolve().parents[1]
-WIRE = "benchmarks.bench_remote:WireSuite"
-
-
-@dataclass(frozen=True)
-class WireOptions:
-    """Keys of the wire-benchmark suite."""
-
-    cameras: int = 0   # 224x224 cameras in the observation (0 or 2)
-
-
-class WireEnv:
-    """Observations of a given size (seeded random numbers); stepping is not what is measured here."""
-
-    backend, fps, horizon = "wire-1", 20.0, 1
-    mujoco = inputs = model_axes = None
-    action_spec = ActionSpec.box(["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"], -1.0, 1.0)
-
-    def __init__(self, cameras: int):
-        self.obs_spec = {STATE: Feature.state([("state", 18)]),
-                         **{f"rgb.cam{i}": Feature.rgb(224, 224) for i in range(cameras)}}
-
-    def reset(self, seed: int) -> dict:
-        rng = np.random.default_rng(seed)
-        return {k: (rng.random(f.shape, np.float32) if f.dtype == "float32" else
-                    rng.integers(0, 256, f.shape, dtype=np.uint8)) for k, f in self.obs_spec.items()}
-
-    def step(self, action):
-        raise RuntimeError("WireEnv measures the wire only")
-
-    def success(self) -> bool:
-        return False
-
-    def init_state(self) -> np.ndarray:
-        return np.zeros(1)
-
-    def close(self) -> None:
-        pass
-
-
-class ChunkPolicy:
-    """A 10x7 chunk from the state (and a touch of each image, so they are read)."""
-
-    def reset(self, seed: int) -> None:
-        pass
-
-    def act(self, obs: dict) -> np.ndarray:
-        base = np.resize(obs[STATE][:7], 7).astype(np.float32)
-        bias = sum(float(v[0, 0, 0]) for k, v in obs.items() if k.startswith("rgb.")) / 255.0
-        return np.tile(base + bias, (10, 1))
-
-
-class WireSuite(SuiteBase):
-    """One cell with a state (and optional cameras): the observation sizes of the round-trip benchmark."""
-
-    name = "wire"
-    version = "1"
-    Options = WireOptions
-    reference_policy = default_policy = "scripted"
-    default_horizon = 1
-    manifest = {"robots": {"seen": ["any"], "unseen": []}}
-    capabilities = frozenset({"expert"})
-
-    def all_cells(self) -> list[Cell]:
-        return [Cell(self.name, "wire", "any", "localhost", "seen")]
-
-    def obs_spec(self, cell: Cell):
-        return WireEnv(self.options.cameras).obs_spec
-
-    def make_env(self, cell: Cell, horizon: int) -> WireEnv:
-        return WireEnv(self.options.cameras)
-
-    def make_expert(self, cell: Cell, env) -> ChunkPolicy:
-        return ChunkPolicy()
+IMAGES = {"obs": "state+rgb", "image_size": 224}  # two cameras: the suite's default agentview + wrist view
 
 
 @contextlib.contextmanager
@@ -126,18 +50,21 @@ def serve(*keys: str):
         proc.wait(timeout=30)
 
 
-def round_trips(cameras: int, requests: int) -> tuple[np.ndarray, np.ndarray]:
-    """(bench client, openpi-client) round-trip seconds against `bench serve` of the wire suite."""
+def round_trips(images: bool, requests: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """(bench client, openpi-client) round-trip seconds against `bench serve`; and the observation's layout."""
     from bench import api
+    from bench.protocols import describe_spec
 
-    with serve("policy=scripted", f"suite={WIRE}", f"cameras={cameras}") as port:
-        plan = api.plan(api.RunConfig(suite=WIRE, policy="remote", episodes=1, horizon=1, workers=1,
-                                      out=tempfile.gettempdir(), run_id="wire-bench",
-                                      suite_options={"cameras": cameras}, policy_options={"port": port}))
+    suite_options = IMAGES if images else {}
+    with serve("policy=scripted", *[f"{k}={v}" for k, v in suite_options.items()]) as port:
+        plan = api.plan(api.RunConfig(suite="held_out_robots", policy="remote", robots=["Panda"], episodes=1,
+                                      horizon=1, workers=1, out=tempfile.gettempdir(), run_id="wire-bench",
+                                      suite_options=suite_options, policy_options={"port": port, "timeout_s": 120.0}))
         worker = api.worker(plan)
         env, policy = worker.built(plan.jobs[0])
-        obs = env.reset(0)
-        policy.reset(0)
+        obs = env.reset(plan.jobs[0].seed)
+        layout = describe_spec(env.obs_spec)
+        policy.reset(plan.jobs[0].seed)  # the server builds the cell's env and policy here (not timed)
         for _ in range(50):
             policy.act(obs)
         t = np.empty(requests)
@@ -150,7 +77,7 @@ def round_trips(cameras: int, requests: int) -> tuple[np.ndarray, np.ndarray]:
         from openpi_client.websocket_client_policy import WebsocketClientPolicy
 
         client = WebsocketClientPolicy("127.0.0.1", port)
-        msg = {**obs, "task": "wire"}
+        msg = {**obs, "task": "Lift"}
         for _ in range(50):
             client.infer(msg)
         o = np.empty(requests)
@@ -159,7 +86,7 @@ def round_trips(cameras: int, requests: int) -> tuple[np.ndarray, np.ndarray]:
             client.infer(msg)
             o[i] = time.perf_counter() - t0
         client._ws.close()
-    return t, o
+    return t, o, layout
 
 
 def throughput(robots: list[str], episodes: int, horizon: int) -> tuple[float, float, float, float, bool, int]:
@@ -188,13 +115,13 @@ def throughput(robots: list[str], episodes: int, horizon: int) -> tuple[float, f
         steps_local = steps_remote = 0
         same, n, ratios, rtt = True, 0, [], []
         strip = lambda r: {k: v for k, v in comparable(r).items() if k not in ("policy", "extras")}  # noqa: E731
-        for job in local_plan.jobs:
-            t0 = time.perf_counter()
-            a = local.run(job)
-            dt_local = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            b = remote.run(job)
-            dt_remote = time.perf_counter() - t0
+        for i, job in enumerate(local_plan.jobs):
+            timed = {}
+            for side in (("local", "remote") if i % 2 == 0 else ("remote", "local")):  # alternate who goes first
+                t0 = time.perf_counter()
+                rec = (local if side == "local" else remote).run(job)
+                timed[side] = (rec, time.perf_counter() - t0)
+            (a, dt_local), (b, dt_remote) = timed["local"], timed["remote"]
             t_local, t_remote = t_local + dt_local, t_remote + dt_remote
             ratios.append(dt_local / dt_remote)  # the same episode both ways: robust to slow drifts in load
             rtt.append(b.extras["policy"]["rtt_ms"]["mean"])
@@ -211,14 +138,14 @@ def main(argv: list[str]) -> int:
     requests = int(kv.get("requests", 2000))
     robots = kv.get("robots", "[Panda,UR5e]").strip("[]").split(",")
     episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 150))
-    os.environ.setdefault("MUJOCO_GL", "disable")
+    os.environ.setdefault("MUJOCO_GL", "egl")  # the cameras render offscreen (software EGL on CPU machines)
     print(f"round trip over 127.0.0.1, bench serve in its own process, {requests} requests each (median, p90):")
-    for cameras, label, target in ((0, "state (18 float32)", 1.0), (2, "state + two 224x224x3 uint8 images", 5.0)):
-        t, o = round_trips(cameras, requests)
+    for images, label, target in ((False, "state", 1.0), (True, "state + two 224x224 images", 5.0)):
+        t, o, layout = round_trips(images, requests)
         med = np.median(t) * 1000
-        print(f"  {label:<36} policy=remote {med:6.3f} ms, p90 {np.quantile(t, 0.9) * 1000:6.3f} ms   "
+        print(f"  {label:<27} policy=remote {med:6.3f} ms, p90 {np.quantile(t, 0.9) * 1000:6.3f} ms   "
               f"(openpi-client {np.median(o) * 1000:6.3f} ms)   target <= {target:g} ms: "
-              f"{'met' if med <= target else 'NOT met'}")
+              f"{'met' if med <= target else 'NOT met'}   [{layout}]")
     local, remote, paired, rtt, same, n = throughput(robots, episodes, horizon)
     print(f"throughput, held_out_robots {'/'.join(robots)}, scripted, {n} episodes x <= {horizon} steps, steady state:")
     ratio = remote / local

@@ -407,3 +407,35 @@ def test_latency_in_summary_composes_with_perturb_latency_and_is_reported(tmp_pa
     assert "effective steps (injected + measured)" in page
     assert main(["report", str(tmp_path / "loc"), f"out={tmp_path / 'rep2'}"]) == 0  # in process: no section
     assert "Policy latency" not in (tmp_path / "rep2" / "index.html").read_text()
+
+
+def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_path, monkeypatch):
+    """held_out_robots with two rendered cameras: records equal in process through bench serve (which checks the
+    images against the cell's spec), and an openpi-style server gets the very pixels under LIBERO-style names."""
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    cams = {"obs": "state+rgb", "image_size": 32}
+    cfg = dict(suite="held_out_robots", robots=["Panda"], episodes=1, horizon=3, workers=1, out=str(tmp_path),
+               suite_options=cams)
+    plan = api.plan(api.RunConfig(policy="scripted", run_id="local", **cfg))
+    worker = api.worker(plan)
+    local = [worker.run(job) for job in plan.jobs]
+    env, _ = worker.built(plan.jobs[0])
+    first = env.reset(plan.jobs[0].seed)
+    worker.close()
+    with bench_server() as port:  # the client names held_out_robots and its camera options
+        remote = api.run(api.RunConfig(policy="remote", run_id="remote", policy_options={"port": port}, **cfg))
+    assert all(r.error is None for r in remote.records) and same(local, remote.records)
+    server = FaultServer(lambda obs: {"actions": np.zeros((10, 7), np.float32)})
+    libero = ["observation/image:rgb.agentview", "observation/wrist_image:rgb.robot0_eye_in_hand",
+              "observation/state:state.eef_pos+state.eef_quat_rel+state.gripper_opening", "prompt:task"]
+    try:
+        res = api.run(api.RunConfig(policy="remote", run_id="libero", **cfg,
+                                    policy_options={"port": server.port, "obs_map": libero, "replan_every": 5}))
+    finally:
+        server.close()
+    assert all(r.error is None for r in res.records) and len(server.requests) == 1  # 3 steps < 5 per chunk
+    req = server.requests[0]
+    assert req["observation/image"].dtype == np.uint8 and req["observation/image"].shape == (32, 32, 3)
+    assert np.array_equal(req["observation/image"], first["rgb.agentview"])
+    assert np.array_equal(req["observation/wrist_image"], first["rgb.robot0_eye_in_hand"])
+    assert np.array_equal(req["observation/state"], first["state"][:8]) and req["prompt"] == "Lift"

@@ -22,6 +22,7 @@ import dataclasses
 import functools
 import math
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
@@ -205,6 +206,7 @@ class RemotePolicy:
         entries = obs_map_mod.parse(options.obs_map)
         self.map = obs_map_mod.ClientMap(entries, env.obs_spec, cell.task)
         self.conn = Connection(options.host, options.port, options.timeout_s)
+        weakref.finalize(self, self.conn.close)  # the runner drops policies without closing them
         self._rtt: list[float] = []
         self._server_ms: list[float] = []
 

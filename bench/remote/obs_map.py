@@ -73,9 +73,12 @@ def parse(entries: Sequence[str] | None, key: str = "obs_map") -> list[Entry] | 
 
 
 def env_keys(entries: list[Entry] | None) -> tuple[str, ...]:
-    """The observation entries the map reads from the env (`task` is always available; not listed)."""
+    """The observation entries the map reads from the env (`task` is always available; not listed).
+
+    Without a map the whole observation is sent, whatever it holds: nothing is required.
+    """
     if entries is None:
-        return (STATE,)
+        return ()
     keys: list[str] = []
     for e in entries:
         keys += [k for k in e.keys if k != TASK and k not in keys]
