@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.calibrate.model import Layout
+from bench.io import finite_or_none as finite
 from bench.replay.data import Recording, Window
-from bench.replay.metrics import finite, horizon_errors
+from bench.replay.metrics import horizon_errors
 from bench.replay.simulate import Segments, Simulator, logged
 
 

@@ -4,7 +4,6 @@ The JSON has no NaN or infinity anywhere: a value that cannot be computed is nul
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -18,22 +17,10 @@ ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse
 
 
 def clean(value: Any) -> Any:
-    """JSON-safe copy: numpy scalars and arrays to Python, NaN / inf to None."""
-    if isinstance(value, dict):
-        return {str(k): clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [clean(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return clean(value.tolist())
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(float(value)) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    return value
+    """JSON-safe copy (NaN / inf to None): `bench.io.json_safe`, the one owner of that rule."""
+    from bench.io import json_safe
+
+    return json_safe(value)
 
 
 def _versions() -> dict[str, str]:

@@ -23,7 +23,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bench.replay.metrics import finite, horizon_errors
+from bench.io import finite_or_none as finite
+from bench.replay.metrics import horizon_errors
 from bench.replay.simulate import Simulator, StateForce, Variant, horizons
 
 FEATURES = 32  # random Fourier features per input (plus the inputs themselves and a constant)

@@ -9,7 +9,7 @@ from typing import Any, Optional
 import numpy as np
 
 from bench.errors import ConfigError, DataError
-from bench.replay.metrics import finite
+from bench.io import finite_or_none as finite
 
 SCHEMA = "bench.replay/1"
 HORIZON_LABELS = {"one_step": "one-step", "k_step": "k-step", "free_run": "free run"}

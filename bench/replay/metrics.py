@@ -5,7 +5,6 @@ position over the same frames; R² is 1 - NRMSE².
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,9 +15,6 @@ from bench.replay.simulate import Segments, Simulator, Variant, free_runs, horiz
 HORIZONS = ("one_step", "k_step", "free_run")
 
 
-def finite(v: float) -> float | None:
-    """The value as a float, or None when it is NaN or infinite (JSON has neither)."""
-    return float(v) if math.isfinite(v) else None
 
 
 def _per_joint(pred: np.ndarray, target: np.ndarray, mask: np.ndarray, spread: np.ndarray) \
