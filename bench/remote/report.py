@@ -16,7 +16,7 @@ from bench.remote import latency
 
 def fig_latency(block: dict[str, Any], path: Path) -> bool:
     """Round-trip histogram (fraction of requests per log bin) of the run, and a line per condition when several."""
-    from bench.report import _plt
+    from bench.report_figures import _plt
 
     bins = block.get("bins") or []
     if not bins:
