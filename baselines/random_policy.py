@@ -1,9 +1,11 @@
 """Uniform random actions within the env's action bounds, from a generator seeded per episode."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from bench.protocols import Obs
+from bench.protocols import Obs, PolicyContext, PolicyPlugin
 
 
 class RandomPolicy:
@@ -21,6 +23,14 @@ class RandomPolicy:
         return (self.low + self._span * self._rng.random(self._n)).astype(np.float32)
 
 
-def make(cell, env, ctx) -> RandomPolicy:
-    """Policy factory (entry point `bench.policies: random`)."""
-    return RandomPolicy(env.action_spec.low, env.action_spec.high)
+class RandomPlugin(PolicyPlugin):
+    """`policy=random`: reads no observation, so it runs with any `obs=` (state or camera images)."""
+
+    def obs_keys(self, options: Any) -> tuple[str, ...]:
+        return ()
+
+    def make(self, cell: Any, env: Any, ctx: PolicyContext) -> RandomPolicy:
+        return RandomPolicy(env.action_spec.low, env.action_spec.high)
+
+
+make = RandomPlugin()  # entry point `bench.policies: random`

@@ -299,6 +299,11 @@ def main(argv: list[str]) -> int:
         if required and not head.suite:
             print(f"{name}: skipped (needs {', '.join(f'{k}=' for k in required)})")
             continue
+        unavailable = getattr(cls, "unavailable", None)
+        why = unavailable() if unavailable is not None and not head.suite else None
+        if why:
+            print(f"{name}: skipped (unavailable: {why})")
+            continue
         suite = cls(config_mod.build(cls.Options, given))
         problems += check_suite(suite)
         cells = select_cells(suite, cfg)

@@ -158,7 +158,7 @@ def state_coverage(train_states: np.ndarray, train_episode: np.ndarray, eval_sta
 
 
 def _nominal_level(axis: str) -> float:
-    from bench.perturb import AXES
+    from bench.axes import AXES
 
     return float(AXES[axis].nominal) if axis in AXES else 1.0
 
@@ -390,7 +390,7 @@ def main(argv: list[str]) -> int:
         print(help_text())
         return 0
     from bench import config as config_mod
-    from bench import perturb
+    from bench import axes
 
     positional, overrides = config_mod.split_args(_list_arg(argv, "data"))
     if positional:
@@ -403,7 +403,7 @@ def main(argv: list[str]) -> int:
         raise ConfigError(f"episodes={cfg.episodes}: must be >= 1")
     suite = _check_common(cfg.suite, cfg.quantile)
     cells = _eval_cells(suite, cfg)
-    conditions = perturb.conditions_from_config(cfg.perturb)
+    conditions = axes.conditions_from_config(cfg.perturb)
     if cfg.eval_data and not Path(cfg.eval_data).is_dir():
         raise ConfigError(f"eval_data={cfg.eval_data!r}: not a dataset folder")
     train = read_training(cfg.data)

@@ -70,6 +70,20 @@ def jsonable(x: Any, digits: int | None = None) -> Any:
     return x
 
 
+def json_safe(x: Any) -> Any:
+    """`jsonable(x)` with NaN / inf numbers as None and paths as strings: a document every JSON reader takes."""
+    x = jsonable(x)
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [json_safe(v) for v in x]
+    if isinstance(x, float):
+        return finite_or_none(x)
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    return x
+
+
 def first_nonfinite(obj: Any, path: str = "$") -> str | None:
     """The JSON path of the first NaN/inf number inside `obj`, or None."""
     if isinstance(obj, float) and not math.isfinite(obj):

@@ -2,7 +2,8 @@
 
 A leaderboard (`bench.leaderboard/1`) has one entry per policy x checkpoint (sha256)
 x suite version (x headline metric x cell selection, for runs limited with robots=,
-tasks=, ...), built from run summaries (`bench.summary/1`) or other leaderboards.
+tasks=, ... and for runs with a suite calibration, `calibration=`), built from run summaries
+(`bench.summary/1`) or other leaderboards.
 When several runs share that key, the one with the most scored episodes (then the
 latest finished) is the entry and the others are listed in its `superseded` field:
 runs with different seeds do not pool, since their episodes share job ids. Entries
@@ -64,6 +65,9 @@ def entry_from_summary(summary: dict, source: str) -> dict:
     cfg = summary.get("config", {})
     selection = {k: cfg.get(k) for k in SELECTION_KEYS if cfg.get(k) not in (None, [], {}, 0)}
     prov = summary.get("provenance", {})
+    if prov.get("calibration"):  # a calibrated simulator is another simulator: never pooled or ranked with nominal
+        cal = prov["calibration"]
+        selection["calibration"] = f"{cal['robot']}:{cal['sha256'][:12]}"
     return {
         "policy": summary["policy"],
         "suite": {"name": summary["suite"]["name"], "version": summary["suite"]["version"]},

@@ -12,201 +12,24 @@ MJCF); other backends apply them through their `model_axes` capability (PhysX). 
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
 drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
-observation noise and a slower control rate (action hold).
-
-Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
-    perturb.friction=[0.25,0.5,2]             level grid: one condition per level
-    perturb.friction=uniform(0.8,1.2)         domain randomisation: one condition, a draw per episode
-    perturb.mass=loguniform(0.5,2)            log-uniform draw
-    perturb.mass.levels=[0.5,2] perturb.mass.bodies=[cube_main]   dict form, with targets
-    perturb.mass.uniform=[0.8,1.2]            dict form of a range
+observation noise and a slower control rate (action hold). Visual axes (kind "visual":
+light, camera pose, colours, textures, background, distractors) change only what the
+env's cameras render; they live in `bench.perturb_visual`, which this module calls.
+The axes and the `perturb.*` grammar that makes conditions are `bench.axes`'.
 """
 from __future__ import annotations
 
-import math
-import re
 import weakref
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
+from bench import perturb_visual
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
-from bench.suite import NOMINAL, Condition
-
-
-@dataclass(frozen=True)
-class Axis:
-    """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
-
-    name: str
-    kind: str                        # "model" (edits the simulator's model) or "interface" (wraps the env)
-    unit: str                        # what a level means
-    short: str                       # a few words for `bench run --help`
-    doc: str
-    minimum: float = 0.0             # smallest valid level
-    strict: bool = False             # level must be > minimum (not >=)
-    integer: bool = False            # levels are whole numbers
-    targets: tuple[str, ...] = ()    # optional name lists: "bodies", "joints", "geoms", "actuators"
-    field: str | None = None         # the MjModel field a model axis scales (gravity: model.opt.gravity)
-    setconst: bool = False           # derived constants depend on it: mj_setConst after editing
-    nominal: float = 1.0             # the level that means "unperturbed"
-
-
-AXES: dict[str, Axis] = {a.name: a for a in (
-    Axis("friction", "model", "scale of nominal", "friction of every geom",
-         "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
-         "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
-         targets=("geoms", "bodies"), field="geom_friction"),
-    Axis("mass", "model", "scale of nominal", "mass + inertia of the manipulated object",
-         "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
-         strict=True, targets=("bodies",), field="body_mass", setconst=True),
-    Axis("link_mass", "model", "scale of nominal", "mass + inertia of the robot's links",
-         "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
-         "or of the named bodies", strict=True, targets=("bodies",), field="body_mass", setconst=True),
-    Axis("damping", "model", "scale of nominal", "joint damping",
-         "joint damping of the robot's joints or of the named joints", targets=("joints",), field="dof_damping"),
-    Axis("armature", "model", "scale of nominal", "joint armature",
-         "joint armature (rotor inertia) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_armature", setconst=True),
-    Axis("frictionloss", "model", "scale of nominal", "joint dry friction",
-         "joint dry friction (frictionloss) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_frictionloss"),
-    Axis("gain", "model", "scale of nominal", "actuator gain (servo stiffness)",
-         "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
-         "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
-         targets=("actuators",), field="actuator_gainprm"),
-    Axis("gravity", "model", "scale of nominal", "gravity vector", "the gravity vector (1 = nominal, 0 = weightless)"),
-    Axis("latency", "interface", "control steps", "action delay",
-         "the env executes the action commanded this many control steps ago (neutral action at the start)",
-         integer=True, nominal=0.0),
-    Axis("action_noise", "interface", "std as a fraction of the action half-range", "Gaussian action noise",
-         "Gaussian noise added to every executed action, then clipped to the bounds", nominal=0.0),
-    Axis("obs_noise", "interface", "std in observation units", "Gaussian observation noise",
-         "Gaussian noise added to every state observation the policy sees", nominal=0.0),
-    Axis("action_hold", "interface", "control steps", "command held k steps (control rate / k)",
-         "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
-         minimum=1.0, integer=True),
-)}
-MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
-INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
-DISTRIBUTIONS = ("uniform", "loguniform")
-_SHORT = {"uniform": "U", "loguniform": "logU"}
-_DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
-
-
-# -- command line -> conditions ------------------------------------------------------------
-def _num(axis: Axis, field: str, value: Any) -> float | int:
-    """A level as a number, checked against the axis' minimum and integrality."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        try:
-            value = float(str(value).strip())
-        except ValueError:
-            raise ConfigError(f"{field}: {value!r} is not a number; {axis.name} takes {axis.unit}") from None
-    value = float(value)
-    if not math.isfinite(value):
-        raise ConfigError(f"{field}: {value!r} is not finite")
-    bad = value <= axis.minimum if axis.strict else value < axis.minimum
-    if bad:
-        op = ">" if axis.strict else ">="
-        raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}")
-    if axis.integer and value != int(value):
-        raise ConfigError(f"{field}: {value:g} is not a whole number; {axis.name} is in {axis.unit}")
-    return int(value) if axis.integer else value
-
-
-def _range(axis: Axis, field: str, dist: str, bounds: Any) -> tuple[float, float]:
-    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2:
-        raise ConfigError(f"{field}: {dist} needs [low, high], got {bounds!r}")
-    lo, hi = (_num(axis, field, b) for b in bounds)
-    if lo > hi:
-        raise ConfigError(f"{field}: {dist}({lo:g},{hi:g}) has low > high")
-    if dist == "loguniform" and lo <= 0:
-        raise ConfigError(f"{field}: loguniform needs low > 0, got {lo:g}")
-    return lo, hi
-
-
-def _parse_dist(text: str) -> tuple[str, list[str]] | None:
-    m = _DIST_RE.match(text)
-    if not m:
-        return None
-    name = {"u": "uniform", "logu": "loguniform"}.get(m.group(1).lower(), m.group(1).lower())
-    return name, [m.group(2), m.group(3)]
-
-
-def _fmt(x: float) -> str:
-    return f"{x:g}"
-
-
-def _axis(name: str) -> Axis:
-    if name not in AXES:
-        raise ConfigError(f"perturb.{name}: unknown perturbation axis; valid: {', '.join(AXES)}.{did_you_mean(name, AXES)}")
-    return AXES[name]
-
-
-def _conditions_for(name: str, value: Any) -> list[Condition]:
-    axis = _axis(name)
-    field = f"perturb.{name}"
-    targets: dict[str, list[str]] = {}
-    levels: list[Any] = []
-    dists: list[tuple[str, Any, str]] = []
-    if isinstance(value, dict):
-        valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
-        for key, v in value.items():
-            if key not in valid_keys:
-                raise ConfigError(f"{field}.{key}: unknown key; valid: {', '.join(valid_keys)}.{did_you_mean(key, valid_keys)}")
-            if key == "levels":
-                levels.extend(v if isinstance(v, (list, tuple)) else [v])
-            elif key in DISTRIBUTIONS:
-                dists.append((key, v, f"{field}.{key}"))
-            else:
-                names = [v] if isinstance(v, str) else list(v or [])
-                if not names or not all(isinstance(n, str) and n for n in names):
-                    raise ConfigError(f"{field}.{key}: expected a list of names, got {v!r}")
-                targets[key] = names
-        if not levels and not dists:
-            raise ConfigError(f"{field}: give levels=[...] or a range ({'/'.join(DISTRIBUTIONS)}=[low,high])")
-    else:
-        levels = list(value) if isinstance(value, (list, tuple)) else [value]
-        if not levels:
-            raise ConfigError(f"{field}: empty list of levels")
-    grid: list[Any] = []
-    for lv in levels:
-        parsed = _parse_dist(lv) if isinstance(lv, str) else None
-        if parsed:
-            dists.append((parsed[0], parsed[1], field))
-        elif isinstance(lv, str) and "(" in lv:
-            raise ConfigError(f"{field}: cannot parse {lv!r}; write uniform(low,high) or loguniform(low,high)")
-        else:
-            grid.append(_num(axis, field, lv))
-    out: list[Condition] = []
-    for lv in dict.fromkeys(grid):  # unique, in the given order
-        spec = {"kind": "grid", "targets": targets}
-        out.append(Condition(name=f"{name}={_fmt(lv)}", axis=name, level=lv, spec=spec))
-    for dist, bounds, f in dists:
-        lo, hi = _range(axis, f, dist, bounds)
-        spec = {"kind": dist, "targets": targets}
-        out.append(Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec))
-    return out
-
-
-def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:
-    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level.
-
-    A grid gives one condition per level ("friction=0.5"); a range gives one condition
-    whose value is drawn per episode ("friction~U(0.8,1.2)"). Raises ConfigError on an
-    unknown axis, a level out of range or a malformed range.
-    """
-    out = [NOMINAL]
-    seen: set[str] = set()
-    for name, value in (perturb or {}).items():
-        for cond in _conditions_for(str(name), value):
-            if cond.name not in seen:
-                seen.add(cond.name)
-                out.append(cond)
-    return out
+from bench.axes import AXES, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
+from bench.suite import Condition
 
 
 # -- names in the model --------------------------------------------------------------------
@@ -296,12 +119,22 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     Raises ConfigError (exit 2) with the field, the bad value and what is valid.
     """
     for cond in conditions:
+        if cond.axis in VISUAL_AXES:
+            perturb_visual.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
+            continue
         if cond.axis not in MODEL_AXES:
             continue
         mj = env.mujoco
         if mj is None:
             other = env.model_axes
             if other is not None and cond.axis in other.axes:
+                # the backend checks the named targets (and refuses zero-valued ones) by applying once
+                level = cond.level[0] if isinstance(cond.level, (list, tuple)) else cond.level
+                try:
+                    other.apply(str(cond.axis), float(level if level is not None else 1.0),
+                                (cond.spec or {}).get("targets") or {})
+                finally:
+                    other.restore()
                 continue
             can = sorted(other.axes) if other is not None else []
             raise ConfigError(f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
@@ -323,7 +156,7 @@ def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizo
     (names differ between robots). Nothing is built when only interface axes are used.
     An env that cannot be built here is left to the workers, which record the error.
     """
-    model_conds = [c for c in conditions if c.axis in MODEL_AXES]
+    model_conds = [c for c in conditions if c.axis in MODEL_AXES or c.axis in VISUAL_AXES]
     if not model_conds or not cells:
         return
     named = any((c.spec or {}).get("targets") for c in model_conds)
@@ -385,6 +218,33 @@ def _set_const(mj: MujocoHandle) -> None:
     d.qpos[:], d.qvel[:], d.act[:] = qpos, qvel, act
 
 
+def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
+    """Set model values by name ({field, element, value}: dof_* by joint, body_*, actuator_* [column 0]),
+    e.g. a suite calibration's (`bench.calibrate.apply`). Call before the first episode, so the nominal
+    values `apply` restores are these."""
+    import mujoco
+
+    m = mj.model
+    objs = {"dof_": mujoco.mjtObj.mjOBJ_JOINT, "jnt_": mujoco.mjtObj.mjOBJ_JOINT, "body_": mujoco.mjtObj.mjOBJ_BODY,
+            "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR}
+    setconst = False
+    for e in edits:
+        prefix = next(p for p in objs if e["field"].startswith(p))
+        idx = mujoco.mj_name2id(m, objs[prefix], e["element"])
+        if idx < 0:
+            raise ConfigError(f"model edit of {e['field']}: {e['element']!r} is not in the model")
+        row = int(m.jnt_dofadr[idx]) if prefix == "dof_" else idx
+        arr = getattr(m, e["field"])
+        if arr.ndim == 2:
+            arr[row, 0] = e["value"]
+        else:
+            arr[row] = e["value"]
+        setconst |= e["field"] in ("body_mass", "body_inertia", "dof_armature")
+    if setconst:
+        _set_const(mj)
+    mj.forward()
+
+
 def _scale_model(mj: MujocoHandle, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
     m = mj.model
     if axis == "friction":
@@ -437,7 +297,15 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         nom.restore()
     if env.model_axes is not None:
         env.model_axes.restore()
-    axis = _axis(condition.axis) if condition.axis is not None else None
+    perturb_visual.clear(env)
+    axis = axis_named(condition.axis) if condition.axis is not None else None
+    if axis is not None and axis.kind == "visual":
+        if nom is not None and nom.const_dirty:
+            _set_const(mj)  # type: ignore[arg-type]
+            nom.const_dirty = False
+            mj.forward()  # type: ignore[union-attr]
+        value = _draw(condition, rng)
+        return env, perturb_visual.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
     if axis is None or axis.kind == "interface":
         if mj is not None and nom is not None and nom.const_dirty:
             _set_const(mj)
@@ -514,12 +382,3 @@ class Interface:
             executed = np.clip(executed, self.low, self.high)
         obs, reward, terminated, truncated, info = self.env.step(executed.astype(np.float32))
         return self._obs(obs), reward, terminated, truncated, info
-
-
-def axes_help() -> str:
-    """One line per axis (name, unit, what it changes, optional targets) for `bench run --help`."""
-    rows = []
-    for a in AXES.values():
-        tgt = f" [targets: {', '.join(a.targets)}]" if a.targets else ""
-        rows.append(f"  {a.name:<13} {a.short} ({a.unit}){tgt}")
-    return "\n".join(rows)

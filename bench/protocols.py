@@ -140,11 +140,14 @@ class MujocoHandle:
     Attributes:
         model, data: the `mujoco.MjModel` / `MjData` the env steps.
         object_bodies: bodies of the manipulated object(s); `perturb.mass` scales these by default.
+        cameras: the env's `bench.camera.CameraRig` when it can render its cameras (image observations,
+            episode videos, visual perturbations), else None. Set by `bench.camera_env.CameraEnv`.
     """
 
     model: Any
     data: Any
     object_bodies: tuple[str, ...] = ()
+    cameras: Any = None
 
     def forward(self) -> None:
         """Recompute derived quantities after the model or state was edited."""

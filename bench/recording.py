@@ -5,6 +5,9 @@ record implies its trajectory); when the run ends they are assembled, in job ord
 into one dataset with these features:
 
 - `observation.state` (T, D): the suite's observation, element names from its `obs_names`
+  (absent when the policy observed images only, `obs=rgb`)
+- `observation.images.<camera>` (T, H, W, 3): the camera images the policy observed
+  (`obs=rgb|state+rgb`), stored as LeRobot video features (MP4, H.264) beside the parquet
 - `action` (T, A): what the policy commanded
 - `next.reward` (T, 1), `next.success` (T, 1): per step, after the action
 - `observation.sim_state` (T, nq+nv): MuJoCo qpos and qvel before the step (for replay);
@@ -52,12 +55,15 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
         if not path.exists():
             raise DataError(f"{path}: trajectory of {r.job_id} is missing; was the run started without record=?")
         with np.load(path) as z:
-            ep = {
-                "observation.state": z["obs"],
+            ep = {"observation.state": z["obs"]} if z["obs"].size else {}
+            ep.update({
                 "action": z["action"],
                 "next.reward": z["reward"].reshape(-1, 1),
                 "next.success": z["success"].reshape(-1, 1),
-            }
+            })
+            for key in z.files:  # camera images the policy observed: rgb.<camera>
+                if key.startswith("rgb."):
+                    ep[f"observation.images.{key[4:]}"] = z[key]
             if z["sim_state"].size:
                 ep["observation.sim_state"] = z["sim_state"]
             if "ctrl" in z.files and z["ctrl"].size:
@@ -69,7 +75,8 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
                     ctrl_names = mine
                 elif mine != ctrl_names:  # another robot's actuators: one feature cannot name both
                     ctrl_names = []
-            obs_names = obs_names or _expand([str(x) for x in z["obs_names"]])
+            if "obs_names" in z.files:
+                obs_names = obs_names or _expand([str(x) for x in z["obs_names"]])
             action_names = action_names or [str(x) for x in z["action_names"]]
             fps = fps or float(z["fps"][0])
         episodes.append(ep)
@@ -85,14 +92,16 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
         if len(widths) > 1 or (widths and not all(feature in ep for ep in episodes)):
             for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
                 ep.pop(feature, None)
-    names = {"observation.state": obs_names, "action": action_names}
+    names = {"observation.state": obs_names, "action": action_names} if obs_names else {"action": action_names}
     if ctrl_names and len(set(ctrl_specs)) == 1 and all("action.ctrl" in ep for ep in episodes):
         names["action.ctrl"] = ctrl_names
     else:  # inputs of different robots or envs: one feature cannot name both
         for ep, m in zip(episodes, meta):
             ep.pop("action.ctrl", None)
             m.pop("ctrl_spec", None)
-    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names)
+    cameras = sorted({k for ep in episodes for k in ep if k.startswith("observation.images.")})
+    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names,
+                     video=cameras)
     return write_dataset(out, ds)
 
 

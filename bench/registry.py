@@ -140,8 +140,10 @@ def main_list(argv: list[str]) -> int:
             print(f"  {name}: unavailable — {exc}")
             continue
         keys = option_keys(cls.Options)
+        unavailable = getattr(cls, "unavailable", None)  # SuiteBase's hook; other suites may lack it
+        why = unavailable() if unavailable is not None else None
         print(f"  {name} (v{cls.version}, reference policy: {cls.reference_policy}) — {summary_line(cls)}"
-              + (f" [keys: {', '.join(keys)}]" if keys else ""))
+              + (f" [keys: {', '.join(keys)}]" if keys else "") + (f"\n      unavailable: {why}" if why else ""))
         for axis, split in cls.manifest.items():
             for side in ("seen", "unseen"):
                 vals = split.get(side, [])

@@ -3,12 +3,15 @@
 For a run (a run directory or its summary.json): success per task and robot/env with
 Wilson intervals, seen and unseen cells side by side; split means and the transfer
 gaps with their intervals; per-axis sensitivity curves (success against the
-perturbation level, pooled and per cell) when the run has perturbed conditions.
+perturbation level, pooled and per cell) when the run has perturbed conditions; for a
+remote policy (`policy=remote`), the distribution of its round-trip latency per condition.
 For a leaderboard: each entry's score, seen and unseen success and gap, ranked.
 With `calibration=DIR|FILE` (a `bench calibrate` output with calibration.json,
 schema `bench.calibration/1`): held-out error before/after calibration (nominal,
 declared fit, final) as a table and bars. With `verdict=FILE` (a `bench regress`
-verdict): the per-cell paired comparison.
+verdict): the per-cell paired comparison. Given a run directory, the page also embeds the
+run's episode videos (`bench run video=N`) in the cell table, next to their cell, and a
+per-axis robustness table (`bench.robustness`: each axis' levels pooled, drop from nominal).
 
 Everything is read and validated before anything is written; figures are PNGs
 next to index.html, so the folder can be published as it is (CI artifact, Pages).
@@ -23,11 +26,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
+
 from bench import config as config_mod
 from bench.errors import ConfigError, DataError
-
-SEEN, UNSEEN = "#3b6fb6", "#e07b28"
-COLOURS = {"seen": SEEN, "unseen": UNSEEN}
+from bench.report_figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,10 @@ USAGE = """usage: bench report RUN|SUMMARY|LEADERBOARD out=DIR [calibration=DIR]
 Writes DIR/index.html with matplotlib figures (PNG, next to it):
   run:          success per task x robot/env with Wilson intervals, seen and unseen side by side; split
                 means and transfer gaps with intervals; sensitivity curves per perturbation axis when
-                the run has perturbed conditions; per-cell table.
+                the run has perturbed conditions; round-trip latency distribution for remote policies;
+                per-cell table. Given a run directory: its episode videos (bench run video=N) in the
+                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:
+                nominal vs perturbed success, drop with its interval).
   leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.
   calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.
   verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.
@@ -102,235 +108,6 @@ def load_verdict(arg: str) -> dict:
     return doc
 
 
-# -- figures ------------------------------------------------------------------------------------
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({"figure.dpi": 110, "font.size": 9, "axes.spines.top": False, "axes.spines.right": False})
-    return plt
-
-
-def _err(est: dict | None) -> tuple[float, float, float] | None:
-    """(value, minus, plus) of an estimate with an interval, or None."""
-    if not est or est.get("value") is None:
-        return None
-    v = est["value"]
-    lo, hi = est["ci"] if est.get("ci") else (v, v)
-    return v, max(v - lo, 0.0), max(hi - v, 0.0)
-
-
-def fig_cells(summary: dict, path: Path) -> bool:
-    """Success per task, robot/env with Wilson intervals; seen then unseen, coloured by split."""
-    plt = _plt()
-    metric = summary["metric"]
-    other = "success_at_end" if metric == "success_once" else "success_once"
-    cells = [c for c in summary["cells"] if c["condition"] == "nominal"]
-    if not cells:
-        return False
-    tasks = sorted({c["task"] for c in cells})
-    envs = len({c["env"] for c in cells}) > 1
-    fig, axes = plt.subplots(len(tasks), 1, figsize=(max(6.0, 0.75 * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2), 2.8 * len(tasks)),
-                             squeeze=False)
-    for ax, task in zip(axes[:, 0], tasks):
-        rows = sorted((c for c in cells if c["task"] == task), key=lambda c: (c["split"] != "seen", c["robot"], c["env"]))
-        xs = range(len(rows))
-        for x, c in zip(xs, rows):
-            e = _err(c[metric])
-            if e:
-                ax.bar(x, e[0], color=COLOURS[c["split"]], alpha=0.85, width=0.65)
-                ax.errorbar(x, e[0], yerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
-                ax.text(x, e[0] + e[2] + 0.02, f"{e[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
-            o = _err(c[other])
-            if o:
-                ax.plot(x, o[0], marker="_", ms=16, mew=2, color="black", alpha=0.6)
-        ax.set_xticks(list(xs))
-        ax.set_xticklabels([f"{c['robot']}\n{c['env']}" if envs else c["robot"] for c in rows], fontsize=8)
-        n_seen = sum(c["split"] == "seen" for c in rows)
-        if 0 < n_seen < len(rows):
-            ax.axvline(n_seen - 0.5, color="grey", ls=":", lw=1)
-        ax.set_ylim(0, 1.15)
-        ax.set_ylabel(f"{metric}")
-        ax.set_title(f"{task}: success per cell ({int(summary['confidence'] * 100)}% Wilson); "
-                     f"bar = {metric}, tick = {other}", fontsize=9, loc="left")
-    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
-    fig.legend(handles, ["seen", "unseen"], loc="lower center", fontsize=8, frameon=False, ncols=2)
-    fig.tight_layout(rect=(0, 0.07 / len(tasks), 1, 1))
-    fig.savefig(path)
-    plt.close(fig)
-    return True
-
-
-def fig_splits_gaps(summary: dict, path: Path) -> bool:
-    """Split means/IQM (left) and transfer gaps (right), with bootstrap intervals."""
-    plt = _plt()
-    metric = summary["metric"]
-    splits = summary["splits"]
-    gaps = [g for g in summary["gaps"] if g.get("value") is not None]
-    if not splits and not gaps:
-        return False
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 2.8), gridspec_kw={"width_ratios": [1.3, 1]})
-    labels, i = [], 0
-    for split in ("seen", "unseen"):
-        for stat in ("mean", "iqm"):
-            e = _err(splits.get(split, {}).get(metric, {}).get(stat))
-            if e:
-                a1.barh(i, e[0], color=COLOURS[split], alpha=0.85 if stat == "mean" else 0.45, height=0.6)
-                a1.errorbar(e[0], i, xerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
-                labels.append(f"{split} {stat}")
-                i += 1
-    a1.set_yticks(range(len(labels)))
-    a1.set_yticklabels(labels)
-    a1.invert_yaxis()
-    a1.set_xlim(0, 1.02)
-    a1.set_title(f"{metric} over nominal cells", fontsize=9, loc="left")
-    for j, g in enumerate(gaps):
-        e = _err(g)
-        a2.errorbar(e[0], j, xerr=[[e[1]], [e[2]]], fmt="o", color="black", capsize=3)
-    a2.axvline(0, color="grey", lw=1)
-    if not gaps:
-        reason = next((g.get("reason") for g in summary["gaps"] if g.get("reason")), "no seen/unseen pair of groups")
-        a2.text(0.5, 0.5, f"no gap computable:\n{reason}", ha="center", va="center", fontsize=8, color="grey",
-                transform=a2.transAxes, backgroundcolor="white")
-    a2.set_yticks(range(len(gaps)))
-    a2.set_yticklabels([f"{g['reference']}→{g['target']}\n{g['metric']}" for g in gaps], fontsize=8)
-    a2.invert_yaxis()
-    a2.set_xlim(-1.02, 1.02)
-    a2.set_title("transfer gap (reference − target)", fontsize=9, loc="left")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return True
-
-
-def _level_x(level: Any) -> tuple[float, float] | None:
-    """(x, half-width) of a perturbation level: a scale, or the midpoint of a [low, high] range."""
-    if isinstance(level, bool):
-        return None
-    if isinstance(level, (int, float)):
-        return float(level), 0.0
-    if isinstance(level, list) and len(level) == 2 and all(isinstance(v, (int, float)) for v in level):
-        return (level[0] + level[1]) / 2.0, abs(level[1] - level[0]) / 2.0
-    return None
-
-
-def fig_sensitivity(summary: dict, path: Path) -> list[str]:
-    """One panel per axis: success vs level (pooled, with Wilson intervals; thin lines per cell)."""
-    entries = summary.get("sensitivity") or []
-    metric = summary["metric"]
-    axes_names = sorted({e["axis"] for e in entries if e.get("axis")})
-    if not axes_names:
-        return []
-    plt = _plt()
-    nominal = next((e for e in entries if e.get("axis") is None and e.get("scope") == "all"), None)
-    ncol = min(3, len(axes_names))
-    nrow = (len(axes_names) + ncol - 1) // ncol
-    fig, axs = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
-    for k, axis in enumerate(axes_names):
-        ax = axs[k // ncol, k % ncol]
-        pooled = sorted(((_level_x(e["level"]), e) for e in entries
-                         if e.get("axis") == axis and e.get("scope") == "all" and _level_x(e["level"])),
-                        key=lambda t: t[0][0])
-        per_cell: dict[tuple, list] = {}
-        for e in entries:
-            if e.get("axis") == axis and e.get("scope") == "cell" and _level_x(e["level"]):
-                per_cell.setdefault((e.get("task"), e.get("robot"), e.get("env")), []).append(e)
-        for key, es in sorted(per_cell.items()):
-            pts = sorted((_level_x(e["level"])[0], e[metric]["value"]) for e in es if e[metric].get("value") is not None)
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=0.8, alpha=0.35, color="grey")
-                ax.annotate(key[1], pts[-1], fontsize=6, color="grey", xytext=(2, 0), textcoords="offset points")
-        xs, ys, lo, hi, xerr = [], [], [], [], []
-        for (x, half), e in pooled:
-            est = _err(e[metric])
-            if est:
-                xs.append(x), ys.append(est[0]), lo.append(est[1]), hi.append(est[2]), xerr.append(half)
-        ax.errorbar(xs, ys, yerr=[lo, hi], xerr=xerr if any(xerr) else None, fmt="o-", color="#b23a48", capsize=3,
-                    label="all cells")
-        if nominal and nominal[metric].get("value") is not None:
-            ax.axhline(nominal[metric]["value"], color="black", ls="--", lw=1, label="nominal")
-        ax.set_ylim(-0.02, 1.05)
-        ax.set_xlabel(f"{axis} level")
-        ax.set_ylabel(metric)
-        if xs and min(xs) > 0 and max(xs) / min(xs) > 20:
-            ax.set_xscale("log")
-        ax.set_title(f"sensitivity: {axis}", fontsize=9, loc="left")
-        ax.legend(fontsize=7, frameon=False)
-    for k in range(len(axes_names), nrow * ncol):
-        axs[k // ncol, k % ncol].axis("off")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return axes_names
-
-
-def fig_leaderboard(board: dict, path: Path) -> bool:
-    """Per entry: seen and unseen success side by side with intervals, in ranking order per group."""
-    plt = _plt()
-    entries = board["entries"]
-    if not entries:
-        return False
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(entries) + 2), 3.4))
-    width = 0.38
-    labels = []
-    for i, e in enumerate(entries):
-        m = e["metric"]
-        for j, split in enumerate(("seen", "unseen")):
-            est = _err(e["splits"].get(split, {}).get(m, {}).get("mean"))
-            if est:
-                x = i + (j - 0.5) * width
-                ax.bar(x, est[0], width=width, color=COLOURS[split], alpha=0.85)
-                ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
-                ax.text(x, est[0] + est[2] + 0.02, f"{est[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
-        sha = e["policy"].get("checkpoint_sha256")
-        labels.append(f"#{e['rank'] or '–'} {e['policy']['name']}" + (f"\n{sha[:8]}" if sha else "")
-                      + f"\n{e['suite']['name']}")
-    ax.set_xticks(range(len(entries)))
-    ax.set_xticklabels(labels, fontsize=7)
-    groups = [e["group"] for e in entries]
-    for i in range(1, len(entries)):
-        if groups[i] != groups[i - 1]:
-            ax.axvline(i - 0.5, color="grey", ls=":", lw=1)
-    ax.set_ylim(0, 1.15)
-    ax.set_ylabel("mean success")
-    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
-    fig.legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, ncols=2, loc="lower center")
-    ax.set_title("leaderboard: seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path)
-    plt.close(fig)
-    return True
-
-
-NRMSE_KEYS = (("one_step_nrmse", "one-step"), ("k_step_nrmse", "k-step"), ("free_run_nrmse", "free-run"))
-
-
-def fig_calibration(cal: dict, path: Path) -> bool:
-    """Held-out NRMSE per horizon for the nominal model, the declared fit and the final model."""
-    plt = _plt()
-    stages = [s for s in ("nominal", "declared", "final") if isinstance(cal["errors"].get(s), dict)]
-    fig, ax = plt.subplots(figsize=(6.5, 2.8))
-    width = 0.8 / len(stages)
-    colours = {"nominal": "#9aa0a6", "declared": "#3b6fb6", "final": "#2e8b57"}
-    for j, stage in enumerate(stages):
-        vals = [cal["errors"][stage].get(k) for k, _ in NRMSE_KEYS]
-        xs = [i + (j - (len(stages) - 1) / 2) * width for i in range(len(NRMSE_KEYS))]
-        ax.bar([x for x, v in zip(xs, vals) if v is not None], [v for v in vals if v is not None], width=width,
-               color=colours[stage], label=stage)
-    ax.set_xticks(range(len(NRMSE_KEYS)))
-    ax.set_xticklabels([lbl for _, lbl in NRMSE_KEYS])
-    ax.set_ylabel("held-out NRMSE")
-    ax.legend(fontsize=8, frameon=False)
-    ax.set_title("calibration: error before → after (held-out)", fontsize=9, loc="left")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return True
-
-
-# -- HTML ---------------------------------------------------------------------------------------
 CSS = """
 body{font-family:-apple-system,'Segoe UI',Helvetica,Arial,sans-serif;margin:24px auto;max-width:1100px;color:#222;
 line-height:1.4;padding:0 16px}
@@ -340,6 +117,7 @@ table{border-collapse:collapse;font-size:12px;margin:8px 0} th,td{border-bottom:
 text-align:left} th{background:#f6f6f6} td.num{text-align:right;font-variant-numeric:tabular-nums}
 .seen{color:#3b6fb6;font-weight:600} .unseen{color:#e07b28;font-weight:600} .bad{color:#b00020;font-weight:600}
 .good{color:#1b7f3b;font-weight:600} .note{color:#555;font-size:12px}
+figure{display:inline-block;margin:2px 4px} figcaption{font-size:11px}
 """
 
 
@@ -375,8 +153,59 @@ def _img(name: str, alt: str) -> str:
     return f"<img src='{_e(name)}' alt='{_e(alt)}'>"
 
 
-def run_sections(summary: dict, tmp: Path) -> list[str]:
+def _records(run_dir: Path | None) -> list:
+    """The run's episode records when the report was given a run directory (else none)."""
+    from bench.records import EPISODES, read_records
+
+    if run_dir is None or not (run_dir / EPISODES).is_file():
+        return []
+    return read_records(run_dir / EPISODES)
+
+
+def _videos(records: list, run_dir: Path | None, tmp: Path) -> dict[tuple[str, str], list[str]]:
+    """Copy the run's episode videos into tmp/videos; per (cell key, condition), their <video> elements."""
+    out: dict[tuple[str, str], list[str]] = {}
+    for r in sorted(records, key=lambda r: (r.job_id.rsplit("|", 1)[0], r.episode)):
+        video = (r.extras or {}).get("video") or {}
+        src = run_dir / str(video["path"]) if run_dir is not None and video.get("path") else None
+        if src is None or not src.is_file():
+            continue
+        (tmp / "videos").mkdir(exist_ok=True)
+        shutil.copyfile(src, tmp / "videos" / src.name)
+        outcome = "error" if r.error else ("success" if r.success_once else "failure")
+        label = f"episode {r.episode}: {outcome}"
+        out.setdefault((f"{r.task}/{r.robot}/{r.env}", r.condition), []).append(
+            f"<figure><video controls preload='metadata' width='192' src='videos/{_e(src.name)}' title='{_e(label)}'>"
+            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>")
+    return out
+
+
+def robustness_section(summary: dict, records: list) -> str:
+    """Per-axis robustness table (levels pooled), in the style of robustness benchmarks."""
+    from bench.robustness import table
+
+    if not records or not any(r.axis for r in records):
+        return ""
+    metric = summary["metric"] if summary["metric"] != "return" else "success_once"
+    conf = float(summary.get("confidence", 0.95) or 0.95)
+    rows = []
+    for row in table(records, metric, np.random.default_rng(0), confidence=conf):
+        rel = row["relative_drop"]
+        rows.append([_e(row["axis"]), _e(row["kind"]), _e(", ".join(row["levels"])), str(row["pairs"]),
+                     f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
+                     f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
+                     _signed(row["drop"]), f"{rel * 100:+.0f}%" if rel is not None else "n/a"])
+    return ("<h2>Robustness per axis</h2>" +
+            _table(["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]",
+                    "relative drop"], rows, {3, 4, 5, 7}) +
+            "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
+            "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>")
+
+
+def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[str]:
     metric = summary["metric"]
+    records = _records(run_dir)
+    videos = _videos(records, run_dir, tmp)
     parts = []
     if fig_cells(summary, tmp / "cells.png"):
         parts.append("<h2>Success per cell</h2>" + _img("cells.png", "success per cell") +
@@ -399,11 +228,22 @@ def run_sections(summary: dict, tmp: Path) -> list[str]:
         parts.append("<h2>Sensitivity per perturbation axis</h2>" + _img("sensitivity.png", "sensitivity") +
                      _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows,
                             {2}))
+    robust = robustness_section(summary, records)
+    if robust:
+        parts.append(robust)
+    from bench.remote.report import latency_section
+
+    section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
+    if section:
+        parts.append(section)
     rows = [[_e(c["task"]), _e(c["robot"]), _e(c["env"]), f"<span class='{c['split']}'>{_e(c['split'])}</span>",
              _e(c["condition"]), str(c["n"]), _pct(c["success_once"]), _pct(c["success_at_end"]),
-             str(c["errors"] or "")] for c in summary["cells"]]
+             str(c["errors"] or "")] + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]),
+                                                             []))] if videos else [])
+            for c in summary["cells"]]
     parts.append("<h2>All cells</h2>" + _table(["task", "robot", "env", "split", "condition", "n", "success once",
-                                                "success at end", "errors"], rows, {5, 8}))
+                                                "success at end", "errors"] + (["episode videos"] if videos else []),
+                                               rows, {5, 8}))
     return parts
 
 
@@ -470,7 +310,8 @@ def verdict_section(v: dict) -> str:
                     "regressed"], rows, {4, 5, 6, 7, 8}))
 
 
-def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None) -> str:
+def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None,
+               run_dir: Path | None = None) -> str:
     """Write the figures into `tmp` and return the HTML text."""
     if kind == "run":
         default = f"{doc['suite']['name']} · {doc['policy']['name']} · run {doc['run_id']}"
@@ -480,7 +321,7 @@ def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict 
                 + (f" (checkpoint {_e(sha[:12])})" if sha else "") +
                 f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
                 f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}")
-        parts = run_sections(doc, tmp)
+        parts = run_sections(doc, tmp, run_dir)
     else:
         default = "leaderboard"
         meta = (f"{len(doc['entries'])} entries · suites "
@@ -516,7 +357,8 @@ def main(argv: list[str]) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        (tmp / "index.html").write_text(build_page(kind, doc, tmp, cal, verdict, cfg.title), encoding="utf-8")
+        run_dir = src.parent if kind == "run" else None
+        (tmp / "index.html").write_text(build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8")
         os.chmod(tmp, 0o755)
         if out.exists():
             old = out.with_name(f".{out.name}.old")

@@ -20,7 +20,7 @@ import numpy as np
 
 from bench.env import mj_input_names, state_hash
 from bench.io import jsonable
-from bench.protocols import STATE, EnvAdapter, Obs, Policy
+from bench.protocols import RGB, STATE, EnvAdapter, Obs, Policy
 from bench.records import EpisodeRecord
 from bench.suite import Job, condition_rng
 
@@ -68,6 +68,8 @@ class RunContext:
     horizon: int
     timeout_s: float
     trajectory_dir: str | None = None   # set when `record=` asks for the rollouts
+    video_dir: str | None = None        # the run directory, when `video=N` asks for episode videos
+    video_episodes: int = 0             # N: videos of episodes 0..N-1 of every cell and condition
     policy_stats: bool = False          # the policy reports `episode_stats()` (PolicyPlugin.reports_stats)
 
 
@@ -78,10 +80,13 @@ def trajectory_path(directory: str | Path, job_id: str) -> Path:
 
 
 def _save_trajectory(path: Path, traj: dict[str, Any]) -> None:
-    """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists."""
+    """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists.
+
+    Camera frames (`rgb.*`) are compressed (rendered scenes shrink several times; numbers barely do)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **{k: np.asarray(v) for k, v in traj.items()})
+    save = np.savez_compressed if any(k.startswith(RGB) for k in traj) else np.savez
+    save(tmp, **{k: np.asarray(v) for k, v in traj.items()})
     os.replace(tmp, path)
 
 
@@ -119,7 +124,7 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     An exception, a timeout or a non-finite number is recorded in `error` (the run goes on);
     the env is then reported unusable so the caller rebuilds it.
     """
-    from bench import perturb
+    from bench import episode_video, perturb
 
     t0 = time.perf_counter()
     success_once = success_at_end = False
@@ -128,12 +133,16 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     traj: dict[str, Any] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
                                    "ctrl": []} if ctx.trajectory_dir else None
     log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
+    video = None
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)
             stepper, params = perturb.apply(env, job.condition, rng)
             obs = stepper.reset(job.seed)
             _check_obs(obs, 0)
+            video = episode_video.start(ctx.video_dir, ctx.video_episodes, job, env)
+            if video is not None:
+                video.frame(obs)
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
             actions = _Actions(policy, env.action_spec.dim)
@@ -149,6 +158,8 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
                 if not np.isfinite(reward):
                     raise NonFinite(f"non-finite reward ({reward}) at step {t}")
                 _check_obs(obs, t + 1)
+                if video is not None:
+                    video.frame(obs)
                 ret += reward
                 length = t + 1
                 success_at_end = bool(env.success())
@@ -174,13 +185,17 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     finally:
         if log is not None:
             log.stop()
+    extras: dict[str, Any] = {}
+    if video is not None:
+        extras["video"] = video.close(str(ctx.video_dir))
     if ctx.policy_stats:
         stats = _policy_stats(policy)
     if error:
         success_once = success_at_end = False
         ret = 0.0 if not np.isfinite(ret) else ret
     elif traj is not None and length:
-        traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
+        if STATE in env.obs_spec:
+            traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
         traj["action_names"] = list(env.action_spec.names)
         traj["fps"] = [float(env.fps)]
         if log is not None and env.mujoco is not None:
@@ -197,7 +212,7 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
         steps_to_success=first_success, error=error, policy=ctx.policy_id,
         checkpoint_sha256=ctx.checkpoint_sha256, backend=env.backend,
         wall_s=round(time.perf_counter() - t0, 4), finished_at=round(time.time(), 3), worker_pid=os.getpid(),
-        versions=ctx.versions, extras={"policy": stats} if stats else {},
+        versions=ctx.versions, extras={**({"policy": stats} if stats else {}), **extras},
     )
     return record, error is None
 
@@ -217,7 +232,11 @@ def _policy_stats(policy: Any) -> dict[str, Any]:
 
 
 def _append_frame(traj: dict[str, Any], env: EnvAdapter, obs: Obs, action: np.ndarray) -> None:
-    traj["obs"].append(np.asarray(obs[STATE], np.float32))
+    if STATE in obs:
+        traj["obs"].append(np.asarray(obs[STATE], np.float32))
+    for key, value in obs.items():  # camera images: `record=` stores them as LeRobot video features
+        if key.startswith(RGB):
+            traj.setdefault(key, []).append(np.asarray(value, np.uint8))
     traj["action"].append(np.asarray(action, np.float32))
     if env.mujoco is not None:  # MuJoCo state, so logs can be replayed in simulation
         data = env.mujoco.data

@@ -46,13 +46,16 @@ def help_text(argv: list[str] | None = None) -> str:
         "  bench run robots=[Panda] perturb.friction=[0.01,0.1] perturb.latency=uniform(0,4)\n"
         "  bench run suite=gym env_id=HalfCheetah-v5 perturb.gravity=[0.5,1.5] perturb.mass.bodies=[torso] "
         "perturb.mass.levels=[2]\n"
+        "  bench run robots=[Panda] obs=rgb cameras=[agentview] image_size=96 policy=random perturb.light=[0.3] "
+        "video=1   # cameras: docs/cameras.md\n"
         "  bench run suite=my_pkg.suites:MySuite policy=my_pkg.policies:make   # out-of-tree plugins\n"
+        "  bench run executor=ray ray_address=10.0.0.5:6379 actors=64      # a Ray cluster (docs/ray.md)\n"
         + _perturb_help()
     )
 
 
 def _perturb_help() -> str:
-    from bench.perturb import axes_help
+    from bench.axes import axes_help
 
     return ("\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
             "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n")

@@ -86,6 +86,15 @@ class SuiteBase:
         if not self.default_policy:
             self.default_policy = self.reference_policy
 
+    @classmethod
+    def unavailable(cls) -> str | None:
+        """Why the suite cannot run in this environment (one line, e.g. a missing optional extra), or None.
+
+        `bench list` shows it and `bench check` (every suite) skips the suite; the suite itself
+        refuses to be built with the same message.
+        """
+        return None
+
     def all_cells(self) -> list[Cell]:
         raise NotImplementedError
 

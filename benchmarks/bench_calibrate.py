@@ -1,109 +1,167 @@
-"""Wall time of the whole Real2Sim loop (declared fit, trace, refits, held-out errors), measured in one run.
+"""Wall and CPU time of the whole Real2Sim loop on one core, before and after, measured in one run.
 
-    python benchmarks/bench_calibrate.py [case=all|emps|arm] [threads=2] [effect=coulomb_friction]
+    python benchmarks/bench_calibrate.py [case=all|emps|arm] [effects=[coulomb_friction,...]|all]
+                                         [before=REV|none] [repeats=1]
 
-Cases:
+Both sides calibrate the same logs, each in a fresh subprocess pinned to one CPU (sched_setaffinity,
+one BLAS thread, one rollout thread), interleaved case by case so that load from other processes
+hits both alike:
+
+  - before: the code of git revision REV (default 5fddacd, the code issue 19 measured: 6-36 s per
+    3-joint case, ~18 s on EMPS), extracted with `git archive` into a temporary folder;
+  - after:  this checkout.
+
+Timed is `bench.calibrate.trace.run` alone (declared fit, trace rounds, refits, held-out errors):
+reading the logs and importing happen before the clock starts. Cases:
+
   - emps: the EMPS estimation run (24,841 frames at 1 kHz, last 30% held out), imported from
-    ../shared/data/real/emps/DATA_EMPS.mat; target < 10 s.
-  - arm: 8 episodes x 6 s at 100 Hz of the 3-joint arm with one hidden effect; target < 60 s.
-Each line gives wall and CPU seconds (on a shared machine the wall clock also counts waiting for a
-core), the simulator steps the loop took, and the loop's cost per step against raw `mujoco.rollout`
-stepping of the same model measured in the same run (100% = the loop does nothing but simulate).
-Default threads: min(2, cores); results do not depend on the thread count.
+    ../shared/data/real/emps/DATA_EMPS.mat; target < 5 s.
+  - arm: 8 episodes x 6 s at 100 Hz of the 3-joint arm of `bench calibrate generate` with one hidden
+    effect, for each effect in `effects` (default: all of the library and none); target < 10 s.
+    The logs and declared model come from this checkout's generator; the before code searches its
+    own library (without the spring's rest position and the position-play backlash families).
+
+Each line gives wall and CPU seconds of both sides, their ratio, what each added and the held-out
+free-run NRMSE it reached; a summary gives the slowest case and the median ratio. The targets are
+judged on CPU seconds: each side runs on one core, and on a shared machine the wall clock also
+counts the time that core spent on other processes (wall is printed beside it).
 """
 from __future__ import annotations
 
-import copy
+import json
 import os
+import statistics
+import subprocess
 import sys
-import time
+import tarfile
+import tempfile
 from pathlib import Path
 
-import mujoco
-import numpy as np
-from mujoco import rollout
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+BEFORE = "5fddacd"  # the code as issue 19 found it
+TARGETS = {"emps": 5.0, "arm": 10.0}
 
-from bench.calibrate.generate import MODELS, declared_files, simulate_arm
+# run in the subprocess: `python -c DRIVER TREE SPEC LOGS` -> one JSON line on stdout
+DRIVER = r"""
+import json, os, sys, time
+os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[-1]})
+sys.path.insert(0, sys.argv[1])
 from bench.calibrate.spec import load_spec
-from bench.calibrate.trace import Calibration, run
-
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-
-
-def raw_steps_per_second(model: mujoco.MjModel, timestep: float, threads: int, seconds: float = 1.0) -> float:
-    """Raw rollout throughput of a model with friction loss switched on (as after the first effect)."""
-    m = copy.copy(model)
-    m.opt.timestep = timestep
-    m.dof_frictionloss[:] = 0.1
-    nstate = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    spec = int(mujoco.mjtState.mjSTATE_CTRL) | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)
-    rng = np.random.default_rng(0)
-    b, n = 256, 100
-    init = np.zeros((b, nstate))
-    ctrl = np.zeros((b, n, m.nu + m.nv))
-    ctrl[..., : m.nu] = rng.normal(0.0, 1.0, (b, n, m.nu))
-    datas = [mujoco.MjData(m) for _ in range(threads)]
-    steps, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        rollout.rollout(m, datas, init, ctrl, control_spec=spec)
-        steps += b * n
-    return steps / (time.perf_counter() - t0)
+from bench.calibrate.trace import run
+from bench.logs import read_dataset
+assert sys.modules["bench"].__file__.startswith(sys.argv[1]), sys.modules["bench"].__file__
+spec = load_spec(sys.argv[2])
+ds = read_dataset(sys.argv[3])
+episodes = [ep.data for ep in ds.episodes]
+w0, c0 = time.perf_counter(), time.process_time()
+cal = run(spec, episodes, float(ds.fps), seed=0, threads=1)
+wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+e = cal.errors
+print(json.dumps({"wall": wall, "cpu": cpu, "added": [a["name"] + "@" + a["target"] for a in cal.added],
+                  "declared": e["declared"]["free_run_nrmse"], "final": e["final"]["free_run_nrmse"],
+                  "final_rmse": e["final"]["free_run_rmse"], "steps": cal.wall.get("sim_steps")}))
+"""
 
 
-def timed(label: str, fn, target: float, threads: int) -> Calibration:
-    w0, c0 = time.perf_counter(), time.process_time()
-    cal = fn()
-    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-    model = cal.plant.model
-    raw = raw_steps_per_second(model, model.opt.timestep, threads)
-    steps = cal.wall["sim_steps"]
-    e = cal.errors
-    added = ", ".join(f"{a['name']}@{a['target']}" for a in cal.added) or "none"
-    verdict = "ok" if wall < target else "MISSED"
-    print(f"{label} ({threads} rollout thread{'s' if threads > 1 else ''}): wall {wall:.2f} s "
-          f"(target < {target:g} s: {verdict}), cpu {cpu:.2f} s; declared fit {cal.wall['declared_fit']:.2f} s, trace {cal.wall['trace']:.2f} s")
-    print(f"  {steps / 1e6:.2f} M simulator steps; raw rollout {raw / 1e3:.0f} k steps/s -> pure simulation "
-          f"{steps / raw:.2f} s = {steps / raw / wall:.0%} of the wall time")
-    print(f"  added: {added}; held-out free-run NRMSE {e['declared']['free_run_nrmse']:.4g} -> "
-          f"{e['final']['free_run_nrmse']:.4g}, RMSE {e['declared']['free_run_rmse']:.4g} -> "
-          f"{e['final']['free_run_rmse']:.4g} (nominal {e['nominal']['free_run_rmse']:.4g})")
-    return cal
+def extract(rev: str, into: Path) -> Path:
+    """The `bench` package of git revision `rev`, unpacked under `into`."""
+    archive = into / "before.tar"
+    with open(archive, "wb") as f:
+        subprocess.run(["git", "-C", str(REPO), "archive", rev, "bench"], stdout=f, check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(into / "tree", filter="data")
+    return into / "tree"
 
 
-def bench_emps(threads: int) -> None:
-    mat = SHARED / "data/real/emps/DATA_EMPS.mat"
-    if not mat.is_file():
-        print(f"emps: skipped, {mat} not found (../shared is only beside the checkout)")
-        return
-    from bench.logs import import_mat
-
-    t0 = time.perf_counter()
-    ds = import_mat(mat, {"observation.state": ["qm"], "action": ["vir"]})
-    print(f"emps: import {time.perf_counter() - t0:.2f} s ({ds.num_frames} frames at {ds.fps:g} Hz)")
-    spec = load_spec(MODELS / "emps.yaml")
-    timed("emps loop", lambda: run(spec, [e.data for e in ds.episodes], ds.fps, threads=threads), 10.0, threads)
+def measure(tree: Path, spec: Path, logs: Path) -> dict:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+           "PYTHONPATH": str(tree)}
+    out = subprocess.run([sys.executable, "-c", DRIVER, str(tree), str(spec), str(logs)], env=env,
+                         capture_output=True, text=True, cwd=tree)
+    if out.returncode != 0:
+        raise RuntimeError(f"calibration in {tree} failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def bench_arm(threads: int, effect: str) -> None:
-    import tempfile
+def fmt(r: dict) -> str:
+    added = ", ".join(r["added"]) or "nothing"
+    return f"{r['wall']:6.2f} s wall {r['cpu']:6.2f} s cpu  [{added}; free-run NRMSE {r['final']:.4g}]"
 
-    t0 = time.perf_counter()
-    episodes, truth = simulate_arm(effect, episodes=8, duration=6.0, fps=100.0, seed=0)
-    print(f"arm: generated 8 x 6 s at 100 Hz with hidden {truth.effect}@{truth.target} {truth.params} "
-          f"in {time.perf_counter() - t0:.2f} s")
-    with tempfile.TemporaryDirectory() as tmp:
-        spec = load_spec(declared_files(tmp, effect))
-        timed("arm loop", lambda: run(spec, episodes, 100.0, threads=threads), 60.0, threads)
+
+def cases(kind: str, effects: list[str], tmp: Path) -> list[tuple[str, str, Path, Path]]:
+    """(label, kind, spec, logs) of each case, written under `tmp`."""
+    out = []
+    if kind in ("all", "emps"):
+        mat = SHARED / "data/real/emps/DATA_EMPS.mat"
+        if mat.is_file():
+            from bench.calibrate.generate import MODELS
+            from bench.logs import import_mat, write_dataset
+
+            ds = import_mat(mat, {"observation.state": ["qm"], "action": ["vir"]})
+            write_dataset(tmp / "emps", ds)
+            out.append(("emps", "emps", MODELS / "emps.yaml", tmp / "emps"))
+        else:
+            print(f"emps: skipped, {mat} not found (../shared is only beside the checkout)")
+    if kind in ("all", "arm"):
+        from bench.calibrate.generate import write_case
+
+        for effect in effects:
+            case = write_case(tmp / f"arm-{effect}", None if effect == "none" else effect, episodes=8, duration=6.0,
+                              fps=100.0, seed=0)
+            out.append((f"arm {effect}", "arm", case / "spec.yaml", case / "logs"))
+    return out
 
 
 def main(argv: list[str]) -> int:
-    kv = dict(a.split("=", 1) for a in argv if "=" in a)
-    case = kv.get("case", "all")
-    threads = int(kv.get("threads", min(2, os.cpu_count() or 1)))
-    if case in ("all", "emps"):
-        bench_emps(threads)
-    if case in ("all", "arm"):
-        bench_arm(threads, kv.get("effect", "coulomb_friction"))
+    from bench.calibrate.effects import EFFECTS
+    from bench.config import parse_kv
+
+    _, kv = parse_kv(argv)
+    kind = str(kv.get("case", "all"))
+    if kind not in ("all", "emps", "arm"):
+        print(f"case is {kind!r}; valid: all, emps, arm", file=sys.stderr)
+        return 2
+    effects = kv.get("effects", "all")
+    effects = [*EFFECTS, "none"] if effects == "all" else effects if isinstance(effects, list) else [effects]
+    before = str(kv.get("before", BEFORE))
+    repeats = int(kv.get("repeats", 1))
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        trees = {"after": REPO}
+        if before != "none":
+            trees = {"before": extract(before, tmp), **trees}
+        todo = cases(kind, effects, tmp)
+        print(f"one core each (rollout threads 1, BLAS threads 1); before = {before}, after = this checkout; "
+              f"best of {repeats}")
+        rows = []
+        for label, k, spec, logs in todo:
+            best: dict[str, dict] = {}
+            for _ in range(repeats):
+                for side, tree in trees.items():
+                    r = measure(tree, spec, logs)
+                    if side not in best or r["wall"] < best[side]["wall"]:
+                        best[side] = r
+            rows.append((label, k, best))
+            verdict = "ok" if best["after"]["cpu"] < TARGETS[k] else "MISSED"
+            print(f"{label}  (target < {TARGETS[k]:g} s on one core: {verdict})")
+            for side, r in best.items():
+                print(f"  {side:6s} {fmt(r)}")
+            if "before" in best:
+                print(f"  speed-up x{best['before']['wall'] / best['after']['wall']:.2f} wall, "
+                      f"x{best['before']['cpu'] / best['after']['cpu']:.2f} cpu")
+    for k in ("emps", "arm"):
+        mine = [(label, b) for label, kk, b in rows if kk == k]
+        if not mine:
+            continue
+        worst = max(mine, key=lambda lb: lb[1]["after"]["cpu"])
+        line = f"{k}: slowest after {worst[1]['after']['cpu']:.2f} cpu-s ({worst[0]}; target < {TARGETS[k]:g} s)"
+        if "before" in worst[1]:
+            ratios = [b["before"]["cpu"] / b["after"]["cpu"] for _, b in mine]
+            slowest = max(mine, key=lambda lb: lb[1]["before"]["cpu"])
+            line += (f"; slowest before {slowest[1]['before']['cpu']:.2f} cpu-s ({slowest[0]}); median speed-up "
+                     f"x{statistics.median(ratios):.2f} (cpu) over {len(mine)} case(s)")
+        print(line)
     return 0
 
 

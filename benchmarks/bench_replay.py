@@ -23,7 +23,7 @@ same segments of all three horizons (one-step, k-step, free run: one segment per
 frames and per episode) in the same model from the same logged initial states under the same
 logged commands:
 
-- batched: `bench.calibrate.metrics.horizon_errors` (what `bench replay spec=` runs): one
+- batched: `bench.replay.metrics.horizon_errors` (what `bench replay spec=` runs): one
   `mujoco.rollout` call per horizon kind, `threads` rollout threads;
 - loop: for each segment, `mj_resetData`, set qpos / qvel, then per frame set ctrl and call
   `mujoco.mj_step` once per substep, keeping qpos at the end of each frame.
@@ -47,17 +47,15 @@ import time
 import mujoco
 import numpy as np
 
-from bench.calibrate.data import Window, extract
 from bench.calibrate.generate import ARM, simulate_arm, spec_dict
-from bench.calibrate.metrics import horizon_errors, horizon_segments
-from bench.calibrate.model import Layout, Plant, load_model
-from bench.calibrate.simulate import Simulator
-from bench.calibrate.spec import parse_spec
+from bench.replay.data import Recording, extract
+from bench.replay.metrics import horizon_errors, horizon_segments
+from bench.replay.simulate import Simulator, as_given, prepare_model
+from bench.replay.spec import SignalMap, load_model, map_fields
 
 
-def step_loop(plant: Plant, segments: dict) -> tuple[dict[str, np.ndarray], int]:
+def step_loop(m: mujoco.MjModel, rec: Recording, s: int, segments: dict) -> tuple[dict[str, np.ndarray], int]:
     """Predicted qpos per segment (as `horizon_errors` gives them) from a Python mj_step loop; and steps taken."""
-    m, rec, s = plant.model, plant.rec, plant.substeps
     d = mujoco.MjData(m)
     out, steps = {}, 0
     for label, segs in segments.items():
@@ -144,7 +142,7 @@ def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
             t, (preds["mj_step"], _) = _timed(lambda: mj_step_loop(logs, seg_c))
             best["mj_step"] = min(best["mj_step"], t)
             for n in threads:
-                t, (preds[n], _) = _timed(lambda: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
+                t, (preds[n], _) = _timed(lambda n=n: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
                                                               seg_c, logs.substeps, logs.idx, logs.ctrl_spec))
                 best[n] = min(best[n], t)
         m = logs.envs[0].model
@@ -209,28 +207,26 @@ def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
     episodes, duration, fps = int(kv.get("episodes", 8)), float(kv.get("duration", 6.0)), float(kv.get("fps", 100.0))
 
     eps, _ = simulate_arm(None, episodes=episodes, duration=duration, fps=fps, seed=0)
-    raw = spec_dict(None, model_file=str(ARM))
-    raw["params"] = []
-    spec = parse_spec(raw)
+    spec = SignalMap(**map_fields(spec_dict(None, model_file=str(ARM)), "."))
     model = load_model(spec.model)
     rec = extract(spec, eps, fps, nq=model.nq, nv=model.nv, nu=model.nu)
-    plant = Plant(spec, model, rec)
-    variant = Layout(plant).realise(np.zeros(0))
-    windows = [Window(i, 0, int(rec.offsets[i + 1] - rec.offsets[i])) for i in range(rec.n_episodes)]
+    model, substeps = prepare_model(model, fps, spec.substeps)
+    variant = as_given(model, rec, substeps)
+    windows = rec.episodes()
     segments = horizon_segments(rec, windows, k)
     nseg = {h: len(s) for h, s in segments.items()}
     print(f"arm3 (3 hinge joints), {episodes} episodes x {duration:g} s at {fps:g} Hz = {len(rec.qpos)} frames, "
-          f"{plant.substeps} substeps/frame (dt {plant.model.opt.timestep * 1e3:g} ms), k = {k}; "
+          f"{substeps} substeps/frame (dt {model.opt.timestep * 1e3:g} ms), k = {k}; "
           f"segments: {nseg}; mujoco {mujoco.__version__}; best of {repeats}")
 
-    sims = {n: Simulator(plant, n) for n in threads}
+    sims = {n: Simulator(model, rec, substeps, n) for n in threads}
     best = {key: float("inf") for key in ["loop", *threads]}
     try:
         for _ in range(repeats):  # interleaved, so load from other processes hits both sides alike
-            t, (ref, steps) = _timed(lambda: step_loop(plant, segments))
+            t, (ref, steps) = _timed(lambda: step_loop(model, rec, substeps, segments))
             best["loop"] = min(best["loop"], t)
             for n, sim in sims.items():
-                t, errors = _timed(lambda: horizon_errors(sim, variant, rec, windows, k))
+                t, errors = _timed(lambda sim=sim: horizon_errors(sim, variant, rec, windows, k))
                 best[n] = min(best[n], t)
     finally:
         for sim in sims.values():
@@ -243,8 +239,9 @@ def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
         print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} {t_batch:8.3f} s   {steps:,} steps   "
               f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}")
     print(f"  max |qpos difference| between the two: {diff:.1e} rad (all segments of all three horizons)")
-    floor, cores = physics_floor(plant.model, plant.rec.ctrl[0], 100_000), os.cpu_count() or 1
-    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} core{'s' if cores > 1 else ''} "
+    floor, cores = physics_floor(model, rec.ctrl[0], 100_000), os.cpu_count() or 1
+    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} "
+          f"core{'s' if cores > 1 else ''} "
           f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
           f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)")
 

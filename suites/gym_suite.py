@@ -10,7 +10,10 @@ Conditions:
     nominal; `perturb.*` interface axes on every env; model axes (friction, link_mass,
     damping, armature, gain, gravity, ...) when the env is MuJoCo-backed
     (`env.unwrapped.model`). There is no manipulated object: `perturb.mass` needs
-    `perturb.mass.bodies=[...]`.
+    `perturb.mass.bodies=[...]`. Visual axes on the images of envs with cameras.
+Cameras:
+    `obs=rgb|state+rgb` renders the model's cameras (default: its first, e.g. HalfCheetah's
+    `track`); envs without a camera refuse it.
 Success:
     `info["success"]` or `info["is_success"]` when the env reports one, else False.
 Metric:
@@ -21,8 +24,9 @@ Metric:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
+from bench.camera_env import CameraOptions, check_options
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import ObsSpec
 from bench.suite import Cell, SuiteBase
@@ -30,9 +34,13 @@ from bench.suite import Cell, SuiteBase
 
 @dataclass(frozen=True)
 class GymOptions:
-    """Keys of suite=gym."""
+    """Keys of suite=gym (the camera keys as `bench.camera_env.CameraOptions`, after env_id so that
+    `GymOptions("HalfCheetah-v5")` keeps working; default camera: the model's first)."""
 
     env_id: str  # Gymnasium env id, e.g. HalfCheetah-v5, or module:Env-v0 to import the module that registers it
+    obs: str = CameraOptions.obs  # state | rgb | state+rgb: the state vector, camera images (rgb.<camera>), or both
+    cameras: Optional[list[str]] = None  # cameras rendered as rgb.<camera>; default: the model's first camera
+    image_size: int = CameraOptions.image_size  # image height and width in pixels, in [16, 1024]
 
 
 class GymSuite(SuiteBase):
@@ -50,6 +58,7 @@ class GymSuite(SuiteBase):
         if options is None:
             raise ConfigError("env_id: suite=gym needs a Gymnasium env id, e.g. env_id=HalfCheetah-v5")
         super().__init__(options)
+        check_options(options)  # camera names are checked against the env's model when it is built
         self.env_id = str(options.env_id)
         self.default_horizon = int(_spec(self.env_id).max_episode_steps or type(self).default_horizon)
         self._obs_spec: ObsSpec | None = None
@@ -67,9 +76,13 @@ class GymSuite(SuiteBase):
         return self._obs_spec
 
     def make_env(self, cell: Cell, horizon: int):
+        from bench.camera import camera_names
+        from bench.camera_env import with_cameras
         from bench.sim_gym import GymEnv
 
-        return GymEnv(cell.task, horizon)  # the cell's task is the env id
+        env = GymEnv(cell.task, horizon)  # the cell's task is the env id
+        defaults = camera_names(env.mujoco.model)[:1] if env.mujoco is not None else []
+        return with_cameras(env, self.options, defaults, cell.task)
 
 
 def _spec(env_id: str):

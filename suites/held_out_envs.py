@@ -23,8 +23,11 @@ Observation:
     ML benchmarks: the policy must infer the task from the scene.
 Action:
     4-D in [-1, 1]: hand position deltas (x, y, z) and gripper effort (+1 closes).
+Cameras (`obs=rgb|state+rgb`, `cameras=`, `image_size=`):
+    default rgb.corner (front corner view) and rgb.gripperPOV (in the gripper); others:
+    topview, corner2, corner3, corner4, behindGripper.
 Conditions:
-    nominal; perturbations via `perturb.*` act on the MuJoCo model.
+    nominal; perturbations via `perturb.*` act on the MuJoCo model; visual axes on the images.
 Success:
     Meta-World's `info["success"]`: success_once = at any step, success_at_end = at
     the last step; 500 steps (Meta-World's limit; `horizon=` may only shorten it).
@@ -37,10 +40,17 @@ Reference policy:
 """
 from __future__ import annotations
 
+from typing import Any
+
+from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import STATE, Feature, ObsSpec
 from bench.suite import Cell, SuiteBase
 
 MAX_PATH_LENGTH = 500  # = bench.sim_metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
+# Meta-World 3.1.1's cameras (its Sawyer XML, the same on every task); defaults: a front corner view and the
+# camera in the gripper
+CAMERAS = ("topview", "corner", "corner2", "corner3", "corner4", "behindGripper", "gripperPOV")
+DEFAULT_CAMERAS = ("corner", "gripperPOV")
 
 # Meta-World 3.1.1's ML10_V3 / ML45_V3 (metaworld/env_dict.py), kept here so that listing the
 # suite does not import Meta-World; tests/test_held_out_envs.py checks them against the source.
@@ -70,10 +80,15 @@ class _MetaWorldSplit(SuiteBase):
 
     benchmark: str = ""
     version = "1"
+    Options = CameraOptions
     reference_policy = "scripted"
     default_horizon = MAX_PATH_LENGTH
     max_horizon = MAX_PATH_LENGTH  # Meta-World raises on step 501
     capabilities = frozenset({"expert"})
+
+    def __init__(self, options: Any = None) -> None:
+        super().__init__(options)
+        check_options(self.options, CAMERAS, "Meta-World")
 
     def all_cells(self) -> list[Cell]:
         split = self.manifest["tasks"]
@@ -82,17 +97,19 @@ class _MetaWorldSplit(SuiteBase):
     def obs_spec(self, cell: Cell) -> ObsSpec:
         from bench.sim_metaworld import OBS_NAMES
 
-        return {STATE: Feature.state(OBS_NAMES)}
+        return camera_spec({STATE: Feature.state(OBS_NAMES)}, self.options, DEFAULT_CAMERAS)
 
     def make_env(self, cell: Cell, horizon: int):
+        from bench.camera_env import with_cameras
         from bench.sim_metaworld import MetaWorldEnv
 
-        return MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
+        env = MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
+        return with_cameras(env, self.options, DEFAULT_CAMERAS, cell.key)
 
     def make_expert(self, cell: Cell, env):
         from baselines.metaworld_expert import make_expert
 
-        return make_expert(env)
+        return make_expert(unwrap(env))
 
 
 class HeldOutEnvs(_MetaWorldSplit):

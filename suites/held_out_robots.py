@@ -18,8 +18,13 @@ Observation (the same 18 numbers on every arm):
 Action:
     robosuite's default OSC_POSE delta controller: 6 end-effector deltas in [-1, 1]
     (position deltas are world-frame on every arm) + gripper (+1 close, -1 open).
+Observation with cameras (`obs=rgb` or `obs=state+rgb`):
+    rgb.agentview (front view of the table) and rgb.robot0_eye_in_hand (wrist camera),
+    `image_size` x `image_size` uint8; `cameras=[...]` picks others among frontview,
+    birdview, agentview, sideview, robot0_robotview, robot0_eye_in_hand.
 Conditions:
-    nominal; perturbations via `perturb.*` act on the MuJoCo model.
+    nominal; perturbations via `perturb.*` act on the MuJoCo model; visual axes
+    (light, camera pose, colours, textures, background, distractors) on the cameras' images.
 Success:
     success_once = the cube was lifted 4 cm above the table at any step;
     success_at_end = it is still lifted at the last step (horizon 250 steps, 20 Hz).
@@ -33,6 +38,9 @@ Policies:
 """
 from __future__ import annotations
 
+from typing import Any
+
+from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
 from bench.suite import Cell, SuiteBase
 
@@ -45,11 +53,18 @@ class HeldOutRobots(SuiteBase):
 
     name = "held_out_robots"
     version = "1"
+    Options = CameraOptions
     reference_policy = "scripted"
     default_policy = "bc"
     default_horizon = 250
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
     capabilities = frozenset({"expert"})
+
+    def __init__(self, options: Any = None) -> None:
+        from suites.lift import CAMERAS
+
+        super().__init__(options)
+        check_options(self.options, CAMERAS, "robosuite Lift")
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, "Lift", r, "default", "seen") for r in SEEN] + [
@@ -57,16 +72,16 @@ class HeldOutRobots(SuiteBase):
         ]
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
-        from suites.lift import LiftObserver
+        from suites.lift import DEFAULT_CAMERAS, LiftObserver
 
-        return LiftObserver.obs_spec
+        return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
 
     def make_env(self, cell: Cell, horizon: int):
         from suites import lift
 
-        return lift.make_env(cell.task, cell.robot, horizon)
+        return lift.make_env(cell.task, cell.robot, horizon, options=self.options, where=cell.key)
 
     def make_expert(self, cell: Cell, env):
         from suites import lift
 
-        return lift.make_expert(env)
+        return lift.make_expert(unwrap(env))

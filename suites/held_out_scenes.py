@@ -29,9 +29,10 @@ on at least one parameter, with spawn regions that do not overlap the seen squar
     parameters. Select scenes with `envs=[nominal,spawn_far]`.
 Observation / Action:
     as held_out_robots (suites/lift.py): 18 embodiment-agnostic numbers; 7-D OSC
-    delta action.
+    delta action. Cameras as held_out_robots (`obs=rgb|state+rgb`, `cameras=`, `image_size=`;
+    default rgb.agentview and rgb.robot0_eye_in_hand).
 Conditions:
-    nominal; perturbations via `perturb.*` act on the MuJoCo model.
+    nominal; perturbations via `perturb.*` act on the MuJoCo model; visual axes on the images.
 Success:
     success_once = the cube was lifted 4 cm above *this scene's* table top at any step;
     success_at_end = still lifted at the last step (250 steps, 20 Hz).
@@ -43,6 +44,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
 from bench.suite import Cell, SuiteBase
 
@@ -132,10 +134,17 @@ class HeldOutScenes(SuiteBase):
 
     name = "held_out_scenes"
     version = "1"
+    Options = CameraOptions
     reference_policy = "scripted"
     default_horizon = 250
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
     capabilities = frozenset({"expert"})
+
+    def __init__(self, options: Any = None) -> None:
+        from suites.lift import CAMERAS
+
+        super().__init__(options)
+        check_options(self.options, CAMERAS, "robosuite Lift")
 
     def all_cells(self) -> list[Cell]:
         return [
@@ -145,16 +154,17 @@ class HeldOutScenes(SuiteBase):
         ]
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
-        from suites.lift import LiftObserver
+        from suites.lift import DEFAULT_CAMERAS, LiftObserver
 
-        return LiftObserver.obs_spec
+        return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
 
     def make_env(self, cell: Cell, horizon: int):
         from suites import lift
 
-        return lift.make_env(cell.task, cell.robot, horizon, env_kwargs(cell.options or scene_params(cell.env)))
+        return lift.make_env(cell.task, cell.robot, horizon, env_kwargs(cell.options or scene_params(cell.env)),
+                             options=self.options, where=cell.key)
 
     def make_expert(self, cell: Cell, env):
         from suites import lift
 
-        return lift.make_expert(env)
+        return lift.make_expert(unwrap(env))

@@ -9,7 +9,7 @@ gripper-to-object vector.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,6 +27,9 @@ OBS_FIELDS: list[tuple[str, int]] = [
     ("gripper_to_object", 3),
 ]
 OBJECT = {"Lift": "cube", "Stack": "cubeA"}
+# robosuite's cameras on every single-arm table task (the same six on all 7 arms)
+CAMERAS = ("frontview", "birdview", "agentview", "sideview", "robot0_robotview", "robot0_eye_in_hand")
+DEFAULT_CAMERAS = ("agentview", "robot0_eye_in_hand")  # a front view of the table and the wrist camera
 
 
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -113,14 +116,19 @@ class LiftObserver:
         return {STATE: out}
 
 
-def make_env(task: str, robot: str, horizon: int, env_kwargs: dict | None = None) -> "RobosuiteEnv":
-    """A robosuite env of `task` on `robot` with the agnostic observation."""
+def make_env(task: str, robot: str, horizon: int, env_kwargs: dict | None = None, options: Any = None,
+             where: str = "") -> Any:
+    """A robosuite env of `task` on `robot` with the agnostic observation (and cameras per `options`)."""
+    from bench.camera_env import with_cameras
     from bench.sim_robosuite import RobosuiteEnv
 
-    return RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
+    env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
+    if options is None:
+        return env
+    return with_cameras(env, options, DEFAULT_CAMERAS, where or f"{task}/{robot}")
 
 
-def make_expert(env: "RobosuiteEnv") -> Policy:
+def make_expert(env: Any) -> Policy:
     """The scripted pick-and-lift expert reading the agnostic observation."""
     from baselines.scripted_lift import LiftExpert
 

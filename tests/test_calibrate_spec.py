@@ -8,9 +8,10 @@ import yaml
 
 from bench.calibrate.data import extract
 from bench.calibrate.generate import declared_files, simulate_arm, spec_dict
-from bench.calibrate.model import Plant, load_model
+from bench.calibrate.model import Plant
 from bench.calibrate.spec import load_spec, parse_spec
 from bench.errors import SpecError
+from bench.replay.spec import load_model
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from bench import coverage as cov
 from bench import trend
 from bench.errors import ConfigError
 from bench.logs import from_arrays, write_dataset
-from bench.perturb import conditions_from_config
+from bench.axes import conditions_from_config
 from bench.suite import Cell
 
 CELLS = [Cell("s", "Lift", "Panda", "default", "seen"), Cell("s", "Lift", "Sawyer", "default", "seen"),

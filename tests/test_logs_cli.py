@@ -77,7 +77,7 @@ def test_import_rlds(tmp_path):
         (["logs", "import", "x.bin", "out=o"], "cannot tell the format"),
         (["logs", "import", "x.csv", "out=o", "format=hdf5"], "format is 'hdf5'; valid: csv, mat, rlds"),
         (["logs", "info", "/nonexistent/dataset"], "dataset folder does not exist"),
-        (["logs", "inf", "x"], "unknown logs subcommand 'inf'; valid: info, import. Did you mean 'info'"),
+        (["logs", "inf", "x"], "unknown logs subcommand 'inf'; valid: info, import, card, rank. Did you mean 'info'"),
     ],
 )
 def test_errors_exit_2(argv, message, capsys):

@@ -11,10 +11,19 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from video_frames import assert_close_frames, frames
 
 from bench.errors import DataError
-from bench.logs import Episode, LogDataset, from_arrays, info, read_dataset, read_episode, write_dataset
-from bench.logs import lerobot
+from bench.logs import (
+    Episode,
+    LogDataset,
+    from_arrays,
+    info,
+    lerobot,
+    read_dataset,
+    read_episode,
+    write_dataset,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 FORMATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"
@@ -287,7 +296,7 @@ def test_failed_write_keeps_old_dataset(tmp_path, monkeypatch):
     target = tmp_path / "ds"
     write_dataset(target, _sample(images=False))
 
-    def boom(tmp, ds):
+    def boom(tmp, ds, *codec):
         (tmp / "meta" / "info.json").write_text("{}")
         raise OSError("disk full")
 
@@ -320,13 +329,126 @@ def test_read_episode_any_row_groups(tmp_path, row_group_size):
             np.testing.assert_array_equal(one.data[k], ep.data[k])
 
 
-def test_video_features_are_skipped_on_read_and_refused_on_write(tmp_path):
-    out = write_dataset(tmp_path / "ds", _sample(images=False))
+# ----------------------------------------------------------------------------- video features
+
+
+def _video_dataset(n_episodes: int = 3, size: tuple[int, int] = (64, 96)) -> tuple[LogDataset, np.ndarray]:
+    rng = np.random.default_rng(5)
+    eps, start = [], 0
+    for e in range(n_episodes):
+        t = 5 + 2 * e
+        eps.append({"observation.state": rng.standard_normal((t, 3)), "action": rng.standard_normal((t, 2)),
+                    "observation.images.front": frames(t, *size, start=start),
+                    "observation.images.png": rng.integers(0, 256, (t, 6, 5, 3), dtype=np.uint8)})
+        start += t
+    ds = from_arrays(eps, fps=20, task="reach", video=["observation.images.front"],
+                     meta=[{"seed": e} for e in range(n_episodes)])
+    return ds, np.concatenate([ep["observation.images.front"] for ep in eps])
+
+
+def test_video_roundtrip_layout_and_metadata(tmp_path):
+    """Video frames live in one mp4 per feature, indexed by the episodes table as lerobot lays it out."""
+    ds, written = _video_dataset()
+    out = write_dataset(tmp_path / "ds", ds)
+    assert (out / "videos/observation.images.front/chunk-000/file-000.mp4").is_file()
     doc = json.loads((out / "meta/info.json").read_text())
-    doc["features"]["observation.images.top"] = {"dtype": "video", "shape": [4, 4, 3], "names": ["height", "width", "channels"]}
+    assert doc["video_path"] == lerobot.VIDEO_PATH
+    feat = doc["features"]["observation.images.front"]
+    assert feat["dtype"] == "video" and feat["shape"] == [64, 96, 3] and feat["names"] == ["height", "width", "channels"]
+    assert feat["info"] == {"video.height": 64, "video.width": 96, "video.codec": "h264", "video.pix_fmt": "yuv420p",
+                            "video.is_depth_map": False, "video.fps": 20, "video.channels": 3, "has_audio": False}
+    assert "observation.images.front" not in pq.read_schema(out / DATA).names  # no parquet column
+    eps = pq.read_table(out / EPISODES)
+    assert eps.column("videos/observation.images.front/from_timestamp").to_pylist() == [0.0, 0.25, 0.6]
+    assert eps.column("videos/observation.images.front/to_timestamp").to_pylist() == [0.25, 0.6, 1.05]
+    stats = json.loads((out / "meta/stats.json").read_text())["observation.images.front"]
+    assert np.asarray(stats["mean"]).shape == (3, 1, 1) and stats["count"] == [21]
+    back = read_dataset(out)
+    assert back.features == ds.features
+    for a, b in zip(ds.episodes, back.episodes):
+        assert a.meta == b.meta
+        for k in a.data:
+            if k != "observation.images.front":
+                np.testing.assert_array_equal(a.data[k], b.data[k], err_msg=k)
+    got = np.concatenate([ep.data["observation.images.front"] for ep in back.episodes])
+    assert_close_frames(got, written, "h264")
+    one = read_episode(out, 2)  # seeks to the episode's first frame in the shared file
+    np.testing.assert_array_equal(one.data["observation.images.front"], back.episodes[2].data["observation.images.front"])
+    assert "observation.images.front" not in read_dataset(out, videos=False).features
+    assert "observation.images.front" not in read_episode(out, 1, videos=False).data
+    assert info(out)["features"]["observation.images.front"]["video"] == {
+        "codec": "h264", "pix_fmt": "yuv420p", "fps": 20, "files": 1}
+
+
+def test_video_files_roll_over_and_av1(tmp_path, monkeypatch):
+    monkeypatch.setattr(lerobot, "VIDEO_FILES_SIZE_IN_MB", 0)  # a new file after every episode
+    ds, written = _video_dataset()
+    out = write_dataset(tmp_path / "ds", ds, video_codec="av1")
+    files = sorted((out / "videos/observation.images.front/chunk-000").iterdir())
+    assert [f.name for f in files] == ["file-000.mp4", "file-001.mp4", "file-002.mp4"]
+    eps = pq.read_table(out / EPISODES)
+    assert eps.column("videos/observation.images.front/file_index").to_pylist() == [0, 1, 2]
+    assert eps.column("videos/observation.images.front/from_timestamp").to_pylist() == [0.0, 0.0, 0.0]
+    got = np.concatenate([ep.data["observation.images.front"] for ep in read_dataset(out).episodes])
+    assert_close_frames(got, written, "av1")
+    assert info(out)["features"]["observation.images.front"]["video"]["files"] == 3
+
+
+def test_video_bad_input_is_refused_before_writing(tmp_path):
+    ds, _ = _video_dataset(2)
+    target = tmp_path / "out"
+    with pytest.raises(DataError, match="video_codec is 'vp9'; valid: h264, av1"):
+        write_dataset(target, ds, video_codec="vp9")
+    ds.fps = 12.5
+    with pytest.raises(DataError, match="field 'fps' is 12.5; video features need a whole number"):
+        write_dataset(target, ds)
+    ds.fps = 20.0
+    ds.episodes[1].data["timestamp"] = ds.episodes[1].data["timestamp"] * 1.5
+    with pytest.raises(DataError, match=r"column 'timestamp' is 0.075000 at frame 1 of episode 1 .* frame/fps = 0.050000"):
+        write_dataset(target, ds)
+    odd = from_arrays([{"cam": frames(3, 45, 61)}], fps=10, video=True)
+    with pytest.raises(DataError, match="feature 'cam': video frames are 45x61: AV1"):
+        write_dataset(target, odd, video_codec="av1")
+    with pytest.raises(DataError, match="feature 'depth' has 1 channels; a video feature needs 3"):
+        from_arrays([{"depth": np.zeros((3, 8, 8, 1), np.uint8)}], fps=10, video=["depth"])
+    with pytest.raises(DataError, match="video given for unknown feature 'cam2'"):
+        from_arrays([{"cam": frames(3, 8, 8)}], fps=10, video=["cam2"])
+    with pytest.raises(DataError, match="feature 'x' is float32 \\[2\\], not \\(T, H, W, 3\\) uint8"):
+        from_arrays([{"x": np.zeros((3, 2))}], fps=10, video=["x"])
+    assert not target.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_video_damage_is_a_one_line_error(tmp_path):
+    ds, _ = _video_dataset(2)
+    out = write_dataset(tmp_path / "ds", ds)
+    mp4 = out / "videos/observation.images.front/chunk-000/file-000.mp4"
+    data = mp4.read_bytes()
+    mp4.write_bytes(data[: len(data) // 3])  # truncated: the index at the end is gone
+    with pytest.raises(DataError, match="video feature 'observation.images.front' of episode\\(s\\) 0, 1: .*file-000.mp4"):
+        read_dataset(out)
+    mp4.unlink()
+    with pytest.raises(DataError, match=r"file-000.mp4: file is missing \(video of feature 'observation.images.front'"):
+        read_episode(out, 1)
+    assert len(read_dataset(out, videos=False).episodes) == 2  # the numeric features are still readable
+    table = pq.read_table(out / EPISODES)
+    pq.write_table(table.drop_columns(["videos/observation.images.front/from_timestamp"]), out / EPISODES)
+    with pytest.raises(DataError, match="column 'videos/observation.images.front/from_timestamp' is missing"):
+        read_dataset(out)
+    doc = json.loads((out / "meta/info.json").read_text())
+    doc["video_path"] = None
     (out / "meta/info.json").write_text(json.dumps(doc))
-    ds = read_dataset(out)  # frames of video features live in mp4 files, not in the parquet
-    assert "observation.images.top" not in ds.features and "observation.images.top" in info(out)["features"]
-    ds.features["observation.images.top"] = doc["features"]["observation.images.top"]
-    with pytest.raises(DataError, match="video feature 'observation.images.top' cannot be written"):
-        write_dataset(tmp_path / "again", ds)
+    with pytest.raises(DataError, match="field 'video_path' is None but features observation.images.front are videos"):
+        info(out)
+
+
+def test_logs_info_shows_video_features(tmp_path, capsys):
+    from bench.cli import main
+
+    ds, _ = _video_dataset(2)
+    out = write_dataset(tmp_path / "ds", ds, video_codec="av1")
+    assert main(["logs", "info", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    row = next(line for line in lines if "observation.images.front" in line)
+    assert row.split() == ["observation.images.front", "video", "[64,", "96,", "3]", "av1", "yuv420p,", "20", "fps,",
+                           "1", "mp4", "file"]
+    assert any(line.split()[:2] == ["observation.images.png", "image"] for line in lines)

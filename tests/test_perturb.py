@@ -5,10 +5,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from bench import perturb
+from bench import axes, perturb
 from bench.errors import ConfigError
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle
-from bench.suite import Condition, condition_rng
+from bench.suite import NOMINAL, Condition, condition_rng
 
 pytest.importorskip("gymnasium")
 
@@ -77,7 +77,7 @@ class MjcfEnv:
 
 
 def cond(name: str, value) -> Condition:
-    conds = perturb.conditions_from_config({name: value})
+    conds = axes.conditions_from_config({name: value})
     assert conds[0].name == "nominal"
     return conds[1]
 
@@ -90,7 +90,7 @@ def apply(env, c, seed=0):
 
 # -- grammar ----------------------------------------------------------------------------------
 def test_grid_and_range_conditions_are_named_and_nominal_first():
-    conds = perturb.conditions_from_config({
+    conds = axes.conditions_from_config({
         "friction": [0.25, 0.5, 1.0, 2.0], "mass": "uniform(0.8,1.2)", "latency": 4,
         "damping": {"levels": [0.5], "loguniform": [0.5, 2], "joints": ["hinge1"]},
     })
@@ -99,7 +99,7 @@ def test_grid_and_range_conditions_are_named_and_nominal_first():
         "damping=0.5", "damping~logU(0.5,2)"]
     assert conds[5].level == [0.8, 1.2] and conds[5].spec["kind"] == "uniform"
     assert conds[7].spec["targets"] == {"joints": ["hinge1"]}
-    assert perturb.conditions_from_config({}) == [perturb.NOMINAL]
+    assert axes.conditions_from_config({}) == [NOMINAL]
 
 
 def test_cli_grammar_through_the_run_config():
@@ -108,7 +108,7 @@ def test_cli_grammar_through_the_run_config():
 
     cfg = config.build(RunConfig, ["perturb.friction=[0.5,2]", "perturb.gravity=uniform(0.9,1.1)",
                                    "perturb.mass.levels=[2]", "perturb.mass.bodies=[box]", "perturb.link_mass.uniform=[0.5,1.5]"])
-    names = [c.name for c in perturb.conditions_from_config(cfg.perturb)]
+    names = [c.name for c in axes.conditions_from_config(cfg.perturb)]
     assert names == ["nominal", "friction=0.5", "friction=2", "gravity~U(0.9,1.1)", "mass=2", "link_mass~U(0.5,1.5)"]
 
 
@@ -128,30 +128,30 @@ def test_cli_grammar_through_the_run_config():
         "range-one-bound", "not-a-number", "bad-target-key", "target-key-of-other-axis", "targets-without-levels"])
 def test_bad_perturbations_are_one_line_config_errors(perturb_cfg, match):
     with pytest.raises(ConfigError, match=match) as exc:
-        perturb.conditions_from_config(perturb_cfg)
+        axes.conditions_from_config(perturb_cfg)
     assert "\n" not in str(exc.value)
 
 
 # -- names against the model ---------------------------------------------------------------------
 def test_validate_names_against_the_model():
     env = MjcfEnv()
-    perturb.validate(env, perturb.conditions_from_config({"mass": {"levels": [2], "bodies": ["box"]}}))
+    perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["box"]}}))
     with pytest.raises(ConfigError, match=r"perturb.mass.bodies: 'bx' is not a body of the env; valid: .*Did you mean 'box'\?"):
-        perturb.validate(env, perturb.conditions_from_config({"mass": {"levels": [2], "bodies": ["bx"]}}))
+        perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["bx"]}}))
     with pytest.raises(ConfigError, match=r"perturb.damping.joints: 'hinge3' is not a joint"):
-        perturb.validate(env, perturb.conditions_from_config({"damping": {"levels": [2], "joints": ["hinge3"]}}))
+        perturb.validate(env, axes.conditions_from_config({"damping": {"levels": [2], "joints": ["hinge3"]}}))
     with pytest.raises(ConfigError, match=r"perturb.gain.actuators: 'servo' is not an actuator.*Did you mean"):
-        perturb.validate(env, perturb.conditions_from_config({"gain": {"levels": [2], "actuators": ["servo"]}}))
+        perturb.validate(env, axes.conditions_from_config({"gain": {"levels": [2], "actuators": ["servo"]}}))
     # hinge2 has frictionloss 0: scaling it would change nothing
     with pytest.raises(ConfigError, match=r"nominal frictionloss of every targeted element .* is 0"):
-        perturb.validate(env, perturb.conditions_from_config({"frictionloss": {"levels": [2], "joints": ["hinge2"]}}))
+        perturb.validate(env, axes.conditions_from_config({"frictionloss": {"levels": [2], "joints": ["hinge2"]}}))
 
 
 def test_mass_without_declared_object_asks_for_bodies():
     env = MjcfEnv()
     env.mujoco.object_bodies = ()
     with pytest.raises(ConfigError, match=r"declares no manipulated object .*perturb.mass.bodies=\[...\]"):
-        perturb.validate(env, perturb.conditions_from_config({"mass": [2]}))
+        perturb.validate(env, axes.conditions_from_config({"mass": [2]}))
 
 
 # -- model axes ----------------------------------------------------------------------------------
@@ -177,7 +177,7 @@ def test_model_axis_scales_its_targets_and_never_drifts(axis, field, picks):
         np.testing.assert_allclose(getattr(m, field)[idx], nominal[idx] * 0.5)
         others = np.setdiff1d(np.arange(len(nominal)), idx)
         np.testing.assert_array_equal(getattr(m, field)[others], nominal[others])
-    apply(env, perturb.NOMINAL)
+    apply(env, NOMINAL)
     np.testing.assert_array_equal(getattr(m, field), nominal)
 
 
@@ -191,7 +191,7 @@ def test_mass_and_armature_show_in_the_mass_matrix():
         mujoco.mj_fullM(m, M, d.qM)
         return M
 
-    apply(env, perturb.NOMINAL)
+    apply(env, NOMINAL)
     M0 = full_m()
     apply(env, cond("link_mass", [2.0]))
     M1 = full_m()
@@ -203,7 +203,7 @@ def test_mass_and_armature_show_in_the_mass_matrix():
     box_dof = m.body("box").dofadr[0]
     np.testing.assert_allclose(full_m()[box_dof, box_dof], 4 * 0.2, rtol=1e-6)
     assert m.body_subtreemass[m.body("box").id] == pytest.approx(0.8)  # derived constants refreshed
-    apply(env, perturb.NOMINAL)
+    apply(env, NOMINAL)
     np.testing.assert_allclose(full_m(), M0)
     assert m.body_subtreemass[m.body("box").id] == pytest.approx(0.2)
 
@@ -231,10 +231,10 @@ def test_gravity_and_friction_change_the_motion():
             mujoco.mj_step(m, d)
         return d.qpos[z_adr]
 
-    z_nom, z_half = box_z_after(perturb.NOMINAL), box_z_after(cond("gravity", [0.5]))
+    z_nom, z_half = box_z_after(NOMINAL), box_z_after(cond("gravity", [0.5]))
     assert z_half > z_nom + 0.05
     assert m.opt.gravity[2] == pytest.approx(-4.905)
-    apply(env, perturb.NOMINAL)
+    apply(env, NOMINAL)
     assert m.opt.gravity[2] == pytest.approx(-9.81)
 
     def box_slide(c):  # push the box sideways with an initial velocity; low friction slides further
@@ -246,7 +246,7 @@ def test_gravity_and_friction_change_the_motion():
             mujoco.mj_step(m, d)
         return d.qpos[x_adr] - x0
 
-    assert box_slide(cond("friction", [0.1])) > box_slide(perturb.NOMINAL) + 0.05
+    assert box_slide(cond("friction", [0.1])) > box_slide(NOMINAL) + 0.05
 
 
 def test_range_draws_from_the_episode_rng_and_records_the_value():
@@ -307,7 +307,7 @@ def test_action_and_observation_noise(cheetah):
         executed.append(cheetah.mujoco.data.ctrl.copy())
     assert np.std(executed) == pytest.approx(0.1, rel=0.15)  # half-range is 1 on HalfCheetah
 
-    clean_env = apply(cheetah, perturb.NOMINAL)[0]
+    clean_env = apply(cheetah, NOMINAL)[0]
     clean = [clean_env.reset(5)[STATE]] + [clean_env.step(a)[0][STATE] for a in cmds[:20]]
     noisy_env, _ = perturb.apply(cheetah, cond("obs_noise", [0.05]), np.random.default_rng(0))
     noisy = [noisy_env.reset(5)[STATE]] + [noisy_env.step(a)[0][STATE] for a in cmds[:20]]
@@ -322,7 +322,7 @@ def test_model_axis_needs_a_mujoco_model():
     env = GymEnv("CartPole-v1", 20)
     with pytest.raises(ConfigError, match=r"perturb.friction: the env \(gymnasium-.*\) cannot apply it; model axes "
                                           r"there: none; interface axes work everywhere"):
-        perturb.validate(env, perturb.conditions_from_config({"friction": [0.5]}))
+        perturb.validate(env, axes.conditions_from_config({"friction": [0.5]}))
     stepper, params = apply(env, cond("latency", [1]))  # interface axes work on any env
     assert params == {"latency": 1} and stepper.step(np.array([1.0]))[0][STATE].shape == (4,)
 
@@ -342,12 +342,12 @@ def test_robosuite_object_mass_survives_soft_reset_and_names_are_checked():
         m0 = model.body_mass[cube]
         apply(env, cond("mass", [3.0]))  # apply, then robosuite's soft reset
         assert model.body_mass[cube] == pytest.approx(3 * m0)
-        apply(env, perturb.NOMINAL)
+        apply(env, NOMINAL)
         assert model.body_mass[cube] == pytest.approx(m0)
         # the check `bench run` makes before writing anything (exit 2 path: tests/test_gym_suite.py)
         with pytest.raises(ConfigError, match=r"perturb.mass.bodies: 'cube' is not a body of Lift/Panda/default; "
                                               r"valid: .*Did you mean 'cube_main'\?"):
-            perturb.validate(env, perturb.conditions_from_config({"mass": {"levels": [2], "bodies": ["cube"]}}),
+            perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["cube"]}}),
                              where="Lift/Panda/default")
     finally:
         env.close()
@@ -361,7 +361,7 @@ def test_nominal_after_perturbations_replays_a_fresh_env_exactly():
     actions = np.random.default_rng(1).uniform(-1, 1, size=(300, 2))
 
     def states(env):
-        perturb.apply(env, perturb.NOMINAL, np.random.default_rng(0))
+        perturb.apply(env, NOMINAL, np.random.default_rng(0))
         env.reset(4)
         out = []
         for a in actions:

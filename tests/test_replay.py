@@ -95,24 +95,22 @@ def _step_loop(model, qpos, qvel, ctrl, start, length, substeps):
 
 
 def test_batched_replay_equals_a_python_step_loop(nominal_spec):
-    from bench.calibrate.data import Window, extract
-    from bench.calibrate.metrics import horizon_errors
-    from bench.calibrate.model import Layout, Plant, load_model
-    from bench.calibrate.simulate import Simulator
-    from bench.calibrate.spec import load_spec
+    from bench.replay.data import Window, extract
+    from bench.replay.metrics import horizon_errors
+    from bench.replay.simulate import Simulator, as_given, prepare_model
+    from bench.replay.spec import load_model, load_signal_map
 
-    spec = load_spec(nominal_spec)
-    model = load_model(spec.model)
+    spec, _ = load_signal_map(nominal_spec)
     eps, _ = simulate_arm("coulomb_friction", episodes=2, duration=0.5, seed=1)
     rec = extract(spec, eps, 100.0, nq=3, nv=3, nu=3)
-    plant = Plant(spec, model, rec)
-    sim = Simulator(plant)
-    errors = horizon_errors(sim, Layout(plant).realise(np.zeros(0)), rec, [Window(0, 0, 50), Window(1, 0, 50)], 7)
+    model, substeps = prepare_model(load_model(spec.model), rec.fps, spec.substeps)
+    sim = Simulator(model, rec, substeps)
+    errors = horizon_errors(sim, as_given(model, rec, substeps), rec, [Window(0, 0, 50), Window(1, 0, 50)], 7)
     sim.close()
     for h, e in errors.items():
         for s, start in enumerate(e.start):
             n = int(e.mask[s].sum())
-            ref = _step_loop(plant.model, rec.qpos, rec.qvel, rec.ctrl, int(start), n, plant.substeps)
+            ref = _step_loop(model, rec.qpos, rec.qvel, rec.ctrl, int(start), n, substeps)
             np.testing.assert_allclose(e.pred[s, :n], ref, rtol=0, atol=1e-12, err_msg=f"{h} segment {s}")
 
 
@@ -134,6 +132,14 @@ def test_a_joint_that_never_moves_has_no_nrmse(tmp_path, nominal_spec):
     json.dumps(doc, allow_nan=False)
 
 
+def _typo_spec(tmp_path):
+    raw = spec_dict(None, model_file=str(ARM))
+    raw["substep"] = raw.pop("substeps")
+    path = tmp_path / "typo.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
 def _bad_spec(tmp_path, **change):
     raw = spec_dict(None, model_file=str(ARM))
     raw["params"] = []
@@ -148,11 +154,14 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={t / 'none.yaml'}"], r"spec file .*none.yaml' does not exist"),
     (lambda t, logs, spec: [f"logs={logs}"], r"spec= is required"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "suite=held_out_robots"], r"not both"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
      r"'signals.qpos.column': column 'observation.stat' is not in the log.*valid: action"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
      r"'signals.ctrl.index' lists 2 columns; the model has nu=3"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
+    (lambda t, logs, spec: [f"logs={logs}",
+                            f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
      r"'signals.qvel.index': index 9 is out of range .* width 6"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k must be an integer >= 1"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
@@ -160,13 +169,15 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
     (lambda t, logs, spec: [f"logs={logs}", "suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "commands=ctrl"], r"commands= applies to suite= replays"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={_typo_spec(t)}"],
+     r"unknown spec field 'substep'.*Did you mean 'substeps'"),
 ]
 
 
 @pytest.mark.parametrize("make_argv, pattern", BAD, ids=[
     "missing-logs", "missing-spec", "no-spec", "spec-and-suite", "column-not-in-log", "ctrl-width-vs-model",
     "index-out-of-range", "k-zero", "unknown-episode", "no-episode", "unknown-key", "suite-needs-sim-state",
-    "commands-with-spec"])
+    "commands-with-spec", "signal-map-typo"])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nominal_spec, make_argv, pattern):
     out = tmp_path / "out"
     code = main(["replay", *make_argv(tmp_path, cases["None"], nominal_spec), f"out={out}"])
@@ -175,6 +186,33 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nomi
     assert len(err.strip().splitlines()) == 1, err
     assert re.search(pattern, err), err
     assert not out.exists()
+
+
+def test_a_calibration_spec_is_a_signal_map_with_more_fields(cases, tmp_path):
+    """replay reads model, substeps and signals; a calibration spec's own fields are listed as ignored."""
+    raw = spec_dict(None, model_file=str(ARM))
+    raw["params"][0]["elements"] = ["no_such_joint"]  # calibration would refuse it; replay does not use it
+    path = tmp_path / "calib.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    doc = run(ReplayConfig(logs=str(cases["None"]), spec=str(path))).doc
+    assert doc["spec"]["ignored"] == ["effects", "holdout", "horizon", "params"]
+    assert doc["spec"]["substeps"] == 5 and set(doc["spec"]["signals"]) == {"qpos", "qvel", "ctrl", "inputs"}
+    assert any("free parameters keep the model's values" in n for n in doc["notes"])
+
+
+def test_replay_is_the_base_layer_it_never_imports_calibrate():
+    """bench.replay is what bench.calibrate builds on: no module of it imports bench.calibrate."""
+    import ast
+    from pathlib import Path
+
+    import bench.replay
+
+    for path in sorted(Path(bench.replay.__file__).parent.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not any(n == "bench.calibrate" or n.startswith("bench.calibrate.") for n in names), \
+                f"{path.name} imports {names}"
 
 
 def test_help_names_every_key(capsys):
@@ -265,9 +303,12 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
     renamed.features["action.ctrl"]["names"] = ["motor" + n for n in names]
     renamed = write_dataset(tmp_path / "renamed", renamed)
     cases = [
-        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"], r"commands is 'torque'; valid: ctrl, action"),
-        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"], r"feature 'action.ctrl' missing.*commands=action"),
-        ([f"logs={renamed}", "suite=held_out_robots"], r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
+        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"],
+         r"commands is 'torque'; valid: ctrl, action"),
+        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"],
+         r"feature 'action.ctrl' missing.*commands=action"),
+        ([f"logs={renamed}", "suite=held_out_robots"],
+         r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
     ]
     for argv, pattern in cases:
         out = tmp_path / "out"

@@ -8,7 +8,11 @@ from typing import Any
 from bench.errors import ConfigError, DataError, did_you_mean
 
 USAGE = """usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]
+                       [residual=true]
+       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]
+                       [residual=true]
        bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]
+                                [target=NAME] [disturbance=cogging]
        bench calibrate effects
 
 Real2Sim: fit the spec's declared parameters to the logs (bounded least squares on truncated
@@ -21,9 +25,18 @@ library, add it, refit, and report held-out errors before and after.
   seed      which episodes are held out (time split when there is one episode)
   effects   override the spec's effect list: all, none or [name,...]
   threads   rollout threads (default: the spec's, 1)
+  residual  also fit a learned residual (a small model of the force the calibrated physics still
+            misses) and report held-out errors with and without it, apart from the physics (default true)
+
+suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo
+state before each frame, the command of every physics step): a damping and an armature scale over
+the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.
+calibration.json then carries an `apply` section: `bench run suite=NAME ... calibration=OUT` runs
+that robot's cells with the calibrated model (a file for another suite, robot or model is refused).
 
 generate writes a synthetic case: a 3-joint arm under PD tracking with ONE hidden effect
-(or none), as LeRobot logs (OUT/logs) plus the declared model, its spec and truth.json. Then:
+(or none), as LeRobot logs (OUT/logs) plus the declared model, its spec and truth.json;
+disturbance=cogging adds a force no effect of the library describes (for the learned residual). Then:
   bench calibrate spec=OUT/spec.yaml logs=OUT/logs out=OUT/result
 
 examples:
@@ -33,8 +46,9 @@ examples:
   bench calibrate spec=bench/calibrate/models/emps.yaml logs=logs/emps out=runs/emps
 """
 
-RUN_KEYS = ("spec", "logs", "out", "seed", "effects", "threads", "quiet")
-GEN_KEYS = ("effect", "out", "episodes", "duration", "fps", "seed", "target")
+RUN_KEYS = ("spec", "logs", "out", "seed", "effects", "threads", "quiet", "residual")
+SUITE_KEYS = ("suite", "robot", "logs", "out", "seed", "threads", "quiet", "residual", "condition")
+GEN_KEYS = ("effect", "out", "episodes", "duration", "fps", "seed", "target", "disturbance")
 
 
 def _check(kv: dict, valid: tuple[str, ...], required: tuple[str, ...]) -> None:
@@ -99,18 +113,54 @@ def cmd_run(kv: dict) -> int:
     quiet = bool(kv.get("quiet", False))
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     threads = _int(kv, "threads", spec.threads, lo=1)
+    residual = _residual(kv)
     cal = run(spec, episodes, fps, seed=_int(kv, "seed", 0), effects=_effects(kv.get("effects")), threads=threads,
-              log=log)
+              log=log, residual=residual)
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
     path = write_report(cal, Path(str(kv["out"])).expanduser())
+    _summary(cal, path)
+    return 0
+
+
+def _residual(kv: dict) -> bool:
+    residual = kv.get("residual", True)
+    if not isinstance(residual, bool):
+        raise ConfigError(f"key 'residual' must be true or false; got {residual!r}")
+    return residual
+
+
+def _summary(cal, path: Path) -> None:
     e = cal.errors
     added = ", ".join(f"{a['name']}@{a['target']}" for a in cal.added) or "none"
     print(f"effects added: {added}")
     print(f"held-out free-run NRMSE: nominal {e['nominal']['free_run_nrmse']:.4g} -> declared "
           f"{e['declared']['free_run_nrmse']:.4g} -> final {e['final']['free_run_nrmse']:.4g} "
           f"(RMSE {e['declared']['free_run_rmse']:.4g} -> {e['final']['free_run_rmse']:.4g})")
+    if cal.learned:
+        h = cal.learned["heldout"]
+        print("learned residual, apart from the physics (held-out k-step NRMSE): "
+              f"{h['physics']['k_step_nrmse']:.4g} -> {h['physics_plus_residual']['k_step_nrmse']:.4g}")
     print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s)")
+
+
+def cmd_suite(kv: dict) -> int:
+    """Calibrate a suite's robot in its scene: logs of `bench run record=` -> OUT/calibration.json with `apply`."""
+    from bench.calibrate.report import write_report
+    from bench.calibrate.suite import calibrate_suite
+
+    _check(kv, SUITE_KEYS, ("suite", "robot", "logs", "out"))
+    residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1), _int(kv, "seed", 0)
+    log = (lambda msg: None) if kv.get("quiet", False) else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    cal, extra = calibrate_suite(str(kv["suite"]), str(kv["robot"]), Path(str(kv["logs"])), seed=seed,
+                                 threads=threads, log=log, residual=residual,
+                                 condition=None if kv.get("condition") is None else str(kv["condition"]))
+    for w in cal.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    path = write_report(cal, Path(str(kv["out"])).expanduser(), extra)
+    _summary(cal, path)
+    print(f"{len(extra['apply']['edits'])} model edit(s) for {kv['robot']}; run with them: bench run "
+          f"suite={kv['suite']} robots=[{kv['robot']}] calibration={path}")
     return 0
 
 
@@ -122,7 +172,7 @@ def cmd_generate(kv: dict) -> int:
     effect = None if kv["effect"] in ("none", "null") else str(kv["effect"])
     out = write_case(Path(str(kv["out"])).expanduser(), effect, episodes=_int(kv, "episodes", 8, lo=2),
                      duration=_float(kv, "duration", 6.0), fps=_float(kv, "fps", 100.0), seed=_int(kv, "seed", 0),
-                     target=kv.get("target"))
+                     target=kv.get("target"), disturbance=kv.get("disturbance"))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0
 
@@ -151,5 +201,5 @@ def main(argv: list[str]) -> int:
         return cmd_effects()
     if positional:
         raise ConfigError(f"unexpected argument {positional[0]!r}; subcommands: generate, effects "
-                          f"(or spec=... logs=... out=...)")
-    return cmd_run(kv)
+                          f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)")
+    return cmd_suite(kv) if "suite" in kv else cmd_run(kv)

@@ -6,20 +6,23 @@ attaches to one target (a joint, an actuator or a body) and is realised in the s
 
 - through `MjModel` fields where MuJoCo has one (friction loss, damping, stiffness, armature,
   body mass, actuator gain), so `mujoco.rollout` runs them at full speed;
+- through the model's structure for backlash as position play: a rotor behind a dead zone in
+  position, built into the MJCF (`bench.calibrate.play`);
 - through the applied command where the effect acts on the drive (delay, deadband, saturation),
   transformed before the rollout at the simulator's substep resolution;
 - through `qfrc_applied` for generalised forces (bias, a known extra input, the offset part of
   asymmetric friction), constant or precomputed;
 - only the Stribeck excess depends on the simulated velocity: it is added to `qfrc_applied` at
-  every substep in a stepped rollout (see `bench.calibrate.simulate`).
+  every substep in a stepped rollout (see `bench.replay.simulate`).
 
 Bounds are scaled to the system from the logs (`Scales`), so one library serves a 1 kg arm and a
 95 kg carriage; a spec can override them per effect.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -38,6 +41,7 @@ class Scales:
     input_max: np.ndarray  # (m,) largest |extra input| in the logs
     mass: float  # total mass of the model [kg]
     dt: float  # log frame period [s]
+    spring_ref: np.ndarray  # (nv,) the model's spring reference position of each dof (qpos_spring)
 
 
 @dataclass(frozen=True)
@@ -60,13 +64,14 @@ class Target:
 class Builder(Protocol):
     """What an effect may change while a parameter vector is realised (see `bench.calibrate.model`)."""
 
-    model: object
+    model: Any  # the mujoco.MjModel being edited
 
     def add_qfrc(self, dof: int, value: float) -> None: ...
     def add_input(self, col: int, dof: int, gain: float) -> None: ...
     def add_stribeck(self, dof: int, fs: float, vs: float) -> None: ...
     def ctrl_op(self, kind: str, act: int, value: float) -> None: ...
     def mark_setconst(self) -> None: ...
+    def set_play(self, act: int, width: float, inertia: float) -> None: ...
 
 
 Bounds = list[tuple[float, float]]
@@ -91,11 +96,27 @@ class Effect:
     contrast: tuple[float, ...] = ()
     threshold: bool = False  # shows only beyond a threshold: its signature is also taken at a large step
     report: Callable[[np.ndarray, Scales, Target], dict[str, float]] | None = None
+    # 95% intervals of the reported parameters from the estimate and its covariance (default: the
+    # report of x -+ 1.96 sd, right for monotone maps of one parameter each)
+    intervals: Callable[[np.ndarray, np.ndarray, Scales, Target], dict[str, list | None]] | None = None
+    gate: tuple[int, ...] | None = None  # nested params whose interval must exclude zero (default: all)
+    standalone: bool = False  # offered on its own too, not only as a replacement of a family it extends
+    group: str = ""  # families of one group exclude each other on a target
+    play_side: str | None = None  # backlash as position play: which side the log measures
+    # finite-difference step (normalised units) where the output moves in small jumps (contact events)
+    fd_step: float | None = None
+    # amplitudes (shares of the bound) simulated as starting points for a landscape with several basins
+    scan: tuple[float, ...] = ()
 
     @property
     def n_nested(self) -> int:
         """Amplitude parameters (zero = absent) come first; shape parameters follow."""
         return len(self.params) - len(self.shape)
+
+    @property
+    def gated(self) -> tuple[int, ...]:
+        """The parameters whose interval must exclude zero for the effect to be accepted."""
+        return tuple(range(self.n_nested)) if self.gate is None else self.gate
 
     def start(self, bounds: Bounds) -> np.ndarray:
         """Parameter vector with the effect switched off (nested params zero, shape params at their start)."""
@@ -166,7 +187,27 @@ def _apply_armature(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
 
 
 def _apply_spring(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    # -k (q - q_ref) = -k (q - q_model) + k (q_ref - q_model): a spring towards the model's reference
+    # pose plus a constant preload p; linear in (k, p), so its signature is exact; q_ref = q_model + p / k
     b.model.jnt_stiffness[t.index] += x[0]
+    b.add_qfrc(t.dof, x[1])
+
+
+def _report_spring(x: np.ndarray, s: Scales, t: Target) -> dict[str, float]:
+    k, p = float(x[0]), float(x[1])
+    return {"stiffness": k, "reference": float(s.spring_ref[t.dof]) + p / k if k > 0 else float("nan")}
+
+
+def _intervals_spring(x: np.ndarray, cov: np.ndarray, s: Scales, t: Target) -> dict[str, list | None]:
+    k, p = float(x[0]), float(x[1])
+    sd_k = float(np.sqrt(max(cov[0, 0], 0.0)))
+    out: dict[str, list | None] = {"stiffness": [k - 1.96 * sd_k, k + 1.96 * sd_k], "reference": None}
+    if k > 0:  # delta method: d(p/k) = [-p/k^2, 1/k]
+        g = np.array([-p / k ** 2, 1.0 / k])
+        sd = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        r = float(s.spring_ref[t.dof]) + p / k
+        out["reference"] = [r - 1.96 * sd, r + 1.96 * sd]
+    return out
 
 
 def _apply_payload(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
@@ -185,6 +226,10 @@ def _apply_bias(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
 
 def _apply_input(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
     b.add_input(t.input, t.dof, x[0])
+
+
+def _apply_play(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
+    b.set_play(t.index, float(x[0]), float(s.inertia[t.dof]))
 
 
 def _apply_delay(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
@@ -213,6 +258,8 @@ def _report_saturation(x: np.ndarray, s: Scales, t: Target) -> dict[str, float]:
 def _input_gain_max(s: Scales, t: Target) -> float:
     return _f(s, t) / max(float(s.input_max[t.input]), 1e-12)
 
+
+PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
     Effect("coulomb_friction", "joint", ("friction",), ("N·m|N",),
@@ -246,15 +293,30 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
            lambda s, t: [(0.0, 0.9)], _apply_saturation,
            "drive force clipped at a limit (parameter: the share of logged commands above it; 0 = no clipping)",
            report=_report_saturation, threshold=True),
-    Effect("backlash", "actuator", ("deadband",), ("N·m|N",),
+    Effect("deadband", "actuator", ("deadband",), ("N·m|N",),
            lambda s, t: [(0.0, 0.25 * _f(s, t))], _apply_deadband,
-           "dead band on the drive force: play in the transmission that absorbs small commands", threshold=True),
+           "dead band on the drive force: small commands are lost (stiction in the drive, an amplifier's "
+           "dead zone)", threshold=True),
+    Effect("backlash_link", "actuator", ("play",), ("rad|m",),
+           lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))], _apply_play,
+           "position play between motor and link (total width), measured on the link side: the rotor "
+           "crosses the gap unseen, then the link is driven", threshold=True, group="play", play_side="link",
+           fd_step=0.02, scan=PLAY_SCAN),
+    Effect("backlash_motor", "actuator", ("play",), ("rad|m",),
+           lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))], _apply_play,
+           "position play between motor and link (total width), measured on the motor side: the motor "
+           "crosses the gap fast and free, the link lags", threshold=True, group="play", play_side="motor",
+           fd_step=0.02, scan=PLAY_SCAN),
     Effect("payload_mass", "body", ("mass",), ("kg",),
            lambda s, t: [(0.0, max(s.mass, 1e-3))], _apply_payload,
            "extra point mass at the body's centre of mass", fields=("body_mass",)),
-    Effect("joint_spring", "joint", ("stiffness",), ("N·m/rad|N/m",),
-           lambda s, t: [(0.0, _f(s, t) / max(float(s.half_range[t.dof]), 1e-6))], _apply_spring,
-           "spring towards the model's reference pose (cables, gravity compensators)", fields=("jnt_stiffness",)),
+    Effect("joint_spring", "joint", ("stiffness", "preload"), ("N·m/rad|N/m", "N·m|N"),
+           lambda s, t: [(0.0, _f(s, t) / max(float(s.half_range[t.dof]), 1e-6)), (-0.5 * _f(s, t), 0.5 * _f(s, t))],
+           _apply_spring,
+           "spring with its own rest position (cables, hoses, gravity compensators); reported as stiffness and "
+           "reference (rest position)", fields=("jnt_stiffness",), report=_report_spring,
+           intervals=_intervals_spring, gate=(0,), standalone=True,
+           extends={"bias": lambda x, b: np.array([0.0, x[0]])}, contrast=(1.0, 0.0)),
     Effect("actuator_gain", "actuator", ("gain_error",), ("1",),
            lambda s, t: [(-0.5, 0.5)], _apply_gain,
            "relative error of the drive gain (force = (1 + e) x nominal)", fields=("actuator_gainprm",)),

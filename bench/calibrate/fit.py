@@ -17,11 +17,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench.calibrate.data import Recording
 from bench.calibrate.model import Layout
-from bench.calibrate.simulate import Segments, Simulator, logged
+from bench.replay.data import Recording
+from bench.replay.simulate import Segments, Simulator, logged
 
 Z_STEP = 1e-3  # finite-difference step in normalised units
+# where the output moves in jumps (an effect with its own `fd_step`), finer tolerances only buy
+# evaluations that wander between the jumps: the finest tolerance and the most evaluations asked for
+ROUGH_TOL, ROUGH_NFEV = 1e-3, 8
 VIF_WARN = 100.0  # variance inflation above which a parameter is reported ill-conditioned
 
 
@@ -119,7 +122,8 @@ class FitResult:
 def _jacobian(obj: Objective, x: np.ndarray, f0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     span = hi - lo
     z = (x - lo) / span
-    steps = np.where(z + Z_STEP <= 1.0, Z_STEP, -Z_STEP)
+    h = obj.layout.fd_steps(Z_STEP)
+    steps = np.where(z + h <= 1.0, h, -h)
     xs = np.repeat(x[None], len(x), axis=0)
     xs[np.arange(len(x)), np.arange(len(x))] += steps * span
     fs = obj.residuals(xs)
@@ -157,38 +161,69 @@ def covariance(jz: np.ndarray, r: np.ndarray, tau: float, span: np.ndarray, labe
     return cov, sd, warnings
 
 
-def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6) -> FitResult:
+def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6, broyden: bool = False) \
+        -> FitResult:
     """Bounded least squares of the objective from x0; intervals and warnings at the optimum.
 
-    `tol` is the relative cost and step tolerance; a coarse one is enough to judge a candidate.
+    `tol` is the relative cost and step tolerance; a coarse one is enough to judge a candidate, and
+    where the output moves in jumps (contact events) no finer one than ROUGH_TOL is asked for, in at
+    most ROUGH_NFEV evaluations.
+    With `broyden`, the Jacobian is a finite-difference one at the start and rank-one (Broyden)
+    updates after each step (one simulation per step instead of one per parameter), where the output
+    is smooth and near-linear in the parameters (`Layout.smooth`); the one at the optimum, for the
+    intervals, is a finite-difference one either way.
     """
     lo, hi = obj.layout.bounds
     span = hi - lo
     labels = obj.layout.labels
     x0 = np.clip(np.asarray(x0, float), lo, hi)
-    cache: dict[bytes, np.ndarray] = {}
+    z0 = (x0 - lo) / span
+    broyden = broyden and obj.layout.smooth
+    if any(c.effect.fd_step is not None for c in obj.layout.active):
+        tol, max_nfev = max(tol, ROUGH_TOL), min(max_nfev, ROUGH_NFEV)
+    grids: dict[bytes, np.ndarray] = {}  # the last residual grid and Jacobian, by normalised vector:
+    jacs: dict[bytes, np.ndarray] = {}  # the optimum's are reused for the intervals
+    last: list = []  # Broyden: the previous (z, f, J)
+
+    def grid_at(z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in grids:
+            grids.clear()
+            grids[key] = obj.residual_grid((lo + z * span)[None])[0]
+        return grids[key]
 
     def fun(z: np.ndarray) -> np.ndarray:
-        key = z.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = obj.residuals((lo + z * span)[None])[0]
-        return cache[key]
+        return grid_at(z)[obj.mask]
 
-    def jac(z: np.ndarray) -> np.ndarray:
-        return _jacobian(obj, lo + z * span, fun(z), lo, hi)
+    def broyden_jac(z: np.ndarray) -> np.ndarray:
+        f = fun(z)
+        if last:
+            zp, fp, jp = last
+            dz = z - zp
+            j = jp + np.outer(f - fp - jp @ dz, dz) / max(float(dz @ dz), 1e-300)
+        else:
+            j = _jacobian(obj, lo + z * span, f, lo, hi)
+        last[:] = [z.copy(), f, j]
+        return j
+
+    def exact_jac(z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in jacs:
+            jacs.clear()
+            jacs[key] = _jacobian(obj, lo + z * span, fun(z), lo, hi)
+        return jacs[key]
 
     if len(x0):
-        res = least_squares(fun, (x0 - lo) / span, jac=jac, bounds=(0.0, 1.0), method="trf",
+        res = least_squares(fun, z0, jac=broyden_jac if broyden else exact_jac, bounds=(0.0, 1.0), method="trf",
                             x_scale=1.0, ftol=tol, xtol=tol, gtol=1e-8, max_nfev=max_nfev)
         z, nfev, success = res.x, res.nfev, bool(res.success)
     else:
         z, nfev, success = np.zeros(0), 0, True
     x = lo + z * span
-    grid = obj.residual_grid(x[None])[0]
+    grid = grid_at(z)
     r = grid[obj.mask]
     tau = autocorrelation_time(grid)
-    jz = _jacobian(obj, x, r, lo, hi) if len(x) else np.zeros((len(r), 0))
+    jz = exact_jac(z) if len(x) else np.zeros((len(r), 0))
     cov, sd, warnings = covariance(jz, r, tau, span, labels)
     return FitResult(x=x, labels=labels, ssr=float(r @ r), n=len(r), tau=tau, sd=sd, cov=cov,
                      nfev=nfev, success=success, warnings=warnings)

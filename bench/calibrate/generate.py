@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, stribeck_force
 from bench.calibrate.model import Edits
+from bench.calibrate.play import build
 from bench.errors import ConfigError, did_you_mean
 
 MODELS = Path(__file__).resolve().parent / "models"
@@ -29,6 +30,28 @@ KP = np.array([60.0, 40.0, 15.0])
 KD = np.array([6.0, 4.0, 1.5])
 INPUT_COLUMN = "observation.extra"
 
+# a drive with play is a geared one: its reflected rotor inertia (armature, kg·m²) on the driven joint,
+# in the plant and in the declared model (with arm3's 0.01 the PD loop, closed on the motor alone
+# while it crosses the gap, would be unstable at 100 Hz)
+GEARED = {"backlash_link": 0.1, "backlash_motor": 0.1}
+
+# forces no family of the library describes (what the learned residual is for): name -> (joint, doc)
+DISTURBANCES = {
+    "cogging": ("j2", "cogging torque 0.8 sin(6 q) N·m of a motor with 6 pole pairs per radian on j2"),
+}
+
+
+def _disturbance(name: str | None, model: mujoco.MjModel) -> np.ndarray | None:
+    """(dof, amplitude, spatial frequency) of a disturbance, or None."""
+    if name is None:
+        return None
+    if name not in DISTURBANCES:
+        raise ConfigError(f"unknown disturbance {name!r}; valid: {', '.join(DISTURBANCES)}."
+                          f"{did_you_mean(name, DISTURBANCES)}")
+    dof = int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, DISTURBANCES[name][0])])
+    return np.array([dof, 0.8, 6.0])
+
+
 # hidden effect -> (target name, true physical parameters)
 DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
     "coulomb_friction": ("j2", {"friction": 0.6}),
@@ -38,9 +61,11 @@ DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
     "armature": ("j2", {"armature": 0.15}),
     "actuator_delay": ("m2", {"delay": 0.015}),  # 20 ms and more make this PD loop unstable
     "torque_saturation": ("m2", {"limit": 5.0}),
-    "backlash": ("m2", {"deadband": 0.6}),
+    "deadband": ("m2", {"deadband": 0.6}),
+    "backlash_link": ("m2", {"play": 0.05}),
+    "backlash_motor": ("m2", {"play": 0.05}),
     "payload_mass": ("link3", {"mass": 0.6}),
-    "joint_spring": ("j2", {"stiffness": 4.0}),
+    "joint_spring": ("j2", {"stiffness": 4.0, "reference": 0.4}),
     "actuator_gain": ("m2", {"gain_error": -0.25}),
     "bias": ("j2", {"force": 0.8}),
     "input_channel": ("j2", {"gain": 1.5}),
@@ -85,23 +110,29 @@ class Truth:
     target: str | None
     joint: str | None
     params: dict[str, float]
+    disturbance: str | None = None  # a force outside the effect library (`DISTURBANCES`)
 
     def to_json(self) -> dict:
-        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params}
+        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params,
+                **({"disturbance": self.disturbance} if self.disturbance else {})}
 
 
 def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0, fps: float = 100.0,
                  substeps: int = 5, seed: int = 0, target: str | None = None,
-                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2)) \
-        -> tuple[list[dict[str, np.ndarray]], Truth]:
-    """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays."""
+                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2),
+                 disturbance: str | None = None) -> tuple[list[dict[str, np.ndarray]], Truth]:
+    """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays.
+
+    `disturbance` adds a force outside the effect library (`DISTURBANCES`) on top.
+    """
     if effect is not None and effect not in EFFECTS:
         raise ConfigError(f"unknown effect {effect!r}; valid: none, {', '.join(EFFECTS)}."
                           f"{did_you_mean(effect, EFFECTS)}")
     rng = np.random.default_rng(seed)
-    true = mujoco.MjModel.from_xml_path(str(ARM))
+    xml = arm_xml(effect, target)
+    true = mujoco.MjModel.from_xml_string(xml)
     true.opt.timestep = 1.0 / (fps * substeps)
-    declared = mujoco.MjModel.from_xml_path(str(ARM))  # the controller's model (gravity is what it needs)
+    declared = mujoco.MjModel.from_xml_string(xml)  # the controller's model (gravity is what it needs)
     b = Edits(true, 1)
     truth = Truth(None, None, None, {})
     if effect is not None:
@@ -113,30 +144,44 @@ def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0
         if effect == "input_channel":
             tgt = Target(tgt.kind, tgt.name, tgt.index, tgt.dof, tgt.joint, 0, f"{INPUT_COLUMN}[0]")
         gain = float(true.actuator_gear[tgt.index, 0]) if eff.kind == "actuator" else 1.0
-        if effect == "torque_saturation":
+        if eff.play_side is not None:  # the plant rebuilt with a rotor behind the play
+            pm = build(xml, ((tgt.index, eff.play_side),), true)
+            b = Edits(pm.model, 1, pm)
+            b.set_play(tgt.index, p["play"], 0.0)
+        elif effect == "torque_saturation":
             b.ctrl_op("saturation", tgt.index, p["limit"] / gain)
-        elif effect == "backlash":
+        elif effect == "deadband":
             b.ctrl_op("deadband", tgt.index, p["deadband"] / gain)
+        elif effect == "joint_spring":  # the preload that puts the rest position at `reference`
+            k = p["stiffness"]
+            eff.apply(b, tgt, np.array([k, k * (p["reference"] - true.qpos_spring[tgt.dof])]), None)  # type: ignore[arg-type]
         else:
             eff.apply(b, tgt, np.array([p[k] for k in eff.params], dtype=float), None)  # type: ignore[arg-type]
         truth = Truth(effect, tgt.label, tgt.joint or None, p)
     b.finish_model()
+    dist = _disturbance(disturbance, true)
+    truth = replace(truth, disturbance=disturbance)
     t = np.arange(int(round(duration * fps))) / fps
     out = []
     for _ in range(episodes):
-        out.append(_episode(true, declared, b, t, fps, substeps, rng, noise))
+        out.append(_episode(b.model, declared, b, t, fps, substeps, rng, noise, dist))
     return out, truth
 
 
 def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.ndarray, fps: float,
-             substeps: int, rng: np.random.Generator, noise: tuple[float, float]) -> dict[str, np.ndarray]:
-    nT, nu, nv = len(t), true.nu, true.nv
+             substeps: int, rng: np.random.Generator, noise: tuple[float, float],
+             dist: np.ndarray | None) -> dict[str, np.ndarray]:
+    nT, nu, nv = len(t), declared.nu, declared.nv
     amps = (0.6, 0.8, 1.0)
     ref = np.empty((nT, nv))
     dref = np.empty((nT, nv))
     for j in range(nv):
         ref[:, j], dref[:, j] = _multisine(rng, t, amps[j])
     extra, _ = _multisine(rng, t, 1.0, n=3)  # a measured external load (cable, hose) in arbitrary units
+    gain = np.zeros(true.nv) if b.input_gain is None else b.input_gain[0]  # the extra load's gain per dof
+    coords = b.coordinates(nv, 0)  # the logged coordinates (a rebuilt plant with play has more)
+    qadr = np.arange(nv) if coords is None else coords.qpos_adr
+    vadr = np.arange(nv) if coords is None else coords.dof_adr
     d = mujoco.MjData(true)
     dc = mujoco.MjData(declared)
     delay = {a: v * fps * substeps for k, a, v in b.ops if k == "delay"}
@@ -144,8 +189,8 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
     obs = np.empty((nT, 2 * nv), dtype=np.float32)
     act = np.empty((nT, nu), dtype=np.float32)
     for k in range(nT):
-        q = d.qpos + rng.normal(0, noise[0], nv)
-        v = d.qvel + rng.normal(0, noise[1], nv)
+        q = d.qpos[qadr] + rng.normal(0, noise[0], nv)
+        v = d.qvel[vadr] + rng.normal(0, noise[1], nv)
         dc.qpos[:] = q
         dc.qvel[:] = 0.0
         mujoco.mj_forward(declared, dc)
@@ -169,16 +214,29 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
                 elif kind == "saturation":
                     applied[a] = saturate(applied[a], value)
             d.ctrl[:] = applied
-            d.qfrc_applied[:] = b.qfrc + b.input_gain[0] * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
+            d.qfrc_applied[:] = b.qfrc + gain * extra[k] + stribeck_force(d.qvel, b.fs, b.vs)
+            if dist is not None:
+                dof = int(dist[0])
+                d.qfrc_applied[dof] += dist[1] * np.sin(dist[2] * d.qpos[dof])
             mujoco.mj_step(true, d)
     extra_meas = (extra + rng.normal(0, 0.01, nT)).astype(np.float32)[:, None]
     return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas,
             "timestamp": t.astype(np.float32)}
 
 
-def declared_xml(damping: float = DECLARED_DAMPING) -> str:
-    """The declared model: arm3.xml with every joint's damping set to the declared guess."""
+def arm_xml(effect: str | None, target: str | None = None) -> str:
+    """arm3.xml as the plant of a case is built (geared drive where the hidden effect is play)."""
     text = ARM.read_text()
+    if effect in GEARED:
+        act = target or DEFAULTS[effect][0]
+        joint = re.search(rf'<motor name="{act}" joint="(\w+)"', text).group(1)  # type: ignore[union-attr]
+        text = re.sub(rf'(<joint name="{joint}"[^/]*)/>', rf'\1 armature="{GEARED[effect]}"/>', text)
+    return text
+
+
+def declared_xml(damping: float = DECLARED_DAMPING, text: str | None = None) -> str:
+    """The declared model: arm3.xml (or `text`) with every joint's damping set to the declared guess."""
+    text = ARM.read_text() if text is None else text
     return re.sub(r'(<joint name="j\d")( damping="[0-9.]+")', rf'\1 damping="{damping}"', text)
 
 
@@ -209,10 +267,10 @@ def declared_files(out: str | Path, effect: str | None, target: str | None = Non
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    xml = declared_xml()
+    xml = declared_xml(text=arm_xml(effect, target))
     if effect == "viscous_damping":  # the damping that is not declared free keeps its true value
         joint = target or DEFAULTS[effect][0]
-        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)
+        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)  # type: ignore[union-attr]
         xml = re.sub(rf'(<joint name="{joint}") damping="[0-9.]+"', rf'\1 damping="{true}"', xml)
     (out / "arm3_declared.xml").write_text(xml)
     path = out / "spec.yaml"

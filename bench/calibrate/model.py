@@ -1,22 +1,24 @@
 """The simulated plant: an `MjModel` plus the recipe that turns a parameter vector into a simulation variant.
 
-A *variant* is what one rollout needs: a model copy with the declared parameters and model-field
-effects written in, the command actually applied at every substep (after delay / deadband /
-saturation), the applied generalised forces, and the Stribeck terms (the only state-dependent part).
+A variant (`bench.replay.simulate.Variant`) is what one rollout needs; here it is built from a
+parameter vector: a model copy with the declared parameters and model-field effects written in, the
+command actually applied at every substep (after delay / deadband / saturation), the applied
+generalised forces, and the Stribeck force (the only state-dependent part) as the variant's force hook.
 """
 from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from bench.calibrate.data import Recording
-from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate
+from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate, stribeck_force
+from bench.calibrate.play import Play, PlayModel, build, coordinates, set_play
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
 from bench.errors import SpecError, did_you_mean
+from bench.replay.data import Recording
+from bench.replay.simulate import Coordinates, Simulator, StateForce, Variant, hold, prepare_model
 
 # field prefix -> (MuJoCo object type, words for messages, model count attribute)
 _PREFIX = {
@@ -29,14 +31,7 @@ _PREFIX = {
 }
 # edits of these need mj_setConst, or MuJoCo keeps using the constants derived at compile time
 _SETCONST_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
-
-
-def load_model(path: Path) -> mujoco.MjModel:
-    """Compile an MJCF file; compile errors become a one-line SpecError."""
-    try:
-        return mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as exc:
-        raise SpecError(f"spec field 'model': cannot compile {str(path)!r}: {str(exc).splitlines()[0]}") from None
+PLAY_WARMUP = 0.1  # seconds simulated before each segment to find the unlogged side of a play
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
@@ -45,7 +40,8 @@ def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
 
 @dataclass(frozen=True)
 class Slot:
-    """One declared free value: `model.<field>[row, col]`."""
+    """One declared free value: `model.<field>[row, col]`, or with `scaled` a factor on the nominal
+    value of each (row, nominal) it lists."""
 
     label: str
     field: str
@@ -54,6 +50,11 @@ class Slot:
     bounds: tuple[float, float]
     nominal: float
     init: float
+    scaled: tuple[tuple[int, float], ...] = ()
+
+    @property
+    def rows(self) -> list[int]:
+        return [r for r, _ in self.scaled] if self.scaled else [self.row]
 
 
 def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_name: str) -> list[Slot]:
@@ -77,6 +78,8 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
         col = p.column if arr.ndim == 2 else None
         valid = _names(model, obj, {"joint": model.njnt, "body": model.nbody, "actuator": model.nu,
                                     "geom": model.ngeom, "tendon": model.ntendon}[word])
+        lo, hi = p.bounds
+        scaled = []
         for name in p.elements:
             idx = mujoco.mj_name2id(model, obj, name)
             if idx < 0:
@@ -84,12 +87,20 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
                                 f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}")
             row = int(model.jnt_dofadr[idx]) if prefix == "dof_" else idx
             nominal = float(arr[row] if col is None else arr[row, col])
-            lo, hi = p.bounds
+            if p.scale:
+                scaled.append((row, nominal))
+                continue
             init = p.init if p.init is not None else min(max(nominal, lo), hi)
             if not lo <= init <= hi:
                 raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}]")
             label = p.name if len(p.elements) == 1 and p.name != p.field else f"{p.name}[{name}]"
             slots.append(Slot(label, p.field, row, col, (lo, hi), nominal, float(init)))
+        if p.scale:  # one factor, 1 = the model as given
+            init = 1.0 if p.init is None else p.init
+            if not lo <= init <= hi:
+                raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}] "
+                                "(a scale: 1 is the model as given)")
+            slots.append(Slot(p.name, p.field, scaled[0][0], col, (lo, hi), 1.0, float(init), tuple(scaled)))
     return slots
 
 
@@ -109,22 +120,18 @@ class Candidate:
         return self.effect.start(self.bounds)
 
 
-@dataclass
-class Variant:
-    """Everything one rollout needs for one parameter vector."""
-
-    model: mujoco.MjModel
-    ctrl: np.ndarray  # (N*S, nu) applied command per substep, all episodes concatenated
-    qfrc_const: np.ndarray  # (nv,)
-    input_gain: np.ndarray | None  # (m, nv): qfrc += inputs @ input_gain
-    stribeck: tuple[np.ndarray, np.ndarray] | None  # (fs, vs) per dof
+def _stribeck(fs: np.ndarray, vs: np.ndarray) -> StateForce:
+    """The Stribeck excess of every dof as a force hook of the stepped rollout."""
+    return lambda qpos, qvel, ctrl: stribeck_force(qvel, fs, vs)
 
 
 class Edits:
     """What the effects of one parameter vector change (implements `effects.Builder`)."""
 
-    def __init__(self, model: mujoco.MjModel, n_inputs: int) -> None:
+    def __init__(self, model: mujoco.MjModel, n_inputs: int, play: PlayModel | None = None) -> None:
         self.model = model
+        self.play = play
+        self.plays: list[tuple[Play, float]] = []
         self.qfrc = np.zeros(model.nv)
         self.input_gain = np.zeros((n_inputs, model.nv)) if n_inputs else None
         self.fs = np.zeros(model.nv)
@@ -136,6 +143,7 @@ class Edits:
         self.qfrc[dof] += value
 
     def add_input(self, col: int, dof: int, gain: float) -> None:
+        assert self.input_gain is not None, "input_channel needs logged inputs"
         self.input_gain[col, dof] += gain
 
     def add_stribeck(self, dof: int, fs: float, vs: float) -> None:
@@ -148,6 +156,18 @@ class Edits:
     def mark_setconst(self) -> None:
         self.setconst = True
 
+    def set_play(self, act: int, width: float, inertia: float) -> None:
+        if width <= 0 or self.play is None:  # no play: the declared drive, exactly
+            return
+        p = self.play.play(act)
+        set_play(self.model, p, width, inertia)
+        self.plays.append((p, width))
+        self.setconst = True
+
+    def coordinates(self, nq: int, warmup: int) -> Coordinates | None:
+        """Where the logged coordinates are in a model rebuilt with play (None: the model's own)."""
+        return coordinates(self.model, self.plays, nq, warmup) if self.plays else None
+
     def finish_model(self) -> mujoco.MjModel:
         """The edited model, with derived constants recomputed where mass edits need it."""
         if self.setconst:
@@ -155,36 +175,63 @@ class Edits:
         return self.model
 
 
+@dataclass(frozen=True)
+class Scene:
+    """A model whose logged coordinates are some of its own: a suite's robot in its scene.
+
+    The logged joints must be the model's leading dofs (robosuite puts the arm first); the rest of
+    each segment's initial state (gripper, objects) comes from the full logged state (`coords.init`).
+    """
+
+    coords: Coordinates          # the logged coordinates in the model
+    ctrl: np.ndarray             # (N * substeps, nu) logged command of every physics step
+    substeps: int
+    joints: tuple[int, ...]      # the calibrated joints: effects attach to them, their actuators and bodies
+
+
 class Plant:
     """Nominal model, log-derived scales and the declared parameter slots for one calibration."""
 
-    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording) -> None:
+    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording, scene: Scene | None = None) \
+            -> None:
         self.spec = spec
         self.rec = rec
-        if np.any((model.jnt_type == mujoco.mjtJoint.mjJNT_FREE) | (model.jnt_type == mujoco.mjtJoint.mjJNT_BALL)):
-            raise SpecError("spec field 'model': free and ball joints are not supported; use hinge and slide joints")
-        if model.na:
-            raise SpecError("spec field 'model': actuators with activation state are not supported")
-        self.substeps = spec.substeps or max(1, int(round(1.0 / (rec.fps * model.opt.timestep))))
-        self.model = copy.copy(model)
-        self.model.opt.timestep = 1.0 / (rec.fps * self.substeps)  # exactly one log frame per `substeps`
+        self.scene = scene
+        if scene is None:
+            self.model, self.substeps = prepare_model(model, rec.fps, spec.substeps)
+        else:  # joints outside the logged ones may be free (objects): they start from the logged state
+            self.model, self.substeps = copy.copy(model), scene.substeps
+            self.model.opt.timestep = 1.0 / (rec.fps * self.substeps)
         self.slots = resolve_params(spec.params, self.model, spec.model.name)
         for slot, value in zip(self.slots, self.declared_nominal()):  # the nominal model, within bounds
             self._write(self.model, slot, value)
         mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
-        self.base_ctrl = np.repeat(rec.ctrl, self.substeps, axis=0)  # zero-order hold per frame
-        self.base_inputs = None if rec.inputs is None else np.repeat(rec.inputs, self.substeps, axis=0)
+        self.base_ctrl = hold(rec.ctrl, self.substeps) if scene is None else scene.ctrl
+        self.joint_names = [self.model.joint(int(j)).name for j in
+                            (range(self.model.njnt) if scene is None else scene.joints)]
         self.scales = self._scales()
-        self.nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._plays: dict[tuple[tuple[int, str], ...], PlayModel] = {}
+
+    def play_model(self, plays: tuple[tuple[int, str], ...]) -> PlayModel:
+        """The model rebuilt with play on these (actuator, measured side) pairs (built once each)."""
+        if plays not in self._plays:
+            self._plays[plays] = build(self.spec.model, plays, self.model)
+        return self._plays[plays]
+
+    def simulator(self, threads: int = 1) -> Simulator:
+        """A batched simulator of this plant's variants over its recording."""
+        return Simulator(self.model, self.rec, self.substeps, threads)
 
     # --- parameters ------------------------------------------------------------------------
     @staticmethod
     def _write(model: mujoco.MjModel, slot: Slot, value: float) -> None:
         arr = getattr(model, slot.field)
-        if slot.col is None:
-            arr[slot.row] = value
-        else:
-            arr[slot.row, slot.col] = value
+        for row, nominal in slot.scaled or ((slot.row, 1.0),):
+            v = nominal * value if slot.scaled else value
+            if slot.col is None:
+                arr[row] = v
+            else:
+                arr[row, slot.col] = v
 
     def declared_nominal(self) -> np.ndarray:
         """Declared values of the model as given (clipped into the bounds)."""
@@ -195,7 +242,11 @@ class Plant:
 
     def realise(self, declared: np.ndarray, effects: list[tuple[Candidate, np.ndarray]]) -> Variant:
         """Model copy + applied signals for declared values and active effects with their parameters."""
-        b = Edits(copy.copy(self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1])
+        plays = tuple(sorted((c.target.index, str(c.effect.play_side)) for c, x in effects
+                             if c.effect.play_side and x[0] > 0))
+        pm = self.play_model(plays) if plays else None
+        b = Edits(copy.copy(pm.model if pm else self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1],
+                  pm)
         for slot, value in zip(self.slots, declared):
             self._write(b.model, slot, float(value))
             if slot.field in _SETCONST_FIELDS:
@@ -203,8 +254,13 @@ class Plant:
         for cand, x in effects:
             cand.effect.apply(b, cand.target, np.asarray(x, dtype=float), self.scales)
         gain = b.input_gain if b.input_gain is not None and np.any(b.input_gain) else None
+        coords = b.coordinates(self.model.nq, max(1, round(PLAY_WARMUP * self.rec.fps)))
+        if self.scene is not None:
+            if coords is not None:
+                raise ValueError("backlash (a rebuilt model) is not supported in a suite's scene")
+            coords = self.scene.coords
         return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
-                       (b.fs, b.vs) if np.any(b.fs != 0) else None)
+                       _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None, coords)
 
     # --- the applied command -----------------------------------------------------------------
     def applied_ctrl(self, ops: list[tuple[str, int, float]]) -> np.ndarray:
@@ -257,7 +313,8 @@ class Plant:
         else:
             force[:] = 1.0
         d = mujoco.MjData(m)
-        d.qpos[:] = rec.qpos[train].mean(axis=0)
+        qadr = np.arange(m.nq) if self.scene is None else self.scene.coords.qpos_adr
+        d.qpos[qadr] = rec.qpos[train].mean(axis=0)
         mujoco.mj_forward(m, d)
         mass_matrix = np.zeros((m.nv, m.nv))
         mujoco.mj_fullM(m, mass_matrix, d.qM)
@@ -273,30 +330,33 @@ class Plant:
             input_max=np.abs(rec.inputs).max(axis=0) if rec.inputs is not None else np.zeros(0),
             mass=float(m.body_mass[1:].sum()),
             dt=1.0 / rec.fps,
+            spring_ref=m.qpos_spring[m.jnt_qposadr[m.dof_jntid]].copy(),
         )
 
     def targets(self, kind: str) -> list[Target]:
         """Every place an effect of this kind can attach in the model."""
         m = self.model
         jname = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt)
+        scope = set(range(m.njnt)) if self.scene is None else set(self.scene.joints)
         if kind == "joint":
-            return [Target("joint", jname[j], j, int(m.jnt_dofadr[j]), jname[j]) for j in range(m.njnt)]
+            return [Target("joint", jname[j], j, int(m.jnt_dofadr[j]), jname[j]) for j in range(m.njnt) if j in scope]
         if kind == "actuator":
             out = []
             for a, name in enumerate(_names(m, mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu)):
-                if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and int(m.actuator_trnid[a, 0]) in scope:
                     j = int(m.actuator_trnid[a, 0])
                     out.append(Target("actuator", name, a, int(m.jnt_dofadr[j]), jname[j]))
             return out
-        if kind == "body":  # bodies that move (not welded to the world)
+        if kind == "body":  # bodies that move (not welded to the world); in a scene, those of its joints
             names = _names(m, mujoco.mjtObj.mjOBJ_BODY, m.nbody)
-            return [Target("body", names[b], b) for b in range(1, m.nbody) if m.body_weldid[b] != 0]
+            bodies = range(1, m.nbody) if self.scene is None else sorted({int(m.jnt_bodyid[j]) for j in scope})
+            return [Target("body", names[b], b) for b in bodies if m.body_weldid[b] != 0]
         raise ValueError(kind)
 
     def candidates(self, requests: tuple[EffectRequest, ...] | None) -> tuple[list[Candidate], list[str]]:
         """All (effect, target) pairs to trace, and notes on families that cannot apply here."""
         reqs = requests if requests is not None else tuple(EffectRequest(n) for n in EFFECTS)
-        declared = {(s.field, s.row) for s in self.slots}
+        declared = {(s.field, r) for s in self.slots for r in s.rows}
         out, notes = [], []
         for i, req in enumerate(reqs):
             eff = EFFECTS[req.name]
@@ -341,6 +401,18 @@ class Layout:
         b = [s.bounds for s in self.plant.slots] + [bd for c in self.active for bd in c.bounds]
         arr = np.array(b, dtype=float).reshape(-1, 2)
         return arr[:, 0], arr[:, 1]
+
+    @property
+    def smooth(self) -> bool:
+        """Whether the output moves smoothly and near-linearly with every parameter: no effect with shape
+        parameters (Stribeck velocity) or with output jumps (contact events: a coarse difference step)."""
+        return all(c.effect.fd_step is None and not c.effect.shape for c in self.active)
+
+    def fd_steps(self, default: float) -> np.ndarray:
+        """Finite-difference step of each parameter in normalised units: `default`, or the coarser one an
+        effect whose output moves in jumps asks for (then for every parameter: the jumps move them all)."""
+        coarse = [c.effect.fd_step for c in self.active if c.effect.fd_step is not None]
+        return np.full(len(self.plant.slots) + sum(len(c.effect.params) for c in self.active), max([default, *coarse]))
 
     def split(self, x: np.ndarray) -> tuple[np.ndarray, list[tuple[Candidate, np.ndarray]]]:
         n = len(self.plant.slots)

@@ -4,7 +4,6 @@ The JSON has no NaN or infinity anywhere: a value that cannot be computed is nul
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -18,22 +17,10 @@ ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse
 
 
 def clean(value: Any) -> Any:
-    """JSON-safe copy: numpy scalars and arrays to Python, NaN / inf to None."""
-    if isinstance(value, dict):
-        return {str(k): clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [clean(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return clean(value.tolist())
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(float(value)) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    return value
+    """JSON-safe copy (NaN / inf to None): `bench.io.json_safe`, the one owner of that rule."""
+    from bench.io import json_safe
+
+    return json_safe(value)
 
 
 def _versions() -> dict[str, str]:
@@ -79,7 +66,8 @@ def to_json(cal: Calibration) -> dict:
         },
         "fit": {"declared": {"ssr": decl.ssr, "n": decl.n, "tau": decl.tau, "evaluations": decl.nfev},
                 "final": {"ssr": final.ssr, "n": final.n, "tau": final.tau, "evaluations": final.nfev,
-                          "parameters": final.labels}},
+                          "parameters": final.labels, "x": final.x}},
+        "learned_residual": cal.learned,
         "warnings": cal.warnings,
         "notes": cal.notes,
         "wall_seconds": cal.wall.get("total"),
@@ -97,7 +85,7 @@ def plots(cal: Calibration, out: Path) -> dict[str, str]:
     import matplotlib.pyplot as plt
 
     rec, fps = cal.rec, cal.rec.fps
-    names = [cal.plant.model.joint(i).name for i in range(cal.plant.model.njnt)]
+    names = cal.plant.joint_names
     files = {}
     nq = rec.qpos.shape[1]
 
@@ -216,6 +204,8 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         lines.append(f"| {e['name']} | {e['target']} | {_fmt(e.get('score'))} | {e.get('reason', '')} |")
     if len(doc["effects_rejected"]) > 15:
         lines.append(f"| … | | | {len(doc['effects_rejected']) - 15} more in calibration.json |")
+    lines += _learned(doc.get("learned_residual"))
+    lines += _apply(doc.get("suite"), doc.get("apply"))
     if doc["warnings"]:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in doc["warnings"]]
     lines += ["", "## Plots", ""]
@@ -227,11 +217,43 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(cal: Calibration, out: str | Path) -> Path:
-    """Write calibration.json, report.md and the plots into `out`; returns the JSON path."""
+def _apply(suite: dict | None, apply: dict | None) -> list[str]:
+    """A suite calibration's model edits and how to run with them."""
+    if not suite or not apply:
+        return []
+    lines = ["", f"## Applying it: `bench run suite={suite['name']} ... calibration=FILE`", "",
+             f"Suite {suite['name']} version {suite['version']}, robot {apply['robot']} (model fingerprint "
+             f"{apply['model_hash'][:12]}); the cells of that robot run with these values:", "",
+             "| field | element | nominal | calibrated |", "|---|---|---|---|"]
+    lines += [f"| {e['field']} | {e['element']} | {_fmt(e['nominal'])} | {_fmt(e['value'])} |" for e in apply["edits"]]
+    if not apply["edits"]:
+        lines.append("| – | – | – | nothing changes |")
+    return lines
+
+
+def _learned(res: dict | None) -> list[str]:
+    """The learned residual's section: held-out errors of the physics with and without it."""
+    if not res:
+        return []
+    h = res["heldout"]
+    lines = ["", "## Learned residual (not part of the physical model)", "",
+             f"{res['model']}; target: {res['target']}. {res['samples']} training samples, ridge strength "
+             f"{_fmt(res['lambda'])} (cross-validated R² {_fmt(res['cv_r2'])}), seed {res['seed']}.", "",
+             "| held-out | one-step NRMSE | k-step NRMSE | free-run NRMSE |", "|---|---|---|---|"]
+    for key, label in (("physics", "physics (final)"), ("physics_plus_residual", "physics + learned residual")):
+        cells = [_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run")]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines += ["", f"The residual {res['verdict']}. The effects above and their errors are the physics alone; the "
+              "residual says how much the library leaves unexplained, not which effect it is."]
+    return lines
+
+
+def write_report(cal: Calibration, out: str | Path, extra: dict | None = None) -> Path:
+    """Write calibration.json (with `extra` sections, e.g. a suite calibration's `suite` and `apply`),
+    report.md and the plots into `out`; returns the JSON path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = to_json(cal)
+    doc = {**to_json(cal), **clean(extra or {})}
     files = plots(cal, out)
     path = out / "calibration.json"
     write_atomic(path, doc)

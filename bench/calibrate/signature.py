@@ -8,7 +8,7 @@ of a round run in one batched rollout.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -19,6 +19,36 @@ from bench.calibrate.model import Candidate, Layout
 
 CUR_STEP = 1e-2  # step for the current parameters' sensitivities (normalised units)
 SHAPE_GRID = (0.05, 0.15, 0.4)  # shares of a shape parameter's range tried before a refit
+SCAN_STARTS = 3  # best scanned amplitudes (`Effect.scan`) checked on held-out data before a refit
+class Linearisation:
+    """The residual of the current model on a set of segments and its sensitivities to the current
+    parameters: what a change of the simulated output leaves after re-tuning them (linearised)."""
+
+    def __init__(self, obj: Objective, base: np.ndarray, cur_steps: np.ndarray, moved: np.ndarray,
+                 dlo: np.ndarray, dhi: np.ndarray) -> None:
+        self.obj, self.base, self.dlo, self.dhi = obj, base, dlo, dhi
+        self.r = ((base - obj.target) * obj.weight)[obj.mask]  # sim - log
+        cols = [self.change(m) / h for m, h in zip(moved, cur_steps)]
+        self.jcur = np.stack(cols, axis=1) if cols else np.zeros((len(self.r), 0))
+
+    def change(self, pred: np.ndarray) -> np.ndarray:
+        """Weighted change of the simulated channels (n, length, C) from the current model's."""
+        return ((pred - self.base) * self.obj.weight)[self.obj.mask]
+
+    def best(self, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray, res: np.ndarray | None = None) \
+            -> tuple[float, np.ndarray]:
+        """Least SSR of res + cols @ u over the bounded u, and u."""
+        res = self.r if res is None else res
+        if cols.shape[1] == 0 or not np.any(cols):
+            return float(res @ res), np.zeros(cols.shape[1])
+        sol = lsq_linear(cols, -res, bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)), method="bvls").x
+        return float(np.sum((res + cols @ sol) ** 2)), sol
+
+    def retune(self, change: np.ndarray) -> tuple[float, np.ndarray]:
+        """SSR left after a change of the output, with the current parameters re-tuned; their change."""
+        return self.best(self.jcur, self.dlo, self.dhi, self.r + change)
+
+
 @dataclass
 class Score:
     """How much of the held-out residual one candidate's signature explains."""
@@ -29,6 +59,10 @@ class Score:
     predicted: float  # information-criterion change this predicts (negative = better)
     step: np.ndarray  # best change of the candidate's amplitude parameters along its signature
     delta: np.ndarray  # the accompanying change of the current parameters
+    # threshold effects: the simulated signature points (amplitude change, current parameters re-tuned
+    # to the exact change they make), where a secant says little
+    points: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    lin: Linearisation | None = None  # the round's linearisation (to re-tune the current parameters)
 
     def to_json(self) -> dict:
         return {"name": self.cand.effect.name, "target": self.cand.target.label, "score": round(self.score, 6),
@@ -40,7 +74,8 @@ def relation(cand: Candidate, active: list[Candidate]) -> tuple[str, Candidate |
     """'new', 'replace' (generalises an active effect on the same target) or 'skip'.
 
     A family that generalises another (Stribeck or asymmetric over Coulomb friction) is only offered
-    as a replacement of it: the simpler family has to earn its place first.
+    as a replacement of it: the simpler family has to earn its place first; unless it is `standalone`
+    (a spring with its own rest position generalises a bias, and is also a family of its own).
     """
     for a in active:
         if a.target != cand.target:
@@ -49,9 +84,9 @@ def relation(cand: Candidate, active: list[Candidate]) -> tuple[str, Candidate |
             return "skip", a
         if a.effect.name in cand.effect.extends:
             return "replace", a
-        if set(a.effect.fields) & set(cand.effect.fields):
+        if set(a.effect.fields) & set(cand.effect.fields) or (a.effect.group and a.effect.group == cand.effect.group):
             return "skip", a
-    if cand.effect.extends:
+    if cand.effect.extends and not cand.effect.standalone:
         return "skip", None
     return "new", None
 
@@ -108,20 +143,11 @@ def score_candidates(obj: Objective, layout: Layout, x: np.ndarray, cands: list[
             levels.append(steps)
         plan.append((cand, replaces, x0, levels))
     grid = obj.sim.run(variants, obj.segs)[..., obj.channels]
-    base = grid[0]
-    r = ((base - obj.target) * obj.weight)[obj.mask]  # sim - log
+    lin = Linearisation(obj, grid[0], cur_steps, grid[1:1 + len(x)], lo_cur - x, hi_cur - x)
+    r, jcur, dlo, dhi, best = lin.r, lin.jcur, lin.dlo, lin.dhi, lin.best
 
     def column(j: int, h: float) -> np.ndarray:
-        return (((grid[j] - base) * obj.weight)[obj.mask]) / h
-
-    jcur = np.stack([column(1 + i, h) for i, h in enumerate(cur_steps)], axis=1) if len(x) else np.zeros((len(r), 0))
-    dlo, dhi = lo_cur - x, hi_cur - x
-
-    def best(cols: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, np.ndarray]:
-        if cols.shape[1] == 0 or not np.any(cols):
-            return float(r @ r), np.zeros(cols.shape[1])
-        sol = lsq_linear(cols, -r, bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)), method="bvls").x
-        return float(np.sum((r + cols @ sol) ** 2)), sol
+        return lin.change(grid[j]) / h
 
     ssr0, _ = best(jcur, dlo, dhi)
     out, j = [], 1 + len(x)
@@ -130,17 +156,52 @@ def score_candidates(obj: Objective, layout: Layout, x: np.ndarray, cands: list[
         lo = np.array([b[0] for b in cand.bounds[:kn]]) - x0[:kn]
         hi = np.array([b[1] for b in cand.bounds[:kn]]) - x0[:kn]
         ssr, step, delta = ssr0, np.zeros(kn), np.zeros(len(x))
+        points = []
         for steps in levels:  # the amplitude whose secant explains most
             s = np.stack([column(j + i, h) for i, h in enumerate(steps)], axis=1)
             j += len(steps)
             ssr_l, sol = best(np.concatenate([s, jcur], axis=1), np.concatenate([lo, dlo]), np.concatenate([hi, dhi]))
             if ssr_l < ssr:
                 ssr, step, delta = ssr_l, sol[:kn], sol[kn:]
+            if cand.effect.threshold:
+                points.append((steps.copy(), best(jcur, dlo, dhi, r + s @ steps)[1]))
         k_new = len(cand.effect.params) - (len(replaces.effect.params) if replaces else 0)
         predicted = information(ssr, k_new, n_eff, criterion) - information(ssr0, 0, n_eff, criterion)
-        out.append(Score(cand, replaces, 1.0 - ssr / max(ssr0, 1e-300), predicted, step, delta))
+        out.append(Score(cand, replaces, 1.0 - ssr / max(ssr0, 1e-300), predicted, step, delta, points, lin))
     out.sort(key=lambda sc: (sc.predicted, -sc.score))
     return out
+
+
+def scan(obj: Objective, layout: Layout, x: np.ndarray, scores: list[Score]) -> None:
+    """Starting points for effects whose landscape has several basins (`Effect.scan`): their amplitude
+    grid simulated exactly (one batched call), the current parameters re-tuned to each; the best
+    `SCAN_STARTS` become the candidate's points."""
+    todo = [sc for sc in scores if sc.cand.effect.scan and sc.lin is not None]
+    variants, amps = [], []
+    for sc in todo:
+        eff, kn = sc.cand.effect, sc.cand.effect.n_nested
+        x0 = start_vector(sc.cand, sc.replaces, layout, x)
+        new, xfull, off = with_candidate(layout, x, sc.cand, sc.replaces, x0)
+        lo = np.array([b[0] for b in sc.cand.bounds[:kn]])
+        hi = np.array([b[1] for b in sc.cand.bounds[:kn]])
+        for share in eff.scan:
+            amp = np.clip(x0[:kn] + share * np.maximum(np.abs(lo), np.abs(hi)), lo, hi) - x0[:kn]
+            xi = xfull.copy()
+            xi[off:off + kn] += amp
+            variants.append(new.realise(xi))
+            amps.append(amp)
+    if not variants:
+        return
+    grid = obj.sim.run(variants, obj.segs)[..., obj.channels]
+    i = 0
+    for sc in todo:
+        assert sc.lin is not None
+        found = []
+        for _ in sc.cand.effect.scan:
+            ssr, delta = sc.lin.retune(sc.lin.change(grid[i]))
+            found.append((ssr, amps[i], delta))
+            i += 1
+        sc.points = [(a, d) for _, a, d in sorted(found, key=lambda p: p[0])[:SCAN_STARTS]]
 
 
 STEP_FRACTIONS = (1.0, 0.5, 0.25)  # of the signature step, checked on held-out data before a refit
@@ -162,6 +223,8 @@ def trial_starts(sc: Score, layout: Layout, x: np.ndarray) -> list[tuple[Layout,
     overshoots for strongly nonlinear effects) and, for shape parameters, a few values of them."""
     out = []
     eff = sc.cand.effect
+    for step, delta in sc.points:  # threshold effects: the simulated signature points themselves
+        out.append(_trial_start(Score(sc.cand, sc.replaces, sc.score, sc.predicted, step, delta), layout, x, 1.0))
     for fraction in STEP_FRACTIONS:
         new, xs, off = _trial_start(sc, layout, x, fraction)
         if not eff.shape:

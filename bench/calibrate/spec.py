@@ -1,33 +1,24 @@
-"""Calibration spec: the model, the log columns it is compared with, its free parameters, the effects to try.
+"""Calibration spec: a signal map (model, log columns) extended with free parameters and effects to try.
 
-A spec is YAML or JSON (see docs/calibration.md). Parsing checks the spec on its own; the names it
+A spec is YAML or JSON (see docs/calibration.md). Its `model`, `substeps` and `signals` are the
+signal map that replay reads (`bench.replay.spec`); this module adds `params`, `effects`,
+`holdout`, `horizon`, `trace` and `threads`. Parsing checks the spec on its own; the names it
 uses are checked against the model in `bench.calibrate.model` and against the data in
-`bench.calibrate.data`. Every problem is a one-line `SpecError` that names the field.
+`bench.replay.data.extract`. Every problem is a one-line `SpecError` that names the field.
 """
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bench.errors import SpecError, did_you_mean
+from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
-SPEC_KEYS = ("model", "substeps", "signals", "params", "effects", "holdout", "horizon", "trace", "threads")
-SIGNAL_NAMES = ("qpos", "qvel", "ctrl", "inputs")
-SIGNAL_KEYS = ("column", "index")
-PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init")
+SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads")
+PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init", "scale")
 EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
-
-
-@dataclass(frozen=True)
-class SignalSpec:
-    """Where one simulator quantity lives in the log: a column and the indices within it."""
-
-    column: str
-    index: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -40,6 +31,7 @@ class ParamSpec:
     bounds: tuple[float, float]
     column: int | None = None
     init: float | None = None
+    scale: bool = False  # one factor on every element's nominal value instead of one value per element
 
 
 @dataclass(frozen=True)
@@ -64,30 +56,27 @@ class TraceSpec:
 
 
 @dataclass(frozen=True)
-class CalibrationSpec:
-    """A parsed, self-consistent calibration spec (model path resolved against the spec file)."""
+class CalibrationSpec(SignalMap):
+    """A parsed, self-consistent calibration spec: the signal map plus what the calibration fits and tries."""
 
-    model: Path
-    signals: dict[str, SignalSpec]
     params: tuple[ParamSpec, ...] = ()
     effects: tuple[EffectRequest, ...] | None = None  # None = all
-    substeps: int | None = None
     holdout: float = 0.3
     horizon: float = 0.2  # seconds per truncated horizon (the k of k-step errors)
     trace: TraceSpec = field(default_factory=TraceSpec)
     threads: int = 1
-    source: Path | None = None
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form, for embedding the exact spec in a result file."""
+        head = super().to_json()
+        source = head.pop("source")
         return {
-            "model": str(self.model),
-            "substeps": self.substeps,
-            "signals": {k: {"column": s.column, "index": list(s.index)} for k, s in self.signals.items()},
+            **head,
             "params": [
                 {"name": p.name, "field": p.field, "elements": list(p.elements), "bounds": list(p.bounds),
                  **({"column": p.column} if p.column is not None else {}),
-                 **({"init": p.init} if p.init is not None else {})}
+                 **({"init": p.init} if p.init is not None else {}),
+                 **({"scale": True} if p.scale else {})}
                 for p in self.params
             ],
             "effects": "all" if self.effects is None else [
@@ -97,52 +86,20 @@ class CalibrationSpec:
             "holdout": self.holdout,
             "horizon": self.horizon,
             "trace": dict(self.trace.__dict__),
-            "source": str(self.source) if self.source else None,
+            "source": source,
         }
 
 
 def load_spec(path: str | Path) -> CalibrationSpec:
     """Read a YAML or JSON spec file; the model path is taken relative to the spec's folder."""
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise SpecError(f"spec file {str(path)!r} does not exist")
-    text = path.read_text()
-    try:
-        raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        kind = "JSON" if path.suffix == ".json" else "YAML"
-        raise SpecError(f"spec {str(path)!r} is not valid {kind}: {first}") from None
+    raw, path = read_spec_file(path)
     return parse_spec(raw, base_dir=path.parent, source=path)
-
-
-def _check_keys(obj: Any, valid: tuple[str, ...], where: str) -> dict:
-    if not isinstance(obj, dict):
-        raise SpecError(f"spec field {where!r} must be a mapping with keys {', '.join(valid)}; got {obj!r}")
-    for key in obj:
-        if key not in valid:
-            raise SpecError(f"unknown spec field {(where + '.' if where else '') + str(key)!r}; "
-                            f"valid: {', '.join(valid)}.{did_you_mean(str(key), valid)}")
-    return obj
-
-
-def _number(value: Any, where: str, *, lo: float = -math.inf, hi: float = math.inf, integer: bool = False) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if ok and integer:
-        ok = float(value).is_integer()
-    if not ok or not lo <= value <= hi:
-        kind = "an integer" if integer else "a number"
-        rng = f" in [{lo}, {hi}]" if (math.isfinite(lo) or math.isfinite(hi)) else ""
-        raise SpecError(f"spec field {where!r} must be {kind}{rng}; got {value!r}")
-    return int(value) if integer else float(value)
 
 
 def _bounds(value: Any, where: str) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise SpecError(f"spec field {where!r} must be [low, high]; got {value!r}")
-    lo, hi = (_number(v, where) for v in value)
+    lo, hi = (number(v, where) for v in value)
     if not lo < hi:
         raise SpecError(f"spec field {where!r} must have low < high; got {list(value)}")
     return lo, hi
@@ -154,19 +111,6 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
     if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, str) for v in value):
         raise SpecError(f"spec field {where!r} must be a non-empty list of names; got {value!r}")
     return tuple(value)
-
-
-def _signal(raw: Any, where: str) -> SignalSpec:
-    raw = _check_keys(raw, SIGNAL_KEYS, where)
-    if not isinstance(raw.get("column"), str) or not raw["column"]:
-        raise SpecError(f"spec field {where + '.column'!r} must be a log column name; got {raw.get('column')!r}")
-    index = raw.get("index")
-    if isinstance(index, int) and not isinstance(index, bool):
-        index = [index]
-    if not isinstance(index, (list, tuple)) or not index:
-        raise SpecError(f"spec field {where + '.index'!r} must be a non-empty list of column indices; got {index!r}")
-    idx = tuple(_number(i, where + ".index", lo=0, integer=True) for i in index)
-    return SignalSpec(column=raw["column"], index=idx)
 
 
 def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
@@ -185,7 +129,7 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
         where = f"effects[{i}]"
         if isinstance(item, str):
             item = {"name": item}
-        item = _check_keys(item, EFFECT_KEYS, where)
+        item = check_keys(item, EFFECT_KEYS, where)
         name = item.get("name")
         if name not in EFFECTS:
             raise SpecError(f"spec field {where + '.name'!r}: unknown effect {name!r}; valid: "
@@ -207,24 +151,15 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
 
 def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> CalibrationSpec:
     """Validate a spec mapping (as loaded from YAML/JSON) and return a `CalibrationSpec`."""
-    raw = _check_keys(raw, SPEC_KEYS, "")
-    if not isinstance(raw.get("model"), str) or not raw["model"]:
-        raise SpecError(f"spec field 'model' must be the path of an MJCF file; got {raw.get('model')!r}")
-    model = (Path(base_dir) / raw["model"]).resolve()
-    if not model.is_file():
-        raise SpecError(f"spec field 'model': MJCF file {str(model)!r} does not exist")
-    signals_raw = _check_keys(raw.get("signals"), SIGNAL_NAMES, "signals")
-    for required in ("qpos", "ctrl"):
-        if required not in signals_raw:
-            raise SpecError(f"spec field 'signals.{required}' is required (column and index of the logged {required})")
-    signals = {k: _signal(v, f"signals.{k}") for k, v in signals_raw.items()}
+    raw = check_keys(raw, SPEC_KEYS, "")
+    base = map_fields(raw, base_dir)
     params_raw = raw.get("params") or []
     if not isinstance(params_raw, list):
         raise SpecError(f"spec field 'params' must be a list of parameter mappings; got {params_raw!r}")
     params, seen = [], set()
     for i, p in enumerate(params_raw):
         where = f"params[{i}]"
-        p = _check_keys(p, PARAM_KEYS, where)
+        p = check_keys(p, PARAM_KEYS, where)
         for key in ("field", "elements", "bounds"):
             if key not in p:
                 raise SpecError(f"spec field {where + '.' + key!r} is required")
@@ -234,14 +169,15 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         if name in seen:
             raise SpecError(f"spec field {where + '.name'!r}: parameter name {name!r} is used twice")
         seen.add(name)
-        column = _number(p["column"], where + ".column", lo=0, integer=True) if "column" in p else None
-        init = _number(p["init"], where + ".init") if "init" in p else None
+        column = number(p["column"], where + ".column", lo=0, integer=True) if "column" in p else None
+        init = number(p["init"], where + ".init") if "init" in p else None
+        scale = p.get("scale", False)
+        if not isinstance(scale, bool):
+            raise SpecError(f"spec field {where + '.scale'!r} must be true or false; got {scale!r}")
         params.append(ParamSpec(name=name, field=p["field"], elements=_names(p["elements"], where + ".elements"),
-                                bounds=_bounds(p["bounds"], where + ".bounds"), column=column, init=init))
-    substeps = raw.get("substeps")
-    if substeps is not None:
-        substeps = _number(substeps, "substeps", lo=1, integer=True)
-    trace_raw = _check_keys(raw.get("trace") or {}, TRACE_KEYS, "trace")
+                                bounds=_bounds(p["bounds"], where + ".bounds"), column=column, init=init,
+                                scale=scale))
+    trace_raw = check_keys(raw.get("trace") or {}, TRACE_KEYS, "trace")
     trace_kw: dict[str, Any] = {}
     for key, value in trace_raw.items():
         if key == "criterion":
@@ -249,18 +185,16 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
                 raise SpecError(f"spec field 'trace.criterion' must be 'bic' or 'aic'; got {value!r}")
             trace_kw[key] = value
         elif key in ("max_effects", "max_tries", "max_segments"):
-            trace_kw[key] = _number(value, f"trace.{key}", lo=0 if key == "max_effects" else 1, integer=True)
+            trace_kw[key] = number(value, f"trace.{key}", lo=0 if key == "max_effects" else 1, integer=True)
         else:
-            trace_kw[key] = _number(value, f"trace.{key}", lo=0, hi=1)
+            trace_kw[key] = number(value, f"trace.{key}", lo=0, hi=1)
     return CalibrationSpec(
-        model=model,
-        signals=signals,
+        **base,
         params=tuple(params),
         effects=_effects(raw.get("effects", "all")),
-        substeps=substeps,
-        holdout=_number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
-        horizon=_number(raw.get("horizon", 0.2), "horizon", lo=1e-6),
+        holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
+        horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6),
         trace=TraceSpec(**trace_kw),
-        threads=_number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),
+        threads=number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),
         source=source,
     )

@@ -16,21 +16,26 @@ no candidate passes or `trace.max_effects` are in.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from bench.calibrate.data import Recording, extract
+from bench.calibrate.data import extract
 from bench.calibrate.effects import EFFECTS, MERGES
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
 from bench.calibrate.metrics import evaluate, heldout_errors
-from bench.calibrate.model import Candidate, Layout, Plant, load_model
-from bench.calibrate.signature import Score, score_candidates, trial_starts
-from bench.calibrate.simulate import Segments, Simulator, horizons
+from bench.calibrate.model import Candidate, Layout, Plant
+from bench.calibrate.signature import Score, scan, score_candidates, trial_starts
 from bench.calibrate.spec import CalibrationSpec, EffectRequest
+from bench.replay.data import Recording
+from bench.replay.simulate import Segments, Simulator, horizons
+from bench.replay.spec import load_model
 
-TRIAL_TOL = 1e-4  # least-squares tolerance when judging a candidate (the accepted one is then polished)
+TRIAL_TOL = 1e-3  # least-squares tolerance when judging a candidate (the accepted one is then polished)
+# candidates are judged on a seeded share (at least JUDGE_MIN) of the training horizons
+JUDGE_SHARE, JUDGE_MIN = 0.5, 20
+SCORE_MAX = 40  # held-out horizons the signatures are scored on (a seeded subset beyond; acceptance uses all)
 
 
 @dataclass
@@ -54,6 +59,7 @@ class Calibration:
     wall: dict[str, float] = field(default_factory=dict)
     k: int = 1
     residual: dict[str, np.ndarray] = field(default_factory=dict)
+    learned: dict | None = None  # the learned residual (`bench.calibrate.residual`), apart from the physics
 
     @property
     def rec(self) -> Recording:
@@ -92,6 +98,8 @@ def _physical(cand: Candidate, f: FitResult, off: int, plant: Plant) -> tuple[di
     val = cand.effect.physical(x, plant.scales, cand.target)
     if not np.all(np.isfinite(sd)):
         return val, {p: None for p in val}
+    if cand.effect.intervals is not None:
+        return val, cand.effect.intervals(x, f.cov[off:off + k, off:off + k], plant.scales, cand.target)
     a = cand.effect.physical(x - 1.96 * sd, plant.scales, cand.target)
     b = cand.effect.physical(x + 1.96 * sd, plant.scales, cand.target)
     return val, {p: sorted([a[p], b[p]]) for p in val}
@@ -106,38 +114,55 @@ class _Loop:
     """State of one calibration: the simulator, the data split and the current model."""
 
     def __init__(self, plant: Plant, sim: Simulator, train: Segments, hold: Segments, scale: np.ndarray,
-                 channels: np.ndarray, log: Callable[[str], None]) -> None:
+                 channels: np.ndarray, log: Callable[[str], None], seed: int = 0) -> None:
         self.plant, self.sim, self.train, self.hold = plant, sim, train, hold
         self.scale, self.channels, self.log = scale, channels, log
         self.tr = plant.spec.trace
+        m = min(len(train), max(JUDGE_MIN, int(np.ceil(JUDGE_SHARE * len(train)))))
+        pick = np.random.default_rng([seed, 1]).choice(len(train), size=m, replace=False)
+        self.judged = Segments(train.start[np.sort(pick)], train.length)  # where candidates are refitted
+        pick = np.random.default_rng([seed, 2]).choice(len(hold), size=min(len(hold), SCORE_MAX), replace=False)
+        self.scored = Segments(hold.start[np.sort(pick)], hold.length)  # where signatures are scored
+        self._base: tuple[int, float, float] | None = None  # (id of the current fit, its SSR and n_eff there)
+
+    def base(self, layout: Layout, cur: FitResult) -> tuple[float, float]:
+        """SSR and n_eff of the current fit on the judging horizons (once per current fit)."""
+        if self._base is None or self._base[0] != id(cur):
+            obj = self.objective(layout, self.judged)
+            grid = obj.residual_grid(cur.x[None])[0]
+            r = grid[obj.mask]
+            self._base = (id(cur), float(r @ r), len(r) / autocorrelation_time(grid))
+        return self._base[1], self._base[2]
 
     def objective(self, layout: Layout, segs: Segments) -> Objective:
         return Objective(self.sim, layout, segs, self.plant.rec, self.scale, self.channels)
 
-    def fit(self, layout: Layout, x0: np.ndarray, tol: float = 1e-6) -> FitResult:
-        return fit(self.objective(layout, self.train), x0, tol=tol)
+    def fit(self, layout: Layout, x0: np.ndarray, broyden: bool = False) -> FitResult:
+        return fit(self.objective(layout, self.train), x0, broyden=broyden)
 
     def heldout(self, pairs: list[tuple[Layout, np.ndarray]]) -> list[float]:
         return heldout_errors(self.sim, pairs, self.hold, self.plant.rec, self.scale, self.channels)
 
     def score(self, layout: Layout, x: np.ndarray, cands: list[Candidate]) -> list[Score]:
-        obj = self.objective(layout, self.hold)
+        obj = self.objective(layout, self.scored)
         n_eff = obj.size / autocorrelation_time(obj.residual_grid(x[None])[0])
         return score_candidates(obj, layout, x, cands, self.tr.criterion, n_eff)
 
-    def judge(self, sc: Score, start: tuple[Layout, np.ndarray, int], cur: FitResult, err0: float,
+    def judge(self, sc: Score, start: tuple[Layout, np.ndarray, int], layout: Layout, cur: FitResult, err0: float,
               rnd: int, step: float) -> tuple[dict, FitResult, Layout, list[str]]:
-        """Refit with the candidate in; the entry for the report and the reasons it fails (none: passes)."""
+        """Refit with the candidate in (on the judging horizons); the entry for the report and the
+        reasons it fails (none: passes)."""
         new, xinit, off = start
-        f = self.fit(new, xinit, tol=TRIAL_TOL)
+        ssr0, n_eff = self.base(layout, cur)
+        f = fit(self.objective(new, self.judged), xinit, tol=TRIAL_TOL, broyden=True)
         err = self.heldout([(new, f.x)])[0]
         drop = 1.0 - err / err0
         crit = self.tr.criterion
-        d_ic = information(f.ssr, len(f.x), cur.n_eff, crit) - information(cur.ssr, len(cur.x), cur.n_eff, crit)
+        d_ic = information(f.ssr, len(f.x), n_eff, crit) - information(ssr0, len(cur.x), n_eff, crit)
         if sc.replaces is not None:  # the generalisation itself must be non-zero
             excl = f.contrast_excludes_zero(off, np.array(sc.cand.effect.contrast))
         else:
-            excl = all(f.excludes_zero(off + i) for i in range(sc.cand.effect.n_nested))
+            excl = all(f.excludes_zero(off + i) for i in sc.cand.effect.gated)
         reasons = []
         if drop < self.tr.margin:
             reasons.append(f"held-out error drop {100 * drop:.1f}% < {100 * self.tr.margin:.0f}%")
@@ -157,6 +182,7 @@ class _Loop:
               tried: dict[str, dict]) -> tuple[Score, dict, FitResult, Layout] | None:
         """Check, refit and judge the shortlisted candidates; the winner, if any passes."""
         shortlist = [s for s in scores if s.score >= self.tr.min_score and s.predicted < 0][: self.tr.max_tries]
+        scan(self.objective(layout, self.scored), layout, cur.x, shortlist)
         options = [trial_starts(sc, layout, cur.x) for sc in shortlist]
         errs = self.heldout([(new, xi) for opts in options for new, xi, _ in opts])
         checked, i0 = [], 0
@@ -172,7 +198,7 @@ class _Loop:
                 continue
             if best is not None and step < 0.5 * best[4]:
                 break  # not competitive with the one that already passed
-            entry, f, new, reasons = self.judge(sc, start, cur, err0, rnd, step)
+            entry, f, new, reasons = self.judge(sc, start, layout, cur, err0, rnd, step)
             if reasons:
                 tried[sc.cand.key] = {**entry, "reason": "; ".join(reasons)}
             elif best is None or entry["heldout_drop"] > best[1]["heldout_drop"]:
@@ -188,13 +214,13 @@ class _Loop:
         """Drop effects accepted earlier that the new one made redundant (no amplitude excludes zero)."""
         while True:
             weak = [c for c in layout.active if c is not keep and not any(
-                cur.excludes_zero(layout.offset(c) + i) for i in range(c.effect.n_nested))]
+                cur.excludes_zero(layout.offset(c) + i) for i in c.effect.gated)]
             if not weak:
                 return layout, cur
             c = weak[0]
             off, kc = layout.offset(c), len(c.effect.params)
             layout = Layout(self.plant, [a for a in layout.active if a is not c])
-            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc:]]))
+            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc:]]), broyden=True)
             gone = next(a for a in added if f"{a['name']}@{a['target']}" == c.key)
             added.remove(gone)
             tried[c.key] = {**gone, "reason": f"removed after {keep.key} was added: interval includes zero"}
@@ -205,7 +231,7 @@ class _Loop:
         layout, x, merged = _merge(layout, cur.x)
         if not merged:
             return layout, cur
-        cur = self.fit(layout, x)
+        cur = self.fit(layout, x, broyden=True)
         for a, b, m in merged:
             parts = [e for e in added if f"{e['name']}@{e['target']}" in (a.key, b.key)]
             for e in parts:
@@ -236,18 +262,39 @@ def _rejected(scores: list[Score], tried: dict[str, dict], added: list[dict], mi
 
 def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float, *, seed: int = 0,
         effects: tuple[EffectRequest, ...] | None | str = "spec", threads: int | None = None,
-        log: Callable[[str], None] = lambda msg: None) -> Calibration:
+        log: Callable[[str], None] = lambda msg: None, residual: bool = False) -> Calibration:
     """Run the whole loop on logged episodes (arrays keyed by column) and return what it found.
 
-    `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests.
+    `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests. With `residual`,
+    a learned residual is fitted after the loop and reported apart from the physics (`Calibration.learned`).
     """
     t0 = time.perf_counter()
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
-    plant = Plant(spec, model, rec)
-    sim = Simulator(plant, threads or spec.threads)
+    return calibrate(Plant(spec, model, rec), seed=seed, effects=effects, threads=threads, log=log,
+                     residual=residual, t0=t0)
+
+
+def calibrate(plant: Plant, *, seed: int = 0, effects: tuple[EffectRequest, ...] | None | str = "spec",
+              threads: int | None = None, log: Callable[[str], None] = lambda msg: None, residual: bool = False,
+              t0: float | None = None) -> Calibration:
+    """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
+    suite's robot in its scene); arguments as `run`."""
+    t0 = time.perf_counter() if t0 is None else t0
+    spec = plant.spec
+    sim = plant.simulator(threads or spec.threads)
     try:
         cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
+        if residual:
+            from bench.calibrate.residual import learn
+
+            t1 = time.perf_counter()
+            cal.learned = learn(sim, cal.layout.realise(cal.final_fit.x), cal.k, seed)
+            cal.wall["residual"] = time.perf_counter() - t1
+            h = cal.learned["heldout"]
+            log("learned residual (apart from the physics): held-out NRMSE, physics -> physics + residual: " +
+                ", ".join(f"{lb.replace('_', '-')} {_fmt(h['physics'][f'{lb}_nrmse'])} -> "
+                          f"{_fmt(h['physics_plus_residual'][f'{lb}_nrmse'])}" for lb in ("k_step", "free_run")))
     finally:
         sim.close()
     log(f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE "
@@ -255,18 +302,23 @@ def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float
     return cal
 
 
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.4g}"
+
+
 def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
                effects: tuple[EffectRequest, ...] | None | str, log: Callable[[str], None], t0: float) -> Calibration:
     """Nominal errors, declared fit, the add / refit / accept rounds, final errors."""
-    rec, model = plant.rec, plant.model
+    rec = plant.rec
     k = max(1, int(round(spec.horizon * rec.fps)))
-    channels = np.arange(model.nq + (model.nv if rec.qvel_logged else 0))  # velocities only when logged
+    nq, nv = rec.qpos.shape[1], rec.qvel.shape[1]  # the logged coordinates
+    channels = np.arange(nq + (nv if rec.qvel_logged else 0))  # velocities only when logged
     train_frames = rec.frames(rec.train)
     scale = np.maximum(np.concatenate([rec.qpos[train_frames], rec.qvel[train_frames]], axis=1).std(axis=0), 1e-9)
     train = horizons(rec, rec.train, k, limit=spec.trace.max_segments, seed=seed)
     hold = horizons(rec, rec.holdout, k)
-    loop = _Loop(plant, sim, train, hold, scale, channels, log)
-    names = [model.joint(i).name or f"q{i}" for i in range(model.njnt)]
+    loop = _Loop(plant, sim, train, hold, scale, channels, log, seed)
+    names = [n or f"q{i}" for i, n in enumerate(plant.joint_names)]
 
     layout = Layout(plant, [])
     x_nom = plant.declared_nominal()
@@ -280,7 +332,7 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
         f"{errors['declared']['free_run_nrmse']:.4g}")
     t2 = time.perf_counter()
 
-    cands, notes = plant.candidates(spec.effects if effects == "spec" else effects)
+    cands, notes = plant.candidates(spec.effects if isinstance(effects, str) else effects)
     cal = Calibration(spec, plant, seed, layout, declared, declared, x_nom, errors, traces, notes=notes, k=k)
     cur, err0 = declared, loop.heldout([(layout, declared.x)])[0]
     tried: dict[str, dict] = {}
@@ -294,7 +346,7 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
         if won is None:
             break
         sc, entry, _, layout = won
-        cur = loop.fit(layout, won[2].x)  # polish the winner's fit
+        cur = loop.fit(layout, won[2].x, broyden=True)  # polish the winner's fit on all training horizons
         log(f"round {rnd}: accepted {sc.cand.key}")
         if sc.replaces is not None:
             cal.added = [a for a in cal.added if f"{a['name']}@{a['target']}" != sc.replaces.key]

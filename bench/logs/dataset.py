@@ -7,7 +7,9 @@ Conventions (shared by the reader, the writer, the importers and every consumer)
   start, `frame_index`, `index` (global frame number) and `task_index` (T,) int64. The fifth
   default feature, `episode_index`, is `Episode.index` and is not repeated in `data`.
 - Every other feature has shape (T, *features[name]["shape"]): a vector feature is (T, D), a
-  scalar feature declared with shape [1] is (T, 1), an image is (T, H, W, C) uint8.
+  scalar feature declared with shape [1] is (T, 1), an image is (T, H, W, C) uint8. A camera
+  stream is either dtype "image" (PNG per frame inside the parquet) or dtype "video" (H.264 or AV1
+  in MP4 files beside it, C = 3): in memory both are (T, H, W, C) uint8 arrays.
 - Floats are float32 (LeRobot reads float64 back as float32); absolute times, when kept, are
   int64 nanoseconds.
 """
@@ -79,10 +81,15 @@ def is_image(feature: dict) -> bool:
     return feature.get("dtype") in ("image", "video")
 
 
-def _infer_feature(name: str, arr: np.ndarray, names: list[str] | None) -> dict:
+def _infer_feature(name: str, arr: np.ndarray, names: list[str] | None, video: bool = False) -> dict:
     """Feature entry for a (T, ...) array: images are (T, H, W, C) uint8, the rest numeric."""
     if arr.dtype == np.uint8 and arr.ndim == 4 and arr.shape[-1] in (1, 3, 4):
-        return {"dtype": "image", "shape": list(arr.shape[1:]), "names": list(IMAGE_NAMES)}
+        if video and arr.shape[-1] != 3:
+            raise DataError(f"from_arrays: feature {name!r} has {arr.shape[-1]} channels; a video feature needs 3 (RGB)")
+        return {"dtype": "video" if video else "image", "shape": list(arr.shape[1:]), "names": list(IMAGE_NAMES)}
+    if video:
+        raise DataError(f"from_arrays: feature {name!r} is {arr.dtype} {list(arr.shape[1:])}, not (T, H, W, 3) uint8 "
+                        f"frames; only camera streams can be stored as video")
     shape = list(arr.shape[1:]) or [1]
     if names is not None and len(names) != int(np.prod(shape)):
         raise DataError(f"from_arrays: names[{name!r}] has {len(names)} entries but the feature has shape {shape}")
@@ -109,6 +116,7 @@ def from_arrays(
     names: dict[str, list[str]] | None = None,
     robot_type: str | None = None,
     meta: list[dict] | None = None,
+    video: bool | Sequence[str] = False,
 ) -> LogDataset:
     """Build a dataset from plain per-episode dicts such as {"observation.state": (T, D), "action": (T, A)}.
 
@@ -124,6 +132,8 @@ def from_arrays(
         names: optional per-feature element names, e.g. {"action": ["j0", "j1"]}.
         robot_type: stored in info.json.
         meta: optional per-episode JSON-able metadata, e.g. [{"success": True}, ...].
+        video: store camera streams as video features (MP4 files) instead of PNG images: True for
+            every (T, H, W, 3) uint8 feature, or a list of feature names.
     """
     if not np.isfinite(fps) or fps <= 0:
         raise DataError(f"from_arrays: fps must be a positive number, got {fps!r}")
@@ -136,6 +146,7 @@ def from_arrays(
         raise DataError(f"from_arrays: {len(meta)} meta entries given for {len(episodes)} episodes")
     tasks = list(dict.fromkeys(ep_tasks))
     names = names or {}
+    as_video = set() if video is False else None if video is True else {str(v) for v in video}
 
     features: dict[str, dict] = {}
     out: list[Episode] = []
@@ -159,7 +170,9 @@ def from_arrays(
         for name in user:
             if data[name].ndim == 1:
                 data[name] = data[name][:, None]
-            feat = _infer_feature(name, data[name], names.get(name))
+            is_frames = data[name].dtype == np.uint8 and data[name].ndim == 4 and data[name].shape[-1] == 3
+            want_video = (as_video is None and is_frames) or (as_video is not None and name in as_video)
+            feat = _infer_feature(name, data[name], names.get(name), want_video)
             if name not in features:
                 features[name] = feat
             elif features[name]["shape"] != feat["shape"] or features[name]["dtype"] != feat["dtype"]:
@@ -181,6 +194,9 @@ def from_arrays(
     for name in names:
         if name not in features:
             raise DataError(f"from_arrays: names given for unknown feature {name!r}; features: {', '.join(features)}")
+    for name in sorted(as_video or ()):
+        if name not in features:
+            raise DataError(f"from_arrays: video given for unknown feature {name!r}; features: {', '.join(features)}")
     features.update({k: dict(v) for k, v in DEFAULT_FEATURES.items()})
     return LogDataset(fps=float(fps), features=features, episodes=out, tasks=tasks, robot_type=robot_type)
 
@@ -212,9 +228,11 @@ def validate(ds: LogDataset, where: str = "LogDataset") -> None:
             raise DataError(f"{where}: feature {name!r} has unsupported dtype {dtype!r}")
         if not isinstance(shape, (list, tuple)) or not shape or not all(isinstance(s, int) and s > 0 for s in shape):
             raise DataError(f"{where}: feature {name!r} has bad shape {shape!r}; expected a list of positive ints")
+        if dtype == "video" and (len(shape) != 3 or shape[2] != 3):
+            raise DataError(f"{where}: video feature {name!r} has shape {list(shape)}; expected [height, width, 3]")
     if not ds.episodes:
         raise DataError(f"{where}: no episodes")
-    declared = [n for n in ds.features if n != "episode_index" and ds.features[n]["dtype"] != "video"]
+    declared = [n for n in ds.features if n != "episode_index"]
     for pos, ep in enumerate(ds.episodes):
         if ep.index != pos:
             raise DataError(f"{where}: episode at position {pos} has index {ep.index}; indices must be 0..N-1 in order")
@@ -255,5 +273,6 @@ def check_frames(name: str, arr: np.ndarray, feature: dict, episode: int, where:
         frame = first_bad_row(np.diff(arr) <= 0)
         if frame >= 0:
             raise DataError(f"{where}: column 'timestamp' is not increasing in episode {episode} at frame {frame + 1}")
-    if feature.get("dtype") == "image" and arr.dtype != np.uint8:
-        raise DataError(f"{where}: image feature {name!r} in episode {episode} has dtype {arr.dtype}, expected uint8")
+    if is_image(feature) and arr.dtype != np.uint8:
+        kind = feature["dtype"]
+        raise DataError(f"{where}: {kind} feature {name!r} in episode {episode} has dtype {arr.dtype}, expected uint8")

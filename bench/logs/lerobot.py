@@ -7,11 +7,16 @@ On-disk layout (as written by lerobot 0.4.x):
     meta/tasks.parquet                              task_index + the task string as a pandas index
     meta/episodes/chunk-000/file-000.parquet        one row per episode: length, data file, row range
     data/chunk-000/file-000.parquet                 the frames, one row group per episode
+    videos/<key>/chunk-000/file-000.mp4             video features: episodes one after another
 
-Images are PNG bytes inside the parquet (`struct<bytes, path>`); video features are listed by
-lerobot in info.json but live in mp4 files: the reader skips them (no video decoder here) and the
-writer refuses them. Per-episode metadata of ours (`Episode.meta`) travels as a JSON string column
-`bench/meta` in the episodes file, which lerobot ignores.
+Camera streams are either images, PNG bytes inside the parquet (`struct<bytes, path>`), or
+videos: one MP4 stream per feature and file, episodes concatenated, frame k of an episode shown
+at `from_timestamp + timestamp[k]` (the episodes table holds `videos/<key>/chunk_index`,
+`file_index`, `from_timestamp`, `to_timestamp`; info.json the codec in the feature's `info`).
+Video features have no parquet column. Both are decoded to (T, H, W, C) uint8 with PyAV
+(`bench.video`): no torchvision, no torchcodec. The writer encodes H.264 by default (AV1 on
+request, lerobot's own default). Per-episode metadata of ours (`Episode.meta`) travels as a JSON
+string column `bench/meta` in the episodes file, which lerobot ignores.
 """
 from __future__ import annotations
 
@@ -23,7 +28,7 @@ import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -36,6 +41,7 @@ from bench.logs.dataset import (
     Episode,
     LogDataset,
     first_bad_row,
+    is_image,
     validate,
 )
 
@@ -46,6 +52,8 @@ TASKS_PATH = "meta/tasks.parquet"
 EPISODES_DIR = "meta/episodes"
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+VIDEO_COLUMNS = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")  # videos/<key>/<column>
 CHUNKS_SIZE = 1000
 DATA_FILES_SIZE_IN_MB = 100
 VIDEO_FILES_SIZE_IN_MB = 200
@@ -90,7 +98,9 @@ class _Index:
 
     root: Path
     info: dict
-    features: dict[str, dict]  # non-video features, in info.json order
+    features: dict[str, dict]  # non-video features (the parquet columns), in info.json order
+    videos: dict[str, dict]  # video features, in info.json order
+    video_index: dict[str, dict[str, np.ndarray]]  # per video feature: VIDEO_COLUMNS, by episode
     tasks: list[str]
     episodes_file: str  # relative path of the first episodes file (for messages)
     episode_index: np.ndarray
@@ -106,6 +116,11 @@ class _Index:
 
     def data_file(self, e: int) -> str:
         return self.info["data_path"].format(chunk_index=int(self.chunk[e]), file_index=int(self.file[e]))
+
+    def video_file(self, key: str, e: int) -> str:
+        cols = self.video_index[key]
+        return str(self.info["video_path"]).format(
+            video_key=key, chunk_index=int(cols["chunk_index"][e]), file_index=int(cols["file_index"][e]))
 
     def episode_tasks(self, e: int) -> list[str]:
         """Task strings of episode e (parsed on demand: opening a dataset stays cheap)."""
@@ -263,16 +278,17 @@ def _episode_files(root: Path) -> list[str]:
     return [_rel(root, f) for f in files]
 
 
-def _load_episodes(root: Path, rels: list[str]) -> dict[str, pa.ChunkedArray | None]:
+def _load_episodes(root: Path, rels: list[str], videos: list[str]) -> dict[str, pa.ChunkedArray | None]:
     """The episode table's columns over all episodes files, as arrow columns (no per-row Python objects)."""
-    parts: dict[str, list] = {c: [] for c in (*EPISODE_COLUMNS, META_COLUMN)}
+    required = list(EPISODE_COLUMNS) + [f"videos/{k}/{c}" for k in videos for c in VIDEO_COLUMNS]
+    parts: dict[str, list] = {c: [] for c in (*required, META_COLUMN)}
     for rel in rels:
         pf = _parquet_file(root, rel)
         present = pf.schema_arrow.names
-        for c in EPISODE_COLUMNS:
+        for c in required:
             if c not in present:
                 raise DataError(f"{_where(root, rel)}: column {c!r} is missing")
-        wanted = list(EPISODE_COLUMNS) + ([META_COLUMN] if META_COLUMN in present else [])
+        wanted = required + ([META_COLUMN] if META_COLUMN in present else [])
         table = _read(root, rel, pf.read, columns=wanted, use_threads=False)
         for c in wanted:
             parts[c].append(table.column(c))
@@ -291,8 +307,17 @@ def _build_index(root: Path) -> _Index:
     info = _load_info(root)
     tasks = _load_tasks(root)
     rels = _episode_files(root)
-    cols = _load_episodes(root, rels)
+    videos = {k: v for k, v in info["features"].items() if v["dtype"] == "video"}
+    if videos and not isinstance(info.get("video_path"), str):
+        raise DataError(f"{root / INFO_PATH}: field 'video_path' is {info.get('video_path')!r} but features "
+                        f"{', '.join(videos)} are videos; expected a template like {VIDEO_PATH!r}")
+    for key, feat in videos.items():
+        if len(feat["shape"]) != 3 or feat["shape"][2] != 3:
+            raise DataError(f"{root / INFO_PATH}: field 'features.{key}' is a video of shape {feat['shape']}; "
+                            f"expected [height, width, 3]")
+    cols = _load_episodes(root, rels, list(videos))
     where = _where(root, rels[0])
+
     def ints(name: str) -> np.ndarray:
         column = cols[name]
         try:
@@ -333,13 +358,23 @@ def _build_index(root: Path) -> _Index:
         declared = info["total_frames"]
         raise DataError(f"{root / INFO_PATH}: field 'total_frames' is {declared} but the episodes sum to {total}")
     features = {k: v for k, v in info["features"].items() if v["dtype"] != "video"}
+    video_index: dict[str, dict[str, np.ndarray]] = {}
+    for key in videos:
+        video_index[key] = {c: col(f"videos/{key}/{c}") for c in VIDEO_COLUMNS[:2]}
+        for c in VIDEO_COLUMNS[2:]:
+            column = cols[f"videos/{key}/{c}"]
+            if column is None or column.null_count or not (pa.types.is_floating(column.type)
+                                                           or pa.types.is_integer(column.type)):
+                raise DataError(f"{where}: column 'videos/{key}/{c}' has missing or non-numeric values")
+            video_index[key][c] = np.asarray(column.to_numpy(), dtype=np.float64)[order]
     chunk, file = col("data/chunk_index"), col("data/file_index")
     base = start.copy()
     for key in set(zip(chunk.tolist(), file.tolist())):
         members = (chunk == key[0]) & (file == key[1])
         base[members] = start[members].min()
     return _Index(
-        root=root, info=info, features=features, tasks=tasks, episodes_file=rels[0], episode_index=ep,
+        root=root, info=info, features=features, videos=videos, video_index=video_index, tasks=tasks,
+        episodes_file=rels[0], episode_index=ep,
         length=length, chunk=chunk, file=file, start=start, stop=stop, base=base,
         order=order, raw_tasks=cols["tasks"], raw_meta=cols[META_COLUMN],
     )
@@ -372,6 +407,8 @@ def info(root: str | os.PathLike) -> dict:
     Returns:
         {"root", "codebase_version", "robot_type", "fps", "episodes", "frames", "features":
         {name: {"dtype", "shape", "names"}}, "tasks": [...], "lengths": {"min", "max", "mean"}}.
+        Video features also carry "video": {"codec", "pix_fmt", "fps", "files"} (from info.json's
+        `info` entry and the episodes table).
     """
     idx = _index(root)
     return {
@@ -381,11 +418,22 @@ def info(root: str | os.PathLike) -> dict:
         "fps": idx.info["fps"],
         "episodes": len(idx.episode_index),
         "frames": int(idx.length.sum()),
-        "features": {k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")}
-                     for k, v in idx.info["features"].items()},
+        "features": {k: _feature_summary(idx, k, v) for k, v in idx.info["features"].items()},
         "tasks": list(idx.tasks),
         "lengths": {"min": int(idx.length.min()), "max": int(idx.length.max()), "mean": float(idx.length.mean())},
     }
+
+
+def _feature_summary(idx: _Index, name: str, feat: dict) -> dict:
+    out = {"dtype": feat["dtype"], "shape": list(feat["shape"]), "names": feat.get("names")}
+    if feat["dtype"] == "video":
+        raw = feat.get("info")
+        vinfo: dict = raw if isinstance(raw, dict) else {}
+        cols = idx.video_index[name]
+        files = len(set(zip(cols["chunk_index"].tolist(), cols["file_index"].tolist())))
+        out["video"] = {"codec": vinfo.get("video.codec"), "pix_fmt": vinfo.get("video.pix_fmt"),
+                        "fps": vinfo.get("video.fps"), "files": files}
+    return out
 
 
 # ----------------------------------------------------------------------------- reading: frames
@@ -529,17 +577,52 @@ def _check_rows(idx: _Index, rel: str, cols: dict[str, np.ndarray], eps: np.ndar
                 )
 
 
+def _read_videos(idx: _Index, eps: np.ndarray, offsets: np.ndarray, timestamps: np.ndarray) -> dict[str, np.ndarray]:
+    """Frames of every video feature for episodes `eps` (rows offsets[k]:offsets[k+1] of `timestamps`).
+
+    Frame j of episode e is the one shown at `from_timestamp[e] + timestamp[j]` in its MP4 file
+    (within `bench.video.TOLERANCE_S`, lerobot's default tolerance). Each file is decoded once,
+    forward from the keyframe before the first frame wanted.
+    """
+    from bench.video import VideoError, decode_frames
+
+    out: dict[str, np.ndarray] = {}
+    for key, feat in idx.videos.items():
+        shape = tuple(feat["shape"])
+        frames = np.empty((int(offsets[-1]),) + shape, dtype=np.uint8)
+        by_file: dict[str, list[int]] = {}
+        for k, e in enumerate(eps.tolist()):
+            by_file.setdefault(idx.video_file(key, e), []).append(k)
+        for rel, ks in by_file.items():
+            path = idx.root / rel
+            if not path.is_file():
+                raise DataError(f"{path}: file is missing (video of feature {key!r}, episode {int(eps[ks[0]])})")
+            rows = np.concatenate([np.arange(offsets[k], offsets[k + 1]) for k in ks])
+            start = idx.video_index[key]["from_timestamp"]
+            times = np.concatenate([
+                start[eps[k]] + timestamps[offsets[k]:offsets[k + 1]].astype(np.float64) for k in ks])
+            try:
+                frames[rows] = decode_frames(path, times, shape)
+            except VideoError as exc:
+                which = ", ".join(str(int(eps[k])) for k in ks[:5]) + (" ..." if len(ks) > 5 else "")
+                raise DataError(f"video feature {key!r} of episode(s) {which}: {exc}") from None
+        out[key] = frames
+    return out
+
+
 def _episode(idx: _Index, e: int, cols: dict[str, np.ndarray], lo: int, hi: int) -> Episode:
     data = {n: a[lo:hi] for n, a in cols.items() if n != "episode_index"}
     return Episode(index=e, data=data, tasks=idx.episode_tasks(e), meta=idx.episode_meta(e))
 
 
-def _dataset(idx: _Index, episodes: list[Episode]) -> LogDataset:
+def _dataset(idx: _Index, episodes: list[Episode], videos: bool) -> LogDataset:
     fps = idx.info["fps"]
-    return LogDataset(
-        fps=float(fps), features={k: dict(v) for k, v in idx.features.items()}, episodes=episodes,
-        tasks=list(idx.tasks), robot_type=idx.info.get("robot_type"),
-    )
+    names = [k for k in idx.info["features"] if k in idx.features or (videos and k in idx.videos)]
+    # A video's `info` (codec, pixel format) describes files this dataset has; a writer makes its own.
+    features = {k: {f: v for f, v in idx.info["features"][k].items() if not (f == "info" and k in idx.videos)}
+                for k in names}
+    return LogDataset(fps=float(fps), features=features, episodes=episodes, tasks=list(idx.tasks),
+                      robot_type=idx.info.get("robot_type"))
 
 
 def _check_file_rows(idx: _Index, rel: str, eps: np.ndarray, num_rows: int) -> np.ndarray:
@@ -557,12 +640,17 @@ def _check_file_rows(idx: _Index, rel: str, eps: np.ndarray, num_rows: int) -> n
     return np.concatenate([first, [total]])
 
 
-def read_dataset(root: str | os.PathLike) -> LogDataset:
+def read_dataset(root: str | os.PathLike, videos: bool = True) -> LogDataset:
     """Read a whole LeRobot v3.0 dataset into memory.
 
     Each data file is read once; episodes are views into its columns. Raises a one-line
     `DataError` naming the file and the field for missing files, shape mismatches, NaN/inf,
     non-increasing timestamps, gaps in episode indices and truncated parquet files.
+
+    Args:
+        root: the dataset folder.
+        videos: decode video features into (T, H, W, 3) uint8 arrays; False leaves them out of
+            the returned dataset (for consumers of the numeric features only: decoding costs time).
     """
     idx = _index(root)
     files: dict[str, list[int]] = {}
@@ -578,17 +666,20 @@ def read_dataset(root: str | os.PathLike) -> LogDataset:
         table = _read(idx.root, rel, pf.read, columns=_check_schema(idx, rel, pf), use_threads=False)
         cols = _table_columns(idx, rel, table)
         _check_rows(idx, rel, cols, eps, offsets)
+        if videos:
+            cols.update(_read_videos(idx, eps, offsets, cols["timestamp"]))
         for k, e in enumerate(eps.tolist()):
             episodes[e] = _episode(idx, e, cols, int(offsets[k]), int(offsets[k + 1]))
-    return _dataset(idx, episodes)  # type: ignore[arg-type]
+    return _dataset(idx, episodes, videos)  # type: ignore[arg-type]
 
 
-def read_episode(root: str | os.PathLike, episode_index: int) -> Episode:
+def read_episode(root: str | os.PathLike, episode_index: int, videos: bool = True) -> Episode:
     """Read one episode without reading the rest of its data file.
 
     Uses the row offsets in meta/episodes and reads only the parquet row groups that overlap the
     episode (one, for files written by lerobot or by `write_dataset`). Metadata and parquet footers
-    are cached while the files are unchanged, so a loop over episodes stays fast.
+    are cached while the files are unchanged, so a loop over episodes stays fast. With `videos`,
+    its frames of every video feature are decoded (a seek to the episode's first keyframe).
     """
     idx = _index(root)
     n = len(idx.episode_index)
@@ -609,6 +700,8 @@ def read_episode(root: str | os.PathLike, episode_index: int) -> Episode:
     table = table.slice(lo - int(starts[first]), hi - lo)
     cols = _table_columns(idx, rel, table)
     _check_rows(idx, rel, cols, np.asarray([e]), np.asarray([0, hi - lo]))
+    if videos:
+        cols.update(_read_videos(idx, np.asarray([e]), np.asarray([0, hi - lo]), cols["timestamp"]))
     return _episode(idx, e, cols, 0, hi - lo)
 
 
@@ -697,7 +790,7 @@ def _feature_stats(cols: dict[str, np.ndarray], features: dict[str, dict]) -> di
     The numeric features are stacked into one float64 matrix so each statistic is one numpy call.
     """
     out: dict[str, dict[str, np.ndarray]] = {}
-    numeric = [n for n, f in features.items() if f["dtype"] != "image"]
+    numeric = [n for n, f in features.items() if not is_image(f)]
     if numeric:
         t = len(cols[numeric[0]])
         blocks = [cols[n].reshape(t, -1) for n in numeric]
@@ -712,16 +805,16 @@ def _feature_stats(cols: dict[str, np.ndarray], features: dict[str, dict]) -> di
             part["count"] = np.asarray([t], dtype=np.int64)
             out[name] = part
     for name, feat in features.items():
-        if feat["dtype"] == "image":
+        if is_image(feat):
             out[name] = _image_stats(cols[name])
     return {name: {stat: out[name][stat] for stat in STAT_NAMES} for name in features}
 
 
 def _stats_arrow_type(feature: dict, stat: str) -> pa.DataType:
-    is_int = feature["dtype"] != "image" and np.dtype(feature["dtype"]).kind in "iub"
+    is_int = not is_image(feature) and np.dtype(feature["dtype"]).kind in "iub"
     if stat == "count" or (is_int and stat in ("min", "max")):
         return pa.list_(pa.int64())
-    if feature["dtype"] == "image":
+    if is_image(feature):
         return pa.list_(pa.list_(pa.list_(pa.float64())))
     return pa.list_(pa.float64())
 
@@ -752,14 +845,72 @@ def _frame_arrays(ds: LogDataset, ep: Episode, offset: int) -> dict[str, np.ndar
     return cols
 
 
-def _write_into(tmp: Path, ds: LogDataset) -> None:
-    schema = _schema(ds.features)
+class _VideoFiles:
+    """The MP4 files of one video feature: episodes appended to the current file until it passes
+    `video_files_size_in_mb`, then a new file (lerobot's layout)."""
+
+    def __init__(self, tmp: Path, key: str, fps: float, codec: str, crf: int | None):
+        self.tmp, self.key, self.fps, self.codec, self.crf = tmp, key, fps, codec, crf
+        self.file_no = 0
+        self.frames = 0  # frames in the current file
+        self.writer: Any = None  # the current file's bench.video.Mp4Writer
+        self.first: Path | None = None
+
+    def add(self, frames: np.ndarray) -> tuple[int, int, float, float]:
+        """Encode one episode's frames; returns (chunk_index, file_index, from_timestamp, to_timestamp)."""
+        from bench.video import Mp4Writer
+
+        if self.writer is not None and self.writer.bytes_written >= VIDEO_FILES_SIZE_IN_MB * 1024 * 1024:
+            self.writer.close()
+            self.writer, self.frames, self.file_no = None, 0, self.file_no + 1
+        chunk, fidx = divmod(self.file_no, CHUNKS_SIZE)
+        if self.writer is None:
+            path = self.tmp / VIDEO_PATH.format(video_key=self.key, chunk_index=chunk, file_index=fidx)
+            self.writer = Mp4Writer(path, self.fps, codec=self.codec, crf=self.crf)
+            self.first = self.first or path
+        start = self.frames
+        self.writer.write_many(frames)
+        self.frames += len(frames)
+        return chunk, fidx, start / self.fps, self.frames / self.fps
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+            self.writer = None
+
+
+def _check_video_timestamps(ds: LogDataset, where: str) -> None:
+    """Video frames are shown at frame_index / fps: a dataset with video needs timestamps that say so."""
+    from bench.video import TOLERANCE_S
+
+    for ep in ds.episodes:
+        ts = np.asarray(ep.data["timestamp"], dtype=np.float32).reshape(-1)
+        want = (np.arange(len(ts), dtype=np.float64) / ds.fps).astype(np.float32)
+        frame = first_bad_row(np.abs(ts.astype(np.float64) - want) > TOLERANCE_S)
+        if frame >= 0:
+            raise DataError(
+                f"{where}: column 'timestamp' is {float(ts[frame]):.6f} at frame {frame} of episode {ep.index} but "
+                f"video frames are shown at frame/fps = {float(want[frame]):.6f} s; video features need evenly spaced "
+                f"timestamps (store the cameras as dtype 'image' otherwise)")
+
+
+def _write_into(tmp: Path, ds: LogDataset, video_codec: str, crf: int | None) -> None:
+    videos = [n for n, f in ds.features.items() if f["dtype"] == "video"]
+    columns = {n: f for n, f in ds.features.items() if f["dtype"] != "video"}
+    schema = _schema(columns)
     limit = DATA_FILES_SIZE_IN_MB * 1024 * 1024
     file_no, written, writer = 0, 0, None
     offset = 0
     rows: dict[str, list] = {c: [] for c in EPISODE_COLUMNS}
+    rows.update({f"videos/{k}/{c}": [] for k in videos for c in VIDEO_COLUMNS})
     stat_rows: dict[str, list] = {f"stats/{n}/{s}": [] for n in ds.features for s in STAT_NAMES}
     metas: list[str | None] = []
+    sinks = {k: _VideoFiles(tmp, k, ds.fps, video_codec, crf) for k in videos}
     try:
         for ep in ds.episodes:
             if writer is not None and written >= limit:
@@ -773,7 +924,7 @@ def _write_into(tmp: Path, ds: LogDataset) -> None:
                 # encoding anyway after a wasted dictionary (3x slower reads, 40 % larger files).
                 writer = pq.ParquetWriter(path, schema, use_dictionary=["episode_index", "task_index"])
             cols = _frame_arrays(ds, ep, offset)
-            arrays = [_to_arrow(cols[n], ds.features[n], cols["frame_index"]) for n in ds.features]
+            arrays = [_to_arrow(cols[n], columns[n], cols["frame_index"]) for n in columns]
             table = pa.Table.from_arrays(arrays, schema=schema)
             writer.write_table(table, row_group_size=max(len(ep), 1))  # one row group per episode
             written += table.nbytes
@@ -782,20 +933,31 @@ def _write_into(tmp: Path, ds: LogDataset) -> None:
             used = [ds.tasks[int(i)] for i in cols["task_index"][np.sort(first)]]  # in order of appearance
             for key, value in zip(EPISODE_COLUMNS, (ep.index, used, t, chunk, fidx, offset, offset + t)):
                 rows[key].append(value)
+            for key, sink in sinks.items():
+                for c, value in zip(VIDEO_COLUMNS, sink.add(cols[key])):
+                    rows[f"videos/{key}/{c}"].append(value)
             for name, per in _feature_stats(cols, ds.features).items():
                 for stat, value in per.items():
                     stat_rows[f"stats/{name}/{stat}"].append(value.tolist())
             metas.append(json.dumps(ep.meta, allow_nan=False) if ep.meta else None)
             offset += t
+        for sink in sinks.values():
+            sink.close()
     finally:
         if writer is not None:
             writer.close()
+        for sink in sinks.values():
+            sink.abort()
 
     fields = [
         pa.field("episode_index", pa.int64()), pa.field("tasks", pa.list_(pa.string())), pa.field("length", pa.int64()),
         pa.field("data/chunk_index", pa.int64()), pa.field("data/file_index", pa.int64()),
         pa.field("dataset_from_index", pa.int64()), pa.field("dataset_to_index", pa.int64()),
     ]
+    for key in videos:
+        fields += [pa.field(f"videos/{key}/chunk_index", pa.int64()), pa.field(f"videos/{key}/file_index", pa.int64()),
+                   pa.field(f"videos/{key}/from_timestamp", pa.float64()),
+                   pa.field(f"videos/{key}/to_timestamp", pa.float64())]
     arrays = [pa.array(rows[f.name], f.type) for f in fields]
     for name, feat in ds.features.items():
         for stat in STAT_NAMES:
@@ -818,14 +980,19 @@ def _write_into(tmp: Path, ds: LogDataset) -> None:
     stats = {name: _aggregate_stats(stat_rows, name, feat) for name, feat in ds.features.items()}
     (tmp / STATS_PATH).write_text(json.dumps(stats, indent=4, allow_nan=False))
 
+    from bench.video import probe
+
     fps = int(ds.fps) if float(ds.fps).is_integer() else float(ds.fps)
+    features = {k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")} for k, v in ds.features.items()}
+    for key, sink in sinks.items():  # as lerobot: the codec etc. of the feature's first file
+        assert sink.first is not None
+        features[key]["info"] = probe(sink.first)
     info_doc = {
         "codebase_version": CODEBASE_VERSION, "robot_type": ds.robot_type, "total_episodes": n,
         "total_frames": offset, "total_tasks": len(ds.tasks), "chunks_size": CHUNKS_SIZE,
         "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB, "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
-        "fps": fps, "splits": {"train": f"0:{n}"}, "data_path": DATA_PATH, "video_path": None,
-        "features": {k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")}
-                     for k, v in ds.features.items()},
+        "fps": fps, "splits": {"train": f"0:{n}"}, "data_path": DATA_PATH,
+        "video_path": VIDEO_PATH if videos else None, "features": features,
     }
     (tmp / INFO_PATH).write_text(json.dumps(info_doc, indent=4))
 
@@ -840,7 +1007,7 @@ def _aggregate_stats(stat_rows: dict[str, list], name: str, feature: dict) -> di
     var = np.tensordot(w, get("std") ** 2 + (get("mean") - mean) ** 2, axes=1)
     out = {"min": get("min").min(axis=0), "max": get("max").max(axis=0), "mean": mean, "std": np.sqrt(var),
            "count": np.asarray([int(counts.sum())])}
-    if feature["dtype"] != "image" and np.dtype(feature["dtype"]).kind in "iub":
+    if not is_image(feature) and np.dtype(feature["dtype"]).kind in "iub":
         out["min"], out["max"] = out["min"].astype(np.int64), out["max"].astype(np.int64)
     for q in QUANTILES:
         out[q] = np.tensordot(w, get(q), axes=1)
@@ -862,28 +1029,48 @@ def _replace(tmp: Path, root: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
-def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = False) -> Path:
+def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = False, video_codec: str = "h264",
+                  crf: int | None = None) -> Path:
     """Write `ds` as a LeRobot v3.0 folder that lerobot itself can load.
 
     `frame_index` and `index` are derived on write (position in episode / in dataset). The files
     are written to a temporary sibling folder and moved into place at the end, so a failure leaves
-    nothing half-written and an existing dataset is replaced only by a complete one.
+    nothing half-written and an existing dataset is replaced only by a complete one. Video
+    features are encoded to MP4 (see `bench.video`): lossy, so frames read back differ from the
+    written ones by a few levels (H.264 at the default quality: mean absolute error about 1-3 of
+    255 on rendered scenes); their timestamps must be frame_index / fps.
 
     Args:
         root: target folder; must not exist or be empty unless `overwrite`.
         ds: the dataset; checked with `validate` first.
         overwrite: replace an existing non-empty folder.
+        video_codec: "h264" (default) or "av1" for video features.
+        crf: video quality (lower is better; default 20 for H.264, 30 for AV1).
 
     Returns:
         The resolved path of the written folder.
     """
+    from bench.video import CODECS, VideoError, check_codec, check_size
+
     root = Path(root).resolve()
-    validate(ds, where=f"write_dataset({root})")
-    video = [k for k, v in ds.features.items() if v["dtype"] == "video"]
-    if video:
-        raise DataError(
-            f"write_dataset({root}): video feature {video[0]!r} cannot be written; store it as dtype 'image'"
-        )
+    where = f"write_dataset({root})"
+    validate(ds, where=where)
+    if any(v["dtype"] == "video" for v in ds.features.values()):
+        if video_codec not in CODECS:
+            raise DataError(f"{where}: video_codec is {video_codec!r}; valid: {', '.join(CODECS)}")
+        try:
+            check_codec(video_codec)
+        except VideoError as exc:
+            raise DataError(f"{where}: {exc}") from None
+        for name, feat in ds.features.items():
+            try:
+                if feat["dtype"] == "video":
+                    check_size(video_codec, feat["shape"][0], feat["shape"][1])
+            except VideoError as exc:
+                raise DataError(f"{where}: feature {name!r}: {exc}") from None
+        if not float(ds.fps).is_integer():
+            raise DataError(f"{where}: field 'fps' is {ds.fps!r}; video features need a whole number of frames per second")
+        _check_video_timestamps(ds, where)
     if root.exists() and not root.is_dir():
         raise DataError(f"{root}: exists and is not a folder")
     if root.exists() and any(root.iterdir()) and not overwrite:
@@ -892,7 +1079,7 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
     try:
         (tmp / "meta").mkdir()
-        _write_into(tmp, ds)
+        _write_into(tmp, ds, video_codec, crf)
         _replace(tmp, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -901,7 +1088,7 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
     return root
 
 
-def iter_episodes(root: str | os.PathLike) -> Iterator[Episode]:
+def iter_episodes(root: str | os.PathLike, videos: bool = True) -> Iterator[Episode]:
     """Episodes one at a time, in index order, reading one row range each (low memory)."""
     for e in range(len(_index(root).episode_index)):
-        yield read_episode(root, e)
+        yield read_episode(root, e, videos=videos)

@@ -12,10 +12,11 @@ the replayed frames), plus the mean over joints, per episode and over all of the
 
 Two backends:
 
-- **MJCF** (`spec=`): a calibration spec (docs/calibration.md) names the model and where qpos,
-  qvel and ctrl live in the log. The model is replayed *as given* (the spec's free parameters and
-  effects are not used); all segments of one horizon run in one batched `mujoco.rollout` call
-  (`bench.calibrate.simulate`, `bench.calibrate.metrics.horizon_errors`).
+- **MJCF** (`spec=`): a signal map (`bench.replay.spec`; a calibration spec is one, with more
+  fields) names the model and where qpos, qvel and ctrl live in the log. The model is replayed
+  *as given* (a calibration spec's free parameters and effects are not used); all segments of one
+  horizon run in one batched `mujoco.rollout` call (`bench.replay.simulate`,
+  `bench.replay.metrics.horizon_errors`).
 - **suite** (`suite=`): datasets written by `bench run ... record=DIR` carry the MuJoCo state
   before every step (`observation.sim_state`), the policy's action and, for robosuite and
   Meta-World envs, the MuJoCo inputs of every physics step (`action.ctrl`: actuator commands, and
@@ -26,14 +27,17 @@ Two backends:
   - `action`: the logged policy actions through the env's own controller (robosuite's OSC is
     Python), in a Python step loop: set the state at each segment start, `env.step` the actions.
     This also replays the controller, so a gap in what it computes shows up too.
+
+This package is the base layer of Real2Sim: `spec` (the signal map), `data` (the recording),
+`simulate` (batched rollouts of model variants from logged states) and `metrics` (per-joint errors
+per horizon) are what `bench.calibrate` builds on; nothing here imports `bench.calibrate`.
 """
 from __future__ import annotations
 
 from bench.replay.cli import HELP, main, plot, render, run, write
 from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, summarise
 from bench.replay.mjcf import replay_mjcf
-from bench.replay.suite import (SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite,
-                                suite_segments)
+from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
 __all__ = ["COMMANDS", "CTRL", "HELP", "SCHEMA", "Replay", "ReplayConfig", "SuiteLogs", "load_suite_logs", "main",
            "plot", "render", "replay_actions", "replay_ctrl", "replay_mjcf", "replay_suite", "run", "suite_segments",

@@ -104,8 +104,9 @@ The model is replayed as given (no fitting: `bench calibrate` fits it). docs/rep
 
 keys:
   logs      LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS)
-  spec      calibration spec (YAML/JSON, docs/calibration.md): the MJCF model and the log columns of
-            qpos, qvel (optional) and ctrl; all segments run batched in mujoco.rollout
+  spec      signal map (YAML/JSON, docs/replay.md): the MJCF model, substeps per frame and the log
+            columns of qpos, qvel (optional) and ctrl; a calibration spec works too (its own
+            fields are ignored); all segments run batched in mujoco.rollout
   suite     instead of spec, for datasets written by `bench run ... record=DIR` (they carry the
             MuJoCo state before each step): replayed in the suite's nominal env
   commands  suite logs only: ctrl = the logged inputs of every physics step (actuator commands;

@@ -1,7 +1,6 @@
 """What both replay backends share: the config, reading and selecting episodes, the error summary."""
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,6 +9,7 @@ from typing import Any, Optional
 import numpy as np
 
 from bench.errors import ConfigError, DataError
+from bench.io import finite_or_none as finite
 
 SCHEMA = "bench.replay/1"
 HORIZON_LABELS = {"one_step": "one-step", "k_step": "k-step", "free_run": "free run"}
@@ -24,7 +24,7 @@ class ReplayConfig:
     """Keys of `bench replay`."""
 
     logs: Optional[str] = None            # LeRobot v3 dataset folder
-    spec: Optional[str] = None            # calibration spec (YAML/JSON) naming the MJCF model and log columns
+    spec: Optional[str] = None            # signal map (YAML/JSON; a calibration spec is one): MJCF model, log columns
     suite: Optional[str] = None           # instead of spec: suite whose env replays a `bench run record=` dataset
     k: int = 10                           # frames per k-step horizon
     episodes: Optional[list[int]] = None  # dataset episode indices (default: all)
@@ -39,7 +39,7 @@ class Replay:
     """What a replay measured: the JSON document plus the traces behind it (for the plot)."""
 
     doc: dict[str, Any]
-    errors: dict  # horizon -> bench.calibrate.metrics.HorizonErrors
+    errors: dict  # horizon -> bench.replay.metrics.HorizonErrors
     qpos: np.ndarray  # (N, nq) logged positions of the replayed episodes, concatenated
     offsets: np.ndarray  # (E + 1,)
     fps: float
@@ -54,7 +54,7 @@ def _read_logs(cfg: ReplayConfig):
     path = Path(str(cfg.logs)).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")
-    ds = read_dataset(path)
+    ds = read_dataset(path, videos=False)  # replay needs the numeric features only: do not decode camera videos
     if not ds.episodes:
         raise DataError(f"{path}: the dataset holds no episodes")
     if cfg.episodes is None:
@@ -75,8 +75,8 @@ def _check_cfg(cfg: ReplayConfig) -> None:
     if cfg.spec and cfg.suite:
         raise ConfigError("give spec= (MJCF replay) or suite= (replay of a `bench run record=` dataset), not both")
     if not cfg.spec and not cfg.suite:
-        raise ConfigError("spec= is required (a calibration spec naming the MJCF model and the log columns, "
-                          "docs/calibration.md); for datasets written by `bench run record=`, give suite=NAME")
+        raise ConfigError("spec= is required (a signal map naming the MJCF model and the log columns, "
+                          "docs/replay.md); for datasets written by `bench run record=`, give suite=NAME")
     if cfg.episodes is not None and not cfg.episodes:
         raise ConfigError("episodes=[] selects nothing; list dataset episode indices, e.g. episodes=[0,3], or omit it")
     if cfg.k < 1:
@@ -90,10 +90,6 @@ def _check_cfg(cfg: ReplayConfig) -> None:
     if cfg.commands is not None and not cfg.suite:
         raise ConfigError("commands= applies to suite= replays of `bench run record=` datasets; an MJCF replay "
                           "(spec=) applies the ctrl columns the spec names")
-
-
-def _num(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None
 
 
 def _episode_of(offsets: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -112,7 +108,7 @@ def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[
     for label, e in errors.items():
         per_joint = {}
         for j, name in enumerate(joints):
-            entry = {"rmse": _num(e.rmse[j]), "nrmse": _num(e.nrmse[j]) if moving[j] else None}
+            entry: dict[str, Any] = {"rmse": finite(e.rmse[j]), "nrmse": finite(e.nrmse[j]) if moving[j] else None}
             if not moving[j]:
                 entry["nrmse_reason"] = "the joint does not move in the replayed logs (position std 0)"
             per_joint[name] = entry
@@ -120,8 +116,8 @@ def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[
             "k": 1 if label == "one_step" else k if label == "k_step" else None,
             "segments": int(len(e.start)),
             "frames": int(e.mask.sum()),
-            "rmse": _num(float(e.rmse.mean())),
-            "nrmse": _num(float(e.nrmse[moving].mean())) if moving.any() else None,
+            "rmse": finite(float(e.rmse.mean())),
+            "nrmse": finite(float(e.nrmse[moving].mean())) if moving.any() else None,
             "per_joint": per_joint,
         }
     per_episode = []
@@ -133,8 +129,8 @@ def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[
             n = max(int(m.sum()), 1)
             err = np.where(m[..., None], e.pred[sel] - e.target[sel], 0.0)
             rmse = np.sqrt((err ** 2).sum(axis=(0, 1)) / n)
-            row[f"{label}_rmse"] = _num(float(rmse.mean()))
-            row[f"{label}_nrmse"] = _num(float((rmse[moving] / spread[moving]).mean())) if moving.any() else None
+            row[f"{label}_rmse"] = finite(float(rmse.mean()))
+            row[f"{label}_nrmse"] = finite(float((rmse[moving] / spread[moving]).mean())) if moving.any() else None
         per_episode.append(row)
     return horizons, per_episode
 

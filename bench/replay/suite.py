@@ -83,7 +83,7 @@ def _back_to_back(rec, windows, k: int):
     The env carries state that the log does not (robosuite's gripper integrates its command), so a
     segment must start where the previous one ended: stepping them in order keeps that state right.
     """
-    from bench.calibrate.simulate import Segments
+    from bench.replay.simulate import Segments
 
     starts, masks = [], []
     for w in windows:
@@ -234,7 +234,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
     At each episode's start the env is reset with the episode's seed; when that state equals the
     logged one to float32 precision (the log stores float32), the exact reset state is used instead.
     """
-    from bench.calibrate.data import Recording, Window
+    from bench.replay.data import Recording, Window
 
     for feat in ("observation.sim_state", "action", *((CTRL,) if need_ctrl else ())):
         if feat not in ds.features:
@@ -274,7 +274,7 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
 
 def suite_segments(logs: SuiteLogs, k: int, commands: str) -> dict:
     """The segments each horizon replays (the action loop steps k-step segments back to back)."""
-    from bench.calibrate.metrics import horizon_segments
+    from bench.replay.metrics import horizon_segments
 
     segments = horizon_segments(logs.rec, logs.windows, k)
     if commands == "action":
@@ -288,7 +288,7 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     Each segment sets the MuJoCo state from `observation.sim_state` and applies the logged
     commands; positions after each frame are compared with the next logged state.
     """
-    from bench.calibrate.metrics import segment_errors
+    from bench.replay.metrics import segment_errors
 
     t0 = time.perf_counter()
     ds, eps = _read_logs(cfg)
