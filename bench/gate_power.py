@@ -191,12 +191,12 @@ def plan_command(power: float, rate: float, drop: float, n_cells: int, batch: in
         raise ConfigError(f"drop={drop} exceeds rate={rate}: the candidate's success rate would be negative")
     splits, source = None, ""
     if not n_cells:
-        from bench import api, perturb
+        from bench import api, axes
         from bench.suite import select_cells
 
         rc = api.config_from_argv(list(forwarded))
         suite = api.load_suite(rc.suite, **rc.suite_options)
-        conditions = perturb.conditions_from_config(rc.perturb)
+        conditions = axes.conditions_from_config(rc.perturb)
         cells = select_cells(suite, rc)
         if not cells:
             raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell")
