@@ -168,8 +168,6 @@ class Served:
 
 
 def serve(path: str, host: str, port: int, device: str) -> None:
-    import signal
-
     served = Served(path, device)
 
     def log(text: str) -> None:
@@ -182,20 +180,9 @@ def serve(path: str, host: str, port: int, device: str) -> None:
     except OSError as exc:
         fail(f"--host {host} --port {port}: cannot listen there ({exc.strerror}); pick another port (0 = any)")
 
-    def stop(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, stop)
     where = f"[{host}]" if ":" in host else host
-    print(f"lerobot adapter: {served.type} policy {path} on ws://{where}:{bound} (inputs: "
-          f"{', '.join(served.inputs)}); Ctrl-C stops", flush=True)
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.shutdown()
-    print("lerobot adapter: stopped", flush=True)
+    server.serve_until_stopped(f"lerobot adapter: {served.type} policy {path} on ws://{where}:{bound} (inputs: "
+                               f"{', '.join(served.inputs)}); Ctrl-C stops", "lerobot adapter")
 
 
 def main(argv: list[str]) -> int:

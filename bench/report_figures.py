@@ -20,6 +20,15 @@ def _plt():
     return plt
 
 
+def _save(fig: Any, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+    """Lay out, write and close one figure (closed figures free their memory in long report runs)."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout(rect=rect)
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _err(est: dict | None) -> tuple[float, float, float] | None:
     """(value, minus, plus) of an estimate with an interval, or None."""
     if not est or est.get("value") is None:
@@ -64,9 +73,7 @@ def fig_cells(summary: dict, path: Path) -> bool:
                      f"bar = {metric}, tick = {other}", fontsize=9, loc="left")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
     fig.legend(handles, ["seen", "unseen"], loc="lower center", fontsize=8, frameon=False, ncols=2)
-    fig.tight_layout(rect=(0, 0.07 / len(tasks), 1, 1))
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path, rect=(0, 0.07 / len(tasks), 1, 1))
     return True
 
 
@@ -106,9 +113,7 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     a2.invert_yaxis()
     a2.set_xlim(-1.02, 1.02)
     a2.set_title("transfer gap (reference − target)", fontsize=9, loc="left")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -167,9 +172,7 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
         ax.legend(fontsize=7, frameon=False)
     for k in range(len(axes_names), nrow * ncol):
         axs[k // ncol, k % ncol].axis("off")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path)
     return axes_names
 
 
@@ -205,9 +208,7 @@ def fig_leaderboard(board: dict, path: Path) -> bool:
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
     fig.legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, ncols=2, loc="lower center")
     ax.set_title("leaderboard: seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path, rect=(0, 0.06, 1, 1))
     return True
 
 
@@ -231,9 +232,7 @@ def fig_calibration(cal: dict, path: Path) -> bool:
     ax.set_ylabel("held-out NRMSE")
     ax.legend(fontsize=8, frameon=False)
     ax.set_title("calibration: error before → after (held-out)", fontsize=9, loc="left")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 

@@ -32,7 +32,7 @@ import threading
 import uuid
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -83,7 +83,29 @@ def check_size(codec: str, height: int, width: int, pad_odd: bool = False) -> No
                          f"width (odd sizes decode differently in different decoders); use codec h264")
 
 
-class Mp4Writer:
+_W = TypeVar("_W", bound="_Finishes")
+
+
+class _Finishes:
+    """`with writer:` closes the file on success and aborts it (nothing left behind) on an exception."""
+
+    def close(self) -> Path:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self: _W) -> _W:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class Mp4Writer(_Finishes):
     """Encode frames of one size into an MP4 file at a constant frame rate (synchronous).
 
     Args:
@@ -213,20 +235,12 @@ class Mp4Writer:
             self._container = None
         self._tmp.unlink(missing_ok=True)
 
-    def __enter__(self) -> Mp4Writer:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 _STOP = object()
 
 
-class BackgroundMp4Writer:
+class BackgroundMp4Writer(_Finishes):
     """An `Mp4Writer` fed through a bounded queue by a background thread (keeps encoding off the step loop).
 
     `write(frame)` copies the frame into the queue and returns; when `queue_size` frames are
@@ -324,14 +338,6 @@ class BackgroundMp4Writer:
         self._thread.join()
         self._error = None
 
-    def __enter__(self) -> BackgroundMp4Writer:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def probe(path: str | os.PathLike) -> dict:

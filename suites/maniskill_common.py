@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 from bench import sim_maniskill
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, Feature, ObsSpec
 from bench.sim_maniskill import OBS_MODES, RESETS, cameras_of, check_backend
+from bench.suite import SuiteBase
 
 IMAGE_SIZES = (16, 1024)
 
@@ -106,3 +107,17 @@ def obs_spec(state: Sequence[tuple[str, int]], robot: str, obs: str, cameras: Op
         spec[RGB + cam] = Feature.rgb(image_size, image_size)
     spec[TASK] = Feature.text()
     return spec
+
+
+class ManiSkillSuite(SuiteBase):
+    """What every ManiSkill suite shares: unavailable without the extra, and its common keys checked on construction."""
+
+    @classmethod
+    def unavailable(cls) -> str | None:
+        return sim_maniskill.missing_extra()
+
+    def __init__(self, options: Any = None) -> None:
+        super().__init__(options)
+        o = self.options
+        require_extra()
+        check_common(o.obs, o.cameras, o.image_size, o.sim_backend, o.reset)

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from bench.protocols import EnvAdapter, ObsSpec, Policy
-from bench.suite import Cell, SuiteBase
-from suites.maniskill_common import TASKS, check_common, obs_spec, require_extra
+from bench.suite import Cell
+from suites.maniskill_common import TASKS, ManiSkillSuite, obs_spec
 
 SEEN = ["panda", "panda_wristcam"]
 UNSEEN = ["fetch", "so100"]
@@ -66,7 +66,7 @@ class ManiSkillRobotsOptions:
     reset: str = "rebuild"                 # rebuild: same seed+actions -> same trajectory; soft: ManiSkill's reset
 
 
-class ManiSkillHeldOutRobots(SuiteBase):
+class ManiSkillHeldOutRobots(ManiSkillSuite):
     """PickCube/PushCube/PullCube on 4 ManiSkill robots; panda(+wristcam) seen, fetch and so100 held out."""
 
     name = "maniskill_held_out_robots"
@@ -77,17 +77,6 @@ class ManiSkillHeldOutRobots(SuiteBase):
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
     capabilities = frozenset({"expert"})
 
-    @classmethod
-    def unavailable(cls) -> str | None:
-        from bench.sim_maniskill import missing_extra
-
-        return missing_extra()
-
-    def __init__(self, options: Any = None) -> None:
-        super().__init__(options)
-        o = self.options
-        require_extra()
-        check_common(o.obs, o.cameras, o.image_size, o.sim_backend, o.reset)
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, task, robot, "table", "seen" if robot in SEEN else "unseen")

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from bench.protocols import EnvAdapter, ObsSpec, Policy
-from bench.suite import Cell, SuiteBase
-from suites.maniskill_common import TASKS, check_common, check_control_mode, obs_spec, require_extra
+from bench.suite import Cell
+from suites.maniskill_common import TASKS, ManiSkillSuite, check_control_mode, obs_spec
 
 SEEN = ["PickCube", "PushCube", "PullCube", "StackCube", "LiftPegUpright", "PlaceSphere"]
 UNSEEN = ["PegInsertionSide", "StackPyramid", "PlugCharger", "PokeCube", "RollBall"]
@@ -96,7 +96,7 @@ def state_fields(task: str, control_mode: str) -> tuple[tuple[str, int], ...]:
     return tuple(fields) + STATE_FIELDS[task]
 
 
-class ManiSkillTasks(SuiteBase):
+class ManiSkillTasks(ManiSkillSuite):
     """Eleven ManiSkill3 table-top tasks on PhysX (CPU); 6 seen, 5 held out; motion-planning expert."""
 
     name = "maniskill_tasks"
@@ -107,19 +107,10 @@ class ManiSkillTasks(SuiteBase):
     manifest = {"tasks": {"seen": SEEN, "unseen": UNSEEN}}
     capabilities = frozenset({"expert"})
 
-    @classmethod
-    def unavailable(cls) -> str | None:
-        from bench.sim_maniskill import missing_extra
-
-        return missing_extra()
-
     def __init__(self, options: Any = None) -> None:
         super().__init__(options)
-        o = self.options
-        require_extra()
-        check_common(o.obs, o.cameras, o.image_size, o.sim_backend, o.reset)
         for task in TASKS.values():
-            check_control_mode(o.control_mode, task.robot)
+            check_control_mode(self.options.control_mode, task.robot)
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, t, TASKS[t].robot, "table", split)

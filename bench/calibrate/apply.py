@@ -67,19 +67,24 @@ def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any
     return out
 
 
-def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) -> dict[str, Any]:
-    """A calibration to carry into a run of `suite` whose selected cells have `robots`; refused otherwise."""
+def read_calibration(path: str | Path) -> tuple[Path, bytes, Any]:
+    """A `bench calibrate` output folder or its calibration.json -> (file, its bytes, the parsed JSON)."""
     p = Path(path).expanduser()
     if p.is_dir():
         p = p / "calibration.json"
     if not p.is_file():
-        raise ConfigError(f"calibration={path!r}: no such file (a `bench calibrate suite=...` output folder or its "
+        raise ConfigError(f"calibration={str(path)!r}: no such file (a `bench calibrate` output folder or its "
                           "calibration.json)")
     raw = p.read_bytes()
     try:
-        doc = json.loads(raw)
-    except json.JSONDecodeError as exc:
+        return p, raw, json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"calibration={str(p)!r} is not JSON: {exc}") from None
+
+
+def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) -> dict[str, Any]:
+    """A calibration to carry into a run of `suite` whose selected cells have `robots`; refused otherwise."""
+    p, raw, doc = read_calibration(path)
     section = doc.get("apply") if isinstance(doc, dict) else None
     if not isinstance(doc, dict) or doc.get("schema") != "bench.calibration/1" or not isinstance(section, dict):
         raise DataError(f"calibration={str(p)!r} is not a suite calibration (schema bench.calibration/1 with an "

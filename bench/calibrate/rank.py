@@ -12,12 +12,12 @@ still parts from the robot, which is what to replay, inspect or collect more of 
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bench.calibrate.apply import read_calibration
 from bench.calibrate.model import Candidate, Layout, Plant
 from bench.errors import DataError
 from bench.replay.simulate import free_runs, horizons, logged
@@ -71,13 +71,9 @@ def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -
     """Every episode of `logs` with its surprise under the calibrated model, most surprising first."""
     if horizon not in HORIZONS:
         raise DataError(f"horizon={horizon!r}; valid: {', '.join(HORIZONS)}")
-    path = Path(calibration).expanduser()
-    if path.is_dir():
-        path = path / "calibration.json"
-    if not path.is_file():
-        raise DataError(f"calibration={str(calibration)!r}: no such file (a `bench calibrate` output folder or its "
-                        "calibration.json)")
-    doc = json.loads(path.read_text())
+    path, _, doc = read_calibration(calibration)
+    if not isinstance(doc, dict):
+        doc = {}
     if doc.get("schema") != "bench.calibration/1" or "x" not in doc.get("fit", {}).get("final", {}):
         raise DataError(f"{path}: not a calibration result with its final parameters (bench.calibration/1)")
     logs = Path(logs).expanduser()

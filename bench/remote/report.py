@@ -16,7 +16,7 @@ from bench.remote import latency
 
 def fig_latency(block: dict[str, Any], path: Path) -> bool:
     """Round-trip histogram (fraction of requests per log bin) of the run, and a line per condition when several."""
-    from bench.report_figures import _plt
+    from bench.report_figures import _plt, _save
 
     bins = block.get("bins") or []
     if not bins:
@@ -47,9 +47,7 @@ def fig_latency(block: dict[str, Any], path: Path) -> bool:
     ax.set_ylabel("fraction of requests")
     ax.set_title("policy round-trip latency", fontsize=9, loc="left")
     ax.legend(fontsize=7, frameon=False)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -345,17 +344,6 @@ def main(argv: list[str]) -> int:
                           "port (port=0 = any free one)") from None
     where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
 
-    def stop(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, stop)
-    print(f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, default cell "
-          f"{server.default_cell}); Ctrl-C stops", flush=True)
-    try:
-        ws.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        ws.shutdown()
-    print("bench serve: stopped", flush=True)
+    ws.serve_until_stopped(f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
+                           f"default cell {server.default_cell}); Ctrl-C stops", "bench serve")
     return 0

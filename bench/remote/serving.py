@@ -66,6 +66,23 @@ class WebsocketServer:
     def serve_forever(self) -> None:
         self._server.serve_forever()
 
+    def serve_until_stopped(self, banner: str, label: str) -> None:
+        """Print `banner`, serve until Ctrl-C or SIGTERM, shut down, and say so (`label: stopped`)."""
+        import signal
+
+        def stop(signum: int, frame: Any) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, stop)
+        print(banner, flush=True)
+        try:
+            self.serve_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.shutdown()
+        print(f"{label}: stopped", flush=True)
+
     def start(self) -> int:
         """Bind and serve from a background thread (tests, benchmarks); returns the port."""
         port = self.bind()
