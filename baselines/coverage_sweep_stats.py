@@ -5,7 +5,7 @@ runs the experiment; this module only reads what it produced).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
@@ -13,8 +13,16 @@ from bench import scoring
 from bench.coverage import TrainingData, coverage_report, fmt_pct
 from bench.trend import SeriesBootstrap, slope_with_interval
 
-if TYPE_CHECKING:
-    from baselines.coverage_sweep import SweepConfig
+
+class SweepConfig(Protocol):
+    """What the analysis reads of the sweep's config (`baselines.coverage_sweep.SweepConfig`)."""
+
+    @property
+    def seeds(self) -> Sequence[int]: ...
+    @property
+    def n_boot(self) -> int: ...
+    @property
+    def confidence(self) -> float: ...
 
 
 def _training_summary(infos: Sequence[dict]) -> dict[str, Any]:

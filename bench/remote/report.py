@@ -53,7 +53,7 @@ def fig_latency(block: dict[str, Any], path: Path) -> bool:
 
 def latency_section(summary: dict[str, Any], tmp: Path) -> str:
     """HTML of the section ('' when the run has no remote-policy latency)."""
-    from bench.report import _e, _img, _table
+    from bench.report_html import _e, _img, _table
 
     block = summary.get("policy_latency")
     if not block:
