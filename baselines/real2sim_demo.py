@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -133,17 +134,28 @@ def paired(nominal: dict, calibrated: dict, real: dict, n_boot: int = 2000, seed
     return out
 
 
+@dataclass(frozen=True)
+class DemoConfig:
+    """Keys of the demonstration (key=value)."""
+
+    out: str = "results/real2sim"       # where the README's inputs go (real_robot.json, calibration/, agreement.json)
+    work: str = "/tmp/real2sim"         # runs and logs (reused on a rerun)
+    episodes: int = 20                  # episodes per policy on each of real / nominal / calibrated
+    seed: int = 1                       # run seed of the evaluations (the logs use 100)
+    log_episodes: int = 8               # episodes logged on the "real" robot
+    workers: int = 2                    # workers per run
+
+
 def main(argv: list[str]) -> int:
     from bench.agreement import Outcome, agreement
     from bench.calibrate.report import write_report
     from bench.calibrate.suite import calibrate_suite
-    from bench.config import parse_kv
+    from bench.config import build_from_argv
     from bench.io import write_atomic
 
-    _, kv = parse_kv(argv)
-    out, work = Path(str(kv.get("out", "results/real2sim"))), Path(str(kv.get("work", "/tmp/real2sim")))
-    episodes, seed = int(kv.get("episodes", 20)), int(kv.get("seed", 1))
-    log_eps, workers = int(kv.get("log_episodes", 8)), int(kv.get("workers", 2))
+    cfg: DemoConfig = build_from_argv(DemoConfig, argv, "python -m baselines.real2sim_demo")
+    out, work = Path(cfg.out), Path(cfg.work)
+    episodes, seed, log_eps, workers = cfg.episodes, cfg.seed, cfg.log_episodes, cfg.workers
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -187,4 +199,10 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    from bench.errors import BenchError
+
+    try:
+        raise SystemExit(main(sys.argv[1:]))
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(exc.exit_code) from None

@@ -35,7 +35,9 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
@@ -113,19 +115,33 @@ def cases(kind: str, effects: list[str], tmp: Path) -> list[tuple[str, str, Path
     return out
 
 
+@dataclass(frozen=True)
+class Args:
+    """Keys of this benchmark (key=value)."""
+
+    case: str = "all"                   # all | emps | arm
+    effects: Any = "all"                # arm cases: all, one effect name, or a list [a,b]
+    before: str = BEFORE                # the git revision timed as "before" (none = only this checkout)
+    repeats: int = 1                    # best of this many timings
+
+
 def main(argv: list[str]) -> int:
     from bench.calibrate.effects import EFFECTS
-    from bench.config import parse_kv
+    from bench.config import build_from_argv
+    from bench.errors import BenchError
 
-    _, kv = parse_kv(argv)
-    kind = str(kv.get("case", "all"))
-    if kind not in ("all", "emps", "arm"):
-        print(f"case is {kind!r}; valid: all, emps, arm", file=sys.stderr)
+    try:
+        args: Args = build_from_argv(Args, argv, "python benchmarks/bench_calibrate.py")
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
-    effects = kv.get("effects", "all")
-    effects = [*EFFECTS, "none"] if effects == "all" else effects if isinstance(effects, list) else [effects]
-    before = str(kv.get("before", BEFORE))
-    repeats = int(kv.get("repeats", 1))
+    kind = args.case
+    if kind not in ("all", "emps", "arm"):
+        print(f"error: case is {kind!r}; valid: all, emps, arm", file=sys.stderr)
+        return 2
+    effects = args.effects
+    effects = [*EFFECTS, "none"] if effects == "all" else list(effects) if not isinstance(effects, str) else [effects]
+    before, repeats = args.before, args.repeats
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         trees = {"after": REPO}

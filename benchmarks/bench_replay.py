@@ -43,6 +43,7 @@ import io
 import os
 import sys
 import time
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -110,7 +111,7 @@ def _frames(segments: dict) -> int:
     return int(sum(len(s) * s.length if s.mask is None else s.mask.sum() for s in segments.values()))
 
 
-def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
+def suite_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
     import tempfile
     from pathlib import Path
 
@@ -118,7 +119,7 @@ def suite_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
     from bench.logs import read_dataset
     from bench.replay import ReplayConfig, load_suite_logs, replay_actions, replay_ctrl, suite_segments
 
-    n_eps, horizon = int(kv.get("suite_episodes", 6)), int(kv.get("horizon", 100))
+    n_eps, horizon = args.suite_episodes, args.horizon
     with tempfile.TemporaryDirectory() as tmp:
         rec_dir = Path(tmp) / "rec"
         t0 = time.perf_counter()
@@ -185,26 +186,42 @@ def physics_floor(model, ctrl: np.ndarray, steps: int = 20_000) -> float:
     return best / steps
 
 
-def main(argv: list[str]) -> int:
-    from bench.config import parse_kv
+@dataclass(frozen=True)
+class Args:
+    """Keys of this benchmark (key=value)."""
 
-    _, kv = parse_kv(argv)
-    case = str(kv.get("case", "both"))
-    if case not in ("both", "arm", "suite"):
-        print(f"case is {case!r}; valid: both, arm, suite", file=sys.stderr)
+    case: str = "both"                  # both | arm | suite
+    k: int = 10                         # k-step horizon (frames)
+    repeats: int = 5                    # best of this many timings
+    threads: list[int] = field(default_factory=lambda: [1, 2])  # rollout thread counts to time
+    episodes: int = 8                   # arm case: episodes
+    duration: float = 6.0               # arm case: seconds per episode
+    fps: float = 100.0                  # arm case: log rate
+    suite_episodes: int = 6             # suite case: recorded held_out_robots episodes
+    horizon: int = 100                  # suite case: steps per episode
+
+
+def main(argv: list[str]) -> int:
+    from bench.config import build_from_argv
+    from bench.errors import BenchError
+
+    try:
+        args: Args = build_from_argv(Args, argv, "python benchmarks/bench_replay.py")
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
-    k, repeats = int(kv.get("k", 10)), int(kv.get("repeats", 5))
-    threads = kv.get("threads", [1, 2])
-    threads = threads if isinstance(threads, list) else [threads]
-    if case in ("both", "arm"):
-        arm_case(kv, k, repeats, threads)
-    if case in ("both", "suite"):
-        suite_case(kv, k, repeats, threads)
+    if args.case not in ("both", "arm", "suite"):
+        print(f"error: case is {args.case!r}; valid: both, arm, suite", file=sys.stderr)
+        return 2
+    if args.case in ("both", "arm"):
+        arm_case(args, args.k, args.repeats, list(args.threads))
+    if args.case in ("both", "suite"):
+        suite_case(args, args.k, args.repeats, list(args.threads))
     return 0
 
 
-def arm_case(kv: dict, k: int, repeats: int, threads: list[int]) -> None:
-    episodes, duration, fps = int(kv.get("episodes", 8)), float(kv.get("duration", 6.0)), float(kv.get("fps", 100.0))
+def arm_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
+    episodes, duration, fps = args.episodes, args.duration, args.fps
 
     eps, _ = simulate_arm(None, episodes=episodes, duration=duration, fps=fps, seed=0)
     spec = SignalMap(**map_fields(spec_dict(None, model_file=str(ARM)), "."))
