@@ -41,6 +41,8 @@ def test_pip_pins_the_drivers_versions_of_the_project_requirements():
 
 
 def test_installed_ships_nothing_and_extra_fields_merge(monkeypatch):
+    for name in ray_env.PASS_ENV:  # other tests' imports set some of them (e.g. ManiSkill's prompt switch)
+        monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("MUJOCO_GL", "egl")
     env = ray_env.runtime_env("installed", "held_out_robots", "scripted",
                               {"env_vars": {"OMP_NUM_THREADS": "1"}, "container": {"image": "x"}})
