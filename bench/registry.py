@@ -124,9 +124,13 @@ def load_policy(ref: str) -> PolicyPlugin:
 def main_list(argv: list[str]) -> int:
     """`bench list`: registered suites with their manifests and keys, and policies."""
     if argv and argv[0] in ("-h", "--help"):
-        print("usage: bench list\n\nPrints the registered suites (entry points `bench.suites`) with their seen/unseen\n"
-              "split manifest and their own keys, and the registered policies (`bench.policies`).\n"
-              "Out-of-tree plugins need no registration: suite=package.module:Class, policy=package.module:attr.")
+        from bench.config import command_help
+
+        print(command_help("usage: bench list",
+                           "Prints the registered suites (entry points `bench.suites`) with their seen/unseen split\n"
+                           "manifest and their own keys, and the registered policies (`bench.policies`).\n"
+                           "Out-of-tree plugins need no registration: suite=package.module:Class, "
+                           "policy=package.module:attr."), end="")
         return 0
     from bench.protocols import option_keys
     from bench.suite import summary_line

@@ -78,8 +78,11 @@ def main(argv: list[str]) -> int:
 def main_score(argv: list[str]) -> int:
     """`bench score RUN_DIR`: recompute summary.json from episodes.jsonl and print the table."""
     if not argv or argv[0] in ("-h", "--help"):
-        print("usage: bench score RUN_DIR\n\nRecomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are\n"
-              "the source of truth) and prints the table.")
+        from bench.config import command_help
+
+        print(command_help("usage: bench score RUN_DIR",
+                           "Recomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are the source of\n"
+                           "truth) and prints the table.", examples=["bench score runs/my_run"]), end="")
         return 0 if argv else 2
     from bench.api import score
     from bench.errors import ConfigError
