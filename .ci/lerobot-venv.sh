@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
 # Build a side virtual environment with lerobot 0.4.4 in it, to check that lerobot itself loads the
-# LeRobot v3 datasets bench writes (tests/test_lerobot_interop.py). It is never bench's own environment:
+# LeRobot v3 datasets bench writes (tests/test_lerobot_interop.py), and to train and serve lerobot policies
+# that bench evaluates over the remote-policy protocol (baselines/lerobot_adapter.py,
+# tests/test_lerobot_remote.py). It is never bench's own environment:
 # lerobot brings pandas, and its pins (torch<2.11, torchvision<0.26) would pull a CUDA torch of several GB.
 # So: torch 2.13.0 CPU first, lerobot without its dependencies, then the part of its dependency list that
-# dataset loading imports, within lerobot's own version ranges where the registry has them.
+# dataset loading and training import (pyserial and diffusers: lerobot's training script imports every policy
+# and robot module), within lerobot's own version ranges where the registry has them, plus websockets and
+# msgpack for the adapter's server (bench's own wire code, imported from this checkout).
 #
 #   bash .ci/lerobot-venv.sh [DIR]          # default DIR: .lerobot-venv (git-ignored)
 #   BENCH_LEROBOT_PYTHON=DIR/bin/python pytest tests/test_lerobot_interop.py
@@ -26,7 +30,8 @@ PY="$DIR/bin/python"
 "$PY" -m pip install -q --no-deps lerobot==0.4.4 torchvision==0.28.0
 "$PY" -m pip install -q "datasets>=4,<5" "huggingface-hub>=0.34.2,<0.36" "accelerate>=1.10,<2" "av>=15,<16" \
     "deepdiff>=7,<9" "packaging>=24.2,<26" "draccus==0.10.0" "jsonlines>=4,<5" "einops>=0.8,<0.9" \
-    "termcolor>=2.4,<4" "gymnasium>=1.1,<2" "imageio>=2.34,<3" "numpy<2" "pyarrow<26" pillow
+    "termcolor>=2.4,<4" "gymnasium>=1.1,<2" "imageio>=2.34,<3" "numpy<2" "pyarrow<26" pillow \
+    "pyserial>=3.5,<4" "diffusers>=0.27.2,<0.36" "websockets>=15,<18" "msgpack>=1.0.5"
 "$PY" -m pip install -q --no-deps torchcodec==0.12.0
 FFMPEG_LIBS="libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4"
 if ! ldconfig -p | grep -q 'libavdevice\.so\.59'; then
@@ -45,4 +50,4 @@ if old in s:
         ")  # usort:skip\nif extension._has_ops():\n    from torchvision import _autograd_registrations, _meta_registrations\n", 1)
     init.write_text(s)
 PYEOF
-HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; from torchcodec.decoders import VideoDecoder; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"
+HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; from torchcodec.decoders import VideoDecoder; import lerobot.scripts.lerobot_train, websockets, msgpack; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"

@@ -44,7 +44,7 @@ class RunConfig:
     policy: Optional[str] = None            # registered policy or package.module:attr; default: the suite's default
     episodes: int = 10                      # episodes per cell and condition
     seed: int = 0                           # run seed: episode seeds, perturbation draws, bootstrap
-    workers: int = 0                        # worker processes; 0 = all cores
+    workers: int = 0                        # executor=local: processes running episodes; 0 = all cores
     out: str = "runs"                       # parent folder of run directories
     run_id: Optional[str] = None            # run directory name; an existing one is resumed
     horizon: int = 0                        # control steps per episode; 0 = the suite's default
@@ -61,12 +61,21 @@ class RunConfig:
     video: int = 0                          # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
     calibration: Optional[str] = None       # a `bench calibrate suite=` result: its robot's cells run the calibrated model
     allow_split_violation: bool = False     # run even if `bench check` finds a split problem
+    executor: str = "local"                 # where episodes run: local (processes on this machine) or ray (docs/ray.md)
+    ray_address: str = "auto"               # executor=ray: auto (the cluster here), HOST:PORT, or local (a private one)
+    actors: int = 0                         # executor=ray: long-lived worker actors; 0 = as many as the cluster allows
+    actor_cpus: float = 1.0                 # executor=ray: CPUs each actor reserves
+    actor_gpus: float = 0.0                 # executor=ray: GPUs each actor reserves (ManiSkill on GPU, renderers)
+    ray_env: str = "code"                   # executor=ray: code (ship this checkout), pip (also its pins), installed
     suite_options: dict[str, Any] = field(default_factory=dict)
     policy_options: dict[str, Any] = field(default_factory=dict)
 
 
-# keys that may differ when a run is resumed (they do not change any record)
-RESUMABLE_KEYS = {"workers", "timeout", "out", "run_id"}
+# keys that may differ when a run is resumed: where and how episodes run, not what they compute
+RESUMABLE_KEYS = {"workers", "timeout", "out", "run_id", "executor", "ray_address", "actors", "actor_cpus",
+                  "actor_gpus", "ray_env"}
+EXECUTORS = ("local", "ray")
+RAY_KEYS = {"ray_address": "auto", "actors": 0, "actor_cpus": 1.0, "actor_gpus": 0.0, "ray_env": "code"}
 RUNNER_KEYS = [f.name for f in dataclasses.fields(RunConfig) if f.name not in ("suite_options", "policy_options")]
 
 
@@ -174,9 +183,47 @@ def _check_runner(cfg: RunConfig) -> None:
     for s in cfg.splits or []:
         if s not in SPLITS:
             raise ConfigError(f"splits: {s!r} is not a split; valid: {', '.join(SPLITS)}")
+    _check_executor(cfg)
     rid = cfg.run_id
     if rid is not None and (not rid or "/" in rid or "\\" in rid or rid.startswith(".") or len(rid) > 200):
         raise ConfigError(f"run_id={rid!r}: must be a plain folder name of at most 200 characters")
+
+
+def _check_executor(cfg: RunConfig) -> None:
+    """executor= and the keys that belong to it (a key of the other executor is refused, not ignored)."""
+    from bench import ray_env
+
+    if cfg.executor not in EXECUTORS:
+        raise ConfigError(f"executor={cfg.executor!r}: valid: {', '.join(EXECUTORS)}")
+    if cfg.executor == "local":
+        given = [k for k, default in RAY_KEYS.items() if getattr(cfg, k) != default]
+        if given:
+            raise ConfigError(f"{given[0]}={getattr(cfg, given[0])!r} applies to executor=ray; add executor=ray "
+                              "or leave it out")
+        return
+    if cfg.workers:
+        raise ConfigError(f"workers={cfg.workers} applies to executor=local; with executor=ray give actors= "
+                          "(0 = as many as the cluster's CPUs allow)")
+    if not 0 <= cfg.actors <= MAX_WORKERS:
+        raise ConfigError(f"actors={cfg.actors}: must be in [0, {MAX_WORKERS}]")
+    if not 0 < cfg.actor_cpus <= 1024:
+        raise ConfigError(f"actor_cpus={cfg.actor_cpus}: must be > 0 and at most 1024")
+    if not 0 <= cfg.actor_gpus <= 64:
+        raise ConfigError(f"actor_gpus={cfg.actor_gpus}: must be in [0, 64]")
+    if cfg.ray_env not in ray_env.RAY_ENVS:
+        raise ConfigError(f"ray_env={cfg.ray_env!r}: valid: {', '.join(ray_env.RAY_ENVS)}")
+    ray_env.check_address(cfg.ray_address)
+    if not ray_env.ray_installed():
+        raise ConfigError(f"executor=ray needs Ray, which is not installed here: {ray_env.INSTALL}")
+
+
+def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Any:
+    """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
+    if cfg.executor == "ray":
+        from bench.ray_executor import RayExecutor
+
+        return RayExecutor(cfg.ray_address, cfg.actors, cfg.actor_cpus, cfg.actor_gpus, cfg.ray_env, note=note)
+    return LocalExecutor(workers)
 
 
 def plan(cfg: RunConfig) -> Plan:
@@ -318,18 +365,28 @@ def run(cfg: RunConfig | Plan, *, only: Callable[[Job], bool] | None = None, pro
     done_ids = {r.job_id for r in read_records(episodes_path)}
     todo = [j for j in p.jobs if j.job_id not in done_ids and (only is None or only(j))]
     workers = min(c.workers or os.cpu_count() or 1, max(1, len(todo)))
-    meta, ctx = start(p, workers)
-    executor = executor or LocalExecutor(workers)
-    t0 = time.time()
-    with RecordWriter(episodes_path) as writer, _Progress(progress, c, len(todo), len(done_ids), len(p.jobs),
-                                                          p.run_dir, workers) as bar:
-        def write(record: EpisodeRecord) -> None:
-            writer.write(record)
-            bar.advance(record)
-            if on_record is not None:
-                on_record(record)
+    executor = executor or make_executor(c, workers)
+    try:
+        if todo and hasattr(executor, "connect"):  # a cluster: reached and sized before anything is written
+            workers = executor.connect(len(todo), p.config.suite, str(p.config.policy))
+        meta, ctx = start(p, workers)
+        t0 = time.time()
+        with RecordWriter(episodes_path) as writer, _Progress(progress, c, len(todo), len(done_ids), len(p.jobs),
+                                                              p.run_dir, workers) as bar:
+            def write(record: EpisodeRecord) -> None:
+                writer.write(record)
+                bar.advance(record)
+                if on_record is not None:
+                    on_record(record)
 
-        executor.execute(todo, p.worker_spec(ctx), write)
+            if progress and hasattr(executor, "note"):
+                executor.note = bar.note
+            executor.execute(todo, p.worker_spec(ctx), write)
+    finally:
+        if hasattr(executor, "close"):
+            executor.close()
+    meta["provenance"]["executor"] = c.executor if not hasattr(executor, "cluster") else \
+        {"kind": c.executor, **executor.cluster}
     summary = finish(p, meta, workers) if summarize else None
     records = read_records(episodes_path)
     if summarize and c.record:
@@ -358,7 +415,8 @@ class _Progress:
         self.console = Console(stderr=True)
         if done:
             self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
-        self.console.print(f"run {cfg.run_id}: {todo} episodes on {workers} worker(s) -> {run_dir}", soft_wrap=True)
+        where = f"{workers} Ray actor(s)" if cfg.executor == "ray" else f"{workers} worker(s)"
+        self.console.print(f"run {cfg.run_id}: {todo} episodes on {where} -> {run_dir}", soft_wrap=True)
         columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                    TextColumn("successes {task.fields[succ]}"), TextColumn("errors {task.fields[err]}"),
                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn()]

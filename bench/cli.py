@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "perf": ("bench.perf:main", "measure harness throughput against raw simulator stepping"),
     "logs": ("bench.logs.cli:main", "real-log tools: info DIR | import SRC out=DIR format=csv|mat|rlds"),
     "replay": ("bench.replay.cli:main", "open-loop replay of logged commands in the simulator; per-joint RMSE/NRMSE"),
+    "serve": ("bench.remote.server:main", "serve a bench policy over openpi's websocket protocol (for policy=remote)"),
     "actions": ("bench.policy_on_logs:main", "policy on logs: a policy fed logged observations vs the logged actions"),
     "correlate": ("bench.agreement:main", "sim-real agreement of per-policy outcomes: Pearson, Spearman, Kendall, MMRV"),
     "calibrate": ("bench.calibrate.cli:main", "Real2Sim: fit a model to logs, trace the residual to missing effects"),

@@ -38,3 +38,7 @@ def did_you_mean(value: str, valid: Iterable[str]) -> str:
     """Return ' Did you mean X?' for the closest valid name, or '' when nothing is close."""
     match = difflib.get_close_matches(str(value), [str(v) for v in valid], n=1, cutoff=0.5)
     return f" Did you mean {match[0]!r}?" if match else ""
+
+
+class ExecutorError(BenchError):
+    """The jobs cannot run where asked: a worker that cannot start, an unreachable or mismatched Ray cluster."""

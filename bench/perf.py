@@ -10,7 +10,10 @@ Works on any suite (one cell, the random policy, whose actions depend only on th
    too (the second episode of a pair runs faster); both time steady state (env built and warmed first).
 2. N workers ÷ 1 worker on the same jobs, in steady state (each worker's steps over its episodes'
    wall time, summed over workers) and end to end (worker start-up and env builds included: what
-   a short run gets).
+   a short run gets). N workers = this process and N-1 children; this process runs episodes from
+   the start while the children spawn, import and build (bench.runner.LocalExecutor). Also
+   printed: the share of the workers' wall time spent inside episodes (end to end ÷ steady
+   state, roughly), which other load on the machine changes much less than the throughputs.
 3. With cameras (`obs=rgb` or `obs=state+rgb`, suites built on `bench.camera_env`): the cost of
    rendering one frame of each camera (ms, median over frames of a reset/step sequence), the
    harness ÷ bare loop ratio of 1. where both render the cameras every step (the bare loop steps
@@ -57,9 +60,10 @@ def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | No
     """A random-policy plan of one cell; nothing is written."""
     from bench import api
 
-    sel = {k: [v] for k, v in (("robots", cfg.robot), ("tasks", cfg.task), ("envs", cfg.env)) if v}
     run = api.RunConfig(suite=cfg.suite, policy="random", episodes=episodes, seed=cfg.seed, horizon=cfg.horizon,
-                        out=tempfile.gettempdir(), run_id="perf", suite_options=dict(suite_options or {}), **sel)
+                        out=tempfile.gettempdir(), run_id="perf", suite_options=dict(suite_options or {}),
+                        robots=[cfg.robot] if cfg.robot else None, tasks=[cfg.task] if cfg.task else None,
+                        envs=[cfg.env] if cfg.env else None)
     p = api.plan(run)
     first = p.cells[0]
     return dataclasses.replace(p, cells=[first], jobs=[j for j in p.jobs if j.cell == first])
@@ -76,7 +80,7 @@ def harness_vs_bare(p: Any, ctx: Any = None) -> dict[str, float]:
     actions = []
     for job in jobs:  # the random policy's actions depend only on the episode seed
         policy.reset(job.seed)
-        actions.append(np.stack([policy.act(None) for _ in range(p.horizon)]))
+        actions.append(np.stack([policy.act({}) for _ in range(p.horizon)]))
     worker.run(jobs[0])  # warm-up: env built, caches filled
     env.reset(jobs[0].seed)
     for a in actions[0][:20]:
@@ -129,7 +133,8 @@ def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
             acc[0] += r.length
             acc[1] += r.wall_s
         out[w] = {"end_to_end": sum(r.length for r in records) / wall,
-                  "steady": sum(steps / secs for steps, secs in per_pid.values())}
+                  "steady": sum(steps / secs for steps, secs in per_pid.values()),
+                  "busy": sum(secs for _, secs in per_pid.values()) / (w * wall), "wall": wall}
     return {"one": out[1], "many": out[workers],
             "ratio_end_to_end": out[workers]["end_to_end"] / out[1]["end_to_end"],
             "ratio_steady": out[workers]["steady"] / out[1]["steady"]}
@@ -233,4 +238,7 @@ def main(argv: list[str]) -> int:
         print(f"end to end ({cfg.scaling_episodes} episodes, worker start-up and env builds included): 1 worker "
               f"{b['one']['end_to_end']:.1f}, {w} workers {b['many']['end_to_end']:.1f} env-steps/s: "
               f"{w} / 1 = {b['ratio_end_to_end']:.3f}")
+        print(f"workers busy in episodes (share of their wall time, start-up and the last episode's tail "
+              f"excluded): 1 worker {b['one']['busy']:.3f} of {b['one']['wall']:.1f} s, {w} workers "
+              f"{b['many']['busy']:.3f} of {b['many']['wall']:.1f} s")
     return 0

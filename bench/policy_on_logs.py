@@ -82,7 +82,7 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
     if not episodes:
         raise ConfigError(f"episodes={cfg.episodes}: none of these indices is in {cfg.logs}")
     built: dict[str, tuple] = {}
-    mae, mse, frames = [], [], []
+    mae, mse, frames, stats = [], [], [], []
     action_names = ds.features["action"].get("names")
     ctx = PolicyContext(options, suite, cfg.seed, suite.default_horizon)
     try:
@@ -103,6 +103,8 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
             pred = np.stack([_first_action(policy.act({STATE: np.asarray(o, np.float32)})) for o in obs])
             if pred.shape != act.shape:
                 raise DataError(f"{cfg.logs}: policy actions have shape {pred.shape[1:]}, logged {act.shape[1:]}")
+            if plugin.reports_stats:  # e.g. a remote policy's round-trip latencies
+                stats.append(policy.episode_stats())
             err = pred - act
             mae.append(np.abs(err).mean(0))
             mse.append((err ** 2).mean(0))
@@ -123,9 +125,17 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
             "rmse": {"value": float(np.sqrt(s[i])), "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))]},
         })
     reason = None if len(episodes) > 1 else "one episode: no interval"
-    return {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy, "checkpoint": identity.checkpoint,
-            "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()), "confidence": cfg.confidence,
-            "interval": "bootstrap over episodes" if reason is None else reason, "per_dim": per_dim}
+    out: dict[str, Any] = {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy,
+           "checkpoint": identity.checkpoint, "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()),
+           "confidence": cfg.confidence, "interval": "bootstrap over episodes" if reason is None else reason,
+           "per_dim": per_dim}
+    if stats:
+        from bench.remote.latency import pool
+
+        pooled = pool(stats)
+        if pooled is not None:
+            out["policy_latency"] = {k: v for k, v in pooled.items() if k != "bins"}
+    return out
 
 
 def help_text() -> str:
@@ -180,6 +190,11 @@ def main(argv: list[str]) -> int:
     for row in result["per_dim"]:
         t.add_row(row["dim"], fmt(row["mae"]), fmt(row["rmse"]))
     Console().print(t)
+    lat = result.get("policy_latency")
+    if lat:  # a remote policy: its round trips, one per logged frame
+        ms = lat["rtt_ms"]
+        print(f"round trips: {lat['requests']}, median {ms['p50']:.3g} ms, p90 {ms['p90']:.3g} ms, "
+              f"max {ms['max']:.3g} ms")
     if cfg.out:
         from bench.io import write_atomic
 

@@ -3,7 +3,8 @@
 For a run (a run directory or its summary.json): success per task and robot/env with
 Wilson intervals, seen and unseen cells side by side; split means and the transfer
 gaps with their intervals; per-axis sensitivity curves (success against the
-perturbation level, pooled and per cell) when the run has perturbed conditions.
+perturbation level, pooled and per cell) when the run has perturbed conditions; for a
+remote policy (`policy=remote`), the distribution of its round-trip latency per condition.
 For a leaderboard: each entry's score, seen and unseen success and gap, ranked.
 With `calibration=DIR|FILE` (a `bench calibrate` output with calibration.json,
 schema `bench.calibration/1`): held-out error before/after calibration (nominal,
@@ -49,9 +50,10 @@ USAGE = """usage: bench report RUN|SUMMARY|LEADERBOARD out=DIR [calibration=DIR]
 Writes DIR/index.html with matplotlib figures (PNG, next to it):
   run:          success per task x robot/env with Wilson intervals, seen and unseen side by side; split
                 means and transfer gaps with intervals; sensitivity curves per perturbation axis when
-                the run has perturbed conditions; per-cell table. Given a run directory: its episode
-                videos (bench run video=N) in the cell table, copied into DIR/videos, and a robustness
-                table (per axis, levels pooled: nominal vs perturbed success, drop with its interval).
+                the run has perturbed conditions; round-trip latency distribution for remote policies;
+                per-cell table. Given a run directory: its episode videos (bench run video=N) in the
+                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:
+                nominal vs perturbed success, drop with its interval).
   leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.
   calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.
   verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.
@@ -460,6 +462,11 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     robust = robustness_section(summary, records)
     if robust:
         parts.append(robust)
+    from bench.remote.report import latency_section
+
+    section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
+    if section:
+        parts.append(section)
     rows = [[_e(c["task"]), _e(c["robot"]), _e(c["env"]), f"<span class='{c['split']}'>{_e(c['split'])}</span>",
              _e(c["condition"]), str(c["n"]), _pct(c["success_once"]), _pct(c["success_at_end"]),
              str(c["errors"] or "")] + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]),

@@ -49,6 +49,7 @@ def help_text(argv: list[str] | None = None) -> str:
         "  bench run robots=[Panda] obs=rgb cameras=[agentview] image_size=96 policy=random perturb.light=[0.3] "
         "video=1   # cameras: docs/cameras.md\n"
         "  bench run suite=my_pkg.suites:MySuite policy=my_pkg.policies:make   # out-of-tree plugins\n"
+        "  bench run executor=ray ray_address=10.0.0.5:6379 actors=64      # a Ray cluster (docs/ray.md)\n"
         + _perturb_help()
     )
 

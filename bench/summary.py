@@ -93,6 +93,11 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
         "config": cfg,
         "provenance": run_meta["provenance"],
     }
+    from bench.remote.latency import run_latency  # remote policies: round trips per run and condition
+
+    latency = run_latency(records)
+    if latency is not None:
+        summary["policy_latency"] = latency
     if any(r.condition != "nominal" for r in records):
         from bench.sensitivity import sensitivity  # per-axis gaps to nominal, paired by seed
 

@@ -1,0 +1,225 @@
+"""lerobot policies for bench: prepare a bench recording for lerobot training; serve a trained policy.
+
+Runs in lerobot's own venv (`bash .ci/lerobot-venv.sh`), never in bench's: lerobot pins its own
+torch and brings pandas. It imports only bench's wire code (`bench.remote.serving`, numpy +
+msgpack + websockets) from this checkout. The recipe (docs/remote-policies.md, "lerobot"):
+
+    bench run suite=held_out_robots policy=scripted splits=[seen] episodes=20 record=demos
+    PY=.lerobot-venv/bin/python
+    $PY baselines/lerobot_adapter.py prepare demos demos_lerobot
+    $PY -m lerobot.scripts.lerobot_train --dataset.repo_id=bench/demos --dataset.root=demos_lerobot \\
+        --policy.type=act --policy.device=cpu --policy.push_to_hub=false --output_dir=act_run ...
+    $PY baselines/lerobot_adapter.py serve act_run/checkpoints/last/pretrained_model --port 8000
+    bench run suite=held_out_robots policy=remote port=8000 \\
+        obs_map=[observation.state:state,observation.environment_state:state.object_pos+state.object_quat+state.gripper_to_object]
+
+prepare SRC DST [--env-fields a,b,...]
+    lerobot's ACT and diffusion policies need an image or an environment state among their inputs;
+    bench's state-only recordings have neither. This adds `observation.environment_state` (the
+    named fields of `observation.state` that describe the world, default the object's pose and
+    the gripper-to-object vector) with lerobot's own dataset tool (`modify_features`), and drops
+    bench's replay-only features (`observation.sim_state`, `action.ctrl`).
+
+serve POLICY_DIR [--host 127.0.0.1] [--port 8000] [--device cpu]
+    Loads a trained policy (`PreTrainedPolicy.from_pretrained` + its saved pre/post-processors)
+    and answers each observation with `predict_action_chunk`: {"actions": (T, A)} in the
+    dataset's units. Input keys are the policy's `input_features` (lerobot's names: send them
+    with the client's `obs_map=`); images are sent as uint8 H x W x 3 and converted here; a
+    `task` string is passed on to language-conditioned policies. It speaks bench's `reset`
+    extension: each episode resets the policy and seeds torch with the episode seed.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")  # a local folder must never turn into a hub download
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench's wire code, from this checkout
+
+import numpy as np  # noqa: E402
+
+from bench.remote import wire  # noqa: E402
+from bench.remote.serving import RequestError, WebsocketServer  # noqa: E402
+
+DEFAULT_ENV_FIELDS = ("object_pos", "object_quat", "gripper_to_object")
+BENCH_ONLY = ("observation.sim_state", "action.ctrl")
+
+
+def fail(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def _dataset(root: str) -> Any:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    if not os.path.isfile(os.path.join(root, "meta", "info.json")):  # else lerobot would go to the hub
+        fail(f"{root}: not a LeRobot dataset folder (meta/info.json is missing)")
+    return LeRobotDataset(f"bench/{Path(root).name}", root=root)
+
+
+def prepare(src: str, dst: str, env_fields: list[str]) -> None:
+    """DST = SRC + observation.environment_state (named state fields) - bench's replay-only features."""
+    from lerobot.datasets.dataset_tools import modify_features
+
+    if os.path.exists(dst):
+        fail(f"{dst} exists; give a new folder (nothing is overwritten)")
+    ds = _dataset(src)
+    names = list(ds.meta.features["observation.state"]["names"] or [])
+    idx = [i for i, n in enumerate(names) if any(n == f or n.startswith(f + "_") for f in env_fields)]
+    missing = [f for f in env_fields if not any(n == f or n.startswith(f + "_") for n in names)]
+    if missing or not idx:
+        fail(f"--env-fields: {missing or env_fields} not in observation.state (names: {', '.join(names)})")
+
+    def env_state(row: dict, episode: int, frame: int) -> np.ndarray:
+        return np.asarray(row["observation.state"], np.float32)[idx]
+
+    info = {"dtype": "float32", "shape": [len(idx)], "names": [names[i] for i in idx]}
+    drop = [f for f in BENCH_ONLY if f in ds.meta.features]
+    out = modify_features(ds, add_features={"observation.environment_state": (env_state, info)},
+                          remove_features=drop or None, output_dir=dst, repo_id=f"bench/{Path(dst).name}")
+    print(f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
+          f"{', '.join(info['names'])}; dropped {', '.join(drop) or 'nothing'}")
+
+
+class LerobotSession:
+    """One connection: observations -> lerobot batch -> predict_action_chunk -> (T, A) numpy."""
+
+    def __init__(self, served: Served):
+        self.s = served
+
+    def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
+        import torch
+
+        if wire.CONTROL in msg:
+            body = msg[wire.CONTROL]
+            op = body.get("op") if isinstance(body, dict) else None
+            if op == "reset":
+                seed = body.get("seed")
+                if not isinstance(seed, int) or seed < 0:
+                    raise RequestError(f"reset: seed={seed!r} must be a non-negative integer")
+                self.s.policy.reset()
+                torch.manual_seed(seed)
+            elif op != "check":
+                raise RequestError(f"control op {op!r} is unknown; valid: reset, check")
+            return {wire.CONTROL: {"ok": True, "op": op}}
+        t0 = time.perf_counter()
+        batch: dict[str, Any] = {}
+        for key, feat in self.s.inputs.items():
+            if key not in msg:
+                raise RequestError(f"the observation lacks {key!r} (this policy's inputs: {list(self.s.inputs)}; "
+                                   f"got {sorted(msg)[:12]}); map it with the client's obs_map=")
+            arr = np.asarray(msg[key])
+            shape = tuple(feat.shape)
+            if feat.type.name == "VISUAL":  # uint8 H x W x C -> float C x H x W in [0, 1], as lerobot's datasets give
+                if arr.ndim != 3 or arr.dtype != np.uint8 or (arr.shape[2], *arr.shape[:2]) != shape:
+                    raise RequestError(f"obs[{key!r}] is {list(arr.shape)} {arr.dtype}; expected uint8 "
+                                       f"{[shape[1], shape[2], shape[0]]} (H x W x C)")
+                tensor = torch.from_numpy(arr).permute(2, 0, 1).float() / 255.0
+            else:
+                if arr.shape != shape or arr.dtype.kind not in "biuf":
+                    raise RequestError(f"obs[{key!r}] is {list(arr.shape)} {arr.dtype}; expected {list(shape)} float")
+                tensor = torch.from_numpy(arr.astype(np.float32))
+            batch[key] = tensor.unsqueeze(0).to(self.s.device)
+        if isinstance(msg.get("task"), str):
+            batch["task"] = [msg["task"]]
+        with torch.inference_mode():
+            chunk = self.s.policy.predict_action_chunk(self.s.pre(batch))
+            chunk = self.s.post(chunk)
+        actions = chunk[0].detach().cpu().numpy().astype(np.float32)
+        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": (time.perf_counter() - t0) * 1000.0}}
+
+    def close(self) -> None:
+        pass
+
+
+class Served:
+    """A trained lerobot policy with its processors, loaded once and shared by the connections."""
+
+    def __init__(self, path: str, device: str):
+        import torch
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+        if not os.path.isfile(os.path.join(path, "config.json")):
+            fail(f"{path}: not a trained lerobot policy (config.json missing); give .../checkpoints/last/"
+                 "pretrained_model")
+        torch.set_num_threads(max(1, int(os.environ.get("BENCH_TORCH_THREADS", "1"))))
+        cfg = PreTrainedConfig.from_pretrained(path)
+        cfg.device = device
+        self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+        self.policy.to(device).eval()
+        self.pre, self.post = make_pre_post_processors(
+            cfg, pretrained_path=path, preprocessor_overrides={"device_processor": {"device": device}})
+        self.inputs = dict(cfg.input_features)
+        self.device, self.type = device, cfg.type
+        weights = Path(path) / "model.safetensors"
+        self.sha256 = hashlib.sha256(weights.read_bytes()).hexdigest() if weights.is_file() else None
+        self.metadata = {"bench": {"protocol": wire.PROTOCOL, "policy": f"lerobot:{cfg.type}", "checkpoint": path,
+                                   "checkpoint_sha256": self.sha256, "obs_keys": list(self.inputs)},
+                         "lerobot": {"type": cfg.type, "input_features": {k: list(v.shape) for k, v in
+                                                                          self.inputs.items()},
+                                     "action_dim": int(cfg.output_features["action"].shape[0])}}
+
+
+def serve(path: str, host: str, port: int, device: str) -> None:
+    import signal
+
+    served = Served(path, device)
+
+    def log(text: str) -> None:
+        print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+    server = WebsocketServer(lambda: LerobotSession(served), served.metadata, host, port, log=log,
+                             failure_prefix=f"lerobot {served.type} failed")
+    try:
+        bound = server.bind()
+    except OSError as exc:
+        fail(f"--host {host} --port {port}: cannot listen there ({exc.strerror}); pick another port (0 = any)")
+
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
+    where = f"[{host}]" if ":" in host else host
+    print(f"lerobot adapter: {served.type} policy {path} on ws://{where}:{bound} (inputs: "
+          f"{', '.join(served.inputs)}); Ctrl-C stops", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.shutdown()
+    print("lerobot adapter: stopped", flush=True)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="lerobot_adapter.py", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("prepare", help="bench recording -> lerobot training set (adds observation.environment_state)")
+    p.add_argument("src")
+    p.add_argument("dst")
+    p.add_argument("--env-fields", default=",".join(DEFAULT_ENV_FIELDS),
+                   help="state fields that form observation.environment_state (comma-separated)")
+    s = sub.add_parser("serve", help="serve a trained lerobot policy over the remote-policy protocol")
+    s.add_argument("policy_dir")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    s.add_argument("--port", type=int, default=8000, help="port (0 = any free one, printed)")
+    s.add_argument("--device", default="cpu")
+    args = parser.parse_args(argv)
+    if args.command == "prepare":
+        prepare(args.src, args.dst, [f.strip() for f in args.env_fields.split(",") if f.strip()])
+    else:
+        if not 0 <= args.port <= 65535:
+            fail(f"--port {args.port}: must be in [0, 65535]")
+        serve(args.policy_dir, args.host, args.port, args.device)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

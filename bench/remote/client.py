@@ -1,0 +1,352 @@
+"""`policy=remote`: a policy served over openpi's websocket protocol (bench serve, openpi, lerobot adapter).
+
+    bench run suite=held_out_robots policy=remote host=127.0.0.1 port=8000 replan_every=5
+
+Each `act(obs)` is one round trip: the observation (selected and renamed by `obs_map=`) goes
+out as msgpack-numpy, the server's `{"actions": (T, A)}` comes back, and the runner executes the
+first `replan_every` rows open loop (all of them with 0) before asking again. `reset(seed)`
+starts an episode: it (re)connects when needed — retrying with exponential backoff for up to
+`timeout_s` — and, towards a bench server, tells it the episode's seed and cell so the served
+policy resets exactly as it would in process. Every blocking call is bounded by `timeout_s`:
+a dead, unreachable or slow server, or an answer that is not a finite (T, A) action chunk of
+the env's width, fails that episode with the reason (the run goes on, and the next episode
+reconnects). Round-trip latencies are recorded per episode (`bench.remote.latency`).
+
+Before any worker starts, the plugin connects once (`identity`/`preflight`): nothing listening
+is one line naming host:port (exit 2); a bench server also checks that it can serve the run's
+suite and cells.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from bench.errors import BenchError, ConfigError
+from bench.protocols import Obs, PolicyContext, PolicyIdentity, PolicyPlugin
+from bench.remote import latency, wire
+from bench.remote import obs_map as obs_map_mod
+
+MAX_TIMEOUT_S = 3600.0
+MAX_REPLY_BYTES = 256 * 2**20
+BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.05, 1.0
+
+
+@functools.cache
+def _legacy_flag() -> dict[str, Any]:
+    """websockets >= 17 asks `connect(..., legacy=True)` for a plain connection (no reconnect iterator)."""
+    import inspect
+
+    from websockets.sync.client import connect
+
+    return {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
+
+
+class RemoteError(BenchError):
+    """A policy server that cannot be reached, is too slow, or answers outside the protocol."""
+
+
+def address(host: str, port: int) -> str:
+    return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
+
+
+class Connection:
+    """One websocket to a policy server: connect with backoff, bounded request/answer, metadata.
+
+    Any failure during a request closes the socket, so a late answer can never be taken for
+    the answer to the next request.
+    """
+
+    def __init__(self, host: str, port: int, timeout_s: float):
+        self.host, self.port, self.timeout_s = host, int(port), float(timeout_s)
+        self.where = address(host, port)
+        self.uri = f"ws://{self.where}"
+        self.ws: Any = None
+        self.metadata: dict[str, Any] = {}
+
+    @property
+    def connected(self) -> bool:
+        return self.ws is not None
+
+    @property
+    def bench(self) -> dict[str, Any] | None:
+        """The bench part of the server's metadata, when it speaks bench's protocol extension."""
+        meta = self.metadata.get("bench")
+        return meta if isinstance(meta, dict) and meta.get("protocol") == wire.PROTOCOL else None
+
+    def connect(self) -> dict[str, Any]:
+        """Open the socket and read the server's metadata; retry with backoff until `timeout_s` is spent."""
+        from websockets.exceptions import InvalidHandshake, InvalidURI
+        from websockets.sync.client import connect
+
+        self.close()
+        deadline = time.monotonic() + self.timeout_s
+        delay, attempts, last = BACKOFF_FIRST_S, 0, "no attempt"
+        while True:
+            attempts += 1
+            left = deadline - time.monotonic()
+            try:
+                ws = connect(self.uri, open_timeout=max(left, 0.01), close_timeout=1.0, compression=None,
+                             max_size=MAX_REPLY_BYTES, ping_interval=None, proxy=None, **_legacy_flag())
+            except InvalidURI as exc:
+                raise RemoteError(f"host={self.host!r} port={self.port}: not a valid address ({exc})") from None
+            except (OSError, TimeoutError, InvalidHandshake, EOFError) as exc:
+                last = _reason(exc)
+            else:
+                try:
+                    self.metadata = self._metadata(ws, deadline)
+                except BaseException:
+                    ws.close()
+                    raise
+                self.ws = ws
+                return self.metadata
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RemoteError(f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
+                                  f"timeout_s={self.timeout_s:g} s; is bench serve or the server running?)")
+            time.sleep(min(delay, left))
+            delay = min(delay * 2, BACKOFF_MAX_S)
+
+    def _metadata(self, ws: Any, deadline: float) -> dict[str, Any]:
+        try:
+            frame = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
+        except TimeoutError:
+            raise RemoteError(f"the server at {self.where} accepted the connection but sent no metadata within "
+                              f"timeout_s={self.timeout_s:g} s (is it a websocket policy server?)") from None
+        except Exception as exc:
+            raise RemoteError(f"the server at {self.where} closed before sending metadata: {_reason(exc)}") from None
+        try:
+            return wire.decode(frame, "the server's metadata")
+        except wire.WireError as exc:
+            raise RemoteError(f"server at {self.where}: {exc}") from None
+
+    def request(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Send one message and return the decoded answer; RemoteError (and a closed socket) on any failure."""
+        if self.ws is None:
+            raise RemoteError(f"not connected to {self.where}")
+        try:
+            frame = wire.encode(message)
+        except wire.WireError as exc:
+            raise RemoteError(f"observation for {self.where}: {exc}") from None
+        ok = False
+        try:
+            self.ws.send(frame)
+            answer = self.ws.recv(timeout=self.timeout_s)
+            ok = True
+        except TimeoutError:
+            raise RemoteError(f"the server at {self.where} did not answer within timeout_s={self.timeout_s:g} s") \
+                from None
+        except Exception as exc:
+            from websockets.exceptions import ConnectionClosed
+
+            if isinstance(exc, ConnectionClosed):
+                raise RemoteError(f"the server at {self.where} closed the connection ({_reason(exc)})") from None
+            raise
+        finally:
+            if not ok:  # includes the episode's own timeout interrupting recv: never reuse this socket
+                self.close()
+        if isinstance(answer, str):
+            raise RemoteError(f"the server at {self.where} refused the request: {' '.join(answer.split())[:400]}")
+        try:
+            return wire.decode(answer, "the server's answer")
+        except wire.WireError as exc:
+            self.close()  # it does not speak the protocol: start clean next time
+            raise RemoteError(f"server at {self.where}: {exc}") from None
+
+    def close(self) -> None:
+        ws, self.ws = self.ws, None
+        if ws is not None:
+            try:
+                ws.close()
+            except Exception:
+                pass
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused (nothing listening)"
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return f"{type(exc).__name__}: {text}"[:300]
+
+
+def check_actions(reply: dict[str, Any], dim: int, where: str) -> np.ndarray:
+    """The action chunk (T, dim) of a server's answer; RemoteError naming what is wrong."""
+    if wire.ACTIONS not in reply:
+        raise RemoteError(f"the answer of {where} has no {wire.ACTIONS!r} entry (keys: {sorted(reply)[:8]})")
+    raw = reply[wire.ACTIONS]
+    try:
+        actions = np.asarray(raw)
+    except Exception:
+        actions = np.asarray([])
+    if actions.dtype.kind not in "fiu":
+        raise RemoteError(f"{where} answered actions of type {type(raw).__name__}/{actions.dtype}, not numbers")
+    if actions.ndim == 1:
+        actions = actions[None, :]
+    if actions.ndim != 2 or actions.shape[0] < 1 or actions.shape[1] != dim:
+        raise RemoteError(f"{where} answered actions of shape {list(np.shape(raw))}; this env needs ({dim},) "
+                          f"or a chunk (T, {dim})")
+    if not np.all(np.isfinite(actions)):
+        raise RemoteError(f"{where} answered a non-finite action (NaN or inf)")
+    return actions
+
+
+class RemotePolicy:
+    """One cell's policy behind a server: `reset(seed)` per episode, `act(obs)` one round trip."""
+
+    def __init__(self, options: RemoteOptions, cell: Any, env: Any, ctx: PolicyContext):
+        self.options, self.cell, self.ctx = options, cell, ctx
+        self.dim, self.fps = int(env.action_spec.dim), float(env.fps)
+        entries = obs_map_mod.parse(options.obs_map)
+        self.map = obs_map_mod.ClientMap(entries, env.obs_spec, cell.task)
+        self.conn = Connection(options.host, options.port, options.timeout_s)
+        weakref.finalize(self, self.conn.close)  # the runner drops policies without closing them
+        self._rtt: list[float] = []
+        self._server_ms: list[float] = []
+
+    def _reset_message(self, seed: int) -> dict[str, Any]:
+        suite = self.ctx.suite
+        return {wire.CONTROL: {"op": "reset", "seed": int(seed), "cell": self.cell.key,
+                               **suite_ref(suite), "run_seed": int(self.ctx.seed), "horizon": int(self.ctx.horizon)}}
+
+    def reset(self, seed: int) -> None:
+        self._rtt, self._server_ms = [], []
+        for attempt in (0, 1):
+            fresh = not self.conn.connected
+            if fresh:
+                self.conn.connect()
+            if self.conn.bench is None:
+                return  # openpi servers keep no per-episode state we could reset
+            try:
+                _control(self.conn, self._reset_message(seed))
+                return
+            except RemoteError:
+                if fresh or attempt:  # a fresh connection that fails is a real failure
+                    raise
+                # the server may have restarted since the last episode: reconnect once
+
+    def act(self, obs: Obs) -> np.ndarray:
+        if not self.conn.connected:
+            raise RemoteError(f"the connection to {self.conn.where} was lost during the episode")
+        message = self.map(obs)
+        t0 = time.perf_counter()
+        reply = self.conn.request(message)
+        self._rtt.append(time.perf_counter() - t0)
+        timing = reply.get("server_timing")
+        if isinstance(timing, dict) and isinstance(timing.get("infer_ms"), (int, float)):
+            self._server_ms.append(float(timing["infer_ms"]))
+        chunk = check_actions(reply, self.dim, self.conn.where)
+        n = self.options.replan_every
+        return chunk[:n] if n else chunk
+
+    def episode_stats(self) -> dict[str, Any]:
+        return latency.episode_stats(self._rtt, self._server_ms, self.fps)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def suite_ref(suite: Any) -> dict[str, Any]:
+    """How a client names its suite to a bench server: name, class path and options (JSON)."""
+    cls = type(suite)
+    opts = getattr(suite, "options", None)
+    return {"suite": str(getattr(suite, "name", cls.__name__)), "suite_class": f"{cls.__module__}:{cls.__qualname__}",
+            "suite_options": _jsonable(dataclasses.asdict(opts))
+            if dataclasses.is_dataclass(opts) and not isinstance(opts, type) else {}}
+
+
+def _jsonable(x: Any) -> Any:
+    from bench.io import jsonable
+
+    return jsonable(x)
+
+
+def _control(conn: Connection, message: dict[str, Any]) -> dict[str, Any]:
+    reply = conn.request(message)
+    body = reply.get(wire.CONTROL)
+    if not isinstance(body, dict) or not body.get("ok"):
+        raise RemoteError(f"the server at {conn.where} did not acknowledge {message[wire.CONTROL]['op']!r}: "
+                          f"{str(body)[:200]}")
+    return body
+
+
+@dataclass(frozen=True)
+class RemoteOptions:
+    """Keys of policy=remote."""
+
+    host: str = "127.0.0.1"              # the policy server's address (bench serve, openpi, the lerobot adapter)
+    port: int = 8000                     # its port (8000 is openpi's and bench serve's default)
+    timeout_s: float = 10.0              # bound on connecting (with retries) and on each answer; then the episode fails
+    replan_every: int = 0                # rows of each action chunk executed before asking again; 0 = the whole chunk
+    obs_map: Optional[list[str]] = None  # WIRE_KEY:SOURCE entries, e.g. [observation/state:state,prompt:task]
+
+
+def validate(options: RemoteOptions) -> None:
+    """One-line ConfigError for a value no run could use."""
+    if not options.host or any(c.isspace() for c in options.host) or "/" in options.host:
+        raise ConfigError(f"host={options.host!r}: give a host name or IP address (e.g. 127.0.0.1)")
+    if not 1 <= options.port <= 65535:
+        raise ConfigError(f"port={options.port}: must be in [1, 65535]")
+    if not (math.isfinite(options.timeout_s) and 0 < options.timeout_s <= MAX_TIMEOUT_S):
+        raise ConfigError(f"timeout_s={options.timeout_s}: must be > 0 and at most {MAX_TIMEOUT_S:g} s")
+    if options.replan_every < 0:
+        raise ConfigError(f"replan_every={options.replan_every}: must be >= 0 (0 = execute the whole chunk)")
+    obs_map_mod.parse(options.obs_map)
+
+
+class RemotePlugin(PolicyPlugin):
+    """`policy=remote` (entry point `bench.policies: remote`): the client side of the policy server protocol."""
+
+    Options = RemoteOptions
+    reports_stats = True
+
+    def __init__(self) -> None:
+        self._meta: dict[tuple[str, int], dict[str, Any]] = {}
+
+    def obs_keys(self, options: Any) -> tuple[str, ...]:
+        return obs_map_mod.env_keys(obs_map_mod.parse(options.obs_map))
+
+    def _metadata(self, options: RemoteOptions) -> dict[str, Any]:
+        key = (options.host, options.port)
+        if key not in self._meta:
+            validate(options)
+            conn = Connection(options.host, options.port, options.timeout_s)
+            try:
+                self._meta[key] = conn.connect()
+            finally:
+                conn.close()
+        return self._meta[key]
+
+    def identity(self, options: Any) -> PolicyIdentity:
+        """The served checkpoint and its sha256 when the server is a bench server that reports them."""
+        bench = self._metadata(options).get("bench")
+        if isinstance(bench, dict) and bench.get("protocol") == wire.PROTOCOL:
+            ckpt, sha = bench.get("checkpoint"), bench.get("checkpoint_sha256")
+            return PolicyIdentity(str(ckpt) if ckpt else None, str(sha) if sha else None)
+        return PolicyIdentity()
+
+    def preflight(self, options: Any, suite: Any, cells: Sequence[Any], horizon: int) -> None:
+        """Reachable server, obs_map sources in every cell's observation, and a bench server able to serve them."""
+        validate(options)
+        entries = obs_map_mod.parse(options.obs_map)
+        for cell in cells:
+            obs_map_mod.check(entries, suite.obs_spec(cell), f"suite {suite.name!r} cell {cell.key}")
+        self._metadata(options)
+        conn = Connection(options.host, options.port, options.timeout_s)
+        try:
+            conn.connect()
+            if conn.bench is not None:
+                _control(conn, {wire.CONTROL: {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells]}})
+        except RemoteError as exc:
+            raise RemoteError(f"policy=remote: {exc}") from None
+        finally:
+            conn.close()
+
+    def make(self, cell: Any, env: Any, ctx: PolicyContext) -> RemotePolicy:
+        return RemotePolicy(ctx.options, cell, env, ctx)

@@ -1,0 +1,361 @@
+"""`bench serve`: any bench policy behind openpi's websocket protocol.
+
+    bench serve policy=scripted                         # ws://127.0.0.1:8000
+    bench serve policy=checkpoint checkpoint=bc/policy.safetensors port=8001
+    bench serve policy=my_pkg.policies:make suite=held_out_envs host=0.0.0.0
+
+One harness can then evaluate a policy that lives in another venv or on another machine
+(`bench run policy=remote host=... port=...`), and openpi's own client can query it. Each
+connection gets its own policies (one per cell it asks for, made exactly as a `bench run`
+worker makes them: `plugin.make(cell, env, ctx)` on the cell's env), so concurrent workers
+never share episode state. A bench client names its suite, cell, run seed and episode seed in
+a `reset` control message, which is what makes remote records equal in-process ones; any other
+client (openpi's) gets the policy of `suite=`/`cell=` reset with `seed=` when it connects.
+
+A request that is not msgpack, lacks an observation entry the policy needs, or has the wrong
+shape or dtype is answered with a one-line text frame (openpi's error convention) and the
+connection stays usable; nothing a client sends is unpickled or imported: suites are the
+server's registered ones or its own `suite=`. The server listens on 127.0.0.1 unless `host=`
+says otherwise, answers `GET /healthz`, and stops cleanly on Ctrl-C or SIGTERM.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from bench import config as config_mod
+from bench.errors import BenchError, ConfigError
+from bench.protocols import TASK, Feature, PolicyContext
+from bench.remote import obs_map as obs_map_mod
+from bench.remote import wire
+from bench.remote.serving import AddressInUse, RequestError, WebsocketServer
+
+MAX_HORIZON = 100_000
+
+
+@dataclass(frozen=True)
+class ServeConfig:
+    """Keys of `bench serve` (the served policy's own keys, and its suite's, are accepted too)."""
+
+    policy: str = "scripted"              # registered policy name or package.module:attr, as in bench run
+    suite: str = "held_out_robots"        # suite for clients that name none (openpi's); bench clients name theirs
+    cell: Optional[str] = None            # that suite's cell TASK/ROBOT/ENV for such clients; default: its first cell
+    seed: int = 0                         # run seed and episode seed for such clients
+    horizon: int = 0                      # horizon given to policy factories for such clients; 0 = the suite's default
+    host: str = "127.0.0.1"               # address to listen on (0.0.0.0: every interface, i.e. other machines too)
+    port: int = 8000                      # port to listen on; 0 = any free port (printed at start)
+    obs_map: Optional[list[str]] = None   # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
+    max_message_mb: float = 64.0          # largest request accepted, in MiB
+
+
+@dataclass
+class Served:
+    """One cell's env and policy in a session."""
+
+    env: Any
+    policy: Any
+    spec: dict[str, Feature]
+
+
+def class_path(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+class PolicyServer:
+    """Serves one bench policy plugin over websockets (one thread and one `Session` per connection)."""
+
+    def __init__(self, cfg: ServeConfig, suite_options: Any, policy_options: Any,
+                 log: Callable[[str], None] | None = None):
+        from bench import registry
+
+        self.cfg = cfg
+        self.log = log or (lambda text: None)
+        self.plugin = registry.load_policy(cfg.policy)
+        if policy_options is None:
+            policy_options = config_mod.build(self.plugin.Options, [])
+        self.policy_options = policy_options
+        self.suite_cls: Any = registry.suite_class(cfg.suite)
+        self.suite_options = suite_options
+        self.map = obs_map_mod.server_map(obs_map_mod.parse(cfg.obs_map))
+        self.needs = tuple(self.plugin.obs_keys(policy_options))
+        suite = self.suite_cls(suite_options)
+        cells = {c.key: c for c in suite.all_cells()}
+        if cfg.cell is not None and cfg.cell not in cells:
+            from bench.errors import did_you_mean
+
+            raise ConfigError(f"cell={cfg.cell!r} is not a cell of suite {cfg.suite!r}; valid: {', '.join(cells)}."
+                              f"{did_you_mean(cfg.cell, cells)}")
+        self.default_cell = cfg.cell or next(iter(cells))
+        self.default_horizon = cfg.horizon or suite.default_horizon
+        self.identity = self.plugin.identity(policy_options)
+        self.metadata = {"bench": {
+            "protocol": wire.PROTOCOL, "policy": cfg.policy, "policy_options": _json(policy_options),
+            "checkpoint": self.identity.checkpoint, "checkpoint_sha256": self.identity.checkpoint_sha256,
+            "suite": suite.name, "cell": self.default_cell, "obs_keys": list(self.needs),
+            "obs_map": list(cfg.obs_map) if cfg.obs_map else None, "bench_version": _version(),
+        }}
+        self._suites: dict[str, Any] = {}   # suites clients named, by class path and options (built once)
+        self._lock = threading.Lock()
+
+    # -- suites and cells, resolved from what a client names ------------------------------
+    def suite_for(self, name: Any, path: Any, options: Any) -> Any:
+        """The suite a client names: registered on this server, or this server's own `suite=` (never imported)."""
+        from bench import registry
+
+        if not isinstance(name, str) or not isinstance(path, str):
+            raise RequestError("suite and suite_class must be strings")
+        candidates = [self.suite_cls]
+        if ":" not in name and name in registry.names(registry.SUITES):
+            candidates.append(registry.suite_class(name))
+        cls: Any = next((c for c in candidates if class_path(c) == path), None)
+        if cls is None:
+            raise RequestError(f"suite {name!r} ({path}) is not served here: this server serves registered suites "
+                               f"and suite={self.cfg.suite}; restart it with suite={path}")
+        if not isinstance(options, dict):
+            raise RequestError("suite_options must be a map")
+        key = json.dumps([path, options], sort_keys=True, default=str)
+        with self._lock:
+            if key not in self._suites:
+                try:
+                    self._suites[key] = cls(config_mod.build(cls.Options, [], base=options) if options else None)
+                except BenchError as exc:
+                    raise RequestError(f"suite {name!r}: {exc}") from None
+            return self._suites[key]
+
+    def build(self, suite: Any, cell_key: Any, run_seed: int, horizon: int) -> Served:
+        """The cell's env and policy, made as a bench worker makes them."""
+        cells = {c.key: c for c in suite.all_cells()}
+        if cell_key not in cells:
+            raise RequestError(f"cell {cell_key!r} is not a cell of suite {suite.name!r}")
+        cell = cells[cell_key]
+        env = suite.make_env(cell, horizon)
+        try:
+            missing = [k for k in self.needs if k not in env.obs_spec]
+            if missing:
+                raise RequestError(f"policy {self.cfg.policy!r} needs observation keys {missing}; cell {cell_key} "
+                                   f"gives {sorted(env.obs_spec)}")
+            ctx = PolicyContext(self.policy_options, suite, int(run_seed), int(horizon))
+            policy = self.plugin.make(cell, env, ctx)
+        except BaseException:
+            env.close()
+            raise
+        return Served(env, policy, dict(env.obs_spec))
+
+    # -- serving --------------------------------------------------------------------------
+    def websocket(self) -> WebsocketServer:
+        """The websocket server of this policy (not yet listening)."""
+        return WebsocketServer(lambda: Session(self), self.metadata, self.cfg.host, self.cfg.port,
+                               int(self.cfg.max_message_mb * 2**20), self.log, f"policy {self.cfg.policy!r} failed")
+
+    def start(self) -> tuple[WebsocketServer, int]:
+        """Listen and serve from a background thread (tests, benchmarks): (server, port)."""
+        ws = self.websocket()
+        return ws, ws.start()
+
+
+class Session:
+    """One connection's state: the policies made for it and the one in use."""
+
+    def __init__(self, server: PolicyServer):
+        self.server = server
+        self.served: dict[str, Served] = {}
+        self.current: Served | None = None
+
+    def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
+        if wire.CONTROL in msg:
+            if len(msg) != 1:
+                raise RequestError(f"a control request holds only the {wire.CONTROL!r} entry")
+            return self.control(msg[wire.CONTROL])
+        return self.infer(msg)
+
+    def _get(self, suite: Any, cell: Any, run_seed: Any, horizon: Any) -> Served:
+        for name, v, lo, hi in (("run_seed", run_seed, 0, 2**63 - 1), ("horizon", horizon, 1, MAX_HORIZON)):
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+                raise RequestError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
+        key = json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, run_seed, horizon])
+        if key not in self.served:
+            self.served[key] = self.server.build(suite, cell, run_seed, horizon)
+        return self.served[key]
+
+    def control(self, body: Any) -> dict[str, Any]:
+        if not isinstance(body, dict):
+            raise RequestError(f"{wire.CONTROL} must be a map with an 'op'")
+        op = body.get("op")
+        if op not in ("reset", "check"):
+            raise RequestError(f"control op {op!r} is unknown; valid: reset, check")
+        suite = self.server.suite_for(body.get("suite"), body.get("suite_class"), body.get("suite_options", {}))
+        if op == "check":
+            cells = {c.key for c in suite.all_cells()}
+            asked = body.get("cells") or []
+            missing = [c for c in asked if c not in cells] if isinstance(asked, list) else ["(cells is not a list)"]
+            if missing:
+                raise RequestError(f"suite {suite.name!r} on this server has no cell {missing[0]!r}")
+            return {wire.CONTROL: {"ok": True, "op": "check"}}
+        seed = body.get("seed")
+        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+            raise RequestError(f"reset: seed={seed!r} must be a non-negative integer")
+        served = self._get(suite, body.get("cell"), body.get("run_seed"), body.get("horizon"))
+        served.policy.reset(seed)
+        self.current = served
+        return {wire.CONTROL: {"ok": True, "op": "reset"}}
+
+    def _default(self) -> Served:
+        srv = self.server
+        served = self._get(srv.suite_cls(srv.suite_options), srv.default_cell, srv.cfg.seed, srv.default_horizon)
+        served.policy.reset(srv.cfg.seed)
+        return served
+
+    def infer(self, msg: dict[str, Any]) -> dict[str, Any]:
+        if self.current is None:
+            self.current = self._default()
+        obs = self.observation(msg, self.current.spec)
+        t0 = time.perf_counter()
+        actions = np.asarray(self.current.policy.act(obs))
+        infer_ms = (time.perf_counter() - t0) * 1000.0
+        if actions.ndim == 1:
+            actions = actions[None, :]  # openpi clients index rows of a chunk
+        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms}}
+
+    def observation(self, msg: dict[str, Any], spec: dict[str, Feature]) -> dict[str, Any]:
+        """The bench observation in a request: renamed, restricted to the cell's spec, shapes and dtypes checked."""
+        mapping = self.server.map
+        if mapping is not None:
+            named = {bench: msg[w] for w, bench in mapping.items() if w in msg}
+        else:
+            named = {k: v for k, v in msg.items() if k in spec or k == TASK}
+        missing = [k for k in self.server.needs if k not in named]
+        if missing:
+            raise RequestError(f"the observation lacks {missing} (policy {self.server.cfg.policy!r} needs "
+                               f"{list(self.server.needs)}; the request has {sorted(msg)[:12]})")
+        obs: dict[str, Any] = {}
+        for key, value in named.items():
+            feat = spec.get(key)
+            if feat is None or feat.dtype == "str":
+                if key == TASK or (feat is not None and feat.dtype == "str"):
+                    if not isinstance(value, str):
+                        raise RequestError(f"obs[{key!r}] must be a string, got {type(value).__name__}")
+                    obs[key] = value
+                continue
+            arr = value if isinstance(value, np.ndarray) else np.asarray(value)
+            want = np.dtype(feat.dtype)
+            if arr.shape != feat.shape:
+                raise RequestError(f"obs[{key!r}] has shape {list(arr.shape)}; this cell's {key} is {list(feat.shape)} "
+                                   f"{feat.dtype}")
+            if arr.dtype != want:
+                if arr.dtype.kind not in "biuf" or not np.can_cast(arr.dtype, want, "same_kind"):
+                    raise RequestError(f"obs[{key!r}] has dtype {arr.dtype}; this cell's {key} is {feat.dtype}")
+                arr = arr.astype(want)
+            obs[key] = arr
+        return obs
+
+    def close(self) -> None:
+        for served in self.served.values():
+            try:
+                served.env.close()
+            except Exception:
+                pass
+        self.served.clear()
+
+
+def _json(options: Any) -> Any:
+    from bench.io import jsonable
+
+    if dataclasses.is_dataclass(options) and not isinstance(options, type):
+        return jsonable(dataclasses.asdict(options))
+    return {}
+
+
+def _version() -> str:
+    from bench import __version__
+
+    return str(__version__)
+
+
+# -- the command ------------------------------------------------------------------------------
+def help_text() -> str:
+    return config_mod.command_help(
+        "usage: bench serve [policy=scripted] [host=127.0.0.1] [port=8000] [suite=...] [policy keys ...]",
+        "Serves a bench policy over openpi's websocket protocol (msgpack-numpy, metadata on connect,\n"
+        "infer(obs) -> {\"actions\": (T, A)}), so `bench run policy=remote` or openpi's client can use it\n"
+        "from another process, venv or machine. Bench clients name their suite, cell and seeds (records\n"
+        "equal in-process ones); other clients get the policy of suite=/cell=. Malformed requests get a\n"
+        "one-line text answer and the server goes on. The served policy's own keys (checkpoint= ...) and\n"
+        "its suite's are accepted too. Ctrl-C or SIGTERM stops it. docs/remote-policies.md",
+        ServeConfig,
+        ["bench serve policy=scripted",
+         "bench serve policy=checkpoint checkpoint=bc/policy.safetensors port=8001",
+         "bench serve policy=scripted suite=held_out_envs host=0.0.0.0   # reachable from other machines"])
+
+
+def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
+    """(serve config, the suite's options, the policy's options), each key routed to its owner."""
+    from bench import registry
+    from bench.protocols import option_keys
+
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; bench serve takes key=value only "
+                          "(bench serve --help)")
+    head = config_mod.build(ServeConfig, [o for o in overrides if config_mod.top_key(o) in ("policy", "suite")])
+    plugin = registry.load_policy(head.policy)
+    suite_cls: Any = registry.suite_class(head.suite)
+    owners = {"serve": [f.name for f in dataclasses.fields(ServeConfig)],
+              f"suite {head.suite}": option_keys(suite_cls.Options),
+              f"policy {head.policy}": option_keys(plugin.Options)}
+    context = f"bench serve policy={head.policy} suite={head.suite}"
+    parts = list(config_mod.partition(overrides, owners, context).values())
+    cfg = config_mod.build(ServeConfig, parts[0])
+    if not 0 <= cfg.port <= 65535:
+        raise ConfigError(f"port={cfg.port}: must be in [0, 65535] (0 = any free port)")
+    if not (math.isfinite(cfg.max_message_mb) and 0 < cfg.max_message_mb <= 4096):
+        raise ConfigError(f"max_message_mb={cfg.max_message_mb}: must be in (0, 4096]")
+    if not 0 <= cfg.horizon <= MAX_HORIZON or cfg.seed < 0:
+        raise ConfigError(f"horizon={cfg.horizon} seed={cfg.seed}: horizon in [0, {MAX_HORIZON}], seed >= 0")
+    return cfg, config_mod.build(suite_cls.Options, parts[1]), config_mod.build(plugin.Options, parts[2])
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] in ("-h", "--help"):
+        print(help_text())
+        return 0
+    cfg, suite_options, policy_options = parse_args(argv)
+
+    def log(text: str) -> None:
+        print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+    server = PolicyServer(cfg, suite_options, policy_options, log)
+    suite = server.suite_cls(suite_options)
+    cell = next(c for c in suite.all_cells() if c.key == server.default_cell)
+    server.plugin.preflight(policy_options, suite, [cell], server.default_horizon)  # e.g. checkpoint names
+    ws = server.websocket()
+    try:
+        port = ws.bind()
+    except AddressInUse as exc:
+        raise ConfigError(f"host={cfg.host} port={cfg.port}: cannot listen there ({exc.strerror}); pick another "
+                          "port (port=0 = any free one)") from None
+    where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
+
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
+    print(f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, default cell "
+          f"{server.default_cell}); Ctrl-C stops", flush=True)
+    try:
+        ws.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        ws.shutdown()
+    print("bench serve: stopped", flush=True)
+    return 0
