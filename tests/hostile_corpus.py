@@ -747,3 +747,18 @@ add(SA, "unknown-command", ["frobnicate"], r"frobnicate")
 add(SA, "logs-unknown-sub", ["logs", "frob"], r"frob")
 add(SA, "leaderboard-unknown-sub", ["leaderboard", "frob"], r"frob")
 add(SA, "calibrate-unknown-positional", ["calibrate", "frob"], r"frob")
+
+
+# Cases kept in modules of their own (one per owner) register through `add` as well.
+def _load_extra_cases() -> None:
+    import importlib
+
+    for name in ("hostile_corpus_readers", "hostile_corpus_grammar"):
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+
+
+_load_extra_cases()
