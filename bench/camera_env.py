@@ -12,8 +12,9 @@ Suites name their default cameras (a front view and, where the robot has one, a 
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 

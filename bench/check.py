@@ -28,7 +28,7 @@ import numpy as np
 from bench import config as config_mod
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.protocols import CAPABILITIES, STATE, EnvAdapter, check_obs, option_keys
+from bench.protocols import CAPABILITIES, STATE, EnvAdapter, Suite, check_obs, option_keys
 from bench.suite import METRICS, NOMINAL, SPLIT_AXES, SPLITS, Cell, Job, episode_seed, select_cells
 
 
@@ -279,7 +279,10 @@ def main(argv: list[str]) -> int:
     own = [f.name for f in fields(CheckConfig)]
     head = config_mod.build(CheckConfig, [o for o in overrides if config_mod.top_key(o) == "suite"])
     names = [head.suite] if head.suite else registry.names(registry.SUITES)
-    suite_keys = option_keys(registry.suite_class(head.suite).Options) if head.suite else []
+    suite_keys: list[str] = []
+    if head.suite:
+        head_cls: type[Suite] = registry.suite_class(head.suite)
+        suite_keys = option_keys(head_cls.Options)
     parts = config_mod.partition(overrides, {"check": own, f"suite {head.suite}": suite_keys}, "bench check")
     cfg: CheckConfig = config_mod.build(CheckConfig, parts["check"])
     problems: list[Problem] = []
@@ -293,7 +296,7 @@ def main(argv: list[str]) -> int:
         problems += check_manifest(metaworld_manifest(name), f"Meta-World {name.upper()}")
         return _report(problems, t0)
     for name in names:
-        cls = registry.suite_class(name)
+        cls: type[Suite] = registry.suite_class(name)
         required = _required(cls.Options)
         given = parts.get(f"suite {head.suite}", []) if head.suite else []
         if required and not head.suite:

@@ -23,9 +23,10 @@ slopes with intervals from `bench.trend`).
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
@@ -226,7 +227,9 @@ def read_training(paths: Sequence[str | Path]) -> TrainingData:
     """Frames (`observation.state`) and per-episode meta of one or more LeRobot v3 datasets."""
     from bench.logs import read_dataset
 
-    states, epi, meta = [], [], []
+    states: list[np.ndarray] = []
+    epi: list[np.ndarray] = []
+    meta: list[dict] = []
     names: list[str] | None = None
     for path in paths:
         if not Path(path).is_dir():
@@ -389,8 +392,8 @@ def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
         print(help_text())
         return 0
-    from bench import config as config_mod
     from bench import axes
+    from bench import config as config_mod
 
     positional, overrides = config_mod.split_args(_list_arg(argv, "data"))
     if positional:
@@ -409,7 +412,7 @@ def main(argv: list[str]) -> int:
     train = read_training(cfg.data)
     if cfg.eval_data:
         states, groups = initial_states_from_dataset(cfg.eval_data, cells)
-        source = {"eval_data": cfg.eval_data}
+        source: dict[str, Any] = {"eval_data": cfg.eval_data}
     else:
         states, groups = initial_states_from_suite(suite, cells, cfg.seed, cfg.episodes, cfg.horizon)
         source = {"seed": cfg.seed, "episodes": cfg.episodes}

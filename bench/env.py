@@ -6,6 +6,7 @@ states, `mj_input_names` names the MuJoCo inputs an `InputLog` records.
 from __future__ import annotations
 
 import hashlib
+
 import numpy as np
 
 

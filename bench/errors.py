@@ -5,7 +5,7 @@ Messages are one line: they name the field, the bad value and what would be vali
 from __future__ import annotations
 
 import difflib
-from typing import Iterable
+from collections.abc import Iterable
 
 
 class BenchError(Exception):

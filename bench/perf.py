@@ -146,13 +146,14 @@ def render_cost(p: Any, frames: int = 30) -> dict[str, float]:
 
     worker = api.worker(p)
     env, policy = worker.built(p.jobs[0])
+    assert env.mujoco is not None, "camera observations come from a MuJoCo env"
     rig = env.mujoco.cameras
     out: dict[str, list[float]] = {c: [] for c in rig.cameras}
     try:
-        env.reset(p.jobs[0].seed)
+        obs = env.reset(p.jobs[0].seed)
         policy.reset(p.jobs[0].seed)
         for _ in range(frames):
-            env.step(policy.act(None))
+            obs = env.step(policy.act(obs))[0]
             for cam in rig.cameras:
                 t0 = time.perf_counter()
                 rig.render_one(cam)

@@ -21,14 +21,15 @@ from __future__ import annotations
 
 import weakref
 from collections import deque
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from bench import perturb_visual
+from bench.axes import AXES, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
-from bench.axes import AXES, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
 from bench.suite import Condition
 
 
@@ -180,6 +181,16 @@ class _Nominal:
 
     FIELDS = ("geom_friction", "pair_friction", "body_mass", "body_inertia", "dof_damping", "dof_armature",
               "dof_frictionloss", "actuator_gainprm", "actuator_biasprm")
+    # one copy per name in FIELDS, set in __init__
+    geom_friction: np.ndarray
+    pair_friction: np.ndarray
+    body_mass: np.ndarray
+    body_inertia: np.ndarray
+    dof_damping: np.ndarray
+    dof_armature: np.ndarray
+    dof_frictionloss: np.ndarray
+    actuator_gainprm: np.ndarray
+    actuator_biasprm: np.ndarray
 
     def __init__(self, model):
         self.model = model
@@ -195,7 +206,7 @@ class _Nominal:
         m.opt.gravity[:] = self.gravity
 
 
-_CACHE: "weakref.WeakKeyDictionary[MujocoHandle, _Nominal]" = weakref.WeakKeyDictionary()
+_CACHE: weakref.WeakKeyDictionary[MujocoHandle, _Nominal] = weakref.WeakKeyDictionary()
 
 
 def nominal_of(mj: MujocoHandle) -> _Nominal:
@@ -275,6 +286,7 @@ def _draw(condition: Condition, rng: np.random.Generator) -> float:
     if kind == "grid":
         return condition.level
     lo, hi = condition.level
+    assert condition.axis is not None, "only a perturbation condition draws a value"
     axis = AXES[condition.axis]
     if axis.integer:
         return int(rng.integers(int(lo), int(hi) + 1))
@@ -300,10 +312,10 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
     perturb_visual.clear(env)
     axis = axis_named(condition.axis) if condition.axis is not None else None
     if axis is not None and axis.kind == "visual":
-        if nom is not None and nom.const_dirty:
-            _set_const(mj)  # type: ignore[arg-type]
+        if mj is not None and nom is not None and nom.const_dirty:
+            _set_const(mj)
             nom.const_dirty = False
-            mj.forward()  # type: ignore[union-attr]
+            mj.forward()
         value = _draw(condition, rng)
         return env, perturb_visual.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
     if axis is None or axis.kind == "interface":
@@ -314,7 +326,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         if axis is None:
             return env, {}
         value = _draw(condition, rng)
-        kw = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
+        kw: dict[str, Any] = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
         kw[axis.name] = value
         return Interface(env, rng, **kw), {axis.name: value}
     value = _draw(condition, rng)

@@ -28,8 +28,9 @@ built on `bench.camera_env`) and a policy that sees images (`obs=rgb` or `obs=st
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

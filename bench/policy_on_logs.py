@@ -66,6 +66,8 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
     from bench.protocols import STATE, PolicyContext
     from bench.recording import episode_cell
 
+    if not cfg.logs:
+        raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
     ds = read_dataset(cfg.logs)
     for feat in ("observation.state", "action"):
         if feat not in ds.features:

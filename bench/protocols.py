@@ -294,6 +294,10 @@ class Suite(Protocol):
     capabilities: frozenset[str]
     options: Any
 
+    def __init__(self, options: Any) -> None:
+        """Build the suite with an instance of its `Options`."""
+        ...
+
     def all_cells(self) -> list[Cell]:
         """Every cell of the suite (the runner selects among them)."""
         ...

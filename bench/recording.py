@@ -87,12 +87,14 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
                      "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id, **spec})
     if not episodes:
         raise DataError("record: the run has no completed episode to record")
+    assert action_names is not None, "every recorded episode set the action names"
     for feature in ("observation.sim_state", "action.ctrl"):
         widths = {ep[feature].shape[1] for ep in episodes if feature in ep}
         if len(widths) > 1 or (widths and not all(feature in ep for ep in episodes)):
             for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
                 ep.pop(feature, None)
-    names = {"observation.state": obs_names, "action": action_names} if obs_names else {"action": action_names}
+    names: dict[str, list[str]] = ({"observation.state": obs_names, "action": action_names} if obs_names
+                                   else {"action": action_names})
     if ctrl_names and len(set(ctrl_specs)) == 1 and all("action.ctrl" in ep for ep in episodes):
         names["action.ctrl"] = ctrl_names
     else:  # inputs of different robots or envs: one feature cannot name both

@@ -113,7 +113,7 @@ def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[st
     """Own keys -> RegressConfig; `bench run` keys (the runner's and the suite's) forwarded verbatim."""
     from bench import registry
     from bench.api import RUNNER_KEYS, RunConfig
-    from bench.protocols import option_keys
+    from bench.protocols import Suite, option_keys
 
     positional, overrides = config_mod.split_args(argv)
     if positional:
@@ -121,7 +121,8 @@ def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[st
                           "(see bench regress --help)")
     own_names = {f.name for f in fields(RegressConfig)}
     suite = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) == "suite"]).suite
-    run_names = set(RUNNER_KEYS) | set(option_keys(registry.suite_class(suite).Options))
+    suite_cls: type[Suite] = registry.suite_class(suite)
+    run_names = set(RUNNER_KEYS) | set(option_keys(suite_cls.Options))
     own, forwarded, by_key = [], [], {}
     for item in overrides:
         key = item.split("=", 1)[0]
@@ -224,7 +225,7 @@ class _Side:
     def __init__(self, role: str, info: dict[str, Any]):
         self.role, self.info = role, info
         self.p: Any = None  # a bench.api.Plan for a live side
-        self.meta: dict[str, Any] | None = None
+        self.meta: dict[str, Any] = {}  # run metadata: loaded for a recorded side, from start() for a live one
         self.ctx = None
         self.records: list = []
         self.wanted: set[str] = set()  # job ids a live side runs (those the recorded side has)
@@ -436,6 +437,7 @@ def main(argv: list[str]) -> int:
     n_boot = gate.n_boot_needed(design, int(any_cfg.n_boot if any_cfg else 2000))
     workers = 1
     if live:
+        assert any_cfg is not None, "a live side has its run config"
         workers = any_cfg.workers or os.cpu_count() or 1
         for side in live:
             side.meta, side.ctx = start(side.p, workers)

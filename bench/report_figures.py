@@ -102,6 +102,7 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     a1.set_title(f"{metric} over nominal cells", fontsize=9, loc="left")
     for j, g in enumerate(gaps):
         e = _err(g)
+        assert e is not None, "gaps keeps only estimates with a value"
         a2.errorbar(e[0], j, xerr=[[e[1]], [e[2]]], fmt="o", color="black", capsize=3)
     a2.axvline(0, color="grey", lw=1)
     if not gaps:
@@ -142,23 +143,32 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
     fig, axs = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
     for k, axis in enumerate(axes_names):
         ax = axs[k // ncol, k % ncol]
-        pooled = sorted(((_level_x(e["level"]), e) for e in entries
-                         if e.get("axis") == axis and e.get("scope") == "all" and _level_x(e["level"])),
+        pooled = sorted(((lx, e) for e in entries
+                         if e.get("axis") == axis and e.get("scope") == "all" and (lx := _level_x(e["level"]))),
                         key=lambda t: t[0][0])
         per_cell: dict[tuple, list] = {}
         for e in entries:
             if e.get("axis") == axis and e.get("scope") == "cell" and _level_x(e["level"]):
                 per_cell.setdefault((e.get("task"), e.get("robot"), e.get("env")), []).append(e)
         for key, es in sorted(per_cell.items()):
-            pts = sorted((_level_x(e["level"])[0], e[metric]["value"]) for e in es if e[metric].get("value") is not None)
+            pts = sorted((lx[0], e[metric]["value"]) for e in es
+                         if e[metric].get("value") is not None and (lx := _level_x(e["level"])))
             if pts:
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=0.8, alpha=0.35, color="grey")
                 ax.annotate(key[1], pts[-1], fontsize=6, color="grey", xytext=(2, 0), textcoords="offset points")
-        xs, ys, lo, hi, xerr = [], [], [], [], []
+        xs: list[float] = []
+        ys: list[float] = []
+        lo: list[float] = []
+        hi: list[float] = []
+        xerr: list[float] = []
         for (x, half), e in pooled:
             est = _err(e[metric])
             if est:
-                xs.append(x), ys.append(est[0]), lo.append(est[1]), hi.append(est[2]), xerr.append(half)
+                xs.append(x)
+                ys.append(est[0])
+                lo.append(est[1])
+                hi.append(est[2])
+                xerr.append(half)
         ax.errorbar(xs, ys, yerr=[lo, hi], xerr=xerr if any(xerr) else None, fmt="o-", color="#b23a48", capsize=3,
                     label="all cells")
         if nominal and nominal[metric].get("value") is not None:

@@ -9,7 +9,8 @@ so axes can be ranked: which change of the world hurts the policy most.
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -56,5 +57,5 @@ def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generato
             "perturbed": round(float(tgt.mean()), 6) if n else None, "drop": est,
             "relative_drop": round(drop / base, 6) if drop is not None and base else None,
         })
-    rows.sort(key=lambda row: -(row["drop"].get("value") or 0.0))  # type: ignore[union-attr]
+    rows.sort(key=lambda row: -(row["drop"].get("value") or 0.0))
     return rows

@@ -129,7 +129,8 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     t0 = time.perf_counter()
     success_once = success_at_end = False
     ret, length, first_success = 0.0, 0, None
-    init_hash, params, error, stats = None, {}, None, {}
+    params: dict[str, Any] = {}
+    init_hash, error, stats = None, None, {}
     traj: dict[str, Any] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
                                    "ctrl": []} if ctx.trajectory_dir else None
     log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step

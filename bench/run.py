@@ -9,7 +9,7 @@ def help_text(argv: list[str] | None = None) -> str:
     from bench import registry
     from bench.api import RunConfig
     from bench.errors import BenchError
-    from bench.protocols import option_keys
+    from bench.protocols import Suite, option_keys
 
     suite, policy = "held_out_robots", None
     for arg in argv or []:
@@ -20,7 +20,7 @@ def help_text(argv: list[str] | None = None) -> str:
             policy = value
     plugin_keys = ""
     try:
-        suite_cls = registry.suite_class(suite)
+        suite_cls: type[Suite] = registry.suite_class(suite)
         policy = policy or suite_cls.default_policy or suite_cls.reference_policy
         plugin = registry.load_policy(policy)
         for owner, schema in ((f"suite {suite}", suite_cls.Options), (f"policy {policy}", plugin.Options)):

@@ -13,8 +13,9 @@ All randomness comes from a generator the caller seeds (from the run seed).
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -31,8 +32,8 @@ class Estimate:
     def to_dict(self) -> dict:
         if self.value is None:
             return {"value": None, "ci": None, "reason": self.reason or "not computable"}
-        ci = None if self.lo is None else [round(self.lo, 6), round(self.hi, 6)]
-        out = {"value": round(self.value, 6), "ci": ci}
+        ci = None if self.lo is None or self.hi is None else [round(self.lo, 6), round(self.hi, 6)]
+        out: dict[str, Any] = {"value": round(self.value, 6), "ci": ci}
         if self.reason:
             out["reason"] = self.reason
         return out

@@ -13,7 +13,8 @@ Entries are JSON-able with no NaN: what cannot be computed is null with a reason
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

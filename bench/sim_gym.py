@@ -48,8 +48,8 @@ class GymEnv:
             self.action_spec = ActionSpec.box(["action"], start - 0.5, start + n - 0.5)
         elif isinstance(act_space, spaces.MultiDiscrete):
             nvec = np.asarray(act_space.nvec).ravel()
-            start = np.asarray(getattr(act_space, "start", np.zeros_like(nvec))).ravel()
-            self.action_spec = ActionSpec.box([f"a{i}" for i in range(nvec.size)], start - 0.5, start + nvec - 0.5)
+            starts = np.asarray(getattr(act_space, "start", np.zeros_like(nvec))).ravel()
+            self.action_spec = ActionSpec.box([f"a{i}" for i in range(nvec.size)], starts - 0.5, starts + nvec - 0.5)
         else:
             self._env.close()
             raise ValueError(f"{env_id}: action space {type(act_space).__name__} is not supported "

@@ -30,6 +30,8 @@ its input only — the observation the harness records and other policies see st
 from __future__ import annotations
 
 import warnings
+from typing import Any
+
 import numpy as np
 
 from bench.errors import ConfigError, did_you_mean
@@ -150,7 +152,7 @@ class MetaWorldEnv:
         self.model_axes = None
         self._t = 0
         self._success = False
-        self._init_state: np.ndarray | None = None
+        self._init_state = np.zeros(0)  # set by reset
         # the inputs Meta-World drives: the gripper's two actuators and the hand's mocap body
         st = mujoco.mjtState
         self.inputs = InputLog(env.model, int(st.mjSTATE_CTRL | st.mjSTATE_MOCAP_POS | st.mjSTATE_MOCAP_QUAT))
@@ -165,7 +167,8 @@ class MetaWorldEnv:
         """
         import mujoco
 
-        env, log = self._env, self.inputs
+        env: Any = self._env  # Any: this instance's bound method is replaced below (mypy calls methods read-only)
+        log = self.inputs
         model, data = env.model, env.data
         original = env._step_mujoco_simulation
 

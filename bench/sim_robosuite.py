@@ -43,7 +43,7 @@ def _quiet_robosuite() -> None:
     os.environ.setdefault("MUJOCO_GL", "disable")
     if "robosuite" not in sys.modules and "robosuite.macros_private" not in sys.modules:
         private = types.ModuleType("robosuite.macros_private")
-        private.CONSOLE_LOGGING_LEVEL = "ERROR"
+        private.CONSOLE_LOGGING_LEVEL = "ERROR"  # type: ignore[attr-defined]  # a bare ModuleType has no attributes
         sys.modules["robosuite.macros_private"] = private
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
 
@@ -88,7 +88,7 @@ class Observer(Protocol):
 
     obs_spec: ObsSpec
 
-    def bind(self, env: "RobosuiteEnv") -> tuple[str, ...]:
+    def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
         """Called once after the env is built (may step it to measure things); returns the
         manipulated object's bodies (`perturb.mass` targets)."""
         ...

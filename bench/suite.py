@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import zlib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class SuiteBase:
         """JSON-able identity of the suite: name, version, split manifest and its non-default options."""
         out: dict[str, Any] = {"name": self.name, "version": self.version,
                                "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()}}
-        if dataclasses.is_dataclass(self.options):
+        if dataclasses.is_dataclass(self.options) and not isinstance(self.options, type):
             out.update({k: v for k, v in dataclasses.asdict(self.options).items()})
         return out
 

@@ -8,18 +8,20 @@ numbers) and training seeds per point; `slope_with_interval` refits the slope on
 from __future__ import annotations
 
 import warnings
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 
-def wls_slope(x: Sequence[float], y: Sequence[float], var: Sequence[float]) -> tuple[float, float]:
+def wls_slope(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
+              var: Sequence[float] | np.ndarray) -> tuple[float, float]:
     """Weighted least-squares line y = a + b x with weights 1/var; returns (slope b, intercept a)."""
-    x, y, w = np.asarray(x, float), np.asarray(y, float), 1.0 / np.asarray(var, float)
-    if len(x) < 2 or np.ptp(x) == 0:
+    xa, ya, w = np.asarray(x, float), np.asarray(y, float), 1.0 / np.asarray(var, float)
+    if len(xa) < 2 or np.ptp(xa) == 0:
         raise ValueError("a slope needs at least two distinct x values")
-    xm, ym = np.sum(w * x) / w.sum(), np.sum(w * y) / w.sum()
-    b = np.sum(w * (x - xm) * (y - ym)) / np.sum(w * (x - xm) ** 2)
+    xm, ym = np.sum(w * xa) / w.sum(), np.sum(w * ya) / w.sum()
+    b = np.sum(w * (xa - xm) * (ya - ym)) / np.sum(w * (xa - xm) ** 2)
     return float(b), float(ym - b * xm)
 
 
@@ -101,10 +103,10 @@ def slope_with_interval(x: Sequence[float], values: Sequence[float], reps: Seque
         return {"value": None, "ci": None, "reason": "a slope needs at least two points with distinct coverage"}
     if any(v is None for v in values) or any(r is None for r in reps):
         return {"value": None, "ci": None, "reason": "a point has no completed episodes"}
-    reps = np.stack([np.asarray(r, float) for r in reps], axis=1)  # (n_boot, K)
-    var = [max(float(np.nanvar(reps[:, k])), _smoothed_var(values[k], n_outcomes[k])) for k in range(len(x))]
+    rep_mat = np.stack([np.asarray(r, float) for r in reps], axis=1)  # (n_boot, K)
+    var = [max(float(np.nanvar(rep_mat[:, k])), _smoothed_var(values[k], n_outcomes[k])) for k in range(len(x))]
     b, a = wls_slope(x, values, var)
-    boot = np.array([wls_slope(x, row, var)[0] for row in reps if np.all(np.isfinite(row))])
+    boot = np.array([wls_slope(x, row, var)[0] for row in rep_mat if np.all(np.isfinite(row))])
     lo, hi = np.quantile(boot, [(1 - confidence) / 2, 1 - (1 - confidence) / 2])
     return {"value": round(b, 6), "ci": [round(float(lo), 6), round(float(hi), 6)], "intercept": round(a, 6),
             "method": "weighted least squares (1/var), percentile bootstrap over training seeds and episodes",

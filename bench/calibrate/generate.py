@@ -229,7 +229,9 @@ def arm_xml(effect: str | None, target: str | None = None) -> str:
     text = ARM.read_text()
     if effect in GEARED:
         act = target or DEFAULTS[effect][0]
-        joint = re.search(rf'<motor name="{act}" joint="(\w+)"', text).group(1)  # type: ignore[union-attr]
+        motor = re.search(rf'<motor name="{act}" joint="(\w+)"', text)
+        assert motor is not None, f"arm3.xml has no motor {act}"
+        joint = motor.group(1)
         text = re.sub(rf'(<joint name="{joint}"[^/]*)/>', rf'\1 armature="{GEARED[effect]}"/>', text)
     return text
 
@@ -270,7 +272,9 @@ def declared_files(out: str | Path, effect: str | None, target: str | None = Non
     xml = declared_xml(text=arm_xml(effect, target))
     if effect == "viscous_damping":  # the damping that is not declared free keeps its true value
         joint = target or DEFAULTS[effect][0]
-        true = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text()).group(1)  # type: ignore[union-attr]
+        found = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text())
+        assert found is not None, f"arm3.xml declares no damping of joint {joint}"
+        true = found.group(1)
         xml = re.sub(rf'(<joint name="{joint}") damping="[0-9.]+"', rf'\1 damping="{true}"', xml)
     (out / "arm3_declared.xml").write_text(xml)
     path = out / "spec.yaml"

@@ -46,12 +46,14 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
     from bench import registry
     from bench.recording import episode_cell
 
+    assert cfg.suite is not None and cfg.logs is not None, "a suite replay names its suite and logs (_check_cfg)"
     suite = registry.make_suite(cfg.suite)
     cells = {c.key: c for c in suite.all_cells()}
     width = ds.feature_shape("observation.sim_state")[0]
     built: dict[str, Any] = {}
     envs = []
-    names = idx = None
+    names: list[str] | None = None
+    idx: np.ndarray | None = None
     try:
         for ep in eps:
             key = episode_cell(cells, ep, cfg.logs, cfg.suite).key
@@ -74,6 +76,7 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
         for env in built.values():
             env.close()
         raise
+    assert names is not None and idx is not None, "the dataset holds at least one episode (_read_logs)"
     return envs, names, idx
 
 
@@ -297,6 +300,7 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     try:
         segments = suite_segments(logs, cfg.k, commands)
         if commands == "ctrl":
+            assert logs.ctrl is not None, "load_suite_logs(need_ctrl=True) loads the logged inputs"
             preds, steps = replay_ctrl(cfg.threads, logs.envs, logs.full, logs.ctrl, logs.offsets, segments,
                                        logs.substeps, logs.idx, logs.ctrl_spec)
         else:
