@@ -18,9 +18,7 @@ next to index.html, so the folder can be published as it is (CI artifact, Pages)
 """
 from __future__ import annotations
 
-import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -28,6 +26,7 @@ from typing import Optional
 import numpy as np
 
 from bench import config as config_mod
+from bench import outputs
 from bench.errors import ConfigError, DataError
 from bench.report_figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
 from bench.report_html import CSS, _e, _img, _pct, _signed, _table
@@ -37,7 +36,8 @@ from bench.report_html import CSS, _e, _img, _pct, _signed, _table
 class ReportConfig:
     """Keys of `bench report` (the input RUN|LEADERBOARD is positional)."""
 
-    out: Optional[str] = None           # output folder (index.html + PNG figures); replaced if it exists
+    out: Optional[str] = None           # output folder (index.html + PNG figures); never an input or inside one
+    overwrite: bool = False             # replace an existing report folder (only one bench wrote)
     calibration: Optional[str] = None   # a calibrate output dir or its calibration.json: errors before/after
     verdict: Optional[str] = None       # a `bench regress` verdict.json to include
     title: Optional[str] = None         # page title; default from the input
@@ -55,7 +55,8 @@ Writes DIR/index.html with matplotlib figures (PNG, next to it):
   leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.
   calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.
   verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.
-Inputs are validated before anything is written; an existing DIR is replaced atomically.
+Inputs are validated before anything is written. DIR is never an input or inside one; an existing
+DIR is replaced (atomically) only with overwrite=true, and only when bench wrote everything in it.
 
 examples:
   bench report runs/my_run out=report/
@@ -306,26 +307,12 @@ def main(argv: list[str]) -> int:
     kind, doc, src = load_input(positional[0])
     cal = load_calibration(cfg.calibration) if cfg.calibration else None
     verdict = load_verdict(cfg.verdict) if cfg.verdict else None
-    out = Path(cfg.out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"out={cfg.out!r} exists and is not a folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        run_dir = src.parent if kind == "run" else None
-        (tmp / "index.html").write_text(build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8")
-        os.chmod(tmp, 0o755)
-        if out.exists():
-            old = out.with_name(f".{out.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    # a run's records and videos are read from the folder of its summary.json
+    run_dir = src.parent if kind == "run" and (src.parent / "episodes.jsonl").exists() else None
+    out = outputs.check("out", cfg.out, {"input": positional[0], "run": run_dir, "calibration": cfg.calibration,
+                                         "verdict": cfg.verdict}, overwrite=cfg.overwrite)
+    outputs.replace_dir(out, lambda tmp: (tmp / "index.html").write_text(
+        build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"))
     figs = sorted(p.name for p in out.glob("*.png"))
     print(f"report of {src} -> {out / 'index.html'} ({', '.join(figs) or 'no figures'})")
     return 0

@@ -73,7 +73,8 @@ def test_leaderboard_report_with_calibration_and_verdict(tmp_path: Path):
     page = (out / "index.html").read_text()
     assert "coulomb" in page and "expert" in page and "declared" in page
     # replacing an existing report leaves no stale figure behind
-    assert cli.main(["report", str(tmp_path / "lb.json"), f"out={out}"]) == 0
+    assert cli.main(["report", str(tmp_path / "lb.json"), f"out={out}"]) == 2  # exists: needs overwrite=true
+    assert cli.main(["report", str(tmp_path / "lb.json"), f"out={out}", "overwrite=true"]) == 0
     _pngs_ok(out, {"leaderboard.png"})
 
 
