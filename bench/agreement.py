@@ -277,6 +277,7 @@ class CorrelateConfig:
     n_boot: int = 2000          # bootstrap replicates
     level: float = 0.95         # interval coverage
     out: Optional[str] = None   # also write the report as JSON (undefined values are null with a reason)
+    overwrite: bool = False     # replace an existing out= file that bench wrote
 
 
 def help_text() -> str:
@@ -318,6 +319,7 @@ def format_report(report: dict) -> str:
 
 def main(argv: list[str]) -> int:
     """`bench correlate sim=FILE real=FILE [seed=0 n_boot=2000 level=0.95 out=FILE.json]`."""
+    from bench import outputs
     from bench.config import build_from_argv
     from bench.io import write_atomic
 
@@ -329,9 +331,11 @@ def main(argv: list[str]) -> int:
         if not getattr(cfg, key):
             raise ConfigError(f"missing key {key!r}: bench correlate sim=FILE real=FILE")
     sim_path, real_path = str(cfg.sim), str(cfg.real)
+    if cfg.out:
+        outputs.check("out", cfg.out, {"sim": sim_path, "real": real_path}, kind="file", overwrite=cfg.overwrite)
     report = agreement(load_outcomes(sim_path), load_outcomes(real_path), n_boot=cfg.n_boot, seed=cfg.seed,
                        level=cfg.level, sim_name=sim_path, real_name=real_path)
-    report = {"sim": sim_path, "real": real_path, **report}
+    report = {"schema": "bench.agreement/1", "sim": sim_path, "real": real_path, **report}
     print(format_report(report))
     if cfg.out:
         write_atomic(Path(cfg.out), report)

@@ -19,6 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from bench import outputs
 from bench.errors import ConfigError, DataError, did_you_mean
 from bench.schema import load_json, validate
 
@@ -211,14 +212,16 @@ USAGE = """usage: bench leaderboard validate FILE... | merge RUN... out=FILE | s
                           the most episodes wins; the others are listed as superseded). Refuses inputs with
                           the same suite but another version or split manifest. Every input is validated
                           before anything is written; OUT is replaced atomically.
-                          To add a run to a leaderboard, pass the leaderboard as an input too.
+                          To add a run to a leaderboard, pass the leaderboard as an input and write a
+                          new file (OUT is never an input); overwrite=true replaces an existing OUT that
+                          bench wrote.
   show FILE               the leaderboard as terminal tables, one per group (suite, version, metric,
                           selected cells), ranked by the lower bound of the score: mean success on the
                           unseen split (seen when the suite has none), with intervals.
 
 examples:
   bench leaderboard merge results/runs/* out=results/leaderboard.json
-  bench leaderboard merge results/leaderboard.json runs/my_run out=results/leaderboard.json
+  bench leaderboard merge results/leaderboard.json runs/my_run out=leaderboard-new.json
   bench leaderboard show results/leaderboard.json
 """
 
@@ -240,12 +243,17 @@ def main(argv: list[str]) -> int:
         from bench.io import write_atomic
 
         inputs, overrides = split_args(rest)
-        out = None
+        out, overwrite = None, False
         for item in overrides:
             key, value = item.split("=", 1)
-            if key != "out":
-                raise ConfigError(f"leaderboard merge: unknown key {key!r}; valid: out")
-            out = value
+            if key == "out":
+                out = value
+            elif key == "overwrite":
+                if value.lower() not in ("true", "false"):
+                    raise ConfigError(f"leaderboard merge: overwrite={value!r}; valid: true, false")
+                overwrite = value.lower() == "true"
+            else:
+                raise ConfigError(f"leaderboard merge: unknown key {key!r}; valid: out, overwrite")
         if not out:
             raise ConfigError("leaderboard merge: out=FILE is required (e.g. out=results/leaderboard.json)")
         if not inputs:
@@ -254,6 +262,7 @@ def main(argv: list[str]) -> int:
             raise ConfigError(f"leaderboard merge: out={out!r} must end in .json")
         board = merge([read_input(a) for a in inputs])  # every input validated before anything is written
         validate(board, "merged leaderboard")
+        outputs.check("out", out, {"input": inputs}, kind="file", overwrite=overwrite)
         write_atomic(Path(out), board)
         render(board)
         print(f"{len(board['entries'])} entries from {len(inputs)} input(s) -> {out}")

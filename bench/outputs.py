@@ -72,7 +72,7 @@ def _writable(key: str, shown: str, path: Path) -> None:
         probe = probe.parent
     if not probe.is_dir():
         raise ConfigError(f"{key}={shown!r}: {str(probe)!r} is a file, not a folder; give a path under a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
+    if not os.access(probe, os.W_OK | os.X_OK) or not probe.stat().st_mode & 0o222:  # root ignores permissions
         raise ConfigError(f"{key}={shown!r}: cannot write under {str(probe)!r} (permission denied); "
                           "give a writable folder")
 

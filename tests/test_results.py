@@ -49,4 +49,4 @@ def test_leaderboard_is_the_merge_of_the_committed_runs(monkeypatch):
     monkeypatch.chdir(REPO)  # sources are recorded relative to the repository root
     inputs = [read_input(str(Path("results/runs") / r.name)) for r in RUNS]
     assert json.loads(json.dumps(merge(inputs))) == board, \
-        "results/leaderboard.json is stale: bench leaderboard merge results/runs/* out=results/leaderboard.json"
+        "results/leaderboard.json is stale: bench leaderboard merge results/runs/* out=results/leaderboard.json overwrite=true"
