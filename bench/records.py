@@ -63,9 +63,48 @@ class EpisodeRecord:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> EpisodeRecord:
+        if not isinstance(d, dict):
+            raise TypeError(f"a record is a JSON object, not {type(d).__name__}")
         d = dict(d)
         d["return_"] = d.pop("return")
+        bad = check_fields(d)
+        if bad:
+            raise TypeError(bad)
         return cls(**d)
+
+
+_NUM = (int, float)
+_FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, may be null)
+    "task": ((str,), False), "robot": ((str,), False), "env": ((str,), False), "split": ((str,), False),
+    "condition": ((str,), False), "episode": ((int,), False), "seed": ((int,), False),
+    "success_once": ((bool,), False), "success_at_end": ((bool,), False), "return_": (_NUM, True),
+    "length": ((int,), False), "steps_to_success": ((int,), True), "error": ((str,), True),
+    "params": ((dict,), False), "extras": ((dict,), False),
+}
+
+
+def check_fields(d: dict[str, Any]) -> str | None:
+    """What is wrong with a record's fields (type, sign, finiteness), or None."""
+    import math
+
+    for name, (types, nullable) in _FIELD_TYPES.items():
+        if name not in d:
+            continue
+        v = d[name]
+        shown = "return" if name == "return_" else name
+        if v is None:
+            if nullable:
+                continue
+            return f"field {shown!r} is null"
+        if isinstance(v, bool) and bool not in types:
+            return f"field {shown!r} is {v!r}; expected {' or '.join(t.__name__ for t in types)}"
+        if not isinstance(v, types):
+            return f"field {shown!r} is {v!r}; expected {' or '.join(t.__name__ for t in types)}"
+        if isinstance(v, float) and not math.isfinite(v):
+            return f"field {shown!r} is {v}; records hold finite numbers (null with an error for a failed episode)"
+        if name in ("episode", "seed", "length", "steps_to_success") and v < 0:
+            return f"field {shown!r} is {v}; valid: a non-negative integer"
+    return None
 
 
 class RecordWriter:
@@ -116,10 +155,11 @@ def read_records(path: Path) -> list[EpisodeRecord]:
             continue
         try:
             out.append(EpisodeRecord.from_dict(json.loads(line)))
-        except (json.JSONDecodeError, TypeError) as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError, TypeError, KeyError, RecursionError, ValueError) as exc:
             if i == len(lines) - 1:  # torn tail of a killed run
                 break
-            raise DataError(f"{path}: line {i + 1} is not an episode record ({type(exc).__name__}: {exc})") from None
+            why = f"field {exc.args[0]!r} is missing" if isinstance(exc, KeyError) else str(exc).splitlines()[0][:200]
+            raise DataError(f"{path}: line {i + 1} is not an episode record ({why})") from None
     return out
 
 

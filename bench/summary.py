@@ -230,7 +230,15 @@ def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
     if not meta_path.exists():
         raise DataError(f"{meta_path}: missing; is {run_dir} a run directory written by `bench run`?")
     try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{meta_path}: not valid JSON ({exc})") from None
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError, ValueError) as exc:
+        raise DataError(f"{meta_path}: not valid JSON ({str(exc).splitlines()[0][:160]})") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{meta_path}: expected a JSON object (the run's metadata), found {type(meta).__name__}")
+    for key, kind in (("config", dict), ("suite", dict), ("policy", dict)):
+        if key in meta and not isinstance(meta[key], kind):
+            raise DataError(f"{meta_path}: field {key!r} is {type(meta[key]).__name__}; expected an object")
+    if "config" not in meta:
+        raise DataError(f"{meta_path}: not a bench run.json (missing field 'config'); is {run_dir} a run directory "
+                        "written by `bench run`?")
     return read_records(run_dir / EPISODES), meta
