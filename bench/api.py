@@ -254,9 +254,6 @@ def plan(cfg: RunConfig) -> Plan:
                               f"{cell.key} provides {describe_spec(spec)}")
     identity = plugin.identity(policy_options)
     plugin.preflight(policy_options, suite, cells, horizon)
-    if cfg.record and Path(cfg.record).exists() and (not Path(cfg.record).is_dir() or any(Path(cfg.record).iterdir())):
-        raise ConfigError(f"record={cfg.record!r} exists and is not an empty folder; give a new folder "
-                          "(nothing is overwritten)")
     calibration = None
     if cfg.calibration:
         from bench.calibrate.apply import load, verify
@@ -276,8 +273,32 @@ def plan(cfg: RunConfig) -> Plan:
                          "lists them; allow_split_violation=true runs anyway)")
     run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
+    run_dir = _check_outputs(cfg, run_id, identity.checkpoint)
     return Plan(resolved, suite, plugin, suite_options, policy_options, identity, calibration, cells, conditions, jobs,
-                horizon, Path(cfg.out) / run_id)
+                horizon, run_dir)
+
+
+def _is_run_dir(folder: Path) -> bool:
+    """A folder `bench run` may resume: it holds the run.json of a bench run."""
+    try:
+        meta = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(meta, dict) and isinstance(meta.get("config"), dict)
+
+
+def _check_outputs(cfg: RunConfig, run_id: str, checkpoint: str | None) -> Path:
+    """The run directory and `record=` checked against `bench.outputs`' rule before anything is written."""
+    from bench import outputs
+
+    inputs = {"checkpoint": checkpoint, "calibration": cfg.calibration}
+    if not run_id or run_id in (".", "..") or any(c in run_id for c in "/\\\0") or not run_id.isprintable():
+        raise ConfigError(f"run_id={run_id!r}: a run id names one folder (printable, no slashes, not . or ..)")
+    run_dir = Path(cfg.out) / run_id
+    outputs.check("out", run_dir, inputs, resume=_is_run_dir, can_overwrite=False)
+    if cfg.record:
+        outputs.check("record", cfg.record, {**inputs, "out (the run directory)": run_dir}, can_overwrite=False)
+    return run_dir
 
 
 def _now() -> str:
@@ -409,8 +430,14 @@ class _Progress:
         if not show:
             return
         from rich.console import Console
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.console = Console(stderr=True)
         if done:

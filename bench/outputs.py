@@ -78,7 +78,7 @@ def _writable(key: str, shown: str, path: Path) -> None:
 
 
 def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, kind: Kind = "dir",
-          overwrite: bool = False, resume: Callable[[Path], bool] | None = None) -> Path:
+          overwrite: bool = False, resume: Callable[[Path], bool] | None = None, can_overwrite: bool = True) -> Path:
     """Validate one output against the rule above; returns its resolved path. Writes nothing.
 
     Args:
@@ -89,7 +89,9 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
         overwrite: the command's `overwrite=true`: an existing bench-written output may be replaced.
         resume: for folders a command continues (a run directory): True when the existing folder is one
             this command may continue (then it is accepted as it is).
+        can_overwrite: False for outputs the command has no `overwrite=` for (messages then ask for a new path).
     """
+    again = "pass overwrite=true to replace it" if can_overwrite else "give a new one (nothing is overwritten)"
     shown = str(path)
     out = resolved(path)
     for in_key, value in inputs.items():
@@ -115,7 +117,7 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
             if out.is_dir():
                 raise ConfigError(f"{key}={shown!r} is a folder; give a file name")
             if not overwrite:
-                raise ConfigError(f"{key}={shown!r} exists; pass overwrite=true to replace it")
+                raise ConfigError(f"{key}={shown!r} exists; {again}")
             if not _bench_file(out):
                 raise ConfigError(f"{key}={shown!r} was not written by bench; overwrite=true only replaces bench's "
                                   "own outputs (give a new file)")
@@ -126,8 +128,7 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
                 return out
             if any(out.iterdir()):
                 if not overwrite:
-                    raise ConfigError(f"{key}={shown!r} exists and is not empty; pass overwrite=true to replace "
-                                      "an output bench wrote, or give a new folder")
+                    raise ConfigError(f"{key}={shown!r} exists and is not empty; {again}")
                 if not written_by_bench(out):
                     raise ConfigError(f"{key}={shown!r} holds files bench did not write there; overwrite=true only "
                                       "replaces bench's own outputs (give a new folder)")

@@ -104,7 +104,7 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
     cameras = sorted({k for ep in episodes for k in ep if k.startswith("observation.images.")})
     ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names,
                      video=cameras)
-    return write_dataset(out, ds)
+    return write_dataset(out, ds, key="record")
 
 
 def episode_cell(cells: dict, episode, logs: str, suite_name: str):

@@ -52,7 +52,7 @@ def test_import_csv(tmp_path, capsys):
     np.testing.assert_array_equal(ds.episodes[0].data["observation.state"][:, 0], np.arange(10, dtype=np.float32))
     # refuses to overwrite, then does with overwrite=true
     assert main(["logs", "import", str(src), f"out={out}", "time=time", "state=[q]"]) == 2
-    assert "pass overwrite=True" in capsys.readouterr().err
+    assert "pass overwrite=true" in capsys.readouterr().err
     assert main(["logs", "import", str(src), f"out={out}", "time=time", "state=[q]", "overwrite=true"]) == 0
 
 

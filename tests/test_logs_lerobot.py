@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 from video_frames import assert_close_frames, frames
 
-from bench.errors import DataError
+from bench.errors import BenchError, DataError
 from bench.logs import (
     Episode,
     LogDataset,
@@ -277,7 +277,7 @@ def test_refuses_to_overwrite(tmp_path):
     write_dataset(target, _sample(images=False))
     before = sorted(p.relative_to(target) for p in target.rglob("*"))
     other = from_arrays([{"action": np.ones((2, 1))}], fps=5)
-    with pytest.raises(DataError, match="folder exists and is not empty; pass overwrite=True"):
+    with pytest.raises(BenchError, match="exists and is not empty; pass overwrite=true"):
         write_dataset(target, other)
     assert sorted(p.relative_to(target) for p in target.rglob("*")) == before
     assert len(read_dataset(target).episodes) == 3

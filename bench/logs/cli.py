@@ -195,7 +195,8 @@ def cmd_import(argv: list[str]) -> int:
             action=str(kv.get("action", "action")), instruction=str(kv.get("instruction", "language_instruction")),
             task=str(kv.get("task", "default")), **common,
         )
-    out = write_dataset(Path(str(kv["out"])).expanduser(), ds, overwrite=_bool(kv.get("overwrite", False), "overwrite"))
+    out = write_dataset(Path(str(kv["out"])).expanduser(), ds, overwrite=_bool(kv.get("overwrite", False), "overwrite"),
+                        inputs={"SRC": src})
     print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
     print(format_info(_info(out)))
     return 0

@@ -28,6 +28,7 @@ import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any, Iterator
 
 import numpy as np
@@ -1030,7 +1031,7 @@ def _replace(tmp: Path, root: Path) -> None:
 
 
 def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = False, video_codec: str = "h264",
-                  crf: int | None = None) -> Path:
+                  crf: int | None = None, *, key: str = "out", inputs: Mapping[str, Any] | None = None) -> Path:
     """Write `ds` as a LeRobot v3.0 folder that lerobot itself can load.
 
     `frame_index` and `index` are derived on write (position in episode / in dataset). The files
@@ -1043,7 +1044,10 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
     Args:
         root: target folder; must not exist or be empty unless `overwrite`.
         ds: the dataset; checked with `validate` first.
-        overwrite: replace an existing non-empty folder.
+        overwrite: replace an existing folder bench wrote (never one holding anything else).
+        key: the output's key, for messages (`out`, `record`).
+        inputs: what the command read (key -> path): the output may not equal, contain or lie inside them
+            (`bench.outputs`).
         video_codec: "h264" (default) or "av1" for video features.
         crf: video quality (lower is better; default 20 for H.264, 30 for AV1).
 
@@ -1071,15 +1075,15 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
         if not float(ds.fps).is_integer():
             raise DataError(f"{where}: field 'fps' is {ds.fps!r}; video features need a whole number of frames per second")
         _check_video_timestamps(ds, where)
-    if root.exists() and not root.is_dir():
-        raise DataError(f"{root}: exists and is not a folder")
-    if root.exists() and any(root.iterdir()) and not overwrite:
-        raise DataError(f"{root}: folder exists and is not empty; pass overwrite=True to replace it")
+    from bench import outputs
+
+    root = outputs.check(key, root, inputs or {}, overwrite=overwrite)
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
     try:
         (tmp / "meta").mkdir()
         _write_into(tmp, ds, video_codec, crf)
+        outputs.mark(tmp)
         _replace(tmp, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
