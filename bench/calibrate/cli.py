@@ -46,9 +46,9 @@ examples:
   bench calibrate spec=bench/calibrate/models/emps.yaml logs=logs/emps out=runs/emps
 """
 
-RUN_KEYS = ("spec", "logs", "out", "seed", "effects", "threads", "quiet", "residual")
-SUITE_KEYS = ("suite", "robot", "logs", "out", "seed", "threads", "quiet", "residual", "condition")
-GEN_KEYS = ("effect", "out", "episodes", "duration", "fps", "seed", "target", "disturbance")
+RUN_KEYS = ("spec", "logs", "out", "seed", "effects", "threads", "quiet", "residual", "overwrite")
+SUITE_KEYS = ("suite", "robot", "logs", "out", "seed", "threads", "quiet", "residual", "condition", "overwrite")
+GEN_KEYS = ("effect", "out", "episodes", "duration", "fps", "seed", "target", "disturbance", "overwrite")
 
 
 def _check(kv: dict, valid: tuple[str, ...], required: tuple[str, ...]) -> None:
@@ -103,12 +103,12 @@ def _load_logs(path: Path) -> tuple[list[dict], float]:
 
 def cmd_run(kv: dict) -> int:
     """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
-    from bench.calibrate.report import write_report
     from bench.calibrate.spec import load_spec
     from bench.calibrate.trace import run
 
     _check(kv, RUN_KEYS, ("spec", "logs", "out"))
     spec = load_spec(Path(str(kv["spec"])).expanduser())
+    out = _out(kv, {"spec": str(kv["spec"]), "model": str(spec.model), "logs": str(kv["logs"])})
     episodes, fps = _load_logs(Path(str(kv["logs"])).expanduser())
     quiet = bool(kv.get("quiet", False))
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
@@ -118,9 +118,28 @@ def cmd_run(kv: dict) -> int:
               log=log, residual=residual)
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    path = write_report(cal, Path(str(kv["out"])).expanduser())
+    path = _write(out, cal)
     _summary(cal, path)
     return 0
+
+
+def _out(kv: dict, inputs: dict[str, Any]) -> Path:
+    """OUT checked against `bench.outputs`' rule (never an input or inside one; overwrite=true for bench's own)."""
+    from bench import outputs
+
+    overwrite = kv.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise ConfigError(f"key 'overwrite' must be true or false; got {overwrite!r}")
+    return outputs.check("out", str(kv["out"]), inputs, overwrite=overwrite)
+
+
+def _write(out: Path, cal: Any, extra: dict | None = None) -> Path:
+    """The calibration report, built aside and swapped in whole (`bench.outputs.replace_dir`)."""
+    from bench import outputs
+    from bench.calibrate.report import write_report
+
+    outputs.replace_dir(out, lambda tmp: write_report(cal, tmp, extra))
+    return out / "calibration.json"
 
 
 def _residual(kv: dict) -> bool:
@@ -146,10 +165,10 @@ def _summary(cal, path: Path) -> None:
 
 def cmd_suite(kv: dict) -> int:
     """Calibrate a suite's robot in its scene: logs of `bench run record=` -> OUT/calibration.json with `apply`."""
-    from bench.calibrate.report import write_report
     from bench.calibrate.suite import calibrate_suite
 
     _check(kv, SUITE_KEYS, ("suite", "robot", "logs", "out"))
+    out = _out(kv, {"logs": str(kv["logs"])})
     residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1), _int(kv, "seed", 0)
     log = (lambda msg: None) if kv.get("quiet", False) else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cal, extra = calibrate_suite(str(kv["suite"]), str(kv["robot"]), Path(str(kv["logs"])), seed=seed,
@@ -157,7 +176,7 @@ def cmd_suite(kv: dict) -> int:
                                  condition=None if kv.get("condition") is None else str(kv["condition"]))
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    path = write_report(cal, Path(str(kv["out"])).expanduser(), extra)
+    path = _write(out, cal, extra)
     _summary(cal, path)
     print(f"{len(extra['apply']['edits'])} model edit(s) for {kv['robot']}; run with them: bench run "
           f"suite={kv['suite']} robots=[{kv['robot']}] calibration={path}")
@@ -166,13 +185,16 @@ def cmd_suite(kv: dict) -> int:
 
 def cmd_generate(kv: dict) -> int:
     """Write a synthetic case with one hidden effect."""
+    from bench import outputs
     from bench.calibrate.generate import write_case
 
     _check(kv, GEN_KEYS, ("effect", "out"))
     effect = None if kv["effect"] in ("none", "null") else str(kv["effect"])
-    out = write_case(Path(str(kv["out"])).expanduser(), effect, episodes=_int(kv, "episodes", 8, lo=2),
-                     duration=_float(kv, "duration", 6.0), fps=_float(kv, "fps", 100.0), seed=_int(kv, "seed", 0),
-                     target=kv.get("target"), disturbance=kv.get("disturbance"))
+    out = _out(kv, {})
+    params = dict(episodes=_int(kv, "episodes", 8, lo=2), duration=_float(kv, "duration", 6.0),
+                  fps=_float(kv, "fps", 100.0), seed=_int(kv, "seed", 0), target=kv.get("target"),
+                  disturbance=kv.get("disturbance"))
+    outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0
 

@@ -116,7 +116,9 @@ keys:
             controller)
   k         frames per k-step horizon (default 10)
   episodes  dataset episode indices to replay, e.g. [0,3] (default: all)
-  out       folder for replay.json (schema bench.replay/1) and replay.png (logged vs replayed)
+  out       folder for replay.json (schema bench.replay/1) and replay.png (logged vs replayed); never the
+            logs or inside them
+  overwrite replace an existing out= folder that bench wrote (default false)
   plot      episodes drawn in replay.png (default 2; 0 = none)
   threads   mujoco.rollout threads (default 1; results do not depend on it)
 
@@ -141,10 +143,18 @@ def main(argv: list[str]) -> int:
         print(HELP)
         return 0
     cfg: ReplayConfig = config_mod.build_from_argv(ReplayConfig, argv, "bench replay")
+    out = None
+    if cfg.out:
+        from bench import outputs
+
+        out = outputs.check("out", cfg.out, {"logs": cfg.logs, "spec": cfg.spec}, overwrite=cfg.overwrite)
     rep = run(cfg)
     render(rep.doc)
-    if cfg.out:
-        path = write(rep, Path(cfg.out).expanduser(), cfg.plot)
+    if out is not None:
+        from bench import outputs
+
+        outputs.replace_dir(out, lambda tmp: write(rep, tmp, cfg.plot))
+        path = out / "replay.json"
         extra = f" and {path.parent / rep.doc['plot']}" if rep.doc.get("plot") else ""
         print(f"wrote {path}{extra} ({rep.doc['wall_s']:.2f} s)", file=sys.stderr)
     return 0

@@ -28,7 +28,8 @@ class ReplayConfig:
     suite: Optional[str] = None           # instead of spec: suite whose env replays a `bench run record=` dataset
     k: int = 10                           # frames per k-step horizon
     episodes: Optional[list[int]] = None  # dataset episode indices (default: all)
-    out: Optional[str] = None             # folder for replay.json and replay.png
+    out: Optional[str] = None             # folder for replay.json and replay.png (never an input or inside one)
+    overwrite: bool = False               # replace an existing out= folder that bench wrote
     plot: int = 2                         # episodes drawn in replay.png (0: no plot)
     threads: int = 1                      # mujoco.rollout threads (results do not depend on it)
     commands: Optional[str] = None        # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
