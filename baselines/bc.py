@@ -47,6 +47,8 @@ class Args:
     """LeRobot v3 dataset folder(s) to train on, e.g. [demos/seen] (`bench run ... record=DIR`)"""
     out: Optional[str] = None
     """checkpoint to write (.safetensors; the .json spec goes beside it); default runs/bc/RUN_NAME/policy.safetensors"""
+    overwrite: bool = False
+    """replace an existing checkpoint at `out` (only one bench wrote; never an input)"""
     seed: int = 0
     """seeds random, numpy and torch: initial weights, minibatch order, input noise"""
     robots: Optional[list[str]] = None
@@ -316,13 +318,17 @@ def fit(demos: Demos, args: Args) -> tuple[Any, dict[str, Any], dict[str, Any]]:
 def train(args: Args, demos: Demos | None = None) -> tuple[Path, dict[str, Any]]:
     """Load the demonstrations (unless given), fit, save the checkpoint; return (path, info)."""
     from baselines.checkpoint import save_checkpoint
+    from bench import outputs
 
     _check(args)
+    out = Path(args.out) if args.out else Path("runs") / "bc" / run_name(args) / "policy.safetensors"
+    for target in (out, out.with_suffix(".json")):  # the weights and the spec beside them
+        outputs.check("out", target, {"data": list(args.data)}, kind="file", overwrite=args.overwrite)
     if demos is None:
         demos = load_demos(args.data, args.robots, args.conditions, args.max_episodes, args.successful_only)
     model, spec, info = fit(demos, args)
-    out = Path(args.out) if args.out else Path("runs") / "bc" / run_name(args) / "policy.safetensors"
     path = save_checkpoint(out, model, spec)
+    outputs.remember(path, path.with_suffix(".json"))
     info["checkpoint"] = str(path)
     return path, info
 

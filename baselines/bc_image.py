@@ -47,6 +47,8 @@ class Args:
     """LeRobot v3 dataset folder(s) with camera features (`bench run obs=state+rgb record=DIR`)"""
     out: Optional[str] = None
     """checkpoint to write (.safetensors; the .json spec goes beside it); default runs/bc_image/RUN_NAME/policy.safetensors"""
+    overwrite: bool = False
+    """replace an existing checkpoint at `out` (only one bench wrote; never an input)"""
     seed: int = 0
     """seeds random, numpy and torch: initial weights, minibatch order, augmentation"""
     cameras: Optional[list[str]] = None
@@ -207,6 +209,12 @@ def train(args: Args) -> dict[str, Any]:
     import torch.nn.functional as F
     from safetensors.torch import save_file
 
+    from bench import outputs
+
+    out_path = Path(args.out or f"runs/bc_image/{'+'.join(Path(d).name for d in args.data)}__bc_image__s{args.seed}/"
+                                 f"policy.safetensors")
+    for target in (out_path, out_path.with_suffix(".json")):  # checked before any training
+        outputs.check("out", target, {"data": list(args.data)}, kind="file", overwrite=args.overwrite)
     t_start = time.perf_counter()
     random.seed(args.seed)
     np.random.seed(args.seed)  # noqa: NPY002 - third-party code only; our draws use seeded generators
@@ -246,8 +254,6 @@ def train(args: Args) -> dict[str, Any]:
         losses.append(total / max(1, (n // args.batch_size) * args.batch_size))
         print(f"epoch {_epoch + 1}/{args.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t_start:.0f} s)",
               file=sys.stderr, flush=True)
-    out_path = Path(args.out or f"runs/bc_image/{'+'.join(Path(d).name for d in args.data)}__bc_image__s{args.seed}/"
-                                 f"policy.safetensors")
     out_path.parent.mkdir(parents=True, exist_ok=True)
     save_file({k: v.contiguous() for k, v in net.state_dict().items()}, str(out_path))
     spec = {
@@ -259,6 +265,7 @@ def train(args: Args) -> dict[str, Any]:
                   "episodes": data["episodes"], "final_loss": round(losses[-1], 6)},
     }
     out_path.with_suffix(".json").write_text(json.dumps(spec, indent=1))
+    outputs.remember(out_path, out_path.with_suffix(".json"))
     return {"checkpoint": str(out_path), "frames": n, "episodes": data["episodes"], "losses": losses,
             "train_seconds": time.perf_counter() - t_start, "parameters": sum(p.numel() for p in net.parameters())}
 

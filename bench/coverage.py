@@ -335,6 +335,7 @@ class CoverageConfig:
     perturb: dict[str, Any] = field(default_factory=dict)  # evaluated perturbation axes, grammar of bench run
     quantile: float = 0.95                  # reference radius quantile (training initial states, leave-one-episode-out)
     out: Optional[str] = None               # write the JSON report here
+    overwrite: bool = False                 # replace an existing out= file that bench wrote
 
 
 def _list_arg(argv: list[str], key: str) -> list[str]:
@@ -404,6 +405,11 @@ def main(argv: list[str]) -> int:
         raise ConfigError("data: give the training dataset folder(s), e.g. data=demos/seen")
     if cfg.episodes < 1:
         raise ConfigError(f"episodes={cfg.episodes}: must be >= 1")
+    if cfg.out:
+        from bench import outputs
+
+        outputs.check("out", cfg.out, {"data": list(cfg.data), "eval_data": cfg.eval_data}, kind="file",
+                      overwrite=cfg.overwrite)
     suite = _check_common(cfg.suite, cfg.quantile)
     cells = _eval_cells(suite, cfg)
     conditions = axes.conditions_from_config(cfg.perturb)

@@ -60,6 +60,19 @@ def mark(folder: Path, extra: tuple[str, ...] = ()) -> None:
                                  encoding="utf-8")
 
 
+def remember(*paths: Path) -> None:
+    """Add files bench just wrote to their folder's marker (so overwrite=true may replace them later)."""
+    for path in paths:
+        marker = path.parent / MARKER
+        try:
+            doc = json.loads(marker.read_text(encoding="utf-8"))
+            files = set(doc.get("files", [])) if isinstance(doc, dict) else set()
+        except (OSError, ValueError, UnicodeDecodeError):
+            files = set()
+        files.add(path.name)
+        marker.write_text(json.dumps({"written_by": "bench", "files": sorted(files)}), encoding="utf-8")
+
+
 def _writable(key: str, shown: str, path: Path) -> None:
     for part in path.parts:
         if len(part.encode("utf-8", "surrogateescape")) > MAX_NAME_BYTES:

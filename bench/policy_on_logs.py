@@ -34,7 +34,8 @@ class ActionsConfig:
     seed: int = 0                     # bootstrap seed
     n_boot: int = 2000                # bootstrap resamples (over episodes)
     confidence: float = 0.95          # interval level
-    out: Optional[str] = None         # write the JSON result here
+    out: Optional[str] = None         # write the JSON result here (never an input)
+    overwrite: bool = False           # replace an existing out= file that bench wrote
 
 
 def _expand(obs_names: list[tuple[str, int]]) -> list[str]:
@@ -179,6 +180,11 @@ def main(argv: list[str]) -> int:
     cfg, policy_options = parse_args(argv)
     if not cfg.logs:
         raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
+    if cfg.out:
+        from bench import outputs
+
+        outputs.check("out", cfg.out, {"logs": cfg.logs, "checkpoint": getattr(policy_options, "checkpoint", None)}, kind="file",
+                      overwrite=cfg.overwrite)
     result = evaluate(cfg, policy_options)
     from rich.console import Console
     from rich.table import Table

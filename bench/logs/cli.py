@@ -276,15 +276,13 @@ def _eval_starts(suite_name: str, ds: Any, episodes: int, seed: int) -> dict:
     return out
 
 
-def _new_file(value: Any, key: str) -> Path | None:
+def _new_file(value: Any, key: str, inputs: dict[str, Any]) -> Path | None:
+    """A new output file (`bench.outputs`' rule: never an input or inside one; never over an existing file)."""
+    from bench import outputs
+
     if value is None:
         return None
-    path = Path(str(value)).expanduser()
-    if path.exists():
-        raise ConfigError(f"{key}={str(path)!r} exists; give a new file (nothing is overwritten)")
-    if not path.parent.is_dir():
-        raise ConfigError(f"{key}={str(path)!r}: folder {str(path.parent)!r} does not exist")
-    return path
+    return outputs.check(key, str(value), inputs, kind="file", can_overwrite=False)
 
 
 def _dir_and_keys(argv: list[str], valid: tuple[str, ...], usage: str) -> tuple[Path, dict]:
@@ -315,7 +313,7 @@ def cmd_card(argv: list[str]) -> int:
     from bench.logs.card import card, format_card
 
     root, kv = _dir_and_keys(argv, ("suite", "episodes", "seed", "dup_tol", "overlap_tol", "out"), CARD_USAGE)
-    out = _new_file(kv.get("out"), "out")
+    out = _new_file(kv.get("out"), "out", {"DIR": root})
     episodes, seed = _pos_number(kv, "episodes", 10, integer=True), _pos_number(kv, "seed", 0, integer=True)
     tols = {k: _pos_number(kv, k, d) for k, d in (("dup_tol", 0.05), ("overlap_tol", 0.01))}
     if not root.exists():
@@ -343,7 +341,7 @@ def cmd_rank(argv: list[str]) -> int:
     root, kv = _dir_and_keys(argv, ("calibration", "horizon", "top", "out"), RANK_USAGE)
     if kv.get("calibration") in (None, ""):
         raise ConfigError("missing key 'calibration' (a `bench calibrate` output folder or its calibration.json)")
-    out = _new_file(kv.get("out"), "out")
+    out = _new_file(kv.get("out"), "out", {"DIR": root, "calibration": kv.get("calibration")})
     top = _pos_number(kv, "top", 10, integer=True)
     doc = rank(str(kv["calibration"]), root, str(kv.get("horizon", "free_run")))
     print(f"surprise = {doc['statistic']}; {len(doc['episodes'])} episodes, most first")
