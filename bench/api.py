@@ -295,6 +295,10 @@ def _check_outputs(cfg: RunConfig, run_id: str, checkpoint: str | None) -> Path:
     if not run_id or run_id in (".", "..") or any(c in run_id for c in "/\\\0") or not run_id.isprintable():
         raise ConfigError(f"run_id={run_id!r}: a run id names one folder (printable, no slashes, not . or ..)")
     run_dir = Path(cfg.out) / run_id
+    outputs.names_fit("out", str(run_dir), run_dir.expanduser().absolute())
+    if run_dir.is_dir() and any(run_dir.iterdir()) and not _is_run_dir(run_dir):
+        raise ConfigError(f"run_id={run_id!r}: {str(run_dir)!r} exists and is not a bench run directory (no run.json "
+                          "of a bench run); give a new run_id or out=, nothing there is touched")
     outputs.check("out", run_dir, inputs, resume=_is_run_dir, can_overwrite=False)
     if cfg.record:
         outputs.check("record", cfg.record, {**inputs, "out (the run directory)": run_dir}, can_overwrite=False)

@@ -73,11 +73,14 @@ def remember(*paths: Path) -> None:
         marker.write_text(json.dumps({"written_by": "bench", "files": sorted(files)}), encoding="utf-8")
 
 
-def _writable(key: str, shown: str, path: Path) -> None:
+def names_fit(key: str, shown: str, path: Path) -> None:
     for part in path.parts:
         if len(part.encode("utf-8", "surrogateescape")) > MAX_NAME_BYTES:
             raise ConfigError(f"{key}={shown!r}: the name {part[:40]!r}... is longer than {MAX_NAME_BYTES} bytes "
                               "(the file system's limit); give a shorter name")
+
+
+def _writable(key: str, shown: str, path: Path) -> None:
     probe = path.parent
     while not probe.exists():
         if probe.parent == probe:
@@ -106,6 +109,7 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
     """
     again = "pass overwrite=true to replace it" if can_overwrite else "give a new one (nothing is overwritten)"
     shown = str(path)
+    names_fit(key, shown, Path(path).expanduser().absolute())
     out = resolved(path)
     for in_key, value in inputs.items():
         values = value if isinstance(value, (list, tuple)) else [value]
