@@ -60,17 +60,23 @@ def _check(kv: dict, valid: tuple[str, ...], required: tuple[str, ...]) -> None:
             raise ConfigError(f"missing key {key!r}; usage: bench calibrate {' '.join(k + '=...' for k in required)}")
 
 
-def _int(kv: dict, key: str, default: int, lo: int = 0) -> int:
+MAX_THREADS = 256          # rollout threads: far above any core count here, far below what hangs a machine
+MAX_EPISODES = 10_000      # generated episodes
+MAX_FRAMES = 5_000_000     # generated frames in all (a few hundred MB of logs)
+
+
+def _int(kv: dict, key: str, default: int, lo: int = 0, hi: int | None = None) -> int:
     value = kv.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-        raise ConfigError(f"key {key!r} must be an integer >= {lo}; got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
+        valid = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
+        raise ConfigError(f"key {key!r} must be {valid}; got {value!r}")
     return value
 
 
-def _float(kv: dict, key: str, default: float) -> float:
+def _float(kv: dict, key: str, default: float, hi: float) -> float:
     value = kv.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
-        raise ConfigError(f"key {key!r} must be a positive number; got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= hi:
+        raise ConfigError(f"key {key!r} must be a positive number <= {hi:g}; got {value!r}")
     return float(value)
 
 
@@ -112,7 +118,7 @@ def cmd_run(kv: dict) -> int:
     episodes, fps = _load_logs(Path(str(kv["logs"])).expanduser())
     quiet = bool(kv.get("quiet", False))
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    threads = _int(kv, "threads", spec.threads, lo=1)
+    threads = _int(kv, "threads", spec.threads, lo=1, hi=MAX_THREADS)
     residual = _residual(kv)
     cal = run(spec, episodes, fps, seed=_int(kv, "seed", 0), effects=_effects(kv.get("effects")), threads=threads,
               log=log, residual=residual)
@@ -169,7 +175,7 @@ def cmd_suite(kv: dict) -> int:
 
     _check(kv, SUITE_KEYS, ("suite", "robot", "logs", "out"))
     out = _out(kv, {"logs": str(kv["logs"])})
-    residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1), _int(kv, "seed", 0)
+    residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1, hi=MAX_THREADS), _int(kv, "seed", 0)
     log = (lambda msg: None) if kv.get("quiet", False) else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cal, extra = calibrate_suite(str(kv["suite"]), str(kv["robot"]), Path(str(kv["logs"])), seed=seed,
                                  threads=threads, log=log, residual=residual,
@@ -191,9 +197,13 @@ def cmd_generate(kv: dict) -> int:
     _check(kv, GEN_KEYS, ("effect", "out"))
     effect = None if kv["effect"] in ("none", "null") else str(kv["effect"])
     out = _out(kv, {})
-    params = dict(episodes=_int(kv, "episodes", 8, lo=2), duration=_float(kv, "duration", 6.0),
-                  fps=_float(kv, "fps", 100.0), seed=_int(kv, "seed", 0), target=kv.get("target"),
+    params = dict(episodes=_int(kv, "episodes", 8, lo=2, hi=MAX_EPISODES), duration=_float(kv, "duration", 6.0, 3600.0),
+                  fps=_float(kv, "fps", 100.0, 10_000.0), seed=_int(kv, "seed", 0), target=kv.get("target"),
                   disturbance=kv.get("disturbance"))
+    frames = params["episodes"] * params["duration"] * params["fps"]
+    if frames > MAX_FRAMES:
+        raise ConfigError(f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
+                          "(lower episodes=, duration= or fps=)")
     outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0
