@@ -60,14 +60,19 @@ class Slot:
 def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_name: str) -> list[Slot]:
     """Resolve each declared parameter's field and element names in the model."""
     array_fields = sorted(n for n in dir(model) if any(n.startswith(p) for p in _PREFIX)
-                          and isinstance(getattr(model, n, None), np.ndarray))
+                          and isinstance(getattr(model, n, None), np.ndarray)
+                          and np.issubdtype(getattr(model, n).dtype, np.floating))  # ids, addresses, types: not physics
     slots = []
     for i, p in enumerate(params):
         where = f"params[{i}]"
         prefix = next((pre for pre in _PREFIX if p.field.startswith(pre)), None)
         if prefix is None or p.field not in array_fields:
-            raise SpecError(f"spec field '{where}.field': {p.field!r} is not an MjModel field of joints, dofs, "
-                            f"bodies, actuators, geoms or tendons.{did_you_mean(p.field, array_fields)}")
+            kind = getattr(getattr(model, p.field, None), "dtype", None)
+            what = (f"an integer MjModel field ({kind}: ids, addresses or types), not a physical parameter"
+                    if kind is not None and not np.issubdtype(kind, np.floating) else
+                    "not an MjModel field of joints, dofs, bodies, actuators, geoms or tendons")
+            raise SpecError(f"spec field '{where}.field': {p.field!r} is {what}; calibration parameters are "
+                            f"floating-point model arrays.{did_you_mean(p.field, array_fields)}")
         obj, word, count_attr = _PREFIX[prefix]
         arr = getattr(model, p.field)
         if arr.ndim == 2 and arr.shape[1] > 1 and p.column is None:
