@@ -224,11 +224,20 @@ def _moments(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _check(args: Args) -> None:
     if args.gripper not in GRIPPER_MODES:
         raise ConfigError(f"gripper={args.gripper!r}: valid: {', '.join(GRIPPER_MODES)}")
-    for key in ("epochs", "batch_size", "threads"):
-        if getattr(args, key) < 1:
-            raise ConfigError(f"{key}={getattr(args, key)}: must be >= 1")
-    if args.lr <= 0 or args.weight_decay < 0 or args.obs_noise < 0 or args.gripper_sharpness <= 0:
-        raise ConfigError("lr and gripper_sharpness must be > 0; weight_decay and obs_noise >= 0")
+    import math
+
+    for key, hi in (("epochs", 100_000), ("batch_size", 1_000_000), ("threads", 256)):
+        if not 1 <= getattr(args, key) <= hi:
+            raise ConfigError(f"{key}={getattr(args, key)}: must be an integer in [1, {hi:,}]")
+    for key, lo_open in (("lr", True), ("gripper_sharpness", True), ("weight_decay", False), ("obs_noise", False)):
+        v = getattr(args, key)
+        if not math.isfinite(v) or (v <= 0 if lo_open else v < 0) or v > 1e6:
+            raise ConfigError(f"{key}={v}: must be a finite number {'>' if lo_open else '>='} 0 and <= 1e6")
+    if args.seed < 0:
+        raise ConfigError(f"seed={args.seed}: must be >= 0")
+    hidden = getattr(args, "hidden", None)
+    if hidden is not None and any(not 1 <= int(h) <= 65_536 for h in hidden):
+        raise ConfigError(f"hidden={list(hidden)}: layer widths must be integers in [1, 65536]")
     if args.max_episodes < 0:
         raise ConfigError(f"max_episodes={args.max_episodes}: must be >= 0 (0 = all)")
 
