@@ -100,8 +100,8 @@ class Plan:
         """The flat config stored in run.json and the summary: runner keys, then the suite's and policy's."""
         cfg = {k: getattr(self.config, k) for k in RUNNER_KEYS}
         for opts in (self.suite_options, self.policy_options):
-            if dataclasses.is_dataclass(opts):
-                cfg.update(dataclasses.asdict(opts))  # type: ignore[call-overload]
+            if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
+                cfg.update(dataclasses.asdict(opts))
         return json.loads(json.dumps(cfg))
 
     def worker_spec(self, ctx: Any) -> WorkerSpec:
@@ -468,7 +468,7 @@ class _Progress:
             return
         self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
         self.counts["err"] += int(record.error is not None)
-        self.progress.update(self.task, advance=1, **self.counts)
+        self.progress.update(self.task, advance=1, succ=self.counts["succ"], err=self.counts["err"])
 
     def note(self, text: str) -> None:
         if self.console is not None:

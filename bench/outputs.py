@@ -169,7 +169,7 @@ def _bench_file(path: Path) -> bool:
     return isinstance(doc, dict) and str(doc.get("schema", "")).startswith("bench.")
 
 
-def replace_dir(out: Path, build: Callable[[Path], None]) -> Path:
+def replace_dir(out: Path, build: Callable[[Path], object]) -> Path:
     """Build a folder in a hidden temporary sibling of `out`, mark it, and swap it in for `out`.
 
     `out` must have passed `check` (an existing `out` is bench's own). On any error the temporary folder

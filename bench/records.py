@@ -102,7 +102,7 @@ def check_fields(d: dict[str, Any]) -> str | None:
             return f"field {shown!r} is {v!r}; expected {' or '.join(t.__name__ for t in types)}"
         if isinstance(v, float) and not math.isfinite(v):
             return f"field {shown!r} is {v}; records hold finite numbers (null with an error for a failed episode)"
-        if name in ("episode", "seed", "length", "steps_to_success") and v < 0:
+        if name in ("episode", "seed", "length", "steps_to_success") and isinstance(v, int) and v < 0:
             return f"field {shown!r} is {v}; valid: a non-negative integer"
     return None
 

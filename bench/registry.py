@@ -18,7 +18,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from bench.errors import RegistryError, did_you_mean
-from bench.protocols import FactoryPlugin, PolicyPlugin
+from bench.protocols import FactoryPlugin, PolicyPlugin, Suite
 
 SUITES = "bench.suites"
 POLICIES = "bench.policies"
@@ -88,7 +88,7 @@ def _load(group: str, name: str, kind: str) -> Any:
         raise RegistryError(f"{kind}={name!r}: loading {eps[name].value} failed: {type(exc).__name__}: {exc}") from exc
 
 
-def suite_class(ref: str) -> type:
+def suite_class(ref: str) -> type[Suite]:
     """The suite class registered under `ref`, or imported from `package.module:Class`."""
     cls = _load(SUITES, ref, "suite")
     if not isinstance(cls, type):

@@ -197,10 +197,11 @@ def cmd_generate(kv: dict) -> int:
     _check(kv, GEN_KEYS, ("effect", "out"))
     effect = None if kv["effect"] in ("none", "null") else str(kv["effect"])
     out = _out(kv, {})
-    params = dict(episodes=_int(kv, "episodes", 8, lo=2, hi=MAX_EPISODES), duration=_float(kv, "duration", 6.0, 3600.0),
-                  fps=_float(kv, "fps", 100.0, 10_000.0), seed=_int(kv, "seed", 0), target=kv.get("target"),
+    episodes = _int(kv, "episodes", 8, lo=2, hi=MAX_EPISODES)
+    duration, fps = _float(kv, "duration", 6.0, 3600.0), _float(kv, "fps", 100.0, 10_000.0)
+    params = dict(episodes=episodes, duration=duration, fps=fps, seed=_int(kv, "seed", 0), target=kv.get("target"),
                   disturbance=kv.get("disturbance"))
-    frames = params["episodes"] * params["duration"] * params["fps"]
+    frames = episodes * duration * fps
     if frames > MAX_FRAMES:
         raise ConfigError(f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
                           "(lower episodes=, duration= or fps=)")
