@@ -16,10 +16,11 @@ import dataclasses
 import json
 import os
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Mapping, Optional
+from typing import Any, Optional
 
 from bench import config as config_mod
 from bench.errors import ConfigError, SplitError
@@ -455,8 +456,14 @@ class _Progress:
         if not show:
             return
         from rich.console import Console
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.console = Console(stderr=True)
         if done:
@@ -469,7 +476,7 @@ class _Progress:
         self.progress = Progress(*columns, console=self.console, transient=False)
         self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
 
-    def __enter__(self) -> "_Progress":
+    def __enter__(self) -> _Progress:
         if self.progress is not None:
             self.progress.start()
         return self

@@ -11,7 +11,8 @@ import dataclasses
 import math
 import re
 import typing
-from typing import Any, Iterable, TypeVar
+from collections.abc import Iterable
+from typing import Any, TypeVar
 
 from bench.errors import ConfigError, did_you_mean
 
@@ -250,9 +251,7 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         base: optional values applied before the overrides (e.g. a stored config).
     """
     from omegaconf import OmegaConf
-    from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
-
-    from omegaconf.errors import MissingMandatoryValue
+    from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, OmegaConfBaseException, ValidationError
 
     overrides = list(overrides)
     check_overrides(overrides, schema)
