@@ -16,10 +16,11 @@ import dataclasses
 import json
 import os
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Mapping, Optional
+from typing import Any, Optional
 
 from bench import config as config_mod
 from bench.errors import ConfigError, SplitError
@@ -28,12 +29,15 @@ from bench.records import EPISODES, EpisodeRecord
 from bench.runner import LocalExecutor, Worker, WorkerSpec
 from bench.suite import METRICS, SPLITS, Cell, Condition, Job, expand_jobs, select_cells
 
-# limits that keep a typo from starting an absurd job (the message names the limit)
-MAX_EPISODES = 100_000
-MAX_HORIZON = 100_000
-MAX_WORKERS = 1024
-MAX_N_BOOT = 1_000_000
-MAX_TIMEOUT_S = 7 * 24 * 3600.0
+# limits that keep a typo from starting an absurd job (the message names the limit; bench.config owns them)
+MAX_EPISODES = config_mod.MAX_EPISODES
+MAX_HORIZON = config_mod.MAX_HORIZON
+MAX_WORKERS = config_mod.MAX_WORKERS
+MAX_N_BOOT = config_mod.MAX_N_BOOT
+MAX_TIMEOUT_S = config_mod.MAX_TIMEOUT_S
+MAX_RUN_ID = config_mod.MAX_RUN_ID
+MAX_TOTAL_STEPS = 10**10   # control steps of one run: ~12 days at 10,000 steps/s
+ranged = config_mod.ranged
 
 
 @dataclass(frozen=True)
@@ -42,30 +46,30 @@ class RunConfig:
 
     suite: str = "held_out_robots"          # registered suite name (`bench list`) or package.module:Class
     policy: Optional[str] = None            # registered policy or package.module:attr; default: the suite's default
-    episodes: int = 10                      # episodes per cell and condition
-    seed: int = 0                           # run seed: episode seeds, perturbation draws, bootstrap
-    workers: int = 0                        # executor=local: processes running episodes; 0 = all cores
+    episodes: int = ranged(10, 1, MAX_EPISODES)  # episodes per cell and condition
+    seed: int = ranged(0, 0, config_mod.MAX_SEED)  # run seed: episode seeds, perturbation draws, bootstrap
+    workers: int = ranged(0, 0, MAX_WORKERS)  # executor=local: processes running episodes; 0 = all cores
     out: str = "runs"                       # parent folder of run directories
     run_id: Optional[str] = None            # run directory name; an existing one is resumed
-    horizon: int = 0                        # control steps per episode; 0 = the suite's default
-    timeout: float = 600.0                  # wall seconds per episode before it is recorded as timed out
+    horizon: int = ranged(0, 0, MAX_HORIZON)  # control steps per episode; 0 = the suite's default
+    timeout: float = ranged(600.0, 0, MAX_TIMEOUT_S, lo_open=True)  # wall seconds per episode before it is recorded as timed out
     robots: Optional[list[str]] = None      # only these robots (suite-dependent)
     tasks: Optional[list[str]] = None       # only these tasks
     envs: Optional[list[str]] = None        # only these environments/scenes
     splits: Optional[list[str]] = None      # only these splits: seen, unseen
     metric: Optional[str] = None            # headline metric: success_once, success_at_end, return; default: the suite's
-    n_boot: int = 2000                      # bootstrap resamples for aggregate and gap intervals
-    confidence: float = 0.95                # two-sided interval level
+    n_boot: int = ranged(2000, 100, MAX_N_BOOT)  # bootstrap resamples for aggregate and gap intervals
+    confidence: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # two-sided interval level
     perturb: dict[str, Any] = field(default_factory=dict)  # perturbation axes, e.g. perturb.friction=[0.5,1,2]
     record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here (camera images as video)
-    video: int = 0                          # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
+    video: int = ranged(0, 0, MAX_EPISODES)  # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
     calibration: Optional[str] = None       # a `bench calibrate suite=` result: its robot's cells run the calibrated model
     allow_split_violation: bool = False     # run even if `bench check` finds a split problem
     executor: str = "local"                 # where episodes run: local (processes on this machine) or ray (docs/ray.md)
     ray_address: str = "auto"               # executor=ray: auto (the cluster here), HOST:PORT, or local (a private one)
-    actors: int = 0                         # executor=ray: long-lived worker actors; 0 = as many as the cluster allows
-    actor_cpus: float = 1.0                 # executor=ray: CPUs each actor reserves
-    actor_gpus: float = 0.0                 # executor=ray: GPUs each actor reserves (ManiSkill on GPU, renderers)
+    actors: int = ranged(0, 0, MAX_WORKERS)  # executor=ray: long-lived worker actors; 0 = as many as the cluster allows
+    actor_cpus: float = ranged(1.0, 0, 1024, lo_open=True)  # executor=ray: CPUs each actor reserves
+    actor_gpus: float = ranged(0.0, 0, 64)  # executor=ray: GPUs each actor reserves (ManiSkill on GPU, renderers)
     ray_env: str = "code"                   # executor=ray: code (ship this checkout), pip (also its pins), installed
     suite_options: dict[str, Any] = field(default_factory=dict)
     policy_options: dict[str, Any] = field(default_factory=dict)
@@ -168,25 +172,70 @@ def config_from_argv(argv: list[str]) -> RunConfig:
 
 
 def _check_runner(cfg: RunConfig) -> None:
-    """Ranges of the runner's own keys (one line each, naming the limit)."""
-    for key, lo, hi in (("episodes", 1, MAX_EPISODES), ("workers", 0, MAX_WORKERS), ("horizon", 0, MAX_HORIZON),
-                        ("n_boot", 100, MAX_N_BOOT), ("seed", 0, 2**63 - 1), ("video", 0, MAX_EPISODES)):
-        v = getattr(cfg, key)
-        if not lo <= v <= hi:
-            raise ConfigError(f"{key}={v}: must be in [{lo}, {hi}]")
-    if not (0 < cfg.timeout <= MAX_TIMEOUT_S):
-        raise ConfigError(f"timeout={cfg.timeout}: must be > 0 and at most {MAX_TIMEOUT_S:g} s (a week)")
+    """Ranges of the runner's own keys (one line each, naming the limit): the field ranges of RunConfig
+    (also for a RunConfig built in Python, not from key=value), then the keys that need more than a range."""
+    config_mod.validate(cfg)
     if cfg.metric is not None and cfg.metric not in METRICS:
         raise ConfigError(f"metric={cfg.metric!r}: valid: {', '.join(METRICS)}")
-    if not 0.5 <= cfg.confidence < 1:
-        raise ConfigError(f"confidence={cfg.confidence}: must be in [0.5, 1)")
     for s in cfg.splits or []:
         if s not in SPLITS:
             raise ConfigError(f"splits: {s!r} is not a split; valid: {', '.join(SPLITS)}")
+    for key in ("robots", "tasks", "envs", "splits"):
+        given = getattr(cfg, key) or []
+        twice = next((v for i, v in enumerate(given) if v in given[:i]), None)
+        if twice is not None:
+            raise ConfigError(f"{key}: {twice!r} is listed twice; list each once")
     _check_executor(cfg)
-    rid = cfg.run_id
-    if rid is not None and (not rid or "/" in rid or "\\" in rid or rid.startswith(".") or len(rid) > 200):
-        raise ConfigError(f"run_id={rid!r}: must be a plain folder name of at most 200 characters")
+    check_run_id(cfg.run_id)
+
+
+def check_run_id(rid: str | None) -> None:
+    """run_id names a folder under out=: non-empty, printable, no slash, not hidden, at most MAX_RUN_ID characters."""
+    if rid is None:
+        return
+    if not isinstance(rid, str) or not rid.strip():
+        raise ConfigError(f"run_id={rid!r}: must be a non-empty folder name")
+    if "/" in rid or "\\" in rid or rid.startswith(".") or config_mod._CONTROL.search(rid) or len(rid) > MAX_RUN_ID:
+        raise ConfigError(f"run_id={rid[:40]!r}{'...' if len(rid) > 40 else ''}: must be a plain folder name (no "
+                          f"slash, control character or leading dot) of at most {MAX_RUN_ID} characters")
+
+
+def check_work(cfg: RunConfig, episodes: int, horizon: int, step_bytes: int) -> None:
+    """Refuse up front a run whose estimated time or memory is absurd, naming the keys that set it.
+
+    Time: episodes x cells x conditions x horizon control steps, at most MAX_TOTAL_STEPS. Memory: an
+    episode that is recorded (record=, video=) keeps horizon x observation bytes per worker; all of
+    them together must fit in this machine's memory.
+    """
+    steps = episodes * horizon
+    keys = "episodes=, horizon=, robots=/tasks=/envs= and perturb.*"
+    if steps > MAX_TOTAL_STEPS:
+        raise ConfigError(f"this run is {episodes} episodes x {horizon} steps = {steps:.3g} control steps, over the "
+                          f"limit of {MAX_TOTAL_STEPS:.0e}; reduce {keys}")
+    if cfg.record or cfg.video:
+        try:
+            ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            return
+        parallel = min(cfg.workers or os.cpu_count() or 1, max(1, episodes))
+        need = horizon * step_bytes * parallel
+        if need > ram:
+            raise ConfigError(f"recording needs about {need / 2**30:.1f} GiB at once ({parallel} worker(s) x {horizon} "
+                              f"steps x {step_bytes} observation bytes), more than this machine's "
+                              f"{ram / 2**30:.1f} GiB; reduce horizon= or workers=, or leave out record=/video=")
+
+
+def _step_bytes(spec: Any) -> int:
+    """Bytes of one observation of `spec` (strings count nothing)."""
+    import numpy as np
+
+    total = 0
+    for feat in spec.values():
+        try:
+            total += int(np.prod(feat.shape, dtype=np.float64)) * np.dtype(feat.dtype).itemsize
+        except TypeError:
+            continue
+    return total
 
 
 def _check_executor(cfg: RunConfig) -> None:
@@ -204,12 +253,6 @@ def _check_executor(cfg: RunConfig) -> None:
     if cfg.workers:
         raise ConfigError(f"workers={cfg.workers} applies to executor=local; with executor=ray give actors= "
                           "(0 = as many as the cluster's CPUs allow)")
-    if not 0 <= cfg.actors <= MAX_WORKERS:
-        raise ConfigError(f"actors={cfg.actors}: must be in [0, {MAX_WORKERS}]")
-    if not 0 < cfg.actor_cpus <= 1024:
-        raise ConfigError(f"actor_cpus={cfg.actor_cpus}: must be > 0 and at most 1024")
-    if not 0 <= cfg.actor_gpus <= 64:
-        raise ConfigError(f"actor_gpus={cfg.actor_gpus}: must be in [0, 64]")
     if cfg.ray_env not in ray_env.RAY_ENVS:
         raise ConfigError(f"ray_env={cfg.ray_env!r}: valid: {', '.join(ray_env.RAY_ENVS)}")
     ray_env.check_address(cfg.ray_address)
@@ -246,8 +289,10 @@ def plan(cfg: RunConfig) -> Plan:
     if not cells:
         raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
     needs = tuple(plugin.obs_keys(policy_options))
+    step_bytes = 0
     for cell in cells:
         spec = suite.obs_spec(cell)
+        step_bytes = max(step_bytes, _step_bytes(spec))
         missing = [k for k in needs if k not in spec]
         if missing:
             raise ConfigError(f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
@@ -261,6 +306,8 @@ def plan(cfg: RunConfig) -> Plan:
         calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
         verify(suite, cells, horizon, calibration)
     conditions = axes.conditions_from_config(cfg.perturb)
+    axes.check_horizon(conditions, horizon)
+    check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     if cfg.video:
         from bench.episode_video import check_run
@@ -454,7 +501,7 @@ class _Progress:
         self.progress = Progress(*columns, console=self.console, transient=False)
         self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
 
-    def __enter__(self) -> "_Progress":
+    def __enter__(self) -> _Progress:
         if self.progress is not None:
             self.progress.start()
         return self
@@ -482,6 +529,8 @@ def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
     from bench.summary import build, load_run
 
     records, meta = load_run(Path(run_dir))
+    config_mod.check_stored(RunConfig, meta.get("config") if isinstance(meta, dict) else None,
+                            str(Path(run_dir) / "run.json"))
     summary = build(records, run_meta=meta)
     validate(summary, "summary")
     write_atomic(Path(run_dir) / "summary.json", summary)

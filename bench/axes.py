@@ -41,42 +41,49 @@ class Axis:
     maximum: float = math.inf        # largest valid level
 
 
+MAX_SCALE = 1000.0       # a model field scaled by more than this is not a perturbation but a typo (1e300)
+MAX_STEPS = 100_000      # latency / hold in control steps (also at most the run's horizon, checked by plan)
+
+
 AXES: dict[str, Axis] = {a.name: a for a in (
     Axis("friction", "model", "scale of nominal", "friction of every geom",
          "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
          "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
-         targets=("geoms", "bodies"), field="geom_friction"),
+         targets=("geoms", "bodies"), field="geom_friction", maximum=MAX_SCALE),
     Axis("mass", "model", "scale of nominal", "mass + inertia of the manipulated object",
          "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
-         strict=True, targets=("bodies",), field="body_mass", setconst=True),
+         strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE),
     Axis("link_mass", "model", "scale of nominal", "mass + inertia of the robot's links",
          "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
-         "or of the named bodies", strict=True, targets=("bodies",), field="body_mass", setconst=True),
+         "or of the named bodies", strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE),
     Axis("damping", "model", "scale of nominal", "joint damping",
-         "joint damping of the robot's joints or of the named joints", targets=("joints",), field="dof_damping"),
+         "joint damping of the robot's joints or of the named joints", targets=("joints",), field="dof_damping", maximum=MAX_SCALE),
     Axis("armature", "model", "scale of nominal", "joint armature",
          "joint armature (rotor inertia) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_armature", setconst=True),
+         field="dof_armature", setconst=True, maximum=MAX_SCALE),
     Axis("frictionloss", "model", "scale of nominal", "joint dry friction",
          "joint dry friction (frictionloss) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_frictionloss"),
+         field="dof_frictionloss", maximum=MAX_SCALE),
     Axis("gain", "model", "scale of nominal", "actuator gain (servo stiffness)",
          "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
          "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
-         targets=("actuators",), field="actuator_gainprm"),
-    Axis("gravity", "model", "scale of nominal", "gravity vector", "the gravity vector (1 = nominal, 0 = weightless)"),
+         targets=("actuators",), field="actuator_gainprm", maximum=MAX_SCALE),
+    Axis("gravity", "model", "scale of nominal", "gravity vector", "the gravity vector (1 = nominal, 0 = weightless)",
+         maximum=MAX_SCALE),
     Axis("latency", "interface", "control steps", "action delay",
          "the env executes the action commanded this many control steps ago (neutral action at the start)",
-         integer=True, nominal=0.0),
+         integer=True, nominal=0.0, maximum=MAX_STEPS),
     Axis("action_noise", "interface", "std as a fraction of the action half-range", "Gaussian action noise",
-         "Gaussian noise added to every executed action, then clipped to the bounds", nominal=0.0),
+         "Gaussian noise added to every executed action, then clipped to the bounds", nominal=0.0,
+         maximum=10.0),
     Axis("obs_noise", "interface", "std in observation units", "Gaussian observation noise",
-         "Gaussian noise added to every state observation the policy sees", nominal=0.0),
+         "Gaussian noise added to every state observation the policy sees", nominal=0.0,
+         maximum=1e6),
     Axis("action_hold", "interface", "control steps", "command held k steps (control rate / k)",
          "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
-         minimum=1.0, integer=True),
+         minimum=1.0, integer=True, maximum=MAX_STEPS),
 )}
-AXES.update({a["name"]: Axis(kind="visual", **a) for a in perturb_visual.AXIS_TABLE})  # bench.perturb_visual
+AXES.update({a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in perturb_visual.AXIS_TABLE})  # bench.perturb_visual
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
@@ -198,6 +205,20 @@ def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:
                 seen.add(cond.name)
                 out.append(cond)
     return out
+
+
+def check_horizon(conditions: list[Condition], horizon: int) -> None:
+    """Step-valued levels (latency, action_hold) longer than the episode are refused: the policy would
+    never act (ConfigError naming the axis, the level and the horizon)."""
+    for cond in conditions:
+        axis = AXES.get(cond.axis or "")
+        if axis is None or axis.unit != "control steps":
+            continue
+        levels = cond.level if isinstance(cond.level, (list, tuple)) else [cond.level]
+        worst = max(float(v) for v in levels)
+        if worst >= horizon:
+            raise ConfigError(f"perturb.{axis.name}: {worst:g} control steps is not less than the horizon "
+                              f"({horizon} steps); valid: < {horizon} (or a longer horizon=)")
 
 
 def axes_help() -> str:

@@ -8,12 +8,135 @@ a one-line `ConfigError` (exit 2) that names the key and suggests the closest on
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
-from typing import Any, Iterable, TypeVar
+import typing
+from collections.abc import Iterable
+from typing import Any, TypeVar
 
 from bench.errors import ConfigError, did_you_mean
 
 T = TypeVar("T")
+
+# limits shared by every command (a typo must not start an absurd job; the message names the limit)
+MAX_INT = 2**63 - 1          # any integer key: what numpy and JSON readers hold
+MAX_N_BOOT = 1_000_000       # bootstrap resamples
+MAX_SEED = 2**63 - 1
+MAX_EPISODES = 100_000
+MAX_HORIZON = 100_000
+MAX_WORKERS = 1024
+MAX_TIMEOUT_S = 7 * 24 * 3600.0
+MAX_RUN_ID = 128
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The valid values of a numeric key: lo <= v <= hi (or < where open); `None` = unbounded."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def contains(self, v: float) -> bool:
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
+            return False
+        return not (self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi))
+
+    def describe(self) -> str:
+        lo = "-inf" if self.lo is None else _num_text(self.lo)
+        hi = "inf" if self.hi is None else _num_text(self.hi)
+        return f"{'(' if self.lo_open or self.lo is None else '['}{lo}, {hi}{')' if self.hi_open or self.hi is None else ']'}"
+
+
+def _num_text(x: float) -> str:
+    """1000000 (not 1e+06) for whole numbers a reader types, %g otherwise."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
+
+
+def check_stored(schema: type, values: Any, where: str) -> None:
+    """The ranged keys of `schema` in a stored config (run.json's `config`): numbers of the right kind inside
+    their range, so a hand-edited file cannot ask for 10**12 bootstrap resamples (ConfigError naming file and key)."""
+    if not isinstance(values, dict):
+        return
+    for f in dataclasses.fields(schema):
+        rng = f.metadata.get("range")
+        if rng is None or f.name not in values:
+            continue
+        v = values[f.name]
+        whole = f.type in ("int", int)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (whole and isinstance(v, float)
+                                                                        and not v.is_integer()):
+            raise ConfigError(f"{where}: config.{f.name}={v!r} is not {'a whole' if whole else 'a'} number; "
+                              f"valid: {rng.describe()}")
+        check_number(f"{where}: config.{f.name}", v, rng)
+
+
+def ranged(default: Any, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+           hi_open: bool = False) -> Any:
+    """A dataclass field with a default and a valid range that `build` checks (the message names the range).
+
+    `n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates`
+    """
+    return dataclasses.field(default=default, metadata={"range": Range(lo, hi, lo_open, hi_open)})
+
+
+def check_number(key: str, value: Any, rng: Range | None = None) -> None:
+    """One numeric value of `key`: finite, inside the int64 range, inside `rng` (ConfigError naming the key)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{key}={value}: not a finite number"
+                          + (f"; valid: {rng.describe()}" if rng is not None else ""))
+    if isinstance(value, int) and abs(value) > MAX_INT:
+        raise ConfigError(f"{key}={value}: out of range; integers are at most 2**63-1"
+                          + (f" (valid: {rng.describe()})" if rng is not None else ""))
+    if rng is not None and not rng.contains(value):
+        raise ConfigError(f"{key}={value if isinstance(value, int) else format(value, 'g')}: must be in "
+                          f"{rng.describe()}")
+
+
+def check_values(key: str, value: Any, rng: Range | None = None, depth: int = 0) -> None:
+    """Every number inside `value` (lists, dicts) finite and in range; strings free of control characters."""
+    if depth > 20:
+        raise ConfigError(f"{key}: nested too deeply")
+    if isinstance(value, str):
+        if _CONTROL.search(value):
+            raise ConfigError(f"{key}={value!r}: contains a control character; give printable text")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            check_values(f"{key}.{k}", v, rng, depth + 1)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            check_values(key, v, rng, depth + 1)
+    else:
+        check_number(key, value, rng)
+
+
+def _is_selection(f: dataclasses.Field) -> bool:
+    """An `Optional[list[...]] = None` key: None means "all", so an empty list is a mistake, not "none"."""
+    if f.default is not None:
+        return False
+    tp = f.type if not isinstance(f.type, str) else f.type.replace(" ", "")
+    if isinstance(tp, str):
+        return tp.startswith(("Optional[list[", "Optional[List[")) or (tp.startswith("list[") and tp.endswith("|None"))
+    args = typing.get_args(tp)
+    return any(typing.get_origin(a) is list for a in args)
+
+
+def validate(obj: Any, prefix: str = "") -> None:
+    """Check a built config: numbers finite and inside their field's range, no control characters,
+    no empty selection list (`robots=[]`). ConfigError naming the key on the first problem."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        key = prefix + f.name
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            validate(v, key + ".")
+            continue
+        if isinstance(v, (list, tuple)) and not v and _is_selection(f):
+            raise ConfigError(f"{key}=[] selects nothing; leave {key} out for all, or list at least one")
+        check_values(key, v, f.metadata.get("range"))
 
 
 def split_args(argv: Iterable[str]) -> tuple[list[str], list[str]]:
@@ -73,11 +196,46 @@ def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
     from omegaconf import OmegaConf
 
     positional, overrides = split_args(argv)
+    check_overrides(overrides, None)
     try:
         kv = OmegaConf.to_container(OmegaConf.from_dotlist(overrides), resolve=True)
     except Exception as exc:  # omegaconf grammar errors
-        raise ConfigError(f"cannot parse overrides {overrides}: {str(exc).splitlines()[0]}") from None
+        raise ConfigError(f"cannot parse overrides {overrides}: {_first_line(exc)}") from None
+    for k, v in kv.items():
+        check_values(str(k), v)
     return positional, kv  # type: ignore[return-value]
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
+
+
+def check_overrides(overrides: list[str], schema: type | None) -> None:
+    """Each `key=value` on its own: a key, a value, text that parses (YAML list syntax, quotes),
+    nothing given twice. The error names the key (`robots=[Panda` -> robots: ...)."""
+    from omegaconf import OmegaConf
+
+    valid = f"; valid keys: {', '.join(_fields(schema))}" if schema is not None else ""
+    keys = []
+    for item in overrides:
+        key, _, value = item.partition("=")
+        if "=" not in item or not key:
+            raise ConfigError(f"argument {item!r} is not key=value{valid}")
+        if _CONTROL.search(item):
+            raise ConfigError(f"{key}={value!r}: contains a control character; give printable text")
+        if not value.strip():
+            raise ConfigError(f"{key}= has no value; give one or leave {key} out")
+        try:
+            OmegaConf.to_container(OmegaConf.from_dotlist([item]), resolve=False)
+        except Exception as exc:  # YAML / grammar errors of this one value
+            raise ConfigError(f"{key}={value}: cannot parse the value ({_first_line(exc)}); lists are "
+                              "written [a,b], text with , [ ] { } or : in quotes") from None
+        keys.append(key)
+    twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
+    if twice is not None:
+        given = [item for item in overrides if item.split("=", 1)[0] == twice]
+        raise ConfigError(f"key {twice!r} is given twice ({' and '.join(given)}); give it once")
 
 
 def _fields(schema: type) -> list[str]:
@@ -93,20 +251,11 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         base: optional values applied before the overrides (e.g. a stored config).
     """
     from omegaconf import OmegaConf
-    from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
-
-    from omegaconf.errors import MissingMandatoryValue
+    from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, OmegaConfBaseException, ValidationError
 
     overrides = list(overrides)
-    for item in overrides:
-        key = item.split("=", 1)[0]
-        if "=" not in item or not key:
-            raise ConfigError(f"argument {item!r} is not key=value; valid keys: {', '.join(_fields(schema))}")
+    check_overrides(overrides, schema)
     keys = [item.split("=", 1)[0] for item in overrides]
-    twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
-    if twice is not None:
-        given = [item for item in overrides if item.split("=", 1)[0] == twice]
-        raise ConfigError(f"key {twice!r} is given twice ({' and '.join(given)}); give it once")
     for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
         child = next((k for k in keys if k.startswith(key + ".")), None)
         if child:
@@ -117,7 +266,7 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         if base:
             cfg = OmegaConf.merge(cfg, base)
         cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
-        return OmegaConf.to_object(cfg)  # type: ignore[return-value]
+        out = OmegaConf.to_object(cfg)
     except MissingMandatoryValue as exc:
         key = str(getattr(exc, "full_key", None) or getattr(exc, "key", "?"))
         raise ConfigError(f"{key}: required, and not given ({key}=...)") from None
@@ -132,7 +281,11 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key!r}: {msg}") from None
     except OmegaConfBaseException as exc:
-        raise ConfigError(f"cannot parse overrides: {str(exc).splitlines()[0]}") from None
+        raise ConfigError(f"cannot parse overrides: {_first_line(exc)}") from None
+    except (ValueError, TypeError) as exc:  # a value OmegaConf's own converters refuse
+        raise ConfigError(f"bad value in {' '.join(overrides) or 'the options'}: {_first_line(exc)}") from None
+    validate(out)
+    return out  # type: ignore[return-value]
 
 
 def key_help(schema: type) -> str:
