@@ -17,7 +17,7 @@ from bench.cli import main
         (["run", "env_id=HalfCheetah-v5"], "unknown key 'env_id'.*suite held_out_robots: obs, cameras, image_size"),
         (["run", "suite=gym"], "env_id: required"),
         (["run", "robots=[]"], r"robots=\[\] selects nothing"),
-        (["run", "timeout=0"], "timeout=0.0: must be > 0"),
+        (["run", "timeout=0"], r"timeout=0: must be in \(0, 604800\]"),
         (["run", "seed=-1"], r"seed=-1: must be in \[0, "),
         (["run", "horizon=-5"], r"horizon=-5: must be in \[0, "),
         (["run", "suite=held_out_robot"], "suite='held_out_robot' is not registered.*Did you mean 'held_out_robots'"),
