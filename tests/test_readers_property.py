@@ -91,3 +91,22 @@ def test_summary_bytes_mutations(summary_text, tmp_path_factory, data, junk):
     f = tmp_path_factory.mktemp("b") / "summary.json"
     f.write_bytes(raw)
     _check(lambda: validate(load_json(f), str(f)))
+
+
+@settings(max_examples=300, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data(), value=SWAPS, delete=st.booleans())
+def test_leaderboard_read_input_mutations(summary_text, tmp_path_factory, data, value, delete):
+    from bench.leaderboard import entry_from_summary, read_input
+
+    doc = json.loads(summary_text)
+    path = data.draw(st.sampled_from(list(_paths(doc))))
+    doc = _mutate(doc, path, value, delete)
+    run = tmp_path_factory.mktemp("r")
+    (run / "summary.json").write_text(json.dumps(doc, allow_nan=True))
+
+    def go():
+        source, got = read_input(str(run))
+        if got.get("schema") == "bench.summary/1":
+            entry_from_summary(got, source)
+    _check(go)
