@@ -110,3 +110,23 @@ def test_leaderboard_read_input_mutations(summary_text, tmp_path_factory, data, 
         if got.get("schema") == "bench.summary/1":
             entry_from_summary(got, source)
     _check(go)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data(), value=SWAPS, delete=st.booleans())
+def test_lerobot_info_mutations(shared_dir, tmp_path_factory, data, value, delete):
+    import shutil
+
+    from bench.logs import lerobot
+
+    src = shared_dir / "data" / "formats" / "lerobot_v3_state"
+    if not src.is_dir():
+        pytest.skip(f"{src} absent")
+    root = tmp_path_factory.mktemp("ds") / "ds"
+    shutil.copytree(src, root)
+    doc = json.loads((root / "meta" / "info.json").read_text())
+    path = data.draw(st.sampled_from(list(_paths(doc))))
+    doc = _mutate(doc, path, value, delete)
+    (root / "meta" / "info.json").write_text(json.dumps(doc, allow_nan=True))
+    _check(lambda: lerobot.info(root))
