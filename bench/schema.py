@@ -38,7 +38,8 @@ def validate(doc: Any, source: str = "document") -> str:
         raise DataError(f"{source}: not a bench result (no 'schema' field); known schemas: {', '.join(SCHEMAS)}")
     sid = doc["schema"]
     if not isinstance(sid, str) or sid not in SCHEMAS:
-        raise DataError(f"{source}: field 'schema': unknown schema {str(sid)[:80]!r}; known schemas: {', '.join(SCHEMAS)}")
+        raise DataError(f"{source}: field 'schema': unknown schema {str(sid)[:80]!r}; "
+                        f"known schemas: {', '.join(SCHEMAS)}")
     nan_at = first_nonfinite(doc)
     if nan_at:
         raise DataError(f"{source}: field {nan_at} is NaN/inf; results must use null with a reason")
