@@ -38,7 +38,7 @@ def validate(doc: Any, source: str = "document") -> str:
         raise DataError(f"{source}: not a bench result (no 'schema' field); known schemas: {', '.join(SCHEMAS)}")
     sid = doc["schema"]
     if not isinstance(sid, str) or sid not in SCHEMAS:
-        raise DataError(f"{source}: unknown schema {sid!r} (field $.schema); known: {', '.join(SCHEMAS)}")
+        raise DataError(f"{source}: unknown schema {str(sid)[:80]!r} (field $.schema); known: {', '.join(SCHEMAS)}")
     nan_at = first_nonfinite(doc)
     if nan_at:
         raise DataError(f"{source}: field {nan_at} is NaN/inf; results must use null with a reason")

@@ -61,6 +61,7 @@ VIDEO_FILES_SIZE_IN_MB = 200
 META_COLUMN = "bench/meta"
 # info.json keys, in lerobot's order; the reader needs the first group, lerobot needs all of them.
 REQUIRED_INFO_KEYS = ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path")
+MAX_FPS = 10_000  # frames per second; above this a dataset's timing is nonsense, not a fast camera
 INFO_KEYS = (
     "codebase_version", "robot_type", "total_episodes", "total_frames", "total_tasks", "chunks_size",
     "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits", "data_path", "video_path", "features",
@@ -225,20 +226,26 @@ def _load_info(root: Path) -> dict:
     for key in REQUIRED_INFO_KEYS:
         if key not in info:
             raise DataError(f"{path}: field {key!r} is missing")
-    version = str(info["codebase_version"])
-    if not version.startswith("v3."):
+    version = info["codebase_version"]
+    if not isinstance(version, str) or not version.startswith("v3."):
         raise DataError(f"{path}: field 'codebase_version' is {version!r}; only LeRobot v3.x datasets are supported")
     fps = info["fps"]
-    if not isinstance(fps, (int, float)) or not np.isfinite(fps) or fps <= 0:
-        raise DataError(f"{path}: field 'fps' is {fps!r}; expected a positive number")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps <= MAX_FPS:
+        raise DataError(f"{path}: field 'fps' is {fps!r}; expected a number in (0, {MAX_FPS}]")
+    for key in ("total_episodes", "total_frames"):
+        n = info[key]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise DataError(f"{path}: field {key!r} is {n!r}; expected an integer >= 0")
+    for key in ("data_path", "video_path"):
+        if key in info and not (isinstance(info[key], str) or (key == "video_path" and info[key] is None)):
+            raise DataError(f"{path}: field {key!r} is {info[key]!r}; expected a path template string")
     feats = info["features"]
     if not isinstance(feats, dict):
         raise DataError(f"{path}: field 'features' is not an object")
     for name, feat in feats.items():
         shape = feat.get("shape") if isinstance(feat, dict) else None
-        if not isinstance(feat, dict) or "dtype" not in feat or not isinstance(shape, list) or not shape or not all(
-            isinstance(s, int) and s > 0 for s in shape
-        ):
+        if not isinstance(feat, dict) or not isinstance(feat.get("dtype"), str) or not isinstance(shape, list) \
+                or not shape or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape):
             raise DataError(f"{path}: field 'features.{name}' needs a dtype and a shape of positive ints, got {feat!r}")
     for name in DEFAULT_FEATURES:
         if name not in feats:
