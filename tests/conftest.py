@@ -28,3 +28,12 @@ def vulkan_icd() -> str:
         pytest.skip("no Vulkan device set up: run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it "
                     "prints (then pytest -m vulkan)")
     return icd
+
+
+try:  # property tests: deterministic in CI (fixed seeds from the test's name), no example database on disk
+    from hypothesis import settings as _hyp_settings
+
+    _hyp_settings.register_profile("bench", database=None, derandomize=True, deadline=None)
+    _hyp_settings.load_profile("bench")
+except ImportError:  # hypothesis is in the test extra; without it the property tests are skipped
+    pass
