@@ -29,6 +29,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from bench.config import MAX_N_BOOT, MAX_SEED, ranged
 from bench.errors import ConfigError, DataError, did_you_mean
 
 STATISTICS = ("pearson", "spearman", "kendall", "mmrv")
@@ -273,9 +274,9 @@ class CorrelateConfig:
 
     sim: Optional[str] = None   # outcome table from simulation: JSON rows {policy, trials, successes} or CSV policy,trials,successes
     real: Optional[str] = None  # outcome table from the real robot, same format and the same policies
-    seed: int = 0               # seed of the bootstrap generator
-    n_boot: int = 2000          # bootstrap replicates
-    level: float = 0.95         # interval coverage
+    seed: int = ranged(0, 0, MAX_SEED)  # seed of the bootstrap generator
+    n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates
+    level: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # interval coverage
     out: Optional[str] = None   # also write the report as JSON (undefined values are null with a reason)
     overwrite: bool = False     # replace an existing out= file that bench wrote
 

@@ -30,6 +30,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from bench.config import MAX_HORIZON, MAX_SEED, ranged
 from bench.errors import ConfigError, DataError
 from bench.suite import SPLIT_AXES
 
@@ -328,12 +329,12 @@ class CoverageConfig:
     tasks: Optional[list[str]] = None       # evaluated tasks
     envs: Optional[list[str]] = None        # evaluated environments/scenes
     splits: Optional[list[str]] = None      # evaluated splits: seen, unseen
-    seed: int = 0                           # evaluation run seed: the initial states are its episode seeds'
-    episodes: int = 10                      # evaluation episodes per cell (initial states per cell)
-    horizon: int = 0                        # env horizon when building envs (0 = suite default)
+    seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed: the initial states are its episode seeds'
+    episodes: int = ranged(10, 1, 10_000)  # evaluation episodes per cell (initial states per cell)
+    horizon: int = ranged(0, 0, MAX_HORIZON)  # env horizon when building envs (0 = suite default)
     eval_data: Optional[str] = None         # recorded evaluation dataset: initial states = first frames (no env built)
     perturb: dict[str, Any] = field(default_factory=dict)  # evaluated perturbation axes, grammar of bench run
-    quantile: float = 0.95                  # reference radius quantile (training initial states, leave-one-episode-out)
+    quantile: float = ranged(0.95, 0, 1, lo_open=True)  # reference radius quantile (training initial states, leave-one-episode-out)
     out: Optional[str] = None               # write the JSON report here
     overwrite: bool = False                 # replace an existing out= file that bench wrote
 

@@ -20,6 +20,7 @@ from typing import Any, Optional
 import numpy as np
 
 from bench import config as config_mod
+from bench.config import MAX_N_BOOT, MAX_SEED, ranged
 from bench.errors import ConfigError, DataError
 
 
@@ -31,9 +32,9 @@ class ActionsConfig:
     policy: str = "scripted"          # registered policy name or package.module:attr (its own keys are accepted too)
     suite: str = "held_out_robots"    # suite whose cells name the episodes' tasks
     episodes: Optional[list[int]] = None  # only these episode indices
-    seed: int = 0                     # bootstrap seed
-    n_boot: int = 2000                # bootstrap resamples (over episodes)
-    confidence: float = 0.95          # interval level
+    seed: int = ranged(0, 0, MAX_SEED)  # bootstrap seed
+    n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap resamples (over episodes)
+    confidence: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # interval level
     out: Optional[str] = None         # write the JSON result here (never an input)
     overwrite: bool = False           # replace an existing out= file that bench wrote
 

@@ -8,6 +8,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from bench.config import ranged
 from bench.errors import ConfigError, DataError
 from bench.io import finite_or_none as finite
 
@@ -26,12 +27,12 @@ class ReplayConfig:
     logs: Optional[str] = None            # LeRobot v3 dataset folder
     spec: Optional[str] = None            # signal map (YAML/JSON; a calibration spec is one): MJCF model, log columns
     suite: Optional[str] = None           # instead of spec: suite whose env replays a `bench run record=` dataset
-    k: int = 10                           # frames per k-step horizon
+    k: int = ranged(10, 1, 100_000)  # frames per k-step horizon
     episodes: Optional[list[int]] = None  # dataset episode indices (default: all)
     out: Optional[str] = None             # folder for replay.json and replay.png (never an input or inside one)
     overwrite: bool = False               # replace an existing out= folder that bench wrote
-    plot: int = 2                         # episodes drawn in replay.png (0: no plot)
-    threads: int = 1                      # mujoco.rollout threads (results do not depend on it)
+    plot: int = ranged(2, 0, 50)  # episodes drawn in replay.png (0: no plot)
+    threads: int = ranged(1, 1, 256)  # mujoco.rollout threads (results do not depend on it)
     commands: Optional[str] = None        # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
 
 
