@@ -163,7 +163,7 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}",
                             f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
      r"'signals.qvel.index': index 9 is out of range .* width 6"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k must be an integer >= 1"),
+    (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k=0: must be in \[1, "),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[]"], r"episodes=\[\] selects nothing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
