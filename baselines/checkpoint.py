@@ -202,7 +202,18 @@ def _load_state(module, state: dict[str, Any], source: str) -> None:
 
 
 def read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, str]]:
-    """Tensors and header metadata of a `.safetensors` or weights-only `.pt` file (never unpickles code)."""
+    """Tensors and header metadata of a `.safetensors` or weights-only `.pt` file (never unpickles code);
+    a tensor holding NaN or infinity is refused, naming it (such a policy only ever acts NaN)."""
+    tensors, meta = _read_weights(path)
+    import torch
+
+    for name, t in tensors.items():
+        if torch.is_floating_point(t) and not bool(torch.isfinite(t).all()):
+            raise SpecError(f"checkpoint={str(path)!r}: tensor {name!r} holds NaN or infinite values")
+    return tensors, meta
+
+
+def _read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, str]]:
     import torch
 
     path = Path(path)
