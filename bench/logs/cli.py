@@ -145,15 +145,28 @@ def _names(value: Any, key: str) -> list[str] | None:
 
 
 def _fps(value: Any) -> float | None:
+    from bench.logs.lerobot import MAX_FPS
+
     if value is None:
         return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]")
     try:
         fps = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"fps is {value!r}; expected a positive number") from None
-    if not fps > 0:
-        raise ConfigError(f"fps is {value!r}; expected a positive number")
+    except (TypeError, ValueError, OverflowError):
+        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]") from None
+    if not 0 < fps <= MAX_FPS:
+        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]")
     return fps
+
+
+def _text(value: Any, key: str, default: str | None) -> str | None:
+    """A string key (task, robot_type, column names): a list or a map is refused, not stringified."""
+    if value is None:
+        return default
+    if isinstance(value, (list, dict, tuple)) or isinstance(value, bool):
+        raise ConfigError(f"{key} is {value!r}; expected a text value")
+    return str(value)
 
 
 def cmd_import(argv: list[str]) -> int:
@@ -174,26 +187,30 @@ def cmd_import(argv: list[str]) -> int:
             )
     if not kv.get("out"):
         raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
-    common = {"fps": _fps(kv.get("fps")), "robot_type": kv.get("robot_type")}
+    common = {"fps": _fps(kv.get("fps")), "robot_type": _text(kv.get("robot_type"), "robot_type", None)}
+    delimiter = _text(kv.get("delimiter"), "delimiter", ",")
+    if delimiter is None or len(delimiter) != 1:
+        raise ConfigError(f"delimiter is {delimiter!r}; expected one character (e.g. , or ; or a tab)")
+    task = _text(kv.get("task"), "task", "default")
     if fmt == "csv":
         ds = import_csv(
             src, state=_names(kv.get("state"), "state"), action=_names(kv.get("action"), "action"),
-            time=kv.get("time"), episode=kv.get("episode"), task=str(kv.get("task", "default")),
-            delimiter=str(kv.get("delimiter", ",")), **common,
+            time=_text(kv.get("time"), "time", None), episode=_text(kv.get("episode"), "episode", None), task=task,
+            delimiter=delimiter, **common,
         )
     elif fmt == "mat":
         pairs = (("observation.state", "state"), ("action", "action"))
         mapping = {feature: _names(kv.get(key), key) for feature, key in pairs if kv.get(key)}
         ds = import_mat(
-            src, mapping or None, common["fps"], time=kv.get("time"),
-            velocity=_bool(kv.get("velocity", False), "velocity"), task=str(kv.get("task", "default")),
+            src, mapping or None, common["fps"], time=_text(kv.get("time"), "time", None),
+            velocity=_bool(kv.get("velocity", False), "velocity"), task=task,
             robot_type=common["robot_type"],
         )
     else:
         ds = import_rlds(
             src, split=str(kv.get("split", "train")), state=str(kv.get("state", "observation/state")),
             action=str(kv.get("action", "action")), instruction=str(kv.get("instruction", "language_instruction")),
-            task=str(kv.get("task", "default")), **common,
+            task=task, **common,
         )
     out = write_dataset(Path(str(kv["out"])).expanduser(), ds, overwrite=_bool(kv.get("overwrite", False), "overwrite"),
                         inputs={"SRC": src})
