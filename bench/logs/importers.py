@@ -58,6 +58,9 @@ def _time_features(t: np.ndarray) -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------- CSV
 
 
+F32_MAX = float(np.finfo(np.float32).max)
+
+
 def import_csv(
     path: str | os.PathLike,
     *,
@@ -102,6 +105,9 @@ def import_csv(
     columns = table.column_names
     if table.num_rows == 0:
         raise DataError(f"{path}: no data rows")
+    twice = next((c for i, c in enumerate(columns) if c in columns[:i]), None)
+    if twice is not None:
+        raise DataError(f"{path}: column {twice!r} appears twice in the header; give every column its own name")
 
     def column(name: str, numeric: bool = True) -> np.ndarray:
         if name not in columns:
@@ -121,6 +127,10 @@ def import_csv(
         numeric = [c for c in columns if pa.types.is_integer(table.column(c).type)
                    or pa.types.is_floating(table.column(c).type)]
         state_cols = [c for c in numeric if c not in used and c not in action_cols]
+        text = [c for c in columns if c not in numeric and c not in used]
+        if text:
+            raise DataError(f"{path}: column {text[0]!r} is {table.column(text[0]).type}, not numeric; pass "
+                            "state=[...] (and action=[...]) to choose the columns to import")
     if not state_cols and not action_cols:
         raise DataError(f"{path}: no state or action columns; pass state=[...] and/or action=[...]")
     for c in state_cols + action_cols:
@@ -151,6 +161,12 @@ def import_csv(
                 cols = state_cols if name == "observation.state" else action_cols
                 c = next(c for j, c in enumerate(cols) if not np.isfinite(float(arr[bad, j])))
                 raise DataError(f"{path}: column {c!r} is NaN or inf at row {int(rows[bad])}")
+            big = first_bad_row(np.abs(arr.astype(np.float64)) > F32_MAX)
+            if big >= 0:
+                cols = state_cols if name == "observation.state" else action_cols
+                c = next(c for j, c in enumerate(cols) if abs(float(arr[big, j])) > F32_MAX)
+                raise DataError(f"{path}: column {c!r} is {float(arr[big, cols.index(c)]):g} at row {int(rows[big])}, "
+                                "beyond what float32 holds (3.4e38)")
         if t_all is not None:
             t = t_all[rows]
             _check_time(t, str(path), time, offset=int(rows[0]))  # type: ignore[arg-type]
