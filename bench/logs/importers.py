@@ -288,6 +288,9 @@ def import_mat(
         data.update(_time_features(t))
         rate = rate or _fps_from_time(t, str(path), time)  # type: ignore[arg-type]
     scalars = {k: float(v.reshape(-1)[0]) for k, v in numeric.items() if v.size == 1}
+    odd = next((k for k, v in scalars.items() if not np.isfinite(v)), None)
+    if odd is not None:  # metadata is JSON: NaN / inf has no place there
+        raise DataError(f"{path}: scalar variable {odd!r} is {scalars[odd]}; metadata must be finite (drop or fix it)")
     meta = {"source": path.name, **({"mat": scalars} if scalars else {})}
     return from_arrays([data], fps=float(rate), task=task, names=names,  # type: ignore[arg-type]
                        robot_type=robot_type, meta=[meta])
@@ -497,11 +500,23 @@ def import_rlds(
     spec_dir, shards = _resolve_rlds(path, split)
     spec_path = spec_dir / "features.json"
     try:
-        spec_doc = json.loads(spec_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataError(f"{spec_path}: not valid JSON: {str(exc).splitlines()[0]}") from None
+        spec_doc = json.loads(spec_path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, RecursionError, ValueError) as exc:
+        raise DataError(f"{spec_path}: not valid JSON: {str(exc).splitlines()[0][:160]}") from None
+    if not isinstance(spec_doc, dict):
+        raise DataError(f"{spec_path}: expected a JSON object (a TFDS feature tree), found {type(spec_doc).__name__}")
     leaves: dict[str, dict] = {}
-    _leaves(spec_doc, "", False, leaves, str(spec_path))
+    try:
+        _leaves(spec_doc, "", False, leaves, str(spec_path))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{spec_path}: not a TFDS feature tree ({type(exc).__name__}: {str(exc)[:120]})") from None
+    for key, leaf in leaves.items():
+        if leaf.get("kind") in ("tensor", "image"):
+            try:
+                np.dtype(leaf["dtype"])
+            except TypeError:
+                raise DataError(f"{spec_path}: feature {key!r} has dtype {leaf['dtype']!r}, which is not a numpy "
+                                "dtype (e.g. float32, uint8)") from None
     step_leaves = {k: v for k, v in leaves.items() if v["stepwise"]}
     if not step_leaves:
         raise DataError(f"{spec_path}: no step features (expected an RLDS 'steps' sequence)")
