@@ -334,7 +334,13 @@ def main(argv: list[str]) -> int:
     sim_path, real_path = str(cfg.sim), str(cfg.real)
     if cfg.out:
         outputs.check("out", cfg.out, {"sim": sim_path, "real": real_path}, kind="file", overwrite=cfg.overwrite)
-    report = agreement(load_outcomes(sim_path), load_outcomes(real_path), n_boot=cfg.n_boot, seed=cfg.seed,
+    tables = {}
+    for key, path in (("sim", sim_path), ("real", real_path)):
+        try:
+            tables[key] = load_outcomes(path)
+        except DataError as exc:
+            raise DataError(f"{key}={path}: {str(exc).removeprefix(str(path) + ': ')}") from None
+    report = agreement(tables["sim"], tables["real"], n_boot=cfg.n_boot, seed=cfg.seed,
                        level=cfg.level, sim_name=sim_path, real_name=real_path)
     report = {"schema": "bench.agreement/1", "sim": sim_path, "real": real_path, **report}
     print(format_report(report))

@@ -123,7 +123,9 @@ def load_policy(ref: str) -> PolicyPlugin:
 
 def main_list(argv: list[str]) -> int:
     """`bench list`: registered suites with their manifests and keys, and policies."""
-    if argv and argv[0] in ("-h", "--help"):
+    if argv and argv[0] not in ("-h", "--help"):
+        raise RegistryError(f"bench list takes no arguments; got {argv[0]!r} (bench list --help)")
+    if argv:
         from bench.config import command_help
 
         print(command_help("usage: bench list",

@@ -93,6 +93,11 @@ def load_calibration(arg: str) -> dict:
     if not isinstance(doc, dict) or doc.get("schema") != "bench.calibration/1":
         raise DataError(f"{path}: not a calibration result (schema {doc.get('schema') if isinstance(doc, dict) else None!r}; "
                         "expected bench.calibration/1)")
+    from bench.io import first_nonfinite
+
+    nan_at = first_nonfinite(doc)
+    if nan_at:
+        raise DataError(f"{path}: field {nan_at} is NaN/inf; a calibration result holds finite numbers or null")
     errors = doc.get("errors")
     if not isinstance(errors, dict) or not any(isinstance(errors.get(s), dict) for s in ("nominal", "declared", "final")):
         raise DataError(f"{path}: field errors must hold nominal/declared/final error summaries")

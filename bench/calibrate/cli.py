@@ -116,7 +116,7 @@ def cmd_run(kv: dict) -> int:
     spec = load_spec(Path(str(kv["spec"])).expanduser())
     out = _out(kv, {"spec": str(kv["spec"]), "model": str(spec.model), "logs": str(kv["logs"])})
     episodes, fps = _load_logs(Path(str(kv["logs"])).expanduser())
-    quiet = bool(kv.get("quiet", False))
+    quiet = _flag(kv, "quiet")
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     threads = _int(kv, "threads", spec.threads, lo=1, hi=MAX_THREADS)
     residual = _residual(kv)
@@ -148,6 +148,13 @@ def _write(out: Path, cal: Any, extra: dict | None = None) -> Path:
     return out / "calibration.json"
 
 
+def _flag(kv: dict, key: str) -> bool:
+    value = kv.get(key, False)
+    if not isinstance(value, bool):
+        raise ConfigError(f"key {key!r} must be true or false; got {value!r}")
+    return value
+
+
 def _residual(kv: dict) -> bool:
     residual = kv.get("residual", True)
     if not isinstance(residual, bool):
@@ -176,7 +183,7 @@ def cmd_suite(kv: dict) -> int:
     _check(kv, SUITE_KEYS, ("suite", "robot", "logs", "out"))
     out = _out(kv, {"logs": str(kv["logs"])})
     residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1, hi=MAX_THREADS), _int(kv, "seed", 0)
-    log = (lambda msg: None) if kv.get("quiet", False) else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    log = (lambda msg: None) if _flag(kv, "quiet") else (lambda msg: print(msg, file=sys.stderr, flush=True))
     cal, extra = calibrate_suite(str(kv["suite"]), str(kv["robot"]), Path(str(kv["logs"])), seed=seed,
                                  threads=threads, log=log, residual=residual,
                                  condition=None if kv.get("condition") is None else str(kv["condition"]))

@@ -332,6 +332,8 @@ def cmd_card(argv: list[str]) -> int:
     root, kv = _dir_and_keys(argv, ("suite", "episodes", "seed", "dup_tol", "overlap_tol", "out"), CARD_USAGE)
     out = _new_file(kv.get("out"), "out", {"DIR": root})
     episodes, seed = _pos_number(kv, "episodes", 10, integer=True), _pos_number(kv, "seed", 0, integer=True)
+    if episodes > 10_000:
+        raise ConfigError(f"key 'episodes' is {episodes}; at most 10000 evaluation initial states per cell")
     tols = {k: _pos_number(kv, k, d) for k, d in (("dup_tol", 0.05), ("overlap_tol", 0.01))}
     if not root.exists():
         raise ConfigError(f"logs folder {str(root)!r} does not exist")

@@ -17,6 +17,7 @@ from typing import Any
 from bench.errors import SpecError, did_you_mean
 
 MAP_KEYS = ("model", "substeps", "signals")
+MAX_SUBSTEPS = 10_000  # simulator steps per log frame: more is a typo, and multiplies every rollout
 SIGNAL_NAMES = ("qpos", "qvel", "ctrl", "inputs")
 SIGNAL_KEYS = ("column", "index")
 
@@ -52,7 +53,10 @@ def read_spec_file(path: str | Path) -> tuple[Any, Path]:
     path = Path(path)
     if not path.is_file():
         raise SpecError(f"spec file {str(path)!r} does not exist")
-    text = path.read_text()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"spec {str(path)!r} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
         raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as exc:
@@ -112,7 +116,7 @@ def map_fields(raw: dict, base_dir: str | Path) -> dict[str, Any]:
     signals = {k: _signal(v, f"signals.{k}") for k, v in signals_raw.items()}
     substeps = raw.get("substeps")
     if substeps is not None:
-        substeps = number(substeps, "substeps", lo=1, integer=True)
+        substeps = number(substeps, "substeps", lo=1, hi=MAX_SUBSTEPS, integer=True)
     return {"model": model, "signals": signals, "substeps": substeps}
 
 
