@@ -85,12 +85,11 @@ def test_parent_and_children_share_the_work(tmp_path):
     (["executor=ray", "workers=2"], "workers=2 applies to executor=local; with executor=ray give actors="),
     (["executor=ray", "ray_address=somewhere"], "ray_address='somewhere': give auto, local or HOST:PORT"),
     (["executor=ray", "ray_env=conda"], "ray_env='conda': valid: code, pip, installed"),
-    (["executor=ray", "actor_cpus=0"], "actor_cpus=0.0: must be > 0"),
+    (["executor=ray", "actor_cpus=0"], "actor_cpus=0: must be in (0, 1024]"),
 ])
 def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message):
-    c = api.config_from_argv([f"suite={TOY}", f"out={tmp_path}", "run_id=x", *argv])
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        api.plan(c)
+        api.plan(api.config_from_argv([f"suite={TOY}", f"out={tmp_path}", "run_id=x", *argv]))
     assert not (tmp_path / "x").exists()
 
 
