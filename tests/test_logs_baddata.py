@@ -142,7 +142,7 @@ def test_task_index_out_of_range(good):
         (lambda i: i.update(codebase_version="v2.1"), "field 'codebase_version' is 'v2.1'"),
         (lambda i: i.update(total_episodes=5), "field 'total_episodes' is 5 but"),
         (lambda i: i["features"].pop("timestamp"), "lacks the default feature 'timestamp'"),
-        (lambda i: i["features"]["action"].update(shape=[0]), "field 'features.action' needs a dtype and a shape"),
+        (lambda i: i["features"]["action"].update(shape=[0]), r"field 'features.action.shape' is \[0\]; valid: a non-empty list of integers"),
     ],
     ids=["no-fps", "old-version", "total-episodes", "no-timestamp", "bad-shape"],
 )

@@ -145,7 +145,7 @@ def _names(value: Any, key: str) -> list[str] | None:
 
 
 def _fps(value: Any) -> float | None:
-    from bench.logs.lerobot import MAX_FPS
+    from bench.logs.lerobot_info import MAX_FPS
 
     if value is None:
         return None

@@ -26,9 +26,9 @@ import os
 import shutil
 import tempfile
 import uuid
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Mapping
 from typing import Any, Iterator
 
 import numpy as np
@@ -45,6 +45,7 @@ from bench.logs.dataset import (
     is_image,
     validate,
 )
+from bench.logs.lerobot_info import MAX_FPS, check_fps, check_info  # noqa: F401  (MAX_FPS: the bound importers share)
 
 CODEBASE_VERSION = "v3.0"
 INFO_PATH = "meta/info.json"
@@ -61,7 +62,6 @@ VIDEO_FILES_SIZE_IN_MB = 200
 META_COLUMN = "bench/meta"
 # info.json keys, in lerobot's order; the reader needs the first group, lerobot needs all of them.
 REQUIRED_INFO_KEYS = ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path")
-MAX_FPS = 10_000  # frames per second; above this a dataset's timing is nonsense, not a fast camera
 INFO_KEYS = (
     "codebase_version", "robot_type", "total_episodes", "total_frames", "total_tasks", "chunks_size",
     "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits", "data_path", "video_path", "features",
@@ -218,35 +218,11 @@ def _load_info(root: Path) -> dict:
     if not path.is_file():
         raise DataError(f"{path}: file is missing (not a LeRobot v3.0 dataset?)")
     try:
-        info = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: bad JSON, non-UTF-8
         raise DataError(f"{path}: not valid JSON: {_first_line(exc)}") from None
-    if not isinstance(info, dict):
-        raise DataError(f"{path}: expected a JSON object")
-    for key in REQUIRED_INFO_KEYS:
-        if key not in info:
-            raise DataError(f"{path}: field {key!r} is missing")
-    version = info["codebase_version"]
-    if not isinstance(version, str) or not version.startswith("v3."):
-        raise DataError(f"{path}: field 'codebase_version' is {version!r}; only LeRobot v3.x datasets are supported")
-    fps = info["fps"]
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps <= MAX_FPS:
-        raise DataError(f"{path}: field 'fps' is {fps!r}; expected a number in (0, {MAX_FPS}]")
-    for key in ("total_episodes", "total_frames"):
-        n = info[key]
-        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-            raise DataError(f"{path}: field {key!r} is {n!r}; expected an integer >= 0")
-    for key in ("data_path", "video_path"):
-        if key in info and not (isinstance(info[key], str) or (key == "video_path" and info[key] is None)):
-            raise DataError(f"{path}: field {key!r} is {info[key]!r}; expected a path template string")
+    check_info(info, path, REQUIRED_INFO_KEYS)
     feats = info["features"]
-    if not isinstance(feats, dict):
-        raise DataError(f"{path}: field 'features' is not an object")
-    for name, feat in feats.items():
-        shape = feat.get("shape") if isinstance(feat, dict) else None
-        if not isinstance(feat, dict) or not isinstance(feat.get("dtype"), str) or not isinstance(shape, list) \
-                or not shape or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape):
-            raise DataError(f"{path}: field 'features.{name}' needs a dtype and a shape of positive ints, got {feat!r}")
     for name in DEFAULT_FEATURES:
         if name not in feats:
             raise DataError(f"{path}: field 'features' lacks the default feature {name!r}")
@@ -1065,6 +1041,7 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
 
     root = Path(root).resolve()
     where = f"write_dataset({root})"
+    check_fps(ds.fps, where)  # the same bound the reader applies: never write what cannot be read back
     validate(ds, where=where)
     if any(v["dtype"] == "video" for v in ds.features.values()):
         if video_codec not in CODECS:
