@@ -352,6 +352,16 @@ def _build_index(root: Path) -> _Index:
                 raise DataError(f"{where}: column 'videos/{key}/{c}' has missing or non-numeric values")
             video_index[key][c] = np.asarray(column.to_numpy(), dtype=np.float64)[order]
     chunk, file = col("data/chunk_index"), col("data/file_index")
+    for name, values in [("data/chunk_index", chunk), ("data/file_index", file),
+                         *[(f"videos/{k}/{c}", v) for k, vi in video_index.items() for c, v in vi.items()]]:
+        bad = first_bad_row(values < 0)
+        if bad >= 0:
+            raise DataError(f"{where}: column {name!r} is {values[bad]} for episode {bad}; valid: an index >= 0")
+    ttype = cols["tasks"].type if cols["tasks"] is not None else None
+    if ttype is not None and not ((pa.types.is_list(ttype) or pa.types.is_large_list(ttype))
+                                  and (pa.types.is_string(ttype.value_type)
+                                       or pa.types.is_large_string(ttype.value_type))):
+        raise DataError(f"{where}: column 'tasks' has type {ttype}; valid: a list of task strings")
     base = start.copy()
     for key in set(zip(chunk.tolist(), file.tolist())):
         members = (chunk == key[0]) & (file == key[1])
