@@ -101,9 +101,19 @@ def semantic_problem(obj: Any, path: str = "$", rate: bool = False, n: int | Non
     return None
 
 
-def load_json(path: Path) -> Any:
-    """Parse a JSON file; a missing or corrupt file is a one-line DataError."""
+def load_json(path: Path, expect: type | None = None) -> Any:
+    """Parse a JSON file; a missing or corrupt file is a one-line DataError.
+
+    With `expect` (e.g. dict), a document of another JSON type is refused too.
+    """
     path = Path(path)
+    doc = _parse_json(path)
+    if expect is not None and not isinstance(doc, expect):
+        raise DataError(f"{path}: expected a JSON {expect.__name__}, found {type(doc).__name__}")
+    return doc
+
+
+def _parse_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text(encoding="utf-8"), parse_constant=lambda c: float(c))
     except FileNotFoundError:

@@ -235,10 +235,48 @@ def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
         raise DataError(f"{meta_path}: not valid JSON ({str(exc).splitlines()[0][:160]})") from None
     if not isinstance(meta, dict):
         raise DataError(f"{meta_path}: expected a JSON object (the run's metadata), found {type(meta).__name__}")
-    for key, kind in (("config", dict), ("suite", dict), ("policy", dict)):
-        if key in meta and not isinstance(meta[key], kind):
-            raise DataError(f"{meta_path}: field {key!r} is {type(meta[key]).__name__}; expected an object")
-    if "config" not in meta:
-        raise DataError(f"{meta_path}: not a bench run.json (missing field 'config'); is {run_dir} a run directory "
-                        "written by `bench run`?")
+    check_run_meta(meta, str(meta_path))
     return read_records(run_dir / EPISODES), meta
+
+
+def check_run_meta(meta: dict[str, Any], source: str) -> None:
+    """Validate the parts of run.json that scoring reads (types and the runner's own ranges).
+
+    Raises:
+        DataError: one line naming run.json, the field, what was found and what is valid.
+    """
+    import math
+
+    from bench.api import MAX_N_BOOT
+    from bench.suite import METRICS as ALL_METRICS
+
+    for key, typ, valid in (("run_id", str, "a string"), ("suite", dict, "an object"), ("policy", dict, "an object"),
+                            ("config", dict, "an object"), ("provenance", dict, "an object")):
+        if key not in meta:
+            raise DataError(f"{source}: not a bench run.json: field {key!r} missing")
+        if not isinstance(meta[key], typ):
+            raise DataError(f"{source}: field {key!r} is {meta[key]!r:.60}; valid: {valid}")
+    cfg = meta["config"]
+
+    def number(key: str, lo: float, hi: float, integer: bool, default: Any, lo_open: bool = False,
+               hi_open: bool = False) -> None:
+        v = cfg.get(key, default)
+        if v is None and default is None:
+            return
+        kind = "an integer" if integer else "a number"
+        if isinstance(v, bool) or not isinstance(v, int if integer else (int, float)) or \
+                (isinstance(v, float) and not math.isfinite(v)):
+            raise DataError(f"{source}: field config.{key} is {v!r:.60}; valid: {kind}")
+        if v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
+            rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+            raise DataError(f"{source}: field config.{key} is {v!r}; valid: {kind} in {rng}")
+
+    number("n_boot", 1, MAX_N_BOOT, True, 2000)
+    number("confidence", 0, 1, False, 0.95, lo_open=True, hi_open=True)
+    number("seed", 0, 2**63 - 1, True, 0)
+    metric = cfg.get("metric")
+    if metric is not None and metric not in ALL_METRICS:
+        raise DataError(f"{source}: field config.metric is {metric!r:.60}; valid: {', '.join(ALL_METRICS)}")
+    exp = meta.get("expected_episodes")
+    if exp is not None and (isinstance(exp, bool) or not isinstance(exp, int) or exp < 0):
+        raise DataError(f"{source}: field expected_episodes is {exp!r:.60}; valid: an integer >= 0 or null")

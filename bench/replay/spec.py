@@ -59,8 +59,8 @@ def read_spec_file(path: str | Path) -> tuple[Any, Path]:
         raise SpecError(f"spec {str(path)!r} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
         raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    except (yaml.YAMLError, ValueError, RecursionError) as exc:  # ValueError: bad JSON, integers of 4300+ digits
+        first = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
         kind = "JSON" if path.suffix == ".json" else "YAML"
         raise SpecError(f"spec {str(path)!r} is not valid {kind}: {first}") from None
     return raw, path
