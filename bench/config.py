@@ -28,6 +28,7 @@ MAX_WORKERS = 1024
 MAX_TIMEOUT_S = 7 * 24 * 3600.0
 MAX_RUN_ID = 128
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +181,9 @@ def partition(overrides: Iterable[str], owners: dict[str, list[str]], context: s
     for item in overrides:
         if "=" not in item or not item.split("=", 1)[0]:
             raise ConfigError(f"argument {item!r} is not key=value ({context})")
+        if not _KEY.fullmatch(item.split("=", 1)[0]):
+            raise ConfigError(f"key {item.split('=', 1)[0][:60]!r} is not a key name (letters, digits, _ and dotted "
+                              f"parts) ({context})")
         key = top_key(item)
         if key not in claimed:
             listing = "; ".join(f"{name}: {', '.join(keys) or '(none)'}" for name, keys in owners.items())
@@ -222,6 +226,8 @@ def check_overrides(overrides: list[str], schema: type | None) -> None:
         key, _, value = item.partition("=")
         if "=" not in item or not key:
             raise ConfigError(f"argument {item!r} is not key=value{valid}")
+        if not _KEY.fullmatch(key):
+            raise ConfigError(f"key {key[:60]!r} is not a key name (letters, digits, _ and dotted parts){valid}")
         if _CONTROL.search(item):
             raise ConfigError(f"{key}={value!r}: contains a control character; give printable text")
         if not value.strip():
