@@ -11,10 +11,12 @@ Add an architecture by writing a builder and listing it in `ARCHITECTURES`;
 names are part of the checkpoint format, so never rename or change one in place
 (add `mlp2` instead).
 """
+
 from __future__ import annotations
 
 import inspect
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from bench.errors import SpecError, did_you_mean
 
@@ -22,8 +24,14 @@ ACTIVATIONS = ("relu", "tanh", "gelu", "elu")
 OUT_ACTIVATIONS = ("none", "tanh")
 
 
-def mlp(obs_dim: int, action_dim: int, hidden: list[int] | tuple[int, ...] = (256, 256), activation: str = "relu",
-        out_activation: str = "none", layer_norm: bool = False):
+def mlp(
+    obs_dim: int,
+    action_dim: int,
+    hidden: list[int] | tuple[int, ...] = (256, 256),
+    activation: str = "relu",
+    out_activation: str = "none",
+    layer_norm: bool = False,
+):
     """Multi-layer perceptron: Linear -> [LayerNorm] -> activation per hidden layer, then Linear.
 
     Args:
@@ -37,8 +45,10 @@ def mlp(obs_dim: int, action_dim: int, hidden: list[int] | tuple[int, ...] = (25
     import torch.nn as nn
 
     if activation not in ACTIVATIONS:
-        raise SpecError(f"mlp: activation={activation!r} is not valid; valid: {', '.join(ACTIVATIONS)}"
-                        f"{did_you_mean(activation, ACTIVATIONS)}")
+        raise SpecError(
+            f"mlp: activation={activation!r} is not valid; valid: {', '.join(ACTIVATIONS)}"
+            f"{did_you_mean(activation, ACTIVATIONS)}"
+        )
     if out_activation not in OUT_ACTIVATIONS:
         raise SpecError(f"mlp: out_activation={out_activation!r} is not valid; valid: {', '.join(OUT_ACTIVATIONS)}")
     if not isinstance(hidden, (list, tuple)) or not all(isinstance(h, int) and h > 0 for h in hidden):
@@ -65,14 +75,18 @@ def build(name: str, obs_dim: int, action_dim: int, kwargs: dict[str, Any] | Non
     """Build the registered architecture `name`; unknown names or keyword arguments are a SpecError."""
     if name not in ARCHITECTURES:
         valid = sorted(ARCHITECTURES)
-        raise SpecError(f"architecture={name!r} is not registered; valid: {', '.join(valid)}.{did_you_mean(name, valid)}")
+        raise SpecError(
+            f"architecture={name!r} is not registered; valid: {', '.join(valid)}.{did_you_mean(name, valid)}"
+        )
     builder = ARCHITECTURES[name]
     kwargs = dict(kwargs or {})
     params = [p for p in inspect.signature(builder).parameters if p not in ("obs_dim", "action_dim")]
     for key in kwargs:
         if key not in params:
-            raise SpecError(f"architecture {name!r}: unknown argument {key!r}; valid: {', '.join(params)}."
-                            f"{did_you_mean(key, params)}")
+            raise SpecError(
+                f"architecture {name!r}: unknown argument {key!r}; valid: {', '.join(params)}."
+                f"{did_you_mean(key, params)}"
+            )
     try:
         return builder(int(obs_dim), int(action_dim), **kwargs)
     except SpecError:

@@ -23,6 +23,7 @@ draw (initialisation, shuffling, input noise) from generators seeded by `seed`: 
 data and arguments give bit-identical weights, hence the same checkpoint sha256 (the
 training wall time is returned, not stored in the checkpoint, for that reason).
 """
+
 from __future__ import annotations
 
 import ast
@@ -32,13 +33,14 @@ import random
 import re
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
-from bench.errors import BenchError, ConfigError, DataError
+from bench.errors import ConfigError, DataError
 
 
 @dataclass(frozen=True)
@@ -130,24 +132,33 @@ def obs_layout(names: Sequence[str]) -> list[list[Any]]:
 class Demos:
     """Training frames gathered from one or more datasets."""
 
-    obs: np.ndarray                 # (N, D) float32
-    action: np.ndarray              # (N, A) float32
-    episode: np.ndarray             # (N,) int64: index into `episodes`
-    episodes: list[dict]            # per episode: source, index, robot, condition, params, frames
-    obs_names: list[list[Any]]      # [name, width] pairs
+    obs: np.ndarray  # (N, D) float32
+    action: np.ndarray  # (N, A) float32
+    episode: np.ndarray  # (N,) int64: index into `episodes`
+    episodes: list[dict]  # per episode: source, index, robot, condition, params, frames
+    obs_names: list[list[Any]]  # [name, width] pairs
     action_names: list[str]
 
-    def __add__(self, other: "Demos") -> "Demos":
+    def __add__(self, other: Demos) -> Demos:
         if self.obs_names != other.obs_names or self.action_names != other.action_names:
             raise DataError("cannot combine demonstrations with different observation/action layouts")
-        return Demos(np.concatenate([self.obs, other.obs]), np.concatenate([self.action, other.action]),
-                     np.concatenate([self.episode, other.episode + len(self.episodes)]),
-                     self.episodes + other.episodes, self.obs_names, self.action_names)
+        return Demos(
+            np.concatenate([self.obs, other.obs]),
+            np.concatenate([self.action, other.action]),
+            np.concatenate([self.episode, other.episode + len(self.episodes)]),
+            self.episodes + other.episodes,
+            self.obs_names,
+            self.action_names,
+        )
 
 
-def load_demos(paths: Sequence[str | os.PathLike], robots: Sequence[str] | None = None,
-               conditions: Sequence[str] | None = None, max_episodes: int = 0,
-               successful_only: bool = True) -> Demos:
+def load_demos(
+    paths: Sequence[str | os.PathLike],
+    robots: Sequence[str] | None = None,
+    conditions: Sequence[str] | None = None,
+    max_episodes: int = 0,
+    successful_only: bool = True,
+) -> Demos:
     """Frames of the selected episodes of LeRobot v3 datasets (`observation.state`, `action`).
 
     Args:
@@ -175,10 +186,11 @@ def load_demos(paths: Sequence[str | os.PathLike], robots: Sequence[str] | None 
         for feat in ("observation.state", "action"):
             if feat not in ds.features:
                 raise DataError(f"{path}: feature {feat!r} is missing; BC needs observation.state and action")
-        o_names = obs_layout(ds.features["observation.state"].get("names")
-                             or [f"obs_{i}" for i in range(ds.feature_shape("observation.state")[0])])
-        a_names = list(ds.features["action"].get("names")
-                       or [f"a{i}" for i in range(ds.feature_shape("action")[0])])
+        o_names = obs_layout(
+            ds.features["observation.state"].get("names")
+            or [f"obs_{i}" for i in range(ds.feature_shape("observation.state")[0])]
+        )
+        a_names = list(ds.features["action"].get("names") or [f"a{i}" for i in range(ds.feature_shape("action")[0])])
         if obs_names is None:
             obs_names, action_names = o_names, a_names
         elif (o_names, a_names) != (obs_names, action_names):
@@ -201,15 +213,25 @@ def load_demos(paths: Sequence[str | os.PathLike], robots: Sequence[str] | None 
             obs.append(np.asarray(o, np.float32))
             act.append(np.asarray(a, np.float32))
             epi.append(np.full(len(o), len(episodes), np.int64))
-            episodes.append({"source": str(path), "index": ep.index, "task": meta.get("task"), "robot": robot,
-                             "env": meta.get("env"), "condition": cond,
-                             "params": meta.get("params") or {}, "frames": len(o)})
+            episodes.append(
+                {
+                    "source": str(path),
+                    "index": ep.index,
+                    "task": meta.get("task"),
+                    "robot": robot,
+                    "env": meta.get("env"),
+                    "condition": cond,
+                    "params": meta.get("params") or {},
+                    "frames": len(o),
+                }
+            )
     if not episodes:
         what = f"robots={list(robots)}" if robots is not None else "the filters"
-        raise DataError(f"data: no episode selected by {what} (conditions={conditions}, successful_only="
-                        f"{successful_only}); robots in the data: {', '.join(sorted(seen_robots))}")
-    return Demos(np.concatenate(obs), np.concatenate(act), np.concatenate(epi), episodes,
-                 obs_names, action_names)  # type: ignore[arg-type]
+        raise DataError(
+            f"data: no episode selected by {what} (conditions={conditions}, successful_only="
+            f"{successful_only}); robots in the data: {', '.join(sorted(seen_robots))}"
+        )
+    return Demos(np.concatenate(obs), np.concatenate(act), np.concatenate(epi), episodes, obs_names, action_names)  # type: ignore[arg-type]
 
 
 def _moments(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -283,7 +305,7 @@ def fit(demos: Demos, args: Args) -> tuple[Any, dict[str, Any], dict[str, Any]]:
         perm = torch.randperm(n, generator=gen)
         total = total_c = total_g = 0.0
         for s in range(steps_per_epoch):
-            idx = perm[s * args.batch_size:(s + 1) * args.batch_size]
+            idx = perm[s * args.batch_size : (s + 1) * args.batch_size]
             xb = x[idx]
             if args.obs_noise > 0:
                 xb = xb + args.obs_noise * torch.randn(xb.shape, generator=gen)
@@ -309,18 +331,39 @@ def fit(demos: Demos, args: Args) -> tuple[Any, dict[str, Any], dict[str, Any]]:
     robots = sorted({str(e["robot"]) for e in demos.episodes})
     conditions = sorted({str(e["condition"]) for e in demos.episodes})
     spec = {
-        "architecture": "mlp", "kwargs": kwargs, "obs_names": demos.obs_names, "action_names": demos.action_names,
-        "normalization": {"obs": {"mean": obs_mean, "std": obs_std}, "action": {"mean": spec_act_mean, "std": spec_act_std}},
+        "architecture": "mlp",
+        "kwargs": kwargs,
+        "obs_names": demos.obs_names,
+        "action_names": demos.action_names,
+        "normalization": {
+            "obs": {"mean": obs_mean, "std": obs_std},
+            "action": {"mean": spec_act_mean, "std": spec_act_std},
+        },
         "clip_actions": True,
-        "meta": {"algorithm": "bc", "run_name": run_name(args), "seed": args.seed,
-                 "args": {k: v for k, v in asdict(args).items() if k != "out"},  # where it is saved is not what it is
-                 "episodes": len(demos.episodes), "frames": n, "robots": robots, "conditions": conditions,
-                 "gripper_dims": [demos.action_names[i] for i in grip],
-                 "constant_dims": [demos.action_names[i] for i in const]},
+        "meta": {
+            "algorithm": "bc",
+            "run_name": run_name(args),
+            "seed": args.seed,
+            "args": {k: v for k, v in asdict(args).items() if k != "out"},  # where it is saved is not what it is
+            "episodes": len(demos.episodes),
+            "frames": n,
+            "robots": robots,
+            "conditions": conditions,
+            "gripper_dims": [demos.action_names[i] for i in grip],
+            "constant_dims": [demos.action_names[i] for i in const],
+        },
     }
-    info = {"run_name": run_name(args), "train_wall_s": round(time.perf_counter() - t0, 3), "frames": n,
-            "episodes": len(demos.episodes), "robots": robots, "conditions": conditions,
-            "final": history[-1], "gripper_accuracy": grip_acc, "history": history}
+    info = {
+        "run_name": run_name(args),
+        "train_wall_s": round(time.perf_counter() - t0, 3),
+        "frames": n,
+        "episodes": len(demos.episodes),
+        "robots": robots,
+        "conditions": conditions,
+        "final": history[-1],
+        "gripper_accuracy": grip_acc,
+        "history": history,
+    }
     return model, spec, info
 
 
@@ -349,7 +392,11 @@ def _field_docs() -> dict[str, str]:
     body = tree.body[0].body  # type: ignore[attr-defined]
     docs = {}
     for a, b in zip(body, body[1:]):
-        if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(getattr(b, "value", None), ast.Constant):
+        if (
+            isinstance(a, ast.AnnAssign)
+            and isinstance(b, ast.Expr)
+            and isinstance(getattr(b, "value", None), ast.Constant)
+        ):
             docs[a.target.id] = str(b.value.value)  # type: ignore[union-attr]
     return docs
 
@@ -358,14 +405,16 @@ def help_text() -> str:
     docs = _field_docs()
     defaults = asdict(Args())
     rows = "\n".join(f"  {k:<18} {docs.get(k, '')} (default: {defaults[k]})" for k in defaults)
-    return ("usage: python -m baselines.bc data=[DIR,...] [key=value ...]\n\n"
-            "Behaviour cloning: trains an MLP (obs -> action, normalised) on LeRobot v3 demonstrations\n"
-            "and writes a checkpoint for `bench run policy=checkpoint checkpoint=PATH`.\n\n"
-            f"keys:\n{rows}\n\n"
-            "example:\n"
-            "  bench run suite=held_out_robots splits=[seen] policy=scripted episodes=40 record=demos/seen\n"
-            "  python -m baselines.bc data=[demos/seen] out=runs/bc/policy.safetensors\n"
-            "  bench run suite=held_out_robots policy=checkpoint checkpoint=runs/bc/policy.safetensors\n")
+    return (
+        "usage: python -m baselines.bc data=[DIR,...] [key=value ...]\n\n"
+        "Behaviour cloning: trains an MLP (obs -> action, normalised) on LeRobot v3 demonstrations\n"
+        "and writes a checkpoint for `bench run policy=checkpoint checkpoint=PATH`.\n\n"
+        f"keys:\n{rows}\n\n"
+        "example:\n"
+        "  bench run suite=held_out_robots splits=[seen] policy=scripted episodes=40 record=demos/seen\n"
+        "  python -m baselines.bc data=[demos/seen] out=runs/bc/policy.safetensors\n"
+        "  bench run suite=held_out_robots policy=checkpoint checkpoint=runs/bc/policy.safetensors\n"
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -377,15 +426,15 @@ def main(argv: list[str]) -> int:
         return 0
     args: Args = config_mod.build_from_argv(Args, argv, "python -m baselines.bc")
     path, info = train(args)
-    print(f"{info['run_name']}: {info['episodes']} episodes, {info['frames']} frames, robots {info['robots']}; "
-          f"loss {info['final']['loss']:.4f}, gripper accuracy {info['gripper_accuracy']}, "
-          f"{info['train_wall_s']:.1f} s -> {path}")
+    print(
+        f"{info['run_name']}: {info['episodes']} episodes, {info['frames']} frames, robots {info['robots']}; "
+        f"loss {info['final']['loss']:.4f}, gripper accuracy {info['gripper_accuracy']}, "
+        f"{info['train_wall_s']:.1f} s -> {path}"
+    )
     return 0
 
 
 if __name__ == "__main__":
-    try:
-        raise SystemExit(main(sys.argv[1:]))
-    except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(exc.exit_code)
+    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
+
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

@@ -22,6 +22,7 @@ DrQ augmentation); the gripper command is a logit with a logistic loss as in `bc
 Determinism: `torch.use_deterministic_algorithms(True)`, `threads` CPU threads, every draw from
 generators seeded by `seed`.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,9 +30,10 @@ import os
 import random
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
@@ -102,7 +104,7 @@ def load(args: Args) -> dict[str, Any]:
         if not Path(path).is_dir():
             raise ConfigError(f"data: {str(path)!r} is not a dataset folder")
         ds = read_dataset(path)
-        cams = [k[len(CAMERA_PREFIX):] for k in ds.features if k.startswith(CAMERA_PREFIX)]
+        cams = [k[len(CAMERA_PREFIX) :] for k in ds.features if k.startswith(CAMERA_PREFIX)]
         if args.cameras is not None:
             missing = [c for c in args.cameras if c not in cams]
             if missing:
@@ -116,11 +118,15 @@ def load(args: Args) -> dict[str, Any]:
         slices = _field_slices(ds.features["observation.state"].get("names") or [])
         unknown = [f for f in args.proprio if f not in slices]
         if unknown:
-            raise ConfigError(f"proprio: {unknown[0]!r} is not a field of {path}'s observation.state; valid: "
-                              f"{', '.join(slices)}")
-        mine = {"cameras": cams, "image_shape": [ds.feature_shape(CAMERA_PREFIX + c) for c in cams],
-                "state_fields": [[n, s.stop - s.start] for n, s in slices.items()],
-                "action_names": list(ds.features["action"].get("names") or [])}
+            raise ConfigError(
+                f"proprio: {unknown[0]!r} is not a field of {path}'s observation.state; valid: {', '.join(slices)}"
+            )
+        mine = {
+            "cameras": cams,
+            "image_shape": [ds.feature_shape(CAMERA_PREFIX + c) for c in cams],
+            "state_fields": [[n, s.stop - s.start] for n, s in slices.items()],
+            "action_names": list(ds.features["action"].get("names") or []),
+        }
         if spec and mine != spec:
             raise DataError(f"{path}: cameras, image sizes or observation layout differ from {args.data[0]}'s")
         spec = mine
@@ -135,8 +141,13 @@ def load(args: Args) -> dict[str, Any]:
             action.append(np.asarray(ep.data["action"], np.float32))
     if not action:
         raise DataError(f"no episode selected from {args.data} (successful_only={args.successful_only})")
-    return {"images": {c: np.concatenate(v) for c, v in images.items()}, "proprio": np.concatenate(proprio),
-            "action": np.concatenate(action), "episodes": episodes, **spec}
+    return {
+        "images": {c: np.concatenate(v) for c, v in images.items()},
+        "proprio": np.concatenate(proprio),
+        "action": np.concatenate(action),
+        "episodes": episodes,
+        **spec,
+    }
 
 
 # -- model -----------------------------------------------------------------------------------
@@ -171,8 +182,9 @@ def build_net(n_cameras: int, channels: Sequence[int], proprio_dim: int, hidden:
             super().__init__()
             self.trunks = nn.ModuleList([Trunk() for _ in range(n_cameras)])
             width = sum(t.out for t in self.trunks) + proprio_dim
-            self.head = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                                      nn.Linear(hidden, action_dim))
+            self.head = nn.Sequential(
+                nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, action_dim)
+            )
 
         def forward(self, images: list[torch.Tensor], proprio: torch.Tensor) -> torch.Tensor:
             feats = [t(x) for t, x in zip(self.trunks, images)]
@@ -211,8 +223,10 @@ def train(args: Args) -> dict[str, Any]:
 
     from bench import outputs
 
-    out_path = Path(args.out or f"runs/bc_image/{'+'.join(Path(d).name for d in args.data)}__bc_image__s{args.seed}/"
-                                 f"policy.safetensors")
+    out_path = Path(
+        args.out
+        or f"runs/bc_image/{'+'.join(Path(d).name for d in args.data)}__bc_image__s{args.seed}/policy.safetensors"
+    )
     for target in (out_path, out_path.with_suffix(".json")):  # checked before any training
         outputs.check("out", target, {"data": list(args.data)}, kind="file", overwrite=args.overwrite)
     t_start = time.perf_counter()
@@ -242,7 +256,7 @@ def train(args: Args) -> dict[str, Any]:
         order = rng.permutation(n)
         total = 0.0
         for b in range(0, n - args.batch_size + 1, args.batch_size):
-            idx = order[b:b + args.batch_size]
+            idx = order[b : b + args.batch_size]
             imgs = [_shift(_to_tensor(data["images"][c][idx]), args.shift, gen) for c in cams]
             out = net(imgs, proprio_n[idx])
             loss = F.mse_loss(out[:, :-1], target[idx, :-1]) + F.binary_cross_entropy_with_logits(out[:, -1], grip[idx])
@@ -252,22 +266,43 @@ def train(args: Args) -> dict[str, Any]:
             sched.step()
             total += float(loss.detach()) * len(idx)
         losses.append(total / max(1, (n // args.batch_size) * args.batch_size))
-        print(f"epoch {_epoch + 1}/{args.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t_start:.0f} s)",
-              file=sys.stderr, flush=True)
+        print(
+            f"epoch {_epoch + 1}/{args.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t_start:.0f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
     out_path.parent.mkdir(parents=True, exist_ok=True)
     save_file({k: v.contiguous() for k, v in net.state_dict().items()}, str(out_path))
     spec = {
-        "format": "bench.bc_image/1", "cameras": cams, "image_shape": data["image_shape"],
-        "state_fields": data["state_fields"], "proprio": list(args.proprio), "action_names": data["action_names"],
-        "proprio_mean": p_mean.tolist(), "proprio_std": p_std.tolist(), "action_mean": a_mean.tolist(),
-        "action_std": a_std.tolist(), "channels": list(args.channels), "hidden": args.hidden,
-        "train": {**{k: v for k, v in asdict(args).items() if k not in ("out",)}, "frames": n,
-                  "episodes": data["episodes"], "final_loss": round(losses[-1], 6)},
+        "format": "bench.bc_image/1",
+        "cameras": cams,
+        "image_shape": data["image_shape"],
+        "state_fields": data["state_fields"],
+        "proprio": list(args.proprio),
+        "action_names": data["action_names"],
+        "proprio_mean": p_mean.tolist(),
+        "proprio_std": p_std.tolist(),
+        "action_mean": a_mean.tolist(),
+        "action_std": a_std.tolist(),
+        "channels": list(args.channels),
+        "hidden": args.hidden,
+        "train": {
+            **{k: v for k, v in asdict(args).items() if k not in ("out",)},
+            "frames": n,
+            "episodes": data["episodes"],
+            "final_loss": round(losses[-1], 6),
+        },
     }
     out_path.with_suffix(".json").write_text(json.dumps(spec, indent=1))
     outputs.remember(out_path, out_path.with_suffix(".json"))
-    return {"checkpoint": str(out_path), "frames": n, "episodes": data["episodes"], "losses": losses,
-            "train_seconds": time.perf_counter() - t_start, "parameters": sum(p.numel() for p in net.parameters())}
+    return {
+        "checkpoint": str(out_path),
+        "frames": n,
+        "episodes": data["episodes"],
+        "losses": losses,
+        "train_seconds": time.perf_counter() - t_start,
+        "parameters": sum(p.numel() for p in net.parameters()),
+    }
 
 
 # -- policy ----------------------------------------------------------------------------------
@@ -280,7 +315,9 @@ class Options:
 
 def _load_spec(checkpoint: Optional[str]) -> dict[str, Any]:
     if not checkpoint:
-        raise ConfigError("checkpoint: policy=bc_image needs checkpoint=PATH.safetensors (python -m baselines.bc_image)")
+        raise ConfigError(
+            "checkpoint: policy=bc_image needs checkpoint=PATH.safetensors (python -m baselines.bc_image)"
+        )
     path = Path(checkpoint)
     spec_path = path.with_suffix(".json")
     if not path.is_file() or not spec_path.is_file():
@@ -343,12 +380,16 @@ class ImageBCPlugin(PolicyPlugin):
             for c, shape in zip(spec["cameras"], spec["image_shape"]):
                 have = obs.get(f"{RGB}{c}")
                 if have is None or list(have.shape) != list(shape):
-                    raise ConfigError(f"checkpoint: trained on rgb.{c} {shape}; suite {suite.name} gives "
-                                      f"{list(have.shape) if have is not None else 'no such camera'} (set obs=state+rgb, "
-                                      f"cameras=[{','.join(spec['cameras'])}], image_size={shape[0]})")
+                    raise ConfigError(
+                        f"checkpoint: trained on rgb.{c} {shape}; suite {suite.name} gives "
+                        f"{list(have.shape) if have is not None else 'no such camera'} (set obs=state+rgb, "
+                        f"cameras=[{','.join(spec['cameras'])}], image_size={shape[0]})"
+                    )
             fields = [list(f) for f in obs[STATE].fields]
             if fields != spec["state_fields"]:
-                raise ConfigError(f"checkpoint: trained on state fields {spec['state_fields']}; the suite gives {fields}")
+                raise ConfigError(
+                    f"checkpoint: trained on state fields {spec['state_fields']}; the suite gives {fields}"
+                )
 
     def make(self, cell: Any, env: Any, ctx: PolicyContext) -> ImageBCPolicy:
         import torch
@@ -356,8 +397,9 @@ class ImageBCPlugin(PolicyPlugin):
 
         spec = _load_spec(ctx.options.checkpoint)
         torch.set_num_threads(1)
-        net = build_net(len(spec["cameras"]), spec["channels"], len(spec["proprio_mean"]), spec["hidden"],
-                        len(spec["action_mean"]))
+        net = build_net(
+            len(spec["cameras"]), spec["channels"], len(spec["proprio_mean"]), spec["hidden"], len(spec["action_mean"])
+        )
         net.load_state_dict(load_file(str(ctx.options.checkpoint)))
         return ImageBCPolicy(net, spec, env.obs_spec[STATE].fields, env.action_spec.low, env.action_spec.high)
 
@@ -374,9 +416,11 @@ def main(argv: list[str]) -> int:
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"trained on {result['frames']} frames ({result['episodes']} episodes), {result['parameters']} parameters, "
-          f"{result['train_seconds']:.0f} s on {os.cpu_count()} cores ({args.threads} torch threads); "
-          f"loss {result['losses'][0]:.3f} -> {result['losses'][-1]:.3f}; checkpoint {result['checkpoint']}")
+    print(
+        f"trained on {result['frames']} frames ({result['episodes']} episodes), {result['parameters']} parameters, "
+        f"{result['train_seconds']:.0f} s on {os.cpu_count()} cores ({args.threads} torch threads); "
+        f"loss {result['losses'][0]:.3f} -> {result['losses'][-1]:.3f}; checkpoint {result['checkpoint']}"
+    )
     return 0
 
 

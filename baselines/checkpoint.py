@@ -38,12 +38,14 @@ Bad input — missing file, malformed spec, unknown architecture, weights that d
 not fit the architecture — is a one-line SpecError/ConfigError (exit 2), raised
 by the plugin's `preflight` before `bench run` starts any worker.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -54,8 +56,18 @@ from bench.protocols import STATE, Obs, PolicyContext, PolicyIdentity, PolicyPlu
 SPEC_SCHEMA = "bench.policy/1"
 METADATA_KEY = "bench.policy_spec"
 WEIGHT_SUFFIXES = (".safetensors", ".pt")
-SPEC_KEYS = ("schema", "architecture", "kwargs", "obs_names", "action_names", "obs_dim", "action_dim",
-             "normalization", "clip_actions", "meta")
+SPEC_KEYS = (
+    "schema",
+    "architecture",
+    "kwargs",
+    "obs_names",
+    "action_names",
+    "obs_dim",
+    "action_dim",
+    "normalization",
+    "clip_actions",
+    "meta",
+)
 
 
 def spec_path(path: str | Path) -> Path:
@@ -91,7 +103,9 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
         raise SpecError(f"{source}: must be a JSON object, got {type(spec).__name__}")
     for key in spec:
         if key not in SPEC_KEYS:
-            raise SpecError(f"{source}: unknown field {key!r}; valid: {', '.join(SPEC_KEYS)}.{did_you_mean(key, SPEC_KEYS)}")
+            raise SpecError(
+                f"{source}: unknown field {key!r}; valid: {', '.join(SPEC_KEYS)}.{did_you_mean(key, SPEC_KEYS)}"
+            )
     schema = spec.get("schema", SPEC_SCHEMA)
     if schema != SPEC_SCHEMA:
         raise SpecError(f"{source}: schema={schema!r} is not supported; valid: {SPEC_SCHEMA}")
@@ -101,8 +115,10 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
     arch = spec["architecture"]
     if arch not in ARCHITECTURES:
         valid = sorted(ARCHITECTURES)
-        raise SpecError(f"{source}: architecture={arch!r} is not registered; valid: {', '.join(valid)}."
-                        f"{did_you_mean(str(arch), valid)}")
+        raise SpecError(
+            f"{source}: architecture={arch!r} is not registered; valid: {', '.join(valid)}."
+            f"{did_you_mean(str(arch), valid)}"
+        )
     kwargs = spec.get("kwargs") or {}
     if not isinstance(kwargs, dict):
         raise SpecError(f"{source}: kwargs must be an object, got {type(kwargs).__name__}")
@@ -120,8 +136,13 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
         if key in spec and spec[key] != want:
             raise SpecError(f"{source}: {key}={spec[key]!r} but the names give {want}")
     out: dict[str, Any] = {
-        "schema": SPEC_SCHEMA, "architecture": arch, "kwargs": json.loads(json.dumps(kwargs, default=_jsonable)),
-        "obs_names": obs_names, "action_names": list(action_names), "obs_dim": obs_dim, "action_dim": action_dim,
+        "schema": SPEC_SCHEMA,
+        "architecture": arch,
+        "kwargs": json.loads(json.dumps(kwargs, default=_jsonable)),
+        "obs_names": obs_names,
+        "action_names": list(action_names),
+        "obs_dim": obs_dim,
+        "action_dim": action_dim,
     }
     norm = spec.get("normalization") or {}
     if not isinstance(norm, dict):
@@ -220,8 +241,10 @@ def _read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, str]]:
     if not path.is_file():
         raise ConfigError(f"checkpoint={str(path)!r}: no such file")
     if path.suffix not in WEIGHT_SUFFIXES:
-        raise ConfigError(f"checkpoint={str(path)!r}: unsupported file type {path.suffix!r}; valid: "
-                          f"{', '.join(WEIGHT_SUFFIXES)} (pickled checkpoints are never loaded)")
+        raise ConfigError(
+            f"checkpoint={str(path)!r}: unsupported file type {path.suffix!r}; valid: "
+            f"{', '.join(WEIGHT_SUFFIXES)} (pickled checkpoints are never loaded)"
+        )
     if path.suffix == ".safetensors":
         from safetensors import safe_open
 
@@ -230,14 +253,18 @@ def _read_weights(path: str | Path) -> tuple[dict[str, Any], dict[str, str]]:
                 meta = dict(fh.metadata() or {})
                 tensors = {k: fh.get_tensor(k) for k in fh.keys()}
         except Exception as exc:  # SafetensorError, OSError: corrupt or truncated file
-            raise SpecError(f"checkpoint={str(path)!r}: not a readable safetensors file "
-                            f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})") from None
+            raise SpecError(
+                f"checkpoint={str(path)!r}: not a readable safetensors file "
+                f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})"
+            ) from None
         return tensors, meta
     try:
         obj = torch.load(str(path), map_location="cpu", weights_only=True)
     except Exception as exc:  # UnpicklingError for anything that is not plain tensors
-        raise SpecError(f"checkpoint={str(path)!r}: cannot be read with torch.load(weights_only=True) "
-                        f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})") from None
+        raise SpecError(
+            f"checkpoint={str(path)!r}: cannot be read with torch.load(weights_only=True) "
+            f"({type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''})"
+        ) from None
     if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
         obj = obj["state_dict"]
     if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()):
@@ -262,8 +289,10 @@ def load_spec(path: str | Path, meta: dict[str, str] | None = None) -> dict[str,
         spec = normalize_spec(raw, str(sidecar))
         if embedded is not None and _canonical(embedded) != _canonical(spec):
             diff = next((k for k in SPEC_KEYS if embedded.get(k) != spec.get(k)), "?")
-            raise SpecError(f"{sidecar}: field {diff!r} differs from the spec embedded in {Path(path).name} at save "
-                            "time; the checkpoint sha256 would not identify this policy (re-save it)")
+            raise SpecError(
+                f"{sidecar}: field {diff!r} differs from the spec embedded in {Path(path).name} at save "
+                "time; the checkpoint sha256 would not identify this policy (re-save it)"
+            )
         return spec
     if embedded is not None:
         return embedded
@@ -325,15 +354,21 @@ def check_names(spec: dict[str, Any], env, source: str) -> None:
     """ConfigError unless the env's state fields and action names equal the ones the policy was trained on."""
     env_obs = [[str(n), int(w)] for n, w in env.obs_spec[STATE].fields]
     if env_obs != spec["obs_names"]:
-        first = next((i for i, (a, b) in enumerate(zip(env_obs, spec["obs_names"])) if a != b),
-                     min(len(env_obs), len(spec["obs_names"])))
+        first = next(
+            (i for i, (a, b) in enumerate(zip(env_obs, spec["obs_names"])) if a != b),
+            min(len(env_obs), len(spec["obs_names"])),
+        )
         have = env_obs[first] if first < len(env_obs) else "(end)"
         want = spec["obs_names"][first] if first < len(spec["obs_names"]) else "(end)"
-        raise ConfigError(f"checkpoint={source!r}: obs_names differ from the env's at field {first}: policy "
-                          f"expects {want}, env gives {have}; the policy was trained on another observation layout")
+        raise ConfigError(
+            f"checkpoint={source!r}: obs_names differ from the env's at field {first}: policy "
+            f"expects {want}, env gives {have}; the policy was trained on another observation layout"
+        )
     if list(env.action_spec.names) != spec["action_names"]:
-        raise ConfigError(f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's "
-                          f"{list(env.action_spec.names)}")
+        raise ConfigError(
+            f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's "
+            f"{list(env.action_spec.names)}"
+        )
 
 
 @dataclass(frozen=True)

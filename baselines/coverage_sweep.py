@@ -11,6 +11,7 @@ harness's. Everything under `workdir` is reused on a rerun.
 
     python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage-sweep
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,9 +20,10 @@ import json
 import sys
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +37,7 @@ from baselines.coverage_sweep_stats import (  # noqa: F401  (render_sweep, plot_
 )
 from bench.api import RunConfig
 from bench.coverage import initial_states_from_suite
-from bench.errors import BenchError, ConfigError, DataError, did_you_mean
+from bench.errors import ConfigError, DataError, did_you_mean
 from bench.trend import SeriesBootstrap
 
 
@@ -43,29 +45,31 @@ from bench.trend import SeriesBootstrap
 class SweepConfig:
     """Keys of the coverage sweep (`python -m baselines.coverage_sweep --help`)."""
 
-    suite: str = "held_out_robots"          # suite with a scripted expert and a seen/unseen robot split
+    suite: str = "held_out_robots"  # suite with a scripted expert and a seen/unseen robot split
     order: list[str] = field(default_factory=lambda: ["Panda", "Sawyer", "IIWA"])  # seen robots, added one at a time
-    total_episodes: int = 36                # demonstrations per training set (budget=fixed), split evenly over robots
-    budget: str = "fixed"                   # fixed: total_episodes over the set's robots; per_robot: total_episodes each
-    dr_axis: str = "gain"                   # domain-randomisation axis ('' skips the DR part)
+    total_episodes: int = 36  # demonstrations per training set (budget=fixed), split evenly over robots
+    budget: str = "fixed"  # fixed: total_episodes over the set's robots; per_robot: total_episodes each
+    dr_axis: str = "gain"  # domain-randomisation axis ('' skips the DR part)
     dr_widths: list[float] = field(default_factory=lambda: [0.1, 0.3])  # DR widths w besides 0: uniform(1-w, 1+w)
-    surrogate_target: str = "Panda"         # in-domain robot of the surrogate-data experiment
-    surrogate_in_domain: int = 12           # fixed in-domain demonstrations (target robot, nominal)
-    surrogate_episodes: int = 24            # mismatched demonstrations added to them
-    surrogate_perturb: str = "latency=4"    # strongly perturbed simulator on the target robot: AXIS=LEVEL
-    surrogate_eval_episodes: int = 30       # evaluation episodes on the target robot per surrogate model
-    eval_episodes: int = 10                 # evaluation episodes per cell (all robots) per sweep model
-    demo_seed: int = 0                      # seed of the demonstration runs (the extra run uses demo_seed+1)
-    eval_seed: int = 1                      # seed of every evaluation run (same initial states for every model)
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])  # BC training seeds per training set (spread enters every interval)
-    workers: int = 2                        # worker processes of each bench run
-    horizon: int = 0                        # control steps per episode, demonstrations and evaluations (0 = suite default)
+    surrogate_target: str = "Panda"  # in-domain robot of the surrogate-data experiment
+    surrogate_in_domain: int = 12  # fixed in-domain demonstrations (target robot, nominal)
+    surrogate_episodes: int = 24  # mismatched demonstrations added to them
+    surrogate_perturb: str = "latency=4"  # strongly perturbed simulator on the target robot: AXIS=LEVEL
+    surrogate_eval_episodes: int = 30  # evaluation episodes on the target robot per surrogate model
+    eval_episodes: int = 10  # evaluation episodes per cell (all robots) per sweep model
+    demo_seed: int = 0  # seed of the demonstration runs (the extra run uses demo_seed+1)
+    eval_seed: int = 1  # seed of every evaluation run (same initial states for every model)
+    seeds: list[int] = field(
+        default_factory=lambda: [0, 1, 2]
+    )  # BC training seeds per training set (spread enters every interval)
+    workers: int = 2  # worker processes of each bench run
+    horizon: int = 0  # control steps per episode, demonstrations and evaluations (0 = suite default)
     parts: list[str] = field(default_factory=lambda: ["robots", "dr", "surrogate"])  # experiments to run
     bc: dict[str, Any] = field(default_factory=dict)  # baselines.bc Args overrides, e.g. bc.epochs=50
-    workdir: str = "runs/coverage"          # demonstrations, checkpoints, evaluation runs (reused when present)
-    out: str = "results/coverage"           # sweep.json and sweep.png go here
-    n_boot: int = 2000                      # bootstrap resamples
-    confidence: float = 0.95                # two-sided interval level
+    workdir: str = "runs/coverage"  # demonstrations, checkpoints, evaluation runs (reused when present)
+    out: str = "results/coverage"  # sweep.json and sweep.png go here
+    n_boot: int = 2000  # bootstrap resamples
+    confidence: float = 0.95  # two-sided interval level
 
 
 PARTS = ("robots", "dr", "surrogate")
@@ -88,9 +92,12 @@ def sweep_help() -> str:
         "Everything under workdir is reused on a rerun (runs resume; datasets and checkpoints are kept\n"
         "when their inputs match), so an interrupted sweep continues where it stopped.",
         SweepConfig,
-        ["python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage",
-         "python -m baselines.coverage_sweep parts=[robots] total_episodes=24 eval_episodes=5 workers=2",
-         "python -m baselines.coverage_sweep dr_axis=friction dr_widths=[0.5] bc.epochs=60"])
+        [
+            "python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage",
+            "python -m baselines.coverage_sweep parts=[robots] total_episodes=24 eval_episodes=5 workers=2",
+            "python -m baselines.coverage_sweep dr_axis=friction dr_widths=[0.5] bc.epochs=60",
+        ],
+    )
 
 
 def _check_sweep(cfg: SweepConfig, suite) -> None:
@@ -109,12 +116,20 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
         raise ConfigError(f"seeds={cfg.seeds}: give one or more distinct training seeds, e.g. seeds=[0,1,2]")
     for r in cfg.order + [cfg.surrogate_target]:
         if r not in seen:
-            raise ConfigError(f"order/surrogate_target: {r!r} is not a seen robot of {suite.name!r}; valid: "
-                              f"{', '.join(seen)}.{did_you_mean(r, seen)}")
+            raise ConfigError(
+                f"order/surrogate_target: {r!r} is not a seen robot of {suite.name!r}; valid: "
+                f"{', '.join(seen)}.{did_you_mean(r, seen)}"
+            )
     if len(set(cfg.order)) != len(cfg.order):
         raise ConfigError(f"order={cfg.order}: repeats a robot")
-    for key in ("total_episodes", "eval_episodes", "surrogate_in_domain", "surrogate_episodes",
-                "surrogate_eval_episodes", "workers"):
+    for key in (
+        "total_episodes",
+        "eval_episodes",
+        "surrogate_in_domain",
+        "surrogate_episodes",
+        "surrogate_eval_episodes",
+        "workers",
+    ):
         if getattr(cfg, key) < 1:
             raise ConfigError(f"{key}={getattr(cfg, key)}: must be >= 1")
     if cfg.budget == "fixed" and cfg.total_episodes < len(cfg.order):
@@ -125,8 +140,10 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
         if cfg.dr_axis not in AXES:
             raise ConfigError(f"dr_axis={cfg.dr_axis!r}: valid: {', '.join(AXES)}.{did_you_mean(cfg.dr_axis, AXES)}")
         if AXES[cfg.dr_axis].kind != "model":
-            raise ConfigError(f"dr_axis={cfg.dr_axis!r}: DR widths are scales of nominal; valid: model axes "
-                              f"({', '.join(a for a, v in AXES.items() if v.kind == 'model')})")
+            raise ConfigError(
+                f"dr_axis={cfg.dr_axis!r}: DR widths are scales of nominal; valid: model axes "
+                f"({', '.join(a for a, v in AXES.items() if v.kind == 'model')})"
+            )
         for w in cfg.dr_widths:
             if not 0 < w < 1:
                 raise ConfigError(f"dr_widths: {w} must be in (0, 1): the range is uniform(1-w, 1+w)")
@@ -141,9 +158,11 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
     valid = [f.name for f in dataclasses.fields(Args)]
     for k in cfg.bc:
         if k not in valid or k in ("data", "out", "robots", "conditions", "max_episodes"):
-            raise ConfigError(f"bc.{k}: not a training argument the sweep passes on; valid: "
-                              f"{', '.join(v for v in valid if v not in ('data', 'out', 'robots', 'conditions', 'max_episodes'))}"
-                              f".{did_you_mean(k, valid)}")
+            raise ConfigError(
+                f"bc.{k}: not a training argument the sweep passes on; valid: "
+                f"{', '.join(v for v in valid if v not in ('data', 'out', 'robots', 'conditions', 'max_episodes'))}"
+                f".{did_you_mean(k, valid)}"
+            )
 
 
 def _surrogate_condition(text: str):
@@ -196,7 +215,7 @@ def _record_demos(cfg: SweepConfig, work: Path, log) -> list[Path]:
     parts = set(cfg.parts)
     k_max = len(cfg.order)
     need: dict[str, int] = {}
-    for k in (range(1, k_max + 1) if "robots" in parts else [k_max]):
+    for k in range(1, k_max + 1) if "robots" in parts else [k_max]:
         for r in cfg.order[:k]:
             need[r] = max(need.get(r, 0), _per_robot(cfg, k))
     if "surrogate" in parts:
@@ -209,8 +228,9 @@ def _record_demos(cfg: SweepConfig, work: Path, log) -> list[Path]:
     common = dict(suite=cfg.suite, policy="scripted", workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs"))
     sources = []
     perturb = {cfg.dr_axis: [t for _, _, t in _dr_condition_names(cfg)]} if dr else {}
-    base = RunConfig(**common, robots=list(cfg.order), episodes=base_n, seed=cfg.demo_seed, run_id="demos-base",
-                     perturb=perturb)
+    base = RunConfig(
+        **common, robots=list(cfg.order), episodes=base_n, seed=cfg.demo_seed, run_id="demos-base", perturb=perturb
+    )
     sources.append(_recorded(work / "demos" / "base", base, log))
     for r in cfg.order:
         extra = max(0, need.get(r, 0) - base_n)
@@ -222,8 +242,9 @@ def _record_demos(cfg: SweepConfig, work: Path, log) -> list[Path]:
         if strong:
             axis, level = cfg.surrogate_perturb.split("=", 1)
             perturb = {axis.strip(): [_surrogate_condition(cfg.surrogate_perturb).level]}
-        run = RunConfig(**common, robots=[r], episodes=n, seed=cfg.demo_seed + 1, run_id=f"demos-extra-{r}",
-                        perturb=perturb)
+        run = RunConfig(
+            **common, robots=[r], episodes=n, seed=cfg.demo_seed + 1, run_id=f"demos-extra-{r}", perturb=perturb
+        )
         sources.append(_recorded(work / "demos" / f"extra-{r}", run, log))
     return sources
 
@@ -256,11 +277,18 @@ def _select(sources: Sequence[Path], want: Sequence[tuple[str, str, int]], succe
 
     out: Demos | None = None
     for robot, cond, n in want:
-        d = load_demos([str(s) for s in sources], robots=[robot], conditions=[cond], max_episodes=n,
-                       successful_only=successful_only and cond == "nominal")
+        d = load_demos(
+            [str(s) for s in sources],
+            robots=[robot],
+            conditions=[cond],
+            max_episodes=n,
+            successful_only=successful_only and cond == "nominal",
+        )
         if len(d.episodes) < n:
-            raise DataError(f"sweep: only {len(d.episodes)} usable {robot} demonstrations under {cond}, {n} wanted "
-                            f"(successful_only={successful_only})")
+            raise DataError(
+                f"sweep: only {len(d.episodes)} usable {robot} demonstrations under {cond}, {n} wanted "
+                f"(successful_only={successful_only})"
+            )
         out = d if out is None else out + d
     assert out is not None
     return out
@@ -310,22 +338,37 @@ def _train(name: str, demos, cfg: SweepConfig, seed: int, work: Path, log) -> tu
     t0 = time.perf_counter()
     path, info = train(args, demos)
     info = {k: v for k, v in info.items() if k != "history"}
-    info.update(fingerprint=fp, name=name, total_wall_s=round(time.perf_counter() - t0, 3),
-                robots_episodes=dict(Counter(f"{e['robot']}|{e['condition']}" for e in demos.episodes)))
+    info.update(
+        fingerprint=fp,
+        name=name,
+        total_wall_s=round(time.perf_counter() - t0, 3),
+        robots_episodes=dict(Counter(f"{e['robot']}|{e['condition']}" for e in demos.episodes)),
+    )
     info_path.write_text(json.dumps(info, indent=2))
     log(f"checkpoint {name}: {info['episodes']} episodes, {info['frames']} frames, {info['train_wall_s']:.1f} s")
     return path, info
 
 
-def _evaluate(name: str, ckpt: Path, cfg: SweepConfig, work: Path, episodes: int, robots: Sequence[str] | None,
-              log) -> dict[str, np.ndarray]:
+def _evaluate(
+    name: str, ckpt: Path, cfg: SweepConfig, work: Path, episodes: int, robots: Sequence[str] | None, log
+) -> dict[str, np.ndarray]:
     """The checkpoint on the suite's cells (or `robots`); cell key -> 0/1 outcomes by episode."""
     from bench.records import EPISODES, dedupe, read_records
 
     run_id = f"eval-{name}" + (f"-{'-'.join(robots)}-n{episodes}" if robots else "")
-    run = RunConfig(suite=cfg.suite, policy="checkpoint", policy_options={"checkpoint": str(ckpt)}, episodes=episodes,
-                    seed=cfg.eval_seed, workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs"),
-                    run_id=run_id, n_boot=cfg.n_boot, robots=list(robots) if robots else None)
+    run = RunConfig(
+        suite=cfg.suite,
+        policy="checkpoint",
+        policy_options={"checkpoint": str(ckpt)},
+        episodes=episodes,
+        seed=cfg.eval_seed,
+        workers=cfg.workers,
+        horizon=cfg.horizon,
+        out=str(work / "runs"),
+        run_id=run_id,
+        n_boot=cfg.n_boot,
+        robots=list(robots) if robots else None,
+    )
     run_dir = work / "runs" / run_id
     if (run_dir / "run.json").is_file():
         old = json.loads((run_dir / "run.json").read_text())
@@ -345,7 +388,6 @@ def _sha256(path: Path) -> str:
     from bench.io import sha256_file
 
     return sha256_file(Path(path))
-
 
 
 def main(argv: list[str]) -> int:
@@ -377,7 +419,6 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-
 def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
     """Record, train, evaluate and score every part of the sweep; returns the sweep document."""
     from bench.axes import conditions_from_config
@@ -393,9 +434,14 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
     unseen_cells = [c for c in cells if c.split == "unseen"]
     states, groups = initial_states_from_suite(suite, unseen_cells, cfg.eval_seed, cfg.eval_episodes, cfg.horizon)
     doc: dict[str, Any] = {
-        "schema": "bench.coverage-sweep/1", "suite": suite.describe(), "config": dataclasses.asdict(cfg),
-        "demonstrations": [str(s) for s in sources], "expert_success": _demo_stats(sources),
-        "metric": "success_once", "confidence": cfg.confidence, "seeds": list(cfg.seeds),
+        "schema": "bench.coverage-sweep/1",
+        "suite": suite.describe(),
+        "config": dataclasses.asdict(cfg),
+        "demonstrations": [str(s) for s in sources],
+        "expert_success": _demo_stats(sources),
+        "metric": "success_once",
+        "confidence": cfg.confidence,
+        "seeds": list(cfg.seeds),
     }
     successful_only = bool(cfg.bc.get("successful_only", True))
     trained: dict[str, tuple[Path, dict]] = {}
@@ -416,8 +462,10 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
         return demos, out
 
     def evaluate(name: str, models, episodes: int, robots=None) -> list[dict[str, np.ndarray]]:
-        return [_evaluate(f"{name}-s{seed}", ckpt, cfg, work, episodes, robots, log)
-                for seed, (ckpt, _) in zip(cfg.seeds, models)]
+        return [
+            _evaluate(f"{name}-s{seed}", ckpt, cfg, work, episodes, robots, log)
+            for seed, (ckpt, _) in zip(cfg.seeds, models)
+        ]
 
     def series(entries: list[dict], xlabel: str) -> dict[str, Any]:
         return _series(entries, xlabel, unseen_keys, rng, cfg)
@@ -425,17 +473,22 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
     k_max = len(cfg.order)
     entries: dict[str, dict] = {}
     if "robots" in parts or "dr" in parts:
-        for k in (range(1, k_max + 1) if "robots" in parts else [k_max]):
+        for k in range(1, k_max + 1) if "robots" in parts else [k_max]:
             robots = cfg.order[:k]
             name = f"robots{k}"
             demos, models = model(name, [(r, "nominal", _per_robot(cfg, k)) for r in robots])
-            entries[name] = {"name": name, "x": float(k), "train_keys": [key_of[r] for r in robots],
-                             "outcomes": evaluate(name, models, cfg.eval_episodes),
-                             "training": _training_summary([m[1] for m in models]),
-                             "coverage": _coverage_summary(demos, cells, suite.manifest, [NOMINAL], states, groups)}
+            entries[name] = {
+                "name": name,
+                "x": float(k),
+                "train_keys": [key_of[r] for r in robots],
+                "outcomes": evaluate(name, models, cfg.eval_episodes),
+                "training": _training_summary([m[1] for m in models]),
+                "coverage": _coverage_summary(demos, cells, suite.manifest, [NOMINAL], states, groups),
+            }
         if "robots" in parts:
-            doc["robots"] = series([entries[f"robots{k}"] for k in range(1, k_max + 1)],
-                                   "number of seen robots in the training set")
+            doc["robots"] = series(
+                [entries[f"robots{k}"] for k in range(1, k_max + 1)], "number of seen robots in the training set"
+            )
     if "dr" in parts and cfg.dr_axis:
         n = _per_robot(cfg, k_max)
         dr_conds = _dr_condition_names(cfg)
@@ -447,10 +500,16 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
         for w, cond, _ in dr_conds:
             name = f"dr-{cfg.dr_axis}-{w:g}"
             demos, models = model(name, [(r, cond, n) for r in cfg.order])
-            dr_entries.append({"name": name, "x": w, "train_keys": [key_of[r] for r in cfg.order],
-                               "outcomes": evaluate(name, models, cfg.eval_episodes),
-                               "training": _training_summary([m[1] for m in models]),
-                               "coverage": _coverage_summary(demos, cells, suite.manifest, eval_conds, states, groups)})
+            dr_entries.append(
+                {
+                    "name": name,
+                    "x": w,
+                    "train_keys": [key_of[r] for r in cfg.order],
+                    "outcomes": evaluate(name, models, cfg.eval_episodes),
+                    "training": _training_summary([m[1] for m in models]),
+                    "coverage": _coverage_summary(demos, cells, suite.manifest, eval_conds, states, groups),
+                }
+            )
         doc["dr"] = series(dr_entries, f"domain-randomisation width on {cfg.dr_axis} (uniform(1-w, 1+w))")
     if "surrogate" in parts:
         doc["surrogate"] = _surrogate(cfg, model, evaluate, key_of, rng)
@@ -479,8 +538,11 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
     base_v, base_r = boot.mean(0, [key])
     for k, name in enumerate(names):
         v, r = boot.mean(k, [key])
-        results[name] = {"training": trainings[k], "success": boot.estimate(v, r),
-                         "cells": _per_seed_cells(outcomes[k], cfg)}
+        results[name] = {
+            "training": trainings[k],
+            "success": boot.estimate(v, r),
+            "cells": _per_seed_cells(outcomes[k], cfg),
+        }
         if k == 0:
             continue
         if v is None or base_v is None:
@@ -492,17 +554,22 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
         if len(a) == len(b):  # episode pairs (same seed index and training-seed slot)
             d.update(gained=int(np.sum((a == 1) & (b == 0))), lost=int(np.sum((a == 0) & (b == 1))))
         ci = d.get("ci")
-        d["verdict"] = ("helps" if ci and ci[0] > 0 else "hurts" if ci and ci[1] < 0 else
-                        "no detectable effect" if ci else "n/a")
+        d["verdict"] = (
+            "helps" if ci and ci[0] > 0 else "hurts" if ci and ci[1] < 0 else "no detectable effect" if ci else "n/a"
+        )
         results[name]["vs_in_domain"] = d
-    return {"target": key, "in_domain_episodes": cfg.surrogate_in_domain, "surrogate_episodes": cfg.surrogate_episodes,
-            "perturbed_condition": strong.name, "other_robots": others, "eval_episodes": cfg.surrogate_eval_episodes,
-            "variants": results}
+    return {
+        "target": key,
+        "in_domain_episodes": cfg.surrogate_in_domain,
+        "surrogate_episodes": cfg.surrogate_episodes,
+        "perturbed_condition": strong.name,
+        "other_robots": others,
+        "eval_episodes": cfg.surrogate_eval_episodes,
+        "variants": results,
+    }
 
 
 if __name__ == "__main__":
-    try:
-        raise SystemExit(main(sys.argv[1:]))
-    except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(exc.exit_code)
+    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
+
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

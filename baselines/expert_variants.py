@@ -8,6 +8,7 @@ A population of policies of graded skill for sim-real agreement studies (`baseli
 
 Actions are clipped to the action space. With the defaults it is the expert itself.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,9 +23,9 @@ from bench.protocols import PolicyPlugin
 class Options:
     """Keys of the expert variant."""
 
-    noise: float = 0.0   # std of Gaussian noise added to every action
-    scale: float = 1.0   # factor on the arm commands (all but the last dimension)
-    grip: float = 1.0    # factor on the gripper command (the last dimension)
+    noise: float = 0.0  # std of Gaussian noise added to every action
+    scale: float = 1.0  # factor on the arm commands (all but the last dimension)
+    grip: float = 1.0  # factor on the gripper command (the last dimension)
 
 
 class _Variant:

@@ -28,6 +28,7 @@ serve POLICY_DIR [--host 127.0.0.1] [--port 8000] [--device cpu]
     `task` string is passed on to language-conditioned policies. It speaks bench's `reset`
     extension: each episode resets the policy and seeds torch with the episode seed.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -81,10 +82,17 @@ def prepare(src: str, dst: str, env_fields: list[str]) -> None:
 
     info = {"dtype": "float32", "shape": [len(idx)], "names": [names[i] for i in idx]}
     drop = [f for f in BENCH_ONLY if f in ds.meta.features]
-    out = modify_features(ds, add_features={"observation.environment_state": (env_state, info)},
-                          remove_features=drop or None, output_dir=dst, repo_id=f"bench/{Path(dst).name}")
-    print(f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
-          f"{', '.join(info['names'])}; dropped {', '.join(drop) or 'nothing'}")
+    out = modify_features(
+        ds,
+        add_features={"observation.environment_state": (env_state, info)},
+        remove_features=drop or None,
+        output_dir=dst,
+        repo_id=f"bench/{Path(dst).name}",
+    )
+    print(
+        f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
+        f"{', '.join(info['names'])}; dropped {', '.join(drop) or 'nothing'}"
+    )
 
 
 class LerobotSession:
@@ -112,14 +120,18 @@ class LerobotSession:
         batch: dict[str, Any] = {}
         for key, feat in self.s.inputs.items():
             if key not in msg:
-                raise RequestError(f"the observation lacks {key!r} (this policy's inputs: {list(self.s.inputs)}; "
-                                   f"got {sorted(msg)[:12]}); map it with the client's obs_map=")
+                raise RequestError(
+                    f"the observation lacks {key!r} (this policy's inputs: {list(self.s.inputs)}; "
+                    f"got {sorted(msg)[:12]}); map it with the client's obs_map="
+                )
             arr = np.asarray(msg[key])
             shape = tuple(feat.shape)
             if feat.type.name == "VISUAL":  # uint8 H x W x C -> float C x H x W in [0, 1], as lerobot's datasets give
                 if arr.ndim != 3 or arr.dtype != np.uint8 or (arr.shape[2], *arr.shape[:2]) != shape:
-                    raise RequestError(f"obs[{key!r}] is {list(arr.shape)} {arr.dtype}; expected uint8 "
-                                       f"{[shape[1], shape[2], shape[0]]} (H x W x C)")
+                    raise RequestError(
+                        f"obs[{key!r}] is {list(arr.shape)} {arr.dtype}; expected uint8 "
+                        f"{[shape[1], shape[2], shape[0]]} (H x W x C)"
+                    )
                 tensor = torch.from_numpy(arr).permute(2, 0, 1).float() / 255.0
             else:
                 if arr.shape != shape or arr.dtype.kind not in "biuf":
@@ -147,24 +159,36 @@ class Served:
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
         if not os.path.isfile(os.path.join(path, "config.json")):
-            fail(f"{path}: not a trained lerobot policy (config.json missing); give .../checkpoints/last/"
-                 "pretrained_model")
+            fail(
+                f"{path}: not a trained lerobot policy (config.json missing); give .../checkpoints/last/"
+                "pretrained_model"
+            )
         torch.set_num_threads(max(1, int(os.environ.get("BENCH_TORCH_THREADS", "1"))))
         cfg = PreTrainedConfig.from_pretrained(path)
         cfg.device = device
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
         self.policy.to(device).eval()
         self.pre, self.post = make_pre_post_processors(
-            cfg, pretrained_path=path, preprocessor_overrides={"device_processor": {"device": device}})
+            cfg, pretrained_path=path, preprocessor_overrides={"device_processor": {"device": device}}
+        )
         self.inputs = dict(cfg.input_features)
         self.device, self.type = device, cfg.type
         weights = Path(path) / "model.safetensors"
         self.sha256 = hashlib.sha256(weights.read_bytes()).hexdigest() if weights.is_file() else None
-        self.metadata = {"bench": {"protocol": wire.PROTOCOL, "policy": f"lerobot:{cfg.type}", "checkpoint": path,
-                                   "checkpoint_sha256": self.sha256, "obs_keys": list(self.inputs)},
-                         "lerobot": {"type": cfg.type, "input_features": {k: list(v.shape) for k, v in
-                                                                          self.inputs.items()},
-                                     "action_dim": int(cfg.output_features["action"].shape[0])}}
+        self.metadata = {
+            "bench": {
+                "protocol": wire.PROTOCOL,
+                "policy": f"lerobot:{cfg.type}",
+                "checkpoint": path,
+                "checkpoint_sha256": self.sha256,
+                "obs_keys": list(self.inputs),
+            },
+            "lerobot": {
+                "type": cfg.type,
+                "input_features": {k: list(v.shape) for k, v in self.inputs.items()},
+                "action_dim": int(cfg.output_features["action"].shape[0]),
+            },
+        }
 
 
 def serve(path: str, host: str, port: int, device: str) -> None:
@@ -173,16 +197,25 @@ def serve(path: str, host: str, port: int, device: str) -> None:
     def log(text: str) -> None:
         print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
-    server = WebsocketServer(lambda: LerobotSession(served), served.metadata, host, port, log=log,
-                             failure_prefix=f"lerobot {served.type} failed")
+    server = WebsocketServer(
+        lambda: LerobotSession(served),
+        served.metadata,
+        host,
+        port,
+        log=log,
+        failure_prefix=f"lerobot {served.type} failed",
+    )
     try:
         bound = server.bind()
     except OSError as exc:
         fail(f"--host {host} --port {port}: cannot listen there ({exc.strerror}); pick another port (0 = any)")
 
     where = f"[{host}]" if ":" in host else host
-    server.serve_until_stopped(f"lerobot adapter: {served.type} policy {path} on ws://{where}:{bound} (inputs: "
-                               f"{', '.join(served.inputs)}); Ctrl-C stops", "lerobot adapter")
+    server.serve_until_stopped(
+        f"lerobot adapter: {served.type} policy {path} on ws://{where}:{bound} (inputs: "
+        f"{', '.join(served.inputs)}); Ctrl-C stops",
+        "lerobot adapter",
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -191,8 +224,11 @@ def main(argv: list[str]) -> int:
     p = sub.add_parser("prepare", help="bench recording -> lerobot training set (adds observation.environment_state)")
     p.add_argument("src")
     p.add_argument("dst")
-    p.add_argument("--env-fields", default=",".join(DEFAULT_ENV_FIELDS),
-                   help="state fields that form observation.environment_state (comma-separated)")
+    p.add_argument(
+        "--env-fields",
+        default=",".join(DEFAULT_ENV_FIELDS),
+        help="state fields that form observation.environment_state (comma-separated)",
+    )
     s = sub.add_parser("serve", help="serve a trained lerobot policy over the remote-policy protocol")
     s.add_argument("policy_dir")
     s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")

@@ -13,6 +13,7 @@ command. Planning is deterministic (screw motions), so a seed gives the same epi
 Solutions command `pd_joint_pos` (7 joint targets + gripper, +1 open / -1 closed), so this
 policy requires that control mode.
 """
+
 from __future__ import annotations
 
 import queue
@@ -57,8 +58,10 @@ class MotionPlanExpert:
     def __init__(self, env: Any, solve: Callable[..., Any], name: str = ""):
         if env.base.control_mode != CONTROL_MODE:
             which = f" for {name}" if name else ""
-            raise ConfigError(f"control_mode={env.base.control_mode!r}: the motion-planning expert{which} "
-                              f"commands {CONTROL_MODE}; run it with control_mode={CONTROL_MODE}")
+            raise ConfigError(
+                f"control_mode={env.base.control_mode!r}: the motion-planning expert{which} "
+                f"commands {CONTROL_MODE}; run it with control_mode={CONTROL_MODE}"
+            )
         self.env, self.solve, self.name = env, solve, name
         self._thread: threading.Thread | None = None
         self._to_harness: queue.Queue = queue.Queue()
@@ -87,8 +90,9 @@ class MotionPlanExpert:
         self._thread = None
         self._finished = True
         if kind == "error":
-            raise RuntimeError(f"motion-planning solution {self.name} failed: {type(payload).__name__}: {payload}") \
-                from payload
+            raise RuntimeError(
+                f"motion-planning solution {self.name} failed: {type(payload).__name__}: {payload}"
+            ) from payload
         return self._hold_action()
 
     def close(self) -> None:

@@ -10,6 +10,7 @@ closes), so one expert runs unchanged on every robot (see `suites.maniskill_agno
   closed (above it first, then down), then push it along the cube-goal line until it is inside the
   goal region; pulling is the same motion seen from the other side.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -18,8 +19,16 @@ import numpy as np
 
 from bench.protocols import STATE
 
-FIELDS = (("eef_pos", 3), ("eef_quat_rel", 4), ("gripper_opening", 1), ("object_pos", 3), ("object_quat", 4),
-          ("gripper_to_object", 3), ("goal_pos", 3), ("object_to_goal", 3))
+FIELDS = (
+    ("eef_pos", 3),
+    ("eef_quat_rel", 4),
+    ("gripper_opening", 1),
+    ("object_pos", 3),
+    ("object_quat", 4),
+    ("gripper_to_object", 3),
+    ("goal_pos", 3),
+    ("object_to_goal", 3),
+)
 
 
 def _slices() -> dict[str, slice]:
@@ -111,8 +120,8 @@ class PickPlaceExpert(_Expert):
 class PushExpert(_Expert):
     """PushCube / PullCube: push the cube from its far side along the line to the goal."""
 
-    standoff = 0.05   # TCP distance behind the cube's centre while pushing
-    clear = 0.06      # height above the cube's centre while moving behind it
+    standoff = 0.05  # TCP distance behind the cube's centre while pushing
+    clear = 0.06  # height above the cube's centre while moving behind it
     done_within = 0.03
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:

@@ -5,6 +5,7 @@ Written like ManiSkill's own solutions (`mani_skill.examples.motionplanning.pand
 from the true scene state and steps the env; `baselines.maniskill_mp.MotionPlanExpert` turns them
 into policies. `SOLUTIONS` maps every ManiSkill task id the suites use to its solution.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -16,8 +17,15 @@ import numpy as np
 def _planner(env: Any, **kwargs: Any) -> Any:
     from mani_skill.examples.motionplanning.panda.motionplanner import PandaArmMotionPlanningSolver
 
-    return PandaArmMotionPlanningSolver(env, debug=False, vis=False, base_pose=env.unwrapped.agent.robot.pose,
-                                        visualize_target_grasp_pose=False, print_env_info=False, **kwargs)
+    return PandaArmMotionPlanningSolver(
+        env,
+        debug=False,
+        vis=False,
+        base_pose=env.unwrapped.agent.robot.pose,
+        visualize_target_grasp_pose=False,
+        print_env_info=False,
+        **kwargs,
+    )
 
 
 def _p(x: Any) -> np.ndarray:
@@ -53,8 +61,8 @@ def solve_poke_cube(env: Any, seed: int | None = None, debug: bool = False, vis:
     carry = sapien.Pose([0, 0, 0.01]) * grasp
     planner.move_to_pose_with_screw(carry)
     cube, goal = _p(u.cube), _p(u.goal_region)
-    head_ahead = float(u.peg_half_length) + back           # tcp -> peg head along +x
-    gap = float(u.cube_half_size) + 0.02                   # head stops this far behind the cube's centre
+    head_ahead = float(u.peg_half_length) + back  # tcp -> peg head along +x
+    gap = float(u.cube_half_size) + 0.02  # head stops this far behind the cube's centre
     line_up = np.array([cube[0] - gap - head_ahead, cube[1], carry.p[2]])
     sideways = sapien.Pose([carry.p[0], cube[1], carry.p[2]], carry.q)
     planner.move_to_pose_with_screw(sideways)
@@ -79,8 +87,9 @@ def _joint_move(planner: Any, pose: Any, restarts: int = 64) -> Any:
     goal = pl.transform_goal_to_wrt_base(np.concatenate([pose.p, pose.q]))
     limits = np.asarray(pl.joint_limits, dtype=np.float64)
     rng = np.random.default_rng(0)
-    starts = [q0] + [np.where(np.isfinite(limits).all(1), rng.uniform(limits[:, 0], limits[:, 1]), q0)
-                     for _ in range(restarts)]
+    starts = [q0] + [
+        np.where(np.isfinite(limits).all(1), rng.uniform(limits[:, 0], limits[:, 1]), q0) for _ in range(restarts)
+    ]
     idx = pl.move_group_joint_indices
     best = None
     for start in starts:
@@ -136,9 +145,15 @@ def solutions() -> dict[str, Callable[..., Any]]:
     from mani_skill.examples.motionplanning.panda import solutions as ms
 
     return {
-        "PickCube-v1": ms.solvePickCube, "PushCube-v1": ms.solvePushCube, "PullCube-v1": ms.solvePullCube,
-        "StackCube-v1": ms.solveStackCube, "LiftPegUpright-v1": ms.solveLiftPegUpright,
-        "PlaceSphere-v1": ms.solvePlaceSphere, "PegInsertionSide-v1": ms.solvePegInsertionSide,
-        "StackPyramid-v1": ms.solveStackPyramid, "PlugCharger-v1": ms.solvePlugCharger,
-        "PokeCube-v1": solve_poke_cube, "RollBall-v1": solve_roll_ball,
+        "PickCube-v1": ms.solvePickCube,
+        "PushCube-v1": ms.solvePushCube,
+        "PullCube-v1": ms.solvePullCube,
+        "StackCube-v1": ms.solveStackCube,
+        "LiftPegUpright-v1": ms.solveLiftPegUpright,
+        "PlaceSphere-v1": ms.solvePlaceSphere,
+        "PegInsertionSide-v1": ms.solvePegInsertionSide,
+        "StackPyramid-v1": ms.solveStackPyramid,
+        "PlugCharger-v1": ms.solvePlugCharger,
+        "PokeCube-v1": solve_poke_cube,
+        "RollBall-v1": solve_roll_ball,
     }

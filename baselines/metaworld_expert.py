@@ -6,10 +6,12 @@ scripted policies read it from there. `GoalFedExpert` writes the env's true goal
 asking the policy, so the observation the harness records and other policies see stays
 goal-free. With the goal, the policies solve the five ML10 test tasks (NOTES-simulators.md).
 """
+
 from __future__ import annotations
 
 import warnings
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

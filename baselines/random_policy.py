@@ -1,4 +1,5 @@
 """Uniform random actions within the env's action bounds, from a generator seeded per episode."""
+
 from __future__ import annotations
 
 from typing import Any

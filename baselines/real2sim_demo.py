@@ -20,6 +20,7 @@
 
 Everything is resumable (runs are resumed by run_id); the committed outputs are in `out`.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,10 +33,15 @@ from typing import Any
 import numpy as np
 
 SUITE, ROBOT = "held_out_robots", "Panda"
-REAL = {"damping_scale": 8.0, "friction": 0.8,
-        "friction_joints": ("robot0_joint2", "robot0_joint4", "robot0_joint6"),
-        "gain": 0.8, "gain_motors": ("robot0_torq_j2", "robot0_torq_j4"),
-        "payload": 0.5, "payload_body": "robot0_link7"}
+REAL = {
+    "damping_scale": 8.0,
+    "friction": 0.8,
+    "friction_joints": ("robot0_joint2", "robot0_joint4", "robot0_joint6"),
+    "gain": 0.8,
+    "gain_motors": ("robot0_torq_j2", "robot0_torq_j4"),
+    "payload": 0.5,
+    "payload_body": "robot0_link7",
+}
 VARIANT = "baselines.expert_variants:ExpertVariant"
 POLICIES: dict[str, tuple[str, dict[str, Any]]] = {
     "expert": ("scripted", {}),
@@ -67,35 +73,75 @@ def real_robot(path: Path) -> Path:
         edits = []
         for j, n in zip(joints, names):
             d = int(m.jnt_dofadr[j])
-            edits.append({"field": "dof_damping", "element": n, "nominal": float(m.dof_damping[d]),
-                          "value": float(m.dof_damping[d] * REAL["damping_scale"])})
+            edits.append(
+                {
+                    "field": "dof_damping",
+                    "element": n,
+                    "nominal": float(m.dof_damping[d]),
+                    "value": float(m.dof_damping[d] * REAL["damping_scale"]),
+                }
+            )
         for n in REAL["friction_joints"]:
             d = int(m.jnt_dofadr[m.joint(n).id])
-            edits.append({"field": "dof_frictionloss", "element": n, "nominal": float(m.dof_frictionloss[d]),
-                          "value": float(REAL["friction"])})
+            edits.append(
+                {
+                    "field": "dof_frictionloss",
+                    "element": n,
+                    "nominal": float(m.dof_frictionloss[d]),
+                    "value": float(REAL["friction"]),
+                }
+            )
         for a in REAL["gain_motors"]:
             g = float(m.actuator_gainprm[m.actuator(a).id, 0])
             edits.append({"field": "actuator_gainprm", "element": a, "nominal": g, "value": g * REAL["gain"]})
         b = m.body(REAL["payload_body"]).id
-        edits.append({"field": "body_mass", "element": REAL["payload_body"], "nominal": float(m.body_mass[b]),
-                      "value": float(m.body_mass[b] + REAL["payload"])})
-        doc = {"schema": "bench.calibration/1", "truth": "the hidden 'real' robot of baselines/real2sim_demo.py",
-               "real": {k: list(v) if isinstance(v, tuple) else v for k, v in REAL.items()},
-               "suite": {"name": suite.name, "version": suite.version, "robot": ROBOT},
-               "apply": {"robot": ROBOT, "joints": names, "model_hash": model_hash(m, names), "edits": edits}}
+        edits.append(
+            {
+                "field": "body_mass",
+                "element": REAL["payload_body"],
+                "nominal": float(m.body_mass[b]),
+                "value": float(m.body_mass[b] + REAL["payload"]),
+            }
+        )
+        doc = {
+            "schema": "bench.calibration/1",
+            "truth": "the hidden 'real' robot of baselines/real2sim_demo.py",
+            "real": {k: list(v) if isinstance(v, tuple) else v for k, v in REAL.items()},
+            "suite": {"name": suite.name, "version": suite.version, "robot": ROBOT},
+            "apply": {"robot": ROBOT, "joints": names, "model_hash": model_hash(m, names), "edits": edits},
+        }
     finally:
         env.close()
     write_atomic(path, doc)
     return path
 
 
-def run(work: Path, run_id: str, policy: str, options: dict, episodes: int, seed: int, workers: int,
-        calibration: str | None = None, record: str | None = None) -> dict:
+def run(
+    work: Path,
+    run_id: str,
+    policy: str,
+    options: dict,
+    episodes: int,
+    seed: int,
+    workers: int,
+    calibration: str | None = None,
+    record: str | None = None,
+) -> dict:
     from bench import api
 
-    cfg = api.RunConfig(suite=SUITE, policy=policy, policy_options=options, robots=[ROBOT], episodes=episodes,
-                        seed=seed, workers=workers, out=str(work / "runs"), run_id=run_id, calibration=calibration,
-                        record=record)
+    cfg = api.RunConfig(
+        suite=SUITE,
+        policy=policy,
+        policy_options=options,
+        robots=[ROBOT],
+        episodes=episodes,
+        seed=seed,
+        workers=workers,
+        out=str(work / "runs"),
+        run_id=run_id,
+        calibration=calibration,
+        record=record,
+    )
     t0 = time.time()
     result = api.run(cfg)
     succ = sum(bool(r.success_once) for r in result.records if r.error is None)
@@ -128,9 +174,11 @@ def paired(nominal: dict, calibrated: dict, real: dict, n_boot: int = 2000, seed
     out = {}
     for name, vals in (("mmrv_change", np.array(d_mmrv)), ("pearson_change", np.array(d_pearson))):
         ok = vals[np.isfinite(vals)]
-        out[name] = {"ci": [float(q) for q in np.quantile(ok, [0.025, 0.975])] if ok.size else None,
-                     "share_improved": float(np.mean(ok < 0 if name == "mmrv_change" else ok > 0)) if ok.size else None,
-                     "n_boot_defined": int(ok.size)}
+        out[name] = {
+            "ci": [float(q) for q in np.quantile(ok, [0.025, 0.975])] if ok.size else None,
+            "share_improved": float(np.mean(ok < 0 if name == "mmrv_change" else ok > 0)) if ok.size else None,
+            "n_boot_defined": int(ok.size),
+        }
     return out
 
 
@@ -138,12 +186,12 @@ def paired(nominal: dict, calibrated: dict, real: dict, n_boot: int = 2000, seed
 class DemoConfig:
     """Keys of the demonstration (key=value)."""
 
-    out: str = "results/real2sim"       # where the README's inputs go (real_robot.json, calibration/, agreement.json)
-    work: str = "/tmp/real2sim"         # runs and logs (reused on a rerun)
-    episodes: int = 20                  # episodes per policy on each of real / nominal / calibrated
-    seed: int = 1                       # run seed of the evaluations (the logs use 100)
-    log_episodes: int = 8               # episodes logged on the "real" robot
-    workers: int = 2                    # workers per run
+    out: str = "results/real2sim"  # where the README's inputs go (real_robot.json, calibration/, agreement.json)
+    work: str = "/tmp/real2sim"  # runs and logs (reused on a rerun)
+    episodes: int = 20  # episodes per policy on each of real / nominal / calibrated
+    seed: int = 1  # run seed of the evaluations (the logs use 100)
+    log_episodes: int = 8  # episodes logged on the "real" robot
+    workers: int = 2  # workers per run
 
 
 def main(argv: list[str]) -> int:
@@ -169,8 +217,9 @@ def main(argv: list[str]) -> int:
     cal_dir = out / "calibration"
     if not (cal_dir / "calibration.json").exists():
         print("3. calibration", flush=True)
-        cal, extra = calibrate_suite(SUITE, ROBOT, logs, seed=0, threads=1, residual=True,
-                                     log=lambda msg: print("   ", msg, flush=True))
+        cal, extra = calibrate_suite(
+            SUITE, ROBOT, logs, seed=0, threads=1, residual=True, log=lambda msg: print("   ", msg, flush=True)
+        )
         write_report(cal, cal_dir, extra)
     print("4. policies on the real robot, the nominal and the calibrated simulator", flush=True)
     calibrations = {"real": str(real), "nominal": None, "calibrated": str(cal_dir / "calibration.json")}
@@ -180,29 +229,34 @@ def main(argv: list[str]) -> int:
             table[sim][name] = run(work, f"{sim}-{name}", policy, options, episodes, seed, workers, calibrations[sim])
     outcomes = {s: {p: Outcome(v["trials"], v["successes"]) for p, v in table[s].items()} for s in SIMS}
     report = {
-        "setup": {"suite": SUITE, "robot": ROBOT, "episodes": episodes, "seed": seed, "log_episodes": log_eps,
-                  "real": {k: list(v) if isinstance(v, tuple) else v for k, v in REAL.items()},
-                  "policies": {k: {"policy": p, "options": o} for k, (p, o) in POLICIES.items()}},
+        "setup": {
+            "suite": SUITE,
+            "robot": ROBOT,
+            "episodes": episodes,
+            "seed": seed,
+            "log_episodes": log_eps,
+            "real": {k: list(v) if isinstance(v, tuple) else v for k, v in REAL.items()},
+            "policies": {k: {"policy": p, "options": o} for k, (p, o) in POLICIES.items()},
+        },
         "outcomes": table,
-        "agreement": {s: agreement(outcomes[s], outcomes["real"], sim_name=s, real_name="real")
-                      for s in ("nominal", "calibrated")},
+        "agreement": {
+            s: agreement(outcomes[s], outcomes["real"], sim_name=s, real_name="real") for s in ("nominal", "calibrated")
+        },
         "change": paired(table["nominal"], table["calibrated"], table["real"]),
         "wall_s": round(time.time() - t0, 1),
     }
     write_atomic(out / "agreement.json", report)
     for s in ("nominal", "calibrated"):
         st = report["agreement"][s]["statistics"]
-        print(f"{s:10s} vs real: MMRV {st['mmrv']['value']} {st['mmrv']['ci']}, Pearson {st['pearson']['value']} "
-              f"{st['pearson']['ci']}")
+        print(
+            f"{s:10s} vs real: MMRV {st['mmrv']['value']} {st['mmrv']['ci']}, Pearson {st['pearson']['value']} "
+            f"{st['pearson']['ci']}"
+        )
     print(f"change: {json.dumps(report['change'])}")
     return 0
 
 
 if __name__ == "__main__":
-    from bench.errors import BenchError
+    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
 
-    try:
-        raise SystemExit(main(sys.argv[1:]))
-    except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(exc.exit_code) from None
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

@@ -4,6 +4,7 @@ One registry name serves every suite: a suite that declares the "expert" capabil
 builds its expert (`Suite.make_expert`), e.g. the Lift expert of `baselines/scripted_lift.py`
 for the robosuite suites and Meta-World's own policies for the Meta-World suites.
 """
+
 from __future__ import annotations
 
 from bench.errors import RegistryError
@@ -13,6 +14,8 @@ def make(cell, env, ctx):
     """Policy factory (entry point `bench.policies: scripted`)."""
     suite = ctx.suite
     if "expert" not in suite.capabilities:
-        raise RegistryError(f"policy 'scripted': suite {suite.name!r} declares no scripted expert "
-                            f"(its reference policy is {suite.reference_policy!r})")
+        raise RegistryError(
+            f"policy 'scripted': suite {suite.name!r} declares no scripted expert "
+            f"(its reference policy is {suite.reference_policy!r})"
+        )
     return suite.make_expert(cell, env)

@@ -7,6 +7,7 @@ lift. Position action = clip(gain * error, -1, 1); rotation deltas 0; gripper
 over. Works unchanged on all 7 robosuite single arms because it uses nothing
 robot-specific (see `suites/lift.py`, OBS_FIELDS).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,10 +19,10 @@ from bench.protocols import STATE, Obs
 class LiftExpert:
     """Stateful per episode; `reset()` before each one."""
 
-    hover = 0.08      # m above the object before descending
-    lift_to = 0.25    # m above the grasp height
+    hover = 0.08  # m above the object before descending
+    lift_to = 0.25  # m above the grasp height
     lift_speed = 0.4  # action limit while lifting (1.0 = the controller's full step)
-    gain = 10.0       # action per metre of error (saturates at 10 cm)
+    gain = 10.0  # action per metre of error (saturates at 10 cm)
 
     def __init__(self, obs_names: list[tuple[str, int]], action_dim: int = 7):
         self._s = obs_slices(obs_names)

@@ -17,6 +17,7 @@ way round: `mmrv` here takes keyword-only `sim=` and `real=`. With ties, the str
 paper is kept: a sim tie over a real difference is charged to the policy that is worse on the
 real robot (SIMPLER's code uses `>` and charges the better one; identical without ties).
 """
+
 from __future__ import annotations
 
 import csv
@@ -255,8 +256,11 @@ def agreement(
         statistics[name] = entry
     return {
         "policies": [
-            {"policy": p, "sim": {"trials": sim[p].trials, "successes": sim[p].successes, "rate": sim[p].rate},
-             "real": {"trials": real[p].trials, "successes": real[p].successes, "rate": real[p].rate}}
+            {
+                "policy": p,
+                "sim": {"trials": sim[p].trials, "successes": sim[p].successes, "rate": sim[p].rate},
+                "real": {"trials": real[p].trials, "successes": real[p].successes, "rate": real[p].rate},
+            }
             for p in names
         ],
         "statistics": statistics,
@@ -268,17 +272,20 @@ def agreement(
 
 # ----------------------------------------------------------------------------- CLI
 
+
 @dataclass(frozen=True)
 class CorrelateConfig:
     """Keys of `bench correlate`."""
 
-    sim: Optional[str] = None   # outcome table from simulation: JSON rows {policy, trials, successes} or CSV policy,trials,successes
+    sim: Optional[str] = (
+        None  # outcome table from simulation: JSON rows {policy, trials, successes} or CSV policy,trials,successes
+    )
     real: Optional[str] = None  # outcome table from the real robot, same format and the same policies
     seed: int = ranged(0, 0, MAX_SEED)  # seed of the bootstrap generator
     n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates
     level: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # interval coverage
-    out: Optional[str] = None   # also write the report as JSON (undefined values are null with a reason)
-    overwrite: bool = False     # replace an existing out= file that bench wrote
+    out: Optional[str] = None  # also write the report as JSON (undefined values are null with a reason)
+    overwrite: bool = False  # replace an existing out= file that bench wrote
 
 
 def help_text() -> str:
@@ -292,7 +299,8 @@ def help_text() -> str:
         CorrelateConfig,
         ["bench correlate sim=sim.csv real=real.csv out=agreement.json"],
         notes="MMRV weights each rank violation by the REAL gap between the two policies, so sim= and\n"
-              "real= are not interchangeable.")
+        "real= are not interchangeable.",
+    )
 
 
 def format_report(report: dict) -> str:
@@ -340,8 +348,15 @@ def main(argv: list[str]) -> int:
             tables[key] = load_outcomes(path)
         except DataError as exc:
             raise DataError(f"{key}={path}: {str(exc).removeprefix(str(path) + ': ')}") from None
-    report = agreement(tables["sim"], tables["real"], n_boot=cfg.n_boot, seed=cfg.seed,
-                       level=cfg.level, sim_name=sim_path, real_name=real_path)
+    report = agreement(
+        tables["sim"],
+        tables["real"],
+        n_boot=cfg.n_boot,
+        seed=cfg.seed,
+        level=cfg.level,
+        sim_name=sim_path,
+        real_name=real_path,
+    )
     report = {"schema": "bench.agreement/1", "sim": sim_path, "real": real_path, **report}
     print(format_report(report))
     if cfg.out:

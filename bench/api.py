@@ -10,6 +10,7 @@ config) into OUT/RUN_ID (episodes.jsonl, run.json, summary.json), resuming recor
 episodes. The CLI (`bench run`), the regression gate, benchmarks and experiments all go
 through these functions.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -36,7 +37,7 @@ MAX_WORKERS = config_mod.MAX_WORKERS
 MAX_N_BOOT = config_mod.MAX_N_BOOT
 MAX_TIMEOUT_S = config_mod.MAX_TIMEOUT_S
 MAX_RUN_ID = config_mod.MAX_RUN_ID
-MAX_TOTAL_STEPS = 10**10   # control steps of one run: ~12 days at 10,000 steps/s
+MAX_TOTAL_STEPS = 10**10  # control steps of one run: ~12 days at 10,000 steps/s
 ranged = config_mod.ranged
 
 
@@ -44,40 +45,52 @@ ranged = config_mod.ranged
 class RunConfig:
     """Keys of `bench run` (all optional; `bench run --help` prints these docs)."""
 
-    suite: str = "held_out_robots"          # registered suite name (`bench list`) or package.module:Class
-    policy: Optional[str] = None            # registered policy or package.module:attr; default: the suite's default
+    suite: str = "held_out_robots"  # registered suite name (`bench list`) or package.module:Class
+    policy: Optional[str] = None  # registered policy or package.module:attr; default: the suite's default
     episodes: int = ranged(10, 1, MAX_EPISODES)  # episodes per cell and condition
     seed: int = ranged(0, 0, config_mod.MAX_SEED)  # run seed: episode seeds, perturbation draws, bootstrap
     workers: int = ranged(0, 0, MAX_WORKERS)  # executor=local: processes running episodes; 0 = all cores
-    out: str = "runs"                       # parent folder of run directories
-    run_id: Optional[str] = None            # run directory name; an existing one is resumed
+    out: str = "runs"  # parent folder of run directories
+    run_id: Optional[str] = None  # run directory name; an existing one is resumed
     horizon: int = ranged(0, 0, MAX_HORIZON)  # control steps per episode; 0 = the suite's default
-    timeout: float = ranged(600.0, 0, MAX_TIMEOUT_S, lo_open=True)  # wall seconds per episode before it is recorded as timed out
-    robots: Optional[list[str]] = None      # only these robots (suite-dependent)
-    tasks: Optional[list[str]] = None       # only these tasks
-    envs: Optional[list[str]] = None        # only these environments/scenes
-    splits: Optional[list[str]] = None      # only these splits: seen, unseen
-    metric: Optional[str] = None            # headline metric: success_once, success_at_end, return; default: the suite's
+    timeout: float = ranged(
+        600.0, 0, MAX_TIMEOUT_S, lo_open=True
+    )  # wall seconds per episode before it is recorded as timed out
+    robots: Optional[list[str]] = None  # only these robots (suite-dependent)
+    tasks: Optional[list[str]] = None  # only these tasks
+    envs: Optional[list[str]] = None  # only these environments/scenes
+    splits: Optional[list[str]] = None  # only these splits: seen, unseen
+    metric: Optional[str] = None  # headline metric: success_once, success_at_end, return; default: the suite's
     n_boot: int = ranged(2000, 100, MAX_N_BOOT)  # bootstrap resamples for aggregate and gap intervals
     confidence: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # two-sided interval level
     perturb: dict[str, Any] = field(default_factory=dict)  # perturbation axes, e.g. perturb.friction=[0.5,1,2]
-    record: Optional[str] = None            # also write rollouts as a LeRobot v3 dataset here (camera images as video)
+    record: Optional[str] = None  # also write rollouts as a LeRobot v3 dataset here (camera images as video)
     video: int = ranged(0, 0, MAX_EPISODES)  # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
-    calibration: Optional[str] = None       # a `bench calibrate suite=` result: its robot's cells run the calibrated model
-    allow_split_violation: bool = False     # run even if `bench check` finds a split problem
-    executor: str = "local"                 # where episodes run: local (processes on this machine) or ray (docs/ray.md)
-    ray_address: str = "auto"               # executor=ray: auto (the cluster here), HOST:PORT, or local (a private one)
+    calibration: Optional[str] = None  # a `bench calibrate suite=` result: its robot's cells run the calibrated model
+    allow_split_violation: bool = False  # run even if `bench check` finds a split problem
+    executor: str = "local"  # where episodes run: local (processes on this machine) or ray (docs/ray.md)
+    ray_address: str = "auto"  # executor=ray: auto (the cluster here), HOST:PORT, or local (a private one)
     actors: int = ranged(0, 0, MAX_WORKERS)  # executor=ray: long-lived worker actors; 0 = as many as the cluster allows
     actor_cpus: float = ranged(1.0, 0, 1024, lo_open=True)  # executor=ray: CPUs each actor reserves
     actor_gpus: float = ranged(0.0, 0, 64)  # executor=ray: GPUs each actor reserves (ManiSkill on GPU, renderers)
-    ray_env: str = "code"                   # executor=ray: code (ship this checkout), pip (also its pins), installed
+    ray_env: str = "code"  # executor=ray: code (ship this checkout), pip (also its pins), installed
     suite_options: dict[str, Any] = field(default_factory=dict)
     policy_options: dict[str, Any] = field(default_factory=dict)
 
 
 # keys that may differ when a run is resumed: where and how episodes run, not what they compute
-RESUMABLE_KEYS = {"workers", "timeout", "out", "run_id", "executor", "ray_address", "actors", "actor_cpus",
-                  "actor_gpus", "ray_env"}
+RESUMABLE_KEYS = {
+    "workers",
+    "timeout",
+    "out",
+    "run_id",
+    "executor",
+    "ray_address",
+    "actors",
+    "actor_cpus",
+    "actor_gpus",
+    "ray_env",
+}
 EXECUTORS = ("local", "ray")
 RAY_KEYS = {"ray_address": "auto", "actors": 0, "actor_cpus": 1.0, "actor_gpus": 0.0, "ray_env": "code"}
 RUNNER_KEYS = [f.name for f in dataclasses.fields(RunConfig) if f.name not in ("suite_options", "policy_options")]
@@ -87,11 +100,11 @@ RUNNER_KEYS = [f.name for f in dataclasses.fields(RunConfig) if f.name not in ("
 class Plan:
     """A checked run: everything `run` needs, resolved; nothing has been written yet."""
 
-    config: RunConfig            # with run_id, policy and metric resolved
-    suite: Any                   # the Suite, built with `suite_options`
+    config: RunConfig  # with run_id, policy and metric resolved
+    suite: Any  # the Suite, built with `suite_options`
     plugin: PolicyPlugin
-    suite_options: Any           # an instance of the suite's Options
-    policy_options: Any          # an instance of the policy plugin's Options
+    suite_options: Any  # an instance of the suite's Options
+    policy_options: Any  # an instance of the policy plugin's Options
     identity: PolicyIdentity
     calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load), or None
     cells: list[Cell]
@@ -109,8 +122,15 @@ class Plan:
         return json.loads(json.dumps(cfg))
 
     def worker_spec(self, ctx: Any) -> WorkerSpec:
-        return WorkerSpec(self.config.suite, self.suite_options, str(self.config.policy), self.policy_options,
-                          self.config.seed, ctx, self.calibration)
+        return WorkerSpec(
+            self.config.suite,
+            self.suite_options,
+            str(self.config.policy),
+            self.policy_options,
+            self.config.seed,
+            ctx,
+            self.calibration,
+        )
 
 
 @dataclass(frozen=True)
@@ -120,8 +140,8 @@ class RunResult:
     run_dir: Path
     summary: dict[str, Any] | None
     records: list[EpisodeRecord]
-    ran: int          # episodes run by this call
-    resumed: int      # episodes found already recorded
+    ran: int  # episodes run by this call
+    resumed: int  # episodes found already recorded
 
 
 def load_suite(ref: str, **options: Any) -> Any:
@@ -162,8 +182,11 @@ def config_from_argv(argv: list[str]) -> RunConfig:
     suite_cls = registry.suite_class(head.suite)
     policy_ref = head.policy or suite_cls.default_policy or suite_cls.reference_policy
     plugin = registry.load_policy(policy_ref)
-    owners = {"runner": RUNNER_KEYS, f"suite {head.suite}": option_keys(suite_cls.Options),
-              f"policy {policy_ref}": option_keys(plugin.Options)}
+    owners = {
+        "runner": RUNNER_KEYS,
+        f"suite {head.suite}": option_keys(suite_cls.Options),
+        f"policy {policy_ref}": option_keys(plugin.Options),
+    }
     parts = list(config_mod.partition(overrides, owners, f"suite={head.suite} policy={policy_ref}").values())
     cfg = config_mod.build(RunConfig, parts[0])
     suite_opts = dataclasses.asdict(config_mod.build(suite_cls.Options, parts[1])) if parts[1] else {}
@@ -196,8 +219,10 @@ def check_run_id(rid: str | None) -> None:
     if not isinstance(rid, str) or not rid.strip():
         raise ConfigError(f"run_id={rid!r}: must be a non-empty folder name")
     if "/" in rid or "\\" in rid or rid.startswith(".") or config_mod._CONTROL.search(rid) or len(rid) > MAX_RUN_ID:
-        raise ConfigError(f"run_id={rid[:40]!r}{'...' if len(rid) > 40 else ''}: must be a plain folder name (no "
-                          f"slash, control character or leading dot) of at most {MAX_RUN_ID} characters")
+        raise ConfigError(
+            f"run_id={rid[:40]!r}{'...' if len(rid) > 40 else ''}: must be a plain folder name (no "
+            f"slash, control character or leading dot) of at most {MAX_RUN_ID} characters"
+        )
 
 
 def check_work(cfg: RunConfig, episodes: int, horizon: int, step_bytes: int) -> None:
@@ -210,8 +235,10 @@ def check_work(cfg: RunConfig, episodes: int, horizon: int, step_bytes: int) -> 
     steps = episodes * horizon
     keys = "episodes=, horizon=, robots=/tasks=/envs= and perturb.*"
     if steps > MAX_TOTAL_STEPS:
-        raise ConfigError(f"this run is {episodes} episodes x {horizon} steps = {steps:.3g} control steps, over the "
-                          f"limit of {MAX_TOTAL_STEPS:.0e}; reduce {keys}")
+        raise ConfigError(
+            f"this run is {episodes} episodes x {horizon} steps = {steps:.3g} control steps, over the "
+            f"limit of {MAX_TOTAL_STEPS:.0e}; reduce {keys}"
+        )
     if cfg.record or cfg.video:
         try:
             ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -220,9 +247,11 @@ def check_work(cfg: RunConfig, episodes: int, horizon: int, step_bytes: int) -> 
         parallel = min(cfg.workers or os.cpu_count() or 1, max(1, episodes))
         need = horizon * step_bytes * parallel
         if need > ram:
-            raise ConfigError(f"recording needs about {need / 2**30:.1f} GiB at once ({parallel} worker(s) x {horizon} "
-                              f"steps x {step_bytes} observation bytes), more than this machine's "
-                              f"{ram / 2**30:.1f} GiB; reduce horizon= or workers=, or leave out record=/video=")
+            raise ConfigError(
+                f"recording needs about {need / 2**30:.1f} GiB at once ({parallel} worker(s) x {horizon} "
+                f"steps x {step_bytes} observation bytes), more than this machine's "
+                f"{ram / 2**30:.1f} GiB; reduce horizon= or workers=, or leave out record=/video="
+            )
 
 
 def _step_bytes(spec: Any) -> int:
@@ -247,12 +276,15 @@ def _check_executor(cfg: RunConfig) -> None:
     if cfg.executor == "local":
         given = [k for k, default in RAY_KEYS.items() if getattr(cfg, k) != default]
         if given:
-            raise ConfigError(f"{given[0]}={getattr(cfg, given[0])!r} applies to executor=ray; add executor=ray "
-                              "or leave it out")
+            raise ConfigError(
+                f"{given[0]}={getattr(cfg, given[0])!r} applies to executor=ray; add executor=ray or leave it out"
+            )
         return
     if cfg.workers:
-        raise ConfigError(f"workers={cfg.workers} applies to executor=local; with executor=ray give actors= "
-                          "(0 = as many as the cluster's CPUs allow)")
+        raise ConfigError(
+            f"workers={cfg.workers} applies to executor=local; with executor=ray give actors= "
+            "(0 = as many as the cluster's CPUs allow)"
+        )
     if cfg.ray_env not in ray_env.RAY_ENVS:
         raise ConfigError(f"ray_env={cfg.ray_env!r}: valid: {', '.join(ray_env.RAY_ENVS)}")
     ray_env.check_address(cfg.ray_address)
@@ -283,8 +315,10 @@ def plan(cfg: RunConfig) -> Plan:
     policy_options = _options(plugin.Options, cfg.policy_options, f"policy {policy_ref}")
     horizon = cfg.horizon or suite.default_horizon
     if suite.max_horizon is not None and horizon > suite.max_horizon:
-        raise ConfigError(f"horizon={horizon}: suite {suite.name!r} episodes last at most {suite.max_horizon} steps "
-                          f"(0 = the suite default, {suite.default_horizon})")
+        raise ConfigError(
+            f"horizon={horizon}: suite {suite.name!r} episodes last at most {suite.max_horizon} steps "
+            f"(0 = the suite default, {suite.default_horizon})"
+        )
     cells = select_cells(suite, cfg)
     if not cells:
         raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
@@ -295,8 +329,10 @@ def plan(cfg: RunConfig) -> Plan:
         step_bytes = max(step_bytes, _step_bytes(spec))
         missing = [k for k in needs if k not in spec]
         if missing:
-            raise ConfigError(f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
-                              f"{cell.key} provides {describe_spec(spec)}")
+            raise ConfigError(
+                f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
+                f"{cell.key} provides {describe_spec(spec)}"
+            )
     identity = plugin.identity(policy_options)
     plugin.preflight(policy_options, suite, cells, horizon)
     calibration = None
@@ -316,13 +352,27 @@ def plan(cfg: RunConfig) -> Plan:
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
     problems = fast_check(suite, cells, jobs)
     if problems and not cfg.allow_split_violation:
-        raise SplitError(f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
-                         "lists them; allow_split_violation=true runs anyway)")
+        raise SplitError(
+            f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
+            "lists them; allow_split_violation=true runs anyway)"
+        )
     run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
     run_dir = _check_outputs(cfg, run_id, identity.checkpoint)
-    return Plan(resolved, suite, plugin, suite_options, policy_options, identity, calibration, cells, conditions, jobs,
-                horizon, run_dir)
+    return Plan(
+        resolved,
+        suite,
+        plugin,
+        suite_options,
+        policy_options,
+        identity,
+        calibration,
+        cells,
+        conditions,
+        jobs,
+        horizon,
+        run_dir,
+    )
 
 
 def _is_run_dir(folder: Path) -> bool:
@@ -344,8 +394,10 @@ def _check_outputs(cfg: RunConfig, run_id: str, checkpoint: str | None) -> Path:
     run_dir = Path(cfg.out) / run_id
     outputs.names_fit("out", str(run_dir), run_dir.expanduser().absolute())
     if run_dir.is_dir() and any(run_dir.iterdir()) and not _is_run_dir(run_dir):
-        raise ConfigError(f"run_id={run_id!r}: {str(run_dir)!r} exists and is not a bench run directory (no run.json "
-                          "of a bench run); give a new run_id or out=, nothing there is touched")
+        raise ConfigError(
+            f"run_id={run_id!r}: {str(run_dir)!r} exists and is not a bench run directory (no run.json "
+            "of a bench run); give a new run_id or out=, nothing there is touched"
+        )
     outputs.check("out", run_dir, inputs, resume=_is_run_dir, can_overwrite=False)
     if cfg.record:
         outputs.check("record", cfg.record, {**inputs, "out (the run directory)": run_dir}, can_overwrite=False)
@@ -365,16 +417,29 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     meta = {
         "run_id": cfg.run_id,
         "suite": p.suite.describe(),
-        "policy": {"name": cfg.policy, "checkpoint": p.identity.checkpoint,
-                   "checkpoint_sha256": p.identity.checkpoint_sha256},
+        "policy": {
+            "name": cfg.policy,
+            "checkpoint": p.identity.checkpoint,
+            "checkpoint_sha256": p.identity.checkpoint_sha256,
+        },
         "config": p.config_dict(),
         "expected_episodes": len(p.jobs),
         "provenance": {
-            "bench_version": __version__, "git_sha": provenance.git_sha(), "packages": provenance.package_versions(),
-            **provenance.machine(), "workers": workers, "backend": [], "seed": cfg.seed,
-            "episode_seeds": sorted({j.seed for j in p.jobs}), "started_at": _now(), "finished_at": None,
-            **({"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
-               if p.calibration else {}),
+            "bench_version": __version__,
+            "git_sha": provenance.git_sha(),
+            "packages": provenance.package_versions(),
+            **provenance.machine(),
+            "workers": workers,
+            "backend": [],
+            "seed": cfg.seed,
+            "episode_seeds": sorted({j.seed for j in p.jobs}),
+            "started_at": _now(),
+            "finished_at": None,
+            **(
+                {"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
+                if p.calibration
+                else {}
+            ),
         },
     }
     meta_path = p.run_dir / "run.json"
@@ -383,18 +448,27 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
 
         old = load_json(meta_path)
         new_cfg = meta["config"]
-        diffs = [k for k in sorted(set(old.get("config", {})) | set(new_cfg))
-                 if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)]
+        diffs = [
+            k
+            for k in sorted(set(old.get("config", {})) | set(new_cfg))
+            if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)
+        ]
         if diffs:
             k = diffs[0]
-            raise ConfigError(f"run_id={cfg.run_id!r} exists with {k}={old.get('config', {}).get(k)!r} (now "
-                              f"{new_cfg.get(k)!r}); use the same settings to resume it, or a new run_id")
+            raise ConfigError(
+                f"run_id={cfg.run_id!r} exists with {k}={old.get('config', {}).get(k)!r} (now "
+                f"{new_cfg.get(k)!r}); use the same settings to resume it, or a new run_id"
+            )
         meta = old
     else:
         write_atomic(meta_path, meta)
-    ctx = dataclasses.replace(context(p), timeout_s=cfg.timeout,
-                              trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None,
-                              video_dir=str(p.run_dir) if cfg.video else None, video_episodes=cfg.video)
+    ctx = dataclasses.replace(
+        context(p),
+        timeout_s=cfg.timeout,
+        trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None,
+        video_dir=str(p.run_dir) if cfg.video else None,
+        video_episodes=cfg.video,
+    )
     return meta, ctx
 
 
@@ -416,9 +490,15 @@ def finish(p: Plan, meta: dict[str, Any], workers: int) -> dict[str, Any]:
     return summary
 
 
-def run(cfg: RunConfig | Plan, *, only: Callable[[Job], bool] | None = None, progress: bool = False,
-        summarize: bool = True, executor: Any = None,
-        on_record: Callable[[EpisodeRecord], None] | None = None) -> RunResult:
+def run(
+    cfg: RunConfig | Plan,
+    *,
+    only: Callable[[Job], bool] | None = None,
+    progress: bool = False,
+    summarize: bool = True,
+    executor: Any = None,
+    on_record: Callable[[EpisodeRecord], None] | None = None,
+) -> RunResult:
     """Run a config or a plan into its run directory; recorded episodes are skipped (resume).
 
     Args:
@@ -443,8 +523,11 @@ def run(cfg: RunConfig | Plan, *, only: Callable[[Job], bool] | None = None, pro
             workers = executor.connect(len(todo), p.config.suite, str(p.config.policy))
         meta, ctx = start(p, workers)
         t0 = time.time()
-        with RecordWriter(episodes_path) as writer, _Progress(progress, c, len(todo), len(done_ids), len(p.jobs),
-                                                              p.run_dir, workers) as bar:
+        with (
+            RecordWriter(episodes_path) as writer,
+            _Progress(progress, c, len(todo), len(done_ids), len(p.jobs), p.run_dir, workers) as bar,
+        ):
+
             def write(record: EpisodeRecord) -> None:
                 writer.write(record)
                 bar.advance(record)
@@ -457,8 +540,9 @@ def run(cfg: RunConfig | Plan, *, only: Callable[[Job], bool] | None = None, pro
     finally:
         if hasattr(executor, "close"):
             executor.close()
-    meta["provenance"]["executor"] = c.executor if not hasattr(executor, "cluster") else \
-        {"kind": c.executor, **executor.cluster}
+    meta["provenance"]["executor"] = (
+        c.executor if not hasattr(executor, "cluster") else {"kind": c.executor, **executor.cluster}
+    )
     summary = finish(p, meta, workers) if summarize else None
     records = read_records(episodes_path)
     if summarize and c.record:
@@ -495,9 +579,16 @@ class _Progress:
             self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
         where = f"{workers} Ray actor(s)" if cfg.executor == "ray" else f"{workers} worker(s)"
         self.console.print(f"run {cfg.run_id}: {todo} episodes on {where} -> {run_dir}", soft_wrap=True)
-        columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("successes {task.fields[succ]}"), TextColumn("errors {task.fields[err]}"),
-                   TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn()]
+        columns = [
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("successes {task.fields[succ]}"),
+            TextColumn("errors {task.fields[err]}"),
+            TimeElapsedColumn(),
+            TextColumn("eta"),
+            TimeRemainingColumn(),
+        ]
         self.progress = Progress(*columns, console=self.console, transient=False)
         self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
 
@@ -529,8 +620,9 @@ def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
     from bench.summary import build, load_run
 
     records, meta = load_run(Path(run_dir))
-    config_mod.check_stored(RunConfig, meta.get("config") if isinstance(meta, dict) else None,
-                            str(Path(run_dir) / "run.json"))
+    config_mod.check_stored(
+        RunConfig, meta.get("config") if isinstance(meta, dict) else None, str(Path(run_dir) / "run.json")
+    )
     summary = build(records, run_meta=meta)
     validate(summary, "summary")
     write_atomic(Path(run_dir) / "summary.json", summary)
@@ -542,10 +634,16 @@ def context(p: Plan, run_id: str | None = None) -> Any:
     from bench import provenance
     from bench.rollout import RunContext
 
-    return RunContext(run_id=run_id or str(p.config.run_id), suite_version=p.suite.version,
-                      policy_id=str(p.config.policy), checkpoint_sha256=p.identity.checkpoint_sha256,
-                      versions=provenance.package_versions(), horizon=p.horizon, timeout_s=0,
-                      policy_stats=bool(p.plugin.reports_stats))
+    return RunContext(
+        run_id=run_id or str(p.config.run_id),
+        suite_version=p.suite.version,
+        policy_id=str(p.config.policy),
+        checkpoint_sha256=p.identity.checkpoint_sha256,
+        versions=provenance.package_versions(),
+        horizon=p.horizon,
+        timeout_s=0,
+        policy_stats=bool(p.plugin.reports_stats),
+    )
 
 
 def worker(p: Plan, ctx: Any = None) -> Worker:

@@ -10,6 +10,7 @@ Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
 Applying a condition to an env is `bench.perturb`'s (model and interface axes) and
 `bench.perturb_visual`'s (visual axes).
 """
+
 from __future__ import annotations
 
 import math
@@ -27,63 +28,156 @@ class Axis:
     """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
 
     name: str
-    kind: str                        # "model" (edits the simulator's model), "interface" (wraps the env) or "visual"
-    unit: str                        # what a level means
-    short: str                       # a few words for `bench run --help`
+    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env) or "visual"
+    unit: str  # what a level means
+    short: str  # a few words for `bench run --help`
     doc: str
-    minimum: float = 0.0             # smallest valid level
-    strict: bool = False             # level must be > minimum (not >=)
-    integer: bool = False            # levels are whole numbers
-    targets: tuple[str, ...] = ()    # optional name lists: "bodies", "joints", "geoms", "actuators"
-    field: str | None = None         # the MjModel field a model axis scales (gravity: model.opt.gravity)
-    setconst: bool = False           # derived constants depend on it: mj_setConst after editing
-    nominal: float = 1.0             # the level that means "unperturbed"
-    maximum: float = math.inf        # largest valid level
+    minimum: float = 0.0  # smallest valid level
+    strict: bool = False  # level must be > minimum (not >=)
+    integer: bool = False  # levels are whole numbers
+    targets: tuple[str, ...] = ()  # optional name lists: "bodies", "joints", "geoms", "actuators"
+    field: str | None = None  # the MjModel field a model axis scales (gravity: model.opt.gravity)
+    setconst: bool = False  # derived constants depend on it: mj_setConst after editing
+    nominal: float = 1.0  # the level that means "unperturbed"
+    maximum: float = math.inf  # largest valid level
 
 
-MAX_SCALE = 1000.0       # a model field scaled by more than this is not a perturbation but a typo (1e300)
-MAX_STEPS = 100_000      # latency / hold in control steps (also at most the run's horizon, checked by plan)
+MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
+MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
 
 
-AXES: dict[str, Axis] = {a.name: a for a in (
-    Axis("friction", "model", "scale of nominal", "friction of every geom",
-         "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
-         "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
-         targets=("geoms", "bodies"), field="geom_friction", maximum=MAX_SCALE),
-    Axis("mass", "model", "scale of nominal", "mass + inertia of the manipulated object",
-         "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
-         strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE),
-    Axis("link_mass", "model", "scale of nominal", "mass + inertia of the robot's links",
-         "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
-         "or of the named bodies", strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE),
-    Axis("damping", "model", "scale of nominal", "joint damping",
-         "joint damping of the robot's joints or of the named joints", targets=("joints",), field="dof_damping", maximum=MAX_SCALE),
-    Axis("armature", "model", "scale of nominal", "joint armature",
-         "joint armature (rotor inertia) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_armature", setconst=True, maximum=MAX_SCALE),
-    Axis("frictionloss", "model", "scale of nominal", "joint dry friction",
-         "joint dry friction (frictionloss) of the robot's joints or the named ones", targets=("joints",),
-         field="dof_frictionloss", maximum=MAX_SCALE),
-    Axis("gain", "model", "scale of nominal", "actuator gain (servo stiffness)",
-         "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
-         "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
-         targets=("actuators",), field="actuator_gainprm", maximum=MAX_SCALE),
-    Axis("gravity", "model", "scale of nominal", "gravity vector", "the gravity vector (1 = nominal, 0 = weightless)",
-         maximum=MAX_SCALE),
-    Axis("latency", "interface", "control steps", "action delay",
-         "the env executes the action commanded this many control steps ago (neutral action at the start)",
-         integer=True, nominal=0.0, maximum=MAX_STEPS),
-    Axis("action_noise", "interface", "std as a fraction of the action half-range", "Gaussian action noise",
-         "Gaussian noise added to every executed action, then clipped to the bounds", nominal=0.0,
-         maximum=10.0),
-    Axis("obs_noise", "interface", "std in observation units", "Gaussian observation noise",
-         "Gaussian noise added to every state observation the policy sees", nominal=0.0,
-         maximum=1e6),
-    Axis("action_hold", "interface", "control steps", "command held k steps (control rate / k)",
-         "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
-         minimum=1.0, integer=True, maximum=MAX_STEPS),
-)}
-AXES.update({a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in perturb_visual.AXIS_TABLE})  # bench.perturb_visual
+AXES: dict[str, Axis] = {
+    a.name: a
+    for a in (
+        Axis(
+            "friction",
+            "model",
+            "scale of nominal",
+            "friction of every geom",
+            "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
+            "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
+            targets=("geoms", "bodies"),
+            field="geom_friction",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "mass",
+            "model",
+            "scale of nominal",
+            "mass + inertia of the manipulated object",
+            "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
+            strict=True,
+            targets=("bodies",),
+            field="body_mass",
+            setconst=True,
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "link_mass",
+            "model",
+            "scale of nominal",
+            "mass + inertia of the robot's links",
+            "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
+            "or of the named bodies",
+            strict=True,
+            targets=("bodies",),
+            field="body_mass",
+            setconst=True,
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "damping",
+            "model",
+            "scale of nominal",
+            "joint damping",
+            "joint damping of the robot's joints or of the named joints",
+            targets=("joints",),
+            field="dof_damping",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "armature",
+            "model",
+            "scale of nominal",
+            "joint armature",
+            "joint armature (rotor inertia) of the robot's joints or the named ones",
+            targets=("joints",),
+            field="dof_armature",
+            setconst=True,
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "frictionloss",
+            "model",
+            "scale of nominal",
+            "joint dry friction",
+            "joint dry friction (frictionloss) of the robot's joints or the named ones",
+            targets=("joints",),
+            field="dof_frictionloss",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "gain",
+            "model",
+            "scale of nominal",
+            "actuator gain (servo stiffness)",
+            "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
+            "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
+            targets=("actuators",),
+            field="actuator_gainprm",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "gravity",
+            "model",
+            "scale of nominal",
+            "gravity vector",
+            "the gravity vector (1 = nominal, 0 = weightless)",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "latency",
+            "interface",
+            "control steps",
+            "action delay",
+            "the env executes the action commanded this many control steps ago (neutral action at the start)",
+            integer=True,
+            nominal=0.0,
+            maximum=MAX_STEPS,
+        ),
+        Axis(
+            "action_noise",
+            "interface",
+            "std as a fraction of the action half-range",
+            "Gaussian action noise",
+            "Gaussian noise added to every executed action, then clipped to the bounds",
+            nominal=0.0,
+            maximum=10.0,
+        ),
+        Axis(
+            "obs_noise",
+            "interface",
+            "std in observation units",
+            "Gaussian observation noise",
+            "Gaussian noise added to every state observation the policy sees",
+            nominal=0.0,
+            maximum=1e6,
+        ),
+        Axis(
+            "action_hold",
+            "interface",
+            "control steps",
+            "command held k steps (control rate / k)",
+            "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
+            minimum=1.0,
+            integer=True,
+            maximum=MAX_STEPS,
+        ),
+    )
+}
+AXES.update(
+    {a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in perturb_visual.AXIS_TABLE}
+)  # bench.perturb_visual
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
@@ -106,11 +200,15 @@ def _num(axis: Axis, field: str, value: Any) -> float | int:
     bad = value <= axis.minimum if axis.strict else value < axis.minimum
     if bad:
         op = ">" if axis.strict else ">="
-        raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}")
+        raise ConfigError(
+            f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}"
+        )
     if axis.integer and value != int(value):
         raise ConfigError(f"{field}: {value:g} is not a whole number; {axis.name} is in {axis.unit}")
     if value > axis.maximum:
-        raise ConfigError(f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be <= {axis.maximum:g}")
+        raise ConfigError(
+            f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be <= {axis.maximum:g}"
+        )
     return int(value) if axis.integer else value
 
 
@@ -140,7 +238,9 @@ def _fmt(x: float) -> str:
 def axis_named(name: str) -> Axis:
     """The axis called `name`; a one-line ConfigError listing the axes otherwise."""
     if name not in AXES:
-        raise ConfigError(f"perturb.{name}: unknown perturbation axis; valid: {', '.join(AXES)}.{did_you_mean(name, AXES)}")
+        raise ConfigError(
+            f"perturb.{name}: unknown perturbation axis; valid: {', '.join(AXES)}.{did_you_mean(name, AXES)}"
+        )
     return AXES[name]
 
 
@@ -154,7 +254,9 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
         valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
         for key, v in value.items():
             if key not in valid_keys:
-                raise ConfigError(f"{field}.{key}: unknown key; valid: {', '.join(valid_keys)}.{did_you_mean(key, valid_keys)}")
+                raise ConfigError(
+                    f"{field}.{key}: unknown key; valid: {', '.join(valid_keys)}.{did_you_mean(key, valid_keys)}"
+                )
             if key == "levels":
                 levels.extend(v if isinstance(v, (list, tuple)) else [v])
             elif key in DISTRIBUTIONS:
@@ -186,7 +288,9 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
     for dist, bounds, f in dists:
         lo, hi = _range(axis, f, dist, bounds)
         spec = {"kind": dist, "targets": targets}
-        out.append(Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec))
+        out.append(
+            Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec)
+        )
     return out
 
 
@@ -217,8 +321,10 @@ def check_horizon(conditions: list[Condition], horizon: int) -> None:
         levels = cond.level if isinstance(cond.level, (list, tuple)) else [cond.level]
         worst = max(float(v) for v in levels)
         if worst >= horizon:
-            raise ConfigError(f"perturb.{axis.name}: {worst:g} control steps is not less than the horizon "
-                              f"({horizon} steps); valid: < {horizon} (or a longer horizon=)")
+            raise ConfigError(
+                f"perturb.{axis.name}: {worst:g} control steps is not less than the horizon "
+                f"({horizon} steps); valid: < {horizon} (or a longer horizon=)"
+            )
 
 
 def axes_help() -> str:

@@ -19,6 +19,7 @@ reflections and the skybox are off: on these CPU machines that halves the cost o
 (robosuite Lift, one 128x128 camera: ~69 -> ~38 ms, NOTES-simulators.md). Same state and seed
 give bit-identical images.
 """
+
 from __future__ import annotations
 
 import os
@@ -59,8 +60,9 @@ def check_cameras(requested: Sequence[str], model: Any, where: str, field: str =
         raise ConfigError(f"{field}: empty list; valid cameras of {where}: {', '.join(valid)}")
     for name in names:
         if name not in valid:
-            raise ConfigError(f"{field}: {name!r} is not a camera of {where}; valid: {', '.join(valid)}."
-                              f"{did_you_mean(name, valid)}")
+            raise ConfigError(
+                f"{field}: {name!r} is not a camera of {where}; valid: {', '.join(valid)}.{did_you_mean(name, valid)}"
+            )
     if len(set(names)) != len(names):
         raise ConfigError(f"{field}: {names} names a camera twice")
     return names
@@ -92,9 +94,11 @@ def _backend() -> str:
 def _no_renderer(reason: BaseException | str) -> RendererError:
     text = str(reason).strip().splitlines()
     why = text[0] if text else type(reason).__name__
-    return RendererError(f"obs=rgb: no offscreen OpenGL renderer could start with MUJOCO_GL={_backend()} ({why}); "
-                         f"set MUJOCO_GL=egl (software rendering works without a GPU: Mesa's llvmpipe, Debian "
-                         f"packages libegl1 and libgl1-mesa-dri) or MUJOCO_GL=osmesa")
+    return RendererError(
+        f"obs=rgb: no offscreen OpenGL renderer could start with MUJOCO_GL={_backend()} ({why}); "
+        f"set MUJOCO_GL=egl (software rendering works without a GPU: Mesa's llvmpipe, Debian "
+        f"packages libegl1 and libgl1-mesa-dri) or MUJOCO_GL=osmesa"
+    )
 
 
 def _gl_context(width: int, height: int) -> Any:
@@ -208,8 +212,13 @@ class CameraRig:
 
     def describe(self) -> dict[str, Any]:
         """What shapes the images: cameras, size, scene settings and the OpenGL backend."""
-        return {"cameras": list(self.cameras), "height": self.height, "width": self.width,
-                "scene": dict(SCENE_FLAGS), "gl": _backend()}
+        return {
+            "cameras": list(self.cameras),
+            "height": self.height,
+            "width": self.width,
+            "scene": dict(SCENE_FLAGS),
+            "gl": _backend(),
+        }
 
     def render_one(self, camera: str, hook: SceneHook | None = None) -> np.ndarray:
         """One camera's image of the current state, as a new (H, W, 3) uint8 array (`hook` default: `self.hook`)."""
@@ -218,8 +227,9 @@ class CameraRig:
         self.start()
         hook = hook if hook is not None else self.hook
         self._camera.fixedcamid = self._ids[self.cameras.index(camera)]
-        mujoco.mjv_updateScene(self.model, self.data, self._option, None, self._camera,
-                               mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        mujoco.mjv_updateScene(
+            self.model, self.data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self.scene
+        )
         if hook is not None:
             hook(self.scene, camera)
         self._gl.make_current()

@@ -10,6 +10,7 @@ worker) and closed with it; it renders nothing until asked, so `obs=state` costs
 Suites name their default cameras (a front view and, where the robot has one, a wrist view);
 `cameras=[...]` picks others among the model's cameras.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -29,24 +30,30 @@ OBS_MODES = ("state", "rgb", "state+rgb")
 class CameraOptions:
     """Image-observation keys shared by the MuJoCo suites (a suite's Options extends it)."""
 
-    obs: str = "state"                   # state | rgb | state+rgb: the state vector, camera images (rgb.<camera>), or both
-    cameras: Optional[list[str]] = None  # cameras rendered as rgb.<camera>; default: the suite's (front view, wrist view)
-    image_size: int = 128                # image height and width in pixels, in [16, 1024]
+    obs: str = "state"  # state | rgb | state+rgb: the state vector, camera images (rgb.<camera>), or both
+    cameras: Optional[list[str]] = (
+        None  # cameras rendered as rgb.<camera>; default: the suite's (front view, wrist view)
+    )
+    image_size: int = 128  # image height and width in pixels, in [16, 1024]
 
 
 def check_options(options: Any, known: Sequence[str] | None = None, where: str = "the suite") -> None:
     """Validate the camera keys without building an env (`known`: the suite's camera names, when fixed)."""
     if options.obs not in OBS_MODES:
-        raise ConfigError(f"obs: {options.obs!r} is not an observation mode; valid: {', '.join(OBS_MODES)}."
-                          f"{did_you_mean(str(options.obs), OBS_MODES)}")
+        raise ConfigError(
+            f"obs: {options.obs!r} is not an observation mode; valid: {', '.join(OBS_MODES)}."
+            f"{did_you_mean(str(options.obs), OBS_MODES)}"
+        )
     parse_image_size(options.image_size)
     if wants_images(options):
         check_renderer()
     if options.cameras is not None and known is not None:
         for name in options.cameras:
             if name not in known:
-                raise ConfigError(f"cameras: {name!r} is not a camera of {where}; valid: {', '.join(known)}."
-                                  f"{did_you_mean(str(name), known)}")
+                raise ConfigError(
+                    f"cameras: {name!r} is not a camera of {where}; valid: {', '.join(known)}."
+                    f"{did_you_mean(str(name), known)}"
+                )
         if not options.cameras:
             raise ConfigError(f"cameras: empty list; valid cameras of {where}: {', '.join(known)}")
 
@@ -81,8 +88,10 @@ def with_cameras(env: Any, options: Any, defaults: Sequence[str], where: str) ->
     if env.mujoco is None:
         if wants_images(options):
             env.close()
-            raise ConfigError(f"obs={options.obs}: {where} ({env.backend}) is not MuJoCo-backed; it has no cameras "
-                              f"to render (use obs=state)")
+            raise ConfigError(
+                f"obs={options.obs}: {where} ({env.backend}) is not MuJoCo-backed; it has no cameras "
+                f"to render (use obs=state)"
+            )
         return env
     cams = chosen_cameras(options, defaults)
     present = camera_names(env.mujoco.model)

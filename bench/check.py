@@ -16,6 +16,7 @@ observation matches the declared spec (the suite's and the env's), actions have 
 bounds, `step` returns (obs, reward, terminated, truncated, info), `success()` is a bool, numbers
 are finite, and the same seed and actions give the same trajectory twice.
 """
+
 from __future__ import annotations
 
 import time
@@ -36,7 +37,7 @@ from bench.suite import METRICS, NOMINAL, SPLIT_AXES, SPLITS, Cell, Job, episode
 class Problem:
     """One hygiene or contract violation, phrased for the user."""
 
-    kind: str      # manifest | cell | seeds | wraparound | cross-split | contract
+    kind: str  # manifest | cell | seeds | wraparound | cross-split | contract
     message: str
 
 
@@ -66,8 +67,12 @@ def check_cells(cells: list[Cell], manifest: dict[str, dict[str, list]]) -> list
             value = getattr(cell, attr)
             if value in split.get("unseen", []) and cell.split == "seen":
                 problems.append(Problem("cell", f"cell {cell.key} is marked seen but {axis} {value!r} is unseen"))
-            if value in split.get("seen", []) and value not in split.get("unseen", []) and cell.split == "unseen" \
-                    and len(split.get("unseen", [])) > 0:
+            if (
+                value in split.get("seen", [])
+                and value not in split.get("unseen", [])
+                and cell.split == "unseen"
+                and len(split.get("unseen", [])) > 0
+            ):
                 problems.append(Problem("cell", f"cell {cell.key} is marked unseen but {axis} {value!r} is seen"))
     return problems
 
@@ -85,11 +90,14 @@ def check_seeds(jobs: list[Job]) -> list[Problem]:
 
 def fast_check(suite, cells: list[Cell], jobs: list[Job]) -> list[Problem]:
     """The checks `bench run` does before starting (nothing is built)."""
-    return check_manifest(suite.manifest, f"suite {suite.name}") + check_cells(cells, suite.manifest) + check_seeds(jobs)
+    return (
+        check_manifest(suite.manifest, f"suite {suite.name}") + check_cells(cells, suite.manifest) + check_seeds(jobs)
+    )
 
 
-def check_init_states(suite, cells: list[Cell], seeds: list[int], horizon: int,
-                      seed_transform=None) -> tuple[list[Problem], dict[str, list[str]]]:
+def check_init_states(
+    suite, cells: list[Cell], seeds: list[int], horizon: int, seed_transform=None
+) -> tuple[list[Problem], dict[str, list[str]]]:
     """Reset each cell's env with every seed; find repeated and cross-split identical initial states.
 
     Args:
@@ -112,13 +120,22 @@ def check_init_states(suite, cells: list[Cell], seeds: list[int], horizon: int,
         dup = [(i, j) for i in range(len(hs)) for j in range(i + 1, len(hs)) if hs[i] == hs[j]]
         if dup:
             i, j = dup[0]
-            problems.append(Problem("wraparound", f"cell {cell.key}: episodes {i} and {j} (seeds {seeds[i]}, {seeds[j]}) "
-                                                  f"start from the same state ({len(dup)} repeated pair(s))"))
+            problems.append(
+                Problem(
+                    "wraparound",
+                    f"cell {cell.key}: episodes {i} and {j} (seeds {seeds[i]}, {seeds[j]}) "
+                    f"start from the same state ({len(dup)} repeated pair(s))",
+                )
+            )
         for h in set(hs):
             other = owner.get(h)
             if other is not None and other.split != cell.split:
-                problems.append(Problem("cross-split", f"cells {other.key} ({other.split}) and {cell.key} ({cell.split}) "
-                                                       "share an initial state"))
+                problems.append(
+                    Problem(
+                        "cross-split",
+                        f"cells {other.key} ({other.split}) and {cell.key} ({cell.split}) share an initial state",
+                    )
+                )
             owner.setdefault(h, cell)
     return problems, hashes
 
@@ -133,8 +150,14 @@ def check_suite(suite: Any) -> list[Problem]:
     def bad(msg: str) -> None:
         problems.append(Problem("contract", f"{where}: {msg}"))
 
-    for attr, kind in (("name", str), ("version", str), ("reference_policy", str), ("default_policy", str),
-                       ("default_horizon", int), ("default_metric", str)):
+    for attr, kind in (
+        ("name", str),
+        ("version", str),
+        ("reference_policy", str),
+        ("default_policy", str),
+        ("default_horizon", int),
+        ("default_metric", str),
+    ):
         if not isinstance(getattr(suite, attr, None), kind):
             bad(f"{attr} must be a {kind.__name__}, got {getattr(suite, attr, None)!r}")
     if not dataclasses.is_dataclass(getattr(suite, "Options", None)):
@@ -175,8 +198,25 @@ def check_contract(suite: Any, cell: Cell, horizon: int, steps: int = 20, seed: 
 
     try:
         if not isinstance(env, EnvAdapter):
-            missing = [a for a in ("backend", "horizon", "fps", "obs_spec", "action_spec", "mujoco", "inputs",
-                                   "model_axes", "reset", "step", "success", "init_state", "close") if not hasattr(env, a)]
+            missing = [
+                a
+                for a in (
+                    "backend",
+                    "horizon",
+                    "fps",
+                    "obs_spec",
+                    "action_spec",
+                    "mujoco",
+                    "inputs",
+                    "model_axes",
+                    "reset",
+                    "step",
+                    "success",
+                    "init_state",
+                    "close",
+                )
+                if not hasattr(env, a)
+            ]
             bad(f"the env is not an EnvAdapter (missing: {', '.join(missing)})")
             return problems
         declared = dict(suite.obs_spec(cell))
@@ -187,8 +227,9 @@ def check_contract(suite: Any, cell: Cell, horizon: int, steps: int = 20, seed: 
             bad(f"action bounds {low.shape}/{high.shape} do not match {env.action_spec.dim} action names")
         rng = np.random.default_rng(seed)
         finite = np.isfinite(low) & np.isfinite(high)
-        actions = np.where(finite, rng.uniform(np.where(finite, low, -1), np.where(finite, high, 1),
-                                               size=(steps, len(low))), 0.0).astype(np.float32)
+        actions = np.where(
+            finite, rng.uniform(np.where(finite, low, -1), np.where(finite, high, 1), size=(steps, len(low))), 0.0
+        ).astype(np.float32)
         runs = []
         for _ in range(2):
             obs = env.reset(seed)
@@ -229,23 +270,23 @@ def check_contract(suite: Any, cell: Cell, horizon: int, steps: int = 20, seed: 
 class CheckConfig:
     """Keys of `bench check`."""
 
-    suite: Optional[str] = None          # a suite (registered or package.module:Class); default: every registered suite
-    robots: Optional[list[str]] = None   # only these robots
-    tasks: Optional[list[str]] = None    # only these tasks
-    envs: Optional[list[str]] = None     # only these envs/scenes
-    splits: Optional[list[str]] = None   # only these splits
-    episodes: int = 5                    # episode seeds per cell for the initial-state check
-    seed: int = 0                        # run seed the episode seeds derive from
-    states: bool = True                  # build envs and hash initial states (slower)
-    contract: bool = True                # run the contract test on one cell per suite
-    manifest: Optional[str] = None       # check an external manifest instead, e.g. metaworld:ML25
-    wrap_seeds: int = 0                  # inject a bug: reset with seed % wrap_seeds (shows the check works)
+    suite: Optional[str] = None  # a suite (registered or package.module:Class); default: every registered suite
+    robots: Optional[list[str]] = None  # only these robots
+    tasks: Optional[list[str]] = None  # only these tasks
+    envs: Optional[list[str]] = None  # only these envs/scenes
+    splits: Optional[list[str]] = None  # only these splits
+    episodes: int = 5  # episode seeds per cell for the initial-state check
+    seed: int = 0  # run seed the episode seeds derive from
+    states: bool = True  # build envs and hash initial states (slower)
+    contract: bool = True  # run the contract test on one cell per suite
+    manifest: Optional[str] = None  # check an external manifest instead, e.g. metaworld:ML25
+    wrap_seeds: int = 0  # inject a bug: reset with seed % wrap_seeds (shows the check works)
 
 
 def help_text() -> str:
     return config_mod.command_help(
         "usage: bench check [suite=NAME] [key=value ...]",
-        "Checks that \"unseen really is unseen\" and that suites honour the plugin contract:\n"
+        'Checks that "unseen really is unseen" and that suites honour the plugin contract:\n'
         "  - seen/unseen manifests disjoint on every axis, cells consistent with the manifest,\n"
         "  - episode seeds distinct; initial-state hashes: no two seeds with the same initial state\n"
         "    (seed wrap-around) and no initial state shared by a seen and an unseen cell,\n"
@@ -255,16 +296,23 @@ def help_text() -> str:
         "A suite's own keys (e.g. env_id= for suite=gym) are accepted when suite= names it; checking\n"
         "every suite skips those whose required keys are not given.",
         CheckConfig,
-        ["bench check suite=held_out_robots robots=[Panda,UR5e]", "bench check suite=gym env_id=CartPole-v1",
-         "bench check manifest=metaworld:ML25",
-         "bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false"])
+        [
+            "bench check suite=held_out_robots robots=[Panda,UR5e]",
+            "bench check suite=gym env_id=CartPole-v1",
+            "bench check manifest=metaworld:ML25",
+            "bench check suite=held_out_robots robots=[Panda] wrap_seeds=2 contract=false",
+        ],
+    )
 
 
 def _required(options_type: type) -> list[str]:
     import dataclasses
 
-    return [f.name for f in dataclasses.fields(options_type)
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    return [
+        f.name
+        for f in dataclasses.fields(options_type)
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
 
 
 def main(argv: list[str]) -> int:
@@ -318,8 +366,10 @@ def main(argv: list[str]) -> int:
         if cfg.states:
             wrap = (lambda s: s % cfg.wrap_seeds) if cfg.wrap_seeds else None
             found, _ = check_init_states(suite, cells, seeds, suite.default_horizon, wrap)
-            print(f"{name}: initial states of {len(cells)} cells x {len(seeds)} seeds: "
-                  f"{'ok' if not found else f'{len(found)} problem(s)'}")
+            print(
+                f"{name}: initial states of {len(cells)} cells x {len(seeds)} seeds: "
+                f"{'ok' if not found else f'{len(found)} problem(s)'}"
+            )
             problems += found
         if cfg.contract:
             found = check_contract(suite, cells[0], suite.default_horizon)

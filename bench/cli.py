@@ -8,12 +8,12 @@ Arguments are Hydra-style `key=value` overrides (nested keys with dots, lists as
 `[a,b]`); a few commands also take positional paths. Bad input raises a
 `BenchError`, printed here on one line with exit code 2.
 """
+
 from __future__ import annotations
 
 import importlib
 import sys
-
-from typing import Callable
+from collections.abc import Callable
 
 from bench.errors import BenchError, ConfigError, did_you_mean
 
@@ -29,7 +29,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("bench.replay.cli:main", "open-loop replay of logged commands in the simulator; per-joint RMSE/NRMSE"),
     "serve": ("bench.remote.server:main", "serve a bench policy over openpi's websocket protocol (for policy=remote)"),
     "actions": ("bench.policy_on_logs:main", "policy on logs: a policy fed logged observations vs the logged actions"),
-    "correlate": ("bench.agreement:main", "sim-real agreement of per-policy outcomes: Pearson, Spearman, Kendall, MMRV"),
+    "correlate": (
+        "bench.agreement:main",
+        "sim-real agreement of per-policy outcomes: Pearson, Spearman, Kendall, MMRV",
+    ),
     "calibrate": ("bench.calibrate.cli:main", "Real2Sim: fit a model to logs, trace the residual to missing effects"),
     "regress": ("bench.regress:main", "CI regression gate: candidate vs baseline checkpoint, paired by seed"),
     "report": ("bench.report:main", "static HTML report of a run or leaderboard"),
@@ -96,8 +99,7 @@ def guarded(command: Callable[[], int | None]) -> int:
         print(f"error: {_one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
-        print("interrupted: records written so far are kept; rerun with the same run_id to resume",
-              file=sys.stderr)
+        print("interrupted: records written so far are kept; rerun with the same run_id to resume", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return _quiet_pipe()
@@ -121,8 +123,11 @@ def guarded(command: Callable[[], int | None]) -> int:
     except Exception as exc:  # a bug, not bad input: one line, and a way to see the traceback
         if os.environ.get("BENCH_TRACEBACK"):
             raise
-        print(f"internal error: {type(exc).__name__}: {_one_line(str(exc))[:500]} (a bug in bench; "
-              "BENCH_TRACEBACK=1 shows where)", file=sys.stderr)
+        print(
+            f"internal error: {type(exc).__name__}: {_one_line(str(exc))[:500]} (a bug in bench; "
+            "BENCH_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
         return 1
 
 

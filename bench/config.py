@@ -5,6 +5,7 @@ parsed as YAML scalars/flow lists by OmegaConf. The result is a frozen dataclass
 nothing downstream can mutate it. An unknown key or a value of the wrong type is
 a one-line `ConfigError` (exit 2) that names the key and suggests the closest one.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,8 +20,8 @@ from bench.errors import ConfigError, did_you_mean
 T = TypeVar("T")
 
 # limits shared by every command (a typo must not start an absurd job; the message names the limit)
-MAX_INT = 2**63 - 1          # any integer key: what numpy and JSON readers hold
-MAX_N_BOOT = 1_000_000       # bootstrap resamples
+MAX_INT = 2**63 - 1  # any integer key: what numpy and JSON readers hold
+MAX_N_BOOT = 1_000_000  # bootstrap resamples
 MAX_SEED = 2**63 - 1
 MAX_EPISODES = 100_000
 MAX_HORIZON = 100_000
@@ -67,15 +68,20 @@ def check_stored(schema: type, values: Any, where: str) -> None:
             continue
         v = values[f.name]
         whole = f.type in ("int", int)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or (whole and isinstance(v, float)
-                                                                        and not v.is_integer()):
-            raise ConfigError(f"{where}: config.{f.name}={v!r} is not {'a whole' if whole else 'a'} number; "
-                              f"valid: {rng.describe()}")
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float))
+            or (whole and isinstance(v, float) and not v.is_integer())
+        ):
+            raise ConfigError(
+                f"{where}: config.{f.name}={v!r} is not {'a whole' if whole else 'a'} number; valid: {rng.describe()}"
+            )
         check_number(f"{where}: config.{f.name}", v, rng)
 
 
-def ranged(default: Any, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
-           hi_open: bool = False) -> Any:
+def ranged(
+    default: Any, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False
+) -> Any:
     """A dataclass field with a default and a valid range that `build` checks (the message names the range).
 
     `n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates`
@@ -88,14 +94,18 @@ def check_number(key: str, value: Any, rng: Range | None = None) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
     if isinstance(value, float) and not math.isfinite(value):
-        raise ConfigError(f"{key}={value}: not a finite number"
-                          + (f"; valid: {rng.describe()}" if rng is not None else ""))
+        raise ConfigError(
+            f"{key}={value}: not a finite number" + (f"; valid: {rng.describe()}" if rng is not None else "")
+        )
     if isinstance(value, int) and abs(value) > MAX_INT:
-        raise ConfigError(f"{key}={value}: out of range; integers are at most 2**63-1"
-                          + (f" (valid: {rng.describe()})" if rng is not None else ""))
+        raise ConfigError(
+            f"{key}={value}: out of range; integers are at most 2**63-1"
+            + (f" (valid: {rng.describe()})" if rng is not None else "")
+        )
     if rng is not None and not rng.contains(value):
-        raise ConfigError(f"{key}={value if isinstance(value, int) else format(value, 'g')}: must be in "
-                          f"{rng.describe()}")
+        raise ConfigError(
+            f"{key}={value if isinstance(value, int) else format(value, 'g')}: must be in {rng.describe()}"
+        )
 
 
 def check_values(key: str, value: Any, rng: Range | None = None, depth: int = 0) -> None:
@@ -155,8 +165,9 @@ def build_from_argv(cls: type, argv: Iterable[str], command: str):
     """`key=value` arguments of a command that takes no positional ones -> a frozen `cls` (ConfigError if not)."""
     positional, overrides = split_args(argv)
     if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; {command} takes key=value only "
-                          f"(see {command} --help)")
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; {command} takes key=value only (see {command} --help)"
+        )
     return build(cls, overrides)
 
 
@@ -182,8 +193,10 @@ def partition(overrides: Iterable[str], owners: dict[str, list[str]], context: s
         if "=" not in item or not item.split("=", 1)[0]:
             raise ConfigError(f"argument {item!r} is not key=value ({context})")
         if not _KEY.fullmatch(item.split("=", 1)[0]):
-            raise ConfigError(f"key {item.split('=', 1)[0][:60]!r} is not a key name (letters, digits, _ and dotted "
-                              f"parts) ({context})")
+            raise ConfigError(
+                f"key {item.split('=', 1)[0][:60]!r} is not a key name (letters, digits, _ and dotted "
+                f"parts) ({context})"
+            )
         key = top_key(item)
         if key not in claimed:
             listing = "; ".join(f"{name}: {', '.join(keys) or '(none)'}" for name, keys in owners.items())
@@ -235,8 +248,10 @@ def check_overrides(overrides: list[str], schema: type | None) -> None:
         try:
             OmegaConf.to_container(OmegaConf.from_dotlist([item]), resolve=False)
         except Exception as exc:  # YAML / grammar errors of this one value
-            raise ConfigError(f"{key}={value}: cannot parse the value ({_first_line(exc)}); lists are "
-                              "written [a,b], text with , [ ] { } or : in quotes") from None
+            raise ConfigError(
+                f"{key}={value}: cannot parse the value ({_first_line(exc)}); lists are "
+                "written [a,b], text with , [ ] { } or : in quotes"
+            ) from None
         keys.append(key)
     twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
     if twice is not None:
@@ -265,8 +280,10 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
     for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
         child = next((k for k in keys if k.startswith(key + ".")), None)
         if child:
-            raise ConfigError(f"{key} is set to a value and also given the sub-key {child}; "
-                              f"give every part as a sub-key instead (e.g. {key}.levels=[...] {child}=...)")
+            raise ConfigError(
+                f"{key} is set to a value and also given the sub-key {child}; "
+                f"give every part as a sub-key instead (e.g. {key}.levels=[...] {child}=...)"
+            )
     try:
         cfg = OmegaConf.structured(schema)
         if base:
@@ -325,8 +342,9 @@ def key_help(schema: type) -> str:
     return "\n".join(f"  {k:<{width}}{doc}" for k, doc in rows)
 
 
-def command_help(usage: str, about: str, schema: type | None = None, examples: Iterable[str] = (),
-                 notes: str = "") -> str:
+def command_help(
+    usage: str, about: str, schema: type | None = None, examples: Iterable[str] = (), notes: str = ""
+) -> str:
     """The `--help` text of a command: usage, what it does, its keys (from `schema`, see `key_help`),
     optional notes and examples. Every command builds its help here, so the key list cannot drift
     from the keys it accepts."""

@@ -20,6 +20,7 @@ What coverage buys is measured by an experiment built on these metrics and on `b
 `python -m baselines.coverage_sweep` (nested training sets, behaviour cloning, evaluation,
 slopes with intervals from `bench.trend`).
 """
+
 from __future__ import annotations
 
 from collections import Counter
@@ -59,17 +60,23 @@ def support(train_meta: Sequence[dict], cells: Sequence, manifest: dict | None =
             cov = [v for v in ev if v in counts]
             by_split[split] = {"evaluated": ev, "covered": cov, "fraction": len(cov) / len(ev) if ev else None}
         out[axis] = {
-            "evaluated": evaluated, "present": sorted(counts), "covered": covered,
+            "evaluated": evaluated,
+            "present": sorted(counts),
+            "covered": covered,
             "missing": [v for v in evaluated if v not in counts],
             "fraction": len(covered) / len(evaluated) if evaluated else None,
-            "episodes": dict(sorted(counts.items())), "by_split": by_split,
+            "episodes": dict(sorted(counts.items())),
+            "by_split": by_split,
             "unseen_in_training": sorted(set(counts) & set(manifest.get(axis, {}).get("unseen", []))),
         }
     keys = Counter(f"{m.get('task')}/{m.get('robot')}/{m.get('env')}" for m in train_meta)
     ev_cells = [c.key for c in cells]
-    out["cells"] = {"evaluated": len(ev_cells), "covered": sum(k in keys for k in ev_cells),
-                    "fraction": sum(k in keys for k in ev_cells) / len(ev_cells) if ev_cells else None,
-                    "missing": [k for k in ev_cells if k not in keys]}
+    out["cells"] = {
+        "evaluated": len(ev_cells),
+        "covered": sum(k in keys for k in ev_cells),
+        "fraction": sum(k in keys for k in ev_cells) / len(ev_cells) if ev_cells else None,
+        "missing": [k for k in ev_cells if k not in keys],
+    }
     return out
 
 
@@ -90,9 +97,14 @@ def _distance_summary(d: np.ndarray, radius: float | None) -> dict[str, Any]:
     return out
 
 
-def state_coverage(train_states: np.ndarray, train_episode: np.ndarray, eval_states: np.ndarray,
-                   eval_groups: Sequence[str] | None = None, quantile: float = 0.95,
-                   scale: np.ndarray | None = None) -> dict[str, Any]:
+def state_coverage(
+    train_states: np.ndarray,
+    train_episode: np.ndarray,
+    eval_states: np.ndarray,
+    eval_groups: Sequence[str] | None = None,
+    quantile: float = 0.95,
+    scale: np.ndarray | None = None,
+) -> dict[str, Any]:
     """Distance from each evaluation state to its nearest training state, normalised, and coverage.
 
     Distance = RMS over dimensions of (eval - nearest train) / scale, scale = the training
@@ -145,8 +157,11 @@ def state_coverage(train_states: np.ndarray, train_episode: np.ndarray, eval_sta
         radius = float(np.quantile(ref, quantile))
     out: dict[str, Any] = {
         "metric": "RMS over dimensions of (eval - nearest training state) / training std",
-        "dims": int(dim), "training_states": int(len(x)), "training_episodes": int(len(np.unique(ep))),
-        "quantile": quantile, "reference_radius": None if radius is None else round(radius, 6),
+        "dims": int(dim),
+        "training_states": int(len(x)),
+        "training_episodes": int(len(np.unique(ep))),
+        "quantile": quantile,
+        "reference_radius": None if radius is None else round(radius, 6),
         "reference": _distance_summary(ref, radius) if len(ref) else None,
         "overall": _distance_summary(d_eval, radius),
     }
@@ -202,8 +217,11 @@ def param_coverage(train_params: Sequence[dict], conditions: Sequence) -> dict[s
         tlo, thi = float(values.min()), float(values.max())
         levels = sorted(set(points))
         entry = {
-            "evaluated": [lo, hi], "nominal": nominal, "conditions": [c.name for c in conds],
-            "training": [tlo, thi], "training_episodes_off_nominal": int(np.sum(values != nominal)),
+            "evaluated": [lo, hi],
+            "nominal": nominal,
+            "conditions": [c.name for c in conds],
+            "training": [tlo, thi],
+            "training_episodes_off_nominal": int(np.sum(values != nominal)),
             "coverage": round(_overlap(lo, hi, tlo, thi), 6),
             "levels_inside": round(float(np.mean([tlo <= v <= thi for v in levels])), 6),
         }
@@ -256,8 +274,9 @@ def read_training(paths: Sequence[str | Path]) -> TrainingData:
     return TrainingData(np.concatenate(states), np.concatenate(epi), meta, names or [])
 
 
-def initial_states_from_suite(suite, cells: Sequence, seed: int, episodes: int, horizon: int = 0
-                              ) -> tuple[np.ndarray, list[str]]:
+def initial_states_from_suite(
+    suite, cells: Sequence, seed: int, episodes: int, horizon: int = 0
+) -> tuple[np.ndarray, list[str]]:
     """The observation right after reset for each cell and episode seed of a run (`bench.suite.episode_seed`).
 
     Builds each cell's env once (robosuite: a few seconds) and resets it with the same seeds
@@ -293,25 +312,38 @@ def initial_states_from_dataset(path: str | Path, cells: Sequence | None = None)
         states.append(np.asarray(ep.data["observation.state"][0], float))
         groups.append(key)
     if not states:
-        raise DataError(f"eval_data={str(path)!r}: no episode of the evaluated cells "
-                        f"({', '.join(sorted(wanted or []))})")
+        raise DataError(
+            f"eval_data={str(path)!r}: no episode of the evaluated cells ({', '.join(sorted(wanted or []))})"
+        )
     return np.asarray(states), groups
 
 
-def coverage_report(train: TrainingData, cells: Sequence, manifest: dict, conditions: Sequence,
-                    eval_states: np.ndarray, eval_groups: Sequence[str], quantile: float = 0.95) -> dict[str, Any]:
+def coverage_report(
+    train: TrainingData,
+    cells: Sequence,
+    manifest: dict,
+    conditions: Sequence,
+    eval_states: np.ndarray,
+    eval_groups: Sequence[str],
+    quantile: float = 0.95,
+) -> dict[str, Any]:
     """All three metrics for one training set, plus per-split state coverage."""
     sc = state_coverage(train.states, train.episode, eval_states, eval_groups, quantile)
     split_of = {c.key: c.split for c in cells}
     d = np.asarray(sc["distances"])
     groups = np.asarray(list(eval_groups))
     radius = sc["reference_radius"]
-    sc["splits"] = {s: _distance_summary(d[np.array([split_of.get(g) == s for g in groups], bool)], radius)
-                    for s in sorted({c.split for c in cells})}
+    sc["splits"] = {
+        s: _distance_summary(d[np.array([split_of.get(g) == s for g in groups], bool)], radius)
+        for s in sorted({c.split for c in cells})
+    }
     return {
-        "training": {"episodes": len(train.meta), "frames": int(len(train.states)),
-                     "robots": sorted({str(m.get("robot")) for m in train.meta}),
-                     "conditions": sorted({str(m.get("condition", "nominal")) for m in train.meta})},
+        "training": {
+            "episodes": len(train.meta),
+            "frames": int(len(train.states)),
+            "robots": sorted({str(m.get("robot")) for m in train.meta}),
+            "conditions": sorted({str(m.get("condition", "nominal")) for m in train.meta}),
+        },
         "support": support(train.meta, cells, manifest),
         "state": sc,
         "params": param_coverage([m.get("params") or {} for m in train.meta], conditions),
@@ -324,27 +356,29 @@ class CoverageConfig:
     """Keys of `bench coverage` (see `bench coverage --help`)."""
 
     data: list[str] = field(default_factory=list)  # training dataset folder(s) (LeRobot v3), e.g. data=demos/seen
-    suite: str = "held_out_robots"          # the suite whose evaluation the data is compared with
-    robots: Optional[list[str]] = None      # evaluated robots (default: every robot of the suite)
-    tasks: Optional[list[str]] = None       # evaluated tasks
-    envs: Optional[list[str]] = None        # evaluated environments/scenes
-    splits: Optional[list[str]] = None      # evaluated splits: seen, unseen
+    suite: str = "held_out_robots"  # the suite whose evaluation the data is compared with
+    robots: Optional[list[str]] = None  # evaluated robots (default: every robot of the suite)
+    tasks: Optional[list[str]] = None  # evaluated tasks
+    envs: Optional[list[str]] = None  # evaluated environments/scenes
+    splits: Optional[list[str]] = None  # evaluated splits: seen, unseen
     seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed: the initial states are its episode seeds'
     episodes: int = ranged(10, 1, 10_000)  # evaluation episodes per cell (initial states per cell)
     horizon: int = ranged(0, 0, MAX_HORIZON)  # env horizon when building envs (0 = suite default)
-    eval_data: Optional[str] = None         # recorded evaluation dataset: initial states = first frames (no env built)
+    eval_data: Optional[str] = None  # recorded evaluation dataset: initial states = first frames (no env built)
     perturb: dict[str, Any] = field(default_factory=dict)  # evaluated perturbation axes, grammar of bench run
-    quantile: float = ranged(0.95, 0, 1, lo_open=True)  # reference radius quantile (training initial states, leave-one-episode-out)
-    out: Optional[str] = None               # write the JSON report here
-    overwrite: bool = False                 # replace an existing out= file that bench wrote
+    quantile: float = ranged(
+        0.95, 0, 1, lo_open=True
+    )  # reference radius quantile (training initial states, leave-one-episode-out)
+    out: Optional[str] = None  # write the JSON report here
+    overwrite: bool = False  # replace an existing out= file that bench wrote
 
 
 def _list_arg(argv: list[str], key: str) -> list[str]:
     """Accept `key=DIR` as well as `key=[A,B]` for a list-valued key (wraps a bare value)."""
     out = []
     for a in argv:
-        if a.startswith(f"{key}=") and not a[len(key) + 1:].lstrip().startswith("["):
-            a = f"{key}=[{a[len(key) + 1:]}]"
+        if a.startswith(f"{key}=") and not a[len(key) + 1 :].lstrip().startswith("["):
+            a = f"{key}=[{a[len(key) + 1 :]}]"
         out.append(a)
     return out
 
@@ -361,9 +395,12 @@ def help_text() -> str:
         "Prints a table; out=FILE writes the JSON. What coverage buys (training on nested sets and\n"
         "evaluating): the experiment `python -m baselines.coverage_sweep --help` (docs/coverage.md).",
         CoverageConfig,
-        ["bench coverage data=demos/seen suite=held_out_robots episodes=10 seed=1",
-         "bench coverage data=[demos/a,demos/b] splits=[unseen] out=coverage.json",
-         "bench coverage data=demos/dr perturb.gain=uniform(0.5,1.5) eval_data=runs/eval/dataset"])
+        [
+            "bench coverage data=demos/seen suite=held_out_robots episodes=10 seed=1",
+            "bench coverage data=[demos/a,demos/b] splits=[unseen] out=coverage.json",
+            "bench coverage data=demos/dr perturb.gain=uniform(0.5,1.5) eval_data=runs/eval/dataset",
+        ],
+    )
 
 
 def _check_common(suite_name: str, quantile: float) -> Any:
@@ -389,8 +426,10 @@ def _eval_cells(suite, cfg) -> list:
 def main(argv: list[str]) -> int:
     """`bench coverage ...`."""
     if argv and argv[0] == "sweep":
-        raise ConfigError("the coverage sweep is an experiment script now: python -m baselines.coverage_sweep "
-                          "(same keys; --help lists them)")
+        raise ConfigError(
+            "the coverage sweep is an experiment script now: python -m baselines.coverage_sweep "
+            "(same keys; --help lists them)"
+        )
     if argv and argv[0] in ("-h", "--help"):
         print(help_text())
         return 0
@@ -399,8 +438,10 @@ def main(argv: list[str]) -> int:
 
     positional, overrides = config_mod.split_args(_list_arg(argv, "data"))
     if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench coverage takes key=value only "
-                          "(the sweep: python -m baselines.coverage_sweep)")
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; bench coverage takes key=value only "
+            "(the sweep: python -m baselines.coverage_sweep)"
+        )
     cfg: CoverageConfig = config_mod.build(CoverageConfig, overrides)
     if not cfg.data:
         raise ConfigError("data: give the training dataset folder(s), e.g. data=demos/seen")
@@ -409,8 +450,9 @@ def main(argv: list[str]) -> int:
     if cfg.out:
         from bench import outputs
 
-        outputs.check("out", cfg.out, {"data": list(cfg.data), "eval_data": cfg.eval_data}, kind="file",
-                      overwrite=cfg.overwrite)
+        outputs.check(
+            "out", cfg.out, {"data": list(cfg.data), "eval_data": cfg.eval_data}, kind="file", overwrite=cfg.overwrite
+        )
     suite = _check_common(cfg.suite, cfg.quantile)
     cells = _eval_cells(suite, cfg)
     conditions = axes.conditions_from_config(cfg.perturb)
@@ -424,9 +466,13 @@ def main(argv: list[str]) -> int:
         states, groups = initial_states_from_suite(suite, cells, cfg.seed, cfg.episodes, cfg.horizon)
         source = {"seed": cfg.seed, "episodes": cfg.episodes}
     report = coverage_report(train, cells, suite.manifest, conditions, states, groups, cfg.quantile)
-    doc = {"schema": "bench.coverage/1", "suite": suite.describe(), "data": list(cfg.data),
-           "evaluation": {"cells": [c.key for c in cells], **source, "conditions": [c.name for c in conditions]},
-           **report}
+    doc = {
+        "schema": "bench.coverage/1",
+        "suite": suite.describe(),
+        "data": list(cfg.data),
+        "evaluation": {"cells": [c.key for c in cells], **source, "conditions": [c.name for c in conditions]},
+        **report,
+    }
     render(doc)
     if cfg.out:
         from bench.io import write_atomic
@@ -453,27 +499,43 @@ def render(doc: dict[str, Any], console=None) -> None:
     for axis in SPLIT_AXES:
         s = doc["support"][axis]
         split_txt = ", ".join(f"{k} {len(v['covered'])}/{len(v['evaluated'])}" for k, v in s["by_split"].items())
-        t.add_row(axis, str(len(s["evaluated"])), f"{len(s['covered'])} ({fmt_pct(s['fraction'])}; {split_txt})",
-                  ", ".join(s["missing"]) or "-", ", ".join(s["unseen_in_training"]) or "-")
+        t.add_row(
+            axis,
+            str(len(s["evaluated"])),
+            f"{len(s['covered'])} ({fmt_pct(s['fraction'])}; {split_txt})",
+            ", ".join(s["missing"]) or "-",
+            ", ".join(s["unseen_in_training"]) or "-",
+        )
     console.print(t)
     sc = doc["state"]
-    st = Table(title=f"state coverage: evaluation initial states -> nearest training state (RMS z, "
-                     f"radius {sc['reference_radius']} = q{int(sc['quantile'] * 100)} of training, leave-one-episode-out)",
-               title_justify="left")
+    st = Table(
+        title=f"state coverage: evaluation initial states -> nearest training state (RMS z, "
+        f"radius {sc['reference_radius']} = q{int(sc['quantile'] * 100)} of training, leave-one-episode-out)",
+        title_justify="left",
+    )
     for col in ("cell", "n", "mean dist", "median", "max", "covered"):
         st.add_column(col, justify="left" if col == "cell" else "right")
     rows = list((sc.get("groups") or {}).items()) + [(f"[bold]{k}[/]", v) for k, v in sc.get("splits", {}).items()]
     rows.append(("[bold]all[/]", sc["overall"]))
     for name, g in rows:
-        st.add_row(name, str(g["n"]), *(f"{g[k]:.3f}" if g.get(k) is not None else "n/a" for k in ("mean", "median", "max")),
-                   fmt_pct(g.get("covered")))
+        st.add_row(
+            name,
+            str(g["n"]),
+            *(f"{g[k]:.3f}" if g.get(k) is not None else "n/a" for k in ("mean", "median", "max")),
+            fmt_pct(g.get("covered")),
+        )
     console.print(st)
     if doc.get("params"):
         pt = Table(title="parameter-range coverage (perturb.*)", title_justify="left")
         for col in ("axis", "evaluated", "training span", "coverage", "log-scale", "levels inside"):
             pt.add_column(col)
         for axis, p in doc["params"].items():
-            pt.add_row(axis, f"[{p['evaluated'][0]:g}, {p['evaluated'][1]:g}]",
-                       f"[{p['training'][0]:g}, {p['training'][1]:g}]" if p.get("training") else "n/a",
-                       fmt_pct(p.get("coverage")), fmt_pct(p.get("coverage_log")), fmt_pct(p.get("levels_inside")))
+            pt.add_row(
+                axis,
+                f"[{p['evaluated'][0]:g}, {p['evaluated'][1]:g}]",
+                f"[{p['training'][0]:g}, {p['training'][1]:g}]" if p.get("training") else "n/a",
+                fmt_pct(p.get("coverage")),
+                fmt_pct(p.get("coverage_log")),
+                fmt_pct(p.get("levels_inside")),
+            )
         console.print(pt)

@@ -3,6 +3,7 @@
 `obs_slices` finds a named field in a state vector, `state_hash` fingerprints initial
 states, `mj_input_names` names the MuJoCo inputs an `InputLog` records.
 """
+
 from __future__ import annotations
 
 import hashlib

@@ -11,6 +11,7 @@ fails the episode.
 Files: RUN_DIR/videos/<job id made safe>.mp4 (`video_path`); the HTML report embeds them next
 to their cell (`bench.report`).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -98,7 +99,9 @@ def check_run(suite: Any, cells: Any, horizon: int) -> None:
     env = suite.make_env(cells[0], horizon)
     try:
         if env.mujoco is None or env.mujoco.cameras is None:
-            raise ConfigError(f"video: {cells[0].key} ({env.backend}) has no camera to film; videos need a MuJoCo "
-                              f"suite whose model has a camera")
+            raise ConfigError(
+                f"video: {cells[0].key} ({env.backend}) has no camera to film; videos need a MuJoCo "
+                f"suite whose model has a camera"
+            )
     finally:
         env.close()

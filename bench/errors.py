@@ -2,6 +2,7 @@
 
 Messages are one line: they name the field, the bad value and what would be valid.
 """
+
 from __future__ import annotations
 
 import difflib

@@ -30,6 +30,7 @@ when it is used) are below `margin`, each at one-sided level 1 − alpha / (m ·
 number of those statistics); cells and splits cannot be certified on a CI budget (20 pairs
 with no lost one still leave an upper bound near 0.2), so they only ever fail a gate.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,7 +44,7 @@ import numpy as np
 from bench import scoring
 
 IQM_MIN_PAIRS = 10  # pairs per cell before the IQM bootstrap bound may decide (2 lost pairs -> bootstrap LCB 1.0)
-IQM_MIN_CELLS = 4   # with fewer cells the IQM trims nothing: it is the mean of the cell rates
+IQM_MIN_CELLS = 4  # with fewer cells the IQM trims nothing: it is the mean of the cell rates
 CellKey = tuple[str, str, str, str, str]  # (task, robot, env, condition, split)
 TIE = 1e-9  # IQM drops are differences of means of a few ratios: one exactly at the margin is not above it
 
@@ -86,11 +87,11 @@ class Design:
     outcomes), which is what makes the alpha allocation valid.
     """
 
-    margin: float = 0.05                 # tolerated drop before a test calls it a regression
-    alpha: float = 0.05                  # false-alarm rate over all looks and tests
-    cell_alpha: float = 0.5              # share of alpha spent on the per-cell tests (0 = aggregate tests only)
-    schedule: tuple[int, ...] = (20,)    # planned episodes (pairs) per cell at each look
-    cells: tuple[CellKey, ...] = ()      # the planned cells
+    margin: float = 0.05  # tolerated drop before a test calls it a regression
+    alpha: float = 0.05  # false-alarm rate over all looks and tests
+    cell_alpha: float = 0.5  # share of alpha spent on the per-cell tests (0 = aggregate tests only)
+    schedule: tuple[int, ...] = (20,)  # planned episodes (pairs) per cell at each look
+    cells: tuple[CellKey, ...] = ()  # the planned cells
 
     @property
     def looks(self) -> int:
@@ -173,8 +174,16 @@ def spend(design: Design) -> list[dict[str, float]]:
             if h == "iqm":
                 looks_of[h] = [k for k in range(L) if usable_iqm[k]]
                 continue
-            first = next((k0 for k0 in range(L) if pairs[k0][h] > 0 and float(min_p(pairs[k0][h], design.margin))
-                          < design.alpha * w * design.schedule[k0] / sum(design.schedule[k0:])), None)
+            first = next(
+                (
+                    k0
+                    for k0 in range(L)
+                    if pairs[k0][h] > 0
+                    and float(min_p(pairs[k0][h], design.margin))
+                    < design.alpha * w * design.schedule[k0] / sum(design.schedule[k0:])
+                ),
+                None,
+            )
             looks_of[h] = [] if first is None else list(range(first, L))
         dead = [h for h in weights if not looks_of[h]]
         if not dead or len(dead) == len(weights):
@@ -218,8 +227,14 @@ def n_boot_needed(design: Design, given: int) -> int:
     return int(given) if smallest is None else max(int(given), math.ceil(50 / smallest))
 
 
-def evaluate_look(cells: Mapping[CellKey, Pairs], design: Design, look: int, rng: np.random.Generator,
-                  n_boot: int, bounds: bool = True) -> dict[str, Any]:
+def evaluate_look(
+    cells: Mapping[CellKey, Pairs],
+    design: Design,
+    look: int,
+    rng: np.random.Generator,
+    n_boot: int,
+    bounds: bool = True,
+) -> dict[str, Any]:
     """All tests at look `look` (0-based) and its decision: "regression", "no_regression" or "continue".
 
     Args:
@@ -260,8 +275,9 @@ def evaluate_look(cells: Mapping[CellKey, Pairs], design: Design, look: int, rng
     samples: np.ndarray | None = None
     iqm_point = 0.0
     if use_iqm or bounds:
-        iqm_point, samples = scoring.paired_binary_stat_samples(np.array([cells[k].as_row() for k in keys]), rng,
-                                                                "iqm", n_boot)
+        iqm_point, samples = scoring.paired_binary_stat_samples(
+            np.array([cells[k].as_row() for k in keys]), rng, "iqm", n_boot
+        )
         p["iqm"] = float(np.mean(samples <= design.margin + TIE))
     decided = holm(p, t_look)
     regressed = [h for h, (rej, _) in decided.items() if rej]
@@ -279,10 +295,16 @@ def evaluate_look(cells: Mapping[CellKey, Pairs], design: Design, look: int, rng
         tested = h in decided
         thr = decided[h][1] if tested else design.alpha * fallback.get(h, 0.0) / design.looks
         g = groups.get(h)
-        t: dict[str, Any] = {"id": h, "kind": h.split(":")[0], "pairs": g.n if g else pooled.n,
-                             "drop": round(g.drop if g else iqm_point, 6), "p": float(f"{p[h]:.6g}"),
-                             "threshold": float(f"{thr:.6g}"), "tested": tested,
-                             "rejected": bool(tested and decided[h][0])}
+        t: dict[str, Any] = {
+            "id": h,
+            "kind": h.split(":")[0],
+            "pairs": g.n if g else pooled.n,
+            "drop": round(g.drop if g else iqm_point, 6),
+            "p": float(f"{p[h]:.6g}"),
+            "threshold": float(f"{thr:.6g}"),
+            "tested": tested,
+            "rejected": bool(tested and decided[h][0]),
+        }
         if bounds and thr > 0:
             level = 1.0 - thr
             if g is not None:
@@ -292,15 +314,24 @@ def evaluate_look(cells: Mapping[CellKey, Pairs], design: Design, look: int, rng
                 lcb, ucb = _quantile(samples, thr), _quantile(samples, level)
             t.update(level=round(level, 8), lcb=round(lcb, 6), ucb=round(ucb, 6))
         tests.append(t)
-    out: dict[str, Any] = {"pairs": pooled.n, "baseline_only": pooled.n10, "candidate_only": pooled.n01,
-                           "alpha_spent": float(f"{sum(t_look.values()):.6g}"), "tests": tests,
-                           "regressed": regressed}
+    out: dict[str, Any] = {
+        "pairs": pooled.n,
+        "baseline_only": pooled.n10,
+        "candidate_only": pooled.n01,
+        "alpha_spent": float(f"{sum(t_look.values()):.6g}"),
+        "tests": tests,
+        "regressed": regressed,
+    }
     if bounds:
         by_id = {t["id"]: t for t in tests}
         pooled_ucb = scoring.paired_score_bound(pooled.n10, pooled.n01, pooled.n, 1.0 - a_cert, "upper")
         out["mean"] = {"value": round(pooled.drop, 6), "lcb": by_id["pooled"].get("lcb"), "ucb": round(pooled_ucb, 6)}
-        out["iqm"] = {"value": round(iqm_point, 6), "lcb": by_id["iqm"].get("lcb"),
-                      "ucb": None if iqm_ucb is None else round(iqm_ucb, 6), "used": use_iqm}
+        out["iqm"] = {
+            "value": round(iqm_point, 6),
+            "lcb": by_id["iqm"].get("lcb"),
+            "ucb": None if iqm_ucb is None else round(iqm_ucb, 6),
+            "used": use_iqm,
+        }
         out["certify"] = {"level": round(1.0 - a_cert, 8), "certified": bool(certified)}
     out["decision"] = decision
     return out
@@ -329,11 +360,27 @@ def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[d
         if g.n == 0:
             continue
         t = tests.get(cell_id(k), tests.get("pooled", {}) if len(cells) == 1 else {})
-        rows.append({"task": k[0], "robot": k[1], "env": k[2], "condition": k[3], "split": k[4], "pairs": g.n,
-                     "baseline": round((g.n11 + g.n10) / g.n, 6), "candidate": round((g.n11 + g.n01) / g.n, 6),
-                     "drop": round(g.drop, 6), "baseline_only": g.n10, "candidate_only": g.n01,
-                     "p": t.get("p"), "level": t.get("level"), "drop_lcb": t.get("lcb"), "drop_ucb": t.get("ucb"),
-                     "tested": bool(t.get("tested", False)), "regressed": bool(t.get("rejected", False))})
+        rows.append(
+            {
+                "task": k[0],
+                "robot": k[1],
+                "env": k[2],
+                "condition": k[3],
+                "split": k[4],
+                "pairs": g.n,
+                "baseline": round((g.n11 + g.n10) / g.n, 6),
+                "candidate": round((g.n11 + g.n01) / g.n, 6),
+                "drop": round(g.drop, 6),
+                "baseline_only": g.n10,
+                "candidate_only": g.n01,
+                "p": t.get("p"),
+                "level": t.get("level"),
+                "drop_lcb": t.get("lcb"),
+                "drop_ucb": t.get("ucb"),
+                "tested": bool(t.get("tested", False)),
+                "regressed": bool(t.get("rejected", False)),
+            }
+        )
     return rows
 
 
@@ -348,27 +395,48 @@ def split_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[
         if g.n == 0:
             continue
         t = tests.get(f"split:{s}", tests.get("pooled", {}) if len(splits) == 1 else {})
-        rows.append({"split": s, "cells": sum(1 for k in cells if k[4] == s and cells[k].n), "pairs": g.n,
-                     "baseline": round((g.n11 + g.n10) / g.n, 6), "candidate": round((g.n11 + g.n01) / g.n, 6),
-                     "drop": round(g.drop, 6), "p": t.get("p"), "level": t.get("level"), "drop_lcb": t.get("lcb"),
-                     "drop_ucb": t.get("ucb"), "tested": bool(t.get("tested", False)),
-                     "regressed": bool(t.get("rejected", False))})
+        rows.append(
+            {
+                "split": s,
+                "cells": sum(1 for k in cells if k[4] == s and cells[k].n),
+                "pairs": g.n,
+                "baseline": round((g.n11 + g.n10) / g.n, 6),
+                "candidate": round((g.n11 + g.n01) / g.n, 6),
+                "drop": round(g.drop, 6),
+                "p": t.get("p"),
+                "level": t.get("level"),
+                "drop_lcb": t.get("lcb"),
+                "drop_ucb": t.get("ucb"),
+                "tested": bool(t.get("tested", False)),
+                "regressed": bool(t.get("rejected", False)),
+            }
+        )
     return rows
 
 
 def rule(design: Design, metric: str) -> str:
     """The decision rule in words, for the verdict document."""
-    return (f"regression if a one-sided paired test finds the drop (baseline - candidate) in {metric} above margin "
-            f"{design.margin}: pooled over all pairs (Tango score test), in the IQM of the per-cell rates (paired "
-            f"bootstrap, with >= {IQM_MIN_CELLS} cells of >= {IQM_MIN_PAIRS} pairs), per split, or per cell "
-            f"({len(design.cells)} cells, {design.cell_alpha:g} of alpha); alpha {design.alpha} spent over "
-            f"{design.looks} look(s) and the tests (Bonferroni), weighted Holm within a look; no regression if the "
-            f"upper bounds of the pooled (and IQM) drop are below the margin")
+    return (
+        f"regression if a one-sided paired test finds the drop (baseline - candidate) in {metric} above margin "
+        f"{design.margin}: pooled over all pairs (Tango score test), in the IQM of the per-cell rates (paired "
+        f"bootstrap, with >= {IQM_MIN_CELLS} cells of >= {IQM_MIN_PAIRS} pairs), per split, or per cell "
+        f"({len(design.cells)} cells, {design.cell_alpha:g} of alpha); alpha {design.alpha} spent over "
+        f"{design.looks} look(s) and the tests (Bonferroni), weighted Holm within a look; no regression if the "
+        f"upper bounds of the pooled (and IQM) drop are below the margin"
+    )
 
 
 def regressed_entry(test: Mapping[str, Any]) -> dict[str, Any]:
     """A rejected test as the verdict's `regressed` list names it: what, its drop, its bounds."""
     names = {"pooled": "all cells", "iqm": "IQM across cells"}
-    return {"id": test["id"], "kind": test["kind"], "name": names.get(test["id"], test["id"].split(":", 1)[-1]),
-            "pairs": test["pairs"], "drop": test["drop"], "lcb": test["lcb"], "ucb": test["ucb"],
-            "level": test["level"], "p": test["p"]}
+    return {
+        "id": test["id"],
+        "kind": test["kind"],
+        "name": names.get(test["id"], test["id"].split(":", 1)[-1]),
+        "pairs": test["pairs"],
+        "drop": test["drop"],
+        "lcb": test["lcb"],
+        "ucb": test["ucb"],
+        "level": test["level"],
+        "p": test["p"],
+    }

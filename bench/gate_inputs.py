@@ -4,6 +4,7 @@ recorded runs, whether two sides pair (same cells, same episode seeds), where ou
 Every check raises a one-line `BenchError` (exit 2) naming the difference; nothing here
 writes a byte or runs an episode.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -32,8 +33,10 @@ def resolve(value: Optional[str], role: str) -> dict[str, Any]:
         if not path.is_file():
             raise ConfigError(f"{role}={value!r}: no such file")
         if path.suffix not in CHECKPOINT_SUFFIXES:
-            raise DataError(f"{role}={value!r}: not a checkpoint ({', '.join(CHECKPOINT_SUFFIXES)}) nor a run "
-                            "directory's run.json/summary.json/episodes.jsonl")
+            raise DataError(
+                f"{role}={value!r}: not a checkpoint ({', '.join(CHECKPOINT_SUFFIXES)}) nor a run "
+                "directory's run.json/summary.json/episodes.jsonl"
+            )
         return {"kind": "checkpoint", "spec": value, "policy": "checkpoint", "checkpoint": str(path)}
     if "/" in value or value.endswith(".json"):
         raise ConfigError(f"{role}={value!r}: no such file or directory")
@@ -61,12 +64,16 @@ def cells_of_records(records: list) -> set[tuple]:
 
 def cells_of_jobs(jobs: list, wanted: set[str] | None = None) -> set[tuple]:
     """(task, robot, env, condition, split) of the cells of a plan's jobs (only job ids in `wanted`, if given)."""
-    return {(j.cell.task, j.cell.robot, j.cell.env, j.condition.name, j.cell.split) for j in jobs
-            if wanted is None or j.job_id in wanted}
+    return {
+        (j.cell.task, j.cell.robot, j.cell.env, j.condition.name, j.cell.split)
+        for j in jobs
+        if wanted is None or j.job_id in wanted
+    }
 
 
-def check_pairable(records: list, where: str, role: str, cells: set[tuple], seeds: Mapping[str, int],
-                   live: bool) -> None:
+def check_pairable(
+    records: list, where: str, role: str, cells: set[tuple], seeds: Mapping[str, int], live: bool
+) -> None:
     """Refuse a recorded run (`records`, described by `where`) that does not pair with the other side.
 
     Args:
@@ -80,14 +87,18 @@ def check_pairable(records: list, where: str, role: str, cells: set[tuple], seed
     if mine != cells:
         missing, extra = sorted(cells - mine), sorted(mine - cells)
         diff = f"lacks cell {'/'.join(missing[0][:4])}" if missing else f"has cell {'/'.join(extra[0][:4])}"
-        raise ConfigError(f"{where} was made with other suite cells: it {diff} that the {role} "
-                          f"{'does not have' if not missing else 'plays'} ({len(missing)} missing, {len(extra)} "
-                          "extra); paired episodes need the same cells")
+        raise ConfigError(
+            f"{where} was made with other suite cells: it {diff} that the {role} "
+            f"{'does not have' if not missing else 'plays'} ({len(missing)} missing, {len(extra)} "
+            "extra); paired episodes need the same cells"
+        )
     bad = next((r for r in records if r.job_id in seeds and seeds[r.job_id] != r.seed), None)
     if bad is not None:
-        raise ConfigError(f"{where} was made with other episode seeds: {bad.job_id} has seed {bad.seed}, the {role} "
-                          f"{'would play' if live else 'has'} {seeds[bad.job_id]} (another seed= or bench "
-                          "version?); paired episodes need the same seeds")
+        raise ConfigError(
+            f"{where} was made with other episode seeds: {bad.job_id} has seed {bad.seed}, the {role} "
+            f"{'would play' if live else 'has'} {seeds[bad.job_id]} (another seed= or bench "
+            "version?); paired episodes need the same seeds"
+        )
 
 
 def check_outputs(paths: Mapping[str, Path], inputs: list[tuple[Path, str]]) -> None:
@@ -101,5 +112,7 @@ def check_outputs(paths: Mapping[str, Path], inputs: list[tuple[Path, str]]) -> 
         r = path.resolve()
         for inp, label in inputs:
             if r == inp or inp in r.parents:
-                raise ConfigError(f"out={str(paths['verdict'])!r}: the {what} file {r} would be written "
-                                  f"{'over' if r == inp else 'inside'} {label} ({inp}); choose another out=")
+                raise ConfigError(
+                    f"out={str(paths['verdict'])!r}: the {what} file {r} would be written "
+                    f"{'over' if r == inp else 'inside'} {label} ({inp}); choose another out="
+                )

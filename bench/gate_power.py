@@ -20,6 +20,7 @@ stop, which needs the pooled drop certified below the margin and so is rare when
 collapse moves the pooled drop by drop / cells >= margin; benchmarks/bench_gate.py checks
 the calculation against simulated gates.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -46,8 +47,7 @@ def _kernel(d: int, p10: float, p01: float) -> np.ndarray:
     return k
 
 
-def sequential_power(pairs: Sequence[int], thresholds: Sequence[float], p10: float, p01: float,
-                     margin: float) -> float:
+def sequential_power(pairs: Sequence[int], thresholds: Sequence[float], p10: float, p01: float, margin: float) -> float:
     """P(a Tango test of "drop > margin" rejects at some look), look k seeing pairs[k] pairs.
 
     Args:
@@ -96,8 +96,16 @@ def _cells(n_cells: int, splits: Sequence[str] | None) -> list[gate.CellKey]:
     return [("task", f"cell{i}", "env", "nominal", splits[i]) for i in range(n_cells)]
 
 
-def scenario_power(scenario: str, episodes: int, batch: int, n_cells: int, rate: float, drop: float,
-                   design: gate.Design, splits: Sequence[str] | None = None) -> float:
+def scenario_power(
+    scenario: str,
+    episodes: int,
+    batch: int,
+    n_cells: int,
+    rate: float,
+    drop: float,
+    design: gate.Design,
+    splits: Sequence[str] | None = None,
+) -> float:
     """Power of the gate's test for `scenario` ("cell" or "all") with up to `episodes` per cell in looks of `batch`."""
     schedule = gate.looks_schedule(episodes, batch)
     keys = _cells(n_cells, splits)
@@ -110,8 +118,16 @@ def scenario_power(scenario: str, episodes: int, batch: int, n_cells: int, rate:
     return sequential_power(pairs, thresholds, rate * (1 - r2), (1 - rate) * r2, design.margin)
 
 
-def episodes_needed(scenario: str, power: float, batch: int, n_cells: int, rate: float, drop: float,
-                    design: gate.Design, splits: Sequence[str] | None = None) -> tuple[int | None, float]:
+def episodes_needed(
+    scenario: str,
+    power: float,
+    batch: int,
+    n_cells: int,
+    rate: float,
+    drop: float,
+    design: gate.Design,
+    splits: Sequence[str] | None = None,
+) -> tuple[int | None, float]:
     """Smallest budget (episodes per cell; a multiple of `batch` when it is > 0) reaching `power`, and its power.
 
     Doubling then bisection over the number of looks (power grows with the budget up to the
@@ -139,8 +155,17 @@ def episodes_needed(scenario: str, power: float, batch: int, n_cells: int, rate:
     return hi * step, pw(hi)
 
 
-def plan_text(power: float, rate: float, drop: float, n_cells: int, batch: int, design: gate.Design,
-              episodes: int, splits: Sequence[str] | None = None, cells_from: str = "") -> str:
+def plan_text(
+    power: float,
+    rate: float,
+    drop: float,
+    n_cells: int,
+    batch: int,
+    design: gate.Design,
+    episodes: int,
+    splits: Sequence[str] | None = None,
+    cells_from: str = "",
+) -> str:
     """The report `bench regress plan=true` prints."""
     split_note = ""
     if splits and len(set(splits)) > 1:
@@ -154,8 +179,10 @@ def plan_text(power: float, rate: float, drop: float, n_cells: int, batch: int, 
         "",
         f"  {'scenario':<34} {'episodes/cell':>13} {'looks':>5} {'power':>6}   power at episodes={episodes}",
     ]
-    for scenario, label in (("cell", f"one cell {rate:.2f} -> {rate - drop:.2f}"),
-                            ("all", f"every cell {rate:.2f} -> {rate - drop:.2f}")):
+    for scenario, label in (
+        ("cell", f"one cell {rate:.2f} -> {rate - drop:.2f}"),
+        ("all", f"every cell {rate:.2f} -> {rate - drop:.2f}"),
+    ):
         if scenario == "cell" and n_cells < 2:
             label += " (1 cell: pooled test)"
         need, got = episodes_needed(scenario, power, batch, n_cells, rate, drop, design, splits)
@@ -163,16 +190,26 @@ def plan_text(power: float, rate: float, drop: float, n_cells: int, batch: int, 
         if need is None:
             lines.append(f"  {label:<34} {'> ' + str(MAX_EPISODES):>13} {'':>5} {got:>6.3f}   {at:.3f}")
         else:
-            lines.append(f"  {label:<34} {need:>13} {len(gate.looks_schedule(need, batch)):>5} {got:>6.3f}   "
-                         f"{at:.3f}")
+            lines.append(f"  {label:<34} {need:>13} {len(gate.looks_schedule(need, batch)):>5} {got:>6.3f}   {at:.3f}")
     lines.append("")
-    lines.append(f"run: bench regress candidate=... baseline=... episodes=N batch={batch} margin={design.margin} "
-                 f"alpha={design.alpha}")
+    lines.append(
+        f"run: bench regress candidate=... baseline=... episodes=N batch={batch} margin={design.margin} "
+        f"alpha={design.alpha}"
+    )
     return "\n".join(lines) + "\n"
 
 
-def plan_command(power: float, rate: float, drop: float, n_cells: int, batch: int, design: gate.Design,
-                 episodes: int, forwarded: Sequence[str], unused: bool = False) -> int:
+def plan_command(
+    power: float,
+    rate: float,
+    drop: float,
+    n_cells: int,
+    batch: int,
+    design: gate.Design,
+    episodes: int,
+    forwarded: Sequence[str],
+    unused: bool = False,
+) -> int:
     """`bench regress plan=true`: print the budget table; runs and writes nothing.
 
     Args:

@@ -6,6 +6,7 @@ reader never sees half a file and a crash never leaves a truncated one. JSON nev
 NaN or infinity: `jsonable` maps numpy types to Python ones and `finite_or_none` turns a
 non-finite number into None (the caller records why).
 """
+
 from __future__ import annotations
 
 import json

@@ -13,6 +13,7 @@ on the unseen split, or the seen split when a suite has no unseen cells). Inputs
 with the same suite name but another version or manifest are refused: their numbers
 do not compare. Nothing is written unless every input is valid.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,14 +38,18 @@ def read_input(arg: str) -> tuple[str, dict]:
     path = Path(arg)
     if path.is_dir():
         if not (path / "summary.json").is_file():
-            raise DataError(f"{path}: no summary.json; is it a run directory written by bench run? "
-                            "(`bench score RUN` rebuilds it from episodes.jsonl)")
+            raise DataError(
+                f"{path}: no summary.json; is it a run directory written by bench run? "
+                "(`bench score RUN` rebuilds it from episodes.jsonl)"
+            )
         path = path / "summary.json"
     doc = load_json(path)
     sid = validate(doc, str(path))
     if sid not in ("bench.summary/1", LEADERBOARD_ID):
-        raise DataError(f"{path}: schema {sid} cannot be merged; give run summaries (bench.summary/1) or "
-                        f"leaderboards ({LEADERBOARD_ID})")
+        raise DataError(
+            f"{path}: schema {sid} cannot be merged; give run summaries (bench.summary/1) or "
+            f"leaderboards ({LEADERBOARD_ID})"
+        )
     return str(path), doc
 
 
@@ -90,8 +95,14 @@ def entry_from_summary(summary: dict, source: str) -> dict:
 
 def _entry_key(e: dict) -> tuple:
     # selection and metric too: a Panda-only run must not replace (or be ranked against) a full-suite run
-    return (e["policy"]["name"], e["policy"].get("checkpoint_sha256"), e["suite"]["name"], e["suite"]["version"],
-            e["metric"], _canonical(e["selection"]))
+    return (
+        e["policy"]["name"],
+        e["policy"].get("checkpoint_sha256"),
+        e["suite"]["name"],
+        e["suite"]["version"],
+        e["metric"],
+        _canonical(e["selection"]),
+    )
 
 
 def _group_key(e: dict) -> str:
@@ -120,19 +131,24 @@ def merge(docs: list[tuple[str, dict]]) -> dict:
             if old is None:
                 suites[suite["name"]] = {**suite, "_source": src}
             elif old["version"] != suite["version"]:
-                raise DataError(f"{src}: suite {suite['name']} v{suite['version']} but {old['_source']} is "
-                                f"v{old['version']}; refusing to rank across suite versions")
+                raise DataError(
+                    f"{src}: suite {suite['name']} v{suite['version']} but {old['_source']} is "
+                    f"v{old['version']}; refusing to rank across suite versions"
+                )
             elif _canonical(old["manifest"]) != _canonical(suite["manifest"]):
-                raise DataError(f"{src}: suite {suite['name']} v{suite['version']} has another split manifest "
-                                f"than {old['_source']}; refusing to rank across split manifests")
+                raise DataError(
+                    f"{src}: suite {suite['name']} v{suite['version']} has another split manifest "
+                    f"than {old['_source']}; refusing to rank across split manifests"
+                )
         entries.extend(new)
     by_key: dict[tuple, list[dict]] = {}
     for e in entries:
         by_key.setdefault(_entry_key(e), []).append(e)
     merged = []
     for group in by_key.values():
-        group.sort(key=lambda e: (e["counts"]["episodes"] - e["counts"]["errors"], e.get("finished_at") or ""),
-                   reverse=True)
+        group.sort(
+            key=lambda e: (e["counts"]["episodes"] - e["counts"]["errors"], e.get("finished_at") or ""), reverse=True
+        )
         best = dict(group[0])
         superseded = list(best.get("superseded", []))
         for other in group[1:]:
@@ -143,7 +159,7 @@ def merge(docs: list[tuple[str, dict]]) -> dict:
         "schema": LEADERBOARD_ID,
         "suites": [{k: v for k, v in s.items() if k != "_source"} for _, s in sorted(suites.items())],
         "ranking": "within each group (suite, version, metric, selection): by the lower end of the score's "
-                   "interval (for 95% intervals a one-sided 97.5% lower bound), then the value",
+        "interval (for 95% intervals a one-sided 97.5% lower bound), then the value",
         "entries": rank(merged),
     }
 
@@ -155,6 +171,7 @@ def rank(entries: list[dict]) -> list[dict]:
     for e in entries:
         groups.setdefault(_group_key(e), []).append(e)
     for g in sorted(groups):
+
         def order(e: dict) -> tuple:
             sc = e["score"]
             if sc.get("value") is None:
@@ -191,15 +208,28 @@ def render(board: dict, console=None) -> None:
                 return fmt_estimate(est, pct=_m != "return", signed=False)
 
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
-            gap_s = "n/a" if not gap or gap.get("value") is None else (
-                f"{gap['value']:+.2f} [{gap['ci'][0]:+.2f}, {gap['ci'][1]:+.2f}]" if gap.get("ci") else f"{gap['value']:+.2f}")
+            gap_s = (
+                "n/a"
+                if not gap or gap.get("value") is None
+                else (
+                    f"{gap['value']:+.2f} [{gap['ci'][0]:+.2f}, {gap['ci'][1]:+.2f}]"
+                    if gap.get("ci")
+                    else f"{gap['value']:+.2f}"
+                )
+            )
             sha = e["policy"].get("checkpoint_sha256")
             c = e["counts"]
-            t.add_row(str(e["rank"] or "–"), e["policy"]["name"], sha[:12] if sha else "–",
-                      f"{e['score']['split'] or ''} {_pct(e['score'])}",
-                      _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
-                      _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")), gap_s,
-                      f"{c['episodes'] - c['errors']}" + ("" if c["complete"] else " (incomplete)"), e["run_id"])
+            t.add_row(
+                str(e["rank"] or "–"),
+                e["policy"]["name"],
+                sha[:12] if sha else "–",
+                f"{e['score']['split'] or ''} {_pct(e['score'])}",
+                _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
+                _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
+                gap_s,
+                f"{c['episodes'] - c['errors']}" + ("" if c["complete"] else " (incomplete)"),
+                e["run_id"],
+            )
         console.print(t)
 
 
@@ -273,8 +303,12 @@ def main(argv: list[str]) -> int:
         board = load_json(Path(rest[0]))
         sid = validate(board, rest[0])
         if sid != LEADERBOARD_ID:
-            raise DataError(f"{rest[0]}: schema {sid} is not a leaderboard ({LEADERBOARD_ID}); "
-                            "make one with bench leaderboard merge")
+            raise DataError(
+                f"{rest[0]}: schema {sid} is not a leaderboard ({LEADERBOARD_ID}); "
+                "make one with bench leaderboard merge"
+            )
         render(board)
         return 0
-    raise ConfigError(f"leaderboard: unknown subcommand {cmd!r}; valid: validate, merge, show.{did_you_mean(cmd, ['validate', 'merge', 'show'])}")
+    raise ConfigError(
+        f"leaderboard: unknown subcommand {cmd!r}; valid: validate, merge, show.{did_you_mean(cmd, ['validate', 'merge', 'show'])}"
+    )

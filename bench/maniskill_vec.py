@@ -12,6 +12,7 @@ docs/maniskill.md. ManiSkill's CPU backend holds one env, so on CPU this runs wi
 do); on a GPU the same code runs N envs. PhysX parameters cannot be edited between steps on the
 GPU backend, so the model perturbation axes are unavailable here; the interface axes apply per env.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -29,14 +30,23 @@ class ManiSkillVecEnv:
 
     base: Any  # the unwrapped ManiSkill env
 
-    def __init__(self, env_id: str, robot: str, num_envs: int, *, interface: Interface | None = None,
-                 sim_backend: str = "physx_cuda", env_kwargs: dict | None = None):
+    def __init__(
+        self,
+        env_id: str,
+        robot: str,
+        num_envs: int,
+        *,
+        interface: Interface | None = None,
+        sim_backend: str = "physx_cuda",
+        env_kwargs: dict | None = None,
+    ):
         check_backend(sim_backend)
         if num_envs < 1:
             raise ConfigError(f"num_envs={num_envs}: must be >= 1")
         if sim_backend == "physx_cpu" and num_envs != 1:
-            raise ConfigError(f"num_envs={num_envs}: ManiSkill's physx_cpu backend holds one env; "
-                              "use sim_backend=physx_cuda for more")
+            raise ConfigError(
+                f"num_envs={num_envs}: ManiSkill's physx_cpu backend holds one env; use sim_backend=physx_cuda for more"
+            )
         check_buildable(env_id, robot)
         import gymnasium as gym
         import mani_skill.envs  # noqa: F401
@@ -46,12 +56,21 @@ class ManiSkillVecEnv:
         self.render = prepare(cameras=False)
         self.interface: Interface = interface or NativeInterface()
         if not self.interface.uses_ms_state:
-            raise ConfigError("ManiSkillVecEnv reads ManiSkill's batched state observation; "
-                              "interfaces that compute the state from the scene are one-env only")
+            raise ConfigError(
+                "ManiSkillVecEnv reads ManiSkill's batched state observation; "
+                "interfaces that compute the state from the scene are one-env only"
+            )
         self.num_envs, self.env_id, self.robot = int(num_envs), env_id, robot
-        self._gym = gym.make(env_id, robot_uids=robot, num_envs=self.num_envs, obs_mode="state",
-                             control_mode=self.interface.control_mode, sim_backend=sim_backend,
-                             render_backend="none", **(env_kwargs or {}))
+        self._gym = gym.make(
+            env_id,
+            robot_uids=robot,
+            num_envs=self.num_envs,
+            obs_mode="state",
+            control_mode=self.interface.control_mode,
+            sim_backend=sim_backend,
+            render_backend="none",
+            **(env_kwargs or {}),
+        )
         self.base = self._gym.unwrapped
         self.interface.bind(self)
         self.action_spec = self.interface.action_spec
@@ -79,8 +98,11 @@ class ManiSkillVecEnv:
         batch = torch.as_tensor(acts, device=self.device)
         raw, reward, _, _, info = self.base.step(batch if self.num_envs > 1 else batch[0])
         self._obs = raw
-        return (self._split(raw), reward.reshape(-1).cpu().numpy().astype(np.float64),
-                info["success"].reshape(-1).cpu().numpy().astype(bool))
+        return (
+            self._split(raw),
+            reward.reshape(-1).cpu().numpy().astype(np.float64),
+            info["success"].reshape(-1).cpu().numpy().astype(bool),
+        )
 
     def init_states(self) -> np.ndarray:
         """(N, S) simulator states (hashed per env for the records' init_state_hash)."""

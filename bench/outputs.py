@@ -15,6 +15,7 @@ refused, with one line naming its key, when it
 Folders are built in a hidden temporary sibling and swapped in at the end (`replace_dir`), so an error
 leaves nothing new behind and the old output intact until the new one is complete.
 """
+
 from __future__ import annotations
 
 import json
@@ -56,8 +57,9 @@ def written_by_bench(folder: Path) -> bool:
 def mark(folder: Path, extra: tuple[str, ...] = ()) -> None:
     """Write the marker listing every file now in `folder` (and `extra` names bench will add later)."""
     files = sorted({p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()} | set(extra))
-    (folder / MARKER).write_text(json.dumps({"written_by": "bench", "files": [f for f in files if f != MARKER]}),
-                                 encoding="utf-8")
+    (folder / MARKER).write_text(
+        json.dumps({"written_by": "bench", "files": [f for f in files if f != MARKER]}), encoding="utf-8"
+    )
 
 
 def remember(*paths: Path) -> None:
@@ -76,8 +78,10 @@ def remember(*paths: Path) -> None:
 def names_fit(key: str, shown: str, path: Path) -> None:
     for part in path.parts:
         if len(part.encode("utf-8", "surrogateescape")) > MAX_NAME_BYTES:
-            raise ConfigError(f"{key}={shown!r}: the name {part[:40]!r}... is longer than {MAX_NAME_BYTES} bytes "
-                              "(the file system's limit); give a shorter name")
+            raise ConfigError(
+                f"{key}={shown!r}: the name {part[:40]!r}... is longer than {MAX_NAME_BYTES} bytes "
+                "(the file system's limit); give a shorter name"
+            )
 
 
 def _writable(key: str, shown: str, path: Path) -> None:
@@ -89,12 +93,21 @@ def _writable(key: str, shown: str, path: Path) -> None:
     if not probe.is_dir():
         raise ConfigError(f"{key}={shown!r}: {str(probe)!r} is a file, not a folder; give a path under a folder")
     if not os.access(probe, os.W_OK | os.X_OK) or not probe.stat().st_mode & 0o222:  # root ignores permissions
-        raise ConfigError(f"{key}={shown!r}: cannot write under {str(probe)!r} (permission denied); "
-                          "give a writable folder")
+        raise ConfigError(
+            f"{key}={shown!r}: cannot write under {str(probe)!r} (permission denied); give a writable folder"
+        )
 
 
-def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, kind: Kind = "dir",
-          overwrite: bool = False, resume: Callable[[Path], bool] | None = None, can_overwrite: bool = True) -> Path:
+def check(
+    key: str,
+    path: str | os.PathLike[str],
+    inputs: Mapping[str, Any],
+    *,
+    kind: Kind = "dir",
+    overwrite: bool = False,
+    resume: Callable[[Path], bool] | None = None,
+    can_overwrite: bool = True,
+) -> Path:
     """Validate one output against the rule above; returns its resolved path. Writes nothing.
 
     Args:
@@ -118,14 +131,19 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
                 continue
             src = resolved(v)
             if out == src:
-                raise ConfigError(f"{key}={shown!r} is the input {in_key}={str(v)!r}; write the output somewhere "
-                                  "else (nothing is written over an input)")
+                raise ConfigError(
+                    f"{key}={shown!r} is the input {in_key}={str(v)!r}; write the output somewhere "
+                    "else (nothing is written over an input)"
+                )
             if _inside(src, out):
-                raise ConfigError(f"{key}={shown!r} contains the input {in_key}={str(v)!r}; give an output that "
-                                  "does not hold the input")
+                raise ConfigError(
+                    f"{key}={shown!r} contains the input {in_key}={str(v)!r}; give an output that "
+                    "does not hold the input"
+                )
             if _inside(out, src):
-                raise ConfigError(f"{key}={shown!r} lies inside the input {in_key}={str(v)!r}; give an output "
-                                  "outside it")
+                raise ConfigError(
+                    f"{key}={shown!r} lies inside the input {in_key}={str(v)!r}; give an output outside it"
+                )
     cwd = Path.cwd().resolve()
     if out == cwd or _inside(cwd, out):
         raise ConfigError(f"{key}={shown!r} contains the current folder; give a new folder for the output")
@@ -136,8 +154,10 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
             if not overwrite:
                 raise ConfigError(f"{key}={shown!r} exists; {again}")
             if not _bench_file(out):
-                raise ConfigError(f"{key}={shown!r} was not written by bench; overwrite=true only replaces bench's "
-                                  "own outputs (give a new file)")
+                raise ConfigError(
+                    f"{key}={shown!r} was not written by bench; overwrite=true only replaces bench's "
+                    "own outputs (give a new file)"
+                )
         else:
             if not out.is_dir():
                 raise ConfigError(f"{key}={shown!r} exists and is a file, not a folder")
@@ -147,8 +167,10 @@ def check(key: str, path: str | os.PathLike[str], inputs: Mapping[str, Any], *, 
                 if not overwrite:
                     raise ConfigError(f"{key}={shown!r} exists and is not empty; {again}")
                 if not written_by_bench(out):
-                    raise ConfigError(f"{key}={shown!r} holds files bench did not write there; overwrite=true only "
-                                      "replaces bench's own outputs (give a new folder)")
+                    raise ConfigError(
+                        f"{key}={shown!r} holds files bench did not write there; overwrite=true only "
+                        "replaces bench's own outputs (give a new folder)"
+                    )
     _writable(key, shown, out)
     return out
 

@@ -22,6 +22,7 @@ Works on any suite (one cell, the random policy, whose actions depend only on th
 
 `benchmarks/bench_robosuite_raw.py` compares against bare robosuite (`robosuite.make` + step).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -41,29 +42,38 @@ from bench import config as config_mod
 class PerfConfig:
     """Keys of `bench perf`."""
 
-    suite: str = "held_out_robots"   # suite (registered or package.module:Class)
-    robot: Optional[str] = None      # the cell's robot (default: the suite's first cell)
-    task: Optional[str] = None       # the cell's task
-    env: Optional[str] = None        # the cell's env
-    episodes: int = 8                # episodes for harness ÷ bare loop
-    horizon: int = 0                 # control steps per episode (0 = the suite's default)
-    seed: int = 0                    # run seed
-    workers: int = 2                 # workers for the scaling measurement
-    scaling_episodes: int = 40       # episodes for the scaling measurement (0 = skip it)
-    obs: str = "state"               # state | rgb | state+rgb: measure with camera images (suites with cameras)
+    suite: str = "held_out_robots"  # suite (registered or package.module:Class)
+    robot: Optional[str] = None  # the cell's robot (default: the suite's first cell)
+    task: Optional[str] = None  # the cell's task
+    env: Optional[str] = None  # the cell's env
+    episodes: int = 8  # episodes for harness ÷ bare loop
+    horizon: int = 0  # control steps per episode (0 = the suite's default)
+    seed: int = 0  # run seed
+    workers: int = 2  # workers for the scaling measurement
+    scaling_episodes: int = 40  # episodes for the scaling measurement (0 = skip it)
+    obs: str = "state"  # state | rgb | state+rgb: measure with camera images (suites with cameras)
     cameras: Optional[list[str]] = None  # cameras to render (default: the suite's)
-    image_size: int = 128            # image height and width in pixels
-    video: bool = True               # with cameras: also measure the cost of filming every episode (video=N)
+    image_size: int = 128  # image height and width in pixels
+    video: bool = True  # with cameras: also measure the cost of filming every episode (video=N)
 
 
 def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None = None) -> Any:
     """A random-policy plan of one cell; nothing is written."""
     from bench import api
 
-    run = api.RunConfig(suite=cfg.suite, policy="random", episodes=episodes, seed=cfg.seed, horizon=cfg.horizon,
-                        out=tempfile.gettempdir(), run_id="perf", suite_options=dict(suite_options or {}),
-                        robots=[cfg.robot] if cfg.robot else None, tasks=[cfg.task] if cfg.task else None,
-                        envs=[cfg.env] if cfg.env else None)
+    run = api.RunConfig(
+        suite=cfg.suite,
+        policy="random",
+        episodes=episodes,
+        seed=cfg.seed,
+        horizon=cfg.horizon,
+        out=tempfile.gettempdir(),
+        run_id="perf",
+        suite_options=dict(suite_options or {}),
+        robots=[cfg.robot] if cfg.robot else None,
+        tasks=[cfg.task] if cfg.task else None,
+        envs=[cfg.env] if cfg.env else None,
+    )
     p = api.plan(run)
     first = p.cells[0]
     return dataclasses.replace(p, cells=[first], jobs=[j for j in p.jobs if j.cell == first])
@@ -91,7 +101,7 @@ def harness_vs_bare(p: Any, ctx: Any = None) -> dict[str, float]:
         with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
             for i, (job, acts) in enumerate(zip(jobs, actions)):
                 # the second episode of a pair runs measurably faster (10-30 % with cameras on): alternate the order
-                for side in (("harness", "bare") if i % 2 == 0 else ("bare", "harness")):
+                for side in ("harness", "bare") if i % 2 == 0 else ("bare", "harness"):
                     t0 = time.perf_counter()
                     if side == "harness":
                         rec = worker.run(job)
@@ -106,8 +116,12 @@ def harness_vs_bare(p: Any, ctx: Any = None) -> dict[str, float]:
                         bare_steps += len(acts)
     finally:
         worker.close()
-    return {"harness_steps_per_s": steps / harness_s, "bare_steps_per_s": bare_steps / bare_s,
-            "ratio": (steps / harness_s) / (bare_steps / bare_s), "steps": steps}
+    return {
+        "harness_steps_per_s": steps / harness_s,
+        "bare_steps_per_s": bare_steps / bare_s,
+        "ratio": (steps / harness_s) / (bare_steps / bare_s),
+        "steps": steps,
+    }
 
 
 def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
@@ -132,12 +146,18 @@ def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
             acc = per_pid.setdefault(r.worker_pid, [0.0, 0.0])
             acc[0] += r.length
             acc[1] += r.wall_s
-        out[w] = {"end_to_end": sum(r.length for r in records) / wall,
-                  "steady": sum(steps / secs for steps, secs in per_pid.values()),
-                  "busy": sum(secs for _, secs in per_pid.values()) / (w * wall), "wall": wall}
-    return {"one": out[1], "many": out[workers],
-            "ratio_end_to_end": out[workers]["end_to_end"] / out[1]["end_to_end"],
-            "ratio_steady": out[workers]["steady"] / out[1]["steady"]}
+        out[w] = {
+            "end_to_end": sum(r.length for r in records) / wall,
+            "steady": sum(steps / secs for steps, secs in per_pid.values()),
+            "busy": sum(secs for _, secs in per_pid.values()) / (w * wall),
+            "wall": wall,
+        }
+    return {
+        "one": out[1],
+        "many": out[workers],
+        "ratio_end_to_end": out[workers]["end_to_end"] / out[1]["end_to_end"],
+        "ratio_steady": out[workers]["steady"] / out[1]["steady"],
+    }
 
 
 def render_cost(p: Any, frames: int = 30) -> dict[str, float]:
@@ -177,7 +197,7 @@ def video_overhead(p: Any) -> dict[str, float]:
             for w in workers.values():
                 w.run(p.jobs[0])  # warm-up
             for i, job in enumerate(p.jobs):
-                for name in (("plain", "video") if i % 2 == 0 else ("video", "plain")):  # alternate who goes first
+                for name in ("plain", "video") if i % 2 == 0 else ("video", "plain"):  # alternate who goes first
                     w = workers[name]
                     t0 = time.perf_counter()
                     rec = w.run(job)
@@ -193,10 +213,14 @@ def video_overhead(p: Any) -> dict[str, float]:
 def help_text() -> str:
     return config_mod.command_help(
         "usage: bench perf [suite=held_out_robots] [robot=Panda] [episodes=8] [workers=2] [scaling_episodes=40]",
-        __doc__ or "", PerfConfig,
-        ["bench perf                                   # held_out_robots, first cell (Panda)",
-         "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0",
-         "bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost"])
+        __doc__ or "",
+        PerfConfig,
+        [
+            "bench perf                                   # held_out_robots, first cell (Panda)",
+            "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0",
+            "bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost",
+        ],
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -215,8 +239,10 @@ def main(argv: list[str]) -> int:
     options = cams if cfg.obs != "state" else {}
     p = make_plan(cfg, cfg.episodes, options)
     cell = p.cells[0]
-    print(f"machine: {os.cpu_count()} cores; suite {p.suite.name}, cell {cell.key}, horizon {p.horizon}, random policy"
-          + (f"; obs={cfg.obs}, {cfg.image_size}x{cfg.image_size} images" if options else ""))
+    print(
+        f"machine: {os.cpu_count()} cores; suite {p.suite.name}, cell {cell.key}, horizon {p.horizon}, random policy"
+        + (f"; obs={cfg.obs}, {cfg.image_size}x{cfg.image_size} images" if options else "")
+    )
     if options:
         from bench.camera import SCENE_FLAGS
 
@@ -224,22 +250,32 @@ def main(argv: list[str]) -> int:
         flags = ", ".join(f"{k} {'on' if v else 'off'}" for k, v in SCENE_FLAGS.items())
         print("rendering: " + ", ".join(f"{c} {ms:.1f} ms/frame" for c, ms in costs.items()) + f" ({flags})")
     a = harness_vs_bare(p)
-    print(f"harness {a['harness_steps_per_s']:.1f} env-steps/s, bare loop {a['bare_steps_per_s']:.1f} env-steps/s "
-          f"({a['steps']} steps each{', both rendering every step' if options else ''}): "
-          f"harness / bare = {a['ratio']:.3f}")
+    print(
+        f"harness {a['harness_steps_per_s']:.1f} env-steps/s, bare loop {a['bare_steps_per_s']:.1f} env-steps/s "
+        f"({a['steps']} steps each{', both rendering every step' if options else ''}): "
+        f"harness / bare = {a['ratio']:.3f}"
+    )
     if options and cfg.video:
         v = video_overhead(p)
-        print(f"video: {v['video_steps_per_s']:.1f} env-steps/s filming every episode, {v['plain_steps_per_s']:.1f} "
-              f"without: wall time x{v['wall_ratio']:.3f}")
+        print(
+            f"video: {v['video_steps_per_s']:.1f} env-steps/s filming every episode, {v['plain_steps_per_s']:.1f} "
+            f"without: wall time x{v['wall_ratio']:.3f}"
+        )
     if cfg.scaling_episodes:
         b = workers_scaling(make_plan(cfg, cfg.scaling_episodes, options), cfg.workers)
         w = cfg.workers
-        print(f"steady state: 1 worker {b['one']['steady']:.1f} env-steps/s, {w} workers {b['many']['steady']:.1f} "
-              f"env-steps/s: {w} / 1 = {b['ratio_steady']:.3f}")
-        print(f"end to end ({cfg.scaling_episodes} episodes, worker start-up and env builds included): 1 worker "
-              f"{b['one']['end_to_end']:.1f}, {w} workers {b['many']['end_to_end']:.1f} env-steps/s: "
-              f"{w} / 1 = {b['ratio_end_to_end']:.3f}")
-        print(f"workers busy in episodes (share of their wall time, start-up and the last episode's tail "
-              f"excluded): 1 worker {b['one']['busy']:.3f} of {b['one']['wall']:.1f} s, {w} workers "
-              f"{b['many']['busy']:.3f} of {b['many']['wall']:.1f} s")
+        print(
+            f"steady state: 1 worker {b['one']['steady']:.1f} env-steps/s, {w} workers {b['many']['steady']:.1f} "
+            f"env-steps/s: {w} / 1 = {b['ratio_steady']:.3f}"
+        )
+        print(
+            f"end to end ({cfg.scaling_episodes} episodes, worker start-up and env builds included): 1 worker "
+            f"{b['one']['end_to_end']:.1f}, {w} workers {b['many']['end_to_end']:.1f} env-steps/s: "
+            f"{w} / 1 = {b['ratio_end_to_end']:.3f}"
+        )
+        print(
+            f"workers busy in episodes (share of their wall time, start-up and the last episode's tail "
+            f"excluded): 1 worker {b['one']['busy']:.3f} of {b['one']['wall']:.1f} s, {w} workers "
+            f"{b['many']['busy']:.3f} of {b['many']['wall']:.1f} s"
+        )
     return 0

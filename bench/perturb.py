@@ -17,6 +17,7 @@ light, camera pose, colours, textures, background, distractors) change only what
 env's cameras render; they live in `bench.perturb_visual`, which this module calls.
 The axes and the `perturb.*` grammar that makes conditions are `bench.axes`'.
 """
+
 from __future__ import annotations
 
 import weakref
@@ -63,7 +64,9 @@ def _resolve(names: Sequence[str], valid: list[str], what: str, field: str, wher
             shown = [v for v in valid if v]
             listing = ", ".join(shown[:15]) + (f", ... ({len(shown)} in all)" if len(shown) > 15 else "")
             article = "an" if what[0] in "aeiou" else "a"
-            raise ConfigError(f"{field}: {n!r} is not {article} {what} of {where}; valid: {listing}.{did_you_mean(n, shown)}")
+            raise ConfigError(
+                f"{field}: {n!r} is not {article} {what} of {where}; valid: {listing}.{did_you_mean(n, shown)}"
+            )
         out.append(valid.index(n))
     return out
 
@@ -83,7 +86,9 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
         if "geoms" in named:
             ids += _resolve(named["geoms"], _names(model, "geom", model.ngeom), "geom", f"{field}.geoms", where)
         if "bodies" in named:
-            bodies = set(_resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where))
+            bodies = set(
+                _resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where)
+            )
             ids += [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
         return np.array(sorted(set(ids)), dtype=int)
     if axis in ("mass", "link_mass"):
@@ -92,8 +97,10 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
         elif axis == "mass":
             ids = _object_body_ids(mj, model)
             if not ids:
-                raise ConfigError(f"{field}: {where} declares no manipulated object (object bodies); "
-                                  f"name the bodies with {field}.bodies=[...]")
+                raise ConfigError(
+                    f"{field}: {where} declares no manipulated object (object bodies); "
+                    f"name the bodies with {field}.bodies=[...]"
+                )
         else:
             ids = _robot_body_ids(mj, model)
         return np.array(ids, dtype=int)
@@ -107,8 +114,12 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
         return np.array(dofs, dtype=int)
     if axis == "gain":
         if "actuators" in named:
-            return np.array(_resolve(named["actuators"], _names(model, "actuator", model.nu), "actuator",
-                                     f"{field}.actuators", where), dtype=int)
+            return np.array(
+                _resolve(
+                    named["actuators"], _names(model, "actuator", model.nu), "actuator", f"{field}.actuators", where
+                ),
+                dtype=int,
+            )
         return np.arange(model.nu)
     return np.arange(0)
 
@@ -132,22 +143,29 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
                 # the backend checks the named targets (and refuses zero-valued ones) by applying once
                 level = cond.level[0] if isinstance(cond.level, (list, tuple)) else cond.level
                 try:
-                    other.apply(str(cond.axis), float(level if level is not None else 1.0),
-                                (cond.spec or {}).get("targets") or {})
+                    other.apply(
+                        str(cond.axis),
+                        float(level if level is not None else 1.0),
+                        (cond.spec or {}).get("targets") or {},
+                    )
                 finally:
                     other.restore()
                 continue
             can = sorted(other.axes) if other is not None else []
-            raise ConfigError(f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
-                              f"{', '.join(can) or 'none'}; interface axes work everywhere: {', '.join(INTERFACE_AXES)}")
+            raise ConfigError(
+                f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
+                f"{', '.join(can) or 'none'}; interface axes work everywhere: {', '.join(INTERFACE_AXES)}"
+            )
         idx = targets(mj, cond, where)
         nominal = nominal_of(mj)
         values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, str(AXES[cond.axis].field))[idx]
         if cond.axis == "gain":
             values = values[:, 0]
         if values.size == 0 or not np.any(values != 0):
-            raise ConfigError(f"perturb.{cond.axis}: the nominal {cond.axis} of every targeted element of {where} is 0 "
-                              f"({values.size} targeted), so scaling it changes nothing; target others or drop the axis")
+            raise ConfigError(
+                f"perturb.{cond.axis}: the nominal {cond.axis} of every targeted element of {where} is 0 "
+                f"({values.size} targeted), so scaling it changes nothing; target others or drop the axis"
+            )
 
 
 def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizon: int) -> None:
@@ -161,7 +179,7 @@ def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizo
     if not model_conds or not cells:
         return
     named = any((c.spec or {}).get("targets") for c in model_conds)
-    for cell in (cells if named else cells[:1]):
+    for cell in cells if named else cells[:1]:
         try:
             env = suite.make_env(cell, horizon)
         except Exception:
@@ -179,8 +197,17 @@ def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizo
 class _Nominal:
     """Copies of every model field a model axis edits, taken from an unperturbed model."""
 
-    FIELDS = ("geom_friction", "pair_friction", "body_mass", "body_inertia", "dof_damping", "dof_armature",
-              "dof_frictionloss", "actuator_gainprm", "actuator_biasprm")
+    FIELDS = (
+        "geom_friction",
+        "pair_friction",
+        "body_mass",
+        "body_inertia",
+        "dof_damping",
+        "dof_armature",
+        "dof_frictionloss",
+        "actuator_gainprm",
+        "actuator_biasprm",
+    )
     # one copy per name in FIELDS, set in __init__
     geom_friction: np.ndarray
     pair_friction: np.ndarray
@@ -236,8 +263,12 @@ def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
     import mujoco
 
     m = mj.model
-    objs = {"dof_": mujoco.mjtObj.mjOBJ_JOINT, "jnt_": mujoco.mjtObj.mjOBJ_JOINT, "body_": mujoco.mjtObj.mjOBJ_BODY,
-            "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR}
+    objs = {
+        "dof_": mujoco.mjtObj.mjOBJ_JOINT,
+        "jnt_": mujoco.mjtObj.mjOBJ_JOINT,
+        "body_": mujoco.mjtObj.mjOBJ_BODY,
+        "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR,
+    }
     setconst = False
     for e in edits:
         prefix = next(p for p in objs if e["field"].startswith(p))
@@ -355,8 +386,15 @@ class Interface:
     All draws come from the episode's generator.
     """
 
-    def __init__(self, env: EnvAdapter, rng: np.random.Generator, latency: int = 0, action_noise: float = 0.0,
-                 obs_noise: float = 0.0, action_hold: int = 1):
+    def __init__(
+        self,
+        env: EnvAdapter,
+        rng: np.random.Generator,
+        latency: int = 0,
+        action_noise: float = 0.0,
+        obs_noise: float = 0.0,
+        action_hold: int = 1,
+    ):
         self.env, self.rng = env, rng
         self.latency, self.action_noise = int(latency), float(action_noise)
         self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))

@@ -25,6 +25,7 @@ its axis table includes `AXIS_TABLE` (kind "visual"), and its `apply` / `validat
 `apply` and `validate` here. Visual axes need the env's camera rig (`env.mujoco.cameras`, suites
 built on `bench.camera_env`) and a policy that sees images (`obs=rgb` or `obs=state+rgb`).
 """
+
 from __future__ import annotations
 
 import math
@@ -40,25 +41,86 @@ TEXTURES = ("checker", "stripes", "noise", "rings")
 _GEOMS = ("geoms", "bodies")
 # Keyword arguments of `bench.axes.Axis` (kind "visual"); `nominal` is the level that changes nothing.
 AXIS_TABLE: tuple[dict[str, Any], ...] = (
-    dict(name="light", unit="scale of nominal", short="light intensity",
-         doc="ambient, diffuse and specular intensity of every light, headlight included", nominal=1.0),
-    dict(name="light_dir", unit="degrees", short="light direction tilt", maximum=90.0, nominal=0.0,
-         doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)"),
-    dict(name="camera_pos", unit="metres", short="camera position offset", maximum=1.0, targets=("cameras",),
-         nominal=0.0, doc="every (or the named) camera moved this far in a direction drawn per episode"),
-    dict(name="camera_rot", unit="degrees", short="camera orientation offset", maximum=90.0, targets=("cameras",),
-         nominal=0.0, doc="every (or the named) camera rotated this much about an axis drawn per episode"),
-    dict(name="object_color", unit="blend 0..1", short="object colour", maximum=1.0, targets=_GEOMS, nominal=0.0,
-         doc="the manipulated object's colour blended toward a colour drawn per episode"),
-    dict(name="table_color", unit="blend 0..1", short="table colour", maximum=1.0, targets=_GEOMS, nominal=0.0,
-         doc="the table's colour (geoms/bodies named like 'table') blended toward a colour drawn per episode"),
-    dict(name="background", unit="blend 0..1", short="floor and wall colour", maximum=1.0, targets=_GEOMS,
-         nominal=0.0, doc="floor and walls (world-body geoms other than the table) blended toward a drawn colour"),
-    dict(name="texture", unit=f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})", short="unseen table texture",
-         minimum=1.0, maximum=float(len(TEXTURES)), integer=True, targets=_GEOMS, nominal=0.0,
-         doc="the table's texture replaced by a procedural one in colours drawn per episode"),
-    dict(name="distractors", unit="objects", short="distractor objects on the table", maximum=20.0, integer=True,
-         nominal=0.0, doc="boxes, spheres, cylinders and capsules of random size and colour on the table (visual only)"),
+    dict(
+        name="light",
+        unit="scale of nominal",
+        short="light intensity",
+        doc="ambient, diffuse and specular intensity of every light, headlight included",
+        nominal=1.0,
+    ),
+    dict(
+        name="light_dir",
+        unit="degrees",
+        short="light direction tilt",
+        maximum=90.0,
+        nominal=0.0,
+        doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)",
+    ),
+    dict(
+        name="camera_pos",
+        unit="metres",
+        short="camera position offset",
+        maximum=1.0,
+        targets=("cameras",),
+        nominal=0.0,
+        doc="every (or the named) camera moved this far in a direction drawn per episode",
+    ),
+    dict(
+        name="camera_rot",
+        unit="degrees",
+        short="camera orientation offset",
+        maximum=90.0,
+        targets=("cameras",),
+        nominal=0.0,
+        doc="every (or the named) camera rotated this much about an axis drawn per episode",
+    ),
+    dict(
+        name="object_color",
+        unit="blend 0..1",
+        short="object colour",
+        maximum=1.0,
+        targets=_GEOMS,
+        nominal=0.0,
+        doc="the manipulated object's colour blended toward a colour drawn per episode",
+    ),
+    dict(
+        name="table_color",
+        unit="blend 0..1",
+        short="table colour",
+        maximum=1.0,
+        targets=_GEOMS,
+        nominal=0.0,
+        doc="the table's colour (geoms/bodies named like 'table') blended toward a colour drawn per episode",
+    ),
+    dict(
+        name="background",
+        unit="blend 0..1",
+        short="floor and wall colour",
+        maximum=1.0,
+        targets=_GEOMS,
+        nominal=0.0,
+        doc="floor and walls (world-body geoms other than the table) blended toward a drawn colour",
+    ),
+    dict(
+        name="texture",
+        unit=f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})",
+        short="unseen table texture",
+        minimum=1.0,
+        maximum=float(len(TEXTURES)),
+        integer=True,
+        targets=_GEOMS,
+        nominal=0.0,
+        doc="the table's texture replaced by a procedural one in colours drawn per episode",
+    ),
+    dict(
+        name="distractors",
+        unit="objects",
+        short="distractor objects on the table",
+        maximum=20.0,
+        integer=True,
+        nominal=0.0,
+        doc="boxes, spheres, cylinders and capsules of random size and colour on the table (visual only)",
+    ),
 )
 AXES = tuple(a["name"] for a in AXIS_TABLE)
 
@@ -80,15 +142,18 @@ def _named(model: Any, named: dict[str, list[str]], field: str, where: str) -> l
         for n in named.get(key, []):
             if n not in valid:
                 shown = [v for v in valid if v]
-                raise ConfigError(f"{field}.{key}: {n!r} is not a {kind} of {where}; valid: "
-                                  f"{', '.join(shown[:15])}{' ...' if len(shown) > 15 else ''}.{did_you_mean(n, shown)}")
+                raise ConfigError(
+                    f"{field}.{key}: {n!r} is not a {kind} of {where}; valid: "
+                    f"{', '.join(shown[:15])}{' ...' if len(shown) > 15 else ''}.{did_you_mean(n, shown)}"
+                )
             i = valid.index(n)
             ids |= {i} if kind == "geom" else {g for g in range(model.ngeom) if model.geom_bodyid[g] == i}
     return sorted(ids)
 
 
-def target_geoms(model: Any, axis: str, object_bodies: Sequence[str], named: dict[str, list[str]],
-                 where: str = "the env") -> list[int]:
+def target_geoms(
+    model: Any, axis: str, object_bodies: Sequence[str], named: dict[str, list[str]], where: str = "the env"
+) -> list[int]:
     """Geom ids an appearance axis recolours or retextures (ConfigError when there are none)."""
     field = f"perturb.{axis}"
     ids = _named(model, named, field, where)
@@ -102,17 +167,21 @@ def target_geoms(model: Any, axis: str, object_bodies: Sequence[str], named: dic
         if not ids:
             raise ConfigError(f"{field}: {where} declares no manipulated object; name it with {field}.bodies=[...]")
         return ids
-    table = [g for g in range(model.ngeom)
-             if "table" in geoms[g].lower() or "table" in bodies[model.geom_bodyid[g]].lower()]
+    table = [
+        g for g in range(model.ngeom) if "table" in geoms[g].lower() or "table" in bodies[model.geom_bodyid[g]].lower()
+    ]
     if axis in ("table_color", "texture"):
         if not table:
-            raise ConfigError(f"{field}: found no table in {where} (no geom or body named like 'table'); "
-                              f"name its geoms with {field}.geoms=[...]")
+            raise ConfigError(
+                f"{field}: found no table in {where} (no geom or body named like 'table'); "
+                f"name its geoms with {field}.geoms=[...]"
+            )
         return table
     ids = [g for g in range(model.ngeom) if model.geom_bodyid[g] == 0 and g not in set(table)]
     if not ids:
-        raise ConfigError(f"{field}: {where} has no floor or wall geoms (world-body geoms); name them with "
-                          f"{field}.geoms=[...]")
+        raise ConfigError(
+            f"{field}: {where} has no floor or wall geoms (world-body geoms); name them with {field}.geoms=[...]"
+        )
     return ids
 
 
@@ -131,20 +200,30 @@ def _textures_of(model: Any, geoms: Sequence[int], field: str, where: str) -> li
             if t >= 0 and int(model.tex_type[t]) in kinds:  # not the skybox
                 out.add(t)
     if not out:
-        raise ConfigError(f"{field}: the targeted geoms of {where} have no texture to replace (a material with "
-                          f"a 2-D or cube texture); use table_color, or target textured geoms with {field}.geoms=[...]")
+        raise ConfigError(
+            f"{field}: the targeted geoms of {where} have no texture to replace (a material with "
+            f"a 2-D or cube texture); use table_color, or target textured geoms with {field}.geoms=[...]"
+        )
     return sorted(out)
 
 
-def check(model: Any, object_bodies: Sequence[str], axis: str, named: dict[str, list[str]],
-          cameras: Sequence[str], where: str = "the env") -> None:
+def check(
+    model: Any,
+    object_bodies: Sequence[str],
+    axis: str,
+    named: dict[str, list[str]],
+    cameras: Sequence[str],
+    where: str = "the env",
+) -> None:
     """Raise ConfigError if `axis` (with its named targets) cannot be applied to this model and rig."""
     field = f"perturb.{axis}"
     if axis in ("camera_pos", "camera_rot"):
         for c in named.get("cameras", []):
             if c not in cameras:
-                raise ConfigError(f"{field}.cameras: {c!r} is not a rendered camera of {where}; valid: "
-                                  f"{', '.join(cameras)}.{did_you_mean(c, cameras)}")
+                raise ConfigError(
+                    f"{field}.cameras: {c!r} is not a rendered camera of {where}; valid: "
+                    f"{', '.join(cameras)}.{did_you_mean(c, cameras)}"
+                )
     elif axis in ("object_color", "table_color", "background"):
         target_geoms(model, axis, object_bodies, named, where)
     elif axis == "texture":
@@ -171,15 +250,19 @@ def _pattern(kind: int, height: int, width: int, rng: np.random.Generator) -> np
     c0, c1 = rng.uniform(0, 255, size=3), rng.uniform(0, 255, size=3)
     y, x = np.mgrid[0:height, 0:width] / max(height, width)
     if kind == 1:
-        mix = ((np.floor(x * 8) + np.floor(y * 8)) % 2)
+        mix = (np.floor(x * 8) + np.floor(y * 8)) % 2
     elif kind == 2:
-        mix = (np.floor((x + y) * 12) % 2)
+        mix = np.floor((x + y) * 12) % 2
     elif kind == 3:
         coarse = rng.uniform(0, 1, size=(9, 9))
         yi, xi = np.clip((y * 8).astype(int), 0, 7), np.clip((x * 8).astype(int), 0, 7)
         fy, fx = y * 8 - yi, x * 8 - xi
-        mix = (coarse[yi, xi] * (1 - fy) * (1 - fx) + coarse[yi + 1, xi] * fy * (1 - fx)
-               + coarse[yi, xi + 1] * (1 - fy) * fx + coarse[yi + 1, xi + 1] * fy * fx)
+        mix = (
+            coarse[yi, xi] * (1 - fy) * (1 - fx)
+            + coarse[yi + 1, xi] * fy * (1 - fx)
+            + coarse[yi, xi + 1] * (1 - fy) * fx
+            + coarse[yi + 1, xi + 1] * fy * fx
+        )
     else:
         mix = 0.5 + 0.5 * np.sin(np.hypot(x - 0.5, y - 0.5) * 40)
     return np.rint(c0 * (1 - mix[..., None]) + c1 * mix[..., None]).astype(np.uint8)
@@ -209,8 +292,10 @@ def _surface(model: Any, data: Any, object_bodies: Sequence[str], where: str) ->
         if int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
             c, r = np.asarray(model.stat.center[:2]), 0.5 * float(model.stat.extent)
             return c - r, c + r, float(xpos[g][2])
-    raise ConfigError(f"perturb.distractors: {where} has no table (box geom named like 'table') or floor plane to "
-                      f"place distractors on")
+    raise ConfigError(
+        f"perturb.distractors: {where} has no table (box geom named like 'table') or floor plane to "
+        f"place distractors on"
+    )
 
 
 @dataclass
@@ -247,14 +332,21 @@ class VisualScene:
             model = self.rig.model
             for t in sorted(self._dirty_tex):
                 adr = int(model.tex_adr[t])
-                model.tex_data[adr:adr + self._nominal_tex[t].size] = self._nominal_tex[t]
+                model.tex_data[adr : adr + self._nominal_tex[t].size] = self._nominal_tex[t]
                 self._upload(t)
             self._dirty_tex.clear()
 
     @property
     def active(self) -> bool:
-        return bool(self.light_scale != 1.0 or self.light_rot is not None or self.cam_offset is not None
-                    or self.cam_rot is not None or self.colors or self.n_distractors or self._dirty_tex)
+        return bool(
+            self.light_scale != 1.0
+            or self.light_rot is not None
+            or self.cam_offset is not None
+            or self.cam_rot is not None
+            or self.colors
+            or self.n_distractors
+            or self._dirty_tex
+        )
 
     def _upload(self, texid: int) -> None:
         import mujoco
@@ -281,7 +373,9 @@ class VisualScene:
                 self.cam_offset = float(value) * direction
             else:
                 self.cam_rot = _rotation(direction, float(value))
-            params[f"{axis}.{'direction' if axis == 'camera_pos' else 'axis'}"] = [round(float(v), 6) for v in direction]
+            params[f"{axis}.{'direction' if axis == 'camera_pos' else 'axis'}"] = [
+                round(float(v), 6) for v in direction
+            ]
         elif axis in ("object_color", "table_color", "background"):
             rgb = rng.uniform(0.0, 1.0, size=3)
             for g in target_geoms(model, axis, self.object_bodies, named, self.where):
@@ -289,16 +383,17 @@ class VisualScene:
             params[f"{axis}.rgb"] = [round(float(v), 4) for v in rgb]
         elif axis == "texture":
             kind = int(value)
-            for t in _textures_of(model, target_geoms(model, axis, self.object_bodies, named, self.where),
-                                  field, self.where):
+            for t in _textures_of(
+                model, target_geoms(model, axis, self.object_bodies, named, self.where), field, self.where
+            ):
                 h, w, nc = int(model.tex_height[t]), int(model.tex_width[t]), int(model.tex_nchannel[t])
                 adr = int(model.tex_adr[t])
                 if t not in self._nominal_tex:
-                    self._nominal_tex[t] = np.array(model.tex_data[adr:adr + h * w * nc], copy=True)
+                    self._nominal_tex[t] = np.array(model.tex_data[adr : adr + h * w * nc], copy=True)
                 img = _pattern(kind, h, w, rng)
                 if nc == 4:
                     img = np.concatenate([img, np.full((h, w, 1), 255, np.uint8)], axis=-1)
-                model.tex_data[adr:adr + h * w * nc] = img[..., :nc].reshape(-1)
+                model.tex_data[adr : adr + h * w * nc] = img[..., :nc].reshape(-1)
                 self._dirty_tex.add(t)
                 self._upload(t)
             params[f"{axis}.name"] = TEXTURES[kind - 1]
@@ -319,8 +414,12 @@ class VisualScene:
         lo, hi, z = _surface(model, data, self.object_bodies, self.where)
         bodies = _names(model, "body", model.nbody)
         avoid = [np.asarray(data.xpos[bodies.index(b)][:2]) for b in self.object_bodies if b in bodies]
-        kinds = (mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CYLINDER,
-                 mujoco.mjtGeom.mjGEOM_CAPSULE)
+        kinds = (
+            mujoco.mjtGeom.mjGEOM_BOX,
+            mujoco.mjtGeom.mjGEOM_SPHERE,
+            mujoco.mjtGeom.mjGEOM_CYLINDER,
+            mujoco.mjtGeom.mjGEOM_CAPSULE,
+        )
         out: list[tuple] = []
         for _ in range(self.n_distractors):
             kind = kinds[int(rng.integers(len(kinds)))]
@@ -330,7 +429,9 @@ class VisualScene:
                 if all(np.linalg.norm(xy - a) > 0.07 for a in avoid + [np.asarray(o[2][:2]) for o in out]):
                     break
             size = np.array([r, r, h]) if kind == mujoco.mjtGeom.mjGEOM_BOX else np.array([r, h, 0.0])
-            lift = r if kind == mujoco.mjtGeom.mjGEOM_SPHERE else h + (r if kind == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0)
+            lift = (
+                r if kind == mujoco.mjtGeom.mjGEOM_SPHERE else h + (r if kind == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0)
+            )
             yaw = float(rng.uniform(0, 2 * math.pi))
             mat = _rotation(np.array([0.0, 0.0, 1.0]), math.degrees(yaw)).reshape(-1)
             rgba = np.append(rng.uniform(0.05, 0.95, size=3), 1.0).astype(np.float32)
@@ -422,9 +523,13 @@ def validate(env: Any, axis: str, named: dict[str, list[str]], where: str) -> No
 
     rig = _rig(env)
     if rig is None:
-        raise ConfigError(f"perturb.{axis}: {where} ({env.backend}) has no camera rig, so a visual axis changes "
-                          f"nothing; suites that render cameras: {', '.join(suites_with_cameras()) or 'none'}")
+        raise ConfigError(
+            f"perturb.{axis}: {where} ({env.backend}) has no camera rig, so a visual axis changes "
+            f"nothing; suites that render cameras: {', '.join(suites_with_cameras()) or 'none'}"
+        )
     if isinstance(env, CameraEnv) and env.mode == "state":
-        raise ConfigError(f"perturb.{axis} changes only what the cameras see, and obs=state gives the policy no "
-                          f"image; use obs=rgb or obs=state+rgb")
+        raise ConfigError(
+            f"perturb.{axis} changes only what the cameras see, and obs=state gives the policy no "
+            f"image; use obs=rgb or obs=state+rgb"
+        )
     check(env.mujoco.model, tuple(env.mujoco.object_bodies), axis, named, list(rig.cameras), where)

@@ -23,6 +23,7 @@ Named targets use ManiSkill's names: actors ("cube") and links ("panda_link3") f
 ("panda_joint1") for joints. A name that does not exist, or a target whose nominal value is 0, is a
 ConfigError listing what is valid.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -34,8 +35,14 @@ import numpy as np
 from bench.errors import ConfigError, did_you_mean
 
 AXES = frozenset({"friction", "mass", "link_mass", "damping", "gain", "gravity"})
-TARGET_KEYS = {"friction": ("bodies",), "mass": ("bodies",), "link_mass": ("bodies",), "damping": ("joints",),
-               "gain": ("actuators", "joints"), "gravity": ()}
+TARGET_KEYS = {
+    "friction": ("bodies",),
+    "mass": ("bodies",),
+    "link_mass": ("bodies",),
+    "damping": ("joints",),
+    "gain": ("actuators", "joints"),
+    "gravity": (),
+}
 
 
 @dataclass
@@ -43,12 +50,12 @@ class _Nominal:
     """Handles and unperturbed values of one PhysX scene (collected once per scene)."""
 
     scene: Any
-    bodies: dict[str, list[Any]] = field(default_factory=dict)      # name -> physx body components
+    bodies: dict[str, list[Any]] = field(default_factory=dict)  # name -> physx body components
     robot_links: list[str] = field(default_factory=list)
-    joints: dict[str, Any] = field(default_factory=dict)              # robot joint name -> physx joint
+    joints: dict[str, Any] = field(default_factory=dict)  # robot joint name -> physx joint
     materials: dict[int, tuple[Any, float, float]] = field(default_factory=dict)  # id -> (mat, static, dynamic)
     mass: dict[int, tuple[Any, float, np.ndarray]] = field(default_factory=dict)  # id -> (body, mass, inertia)
-    drives: dict[str, tuple[float, float]] = field(default_factory=dict)           # joint -> (stiffness, damping)
+    drives: dict[str, tuple[float, float]] = field(default_factory=dict)  # joint -> (stiffness, damping)
 
 
 class PhysxAxes:
@@ -104,8 +111,10 @@ class PhysxAxes:
     def apply(self, axis: str, scale: float, targets: Mapping[str, Sequence[str]]) -> None:
         """Scale `axis` by `scale` on `targets` (empty: the axis' default targets); call before reset."""
         if axis not in AXES:
-            raise ConfigError(f"perturb.{axis}: not available on ManiSkill/PhysX; model axes there: "
-                              f"{', '.join(sorted(AXES))} (interface axes work on every env)")
+            raise ConfigError(
+                f"perturb.{axis}: not available on ManiSkill/PhysX; model axes there: "
+                f"{', '.join(sorted(AXES))} (interface axes work on every env)"
+            )
         named = {k: [str(n) for n in v] for k, v in (targets or {}).items() if v}
         for key in named:
             if key not in TARGET_KEYS[axis]:
@@ -153,8 +162,10 @@ class PhysxAxes:
         for n in names:
             if n not in valid:
                 listing = ", ".join(list(valid)[:15]) + (f", ... ({len(valid)} in all)" if len(valid) > 15 else "")
-                raise ConfigError(f"{field}: {n!r} is not a {what} of {self.env.env_id} with {self.env.robot}; "
-                                  f"valid: {listing}.{did_you_mean(n, valid)}")
+                raise ConfigError(
+                    f"{field}: {n!r} is not a {what} of {self.env.env_id} with {self.env.robot}; "
+                    f"valid: {listing}.{did_you_mean(n, valid)}"
+                )
         return list(names)
 
     def _edit(self, nom: _Nominal, axis: str, s: float, named: dict[str, list[str]]) -> None:
@@ -167,8 +178,10 @@ class PhysxAxes:
             elif axis == "mass":
                 bodies = list(self.env.object_names)
                 if not bodies:
-                    raise ConfigError(f"{field}: {self.env.env_id} declares no manipulated object; "
-                                      f"name the bodies with {field}.bodies=[...]")
+                    raise ConfigError(
+                        f"{field}: {self.env.env_id} declares no manipulated object; "
+                        f"name the bodies with {field}.bodies=[...]"
+                    )
             else:
                 bodies = nom.robot_links
             comps = [c for b in bodies for c in nom.bodies[b] if id(c) in nom.mass]
@@ -179,8 +192,11 @@ class PhysxAxes:
                 c.set_inertia(inertia * s)
         else:  # damping, gain: joint drives
             key = "actuators" if "actuators" in named else "joints"
-            joints = (self._resolve(named[key], list(nom.joints), "joint", f"{field}.{key}")
-                      if key in named else list(nom.joints))
+            joints = (
+                self._resolve(named[key], list(nom.joints), "joint", f"{field}.{key}")
+                if key in named
+                else list(nom.joints)
+            )
             col = 0 if axis == "gain" else 1
             self._check_nonzero(field, [nom.drives[j][col] for j in joints])
             for j in joints:  # the other drive parameter keeps its current value: axes compose
@@ -222,6 +238,8 @@ class PhysxAxes:
 
     def _check_nonzero(self, field: str, values: list[float]) -> None:
         if not values or not any(v != 0 for v in values):
-            raise ConfigError(f"{field}: the nominal value of every targeted element of {self.env.env_id} with "
-                              f"{self.env.robot} is 0 ({len(values)} targeted), so scaling it changes nothing; "
-                              "target others or drop the axis")
+            raise ConfigError(
+                f"{field}: the nominal value of every targeted element of {self.env.env_id} with "
+                f"{self.env.robot} is 0 ({len(values)} targeted), so scaling it changes nothing; "
+                "target others or drop the axis"
+            )

@@ -11,6 +11,7 @@ episode's task string (datasets written by `bench run record=` use the cell key,
 `Lift/Panda/default`), so checkpoints and scripted experts are checked against the same
 observation layout: the dataset's observation names must match the env's.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,15 +29,15 @@ from bench.errors import ConfigError, DataError
 class ActionsConfig:
     """Keys of `bench actions`."""
 
-    logs: Optional[str] = None        # LeRobot v3 dataset folder
-    policy: str = "scripted"          # registered policy name or package.module:attr (its own keys are accepted too)
-    suite: str = "held_out_robots"    # suite whose cells name the episodes' tasks
+    logs: Optional[str] = None  # LeRobot v3 dataset folder
+    policy: str = "scripted"  # registered policy name or package.module:attr (its own keys are accepted too)
+    suite: str = "held_out_robots"  # suite whose cells name the episodes' tasks
     episodes: Optional[list[int]] = None  # only these episode indices
     seed: int = ranged(0, 0, MAX_SEED)  # bootstrap seed
     n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap resamples (over episodes)
     confidence: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # interval level
-    out: Optional[str] = None         # write the JSON result here (never an input)
-    overwrite: bool = False           # replace an existing out= file that bench wrote
+    out: Optional[str] = None  # write the JSON result here (never an input)
+    overwrite: bool = False  # replace an existing out= file that bench wrote
 
 
 def _expand(obs_names: list[tuple[str, int]]) -> list[str]:
@@ -98,8 +99,10 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
                 fields = list(env.obs_spec[STATE].fields)
                 if names and list(names) != _expand(fields):
                     env.close()
-                    raise DataError(f"{cfg.logs}: observation.state names do not match suite {cfg.suite!r}'s "
-                                    f"observation ({names[:3]}... vs {_expand(fields)[:3]}...)")
+                    raise DataError(
+                        f"{cfg.logs}: observation.state names do not match suite {cfg.suite!r}'s "
+                        f"observation ({names[:3]}... vs {_expand(fields)[:3]}...)"
+                    )
                 built[key] = (env, plugin.make(cells[key], env, ctx))
             env, policy = built[key]
             obs, act = ep.data["observation.state"], ep.data["action"]
@@ -111,7 +114,7 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
                 stats.append(policy.episode_stats())
             err = pred - act
             mae.append(np.abs(err).mean(0))
-            mse.append((err ** 2).mean(0))
+            mse.append((err**2).mean(0))
             frames.append(len(obs))
     finally:
         for env, _ in built.values():
@@ -123,16 +126,29 @@ def evaluate(cfg: ActionsConfig, policy_options: Any = None) -> dict:
     dims = action_names or [f"a{i}" for i in range(len(m))]
     per_dim = []
     for i, name in enumerate(dims):
-        per_dim.append({
-            "dim": name,
-            "mae": {"value": float(m[i]), "ci": None if mlo is None else [float(mlo[i]), float(mhi[i])]},
-            "rmse": {"value": float(np.sqrt(s[i])), "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))]},
-        })
+        per_dim.append(
+            {
+                "dim": name,
+                "mae": {"value": float(m[i]), "ci": None if mlo is None else [float(mlo[i]), float(mhi[i])]},
+                "rmse": {
+                    "value": float(np.sqrt(s[i])),
+                    "ci": None if slo is None else [float(np.sqrt(slo[i])), float(np.sqrt(shi[i]))],
+                },
+            }
+        )
     reason = None if len(episodes) > 1 else "one episode: no interval"
-    out: dict[str, Any] = {"schema": "bench.actions/1", "logs": str(cfg.logs), "policy": cfg.policy,
-           "checkpoint": identity.checkpoint, "suite": cfg.suite, "episodes": len(episodes), "frames": int(w.sum()),
-           "confidence": cfg.confidence, "interval": "bootstrap over episodes" if reason is None else reason,
-           "per_dim": per_dim}
+    out: dict[str, Any] = {
+        "schema": "bench.actions/1",
+        "logs": str(cfg.logs),
+        "policy": cfg.policy,
+        "checkpoint": identity.checkpoint,
+        "suite": cfg.suite,
+        "episodes": len(episodes),
+        "frames": int(w.sum()),
+        "confidence": cfg.confidence,
+        "interval": "bootstrap over episodes" if reason is None else reason,
+        "per_dim": per_dim,
+    }
     if stats:
         from bench.remote.latency import pool
 
@@ -151,8 +167,11 @@ def help_text() -> str:
         "(`Lift/Panda/default`, as `bench run record=` writes). The policy's own keys (e.g.\n"
         "checkpoint= for policy=checkpoint) are accepted too.",
         ActionsConfig,
-        ["bench actions logs=demos policy=scripted",
-         "bench actions logs=demos policy=checkpoint checkpoint=bc/policy.safetensors out=actions.json"])
+        [
+            "bench actions logs=demos policy=scripted",
+            "bench actions logs=demos policy=checkpoint checkpoint=bc/policy.safetensors out=actions.json",
+        ],
+    )
 
 
 def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
@@ -168,10 +187,12 @@ def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
     head = config_mod.build(ActionsConfig, [o for o in overrides if config_mod.top_key(o) == "policy"])
     plugin = registry.load_policy(head.policy)
     own = [f.name for f in dataclasses.fields(ActionsConfig)]
-    parts = config_mod.partition(overrides, {"actions": own, f"policy {head.policy}": option_keys(plugin.Options)},
-                                 "bench actions")
-    return config_mod.build(ActionsConfig, parts["actions"]), config_mod.build(plugin.Options,
-                                                                               parts[f"policy {head.policy}"])
+    parts = config_mod.partition(
+        overrides, {"actions": own, f"policy {head.policy}": option_keys(plugin.Options)}, "bench actions"
+    )
+    return config_mod.build(ActionsConfig, parts["actions"]), config_mod.build(
+        plugin.Options, parts[f"policy {head.policy}"]
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -184,15 +205,22 @@ def main(argv: list[str]) -> int:
     if cfg.out:
         from bench import outputs
 
-        outputs.check("out", cfg.out, {"logs": cfg.logs, "checkpoint": getattr(policy_options, "checkpoint", None)}, kind="file",
-                      overwrite=cfg.overwrite)
+        outputs.check(
+            "out",
+            cfg.out,
+            {"logs": cfg.logs, "checkpoint": getattr(policy_options, "checkpoint", None)},
+            kind="file",
+            overwrite=cfg.overwrite,
+        )
     result = evaluate(cfg, policy_options)
     from rich.console import Console
     from rich.table import Table
 
     conf = int(round(cfg.confidence * 100))
-    t = Table(title=f"policy {cfg.policy} on {result['episodes']} logged episodes ({result['frames']} frames)",
-              title_justify="left")
+    t = Table(
+        title=f"policy {cfg.policy} on {result['episodes']} logged episodes ({result['frames']} frames)",
+        title_justify="left",
+    )
     for col in ("action dim", f"MAE [{conf}% CI]", f"RMSE [{conf}% CI]"):
         t.add_column(col)
     fmt = lambda e: f"{e['value']:.4f}" + (f" [{e['ci'][0]:.4f}, {e['ci'][1]:.4f}]" if e["ci"] else "")  # noqa: E731
@@ -202,8 +230,9 @@ def main(argv: list[str]) -> int:
     lat = result.get("policy_latency")
     if lat:  # a remote policy: its round trips, one per logged frame
         ms = lat["rtt_ms"]
-        print(f"round trips: {lat['requests']}, median {ms['p50']:.3g} ms, p90 {ms['p90']:.3g} ms, "
-              f"max {ms['max']:.3g} ms")
+        print(
+            f"round trips: {lat['requests']}, median {ms['p50']:.3g} ms, p90 {ms['p90']:.3g} ms, max {ms['max']:.3g} ms"
+        )
     if cfg.out:
         from bench.io import write_atomic
 

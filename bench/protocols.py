@@ -16,11 +16,13 @@ Observations are a dict of named entries with a declared spec (`ObsSpec`):
 A policy's `act(obs)` returns one action (A,) or an action chunk (T, A); the runner
 executes a chunk open loop, one row per step, and asks again when it is used up.
 """
+
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -28,7 +30,7 @@ Obs = dict[str, Any]
 
 STATE = "state"
 TASK = "task"
-RGB = "rgb."      # prefix of camera-image keys: "rgb.agentview"
+RGB = "rgb."  # prefix of camera-image keys: "rgb.agentview"
 DEPTH = "depth."  # prefix of depth-image keys
 
 
@@ -61,21 +63,21 @@ class Feature:
     fields: tuple[tuple[str, int], ...] = ()
 
     @staticmethod
-    def state(fields: Sequence[tuple[str, int]]) -> "Feature":
+    def state(fields: Sequence[tuple[str, int]]) -> Feature:
         """A float32 state vector made of named fields."""
         named = tuple((str(n), int(w)) for n, w in fields)
         return Feature((sum(w for _, w in named),), "float32", named)
 
     @staticmethod
-    def rgb(height: int, width: int) -> "Feature":
+    def rgb(height: int, width: int) -> Feature:
         return Feature((int(height), int(width), 3), "uint8")
 
     @staticmethod
-    def depth(height: int, width: int) -> "Feature":
+    def depth(height: int, width: int) -> Feature:
         return Feature((int(height), int(width)), "float32")
 
     @staticmethod
-    def text() -> "Feature":
+    def text() -> Feature:
         return Feature((), "str")
 
     def to_json(self) -> dict[str, Any]:
@@ -122,7 +124,7 @@ class ActionSpec:
     high: np.ndarray = field(compare=False)
 
     @staticmethod
-    def box(names: Sequence[str], low: Any, high: Any) -> "ActionSpec":
+    def box(names: Sequence[str], low: Any, high: Any) -> ActionSpec:
         n = len(names)
         lo = np.broadcast_to(np.asarray(low, np.float32), (n,)).copy()
         hi = np.broadcast_to(np.asarray(high, np.float32), (n,)).copy()
@@ -202,11 +204,9 @@ class ModelAxes(Protocol):
 
     axes: frozenset[str]
 
-    def restore(self) -> None:
-        ...
+    def restore(self) -> None: ...
 
-    def apply(self, axis: str, scale: float, targets: Mapping[str, Sequence[str]]) -> None:
-        ...
+    def apply(self, axis: str, scale: float, targets: Mapping[str, Sequence[str]]) -> None: ...
 
 
 @runtime_checkable
@@ -258,8 +258,7 @@ class EnvAdapter(Protocol):
 class Policy(Protocol):
     """What the rollout calls: `reset(seed)` before each episode, `act(obs)` every step."""
 
-    def reset(self, seed: int) -> None:
-        ...
+    def reset(self, seed: int) -> None: ...
 
     def act(self, obs: Obs) -> np.ndarray:
         """One action (A,) or an action chunk (T, A) executed open loop."""
@@ -323,9 +322,9 @@ class Suite(Protocol):
 class PolicyContext:
     """What a policy factory gets besides the cell and its env."""
 
-    options: Any          # an instance of the plugin's Options
+    options: Any  # an instance of the plugin's Options
     suite: Suite
-    seed: int             # the run seed
+    seed: int  # the run seed
     horizon: int
 
 

@@ -1,4 +1,5 @@
 """Where a result came from: package versions, git sha, machine."""
+
 from __future__ import annotations
 
 import os
@@ -9,8 +10,20 @@ from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-PACKAGES = ("bench-harness", "numpy", "scipy", "mujoco", "robosuite", "metaworld", "gymnasium", "pyarrow",
-            "torch", "omegaconf", "mani-skill", "sapien")
+PACKAGES = (
+    "bench-harness",
+    "numpy",
+    "scipy",
+    "mujoco",
+    "robosuite",
+    "metaworld",
+    "gymnasium",
+    "pyarrow",
+    "torch",
+    "omegaconf",
+    "mani-skill",
+    "sapien",
+)
 
 
 @lru_cache(maxsize=1)
@@ -30,10 +43,15 @@ def git_sha() -> str | None:
     """The harness checkout's commit (with `-dirty` when it has local changes), or None."""
     root = Path(__file__).resolve().parents[1]
     try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5).stdout.strip()
+        sha = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return None
@@ -97,16 +115,26 @@ def checkpoint_provenance(path: str | Path, recorded_sha256: str | None = None, 
     from bench.io import sha256_file
 
     p = Path(path)
-    out: dict = {"path": str(p), "format": p.suffix.lstrip(".") or None, "sha256": recorded_sha256,
-                 "size_bytes": None, "architecture": None, "training": None, "metadata": None, "note": None}
+    out: dict = {
+        "path": str(p),
+        "format": p.suffix.lstrip(".") or None,
+        "sha256": recorded_sha256,
+        "size_bytes": None,
+        "architecture": None,
+        "training": None,
+        "metadata": None,
+        "note": None,
+    }
     if not p.is_file():
         out["note"] = "checkpoint file not found here; sha256 as recorded by the run"
         return out
     out["size_bytes"] = p.stat().st_size
     out["sha256"] = sha256_file(p) if hash_file or not recorded_sha256 else recorded_sha256
     if recorded_sha256 and recorded_sha256 != out["sha256"]:
-        out["note"] = (f"the file changed since the run was recorded (recorded sha256 {recorded_sha256}); "
-                       "sha256 and metadata are the file's now")
+        out["note"] = (
+            f"the file changed since the run was recorded (recorded sha256 {recorded_sha256}); "
+            "sha256 and metadata are the file's now"
+        )
     spec = None
     try:
         meta = safetensors_metadata(p) if p.suffix == ".safetensors" else None

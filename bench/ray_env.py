@@ -13,6 +13,7 @@
   (`bench.provenance.package_versions`): records carry the driver's versions, so a worker
   that differs would mislabel them.
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -33,8 +34,8 @@ PROJECT_PACKAGES = ("bench", "suites", "baselines")
 DIST = "bench-harness"
 # driver environment variables that change what a worker computes or renders; passed to every actor
 PASS_ENV = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "MUJOCO_EGL_DEVICE_ID", "MS_SKIP_ASSET_DOWNLOAD_PROMPT")
-PROBE_TIMEOUT_S = 5.0   # TCP connect to the head
-GCS_PROBE_S = 20.0      # the head's GCS answering (so a wrong address costs at most ~25 s, not minutes)
+PROBE_TIMEOUT_S = 5.0  # TCP connect to the head
+GCS_PROBE_S = 20.0  # the head's GCS answering (so a wrong address costs at most ~25 s, not minutes)
 
 
 def import_ray() -> Any:
@@ -56,8 +57,10 @@ def check_address(address: str) -> None:
         return
     host, _, port = address.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536 or "/" in address:
-        raise ConfigError(f"ray_address={address!r}: give auto, local or HOST:PORT (e.g. 10.0.0.5:6379, "
-                            "the head's `ray start --head --port=6379`)")
+        raise ConfigError(
+            f"ray_address={address!r}: give auto, local or HOST:PORT (e.g. 10.0.0.5:6379, "
+            "the head's `ray start --head --port=6379`)"
+        )
 
 
 def _bootstrap(ray: Any, address: str) -> str:
@@ -69,8 +72,10 @@ def _bootstrap(ray: Any, address: str) -> str:
     except ConnectionError:
         found = None
     if not found:
-        raise ExecutorError("ray_address=auto: no Ray cluster is running on this machine (none started with "
-                            "`ray start --head`, no RAY_ADDRESS); give ray_address=HOST:PORT or ray_address=local")
+        raise ExecutorError(
+            "ray_address=auto: no Ray cluster is running on this machine (none started with "
+            "`ray start --head`, no RAY_ADDRESS); give ray_address=HOST:PORT or ray_address=local"
+        )
     return str(found)
 
 
@@ -80,9 +85,11 @@ def _probe(address: str, given: str) -> None:
         with socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_TIMEOUT_S):
             pass
     except OSError as exc:
-        raise ExecutorError(f"ray_address={given}: no Ray cluster answers at {address} "
-                            f"({exc.strerror or type(exc).__name__}); start one with `ray start --head "
-                            f"--port={port}` there, or give another address") from None
+        raise ExecutorError(
+            f"ray_address={given}: no Ray cluster answers at {address} "
+            f"({exc.strerror or type(exc).__name__}); start one with `ray start --head "
+            f"--port={port}` there, or give another address"
+        ) from None
 
 
 _GCS_PROBE = """
@@ -100,15 +107,20 @@ def _probe_gcs(address: str, given: str) -> None:
     import subprocess
 
     try:
-        res = subprocess.run([sys.executable, "-c", _GCS_PROBE, address], capture_output=True, text=True,
-                             timeout=GCS_PROBE_S)
+        res = subprocess.run(
+            [sys.executable, "-c", _GCS_PROBE, address], capture_output=True, text=True, timeout=GCS_PROBE_S
+        )
     except subprocess.TimeoutExpired:
-        raise ExecutorError(f"ray_address={given}: something listens at {address} but no Ray GCS answered within "
-                            f"{GCS_PROBE_S:g} s; give the head's --port (default 6379)") from None
+        raise ExecutorError(
+            f"ray_address={given}: something listens at {address} but no Ray GCS answered within "
+            f"{GCS_PROBE_S:g} s; give the head's --port (default 6379)"
+        ) from None
     if res.returncode != 0:
         lines = [ln.strip() for ln in res.stderr.splitlines() if ln.strip() and not ln.startswith((" ", "["))]
-        raise ExecutorError(f"ray_address={given}: the Ray cluster at {address} refused this driver: "
-                            f"{lines[-1] if lines else 'exit code ' + str(res.returncode)}")
+        raise ExecutorError(
+            f"ray_address={given}: the Ray cluster at {address} refused this driver: "
+            f"{lines[-1] if lines else 'exit code ' + str(res.returncode)}"
+        )
 
 
 def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | None = None) -> bool:
@@ -124,8 +136,7 @@ def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | Non
     quiet: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False, "runtime_env": env or None}
     try:
         if address == "local":
-            ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1", include_dashboard=False,
-                     **quiet)
+            ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1", include_dashboard=False, **quiet)
         else:
             target = _bootstrap(ray, address)
             _probe(target, address)
@@ -232,12 +243,16 @@ def report() -> dict[str, Any]:
 def version_mismatch(driver: dict[str, Any], worker: dict[str, Any], where: str) -> str | None:
     """One line naming the first difference between a worker's `report()` and the driver's, or None."""
     if driver["python"] != worker["python"]:
-        return (f"the cluster runs Python {worker['python']} ({where}), this driver Python {driver['python']}; "
-                "use the same Python on every node")
+        return (
+            f"the cluster runs Python {worker['python']} ({where}), this driver Python {driver['python']}; "
+            "use the same Python on every node"
+        )
     mine, theirs = driver["packages"], worker["packages"]
     for name in sorted(set(mine) | set(theirs)):
         if mine.get(name) != theirs.get(name):
-            return (f"the cluster has {name} {theirs.get(name) or '(not installed)'} ({where}), this driver "
-                    f"{mine.get(name) or '(not installed)'}; install the same versions on every node "
-                    "(ray_env=pip installs this driver's, docs/ray.md)")
+            return (
+                f"the cluster has {name} {theirs.get(name) or '(not installed)'} ({where}), this driver "
+                f"{mine.get(name) or '(not installed)'}; install the same versions on every node "
+                "(ray_env=pip installs this driver's, docs/ray.md)"
+            )
     return None

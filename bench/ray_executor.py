@@ -17,6 +17,7 @@ If the driver dies, Ray ends its actors; rerunning the command resumes like a lo
 Before any episode, every actor reports its Python and package versions; a difference
 from the driver, or a suite or policy the actor cannot import, stops the run with one line.
 """
+
 from __future__ import annotations
 
 import os
@@ -35,8 +36,8 @@ from bench.runner import Worker, WorkerSpec, given_up_record, with_retries
 from bench.scheduling import MAX_RETRIES, JobQueue, depth
 from bench.suite import Job
 
-STALL_S = 300.0      # no actor alive and none placed for this long: give up (records so far are kept)
-WAIT_NOTE_S = 20.0   # tell the user when actors are still waiting to be placed after this long
+STALL_S = 300.0  # no actor alive and none placed for this long: give up (records so far are kept)
+WAIT_NOTE_S = 20.0  # tell the user when actors are still waiting to be placed after this long
 PREFLIGHT_S = 600.0  # a node's first worker may install a runtime env (ray_env=pip) before it answers
 
 
@@ -115,7 +116,7 @@ class _Actor:
     start_ref: Any
     ready: bool = False
     where: str = "not placed yet"
-    inflight: deque = field(default_factory=deque)   # (ref, job) in submission order
+    inflight: deque = field(default_factory=deque)  # (ref, job) in submission order
     warm: set = field(default_factory=set)
 
 
@@ -131,9 +132,16 @@ class RayExecutor:
         note: called with one-line progress notes (actors lost, waiting for placement).
     """
 
-    def __init__(self, address: str = "auto", actors: int = 0, cpus: float = 1.0, gpus: float = 0.0,
-                 env: str = "code", runtime_env: dict[str, Any] | None = None,
-                 note: Callable[[str], None] | None = None):
+    def __init__(
+        self,
+        address: str = "auto",
+        actors: int = 0,
+        cpus: float = 1.0,
+        gpus: float = 0.0,
+        env: str = "code",
+        runtime_env: dict[str, Any] | None = None,
+        note: Callable[[str], None] | None = None,
+    ):
         ray_env.check_address(address)
         if env not in ray_env.RAY_ENVS:
             raise ConfigError(f"ray_env={env!r}: valid: {', '.join(ray_env.RAY_ENVS)}")
@@ -164,16 +172,22 @@ class RayExecutor:
         ray = ray_env.import_ray()
         res = ray.cluster_resources()
         cpus, gpus = float(res.get("CPU", 0)), float(res.get("GPU", 0))
-        self.cluster = {"address": self.address, "nodes": len([n for n in ray.nodes() if n.get("Alive")]),
-                        "cpus": cpus, "gpus": gpus}
+        self.cluster = {
+            "address": self.address,
+            "nodes": len([n for n in ray.nodes() if n.get("Alive")]),
+            "cpus": cpus,
+            "gpus": gpus,
+        }
         n = self.actors
         if n == 0:
             n = int(cpus // self.cpus) if self.cpus > 0 else int(cpus)
             if self.gpus > 0:
                 n = min(n, int(gpus // self.gpus))
             if n < 1:
-                raise ExecutorError(f"the Ray cluster at {self.address} has {cpus:g} CPUs and {gpus:g} GPUs; one "
-                                    f"actor needs actor_cpus={self.cpus:g} actor_gpus={self.gpus:g}")
+                raise ExecutorError(
+                    f"the Ray cluster at {self.address} has {cpus:g} CPUs and {gpus:g} GPUs; one "
+                    f"actor needs actor_cpus={self.cpus:g} actor_gpus={self.gpus:g}"
+                )
         self.size = max(1, min(n, jobs)) if jobs else n
         return self.size
 
@@ -184,14 +198,20 @@ class RayExecutor:
 
         nodes = [n for n in ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU", 0) > 0]
         probe = ray.remote(num_cpus=0, max_retries=0)(probe_node)
-        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False))
-                .remote(suite_ref, policy_ref) for n in nodes]
+        refs = [
+            probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote(
+                suite_ref, policy_ref
+            )
+            for n in nodes
+        ]
         driver = ray_env.report()
         try:
             infos = ray.get(refs, timeout=PREFLIGHT_S)
         except ray.exceptions.GetTimeoutError:
-            raise ExecutorError(f"executor=ray: the cluster's nodes did not answer within {PREFLIGHT_S:g} s "
-                                "(is a runtime env still installing? see docs/ray.md)") from None
+            raise ExecutorError(
+                f"executor=ray: the cluster's nodes did not answer within {PREFLIGHT_S:g} s "
+                "(is a runtime env still installing? see docs/ray.md)"
+            ) from None
         except ray.exceptions.RayError as exc:  # e.g. RuntimeEnvSetupError: ray_env=pip could not install
             first = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
             raise ExecutorError(f"executor=ray: preparing the workers failed (ray_env={self.env}): {first}") from None
@@ -227,7 +247,8 @@ class _Run:
         self.queue = JobQueue(jobs)
         self.driver = ray_env.report()
         self.cls = self.ray.remote(RayWorker).options(
-            num_cpus=ex.cpus, num_gpus=ex.gpus, max_restarts=0, max_task_retries=0, scheduling_strategy="SPREAD")
+            num_cpus=ex.cpus, num_gpus=ex.gpus, max_restarts=0, max_task_retries=0, scheduling_strategy="SPREAD"
+        )
         self.actors: list[_Actor] = []
         self.replacements = ex.size * (MAX_RETRIES + 1)
         self.last_alive = time.time()
@@ -247,8 +268,10 @@ class _Run:
                 refs = {a.start_ref: (a, None) for a in self.actors if not a.ready}
                 refs.update({ref: (a, job) for a in self.actors for ref, job in a.inflight})
                 if not refs:
-                    raise ExecutorError("no Ray actor left to run the remaining jobs (records so far are kept; "
-                                        "rerun the same command to resume)")
+                    raise ExecutorError(
+                        "no Ray actor left to run the remaining jobs (records so far are kept; "
+                        "rerun the same command to resume)"
+                    )
                 done, rest = ray.wait(list(refs), num_returns=1, timeout=1.0)
                 if done and rest:  # everything else that is ready too, without waiting
                     done += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
@@ -319,9 +342,13 @@ class _Run:
         waiting = now - self.last_alive
         if waiting > WAIT_NOTE_S and not self.noted_wait:
             self.noted_wait = True
-            self.ex.note(f"waiting for the cluster to place {len(self.actors)} actor(s) (actor_cpus={self.ex.cpus:g}, "
-                         f"actor_gpus={self.ex.gpus:g} each)")
+            self.ex.note(
+                f"waiting for the cluster to place {len(self.actors)} actor(s) (actor_cpus={self.ex.cpus:g}, "
+                f"actor_gpus={self.ex.gpus:g} each)"
+            )
         if waiting > STALL_S:
-            raise ExecutorError(f"no Ray actor could be placed for {STALL_S:g} s (each needs "
-                                f"actor_cpus={self.ex.cpus:g} actor_gpus={self.ex.gpus:g}); records so far are kept: "
-                                "rerun to resume")
+            raise ExecutorError(
+                f"no Ray actor could be placed for {STALL_S:g} s (each needs "
+                f"actor_cpus={self.ex.cpus:g} actor_gpus={self.ex.gpus:g}); records so far are kept: "
+                "rerun to resume"
+            )

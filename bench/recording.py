@@ -21,6 +21,7 @@ into one dataset with these features:
 and per-episode metadata (task, robot, env, split, condition, seed, sampled
 parameters, success_once/at_end). The task string is the cell key, e.g. `Lift/Panda/default`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -56,11 +57,13 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
             raise DataError(f"{path}: trajectory of {r.job_id} is missing; was the run started without record=?")
         with np.load(path) as z:
             ep = {"observation.state": z["obs"]} if z["obs"].size else {}
-            ep.update({
-                "action": z["action"],
-                "next.reward": z["reward"].reshape(-1, 1),
-                "next.success": z["success"].reshape(-1, 1),
-            })
+            ep.update(
+                {
+                    "action": z["action"],
+                    "next.reward": z["reward"].reshape(-1, 1),
+                    "next.success": z["success"].reshape(-1, 1),
+                }
+            )
             for key in z.files:  # camera images the policy observed: rgb.<camera>
                 if key.startswith("rgb."):
                     ep[f"observation.images.{key[4:]}"] = z[key]
@@ -82,9 +85,23 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
         episodes.append(ep)
         spec = {"ctrl_spec": ctrl_specs[-1]} if "action.ctrl" in ep else {}
         tasks.append(f"{r.task}/{r.robot}/{r.env}")
-        meta.append({"task": r.task, "robot": r.robot, "env": r.env, "split": r.split, "condition": r.condition,
-                     "seed": r.seed, "episode": r.episode, "params": r.params, "success_once": r.success_once,
-                     "success_at_end": r.success_at_end, "policy": r.policy, "run_id": r.run_id, **spec})
+        meta.append(
+            {
+                "task": r.task,
+                "robot": r.robot,
+                "env": r.env,
+                "split": r.split,
+                "condition": r.condition,
+                "seed": r.seed,
+                "episode": r.episode,
+                "params": r.params,
+                "success_once": r.success_once,
+                "success_at_end": r.success_at_end,
+                "policy": r.policy,
+                "run_id": r.run_id,
+                **spec,
+            }
+        )
     if not episodes:
         raise DataError("record: the run has no completed episode to record")
     assert action_names is not None, "every recorded episode set the action names"
@@ -93,8 +110,9 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
         if len(widths) > 1 or (widths and not all(feature in ep for ep in episodes)):
             for ep in episodes:  # robots with different state sizes: one dataset cannot hold both
                 ep.pop(feature, None)
-    names: dict[str, list[str]] = ({"observation.state": obs_names, "action": action_names} if obs_names
-                                   else {"action": action_names})
+    names: dict[str, list[str]] = (
+        {"observation.state": obs_names, "action": action_names} if obs_names else {"action": action_names}
+    )
     if ctrl_names and len(set(ctrl_specs)) == 1 and all("action.ctrl" in ep for ep in episodes):
         names["action.ctrl"] = ctrl_names
     else:  # inputs of different robots or envs: one feature cannot name both
@@ -102,8 +120,9 @@ def assemble(records: list[EpisodeRecord], trajectory_dir: Path, out: Path, robo
             ep.pop("action.ctrl", None)
             m.pop("ctrl_spec", None)
     cameras = sorted({k for ep in episodes for k in ep if k.startswith("observation.images.")})
-    ds = from_arrays(episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names,
-                     video=cameras)
+    ds = from_arrays(
+        episodes, fps=fps or 20.0, task=tasks, meta=meta, robot_type=robot_type, names=names, video=cameras
+    )
     return write_dataset(out, ds, key="record")
 
 
@@ -111,6 +130,8 @@ def episode_cell(cells: dict, episode, logs: str, suite_name: str):
     """The suite cell a recorded episode belongs to: its task string is the cell key (`Lift/Panda/default`)."""
     key = episode.tasks[0] if episode.tasks else ""
     if key not in cells:
-        raise DataError(f"{logs}: episode {episode.index} task {key!r} is not a cell of suite {suite_name!r}; "
-                        f"valid: {', '.join(sorted(cells))}")
+        raise DataError(
+            f"{logs}: episode {episode.index} task {key!r} is not a cell of suite {suite_name!r}; "
+            f"valid: {', '.join(sorted(cells))}"
+        )
     return cells[key]

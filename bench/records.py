@@ -5,6 +5,7 @@ fsynced as it lands, so a run killed with `kill -9` loses at most the episodes i
 flight. Reading tolerates (and repairs) a torn last line. Every aggregate is
 recomputed from these records, so a resumed run scores like an uninterrupted one.
 """
+
 from __future__ import annotations
 
 import json
@@ -35,7 +36,7 @@ class EpisodeRecord:
     condition: str
     axis: str | None
     level: Any
-    params: dict[str, Any]          # sampled perturbation values actually applied
+    params: dict[str, Any]  # sampled perturbation values actually applied
     episode: int
     seed: int
     init_state_hash: str | None
@@ -75,11 +76,21 @@ class EpisodeRecord:
 
 _NUM = (int, float)
 _FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, may be null)
-    "task": ((str,), False), "robot": ((str,), False), "env": ((str,), False), "split": ((str,), False),
-    "condition": ((str,), False), "episode": ((int,), False), "seed": ((int,), False),
-    "success_once": ((bool,), False), "success_at_end": ((bool,), False), "return_": (_NUM, True),
-    "length": ((int,), False), "steps_to_success": ((int,), True), "error": ((str,), True),
-    "params": ((dict,), False), "extras": ((dict,), False),
+    "task": ((str,), False),
+    "robot": ((str,), False),
+    "env": ((str,), False),
+    "split": ((str,), False),
+    "condition": ((str,), False),
+    "episode": ((int,), False),
+    "seed": ((int,), False),
+    "success_once": ((bool,), False),
+    "success_at_end": ((bool,), False),
+    "return_": (_NUM, True),
+    "length": ((int,), False),
+    "steps_to_success": ((int,), True),
+    "error": ((str,), True),
+    "params": ((dict,), False),
+    "extras": ((dict,), False),
 }
 
 

@@ -8,6 +8,7 @@ name, is an error, not a silent skip. A reference with a colon (`my_pkg.suites:M
 imports the module directly, from the current folder too, so an out-of-tree plugin runs
 without packaging.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -68,8 +69,9 @@ def import_ref(ref: str, kind: str) -> Any:
         return getattr(module, attr)
     except AttributeError:
         valid = [n for n in dir(module) if not n.startswith("_")]
-        raise RegistryError(f"{kind}={ref!r}: module {module_name!r} has no {attr!r}.{did_you_mean(attr, valid)}") \
-            from None
+        raise RegistryError(
+            f"{kind}={ref!r}: module {module_name!r} has no {attr!r}.{did_you_mean(attr, valid)}"
+        ) from None
 
 
 def _load(group: str, name: str, kind: str) -> Any:
@@ -95,8 +97,10 @@ def suite_class(ref: str) -> type[Suite]:
         raise RegistryError(f"suite={ref!r}: {cls!r} is not a class")
     declared = getattr(cls, "name", None)
     if ":" not in ref and declared != ref:
-        raise RegistryError(f"suite={ref!r}: the entry point loads {cls.__module__}.{cls.__name__}, whose name is "
-                            f"{declared!r}; an entry-point name must equal its Suite.name")
+        raise RegistryError(
+            f"suite={ref!r}: the entry point loads {cls.__module__}.{cls.__name__}, whose name is "
+            f"{declared!r}; an entry-point name must equal its Suite.name"
+        )
     return cls
 
 
@@ -128,11 +132,16 @@ def main_list(argv: list[str]) -> int:
     if argv:
         from bench.config import command_help
 
-        print(command_help("usage: bench list",
-                           "Prints the registered suites (entry points `bench.suites`) with their seen/unseen split\n"
-                           "manifest and their own keys, and the registered policies (`bench.policies`).\n"
-                           "Out-of-tree plugins need no registration: suite=package.module:Class, "
-                           "policy=package.module:attr."), end="")
+        print(
+            command_help(
+                "usage: bench list",
+                "Prints the registered suites (entry points `bench.suites`) with their seen/unseen split\n"
+                "manifest and their own keys, and the registered policies (`bench.policies`).\n"
+                "Out-of-tree plugins need no registration: suite=package.module:Class, "
+                "policy=package.module:attr.",
+            ),
+            end="",
+        )
         return 0
     from bench.protocols import option_keys
     from bench.suite import summary_line
@@ -148,8 +157,11 @@ def main_list(argv: list[str]) -> int:
         keys = option_keys(cls.Options)
         unavailable = getattr(cls, "unavailable", None)  # SuiteBase's hook; other suites may lack it
         why = unavailable() if unavailable is not None else None
-        print(f"  {name} (v{cls.version}, reference policy: {cls.reference_policy}) — {summary_line(cls)}"
-              + (f" [keys: {', '.join(keys)}]" if keys else "") + (f"\n      unavailable: {why}" if why else ""))
+        print(
+            f"  {name} (v{cls.version}, reference policy: {cls.reference_policy}) — {summary_line(cls)}"
+            + (f" [keys: {', '.join(keys)}]" if keys else "")
+            + (f"\n      unavailable: {why}" if why else "")
+        )
         for axis, split in cls.manifest.items():
             for side in ("seen", "unseen"):
                 vals = split.get(side, [])

@@ -27,6 +27,7 @@ docs/ci-gate.md.
 
 Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input.
 """
+
 from __future__ import annotations
 
 import json
@@ -50,8 +51,22 @@ SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"
 DEFAULT_EPISODES = 20
 # run keys that must be equal for candidate and baseline (they decide which episodes are played)
-SHARED_KEYS = ("suite", "seed", "horizon", "timeout", "robots", "tasks", "envs", "splits", "metric", "perturb",
-               "env_id", "n_boot", "confidence", "allow_split_violation")
+SHARED_KEYS = (
+    "suite",
+    "seed",
+    "horizon",
+    "timeout",
+    "robots",
+    "tasks",
+    "envs",
+    "splits",
+    "metric",
+    "perturb",
+    "env_id",
+    "n_boot",
+    "confidence",
+    "allow_split_violation",
+)
 FORBIDDEN_KEYS = {"policy": "candidate=/baseline=", "checkpoint": "candidate=/baseline=", "record": None}
 BINARY_METRICS = ("success_once", "success_at_end")
 
@@ -60,21 +75,21 @@ BINARY_METRICS = ("success_once", "success_at_end")
 class RegressConfig:
     """Keys of `bench regress` besides the `bench run` keys it forwards."""
 
-    candidate: Optional[str] = None   # checkpoint (.safetensors/.pt), registered policy name, or a recorded run dir
-    baseline: Optional[str] = None    # checkpoint file, policy name, or a recorded run dir (its episodes are reused)
-    margin: float = 0.05              # tolerated drop in success (baseline - candidate) before it is a regression
-    alpha: float = 0.05               # false-alarm rate when no drop exceeds margin (over all looks, tests and cells)
-    cell_alpha: float = 0.5           # share of alpha for the per-cell tests (Holm); 0 = pooled statistics only
-    batch: int = 5                    # episodes per cell between looks (early stopping); 0 = one look at the end
-    strict: bool = False              # inconclusive (budget spent, nothing certain) fails with exit 1
-    out: Optional[str] = None         # verdict JSON (X.junit.xml, X.md beside it); default RUNS/RUN_ID/verdict.json
-    runs: str = "runs"                # parent folder of the gate's run directories
-    run_id: Optional[str] = None      # gate folder name; default regress-<timestamp>
-    plan: bool = False                # print the episodes per cell needed for `power` and exit (runs nothing)
-    power: float = 0.8                # plan: target chance to flag the drop below
-    drop: float = 0.6                 # plan: the drop to detect (one cell falls from rate to rate - drop)
-    rate: float = 0.9                 # plan: baseline success rate of the cell(s) that drop
-    cells: int = 0                    # plan: number of cells; 0 = those the suite/robots/tasks/envs/perturb keys select
+    candidate: Optional[str] = None  # checkpoint (.safetensors/.pt), registered policy name, or a recorded run dir
+    baseline: Optional[str] = None  # checkpoint file, policy name, or a recorded run dir (its episodes are reused)
+    margin: float = 0.05  # tolerated drop in success (baseline - candidate) before it is a regression
+    alpha: float = 0.05  # false-alarm rate when no drop exceeds margin (over all looks, tests and cells)
+    cell_alpha: float = 0.5  # share of alpha for the per-cell tests (Holm); 0 = pooled statistics only
+    batch: int = 5  # episodes per cell between looks (early stopping); 0 = one look at the end
+    strict: bool = False  # inconclusive (budget spent, nothing certain) fails with exit 1
+    out: Optional[str] = None  # verdict JSON (X.junit.xml, X.md beside it); default RUNS/RUN_ID/verdict.json
+    runs: str = "runs"  # parent folder of the gate's run directories
+    run_id: Optional[str] = None  # gate folder name; default regress-<timestamp>
+    plan: bool = False  # print the episodes per cell needed for `power` and exit (runs nothing)
+    power: float = 0.8  # plan: target chance to flag the drop below
+    drop: float = 0.6  # plan: the drop to detect (one cell falls from rate to rate - drop)
+    rate: float = 0.9  # plan: baseline success rate of the cell(s) that drop
+    cells: int = 0  # plan: number of cells; 0 = those the suite/robots/tasks/envs/perturb keys select
 
 
 def help_text() -> str:
@@ -96,13 +111,15 @@ def help_text() -> str:
             "writes: RUNS/RUN_ID/RUN_ID-candidate/ (and -baseline/ unless reused) run dirs, the verdict JSON\n"
             "(schema bench.regress/2: verdict, regressed cells with drops and bounds, looks, checkpoint sha256,\n"
             "size and training metadata), and beside it X.junit.xml (one test case per cell) and X.md (a\n"
-            "Markdown summary for a CI step summary). plan=true prints a budget table and writes nothing."),
+            "Markdown summary for a CI step summary). plan=true prints a budget table and writes nothing."
+        ),
         examples=[
             "bench regress candidate=ckpt/new.safetensors baseline=ckpt/old.safetensors robots=[Panda,UR5e]",
             "bench regress candidate=ckpt/new.safetensors baseline=results/runs/<run_id> out=gate/verdict.json",
             "bench regress candidate=random baseline=scripted episodes=4 batch=2",
             "bench regress plan=true suite=held_out_robots power=0.9 drop=0.6 rate=0.9",
-        ])
+        ],
+    )
 
 
 def _override(key: str, value: Any) -> str:
@@ -117,8 +134,9 @@ def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[st
 
     positional, overrides = config_mod.split_args(argv)
     if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench regress takes key=value only "
-                          "(see bench regress --help)")
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; bench regress takes key=value only (see bench regress --help)"
+        )
     own_names = {f.name for f in fields(RegressConfig)}
     suite = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) == "suite"]).suite
     suite_cls: type[Suite] = registry.suite_class(suite)
@@ -139,9 +157,14 @@ def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[st
             valid = sorted(own_names | (run_names - set(FORBIDDEN_KEYS) - {"out", "run_id"}))
             raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{did_you_mean(top, valid)}")
     cfg: RegressConfig = config_mod.build(RegressConfig, own)
-    for key, lo, hi, what in (("margin", 0.0, 1.0, "[0, 1)"), ("alpha", 0.0, 0.5, "(0, 0.5)"),
-                              ("cell_alpha", 0.0, 1.0, "[0, 1)"), ("power", 0.0, 1.0, "(0, 1)"),
-                              ("drop", 0.0, 1.0, "(0, 1]"), ("rate", 0.0, 1.0, "(0, 1]")):
+    for key, lo, hi, what in (
+        ("margin", 0.0, 1.0, "[0, 1)"),
+        ("alpha", 0.0, 0.5, "(0, 0.5)"),
+        ("cell_alpha", 0.0, 1.0, "[0, 1)"),
+        ("power", 0.0, 1.0, "(0, 1)"),
+        ("drop", 0.0, 1.0, "(0, 1]"),
+        ("rate", 0.0, 1.0, "(0, 1]"),
+    ):
         v = getattr(cfg, key)
         closed_lo, closed_hi = what[0] == "[", what[-1] == "]"
         if not ((lo <= v if closed_lo else lo < v) and (v <= hi if closed_hi else v < hi)):
@@ -201,8 +224,10 @@ def pair_records(candidate: list, baseline: list, max_episode: int | None = None
         if c.seed != b.seed:
             raise DataError(f"{where}: seeds differ (candidate {c.seed}, baseline {b.seed}); runs are not paired")
         if c.init_state_hash and b.init_state_hash and c.init_state_hash != b.init_state_hash:
-            raise DataError(f"{where}: initial states differ (init_state_hash {c.init_state_hash} vs "
-                            f"{b.init_state_hash}); the runs are not paired (other simulator/package versions?)")
+            raise DataError(
+                f"{where}: initial states differ (init_state_hash {c.init_state_hash} vs "
+                f"{b.init_state_hash}); the runs are not paired (other simulator/package versions?)"
+            )
         if c.error is not None and b.error is not None:
             errors["both"] += 1
             continue
@@ -214,8 +239,10 @@ def pair_records(candidate: list, baseline: list, max_episode: int | None = None
 
 def cell_counts(cells: dict[tuple, list[tuple]], metric: str) -> dict[gate.CellKey, gate.Pairs]:
     """Paired (baseline, candidate) records per cell -> counts of the four outcome pairs in `metric`."""
-    return {k: gate.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
-            for k, prs in cells.items()}
+    return {
+        k: gate.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
+        for k, prs in cells.items()
+    }
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -238,18 +265,29 @@ class _Side:
         meta = self.meta or {}
         pol = meta.get("policy", {})
         run_dir = self.p.run_dir if self.p is not None else self.info.get("run_dir")
-        return {"spec": self.info["spec"], "kind": self.info["kind"], "policy": pol.get("name"),
-                "checkpoint": pol.get("checkpoint"), "checkpoint_sha256": pol.get("checkpoint_sha256"),
-                "run_id": meta.get("run_id"), "run_dir": str(run_dir) if run_dir else None,
-                "reused": not self.live}
+        return {
+            "spec": self.info["spec"],
+            "kind": self.info["kind"],
+            "policy": pol.get("name"),
+            "checkpoint": pol.get("checkpoint"),
+            "checkpoint_sha256": pol.get("checkpoint_sha256"),
+            "run_id": meta.get("run_id"),
+            "run_dir": str(run_dir) if run_dir else None,
+            "reused": not self.live,
+        }
 
 
 def _prepare_live(side: _Side, shared: list[str], forwarded: list[str], run_id: str, parent: Path) -> None:
     from bench import api
 
     given = {config_mod.top_key(f) for f in forwarded}  # a key the user gave wins; the settings check names it
-    argv = [*(o for o in shared if config_mod.top_key(o) not in given), *forwarded, f"policy={side.info['policy']}",
-            f"out={parent}", f"run_id={run_id}"]
+    argv = [
+        *(o for o in shared if config_mod.top_key(o) not in given),
+        *forwarded,
+        f"policy={side.info['policy']}",
+        f"out={parent}",
+        f"run_id={run_id}",
+    ]
     if side.info.get("checkpoint"):
         argv.append(f"checkpoint={side.info['checkpoint']}")
     side.p = api.plan(api.config_from_argv(argv))
@@ -259,19 +297,26 @@ def _run_look(side: _Side, n_episodes: int, workers: int, console) -> None:
     from bench import api
 
     wanted = side.wanted
-    result = api.run(side.p, only=lambda j: j.episode < n_episodes and j.job_id in wanted, summarize=False,
-                     executor=LocalExecutor(workers))
+    result = api.run(
+        side.p,
+        only=lambda j: j.episode < n_episodes and j.job_id in wanted,
+        summarize=False,
+        executor=LocalExecutor(workers),
+    )
     side.records = result.records
 
 
-def _check_same_settings(cand_cfg: dict[str, Any], base_config: dict[str, Any], user_keys: dict[str, str],
-                         base_dir: Path) -> None:
+def _check_same_settings(
+    cand_cfg: dict[str, Any], base_config: dict[str, Any], user_keys: dict[str, str], base_dir: Path
+) -> None:
     mine = {k: cand_cfg.get(k) for k in SHARED_KEYS}
     for k in (k for k in SHARED_KEYS if k in base_config):  # keys an older run.json lacks are not compared
         if mine.get(k) != base_config.get(k):
             given = f" (you gave {user_keys[k]})" if k in user_keys else ""
-            raise ConfigError(f"{k}={mine.get(k)!r} differs from the baseline run {base_dir} ({k}="
-                              f"{base_config.get(k)!r}){given}: paired episodes need the same settings")
+            raise ConfigError(
+                f"{k}={mine.get(k)!r} differs from the baseline run {base_dir} ({k}="
+                f"{base_config.get(k)!r}){given}: paired episodes need the same settings"
+            )
 
 
 # -- checks before anything runs -----------------------------------------------------------------
@@ -339,10 +384,17 @@ def main(argv: list[str]) -> int:
     if cfg.plan:
         from bench import gate_power
 
-        return gate_power.plan_command(cfg.power, cfg.rate, cfg.drop, cfg.cells, cfg.batch,
-                                       gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha),
-                                       _episodes(user_keys, DEFAULT_EPISODES), forwarded,
-                                       unused=bool(cfg.candidate or cfg.baseline))
+        return gate_power.plan_command(
+            cfg.power,
+            cfg.rate,
+            cfg.drop,
+            cfg.cells,
+            cfg.batch,
+            gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha),
+            _episodes(user_keys, DEFAULT_EPISODES),
+            forwarded,
+            unused=bool(cfg.candidate or cfg.baseline),
+        )
     cand_info, base_info = resolve(cfg.candidate, "candidate"), resolve(cfg.baseline, "baseline")
     gate_id = cfg.run_id or f"regress-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     parent = Path(cfg.runs) / gate_id
@@ -361,14 +413,19 @@ def main(argv: list[str]) -> int:
         rc = ref.meta["config"]
         shared = [_override(k, rc[k]) for k in SHARED_KEYS if rc.get(k) is not None]
         max_eps = int(rc.get("episodes", 0)) or max(r.episode for r in ref.records) + 1
-        episodes = int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys \
-            else max_eps
+        episodes = (
+            int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys else max_eps
+        )
         if episodes > max_eps:
-            raise ConfigError(f"episodes={episodes}: the recorded {ref.role} run {ref.info['run_dir']} has only "
-                              f"{max_eps} per cell")
+            raise ConfigError(
+                f"episodes={episodes}: the recorded {ref.role} run {ref.info['run_dir']} has only {max_eps} per cell"
+            )
     else:
-        episodes = int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys \
+        episodes = (
+            int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes)
+            if "episodes" in user_keys
             else DEFAULT_EPISODES
+        )
     if episodes < 1:
         raise ConfigError(f"episodes={episodes}: must be >= 1")
     forwarded = [f for f in forwarded if not f.startswith("episodes=")] + [f"episodes={episodes}"]
@@ -383,19 +440,24 @@ def main(argv: list[str]) -> int:
         a, b = (s.meta["config"] for s in recorded)
         diff = [k for k in SHARED_KEYS if a.get(k) != b.get(k)]
         if diff:
-            raise ConfigError(f"candidate and baseline runs differ in {diff[0]} ({a.get(diff[0])!r} vs "
-                              f"{b.get(diff[0])!r}): paired episodes need the same settings")
+            raise ConfigError(
+                f"candidate and baseline runs differ in {diff[0]} ({a.get(diff[0])!r} vs "
+                f"{b.get(diff[0])!r}): paired episodes need the same settings"
+            )
     live = [s for s in (cand, base) if s.live]
     any_cfg = live[0].p.config if live else None
     metric = any_cfg.metric if any_cfg else recorded[0].meta["config"].get("metric", "success_once")
     seed = any_cfg.seed if any_cfg else int(recorded[0].meta["config"].get("seed", 0))
     suite_desc = live[0].p.suite.describe() if live else recorded[0].meta["suite"]
     for side in recorded:
-        if side.meta["suite"].get("version") != suite_desc.get("version") or \
-                side.meta["suite"].get("name") != suite_desc.get("name"):
-            raise ConfigError(f"{side.role} run {side.info['run_dir']} is suite {side.meta['suite'].get('name')} "
-                              f"v{side.meta['suite'].get('version')}, the comparison is {suite_desc.get('name')} "
-                              f"v{suite_desc.get('version')}: episodes of different suite versions do not pair")
+        if side.meta["suite"].get("version") != suite_desc.get("version") or side.meta["suite"].get(
+            "name"
+        ) != suite_desc.get("name"):
+            raise ConfigError(
+                f"{side.role} run {side.info['run_dir']} is suite {side.meta['suite'].get('name')} "
+                f"v{side.meta['suite'].get('version')}, the comparison is {suite_desc.get('name')} "
+                f"v{suite_desc.get('version')}: episodes of different suite versions do not pair"
+            )
     # a live side runs only the episodes the recorded side has (nothing to pair otherwise)
     wanted = None
     if recorded:
@@ -417,19 +479,43 @@ def main(argv: list[str]) -> int:
     shas = [(prov[r] or {}).get("sha256") for r in ("candidate", "baseline")]
     schedule = gate.looks_schedule(episodes, cfg.batch) if live else [episodes]
     design = gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha, tuple(schedule), tuple(planned))
-    base_doc = {"schema": SCHEMA_ID, "margin": cfg.margin, "alpha": cfg.alpha, "cell_alpha": cfg.cell_alpha,
-                "metric": metric, "strict": cfg.strict,
-                "suite": {"name": suite_desc.get("name"), "version": suite_desc.get("version")}, "seed": seed,
-                "episodes_max": episodes, "schedule": schedule, "rule": gate.rule(design, metric)}
+    base_doc = {
+        "schema": SCHEMA_ID,
+        "margin": cfg.margin,
+        "alpha": cfg.alpha,
+        "cell_alpha": cfg.cell_alpha,
+        "metric": metric,
+        "strict": cfg.strict,
+        "suite": {"name": suite_desc.get("name"), "version": suite_desc.get("version")},
+        "seed": seed,
+        "episodes_max": episodes,
+        "schedule": schedule,
+        "rule": gate.rule(design, metric),
+    }
     console = Console(stderr=True)
     if shas[0] is not None and shas[0] == shas[1]:
-        note = (f"candidate and baseline are the same checkpoint (sha256 {shas[0]}): identical policies cannot "
-                "regress; no episode was run")
-        doc = {**base_doc, "verdict": "no_regression", "exit_code": 0, "identical": True, "note": note,
-               "stopped_early": False, "candidate": _describe(cand, prov["candidate"]),
-               "baseline": _describe(base, prov["baseline"]), "looks": [], "cells": [], "splits": [],
-               "regressed": [], "planned_cells": [gate.cell_id(k)[5:] + f" ({k[4]})" for k in planned],
-               "errors": {"candidate": 0, "baseline": 0, "both": 0}, "unpaired": 0, "wall_s": 0.0}
+        note = (
+            f"candidate and baseline are the same checkpoint (sha256 {shas[0]}): identical policies cannot "
+            "regress; no episode was run"
+        )
+        doc = {
+            **base_doc,
+            "verdict": "no_regression",
+            "exit_code": 0,
+            "identical": True,
+            "note": note,
+            "stopped_early": False,
+            "candidate": _describe(cand, prov["candidate"]),
+            "baseline": _describe(base, prov["baseline"]),
+            "looks": [],
+            "cells": [],
+            "splits": [],
+            "regressed": [],
+            "planned_cells": [gate.cell_id(k)[5:] + f" ({k[4]})" for k in planned],
+            "errors": {"candidate": 0, "baseline": 0, "both": 0},
+            "unpaired": 0,
+            "wall_s": 0.0,
+        }
         gate_outputs.write(doc, paths, console)
         return 0
 
@@ -441,9 +527,11 @@ def main(argv: list[str]) -> int:
         workers = any_cfg.workers or os.cpu_count() or 1
         for side in live:
             side.meta, side.ctx = start(side.p, workers)
-    console.print(f"regress {gate_id}: candidate {cand.info['spec']} vs baseline {base.info['spec']} "
-                  f"(reused: {', '.join(s.role for s in recorded) or 'none'}); {len(planned)} cells; looks at "
-                  f"{schedule} episodes per cell; alpha {cfg.alpha} ({cfg.cell_alpha:g} to the per-cell tests)")
+    console.print(
+        f"regress {gate_id}: candidate {cand.info['spec']} vs baseline {base.info['spec']} "
+        f"(reused: {', '.join(s.role for s in recorded) or 'none'}); {len(planned)} cells; looks at "
+        f"{schedule} episodes per cell; alpha {cfg.alpha} ({cfg.cell_alpha:g} to the per-cell tests)"
+    )
     t0 = time.time()
     looks: list[dict[str, Any]] = []
     paired: dict[str, Any] = {"cells": {}, "errors": {"candidate": 0, "baseline": 0, "both": 0}, "unpaired": 0}
@@ -465,12 +553,23 @@ def main(argv: list[str]) -> int:
 
     last = looks[-1]
     tests = {t["id"]: t for t in last.get("tests", [])}
-    doc = {**base_doc, "verdict": verdict, "exit_code": code, "identical": False, "note": None,
-           "stopped_early": len(looks) < len(schedule),
-           "candidate": _describe(cand, prov["candidate"]), "baseline": _describe(base, prov["baseline"]),
-           "looks": looks, "cells": gate.cell_rows(counts, last), "splits": gate.split_rows(counts, last),
-           "regressed": [gate.regressed_entry(tests[h]) for h in sorted(last.get("regressed", []), key=_kind_order)],
-           "errors": paired["errors"], "unpaired": paired["unpaired"], "wall_s": round(time.time() - t0, 2)}
+    doc = {
+        **base_doc,
+        "verdict": verdict,
+        "exit_code": code,
+        "identical": False,
+        "note": None,
+        "stopped_early": len(looks) < len(schedule),
+        "candidate": _describe(cand, prov["candidate"]),
+        "baseline": _describe(base, prov["baseline"]),
+        "looks": looks,
+        "cells": gate.cell_rows(counts, last),
+        "splits": gate.split_rows(counts, last),
+        "regressed": [gate.regressed_entry(tests[h]) for h in sorted(last.get("regressed", []), key=_kind_order)],
+        "errors": paired["errors"],
+        "unpaired": paired["unpaired"],
+        "wall_s": round(time.time() - t0, 2),
+    }
     gate_outputs.write(doc, paths, console)
     return code
 

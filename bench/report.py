@@ -16,6 +16,7 @@ per-axis robustness table (`bench.robustness`: each axis' levels pooled, drop fr
 Everything is read and validated before anything is written; figures are PNGs
 next to index.html, so the folder can be published as it is (CI artifact, Pages).
 """
+
 from __future__ import annotations
 
 import shutil
@@ -36,11 +37,11 @@ from bench.report_html import CSS, _e, _img, _pct, _signed, _table
 class ReportConfig:
     """Keys of `bench report` (the input RUN|LEADERBOARD is positional)."""
 
-    out: Optional[str] = None           # output folder (index.html + PNG figures); never an input or inside one
-    overwrite: bool = False             # replace an existing report folder (only one bench wrote)
-    calibration: Optional[str] = None   # a calibrate output dir or its calibration.json: errors before/after
-    verdict: Optional[str] = None       # a `bench regress` verdict.json to include
-    title: Optional[str] = None         # page title; default from the input
+    out: Optional[str] = None  # output folder (index.html + PNG figures); never an input or inside one
+    overwrite: bool = False  # replace an existing report folder (only one bench wrote)
+    calibration: Optional[str] = None  # a calibrate output dir or its calibration.json: errors before/after
+    verdict: Optional[str] = None  # a `bench regress` verdict.json to include
+    title: Optional[str] = None  # page title; default from the input
 
 
 USAGE = """usage: bench report RUN|SUMMARY|LEADERBOARD out=DIR [calibration=DIR] [verdict=FILE] [title=TEXT]
@@ -91,15 +92,19 @@ def load_calibration(arg: str) -> dict:
         path = path / "calibration.json"
     doc = load_json(path)
     if not isinstance(doc, dict) or doc.get("schema") != "bench.calibration/1":
-        raise DataError(f"{path}: not a calibration result (schema {doc.get('schema') if isinstance(doc, dict) else None!r}; "
-                        "expected bench.calibration/1)")
+        raise DataError(
+            f"{path}: not a calibration result (schema {doc.get('schema') if isinstance(doc, dict) else None!r}; "
+            "expected bench.calibration/1)"
+        )
     from bench.io import first_nonfinite
 
     nan_at = first_nonfinite(doc)
     if nan_at:
         raise DataError(f"{path}: field {nan_at} is NaN/inf; a calibration result holds finite numbers or null")
     errors = doc.get("errors")
-    if not isinstance(errors, dict) or not any(isinstance(errors.get(s), dict) for s in ("nominal", "declared", "final")):
+    if not isinstance(errors, dict) or not any(
+        isinstance(errors.get(s), dict) for s in ("nominal", "declared", "final")
+    ):
         raise DataError(f"{path}: field errors must hold nominal/declared/final error summaries")
     return doc
 
@@ -137,7 +142,8 @@ def _videos(records: list, run_dir: Path | None, tmp: Path) -> dict[tuple[str, s
         label = f"episode {r.episode}: {outcome}"
         out.setdefault((f"{r.task}/{r.robot}/{r.env}", r.condition), []).append(
             f"<figure><video controls preload='metadata' width='192' src='videos/{_e(src.name)}' title='{_e(label)}'>"
-            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>")
+            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>"
+        )
     return out
 
 
@@ -152,15 +158,28 @@ def robustness_section(summary: dict, records: list) -> str:
     rows = []
     for row in table(records, metric, np.random.default_rng(0), confidence=conf):
         rel = row["relative_drop"]
-        rows.append([_e(row["axis"]), _e(row["kind"]), _e(", ".join(row["levels"])), str(row["pairs"]),
-                     f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
-                     f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
-                     _signed(row["drop"]), f"{rel * 100:+.0f}%" if rel is not None else "n/a"])
-    return ("<h2>Robustness per axis</h2>" +
-            _table(["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]",
-                    "relative drop"], rows, {3, 4, 5, 7}) +
-            "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
-            "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>")
+        rows.append(
+            [
+                _e(row["axis"]),
+                _e(row["kind"]),
+                _e(", ".join(row["levels"])),
+                str(row["pairs"]),
+                f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
+                f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
+                _signed(row["drop"]),
+                f"{rel * 100:+.0f}%" if rel is not None else "n/a",
+            ]
+        )
+    return (
+        "<h2>Robustness per axis</h2>"
+        + _table(
+            ["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]", "relative drop"],
+            rows,
+            {3, 4, 5, 7},
+        )
+        + "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
+        "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>"
+    )
 
 
 def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[str]:
@@ -169,14 +188,22 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     videos = _videos(records, run_dir, tmp)
     parts = []
     if fig_cells(summary, tmp / "cells.png"):
-        parts.append("<h2>Success per cell</h2>" + _img("cells.png", "success per cell") +
-                     f"<p class='note'>Nominal cells; bars are {_e(metric)} with Wilson intervals, "
-                     "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>")
+        parts.append(
+            "<h2>Success per cell</h2>"
+            + _img("cells.png", "success per cell")
+            + f"<p class='note'>Nominal cells; bars are {_e(metric)} with Wilson intervals, "
+            "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>"
+        )
     if fig_splits_gaps(summary, tmp / "gaps.png"):
-        rows = [[f"{_e(g['reference'])} → {_e(g['target'])}", _e(g["metric"]), _e(g.get("statistic", "mean")),
-                 _signed(g)] for g in summary["gaps"]]
-        parts.append("<h2>Splits and transfer gaps</h2>" + _img("gaps.png", "splits and gaps") +
-                     _table(["gap", "metric", "statistic", "value [CI]"], rows))
+        rows = [
+            [f"{_e(g['reference'])} → {_e(g['target'])}", _e(g["metric"]), _e(g.get("statistic", "mean")), _signed(g)]
+            for g in summary["gaps"]
+        ]
+        parts.append(
+            "<h2>Splits and transfer gaps</h2>"
+            + _img("gaps.png", "splits and gaps")
+            + _table(["gap", "metric", "statistic", "value [CI]"], rows)
+        )
     axes = fig_sensitivity(summary, tmp / "sensitivity.png")
     if axes:
         rows = []
@@ -184,11 +211,22 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
             if e.get("scope") != "all" or e.get("axis") is None:
                 continue
             d = e["drop_vs_nominal"][metric]
-            rows.append([_e(e["axis"]), _e(e["level"]), str(e["n"]), _pct(e[metric]), _signed(d),
-                         f"{d.get('lost', '')}/{d.get('gained', '')}", _e(d.get("p_value", ""))])
-        parts.append("<h2>Sensitivity per perturbation axis</h2>" + _img("sensitivity.png", "sensitivity") +
-                     _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows,
-                            {2}))
+            rows.append(
+                [
+                    _e(e["axis"]),
+                    _e(e["level"]),
+                    str(e["n"]),
+                    _pct(e[metric]),
+                    _signed(d),
+                    f"{d.get('lost', '')}/{d.get('gained', '')}",
+                    _e(d.get("p_value", "")),
+                ]
+            )
+        parts.append(
+            "<h2>Sensitivity per perturbation axis</h2>"
+            + _img("sensitivity.png", "sensitivity")
+            + _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows, {2})
+        )
     robust = robustness_section(summary, records)
     if robust:
         parts.append(robust)
@@ -197,14 +235,30 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
     if section:
         parts.append(section)
-    rows = [[_e(c["task"]), _e(c["robot"]), _e(c["env"]), f"<span class='{c['split']}'>{_e(c['split'])}</span>",
-             _e(c["condition"]), str(c["n"]), _pct(c["success_once"]), _pct(c["success_at_end"]),
-             str(c["errors"] or "")] + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]),
-                                                             []))] if videos else [])
-            for c in summary["cells"]]
-    parts.append("<h2>All cells</h2>" + _table(["task", "robot", "env", "split", "condition", "n", "success once",
-                                                "success at end", "errors"] + (["episode videos"] if videos else []),
-                                               rows, {5, 8}))
+    rows = [
+        [
+            _e(c["task"]),
+            _e(c["robot"]),
+            _e(c["env"]),
+            f"<span class='{c['split']}'>{_e(c['split'])}</span>",
+            _e(c["condition"]),
+            str(c["n"]),
+            _pct(c["success_once"]),
+            _pct(c["success_at_end"]),
+            str(c["errors"] or ""),
+        ]
+        + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]), []))] if videos else [])
+        for c in summary["cells"]
+    ]
+    parts.append(
+        "<h2>All cells</h2>"
+        + _table(
+            ["task", "robot", "env", "split", "condition", "n", "success once", "success at end", "errors"]
+            + (["episode videos"] if videos else []),
+            rows,
+            {5, 8},
+        )
+    )
     return parts
 
 
@@ -221,21 +275,39 @@ def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
             m = e["metric"]
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
             sha = e["policy"].get("checkpoint_sha256")
-            rows.append([str(e["rank"] or "–"), _e(e["policy"]["name"]), _e(sha[:12]) if sha else "–",
-                         f"{_e(e['score']['split'] or '')} {_pct(e['score'])}",
-                         _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
-                         _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")), _signed(gap),
-                         str(e["counts"]["episodes"]), _e(e["run_id"])])
-        parts.append(f"<h2>{_e(g)}</h2><p class='note'>Ranked by the lower bound of the score.</p>" +
-                     _table(["#", "policy", "checkpoint", "score", "seen", "unseen", "gap seen−unseen", "episodes",
-                             "run"], rows, {0, 7}))
+            rows.append(
+                [
+                    str(e["rank"] or "–"),
+                    _e(e["policy"]["name"]),
+                    _e(sha[:12]) if sha else "–",
+                    f"{_e(e['score']['split'] or '')} {_pct(e['score'])}",
+                    _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
+                    _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
+                    _signed(gap),
+                    str(e["counts"]["episodes"]),
+                    _e(e["run_id"]),
+                ]
+            )
+        parts.append(
+            f"<h2>{_e(g)}</h2><p class='note'>Ranked by the lower bound of the score.</p>"
+            + _table(
+                ["#", "policy", "checkpoint", "score", "seen", "unseen", "gap seen−unseen", "episodes", "run"],
+                rows,
+                {0, 7},
+            )
+        )
     return parts
 
 
 def calibration_section(cal: dict, tmp: Path) -> str:
     fig_calibration(cal, tmp / "calibration.png")
-    keys = [("one_step_nrmse", "one-step NRMSE"), ("k_step_nrmse", "k-step NRMSE"), ("free_run_nrmse", "free-run NRMSE"),
-            ("free_run_rmse", "free-run RMSE"), ("r2", "R²")]
+    keys = [
+        ("one_step_nrmse", "one-step NRMSE"),
+        ("k_step_nrmse", "k-step NRMSE"),
+        ("free_run_nrmse", "free-run NRMSE"),
+        ("free_run_rmse", "free-run RMSE"),
+        ("r2", "R²"),
+    ]
     rows = []
     for stage in ("nominal", "declared", "final"):
         err = cal["errors"].get(stage)
@@ -246,57 +318,91 @@ def calibration_section(cal: dict, tmp: Path) -> str:
     if isinstance(added, list) and added:
         names = [a.get("name", a.get("effect", "?")) if isinstance(a, dict) else str(a) for a in added]
         extra = f"<p>Accepted effects: {_e(', '.join(map(str, names)))}</p>"
-    return ("<h2>Calibration (held-out error before → after)</h2>" + _img("calibration.png", "calibration") +
-            _table(["model"] + [lbl for _, lbl in keys], rows, {1, 2, 3, 4, 5}) + extra)
+    return (
+        "<h2>Calibration (held-out error before → after)</h2>"
+        + _img("calibration.png", "calibration")
+        + _table(["model"] + [lbl for _, lbl in keys], rows, {1, 2, 3, 4, 5})
+        + extra
+    )
 
 
 def verdict_section(v: dict) -> str:
     cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note"}[v["verdict"]]
-    rows = [[_e(c["task"]), _e(c["robot"]), _e(c["condition"]), _e(c["split"]), str(c["pairs"]),
-             f"{c['baseline'] * 100:.0f}%", f"{c['candidate'] * 100:.0f}%", f"{c['drop']:+.2f}",
-             "n/a" if c["drop_lcb"] is None else f"{c['drop_lcb']:+.2f}", "yes" if c.get("regressed") else ""]
-            for c in v["cells"]]
+    rows = [
+        [
+            _e(c["task"]),
+            _e(c["robot"]),
+            _e(c["condition"]),
+            _e(c["split"]),
+            str(c["pairs"]),
+            f"{c['baseline'] * 100:.0f}%",
+            f"{c['candidate'] * 100:.0f}%",
+            f"{c['drop']:+.2f}",
+            "n/a" if c["drop_lcb"] is None else f"{c['drop_lcb']:+.2f}",
+            "yes" if c.get("regressed") else "",
+        ]
+        for c in v["cells"]
+    ]
     last = v["looks"][-1] if v["looks"] else {}
     m = last.get("mean")
     bound = f" — drop {m['value']:+.3f}, one-sided bounds [{m['lcb']:+.3f}, {m['ucb']:+.3f}]" if m else ""
-    named = "".join(f"<li>{_e(r['kind'])} <b>{_e(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, "
-                    f"{r['ucb']:+.2f}]</li>" for r in v.get("regressed", []))
-    return (f"<h2>Regression gate</h2><p>candidate <b>{_e(v['candidate']['spec'])}</b> vs baseline "
-            f"<b>{_e(v['baseline']['spec'])}</b>: <span class='{cls}'>{_e(v['verdict'].replace('_', ' '))}</span>"
-            f"{bound} (margin {v['margin']}, {len(v['looks'])} of {len(v['schedule'])} looks)</p>"
-            + (f"<p>Regressed:</p><ul>{named}</ul>" if named else "")
-            + (f"<p class='note'>{_e(v['note'])}</p>" if v.get("note") else "")
-            + f"<p class='note'>{_e(v['rule'])}</p>" +
-            _table(["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB",
-                    "regressed"], rows, {4, 5, 6, 7, 8}))
+    named = "".join(
+        f"<li>{_e(r['kind'])} <b>{_e(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]</li>"
+        for r in v.get("regressed", [])
+    )
+    return (
+        f"<h2>Regression gate</h2><p>candidate <b>{_e(v['candidate']['spec'])}</b> vs baseline "
+        f"<b>{_e(v['baseline']['spec'])}</b>: <span class='{cls}'>{_e(v['verdict'].replace('_', ' '))}</span>"
+        f"{bound} (margin {v['margin']}, {len(v['looks'])} of {len(v['schedule'])} looks)</p>"
+        + (f"<p>Regressed:</p><ul>{named}</ul>" if named else "")
+        + (f"<p class='note'>{_e(v['note'])}</p>" if v.get("note") else "")
+        + f"<p class='note'>{_e(v['rule'])}</p>"
+        + _table(
+            ["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB", "regressed"],
+            rows,
+            {4, 5, 6, 7, 8},
+        )
+    )
 
 
-def build_page(kind: str, doc: dict, tmp: Path, cal: dict | None, verdict: dict | None, title: str | None,
-               run_dir: Path | None = None) -> str:
+def build_page(
+    kind: str,
+    doc: dict,
+    tmp: Path,
+    cal: dict | None,
+    verdict: dict | None,
+    title: str | None,
+    run_dir: Path | None = None,
+) -> str:
     """Write the figures into `tmp` and return the HTML text."""
     if kind == "run":
         default = f"{doc['suite']['name']} · {doc['policy']['name']} · run {doc['run_id']}"
         prov = doc["provenance"]
         sha = doc["policy"].get("checkpoint_sha256")
-        meta = (f"suite {_e(doc['suite']['name'])} v{_e(doc['suite']['version'])} · policy {_e(doc['policy']['name'])}"
-                + (f" (checkpoint {_e(sha[:12])})" if sha else "") +
-                f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
-                f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}")
+        meta = (
+            f"suite {_e(doc['suite']['name'])} v{_e(doc['suite']['version'])} · policy {_e(doc['policy']['name'])}"
+            + (f" (checkpoint {_e(sha[:12])})" if sha else "")
+            + f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
+            f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}"
+        )
         parts = run_sections(doc, tmp, run_dir)
     else:
         default = "leaderboard"
-        meta = (f"{len(doc['entries'])} entries · suites "
-                + ", ".join(f"{_e(s['name'])} v{_e(s['version'])}" for s in doc["suites"]))
+        meta = f"{len(doc['entries'])} entries · suites " + ", ".join(
+            f"{_e(s['name'])} v{_e(s['version'])}" for s in doc["suites"]
+        )
         parts = leaderboard_sections(doc, tmp)
     if verdict:
         parts.append(verdict_section(verdict))
     if cal:
         parts.append(calibration_section(cal, tmp))
     t = title or default
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{_e(t)}</title><style>{CSS}</style></head>"
-            f"<body><h1>{_e(t)}</h1><div class='meta'>{meta}</div>{''.join(parts)}"
-            "<p class='meta'>Generated by bench report; intervals are two-sided at the run's confidence level.</p>"
-            "</body></html>\n")
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{_e(t)}</title><style>{CSS}</style></head>"
+        f"<body><h1>{_e(t)}</h1><div class='meta'>{meta}</div>{''.join(parts)}"
+        "<p class='meta'>Generated by bench report; intervals are two-sided at the run's confidence level.</p>"
+        "</body></html>\n"
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -314,10 +420,18 @@ def main(argv: list[str]) -> int:
     verdict = load_verdict(cfg.verdict) if cfg.verdict else None
     # a run's records and videos are read from the folder of its summary.json
     run_dir = src.parent if kind == "run" and (src.parent / "episodes.jsonl").exists() else None
-    out = outputs.check("out", cfg.out, {"input": positional[0], "run": run_dir, "calibration": cfg.calibration,
-                                         "verdict": cfg.verdict}, overwrite=cfg.overwrite)
-    outputs.replace_dir(out, lambda tmp: (tmp / "index.html").write_text(
-        build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"))
+    out = outputs.check(
+        "out",
+        cfg.out,
+        {"input": positional[0], "run": run_dir, "calibration": cfg.calibration, "verdict": cfg.verdict},
+        overwrite=cfg.overwrite,
+    )
+    outputs.replace_dir(
+        out,
+        lambda tmp: (tmp / "index.html").write_text(
+            build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"
+        ),
+    )
     figs = sorted(p.name for p in out.glob("*.png"))
     print(f"report of {src} -> {out / 'index.html'} ({', '.join(figs) or 'no figures'})")
     return 0

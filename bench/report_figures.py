@@ -1,6 +1,7 @@
 """The figures of `bench report` (matplotlib, Agg): cells, split means and gaps, sensitivity curves,
 leaderboard, calibration errors. Each `fig_*` writes one PNG and says whether it drew anything.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -48,10 +49,16 @@ def fig_cells(summary: dict, path: Path) -> bool:
         return False
     tasks = sorted({c["task"] for c in cells})
     envs = len({c["env"] for c in cells}) > 1
-    fig, axes = plt.subplots(len(tasks), 1, figsize=(max(6.0, 0.75 * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2), 2.8 * len(tasks)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(tasks),
+        1,
+        figsize=(max(6.0, 0.75 * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2), 2.8 * len(tasks)),
+        squeeze=False,
+    )
     for ax, task in zip(axes[:, 0], tasks):
-        rows = sorted((c for c in cells if c["task"] == task), key=lambda c: (c["split"] != "seen", c["robot"], c["env"]))
+        rows = sorted(
+            (c for c in cells if c["task"] == task), key=lambda c: (c["split"] != "seen", c["robot"], c["env"])
+        )
         xs = range(len(rows))
         for x, c in zip(xs, rows):
             e = _err(c[metric])
@@ -69,8 +76,11 @@ def fig_cells(summary: dict, path: Path) -> bool:
             ax.axvline(n_seen - 0.5, color="grey", ls=":", lw=1)
         ax.set_ylim(0, 1.15)
         ax.set_ylabel(f"{metric}")
-        ax.set_title(f"{task}: success per cell ({int(summary['confidence'] * 100)}% Wilson); "
-                     f"bar = {metric}, tick = {other}", fontsize=9, loc="left")
+        ax.set_title(
+            f"{task}: success per cell ({int(summary['confidence'] * 100)}% Wilson); bar = {metric}, tick = {other}",
+            fontsize=9,
+            loc="left",
+        )
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
     fig.legend(handles, ["seen", "unseen"], loc="lower center", fontsize=8, frameon=False, ncols=2)
     _save(fig, path, rect=(0, 0.07 / len(tasks), 1, 1))
@@ -107,8 +117,17 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     a2.axvline(0, color="grey", lw=1)
     if not gaps:
         reason = next((g.get("reason") for g in summary["gaps"] if g.get("reason")), "no seen/unseen pair of groups")
-        a2.text(0.5, 0.5, f"no gap computable:\n{reason}", ha="center", va="center", fontsize=8, color="grey",
-                transform=a2.transAxes, backgroundcolor="white")
+        a2.text(
+            0.5,
+            0.5,
+            f"no gap computable:\n{reason}",
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="grey",
+            transform=a2.transAxes,
+            backgroundcolor="white",
+        )
     a2.set_yticks(range(len(gaps)))
     a2.set_yticklabels([f"{g['reference']}→{g['target']}\n{g['metric']}" for g in gaps], fontsize=8)
     a2.invert_yaxis()
@@ -143,16 +162,24 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
     fig, axs = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
     for k, axis in enumerate(axes_names):
         ax = axs[k // ncol, k % ncol]
-        pooled = sorted(((lx, e) for e in entries
-                         if e.get("axis") == axis and e.get("scope") == "all" and (lx := _level_x(e["level"]))),
-                        key=lambda t: t[0][0])
+        pooled = sorted(
+            (
+                (lx, e)
+                for e in entries
+                if e.get("axis") == axis and e.get("scope") == "all" and (lx := _level_x(e["level"]))
+            ),
+            key=lambda t: t[0][0],
+        )
         per_cell: dict[tuple, list] = {}
         for e in entries:
             if e.get("axis") == axis and e.get("scope") == "cell" and _level_x(e["level"]):
                 per_cell.setdefault((e.get("task"), e.get("robot"), e.get("env")), []).append(e)
         for key, es in sorted(per_cell.items()):
-            pts = sorted((lx[0], e[metric]["value"]) for e in es
-                         if e[metric].get("value") is not None and (lx := _level_x(e["level"])))
+            pts = sorted(
+                (lx[0], e[metric]["value"])
+                for e in es
+                if e[metric].get("value") is not None and (lx := _level_x(e["level"]))
+            )
             if pts:
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=0.8, alpha=0.35, color="grey")
                 ax.annotate(key[1], pts[-1], fontsize=6, color="grey", xytext=(2, 0), textcoords="offset points")
@@ -169,8 +196,16 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
                 lo.append(est[1])
                 hi.append(est[2])
                 xerr.append(half)
-        ax.errorbar(xs, ys, yerr=[lo, hi], xerr=xerr if any(xerr) else None, fmt="o-", color="#b23a48", capsize=3,
-                    label="all cells")
+        ax.errorbar(
+            xs,
+            ys,
+            yerr=[lo, hi],
+            xerr=xerr if any(xerr) else None,
+            fmt="o-",
+            color="#b23a48",
+            capsize=3,
+            label="all cells",
+        )
         if nominal and nominal[metric].get("value") is not None:
             ax.axhline(nominal[metric]["value"], color="black", ls="--", lw=1, label="nominal")
         ax.set_ylim(-0.02, 1.05)
@@ -205,8 +240,9 @@ def fig_leaderboard(board: dict, path: Path) -> bool:
                 ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
                 ax.text(x, est[0] + est[2] + 0.02, f"{est[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
         sha = e["policy"].get("checkpoint_sha256")
-        labels.append(f"#{e['rank'] or '–'} {e['policy']['name']}" + (f"\n{sha[:8]}" if sha else "")
-                      + f"\n{e['suite']['name']}")
+        labels.append(
+            f"#{e['rank'] or '–'} {e['policy']['name']}" + (f"\n{sha[:8]}" if sha else "") + f"\n{e['suite']['name']}"
+        )
     ax.set_xticks(range(len(entries)))
     ax.set_xticklabels(labels, fontsize=7)
     groups = [e["group"] for e in entries]
@@ -235,8 +271,13 @@ def fig_calibration(cal: dict, path: Path) -> bool:
     for j, stage in enumerate(stages):
         vals = [cal["errors"][stage].get(k) for k, _ in NRMSE_KEYS]
         xs = [i + (j - (len(stages) - 1) / 2) * width for i in range(len(NRMSE_KEYS))]
-        ax.bar([x for x, v in zip(xs, vals) if v is not None], [v for v in vals if v is not None], width=width,
-               color=colours[stage], label=stage)
+        ax.bar(
+            [x for x, v in zip(xs, vals) if v is not None],
+            [v for v in vals if v is not None],
+            width=width,
+            color=colours[stage],
+            label=stage,
+        )
     ax.set_xticks(range(len(NRMSE_KEYS)))
     ax.set_xticklabels([lbl for _, lbl in NRMSE_KEYS])
     ax.set_ylabel("held-out NRMSE")

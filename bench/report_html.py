@@ -2,6 +2,7 @@
 
 Every section of the page (bench.report, bench.remote.report) writes its HTML through these.
 """
+
 from __future__ import annotations
 
 import html
@@ -44,8 +45,12 @@ def _signed(est: dict | None) -> str:
 
 def _table(header: list[str], rows: list[list[str]], num: Collection[int] = frozenset()) -> str:
     th = "".join(f"<th>{_e(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td class='num'>{c}</td>" if i in num else f"<td>{c}</td>"
-                                    for i, c in enumerate(r)) + "</tr>" for r in rows)
+    body = "".join(
+        "<tr>"
+        + "".join(f"<td class='num'>{c}</td>" if i in num else f"<td>{c}</td>" for i, c in enumerate(r))
+        + "</tr>"
+        for r in rows
+    )
     return f"<table><tr>{th}</tr>{body}</table>"
 
 

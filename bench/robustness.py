@@ -6,6 +6,7 @@ absolute and relative drop), with the drop paired by (cell, episode seed) as in
 level; this pools an axis' levels (a grid, or the draws of a `uniform()` range) into one number,
 so axes can be ranked: which change of the world hurts the policy most.
 """
+
 from __future__ import annotations
 
 from collections import defaultdict
@@ -19,8 +20,13 @@ from bench.records import EpisodeRecord, dedupe
 from bench.sensitivity import _paired
 
 
-def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generator, n_boot: int = 2000,
-          confidence: float = 0.95) -> list[dict[str, Any]]:
+def table(
+    records: Sequence[EpisodeRecord],
+    metric: str,
+    rng: np.random.Generator,
+    n_boot: int = 2000,
+    confidence: float = 0.95,
+) -> list[dict[str, Any]]:
     """One row per perturbation axis of the run (JSON-able, no NaN), most harmful first.
 
     Row: axis, kind (model / interface / visual), levels (condition names), pairs, nominal and
@@ -51,11 +57,17 @@ def table(records: Sequence[EpisodeRecord], metric: str, rng: np.random.Generato
         est = scoring.paired_gap(ref, tgt, rng, n_boot=n_boot, confidence=confidence).to_dict()
         base = float(ref.mean()) if n else None
         drop = est.get("value")
-        rows.append({
-            "axis": axis, "kind": AXES[axis].kind if axis in AXES else None, "levels": sorted(levels[axis]),
-            "pairs": n, "nominal": round(base, 6) if base is not None else None,
-            "perturbed": round(float(tgt.mean()), 6) if n else None, "drop": est,
-            "relative_drop": round(drop / base, 6) if drop is not None and base else None,
-        })
+        rows.append(
+            {
+                "axis": axis,
+                "kind": AXES[axis].kind if axis in AXES else None,
+                "levels": sorted(levels[axis]),
+                "pairs": n,
+                "nominal": round(base, 6) if base is not None else None,
+                "perturbed": round(float(tgt.mean()), 6) if n else None,
+                "drop": est,
+                "relative_drop": round(drop / base, 6) if drop is not None and base else None,
+            }
+        )
     rows.sort(key=lambda row: -(row["drop"].get("value") or 0.0))
     return rows

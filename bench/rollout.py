@@ -5,6 +5,7 @@ non-finite number coming out of the env (reward, observation) or the policy (act
 the episode with its reason in `error` (the run goes on), and never reaches a summary.
 A policy may return an action chunk (T, A): its rows are executed open loop, one per step.
 """
+
 from __future__ import annotations
 
 import os
@@ -67,10 +68,10 @@ class RunContext:
     versions: dict[str, str]
     horizon: int
     timeout_s: float
-    trajectory_dir: str | None = None   # set when `record=` asks for the rollouts
-    video_dir: str | None = None        # the run directory, when `video=N` asks for episode videos
-    video_episodes: int = 0             # N: videos of episodes 0..N-1 of every cell and condition
-    policy_stats: bool = False          # the policy reports `episode_stats()` (PolicyPlugin.reports_stats)
+    trajectory_dir: str | None = None  # set when `record=` asks for the rollouts
+    video_dir: str | None = None  # the run directory, when `video=N` asks for episode videos
+    video_episodes: int = 0  # N: videos of episodes 0..N-1 of every cell and condition
+    policy_stats: bool = False  # the policy reports `episode_stats()` (PolicyPlugin.reports_stats)
 
 
 def trajectory_path(directory: str | Path, job_id: str) -> Path:
@@ -111,8 +112,9 @@ class _Actions:
             elif out.ndim == 2 and out.shape[1] == self.dim and out.shape[0] >= 1:
                 self.queue = list(out)
             else:
-                raise ValueError(f"policy returned an action of shape {out.shape}; expected ({self.dim},) or "
-                                 f"a chunk (T, {self.dim})")
+                raise ValueError(
+                    f"policy returned an action of shape {out.shape}; expected ({self.dim},) or a chunk (T, {self.dim})"
+                )
             if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
                 raise NonFinite(f"policy returned a non-finite action at step {t}")
         return self.queue.pop(0)
@@ -131,8 +133,11 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     ret, length, first_success = 0.0, 0, None
     params: dict[str, Any] = {}
     init_hash, error, stats = None, None, {}
-    traj: dict[str, Any] | None = {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [],
-                                   "ctrl": []} if ctx.trajectory_dir else None
+    traj: dict[str, Any] | None = (
+        {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [], "ctrl": []}
+        if ctx.trajectory_dir
+        else None
+    )
     log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
     video = None
     try:
@@ -205,15 +210,35 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
         _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
     cell = job.cell
     record = EpisodeRecord(
-        run_id=ctx.run_id, job_id=job.job_id, suite=cell.suite, suite_version=ctx.suite_version,
-        task=cell.task, robot=cell.robot, env=cell.env, split=cell.split,
-        condition=job.condition.name, axis=job.condition.axis, level=jsonable(job.condition.level, 10),
-        params=jsonable(params, 10), episode=job.episode, seed=job.seed, init_state_hash=init_hash,
-        success_once=success_once, success_at_end=success_at_end, return_=float(ret), length=length,
-        steps_to_success=first_success, error=error, policy=ctx.policy_id,
-        checkpoint_sha256=ctx.checkpoint_sha256, backend=env.backend,
-        wall_s=round(time.perf_counter() - t0, 4), finished_at=round(time.time(), 3), worker_pid=os.getpid(),
-        versions=ctx.versions, extras={**({"policy": stats} if stats else {}), **extras},
+        run_id=ctx.run_id,
+        job_id=job.job_id,
+        suite=cell.suite,
+        suite_version=ctx.suite_version,
+        task=cell.task,
+        robot=cell.robot,
+        env=cell.env,
+        split=cell.split,
+        condition=job.condition.name,
+        axis=job.condition.axis,
+        level=jsonable(job.condition.level, 10),
+        params=jsonable(params, 10),
+        episode=job.episode,
+        seed=job.seed,
+        init_state_hash=init_hash,
+        success_once=success_once,
+        success_at_end=success_at_end,
+        return_=float(ret),
+        length=length,
+        steps_to_success=first_success,
+        error=error,
+        policy=ctx.policy_id,
+        checkpoint_sha256=ctx.checkpoint_sha256,
+        backend=env.backend,
+        wall_s=round(time.perf_counter() - t0, 4),
+        finished_at=round(time.time(), 3),
+        worker_pid=os.getpid(),
+        versions=ctx.versions,
+        extras={**({"policy": stats} if stats else {}), **extras},
     )
     return record, error is None
 
@@ -228,7 +253,9 @@ def _policy_stats(policy: Any) -> dict[str, Any]:
         return {"error": f"episode_stats failed: {type(exc).__name__}: {exc}"}
     bad = first_nonfinite(stats)
     if bad is not None or not isinstance(stats, dict):
-        return {"error": f"episode_stats returned a non-finite number at {bad}" if bad else "episode_stats is not a dict"}
+        return {
+            "error": f"episode_stats returned a non-finite number at {bad}" if bad else "episode_stats is not a dict"
+        }
     return stats
 
 

@@ -1,4 +1,5 @@
 """`bench run`: the command line over `bench.api` (config -> plan -> run -> records -> summary)."""
+
 from __future__ import annotations
 
 from bench import config as config_mod
@@ -57,8 +58,10 @@ def help_text(argv: list[str] | None = None) -> str:
 def _perturb_help() -> str:
     from bench.axes import axes_help
 
-    return ("\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
-            "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n")
+    return (
+        "\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
+        "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n"
+    )
 
 
 def main(argv: list[str]) -> int:
@@ -80,9 +83,15 @@ def main_score(argv: list[str]) -> int:
     if not argv or argv[0] in ("-h", "--help"):
         from bench.config import command_help
 
-        print(command_help("usage: bench score RUN_DIR",
-                           "Recomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are the source of\n"
-                           "truth) and prints the table.", examples=["bench score runs/my_run"]), end="")
+        print(
+            command_help(
+                "usage: bench score RUN_DIR",
+                "Recomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are the source of\n"
+                "truth) and prints the table.",
+                examples=["bench score runs/my_run"],
+            ),
+            end="",
+        )
         return 0 if argv else 2
     from bench.api import score
     from bench.errors import ConfigError

@@ -8,6 +8,7 @@ land. Everything a worker needs travels in one picklable `WorkerSpec`, so any ex
 produces the same records. An executor is any object with
 `execute(jobs, worker_spec, on_record)`.
 """
+
 from __future__ import annotations
 
 import multiprocessing as mp
@@ -32,11 +33,11 @@ from bench.suite import Job
 class WorkerSpec:
     """Everything a worker process needs to rebuild the run's suite and policy (picklable)."""
 
-    suite_ref: str           # registry name or package.module:Class
-    suite_options: Any       # an instance of the suite's Options
-    policy_ref: str          # registry name or package.module:attr
-    policy_options: Any      # an instance of the policy plugin's Options
-    seed: int                # the run seed
+    suite_ref: str  # registry name or package.module:Class
+    suite_options: Any  # an instance of the suite's Options
+    policy_ref: str  # registry name or package.module:attr
+    policy_options: Any  # an instance of the policy plugin's Options
+    seed: int  # the run seed
     ctx: RunContext
     calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
 
@@ -70,8 +71,9 @@ class Worker:
                     write_fields(env.mujoco, cal["edits"])
                 missing = [k for k in self.needs if k not in env.obs_spec]
                 if missing:  # the suite declared them (checked before the run), but its env does not give them
-                    raise RuntimeError(f"the policy needs observation keys {missing}; "
-                                       f"the env gives {sorted(env.obs_spec)}")
+                    raise RuntimeError(
+                        f"the policy needs observation keys {missing}; the env gives {sorted(env.obs_spec)}"
+                    )
                 policy = self.plugin.make(job.cell, env, self.policy_ctx)
             except BaseException:
                 env.close()
@@ -107,12 +109,34 @@ def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
     """The record of an episode that could not start (its env or policy failed to build)."""
     c = job.cell
     return EpisodeRecord(
-        run_id=ctx.run_id, job_id=job.job_id, suite=c.suite, suite_version=ctx.suite_version, task=c.task,
-        robot=c.robot, env=c.env, split=c.split, condition=job.condition.name, axis=job.condition.axis,
-        level=job.condition.level, params={}, episode=job.episode, seed=job.seed, init_state_hash=None,
-        success_once=False, success_at_end=False, return_=0.0, length=0, steps_to_success=None, error=error,
-        policy=ctx.policy_id, checkpoint_sha256=ctx.checkpoint_sha256, backend=None, wall_s=0.0,
-        finished_at=round(time.time(), 3), worker_pid=os.getpid(), versions=ctx.versions,
+        run_id=ctx.run_id,
+        job_id=job.job_id,
+        suite=c.suite,
+        suite_version=ctx.suite_version,
+        task=c.task,
+        robot=c.robot,
+        env=c.env,
+        split=c.split,
+        condition=job.condition.name,
+        axis=job.condition.axis,
+        level=job.condition.level,
+        params={},
+        episode=job.episode,
+        seed=job.seed,
+        init_state_hash=None,
+        success_once=False,
+        success_at_end=False,
+        return_=0.0,
+        length=0,
+        steps_to_success=None,
+        error=error,
+        policy=ctx.policy_id,
+        checkpoint_sha256=ctx.checkpoint_sha256,
+        backend=None,
+        wall_s=0.0,
+        finished_at=round(time.time(), 3),
+        worker_pid=os.getpid(),
+        versions=ctx.versions,
     )
 
 
@@ -129,6 +153,7 @@ def given_up_record(job: Job, ctx: RunContext, reasons: list[str]) -> EpisodeRec
 
 
 # -- the local executor ----------------------------------------------------------------------
+
 
 def _child_main(conn: Connection, spec: WorkerSpec) -> None:
     """A child process: build a Worker, report ready, then run the jobs the parent sends until None."""
@@ -179,8 +204,14 @@ class _Children:
     replaced while jobs remain. Records go to `emit` as they arrive.
     """
 
-    def __init__(self, n: int, spec: WorkerSpec, queue: JobQueue, cond: threading.Condition,
-                 emit: Callable[[EpisodeRecord], None]):
+    def __init__(
+        self,
+        n: int,
+        spec: WorkerSpec,
+        queue: JobQueue,
+        cond: threading.Condition,
+        emit: Callable[[EpisodeRecord], None],
+    ):
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
         self.ctx = mp.get_context("spawn")
         self.children = [_Child(self.ctx, spec) for _ in range(n)]

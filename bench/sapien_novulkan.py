@@ -13,6 +13,7 @@ for the exact mani-skill / sapien versions they were checked against (`CHECKED`)
 is refused with a one-line error rather than patched blindly. Installation is process-wide and
 cannot be undone: a process that installed them cannot build camera observations afterwards.
 """
+
 from __future__ import annotations
 
 from importlib import import_module
@@ -24,8 +25,14 @@ from bench.errors import ConfigError
 CHECKED = {"mani-skill": "3.0.1", "sapien": "3.0.3"}
 # modules that import the two classes by name (besides sapien.render itself)
 _IMPORTERS = ("sapien.wrapper.urdf_loader", "sapien.wrapper.renderer", "mani_skill.utils.building._mjcf_loader")
-_VISUAL_ADDERS = ("add_plane_visual", "add_box_visual", "add_capsule_visual", "add_cylinder_visual",
-                  "add_sphere_visual", "add_visual_from_file")
+_VISUAL_ADDERS = (
+    "add_plane_visual",
+    "add_box_visual",
+    "add_capsule_visual",
+    "add_cylinder_visual",
+    "add_sphere_visual",
+    "add_visual_from_file",
+)
 LAVAPIPE_HINT = "run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it prints"
 
 _state: dict[str, Any] = {"mode": None}  # None (not decided yet) | "vulkan" | "stand-ins"
@@ -34,9 +41,17 @@ _state: dict[str, Any] = {"mode": None}  # None (not decided yet) | "vulkan" | "
 class InertRenderMaterial:
     """Holds the values a `sapien.render.RenderMaterial` would; draws nothing."""
 
-    def __init__(self, emission: Any = (0.0, 0.0, 0.0, 0.0), base_color: Any = (1.0, 1.0, 1.0, 1.0),
-                 specular: float = 0.0, roughness: float = 1.0, metallic: float = 0.0, transmission: float = 0.0,
-                 ior: float = 1.45, transmission_roughness: float = 0.0):
+    def __init__(
+        self,
+        emission: Any = (0.0, 0.0, 0.0, 0.0),
+        base_color: Any = (1.0, 1.0, 1.0, 1.0),
+        specular: float = 0.0,
+        roughness: float = 1.0,
+        metallic: float = 0.0,
+        transmission: float = 0.0,
+        ior: float = 1.45,
+        transmission_roughness: float = 0.0,
+    ):
         self.emission, self.base_color, self.specular = list(emission), list(base_color), specular
         self.roughness, self.metallic, self.transmission = roughness, metallic, transmission
         self.ior, self.transmission_roughness = ior, transmission_roughness
@@ -48,9 +63,23 @@ def _accessors(name: str) -> tuple[Any, Any]:
     return (lambda self: getattr(self, name)), (lambda self, value: setattr(self, name, value))
 
 
-for _name in ("emission", "base_color", "specular", "roughness", "metallic", "transmission", "ior",
-              "transmission_roughness", "base_color_texture", "diffuse_texture", "emission_texture",
-              "metallic_texture", "normal_texture", "roughness_texture", "transmission_texture"):
+for _name in (
+    "emission",
+    "base_color",
+    "specular",
+    "roughness",
+    "metallic",
+    "transmission",
+    "ior",
+    "transmission_roughness",
+    "base_color_texture",
+    "diffuse_texture",
+    "emission_texture",
+    "metallic_texture",
+    "normal_texture",
+    "roughness_texture",
+    "transmission_texture",
+):
     _get, _set = _accessors(_name)
     setattr(InertRenderMaterial, f"get_{_name}", _get)
     setattr(InertRenderMaterial, f"set_{_name}", _set)
@@ -99,8 +128,10 @@ def install() -> None:
     if found != CHECKED:
         got = ", ".join(f"{k} {v or 'absent'}" for k, v in found.items())
         want = ", ".join(f"{k}=={v}" for k, v in CHECKED.items())
-        raise ConfigError(f"ManiSkill without a Vulkan device: the inert SAPIEN materials were checked against {want}, "
-                          f"found {got}; install those versions (pip install -e '.[maniskill]') or {LAVAPIPE_HINT}")
+        raise ConfigError(
+            f"ManiSkill without a Vulkan device: the inert SAPIEN materials were checked against {want}, "
+            f"found {got}; install those versions (pip install -e '.[maniskill]') or {LAVAPIPE_HINT}"
+        )
     import sapien.render
     from sapien.wrapper.actor_builder import ActorBuilder
 
@@ -127,10 +158,14 @@ def prepare(cameras: bool) -> str:
     if mode is None:
         mode = _state["mode"] = "vulkan" if render_device_available() else None
     if cameras and mode != "vulkan":
-        why = "the inert SAPIEN materials are installed in this process" if mode == "stand-ins" else \
-            "SAPIEN finds no Vulkan device"
-        raise ConfigError(f"obs=rgb: ManiSkill cameras need a Vulkan device and {why}; {LAVAPIPE_HINT}, "
-                          "or use obs=state")
+        why = (
+            "the inert SAPIEN materials are installed in this process"
+            if mode == "stand-ins"
+            else "SAPIEN finds no Vulkan device"
+        )
+        raise ConfigError(
+            f"obs=rgb: ManiSkill cameras need a Vulkan device and {why}; {LAVAPIPE_HINT}, or use obs=state"
+        )
     if mode is None:
         install()
         mode = "stand-ins"

@@ -8,6 +8,7 @@ dead node) is handed out before any other, with the reason kept, at most `max_re
 times; after that it is given up and the caller records it as an error episode, so a job
 that kills every worker it touches cannot stall a run. Nothing here runs an episode.
 """
+
 from __future__ import annotations
 
 from collections import OrderedDict, deque
@@ -16,7 +17,7 @@ from collections.abc import Collection
 from bench.suite import Job
 
 MAX_RETRIES = 2  # a job is tried at most 1 + MAX_RETRIES times when its workers keep getting lost
-DEPTH = 2        # jobs a remote worker may hold: one running, one waiting, so it never idles between episodes
+DEPTH = 2  # jobs a remote worker may hold: one running, one waiting, so it never idles between episodes
 
 
 def depth(queued: int, workers: int) -> int:
@@ -37,7 +38,7 @@ class JobQueue:
         for job in jobs:
             self.cells.setdefault(job.cell.key, deque()).append(job)
         self.retries: dict[str, list[str]] = {}  # job id -> why each earlier attempt was lost
-        self.lost_jobs: deque[Job] = deque()      # jobs whose worker was lost: handed out first
+        self.lost_jobs: deque[Job] = deque()  # jobs whose worker was lost: handed out first
 
     def __len__(self) -> int:
         return len(self.lost_jobs) + sum(len(q) for q in self.cells.values())

@@ -4,10 +4,11 @@ Schemas ship inside the package (`bench/schemas/*.json`) and are versioned by a
 document's `"schema"` field, e.g. `bench.summary/1`. A document holding NaN or
 infinity is refused before the schema is even consulted: results say null + a reason.
 """
+
 from __future__ import annotations
 
 import json
-from functools import lru_cache
+from functools import cache
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
@@ -15,11 +16,15 @@ from typing import Any
 from bench.errors import DataError
 from bench.io import first_nonfinite
 
-SCHEMAS = {"bench.summary/1": "summary-1.json", "bench.leaderboard/1": "leaderboard-1.json",
-           "bench.regress/1": "regress-1.json", "bench.regress/2": "regress-2.json"}
+SCHEMAS = {
+    "bench.summary/1": "summary-1.json",
+    "bench.leaderboard/1": "leaderboard-1.json",
+    "bench.regress/1": "regress-1.json",
+    "bench.regress/2": "regress-2.json",
+}
 
 
-@lru_cache(maxsize=None)
+@cache
 def schema(schema_id: str) -> dict:
     """The JSON Schema for `schema_id` (e.g. "bench.summary/1")."""
     if schema_id not in SCHEMAS:
@@ -69,8 +74,11 @@ def semantic_problem(obj: Any, path: str = "$", rate: bool = False, n: int | Non
             lo, hi = float(ci[0]), float(ci[1])
             if lo > hi + _TOL:
                 return f"field {path}.ci is [{lo:g}, {hi:g}]: an interval's lower end must not exceed its upper end"
-            if isinstance(value, (int, float)) and not isinstance(value, bool) and \
-                    not lo - _TOL <= float(value) <= hi + _TOL:
+            if (
+                isinstance(value, (int, float))
+                and not isinstance(value, bool)
+                and not lo - _TOL <= float(value) <= hi + _TOL
+            ):
                 return f"field {path}.value is {value:g}, outside its interval [{lo:g}, {hi:g}]"
             if rate and (lo < -_TOL or hi > 1 + _TOL):
                 return f"field {path}.ci is [{lo:g}, {hi:g}]: a success rate's interval lies in [0, 1]"
@@ -123,5 +131,6 @@ def _parse_json(path: Path) -> Any:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0]})") from None
     except (RecursionError, ValueError) as exc:  # nesting too deep; integers of thousands of digits
-        raise DataError(f"{path}: not a JSON file bench can read ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0][:120]})") from None
+        raise DataError(
+            f"{path}: not a JSON file bench can read ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})"
+        ) from None

@@ -11,6 +11,7 @@ Conventions:
 - Anything that cannot be computed is `None` plus a reason: never NaN.
 All randomness comes from a generator the caller seeds (from the run seed).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -138,8 +139,7 @@ def gap(
         return Estimate(None, reason=f"the {side} group has no completed episodes")
     stat = STATISTICS[statistic]
     point = float(stat(np.array([c.mean() for c in reference])) - stat(np.array([c.mean() for c in target])))
-    boot = (stat(_resampled_means(reference, rng, n_boot, binary))
-            - stat(_resampled_means(target, rng, n_boot, binary)))
+    boot = stat(_resampled_means(reference, rng, n_boot, binary)) - stat(_resampled_means(target, rng, n_boot, binary))
     lo, hi = _interval(boot, confidence)
     return Estimate(point, min(lo, point), max(hi, point))
 

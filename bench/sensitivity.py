@@ -10,6 +10,7 @@ test on the discordant pairs). Entries are computed for all cells pooled
 (`scope: "all"`) and, when the run has more than one cell, for each cell.
 Entries are JSON-able with no NaN: what cannot be computed is null with a reason.
 """
+
 from __future__ import annotations
 
 from collections import defaultdict
@@ -56,8 +57,10 @@ def _param_summary(recs: Sequence[EpisodeRecord]) -> dict[str, Any]:
         for k, v in (r.params or {}).items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 values[k].append(float(v))
-    return {k: {"min": round(min(v), 6), "mean": round(float(np.mean(v)), 6), "max": round(max(v), 6)}
-            for k, v in sorted(values.items())}
+    return {
+        k: {"min": round(min(v), 6), "mean": round(float(np.mean(v)), 6), "max": round(max(v), 6)}
+        for k, v in sorted(values.items())
+    }
 
 
 def _paired(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray, np.ndarray]:
@@ -83,12 +86,28 @@ def _paired(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray, np.nd
     return np.array([[a for _, a, _ in rows]]), np.array([[b for _, _, b in rows]])
 
 
-def _entry(cond: str, axis: str | None, level: Any, kind: str, scope: dict[str, Any], recs: list[EpisodeRecord],
-           nominal: dict, target: dict, rng: np.random.Generator, n_boot: int, confidence: float) -> dict[str, Any]:
+def _entry(
+    cond: str,
+    axis: str | None,
+    level: Any,
+    kind: str,
+    scope: dict[str, Any],
+    recs: list[EpisodeRecord],
+    nominal: dict,
+    target: dict,
+    rng: np.random.Generator,
+    n_boot: int,
+    confidence: float,
+) -> dict[str, Any]:
     ok = [r for r in recs if r.error is None]
     entry: dict[str, Any] = {
-        "condition": cond, "axis": axis, "level": level, "kind": kind, **scope,
-        "n": len(ok), "errors": len(recs) - len(ok),
+        "condition": cond,
+        "axis": axis,
+        "level": level,
+        "kind": kind,
+        **scope,
+        "n": len(ok),
+        "errors": len(recs) - len(ok),
         "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
         "params": _param_summary(ok),
     }
@@ -117,8 +136,9 @@ def _entry(cond: str, axis: str | None, level: Any, kind: str, scope: dict[str, 
     return entry
 
 
-def sensitivity(records: Sequence[EpisodeRecord], rng: np.random.Generator, n_boot: int = 2000,
-                confidence: float = 0.95) -> list[dict[str, Any]]:
+def sensitivity(
+    records: Sequence[EpisodeRecord], rng: np.random.Generator, n_boot: int = 2000, confidence: float = 0.95
+) -> list[dict[str, Any]]:
     """Per-condition success and paired drop from nominal, pooled over cells and (if several) per cell.
 
     Args:
@@ -158,8 +178,11 @@ def sensitivity(records: Sequence[EpisodeRecord], rng: np.random.Generator, n_bo
         r0 = recs[0]
         kind = "nominal" if r0.axis is None else ("range" if isinstance(r0.level, list) else "grid")
         target_idx = index(recs)
-        out.append(_entry(cond, r0.axis, r0.level, kind, {"scope": "all"}, recs, nominal_idx, target_idx,
-                          rng, n_boot, confidence))
+        out.append(
+            _entry(
+                cond, r0.axis, r0.level, kind, {"scope": "all"}, recs, nominal_idx, target_idx, rng, n_boot, confidence
+            )
+        )
         if len(cells) > 1:
             for task, robot, env in cells:
                 key = f"{task}/{robot}/{env}"
@@ -167,9 +190,21 @@ def sensitivity(records: Sequence[EpisodeRecord], rng: np.random.Generator, n_bo
                 if not cell_recs:
                     continue
                 scope = {"scope": "cell", "task": task, "robot": robot, "env": env}
-                out.append(_entry(cond, r0.axis, r0.level, kind, scope, cell_recs,
-                                  {key: nominal_idx.get(key, {})}, {key: target_idx.get(key, {})},
-                                  rng, n_boot, confidence))
+                out.append(
+                    _entry(
+                        cond,
+                        r0.axis,
+                        r0.level,
+                        kind,
+                        scope,
+                        cell_recs,
+                        {key: nominal_idx.get(key, {})},
+                        {key: target_idx.get(key, {})},
+                        rng,
+                        n_boot,
+                        confidence,
+                    )
+                )
     return out
 
 
@@ -189,8 +224,10 @@ def _drop(est: dict[str, Any]) -> str:
 
 
 def _sampled(params: dict[str, Any]) -> str:
-    return ", ".join(f"{k} {v['min']:.3g}–{v['max']:.3g}" if v["min"] != v["max"] else f"{k} {v['min']:.3g}"
-                     for k, v in params.items())
+    return ", ".join(
+        f"{k} {v['min']:.3g}–{v['max']:.3g}" if v["min"] != v["max"] else f"{k} {v['min']:.3g}"
+        for k, v in params.items()
+    )
 
 
 def render(entries: Sequence[dict[str, Any]], console=None) -> None:
@@ -202,8 +239,11 @@ def render(entries: Sequence[dict[str, Any]], console=None) -> None:
     console = console or Console()
     if not entries:
         return
-    t = Table(title="sensitivity: success per condition and drop from nominal "
-                    "(paired by seed; drop in points, bootstrap CI, exact McNemar p)", title_justify="left")
+    t = Table(
+        title="sensitivity: success per condition and drop from nominal "
+        "(paired by seed; drop in points, bootstrap CI, exact McNemar p)",
+        title_justify="left",
+    )
     # tasks without a success predicate (most Gymnasium control tasks): the return is the score
     show_return = all(e["success_once"]["successes"] == 0 for e in entries)
     many_cells = any(e.get("scope") == "cell" for e in entries)
@@ -212,20 +252,29 @@ def render(entries: Sequence[dict[str, Any]], console=None) -> None:
     show_sampled = any(e.get("kind") == "range" for e in entries)  # a grid's value is its level
     for col in cols + (["sampled"] if show_sampled else []):
         t.add_column(col, justify="right" if col == "n" else "left")
-    cell_rows = sorted((e for e in entries if e.get("scope") == "cell"),
-                       key=lambda e: (e.get("task"), e.get("robot"), e.get("env")))
+    cell_rows = sorted(
+        (e for e in entries if e.get("scope") == "cell"), key=lambda e: (e.get("task"), e.get("robot"), e.get("env"))
+    )
     for e in [e for e in entries if e.get("scope") == "all"] + cell_rows:
         d = e["drop_vs_nominal"]
         row = [e["condition"]]
         if many_cells:
-            row.append("all" if e.get("scope") == "all" else str(e.get("robot") if e.get("robot") != "default"
-                                                               else e.get("task")))
+            row.append(
+                "all"
+                if e.get("scope") == "all"
+                else str(e.get("robot") if e.get("robot") != "default" else e.get("task"))
+            )
         row += [str(e["n"]), _pct(e["success_once"])]
         if show_return:
             r = d["return"]
             ret = "n/a" if e.get("mean_return") is None else f"{e['mean_return']:.4g}"
-            drop = "—" if r.get("value") is None else (
-                f"{r['value']:+.4g} [{r['ci'][0]:+.4g}, {r['ci'][1]:+.4g}]" if r.get("ci") else f"{r['value']:+.4g}")
+            drop = (
+                "—"
+                if r.get("value") is None
+                else (
+                    f"{r['value']:+.4g} [{r['ci'][0]:+.4g}, {r['ci'][1]:+.4g}]" if r.get("ci") else f"{r['value']:+.4g}"
+                )
+            )
             row += [ret, drop]
         else:
             row += [_drop(d["success_once"]), _pct(e["success_at_end"]), _drop(d["success_at_end"])]

@@ -12,6 +12,7 @@ have no success predicate; their score is the return). MuJoCo-backed envs expose
 `env.unwrapped.model` / `.data` (the `mujoco` capability), so the model perturbation axes
 work on them.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -41,8 +42,9 @@ class GymEnv:
         self._act_space = act_space
         if isinstance(act_space, spaces.Box):
             low = np.asarray(act_space.low, np.float32).ravel()
-            self.action_spec = ActionSpec.box([f"a{i}" for i in range(low.size)], low,
-                                              np.asarray(act_space.high, np.float32).ravel())
+            self.action_spec = ActionSpec.box(
+                [f"a{i}" for i in range(low.size)], low, np.asarray(act_space.high, np.float32).ravel()
+            )
         elif isinstance(act_space, spaces.Discrete):
             start, n = int(act_space.start), int(act_space.n)
             self.action_spec = ActionSpec.box(["action"], start - 0.5, start + n - 0.5)
@@ -52,8 +54,9 @@ class GymEnv:
             self.action_spec = ActionSpec.box([f"a{i}" for i in range(nvec.size)], starts - 0.5, starts + nvec - 0.5)
         else:
             self._env.close()
-            raise ValueError(f"{env_id}: action space {type(act_space).__name__} is not supported "
-                             "(Box, Discrete, MultiDiscrete are)")
+            raise ValueError(
+                f"{env_id}: action space {type(act_space).__name__} is not supported (Box, Discrete, MultiDiscrete are)"
+            )
         unwrapped = self._env.unwrapped
         model, data = getattr(unwrapped, "model", None), getattr(unwrapped, "data", None)  # MuJoCo-backed envs
         self.mujoco: MujocoHandle | None = None

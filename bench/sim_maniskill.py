@@ -24,6 +24,7 @@ once after its first build so those collections skip the long-lived objects of t
 Assets are never downloaded: a robot or task whose assets are not on disk is refused with one
 line naming them (and `MS_SKIP_ASSET_DOWNLOAD_PROMPT=1` is set so ManiSkill never prompts).
 """
+
 from __future__ import annotations
 
 import os
@@ -84,8 +85,10 @@ def check_backend(sim_backend: str) -> None:
         import torch
 
         if not torch.cuda.is_available():
-            raise ConfigError("sim_backend=physx_cuda: this machine has no CUDA device (torch.cuda.is_available() "
-                              "is False); use sim_backend=physx_cpu")
+            raise ConfigError(
+                "sim_backend=physx_cuda: this machine has no CUDA device (torch.cuda.is_available() "
+                "is False); use sim_backend=physx_cpu"
+            )
 
 
 def cameras_of(robot: str) -> tuple[str, ...]:
@@ -104,8 +107,9 @@ def missing_assets(env_id: str, robot: str | None) -> list[str]:
         wanted += list(REGISTERED_AGENTS[robot].asset_download_ids or [])
     missing = []
     for asset in dict.fromkeys(wanted):
-        sources = (assets.expand_data_group_into_individual_data_source_ids(asset)
-                   if asset in assets.DATA_GROUPS else [asset])
+        sources = (
+            assets.expand_data_group_into_individual_data_source_ids(asset) if asset in assets.DATA_GROUPS else [asset]
+        )
         absent = [s for s in sources if not _on_disk(assets.DATA_SOURCES[s])]
         if absent:
             missing.append(asset if len(sources) == 1 else f"{asset} ({len(absent)} of {len(sources)} parts)")
@@ -131,9 +135,11 @@ def check_buildable(env_id: str, robot: str | None) -> None:
         raise ConfigError(f"robot {robot!r} is not a ManiSkill robot.{did_you_mean(robot, REGISTERED_AGENTS)}")
     missing = missing_assets(env_id, robot)
     if missing:
-        raise ConfigError(f"{env_id} with robot {robot}: needs an asset download ({', '.join(missing)}), which bench "
-                          f"never does; fetch it where the network allows (python -m mani_skill.utils.download_asset "
-                          f"{missing[0].split()[0]}) or choose another robot/task")
+        raise ConfigError(
+            f"{env_id} with robot {robot}: needs an asset download ({', '.join(missing)}), which bench "
+            f"never does; fetch it where the network allows (python -m mani_skill.utils.download_asset "
+            f"{missing[0].split()[0]}) or choose another robot/task"
+        )
 
 
 def reward_mode(env_id: str) -> str:
@@ -249,10 +255,22 @@ class ManiSkillEnv:
     obs_spec: ObsSpec
     base: Any  # the unwrapped ManiSkill env (mani_skill.envs.sapien_env.BaseEnv)
 
-    def __init__(self, env_id: str, robot: str, horizon: int, *, interface: Interface | None = None,
-                 obs: str = "state", cameras: Sequence[str] | None = None, image_size: int | None = None,
-                 object_names: Sequence[str] = (), instruction: str | None = None, sim_backend: str = "physx_cpu",
-                 reset: str = "rebuild", env_kwargs: dict | None = None):
+    def __init__(
+        self,
+        env_id: str,
+        robot: str,
+        horizon: int,
+        *,
+        interface: Interface | None = None,
+        obs: str = "state",
+        cameras: Sequence[str] | None = None,
+        image_size: int | None = None,
+        object_names: Sequence[str] = (),
+        instruction: str | None = None,
+        sim_backend: str = "physx_cpu",
+        reset: str = "rebuild",
+        env_kwargs: dict | None = None,
+    ):
         if obs not in OBS_MODES:
             raise ConfigError(f"obs={obs!r}: valid: {', '.join(OBS_MODES)}")
         if reset not in RESETS:
@@ -268,8 +286,10 @@ class ManiSkillEnv:
         self.cameras = tuple(cameras) if cameras else (valid_cams if want_rgb else ())
         for cam in self.cameras:
             if cam not in valid_cams:
-                raise ConfigError(f"cameras: {cam!r} is not a camera of {env_id} with {robot}; valid: "
-                                  f"{', '.join(valid_cams)}.{did_you_mean(cam, valid_cams)}")
+                raise ConfigError(
+                    f"cameras: {cam!r} is not a camera of {env_id} with {robot}; valid: "
+                    f"{', '.join(valid_cams)}.{did_you_mean(cam, valid_cams)}"
+                )
         if want_rgb and not self.cameras:
             raise ConfigError(f"obs={obs}: name at least one camera; valid: {', '.join(valid_cams)}")
         self.image_size = int(image_size or CAMERA_SIZE)
@@ -279,8 +299,14 @@ class ManiSkillEnv:
         ms_state = "state" if self.want_state and self.interface.uses_ms_state else None
         self._ms_obs_mode = "+".join(m for m in (ms_state, "rgb" if want_rgb else None) if m) or "none"
         self._kwargs: dict[str, Any] = dict(
-            robot_uids=robot, obs_mode=self._ms_obs_mode, sim_backend=sim_backend, num_envs=1,
-            render_backend="cpu" if want_rgb else "none", reward_mode=reward_mode(env_id), **(env_kwargs or {}))
+            robot_uids=robot,
+            obs_mode=self._ms_obs_mode,
+            sim_backend=sim_backend,
+            num_envs=1,
+            render_backend="cpu" if want_rgb else "none",
+            reward_mode=reward_mode(env_id),
+            **(env_kwargs or {}),
+        )
         if want_rgb:
             self._kwargs["sensor_configs"] = dict(width=self.image_size, height=self.image_size)
         self._build()
@@ -318,8 +344,9 @@ class ManiSkillEnv:
         except AssertionError:
             valid = self._control_modes()
             if mode not in valid:
-                raise ConfigError(f"control_mode={mode!r}: {self.robot} supports {', '.join(valid)}."
-                                  f"{did_you_mean(str(mode), valid)}") from None
+                raise ConfigError(
+                    f"control_mode={mode!r}: {self.robot} supports {', '.join(valid)}.{did_you_mean(str(mode), valid)}"
+                ) from None
             raise
         self.base = self._gym.unwrapped
         self.interface.bind(self)

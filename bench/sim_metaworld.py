@@ -27,6 +27,7 @@ scripted expert (`baselines/metaworld_expert.py`, Meta-World's own policy for th
 reads the goal from the last 3 observation values, so it is given the true goal through
 its input only — the observation the harness records and other policies see stays goal-free.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -46,7 +47,7 @@ _FRAME: list[tuple[str, int]] = [
     ("gripper_distance", 1),  # fingers apart / 0.1 m, clipped to [0, 1]
     ("obj0_pos", 3),
     ("obj0_quat", 4),
-    ("obj1_pos", 3),         # zeros when the task has one object
+    ("obj1_pos", 3),  # zeros when the task has one object
     ("obj1_quat", 4),
 ]
 OBS_NAMES: list[tuple[str, int]] = _FRAME + [(f"prev_{n}", w) for n, w in _FRAME] + [("goal_pos", 3)]
@@ -64,8 +65,9 @@ def quiet_metaworld() -> None:
     """
     warnings.filterwarnings("ignore", message=TOO_HIGH, category=UserWarning)
     warnings.filterwarnings("ignore", message=r".*is not within the observation space", category=UserWarning)
-    warnings.filterwarnings("ignore", message=r".*Box observation space maximum and minimum values are equal",
-                            category=UserWarning)
+    warnings.filterwarnings(
+        "ignore", message=r".*Box observation space maximum and minimum values are equal", category=UserWarning
+    )
 
 
 def metaworld_manifest(benchmark: str) -> dict[str, dict[str, list[str]]]:
@@ -113,12 +115,19 @@ def _parse_env_dict(name: str) -> dict[str, list[str]] | None:
     except (OSError, SyntaxError):
         return None
     for node in tree.body:
-        if (isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)
-                and node.targets[0].id == name and isinstance(node.value, ast.Call)):
+        if (
+            isinstance(node, ast.Assign)
+            and len(node.targets) == 1
+            and isinstance(node.targets[0], ast.Name)
+            and node.targets[0].id == name
+            and isinstance(node.value, ast.Call)
+        ):
             kw = {k.arg: k.value for k in node.value.keywords}
             try:
-                return {"train": list(ast.literal_eval(kw["train_env_names"])),
-                        "test": list(ast.literal_eval(kw["test_env_names"]))}
+                return {
+                    "train": list(ast.literal_eval(kw["train_env_names"])),
+                    "test": list(ast.literal_eval(kw["test_env_names"])),
+                }
             except (KeyError, ValueError):
                 return None
     return None
@@ -136,12 +145,14 @@ class MetaWorldEnv:
 
         if task not in ALL_V3_ENVIRONMENTS:
             valid = list(ALL_V3_ENVIRONMENTS)
-            raise ConfigError(f"task {task!r} is not a Meta-World v3 env; valid: {', '.join(valid)}.{did_you_mean(task, valid)}")
+            raise ConfigError(
+                f"task {task!r} is not a Meta-World v3 env; valid: {', '.join(valid)}.{did_you_mean(task, valid)}"
+            )
         if not 1 <= int(horizon) <= MAX_PATH_LENGTH:
             raise ConfigError(f"horizon={horizon}: Meta-World episodes last 1..{MAX_PATH_LENGTH} steps")
         self.task, self.robot, self.horizon = task, ROBOT, int(horizon)
         env = self._env = ALL_V3_ENVIRONMENTS[task]()
-        env._set_task_called = True       # the task vector is drawn at every reset instead (module doc)
+        env._set_task_called = True  # the task vector is drawn at every reset instead (module doc)
         env._partially_observable = True  # goal hidden, as in the ML benchmarks
         env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute for the new observability
         self.backend = f"metaworld-{version('metaworld')}/mujoco-{mujoco.__version__}"

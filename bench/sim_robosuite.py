@@ -10,6 +10,7 @@ Envs are built once and soft-reset (`hard_reset=False`, ~2 ms instead of ~1 s);
 reseeding sets both `env.rng` and the placement sampler's generator, which is
 what fixes the object's initial pose (robosuite's own `seed` only works at make).
 """
+
 from __future__ import annotations
 
 import logging
@@ -62,10 +63,21 @@ def _scene_env_name(task: str) -> str:
         return name
     base = REGISTERED_ENVS[task]
 
-    def __init__(self, *args, table_offset=None, placement_x_range=None, placement_y_range=None,
-                 table_contact_priority=None, **kwargs):
-        self._scene = dict(table_offset=table_offset, x_range=placement_x_range, y_range=placement_y_range,
-                           priority=table_contact_priority)
+    def __init__(
+        self,
+        *args,
+        table_offset=None,
+        placement_x_range=None,
+        placement_y_range=None,
+        table_contact_priority=None,
+        **kwargs,
+    ):
+        self._scene = dict(
+            table_offset=table_offset,
+            x_range=placement_x_range,
+            y_range=placement_y_range,
+            priority=table_contact_priority,
+        )
         base.__init__(self, *args, **kwargs)
 
     def _load_model(self):
@@ -107,8 +119,9 @@ class RobosuiteEnv:
 
     model_axes = None  # MuJoCo: bench.perturb edits the model through `mujoco`
 
-    def __init__(self, task: str, robot: str, horizon: int, observer: Observer,
-                 env_kwargs: dict[str, Any] | None = None):
+    def __init__(
+        self, task: str, robot: str, horizon: int, observer: Observer, env_kwargs: dict[str, Any] | None = None
+    ):
         _quiet_robosuite()
         import mujoco
         import robosuite
@@ -119,8 +132,11 @@ class RobosuiteEnv:
         scene = {k: env_kwargs.pop(k) for k in SCENE_KEYS if k in env_kwargs}
         # the scene is part of the initial state: two scenes with the same joint state are not the same start
         described = {**{k: v for k, v in env_kwargs.items() if k in ("table_full_size", "table_friction")}, **scene}
-        self._scene_vec = np.concatenate([np.ravel(np.asarray(described[k], dtype=np.float64)) for k in sorted(described)]
-                                         ) if described else np.zeros(0)
+        self._scene_vec = (
+            np.concatenate([np.ravel(np.asarray(described[k], dtype=np.float64)) for k in sorted(described)])
+            if described
+            else np.zeros(0)
+        )
         self.raw = robosuite.make(
             _scene_env_name(task) if scene else task,
             **scene,

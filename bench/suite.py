@@ -8,6 +8,7 @@ selects cells (`select_cells`) and expands them into jobs (cell, condition, epis
 the same episode index starts from the same initial state in every condition (pairing by
 seed). `SuiteBase` gives a suite the contract's defaults; subclassing it is optional.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -21,8 +22,22 @@ import numpy as np
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
 
-__all__ = ["Cell", "Condition", "Job", "NOMINAL", "SPLITS", "SPLIT_AXES", "METRICS", "SuiteBase", "episode_seed",
-           "condition_rng", "select_cells", "expand_jobs", "summary_line", "cell_to_dict"]
+__all__ = [
+    "Cell",
+    "Condition",
+    "Job",
+    "NOMINAL",
+    "SPLITS",
+    "SPLIT_AXES",
+    "METRICS",
+    "SuiteBase",
+    "episode_seed",
+    "condition_rng",
+    "select_cells",
+    "expand_jobs",
+    "summary_line",
+    "cell_to_dict",
+]
 
 SPLITS = ("seen", "unseen")
 # selection key (`robots=[...]`) -> the Cell attribute it selects on; also the manifest's axes
@@ -35,8 +50,8 @@ class Condition:
     """A physics/interface condition: `nominal`, or one perturbation setting (see bench.perturb)."""
 
     name: str = "nominal"
-    axis: str | None = None       # e.g. "friction"; None for nominal
-    level: Any = None             # a scale/value, or a [low, high] range for randomisation
+    axis: str | None = None  # e.g. "friction"; None for nominal
+    level: Any = None  # a scale/value, or a [low, high] range for randomisation
     spec: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
 
 
@@ -75,7 +90,7 @@ class SuiteBase:
     version: ClassVar[str] = "1"
     Options: ClassVar[type] = NoOptions
     reference_policy: str = "scripted"
-    default_policy: str = ""          # "" = the reference policy
+    default_policy: str = ""  # "" = the reference policy
     default_horizon: int = 200
     max_horizon: int | None = None
     default_metric: str = "success_once"
@@ -110,8 +125,11 @@ class SuiteBase:
 
     def describe(self) -> dict[str, Any]:
         """JSON-able identity of the suite: name, version, split manifest and its non-default options."""
-        out: dict[str, Any] = {"name": self.name, "version": self.version,
-                               "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()}}
+        out: dict[str, Any] = {
+            "name": self.name,
+            "version": self.version,
+            "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()},
+        }
         if dataclasses.is_dataclass(self.options) and not isinstance(self.options, type):
             out.update({k: v for k, v in dataclasses.asdict(self.options).items()})
         return out
@@ -147,8 +165,9 @@ def select_cells(suite: Any, selection: Any) -> list[Cell]:
 
 def expand_jobs(cells: Sequence[Cell], conditions: Sequence[Condition], episodes: int, seed: int) -> list[Job]:
     """Jobs in cell-major order, so each worker reuses its env across consecutive episodes."""
-    return [Job(cell, cond, ep, episode_seed(seed, ep)) for cell in cells for cond in conditions
-            for ep in range(episodes)]
+    return [
+        Job(cell, cond, ep, episode_seed(seed, ep)) for cell in cells for cond in conditions for ep in range(episodes)
+    ]
 
 
 def cell_to_dict(cell: Cell) -> dict[str, Any]:

@@ -5,6 +5,7 @@ The summary is a leaderboard entry: it validates against the shipped JSON Schema
 It is a pure function of the records plus the run's config, so `bench score RUN`
 recomputes exactly what `bench run` wrote.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,7 +29,9 @@ def _cells(records: list[EpisodeRecord]) -> dict[tuple, list[EpisodeRecord]]:
         groups[(r.task, r.robot, r.env, r.split, r.condition)].append(r)
     for key in groups:
         groups[key].sort(key=lambda r: r.episode)
-    return dict(sorted(groups.items(), key=lambda kv: (kv[0][4] != "nominal", kv[0][4], kv[0][3], kv[0][0], kv[0][1], kv[0][2])))
+    return dict(
+        sorted(groups.items(), key=lambda kv: (kv[0][4] != "nominal", kv[0][4], kv[0][3], kv[0][0], kv[0][1], kv[0][2]))
+    )
 
 
 def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
@@ -46,8 +49,13 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     for (task, robot, env, split, cond), recs in groups.items():
         ok = [r for r in recs if r.error is None]
         entry: dict[str, Any] = {
-            "task": task, "robot": robot, "env": env, "split": split, "condition": cond,
-            "n": len(ok), "errors": len(recs) - len(ok),
+            "task": task,
+            "robot": robot,
+            "env": env,
+            "split": split,
+            "condition": cond,
+            "n": len(ok),
+            "errors": len(recs) - len(ok),
             "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
             "mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None,
         }
@@ -71,8 +79,16 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
         g = scoring.gap(by_split["seen"], by_split["unseen"], rng, "mean", n_boot, conf)
         if not any(len(c) for c in by_split["seen"]) and not any(len(c) for c in by_split["unseen"]):
             continue
-        gaps_out.append({"kind": "seen-unseen", "metric": m, "statistic": "mean", "reference": "seen",
-                         "target": "unseen", **g.to_dict()})
+        gaps_out.append(
+            {
+                "kind": "seen-unseen",
+                "metric": m,
+                "statistic": "mean",
+                "reference": "seen",
+                "target": "unseen",
+                **g.to_dict(),
+            }
+        )
     if cfg.get("metric") == "return":  # envs without a success signal are scored by their return
         _score_returns(groups, nominal, cells_out, splits_out, gaps_out, cfg, n_boot, conf)
 
@@ -85,8 +101,12 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
         "policy": run_meta["policy"],
         "metric": cfg.get("metric", "success_once"),
         "confidence": conf,
-        "counts": {"episodes": len(records), "errors": n_err, "expected": expected,
-                   "complete": expected is not None and len(records) >= expected},
+        "counts": {
+            "episodes": len(records),
+            "errors": n_err,
+            "expected": expected,
+            "complete": expected is not None and len(records) >= expected,
+        },
         "cells": cells_out,
         "splits": splits_out,
         "gaps": gaps_out,
@@ -105,8 +125,16 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     return summary
 
 
-def _score_returns(groups: dict, nominal: dict, cells_out: list, splits_out: dict, gaps_out: list,
-                   cfg: dict[str, Any], n_boot: int, conf: float) -> None:
+def _score_returns(
+    groups: dict,
+    nominal: dict,
+    cells_out: list,
+    splits_out: dict,
+    gaps_out: list,
+    cfg: dict[str, Any],
+    n_boot: int,
+    conf: float,
+) -> None:
     """Mean return per cell (bootstrap over episodes), per split and the seen-unseen gap (stratified bootstrap).
 
     Draws from a generator of their own, so the success scores of a run are the same whatever its metric.
@@ -114,18 +142,31 @@ def _score_returns(groups: dict, nominal: dict, cells_out: list, splits_out: dic
     rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 1])
     for entry, recs in zip(cells_out, groups.values()):
         values = _outcomes(recs, "return")
-        est = scoring.aggregate([values], rng, "mean", n_boot, conf, binary=False) if len(values) else \
-            scoring.Estimate(None, reason="no completed episodes")
+        est = (
+            scoring.aggregate([values], rng, "mean", n_boot, conf, binary=False)
+            if len(values)
+            else scoring.Estimate(None, reason="no completed episodes")
+        )
         entry["return"] = est.to_dict()
     by_split = {s: [_outcomes(v, "return") for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
     for split, cells in by_split.items():
         if any(len(c) for c in cells):
             splits_out.setdefault(split, {})["return"] = {
-                stat: scoring.aggregate(cells, rng, stat, n_boot, conf, binary=False).to_dict() for stat in ("mean", "iqm")}
+                stat: scoring.aggregate(cells, rng, stat, n_boot, conf, binary=False).to_dict()
+                for stat in ("mean", "iqm")
+            }
     if any(len(c) for c in by_split["seen"]) and any(len(c) for c in by_split["unseen"]):
         g = scoring.gap(by_split["seen"], by_split["unseen"], rng, "mean", n_boot, conf, binary=False)
-        gaps_out.append({"kind": "seen-unseen", "metric": "return", "statistic": "mean", "reference": "seen",
-                         "target": "unseen", **g.to_dict()})
+        gaps_out.append(
+            {
+                "kind": "seen-unseen",
+                "metric": "return",
+                "statistic": "mean",
+                "reference": "seen",
+                "target": "unseen",
+                **g.to_dict(),
+            }
+        )
 
 
 def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str:
@@ -149,30 +190,54 @@ def render(summary: dict[str, Any], console=None) -> None:
     console = console or Console(width=None if Console().is_terminal else 120)
     conf = int(round(summary.get("confidence", 0.95) * 100))
     by_return = summary.get("metric") == "return"
-    t = Table(title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
-              title_justify="left")
+    t = Table(
+        title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
+        title_justify="left",
+    )
     show_env = len({c.get("env") for c in summary["cells"]}) > 1  # e.g. scenes: rows differ only by env
-    scores = (f"return [{conf}% bootstrap]",) if by_return else \
-        (f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]")
+    scores = (
+        (f"return [{conf}% bootstrap]",)
+        if by_return
+        else (f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]")
+    )
     for col in ("task", "robot", *(("env",) if show_env else ()), "split", "condition", "n", *scores, "err"):
         t.add_column(col, justify="right" if col in ("n", "err") else "left")
     for c in summary["cells"]:
-        values = (fmt_estimate(c.get("return"), pct=False, signed=False),) if by_return else \
-            (fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]))
-        t.add_row(c["task"], c["robot"], *((str(c.get("env")),) if show_env else ()), c["split"], c["condition"],
-                  str(c["n"]), *values, str(c["errors"]) if c["errors"] else "")
+        values = (
+            (fmt_estimate(c.get("return"), pct=False, signed=False),)
+            if by_return
+            else (fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]))
+        )
+        t.add_row(
+            c["task"],
+            c["robot"],
+            *((str(c.get("env")),) if show_env else ()),
+            c["split"],
+            c["condition"],
+            str(c["n"]),
+            *values,
+            str(c["errors"]) if c["errors"] else "",
+        )
     console.print(t)
     if summary["splits"]:
         what = "mean return of cells" if by_return else "mean of cell rates"
         a = Table(title=f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)", title_justify="left")
-        cols = (("return", "return", "mean"), ("IQM return", "return", "iqm")) if by_return else \
-            (("success once", "success_once", "mean"), ("success at end", "success_at_end", "mean"),
-             ("IQM once", "success_once", "iqm"))
+        cols = (
+            (("return", "return", "mean"), ("IQM return", "return", "iqm"))
+            if by_return
+            else (
+                ("success once", "success_once", "mean"),
+                ("success at end", "success_at_end", "mean"),
+                ("IQM once", "success_once", "iqm"),
+            )
+        )
         a.add_column("split")
         for name, _, _ in cols:
             a.add_column(name)
         for s, v in summary["splits"].items():
-            a.add_row(s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols])
+            a.add_row(
+                s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols]
+            )
         console.print(a)
     gaps = [g for g in summary["gaps"] if (g["metric"] == "return") == by_return]
     if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
@@ -182,8 +247,11 @@ def render(summary: dict[str, Any], console=None) -> None:
         for col in ("gap", "metric", "value [CI]"):
             g_t.add_column(col)
         for g in gaps:
-            g_t.add_row(f"{g['reference']} → {g['target']}", g["metric"], fmt_estimate(g, pct=False) if g.get("value") is not None
-                        else f"n/a ({g.get('reason')})")
+            g_t.add_row(
+                f"{g['reference']} → {g['target']}",
+                g["metric"],
+                fmt_estimate(g, pct=False) if g.get("value") is not None else f"n/a ({g.get('reason')})",
+            )
         console.print(g_t)
         sentence = gap_sentence(summary)
         if sentence:
@@ -219,8 +287,10 @@ def gap_sentence(summary: dict[str, Any]) -> str | None:
         return f"How to read this: {where}; the {conf}% interval excludes 0, so it transfers worse to unseen {held}."
     if hi < 0:
         return f"How to read this: {where}; the {conf}% interval excludes 0, so it does better on unseen {held}."
-    return (f"How to read this: {where}; the {conf}% interval includes 0, so no transfer gap is detectable at this "
-            "many episodes (more episodes narrow it).")
+    return (
+        f"How to read this: {where}; the {conf}% interval includes 0, so no transfer gap is detectable at this "
+        "many episodes (more episodes narrow it)."
+    )
 
 
 def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
@@ -250,22 +320,31 @@ def check_run_meta(meta: dict[str, Any], source: str) -> None:
     from bench.api import MAX_N_BOOT
     from bench.suite import METRICS as ALL_METRICS
 
-    for key, typ, valid in (("run_id", str, "a string"), ("suite", dict, "an object"), ("policy", dict, "an object"),
-                            ("config", dict, "an object"), ("provenance", dict, "an object")):
+    for key, typ, valid in (
+        ("run_id", str, "a string"),
+        ("suite", dict, "an object"),
+        ("policy", dict, "an object"),
+        ("config", dict, "an object"),
+        ("provenance", dict, "an object"),
+    ):
         if key not in meta:
             raise DataError(f"{source}: not a bench run.json: field {key!r} missing")
         if not isinstance(meta[key], typ):
             raise DataError(f"{source}: field {key!r} is {meta[key]!r:.60}; valid: {valid}")
     cfg = meta["config"]
 
-    def number(key: str, lo: float, hi: float, integer: bool, default: Any, lo_open: bool = False,
-               hi_open: bool = False) -> None:
+    def number(
+        key: str, lo: float, hi: float, integer: bool, default: Any, lo_open: bool = False, hi_open: bool = False
+    ) -> None:
         v = cfg.get(key, default)
         if v is None and default is None:
             return
         kind = "an integer" if integer else "a number"
-        if isinstance(v, bool) or not isinstance(v, int if integer else (int, float)) or \
-                (isinstance(v, float) and not math.isfinite(v)):
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, int if integer else (int, float))
+            or (isinstance(v, float) and not math.isfinite(v))
+        ):
             raise DataError(f"{source}: field config.{key} is {v!r:.60}; valid: {kind}")
         if v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
             rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"

@@ -5,6 +5,7 @@ the same cells with the same episode seeds (e.g. the coverage sweep, `baselines/
 `SeriesBootstrap` draws replicates that resample episodes jointly across points (common random
 numbers) and training seeds per point; `slope_with_interval` refits the slope on every replicate.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -14,8 +15,9 @@ from typing import Any
 import numpy as np
 
 
-def wls_slope(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
-              var: Sequence[float] | np.ndarray) -> tuple[float, float]:
+def wls_slope(
+    x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, var: Sequence[float] | np.ndarray
+) -> tuple[float, float]:
     """Weighted least-squares line y = a + b x with weights 1/var; returns (slope b, intercept a)."""
     xa, ya, w = np.asarray(x, float), np.asarray(y, float), 1.0 / np.asarray(var, float)
     if len(xa) < 2 or np.ptp(xa) == 0:
@@ -37,8 +39,13 @@ class SeriesBootstrap:
     are NaN and skipped. With one seed per point (b) is a no-op.
     """
 
-    def __init__(self, points: Sequence[Sequence[dict[str, np.ndarray]]], rng: np.random.Generator,
-                 n_boot: int = 2000, confidence: float = 0.95):
+    def __init__(
+        self,
+        points: Sequence[Sequence[dict[str, np.ndarray]]],
+        rng: np.random.Generator,
+        n_boot: int = 2000,
+        confidence: float = 0.95,
+    ):
         self.points = [[{k: np.asarray(v, float) for k, v in seed.items()} for seed in pt] for pt in points]
         if not self.points or any(len(pt) == 0 for pt in self.points):
             raise ValueError("every point needs at least one seed's outcomes")
@@ -54,7 +61,7 @@ class SeriesBootstrap:
 
     def _padded(self, outcomes: np.ndarray, key: str) -> np.ndarray:
         x = np.full(self.n_by_cell[key], np.nan)
-        x[:len(outcomes)] = outcomes
+        x[: len(outcomes)] = outcomes
         return x
 
     def mean(self, k: int, keys: Sequence[str]) -> tuple[float | None, np.ndarray | None]:
@@ -66,8 +73,14 @@ class SeriesBootstrap:
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             point = float(np.mean([np.mean([np.nanmean(s[key]) for key in keys]) for s in seeds]))
-            per_seed = np.stack([np.nanmean([np.nanmean(self._padded(s[key], key)[self.ep_idx[key]], axis=1)
-                                             for key in keys], axis=0) for s in seeds])  # (S, n_boot)
+            per_seed = np.stack(
+                [
+                    np.nanmean(
+                        [np.nanmean(self._padded(s[key], key)[self.ep_idx[key]], axis=1) for key in keys], axis=0
+                    )
+                    for s in seeds
+                ]
+            )  # (S, n_boot)
         reps = per_seed[self.seed_idx[k], np.arange(self.n_boot)[:, None]].mean(axis=1)
         return point, reps
 
@@ -89,8 +102,13 @@ def _smoothed_var(p: float, n: int) -> float:
     return q * (1 - q) / max(n, 1)
 
 
-def slope_with_interval(x: Sequence[float], values: Sequence[float], reps: Sequence[np.ndarray],
-                        n_outcomes: Sequence[int], confidence: float = 0.95) -> dict[str, Any]:
+def slope_with_interval(
+    x: Sequence[float],
+    values: Sequence[float],
+    reps: Sequence[np.ndarray],
+    n_outcomes: Sequence[int],
+    confidence: float = 0.95,
+) -> dict[str, Any]:
     """WLS slope of `values` against `x` with a percentile interval from bootstrap replicates.
 
     Weights are 1/variance per point: the replicates' variance, floored by the smoothed binomial
@@ -108,6 +126,10 @@ def slope_with_interval(x: Sequence[float], values: Sequence[float], reps: Seque
     b, a = wls_slope(x, values, var)
     boot = np.array([wls_slope(x, row, var)[0] for row in rep_mat if np.all(np.isfinite(row))])
     lo, hi = np.quantile(boot, [(1 - confidence) / 2, 1 - (1 - confidence) / 2])
-    return {"value": round(b, 6), "ci": [round(float(lo), 6), round(float(hi), 6)], "intercept": round(a, 6),
-            "method": "weighted least squares (1/var), percentile bootstrap over training seeds and episodes",
-            "points": [{"x": xx, "y": round(yy, 6), "var": round(vv, 8)} for xx, yy, vv in zip(x, values, var)]}
+    return {
+        "value": round(b, 6),
+        "ci": [round(float(lo), 6), round(float(hi), 6)],
+        "intercept": round(a, 6),
+        "method": "weighted least squares (1/var), percentile bootstrap over training seeds and episodes",
+        "points": [{"x": xx, "y": round(yy, 6), "var": round(vv, 8)} for xx, yy, vv in zip(x, values, var)],
+    }

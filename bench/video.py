@@ -24,6 +24,7 @@ AV1 (4:2:0 only here) refuses odd sizes. Odd-sized 4:2:0 files exist (lerobot wr
 their colour is decoder-dependent: PyAV and torchcodec turn the same file into frames up to ~20
 levels apart at colour edges, where even sizes decode identically. All of it is recorded by `probe`.
 """
+
 from __future__ import annotations
 
 import os
@@ -79,8 +80,10 @@ def check_codec(codec: str) -> None:
 def check_size(codec: str, height: int, width: int, pad_odd: bool = False) -> None:
     """Raise `VideoError` if frames of this size cannot be stored faithfully with `codec` (see the module doc)."""
     if codec == "av1" and (height % 2 or width % 2) and not pad_odd:
-        raise VideoError(f"video frames are {height}x{width}: AV1 here is 4:2:0 only and needs an even height and "
-                         f"width (odd sizes decode differently in different decoders); use codec h264")
+        raise VideoError(
+            f"video frames are {height}x{width}: AV1 here is 4:2:0 only and needs an even height and "
+            f"width (odd sizes decode differently in different decoders); use codec h264"
+        )
 
 
 _W = TypeVar("_W", bound="_Finishes")
@@ -120,8 +123,16 @@ class Mp4Writer(_Finishes):
         threads: encoder threads.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float, codec: str = "h264", crf: int | None = None,
-                 gop: int = 2, pad_odd: bool = False, threads: int = 1):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        fps: float,
+        codec: str = "h264",
+        crf: int | None = None,
+        gop: int = 2,
+        pad_odd: bool = False,
+        threads: int = 1,
+    ):
         check_codec(codec)
         self.path = Path(path)
         self.rate = _rate(fps)
@@ -162,7 +173,9 @@ class Mp4Writer(_Finishes):
             self._stream.time_base = 1 / self.rate
         except Exception as exc:
             self._discard()
-            raise VideoError(f"{self.path}: cannot start {self.codec} video {width}x{height}: {_first_line(exc)}") from None
+            raise VideoError(
+                f"{self.path}: cannot start {self.codec} video {width}x{height}: {_first_line(exc)}"
+            ) from None
 
     def write(self, frame: np.ndarray) -> None:
         """Append one (H, W, 3) uint8 frame; every frame must have the first one's size."""
@@ -236,7 +249,6 @@ class Mp4Writer(_Finishes):
         self._tmp.unlink(missing_ok=True)
 
 
-
 _STOP = object()
 
 
@@ -252,8 +264,17 @@ class BackgroundMp4Writer(_Finishes):
     Args are those of `Mp4Writer`, plus `queue_size` (frames waiting at most).
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float, codec: str = "h264", crf: int | None = None,
-                 gop: int = 2, pad_odd: bool = False, threads: int = 1, queue_size: int = 64):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        fps: float,
+        codec: str = "h264",
+        crf: int | None = None,
+        gop: int = 2,
+        pad_odd: bool = False,
+        threads: int = 1,
+        queue_size: int = 64,
+    ):
         self._writer = Mp4Writer(path, fps, codec=codec, crf=crf, gop=gop, pad_odd=pad_odd, threads=threads)
         self.path = self._writer.path
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(queue_size)))
@@ -339,7 +360,6 @@ class BackgroundMp4Writer(_Finishes):
         self._error = None
 
 
-
 def probe(path: str | os.PathLike) -> dict:
     """The `info` LeRobot stores for a video feature: size, codec, pixel format, fps, channels, audio."""
     av = _av()
@@ -350,9 +370,11 @@ def probe(path: str | os.PathLike) -> dict:
             stream = container.streams.video[0]
             pix_fmt = stream.codec_context.pix_fmt or stream.format.name
             info = {
-                "video.height": int(stream.height), "video.width": int(stream.width),
+                "video.height": int(stream.height),
+                "video.width": int(stream.width),
                 "video.codec": stream.codec_context.codec.canonical_name if stream.codec_context.codec else None,
-                "video.pix_fmt": pix_fmt, "video.is_depth_map": False,
+                "video.pix_fmt": pix_fmt,
+                "video.is_depth_map": False,
                 "video.fps": int(stream.base_rate) if stream.base_rate else None,
                 "video.channels": 4 if pix_fmt and ("rgba" in pix_fmt or "yuva" in pix_fmt) else 3,
                 "has_audio": bool(container.streams.audio),
@@ -364,8 +386,9 @@ def probe(path: str | os.PathLike) -> dict:
     return info
 
 
-def decode_frames(path: str | os.PathLike, times: np.ndarray, shape: tuple[int, ...] | None = None,
-                  tolerance_s: float = TOLERANCE_S) -> np.ndarray:
+def decode_frames(
+    path: str | os.PathLike, times: np.ndarray, shape: tuple[int, ...] | None = None, tolerance_s: float = TOLERANCE_S
+) -> np.ndarray:
     """Decode the frames shown at `times` (seconds from the start of the file) as (N, H, W, 3) uint8.
 
     Seeks to the keyframe before the earliest time and decodes forward once; each requested time
@@ -390,8 +413,12 @@ def decode_frames(path: str | os.PathLike, times: np.ndarray, shape: tuple[int, 
             stream = container.streams.video[0]
             tb = stream.time_base
             if wanted[0] > tolerance_s and tb:
-                container.seek(max(0, int(np.floor((wanted[0] - tolerance_s) / float(tb)))), stream=stream,
-                               backward=True, any_frame=False)
+                container.seek(
+                    max(0, int(np.floor((wanted[0] - tolerance_s) / float(tb)))),
+                    stream=stream,
+                    backward=True,
+                    any_frame=False,
+                )
             for frame in container.decode(stream):
                 if frame.pts is None:
                     continue
@@ -415,7 +442,9 @@ def decode_frames(path: str | os.PathLike, times: np.ndarray, shape: tuple[int, 
     except Exception as exc:
         raise VideoError(f"{path}: cannot decode: {_first_line(exc)}") from None
     if k < len(wanted):
-        raise VideoError(f"{path}: no frame within {tolerance_s:g} s of t={wanted[k]:.6f} s (file shorter than its "
-                         f"index, or frames at other times)")
+        raise VideoError(
+            f"{path}: no frame within {tolerance_s:g} s of t={wanted[k]:.6f} s (file shorter than its "
+            f"index, or frames at other times)"
+        )
     assert out is not None
     return out

@@ -26,6 +26,7 @@ free-run NRMSE it reached; a summary gives the slowest case and the median ratio
 judged on CPU seconds: each side runs on one core, and on a shared machine the wall clock also
 counts the time that core spent on other processes (wall is printed beside it).
 """
+
 from __future__ import annotations
 
 import json
@@ -77,10 +78,20 @@ def extract(rev: str, into: Path) -> Path:
 
 
 def measure(tree: Path, spec: Path, logs: Path) -> dict:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-           "PYTHONPATH": str(tree)}
-    out = subprocess.run([sys.executable, "-c", DRIVER, str(tree), str(spec), str(logs)], env=env,
-                         capture_output=True, text=True, cwd=tree)
+    env = {
+        **os.environ,
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "PYTHONPATH": str(tree),
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", DRIVER, str(tree), str(spec), str(logs)],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=tree,
+    )
     if out.returncode != 0:
         raise RuntimeError(f"calibration in {tree} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -109,8 +120,9 @@ def cases(kind: str, effects: list[str], tmp: Path) -> list[tuple[str, str, Path
         from bench.calibrate.generate import write_case
 
         for effect in effects:
-            case = write_case(tmp / f"arm-{effect}", None if effect == "none" else effect, episodes=8, duration=6.0,
-                              fps=100.0, seed=0)
+            case = write_case(
+                tmp / f"arm-{effect}", None if effect == "none" else effect, episodes=8, duration=6.0, fps=100.0, seed=0
+            )
             out.append((f"arm {effect}", "arm", case / "spec.yaml", case / "logs"))
     return out
 
@@ -119,10 +131,10 @@ def cases(kind: str, effects: list[str], tmp: Path) -> list[tuple[str, str, Path
 class Args:
     """Keys of this benchmark (key=value)."""
 
-    case: str = "all"                   # all | emps | arm
-    effects: Any = "all"                # arm cases: all, one effect name, or a list [a,b]
-    before: str = BEFORE                # the git revision timed as "before" (none = only this checkout)
-    repeats: int = 1                    # best of this many timings
+    case: str = "all"  # all | emps | arm
+    effects: Any = "all"  # arm cases: all, one effect name, or a list [a,b]
+    before: str = BEFORE  # the git revision timed as "before" (none = only this checkout)
+    repeats: int = 1  # best of this many timings
 
 
 def main(argv: list[str]) -> int:
@@ -148,8 +160,10 @@ def main(argv: list[str]) -> int:
         if before != "none":
             trees = {"before": extract(before, tmp), **trees}
         todo = cases(kind, effects, tmp)
-        print(f"one core each (rollout threads 1, BLAS threads 1); before = {before}, after = this checkout; "
-              f"best of {repeats}")
+        print(
+            f"one core each (rollout threads 1, BLAS threads 1); before = {before}, after = this checkout; "
+            f"best of {repeats}"
+        )
         rows = []
         for label, k, spec, logs in todo:
             best: dict[str, dict] = {}
@@ -164,8 +178,10 @@ def main(argv: list[str]) -> int:
             for side, r in best.items():
                 print(f"  {side:6s} {fmt(r)}")
             if "before" in best:
-                print(f"  speed-up x{best['before']['wall'] / best['after']['wall']:.2f} wall, "
-                      f"x{best['before']['cpu'] / best['after']['cpu']:.2f} cpu")
+                print(
+                    f"  speed-up x{best['before']['wall'] / best['after']['wall']:.2f} wall, "
+                    f"x{best['before']['cpu'] / best['after']['cpu']:.2f} cpu"
+                )
     for k in ("emps", "arm"):
         mine = [(label, b) for label, kk, b in rows if kk == k]
         if not mine:
@@ -175,8 +191,10 @@ def main(argv: list[str]) -> int:
         if "before" in worst[1]:
             ratios = [b["before"]["cpu"] / b["after"]["cpu"] for _, b in mine]
             slowest = max(mine, key=lambda lb: lb[1]["before"]["cpu"])
-            line += (f"; slowest before {slowest[1]['before']['cpu']:.2f} cpu-s ({slowest[0]}); median speed-up "
-                     f"x{statistics.median(ratios):.2f} (cpu) over {len(mine)} case(s)")
+            line += (
+                f"; slowest before {slowest[1]['before']['cpu']:.2f} cpu-s ({slowest[0]}); median speed-up "
+                f"x{statistics.median(ratios):.2f} (cpu) over {len(mine)} case(s)"
+            )
         print(line)
     return 0
 

@@ -17,6 +17,7 @@ Measured in one run, one process, the random policy (actions depend only on the 
 Speeds on a shared machine move with its load: the ratios are measured in one run, alternating
 the two sides episode by episode, so a change of load hits both alike.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -76,27 +77,40 @@ def main() -> int:
     ap.add_argument("--long", type=int, default=200, help="episodes of the memory run")
     ap.add_argument("--long-horizon", type=int, default=20, help="steps per episode of the memory run")
     args = ap.parse_args()
-    cfg = perf.PerfConfig(suite=args.suite, robot=args.robot if args.suite != "held_out_envs" else None,
-                          task=args.task, episodes=args.episodes, horizon=args.horizon)
+    cfg = perf.PerfConfig(
+        suite=args.suite,
+        robot=args.robot if args.suite != "held_out_envs" else None,
+        task=args.task,
+        episodes=args.episodes,
+        horizon=args.horizon,
+    )
     options = {"obs": "rgb", "cameras": [args.camera], "image_size": args.size}
     p = perf.make_plan(cfg, args.episodes, options)
     flags = ", ".join(f"{k} {'on' if v else 'off'}" for k, v in SCENE_FLAGS.items())
-    print(f"{os.cpu_count()} cores, MUJOCO_GL={os.environ.get('MUJOCO_GL', '(unset: egl)')}; {p.suite.name} "
-          f"{p.cells[0].key}, obs=rgb, camera {args.camera} {args.size}x{args.size} ({flags}), random policy")
+    print(
+        f"{os.cpu_count()} cores, MUJOCO_GL={os.environ.get('MUJOCO_GL', '(unset: egl)')}; {p.suite.name} "
+        f"{p.cells[0].key}, obs=rgb, camera {args.camera} {args.size}x{args.size} ({flags}), random policy"
+    )
     cost = perf.render_cost(p)
     print(f"rendering            {cost[args.camera]:.2f} ms/frame (median)")
     a = perf.harness_vs_bare(p)
-    print(f"harness / bare loop  {a['ratio']:.3f}   (harness {a['harness_steps_per_s']:.1f}, bare "
-          f"{a['bare_steps_per_s']:.1f} env-steps/s over {a['steps']} steps; target >= 0.95)")
+    print(
+        f"harness / bare loop  {a['ratio']:.3f}   (harness {a['harness_steps_per_s']:.1f}, bare "
+        f"{a['bare_steps_per_s']:.1f} env-steps/s over {a['steps']} steps; target >= 0.95)"
+    )
     v = perf.video_overhead(p)
-    print(f"video wall time      x{v['wall_ratio']:.3f}  (filmed {v['video_steps_per_s']:.1f}, plain "
-          f"{v['plain_steps_per_s']:.1f} env-steps/s; target <= 1.10)")
+    print(
+        f"video wall time      x{v['wall_ratio']:.3f}  (filmed {v['video_steps_per_s']:.1f}, plain "
+        f"{v['plain_steps_per_s']:.1f} env-steps/s; target <= 1.10)"
+    )
     if args.long:
         cfg_long = dataclasses.replace(cfg, horizon=args.long_horizon)
         m = long_run(perf.make_plan(cfg_long, args.long, options), args.long)
-        print(f"memory               RSS {m['rss_mb_after_1']:.0f} MiB after episode 1, {m['rss_mb_after_10']:.0f} MiB "
-              f"after episode 10, {m[f'rss_mb_after_{args.long}']:.0f} MiB after episode {args.long} "
-              f"({args.long} filmed episodes of {args.long_horizon} steps in {m['seconds']:.0f} s)")
+        print(
+            f"memory               RSS {m['rss_mb_after_1']:.0f} MiB after episode 1, {m['rss_mb_after_10']:.0f} MiB "
+            f"after episode 10, {m[f'rss_mb_after_{args.long}']:.0f} MiB after episode {args.long} "
+            f"({args.long} filmed episodes of {args.long_horizon} steps in {m['seconds']:.0f} s)"
+        )
     return 0
 
 

@@ -24,6 +24,7 @@ robot with the same seed (10 real episodes, a collapse on one robot), written as
 directory; `bench regress` then compares the two recorded runs (nothing else is simulated) and
 must name that robot.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -86,10 +87,14 @@ def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> d
         ("unseen cells drop 0.2", unseen, 0.5, False),
         ("every cell drop 0.15", pb - 0.15, 0.5, False),
     ]
-    print(f"\nsynthetic gates: {cells} cells x up to {episodes} episodes, looks every {batch} ({design.schedule}); "
-          f"margin 0.05, alpha 0.05, cell_alpha 0.5; {gates} gates per scenario; bootstrap {n_boot}")
-    print(f"  {'scenario':<27} {'fail':>6} {'[95% CI]':>15} {'pass':>6} {'inconcl':>7} {'names Panda':>11} "
-          f"{'false cell':>10} {'ep/cell':>7}")
+    print(
+        f"\nsynthetic gates: {cells} cells x up to {episodes} episodes, looks every {batch} ({design.schedule}); "
+        f"margin 0.05, alpha 0.05, cell_alpha 0.5; {gates} gates per scenario; bootstrap {n_boot}"
+    )
+    print(
+        f"  {'scenario':<27} {'fail':>6} {'[95% CI]':>15} {'pass':>6} {'inconcl':>7} {'names Panda':>11} "
+        f"{'false cell':>10} {'ep/cell':>7}"
+    )
     out = {}
     for s, (label, pc, rho, null) in enumerate(scenarios):
         rng = np.random.default_rng([seed, s])
@@ -108,10 +113,12 @@ def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> d
         lo, hi = wilson(fail, gates)
         out[label] = fail / gates
         passed = verdicts.count("no_regression") / gates
-        print(f"  {label:<27} {fail / gates:>6.3f} [{lo:.3f}, {hi:.3f}] {passed:>6.3f} "
-              f"{verdicts.count('inconclusive') / gates:>7.3f} {named / gates:>11.3f} {false_cell / gates:>10.3f} "
-              f"{np.mean(used):>7.1f}   ({time.time() - t0:.0f} s){'  [null: fail <= alpha]' if null else ''}",
-              flush=True)
+        print(
+            f"  {label:<27} {fail / gates:>6.3f} [{lo:.3f}, {hi:.3f}] {passed:>6.3f} "
+            f"{verdicts.count('inconclusive') / gates:>7.3f} {named / gates:>11.3f} {false_cell / gates:>10.3f} "
+            f"{np.mean(used):>7.1f}   ({time.time() - t0:.0f} s){'  [null: fail <= alpha]' if null else ''}",
+            flush=True,
+        )
     return out
 
 
@@ -123,9 +130,11 @@ def plan_check(cells: int, episodes: int, batch: int, simulated: dict[str, float
     exact = gate_power.scenario_power("cell", episodes, batch, cells, 0.9, 0.6, d, SPLITS[:cells])
     need, got = gate_power.episodes_needed("cell", 0.8, batch, cells, 0.9, 0.6, d, SPLITS[:cells])
     sim = simulated.get("Panda 0.9 -> 0.3, rho 0")
-    print(f"\nplan check (one cell 0.9 -> 0.3, outcomes independent): exact power of the cell's own test "
-          f"{exact:.3f} (a lower bound); simulated share of gates failing {sim:.3f}. plan=true says "
-          f"{need} episodes per cell for power 0.8 (exact {got:.3f} there).")
+    print(
+        f"\nplan check (one cell 0.9 -> 0.3, outcomes independent): exact power of the cell's own test "
+        f"{exact:.3f} (a lower bound); simulated share of gates failing {sim:.3f}. plan=true says "
+        f"{need} episodes per cell for power 0.8 (exact {got:.3f} there)."
+    )
 
 
 def real(work: Path, robot: str) -> None:
@@ -137,17 +146,31 @@ def real(work: Path, robot: str) -> None:
     base_dir = REPO / "results" / "runs" / "held_out_robots-bc-s0"
     records, meta = load_run(base_dir)
     cfg = meta["config"]
-    print(f"\nreal gate: baseline {base_dir.relative_to(REPO)} ({len(records)} episodes, seed {cfg['seed']}); "
-          f"candidate: the same run with {robot} played by the random policy")
+    print(
+        f"\nreal gate: baseline {base_dir.relative_to(REPO)} ({len(records)} episodes, seed {cfg['seed']}); "
+        f"candidate: the same run with {robot} played by the random policy"
+    )
     if work.exists():
         shutil.rmtree(work)
     t0 = time.time()
-    bad = api.run(api.RunConfig(suite=cfg["suite"], policy="random", robots=[robot], episodes=cfg["episodes"],
-                                seed=cfg["seed"], horizon=cfg["horizon"], workers=1, out=str(work),
-                                run_id=f"random-{robot}"))
-    print(f"  bench run policy=random robots=[{robot}] episodes={cfg['episodes']} seed={cfg['seed']}: "
-          f"{len(bad.records)} episodes in {time.time() - t0:.0f} s, success "
-          f"{np.mean([r.success_once for r in bad.records]):.2f}")
+    bad = api.run(
+        api.RunConfig(
+            suite=cfg["suite"],
+            policy="random",
+            robots=[robot],
+            episodes=cfg["episodes"],
+            seed=cfg["seed"],
+            horizon=cfg["horizon"],
+            workers=1,
+            out=str(work),
+            run_id=f"random-{robot}",
+        )
+    )
+    print(
+        f"  bench run policy=random robots=[{robot}] episodes={cfg['episodes']} seed={cfg['seed']}: "
+        f"{len(bad.records)} episodes in {time.time() - t0:.0f} s, success "
+        f"{np.mean([r.success_once for r in bad.records]):.2f}"
+    )
     cand = work / "collapsed"
     cand.mkdir()
     kept = [r for r in read_records(base_dir / "episodes.jsonl") if r.robot != robot]
@@ -155,16 +178,24 @@ def real(work: Path, robot: str) -> None:
         for r in kept + list(bad.records):
             writer.write(dataclasses.replace(r, run_id="collapsed"))
     # a mixture of two policies: no single checkpoint identifies it
-    cand_meta = {**meta, "run_id": "collapsed",
-                 "policy": {"name": f"bc (episodes of {robot}: random)", "checkpoint": None, "checkpoint_sha256": None}}
+    cand_meta = {
+        **meta,
+        "run_id": "collapsed",
+        "policy": {"name": f"bc (episodes of {robot}: random)", "checkpoint": None, "checkpoint_sha256": None},
+    }
     (cand / "run.json").write_text(json.dumps(cand_meta, indent=2))
     verdict = work / "verdict.json"
-    code = regress.main([f"candidate={cand}", f"baseline={base_dir}", f"runs={work / 'gates'}", "run_id=real",
-                         f"out={verdict}"])
+    code = regress.main(
+        [f"candidate={cand}", f"baseline={base_dir}", f"runs={work / 'gates'}", "run_id=real", f"out={verdict}"]
+    )
     doc = json.loads(verdict.read_text())
-    print(f"  exit {code}, verdict {doc['verdict']}; regressed: "
-          + "; ".join(f"{r['kind']} {r['name']} drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]"
-                      for r in doc["regressed"]))
+    print(
+        f"  exit {code}, verdict {doc['verdict']}; regressed: "
+        + "; ".join(
+            f"{r['kind']} {r['name']} drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]"
+            for r in doc["regressed"]
+        )
+    )
     print(f"  JUnit {verdict.with_suffix('.junit.xml')}, Markdown {verdict.with_suffix('.md')}")
 
 

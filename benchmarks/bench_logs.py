@@ -12,6 +12,7 @@ The files are freshly written, so the OS page cache is warm: these are parse/con
 disk costs. CPU seconds (all threads) are printed beside wall seconds: on a shared machine the
 wall clock also counts time spent waiting for a core.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -22,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.logs import from_arrays, read_dataset, read_episode, write_dataset
-from bench.logs import lerobot
+from bench.logs import from_arrays, lerobot, read_dataset, read_episode, write_dataset
 
 
 def _clear_caches() -> None:
@@ -55,8 +55,10 @@ def main(argv: list[str]) -> int:
     n, t, d, repeats = opts["episodes"], opts["frames"], opts["dim"], opts["repeats"]
     rng = np.random.default_rng(0)
     episodes = [
-        {"observation.state": rng.standard_normal((t, d), dtype=np.float32),
-         "action": rng.standard_normal((t, d), dtype=np.float32)}
+        {
+            "observation.state": rng.standard_normal((t, d), dtype=np.float32),
+            "action": rng.standard_normal((t, d), dtype=np.float32),
+        }
         for _ in range(n)
     ]
     ds = from_arrays(episodes, fps=50)
@@ -81,17 +83,24 @@ def main(argv: list[str]) -> int:
         np.testing.assert_array_equal(check.data["action"], ds.episodes[7].data["action"])
 
     frames = n * t
-    print(f"dataset: {n} episodes x {t} frames, {d}-D float32 state + action "
-          f"({frames:,} frames, {size / 2**20:.1f} MiB on disk)")
+    print(
+        f"dataset: {n} episodes x {t} frames, {d}-D float32 state + action "
+        f"({frames:,} frames, {size / 2**20:.1f} MiB on disk)"
+    )
     print(f"{'':30}{'wall':>10}{'cpu':>10}   target      target/wall")
     print(f"{'write_dataset':30}{t_write * 1e3:8.1f}ms")
-    rows = [("read_dataset (whole)", t_full, 1.0), ("read_episode (cold metadata)", t_cold, None),
-            ("read_episode (warm metadata)", t_warm, 5e-3)]
+    rows = [
+        ("read_dataset (whole)", t_full, 1.0),
+        ("read_episode (cold metadata)", t_cold, None),
+        ("read_episode (warm metadata)", t_warm, 5e-3),
+    ]
     for label, (wall, cpu), target in rows:
         goal = f"< {target * 1e3:g} ms    {target / wall:6.1f}x" if target else ""
         print(f"{label:30}{wall * 1e3:8.2f}ms{cpu * 1e3:8.2f}ms   {goal}")
-    print(f"whole read / one episode (warm): {t_full[0] / t_warm[0]:.0f}x wall for a dataset of {n} episodes; "
-          f"{frames / t_full[0] / 1e6:.1f} M frames/s")
+    print(
+        f"whole read / one episode (warm): {t_full[0] / t_warm[0]:.0f}x wall for a dataset of {n} episodes; "
+        f"{frames / t_full[0] / 1e6:.1f} M frames/s"
+    )
     return 0
 
 

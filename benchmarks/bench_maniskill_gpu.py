@@ -10,6 +10,7 @@ per-episode record needs). Both reset first; steps/s = N x steps / wall time. Ne
 without one it says so and exits 2. Compare with ManiSkill's own published GPU throughput figures
 on the same GPU class.
 """
+
 from __future__ import annotations
 
 import sys
@@ -25,8 +26,11 @@ def main(argv: list[str]) -> int:
     import torch
 
     if not torch.cuda.is_available():
-        print("bench_maniskill_gpu: no CUDA device on this machine (torch.cuda.is_available() is False); "
-              "nothing to measure", file=sys.stderr)
+        print(
+            "bench_maniskill_gpu: no CUDA device on this machine (torch.cuda.is_available() is False); "
+            "nothing to measure",
+            file=sys.stderr,
+        )
         return 2
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
@@ -38,8 +42,14 @@ def main(argv: list[str]) -> int:
     env_id = f"{task}-v1"
     print(f"{env_id}, state observations, pd_joint_delta_pos, {steps} steps per size, {torch.cuda.get_device_name()}")
     for n in sizes:
-        raw: Any = gym.make(env_id, num_envs=n, sim_backend="physx_cuda", obs_mode="state",
-                       control_mode="pd_joint_delta_pos", render_backend="none")
+        raw: Any = gym.make(
+            env_id,
+            num_envs=n,
+            sim_backend="physx_cuda",
+            obs_mode="state",
+            control_mode="pd_joint_delta_pos",
+            render_backend="none",
+        )
         raw.reset(seed=0)
         space = raw.action_space
         low = torch.as_tensor(space.low, device=raw.unwrapped.device)
@@ -65,8 +75,10 @@ def main(argv: list[str]) -> int:
             vec.step(a)
         vec_rate = n * steps / (time.perf_counter() - t0)
         vec.close()
-        print(f"  num_envs={n:>5}: raw {raw_rate:>10.0f} env-steps/s, harness {vec_rate:>10.0f} env-steps/s "
-              f"(harness / raw = {vec_rate / raw_rate:.3f})")
+        print(
+            f"  num_envs={n:>5}: raw {raw_rate:>10.0f} env-steps/s, harness {vec_rate:>10.0f} env-steps/s "
+            f"(harness / raw = {vec_rate / raw_rate:.3f})"
+        )
     return 0
 
 

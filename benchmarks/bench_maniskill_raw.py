@@ -15,6 +15,7 @@ reset modes (`reset=both`, or one of them): `soft` is ManiSkill's own reset, as 
 actions give the same trajectory whatever ran before, which the bare loop does not do.
 Prints env-steps/s of both and their ratio (target >= 0.95).
 """
+
 from __future__ import annotations
 
 import sys
@@ -29,8 +30,13 @@ def main(argv: list[str]) -> int:
     opts = dict(a.split("=", 1) for a in argv)
     modes = ("soft", "rebuild") if opts.get("reset", "both") == "both" else (opts["reset"],)
     for mode in modes:
-        measure(opts.get("task", "PickCube"), int(opts.get("episodes", 8)), int(opts.get("horizon", 100)),
-                int(opts.get("seed", 0)), mode)
+        measure(
+            opts.get("task", "PickCube"),
+            int(opts.get("episodes", 8)),
+            int(opts.get("horizon", 100)),
+            int(opts.get("seed", 0)),
+            mode,
+        )
     return 0
 
 
@@ -43,13 +49,23 @@ def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> Non
     from bench.sim_maniskill import reward_mode
     from suites.maniskill_common import TASKS
 
-    p = make_plan(PerfConfig(suite="maniskill_tasks", task=task, episodes=episodes, horizon=horizon, seed=seed),
-                  episodes, {"reset": mode})
+    p = make_plan(
+        PerfConfig(suite="maniskill_tasks", task=task, episodes=episodes, horizon=horizon, seed=seed),
+        episodes,
+        {"reset": mode},
+    )
     worker = api.worker(p)
     env, policy = worker.built(p.jobs[0])  # the adapter (and, in this process, the SAPIEN stand-ins if needed)
     env_id = TASKS[task].env_id
-    raw = gym.make(env_id, robot_uids=p.cells[0].robot, obs_mode="state", control_mode="pd_joint_pos",
-                   sim_backend="physx_cpu", render_backend="none", reward_mode=reward_mode(env_id))
+    raw = gym.make(
+        env_id,
+        robot_uids=p.cells[0].robot,
+        obs_mode="state",
+        control_mode="pd_joint_pos",
+        sim_backend="physx_cpu",
+        render_backend="none",
+        reward_mode=reward_mode(env_id),
+    )
     actions = []
     for job in p.jobs:
         policy.reset(job.seed)
@@ -78,10 +94,11 @@ def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> Non
         worker.close()
         raw.close()
     h, b = steps / harness_s, bare_steps / bare_s
-    print(f"{env_id} on physx_cpu, {episodes} episodes x {p.horizon} steps, random actions (pd_joint_pos), "
-          f"renderer: {getattr(env, 'render', '?')}, suite reset={mode}")
+    print(
+        f"{env_id} on physx_cpu, {episodes} episodes x {p.horizon} steps, random actions (pd_joint_pos), "
+        f"renderer: {getattr(env, 'render', '?')}, suite reset={mode}"
+    )
     print(f"  harness {h:.0f} env-steps/s, bare ManiSkill loop {b:.0f} env-steps/s: harness / bare = {h / b:.3f}")
-
 
 
 if __name__ == "__main__":

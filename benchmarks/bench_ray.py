@@ -21,6 +21,7 @@ process + workers-1 children; Ray: `workers` actors):
 
 Ratios are measured in one run; rounds > 1 alternates local and Ray to spread drift.
 """
+
 from __future__ import annotations
 
 import os
@@ -52,9 +53,16 @@ def timed(executor, jobs, spec) -> dict:
         acc[0] += r.length
         acc[1] += r.wall_s
     steps = sum(r.length for r in records)
-    return {"wall": wall, "steps": steps, "end_to_end": steps / wall, "first": arrivals[0] - t0,
-            "steady": sum(s / w for s, w in per_pid.values() if w > 0), "records": records, "arrivals": arrivals,
-            "episode_s": statistics.mean(r.wall_s for r in records)}
+    return {
+        "wall": wall,
+        "steps": steps,
+        "end_to_end": steps / wall,
+        "first": arrivals[0] - t0,
+        "steady": sum(s / w for s, w in per_pid.values() if w > 0),
+        "records": records,
+        "arrivals": arrivals,
+        "episode_s": statistics.mean(r.wall_s for r in records),
+    }
 
 
 def overhead(run: dict, workers: int) -> float:
@@ -83,8 +91,18 @@ def main(argv: list[str]) -> int:
 
     p = perf.make_plan(perf.PerfConfig(), episodes)
     spec = p.worker_spec(api.context(p))
-    toy = api.plan(api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", robots=["a"], episodes=tiny,
-                                 horizon=1, out="/tmp", run_id="toy-bench", suite_options={"step_delay": 0.02}))
+    toy = api.plan(
+        api.RunConfig(
+            suite="tests.toy_suite:ToySuite",
+            policy="scripted",
+            robots=["a"],
+            episodes=tiny,
+            horizon=1,
+            out="/tmp",
+            run_id="toy-bench",
+            suite_options={"step_delay": 0.02},
+        )
+    )
     toy_spec = toy.worker_spec(api.context(toy))
     t0 = time.perf_counter()
     ray_ex = RayExecutor("local", actors=workers)
@@ -95,31 +113,43 @@ def main(argv: list[str]) -> int:
     t0 = time.perf_counter()
     p.suite.make_env(p.cells[0], p.horizon).close()
     build_s = time.perf_counter() - t0
-    print(f"machine: {os.cpu_count()} cores; Ray {__import__('ray').__version__} private cluster up in "
-          f"{cluster_s:.1f} s; {episodes} episodes of {p.cells[0].key} (random policy, horizon {p.horizon}), "
-          f"{workers} workers", flush=True)
+    print(
+        f"machine: {os.cpu_count()} cores; Ray {__import__('ray').__version__} private cluster up in "
+        f"{cluster_s:.1f} s; {episodes} episodes of {p.cells[0].key} (random policy, horizon {p.horizon}), "
+        f"{workers} workers",
+        flush=True,
+    )
 
     local_runs, ray_runs = [], []
     for _ in range(rounds):
         local_runs.append(timed(LocalExecutor(workers), p.jobs, spec))
         ray_runs.append(timed(ray_ex, p.jobs, spec))
-    same = sorted(map(comparable, local_runs[0]["records"]), key=lambda d: d["job_id"]) == \
-        sorted(map(comparable, ray_runs[0]["records"]), key=lambda d: d["job_id"])
+    same = sorted(map(comparable, local_runs[0]["records"]), key=lambda d: d["job_id"]) == sorted(
+        map(comparable, ray_runs[0]["records"]), key=lambda d: d["job_id"]
+    )
     loc = {k: statistics.mean(r[k] for r in local_runs) for k in ("end_to_end", "steady", "first", "episode_s")}
     ray = {k: statistics.mean(r[k] for r in ray_runs) for k in ("end_to_end", "steady", "first", "episode_s")}
     print(f"records identical (timing aside): {same}")
-    print(f"end to end: local {loc['end_to_end']:.1f} env-steps/s, Ray {ray['end_to_end']:.1f} env-steps/s: "
-          f"Ray / local = {ray['end_to_end'] / loc['end_to_end']:.3f}")
-    print(f"steady state: local {loc['steady']:.1f}, Ray {ray['steady']:.1f} env-steps/s: "
-          f"Ray / local = {ray['steady'] / loc['steady']:.3f}")
-    print(f"first record after: local {loc['first']:.1f} s, Ray {ray['first']:.1f} s (worker start-up + env build "
-          f"+ one episode of {loc['episode_s']:.2f} s)")
+    print(
+        f"end to end: local {loc['end_to_end']:.1f} env-steps/s, Ray {ray['end_to_end']:.1f} env-steps/s: "
+        f"Ray / local = {ray['end_to_end'] / loc['end_to_end']:.3f}"
+    )
+    print(
+        f"steady state: local {loc['steady']:.1f}, Ray {ray['steady']:.1f} env-steps/s: "
+        f"Ray / local = {ray['steady'] / loc['steady']:.3f}"
+    )
+    print(
+        f"first record after: local {loc['first']:.1f} s, Ray {ray['first']:.1f} s (worker start-up + env build "
+        f"+ one episode of {loc['episode_s']:.2f} s)"
+    )
 
     tl = timed(LocalExecutor(workers), toy.jobs, toy_spec)
     tr = timed(ray_ex, toy.jobs, toy_spec)
     o_local, o_ray = overhead(tl, workers), overhead(tr, workers)
-    print(f"scheduling overhead per episode ({tiny} one-step 20 ms toy episodes, {workers} workers busy): local "
-          f"{o_local * 1e3:.2f} ms, Ray {o_ray * 1e3:.2f} ms (Ray - local = {(o_ray - o_local) * 1e3:.2f} ms)")
+    print(
+        f"scheduling overhead per episode ({tiny} one-step 20 ms toy episodes, {workers} workers busy): local "
+        f"{o_local * 1e3:.2f} ms, Ray {o_ray * 1e3:.2f} ms (Ray - local = {(o_ray - o_local) * 1e3:.2f} ms)"
+    )
 
     with RecordWriter(Path("/tmp") / f"bench-ray-{os.getpid()}.jsonl") as writer:
         t0 = time.perf_counter()
@@ -134,11 +164,13 @@ def main(argv: list[str]) -> int:
     per_actor = -(-E // C)
     t = start_s + cells * build_s + per_actor * (ray["episode_s"] + max(o_ray, 0.0))
     driver = E * write_s
-    print(f"projection, {E} episodes on {C} cores ({C} actors of 1 CPU; {cells} cells of {p.suite.name}, "
-          f"cell-major, so each actor builds each cell once): actor start {start_s:.1f} s + {cells} env builds "
-          f"x {build_s:.1f} s + {per_actor} episodes x ({ray['episode_s']:.2f} s + {max(o_ray, 0) * 1e3:.1f} ms "
-          f"overhead) = {t / 60:.1f} min (one core: {E * ray['episode_s'] / 3600:.1f} h); the driver writes a "
-          f"record in {write_s * 1e3:.2f} ms (fsync): {driver:.0f} s in all, {100 * driver / t:.1f}% of one core")
+    print(
+        f"projection, {E} episodes on {C} cores ({C} actors of 1 CPU; {cells} cells of {p.suite.name}, "
+        f"cell-major, so each actor builds each cell once): actor start {start_s:.1f} s + {cells} env builds "
+        f"x {build_s:.1f} s + {per_actor} episodes x ({ray['episode_s']:.2f} s + {max(o_ray, 0) * 1e3:.1f} ms "
+        f"overhead) = {t / 60:.1f} min (one core: {E * ray['episode_s'] / 3600:.1f} h); the driver writes a "
+        f"record in {write_s * 1e3:.2f} ms (fsync): {driver:.0f} s in all, {100 * driver / t:.1f}% of one core"
+    )
     return 0
 
 
@@ -152,7 +184,9 @@ if __name__ == "__main__":
         os.environ[INSIDE] = "1"
         res = ray_sandbox.run([sys.executable, __file__, *sys.argv[1:]], timeout=3600)
         print(res.stdout, end="")
-        print("\n".join(ln for ln in res.stderr.splitlines()
-                        if "network_util.cc" not in ln and "WARNING" not in ln), file=sys.stderr)
+        print(
+            "\n".join(ln for ln in res.stderr.splitlines() if "network_util.cc" not in ln and "WARNING" not in ln),
+            file=sys.stderr,
+        )
         sys.exit(res.returncode)
     sys.exit(main(sys.argv[1:]))

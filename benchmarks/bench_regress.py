@@ -22,6 +22,7 @@ cell in looks of 3, horizon 150; BC success 0.87): false alarms 0 / 20 (paired o
 identical in every gate), detections 20 / 20 (degraded success 0.00, 4.2 episodes per cell used
 on average); 1817 s in all. Synthetic rates: docs/ci-gate.md.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,11 +46,24 @@ def train_tiny_bc(work: Path, robots: list[str], episodes: int, horizon: int) ->
     demos = work / "demos"
     if not (demos / "meta").exists():
         with _quiet():
-            run.main(["policy=scripted", f"robots=[{','.join(robots)}]", f"episodes={episodes}", f"horizon={horizon}",
-                      "workers=1", "seed=12345", f"out={work / 'runs'}", "run_id=demos", f"record={demos}"])
+            run.main(
+                [
+                    "policy=scripted",
+                    f"robots=[{','.join(robots)}]",
+                    f"episodes={episodes}",
+                    f"horizon={horizon}",
+                    "workers=1",
+                    "seed=12345",
+                    f"out={work / 'runs'}",
+                    "run_id=demos",
+                    f"record={demos}",
+                ]
+            )
     path, info = bc.train(bc.Args(data=[str(demos)], out=str(work / "bc" / "policy.safetensors"), seed=0))
-    print(f"trained {path}: {info['frames']} frames from {info['episodes']} episodes in {info['train_wall_s']} s, "
-          f"final loss {info['final']['loss']:.4f}")
+    print(
+        f"trained {path}: {info['frames']} frames from {info['episodes']} episodes in {info['train_wall_s']} s, "
+        f"final loss {info['final']['loss']:.4f}"
+    )
     return path
 
 
@@ -64,8 +78,10 @@ def degrade(ckpt: Path, out: Path, noise: float, seed: int = 0) -> Path:
     tensors, meta = read_weights(ckpt)
     spec = load_spec(ckpt, meta)
     gen = torch.Generator().manual_seed(seed)
-    noisy = {k: v + noise * (v.std() if v.numel() > 1 else v.abs()) * torch.randn(v.shape, generator=gen)
-             for k, v in load_file(str(ckpt)).items()}
+    noisy = {
+        k: v + noise * (v.std() if v.numel() > 1 else v.abs()) * torch.randn(v.shape, generator=gen)
+        for k, v in load_file(str(ckpt)).items()
+    }
     model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
     model.load_state_dict(noisy)
     return save_checkpoint(out, model, spec)
@@ -98,9 +114,19 @@ def gate(candidate: str, baseline: str, seed: int, a, work: Path, name: str) -> 
     from bench.errors import BenchError
 
     out = work / "gates" / f"{name}.json"
-    argv = [f"candidate={candidate}", f"baseline={baseline}", f"seed={seed}", f"robots=[{a.robots}]",
-            f"episodes={a.episodes}", f"batch={a.batch}", f"horizon={a.horizon}", "workers=1",
-            f"runs={work / 'gates'}", f"run_id={name}", f"out={out}"]
+    argv = [
+        f"candidate={candidate}",
+        f"baseline={baseline}",
+        f"seed={seed}",
+        f"robots=[{a.robots}]",
+        f"episodes={a.episodes}",
+        f"batch={a.batch}",
+        f"horizon={a.horizon}",
+        "workers=1",
+        f"runs={work / 'gates'}",
+        f"run_id={name}",
+        f"out={out}",
+    ]
     with _quiet() as buf:
         try:
             code = regress.main(argv)
@@ -119,9 +145,12 @@ def series(label: str, candidate: str, baseline: str, seeds: range, a, work: Pat
         last = d["looks"][-1]
         c = d["cells"]
         rates = " ".join(f"{x['robot']} {x['baseline']:.2f}/{x['candidate']:.2f}" for x in c)
-        print(f"  {label} gate {i + 1:2d} seed {seed}: {d['verdict']:<13} exit {d['exit_code']}  "
-              f"drop {last['mean']['value']:+.2f} [{last['mean']['lcb']:+.2f}, {last['mean']['ucb']:+.2f}]  "
-              f"{last['episodes_per_cell']} ep/cell  base/cand {rates}  ({time.time() - t0:.0f} s)", flush=True)
+        print(
+            f"  {label} gate {i + 1:2d} seed {seed}: {d['verdict']:<13} exit {d['exit_code']}  "
+            f"drop {last['mean']['value']:+.2f} [{last['mean']['lcb']:+.2f}, {last['mean']['ucb']:+.2f}]  "
+            f"{last['episodes_per_cell']} ep/cell  base/cand {rates}  ({time.time() - t0:.0f} s)",
+            flush=True,
+        )
         docs.append(d)
     return docs
 
@@ -145,9 +174,11 @@ def main() -> int:
     if a.gates:
         ckpt = Path(a.checkpoint) if a.checkpoint else train_tiny_bc(work, robots, a.demo_episodes, 150)
         bad = degrade(ckpt, work / "degraded" / "policy.safetensors", a.noise)
-        print(f"config: suite held_out_robots, robots {robots}, up to {a.episodes} episodes per cell in looks of "
-              f"{a.batch}, horizon {a.horizon}, margin 0.05, alpha 0.05, workers=1; checkpoint {ckpt}, degraded copy "
-              f"{bad} (noise {a.noise} x std)")
+        print(
+            f"config: suite held_out_robots, robots {robots}, up to {a.episodes} episodes per cell in looks of "
+            f"{a.batch}, horizon {a.horizon}, margin 0.05, alpha 0.05, workers=1; checkpoint {ckpt}, degraded copy "
+            f"{bad} (noise {a.noise} x std)"
+        )
         copy = resave(ckpt, work / "copy" / "policy.safetensors")
         same = series("same weights", str(copy), str(ckpt), range(1000, 1000 + a.gates), a, work)
         worse = series("degraded", str(bad), str(ckpt), range(2000, 2000 + a.gates), a, work)
@@ -156,11 +187,15 @@ def main() -> int:
         base_rate = np.mean([c["baseline"] for d in same + worse for c in d["cells"]])
         bad_rate = np.mean([c["candidate"] for d in worse for c in d["cells"]])
         identical_pairs = all(d["looks"][-1]["baseline_only"] == d["looks"][-1]["candidate_only"] == 0 for d in same)
-        print(f"\nfalse alarms (re-saved copy vs checkpoint, fresh seeds): {fa} / {len(same)}   "
-              f"[paired outcomes identical in every gate: {identical_pairs}]")
-        print(f"detections (degraded copy vs checkpoint, fresh seeds): {det} / {len(worse)}   "
-              f"[success: checkpoint {base_rate:.2f}, degraded {bad_rate:.2f}; mean ep/cell used "
-              f"{np.mean([d['looks'][-1]['episodes_per_cell'] for d in worse]):.1f} of {a.episodes}]")
+        print(
+            f"\nfalse alarms (re-saved copy vs checkpoint, fresh seeds): {fa} / {len(same)}   "
+            f"[paired outcomes identical in every gate: {identical_pairs}]"
+        )
+        print(
+            f"detections (degraded copy vs checkpoint, fresh seeds): {det} / {len(worse)}   "
+            f"[success: checkpoint {base_rate:.2f}, degraded {bad_rate:.2f}; mean ep/cell used "
+            f"{np.mean([d['looks'][-1]['episodes_per_cell'] for d in worse]):.1f} of {a.episodes}]"
+        )
     print(f"\ntotal {time.time() - t0:.0f} s")
     return 0
 

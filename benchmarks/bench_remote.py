@@ -19,6 +19,7 @@
 
 Targets (issue 16): round-trip median <= 1 ms (state), <= 5 ms (two images); remote >= 0.9x in-process.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -38,8 +39,13 @@ IMAGES = {"obs": "state+rgb", "image_size": 224}  # two cameras: the suite's def
 @contextlib.contextmanager
 def serve(*keys: str):
     """`bench serve` in its own process on 127.0.0.1 (port chosen by the OS); yields the port."""
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "serve", "port=0", *keys], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench", "serve", "port=0", *keys],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         if "ws://127.0.0.1:" not in line:
@@ -57,9 +63,20 @@ def round_trips(images: bool, requests: int) -> tuple[np.ndarray, np.ndarray, st
 
     suite_options = IMAGES if images else {}
     with serve("policy=scripted", *[f"{k}={v}" for k, v in suite_options.items()]) as port:
-        plan = api.plan(api.RunConfig(suite="held_out_robots", policy="remote", robots=["Panda"], episodes=1,
-                                      horizon=1, workers=1, out=tempfile.gettempdir(), run_id="wire-bench",
-                                      suite_options=suite_options, policy_options={"port": port, "timeout_s": 120.0}))
+        plan = api.plan(
+            api.RunConfig(
+                suite="held_out_robots",
+                policy="remote",
+                robots=["Panda"],
+                episodes=1,
+                horizon=1,
+                workers=1,
+                out=tempfile.gettempdir(),
+                run_id="wire-bench",
+                suite_options=suite_options,
+                policy_options={"port": port, "timeout_s": 120.0},
+            )
+        )
         worker = api.worker(plan)
         env, policy = worker.built(plan.jobs[0])
         obs = env.reset(plan.jobs[0].seed)
@@ -96,9 +113,19 @@ def throughput(robots: list[str], episodes: int, horizon: int) -> tuple[float, f
     from bench.records import comparable
 
     def plan(policy: str, **popts):
-        return api.plan(api.RunConfig(suite="held_out_robots", policy=policy, robots=robots, episodes=episodes,
-                                      horizon=horizon, workers=1, out=tempfile.gettempdir(), run_id=f"tp-{policy}",
-                                      policy_options=popts))
+        return api.plan(
+            api.RunConfig(
+                suite="held_out_robots",
+                policy=policy,
+                robots=robots,
+                episodes=episodes,
+                horizon=horizon,
+                workers=1,
+                out=tempfile.gettempdir(),
+                run_id=f"tp-{policy}",
+                policy_options=popts,
+            )
+        )
 
     local_plan = plan("scripted")
     local = api.worker(local_plan)
@@ -117,7 +144,7 @@ def throughput(robots: list[str], episodes: int, horizon: int) -> tuple[float, f
         strip = lambda r: {k: v for k, v in comparable(r).items() if k not in ("policy", "extras")}  # noqa: E731
         for i, job in enumerate(local_plan.jobs):
             timed = {}
-            for side in (("local", "remote") if i % 2 == 0 else ("remote", "local")):  # alternate who goes first
+            for side in ("local", "remote") if i % 2 == 0 else ("remote", "local"):  # alternate who goes first
                 t0 = time.perf_counter()
                 rec = (local if side == "local" else remote).run(job)
                 timed[side] = (rec, time.perf_counter() - t0)
@@ -143,18 +170,26 @@ def main(argv: list[str]) -> int:
     for images, label, target in ((False, "state", 1.0), (True, "state + two 224x224 images", 5.0)):
         t, o, layout = round_trips(images, requests)
         med = np.median(t) * 1000
-        print(f"  {label:<27} policy=remote {med:6.3f} ms, p90 {np.quantile(t, 0.9) * 1000:6.3f} ms   "
-              f"(openpi-client {np.median(o) * 1000:6.3f} ms)   target <= {target:g} ms: "
-              f"{'met' if med <= target else 'NOT met'}   [{layout}]")
+        print(
+            f"  {label:<27} policy=remote {med:6.3f} ms, p90 {np.quantile(t, 0.9) * 1000:6.3f} ms   "
+            f"(openpi-client {np.median(o) * 1000:6.3f} ms)   target <= {target:g} ms: "
+            f"{'met' if med <= target else 'NOT met'}   [{layout}]"
+        )
     local, remote, paired, rtt, same, n = throughput(robots, episodes, horizon)
     print(f"throughput, held_out_robots {'/'.join(robots)}, scripted, {n} episodes x <= {horizon} steps, steady state:")
     ratio = remote / local
-    print(f"  in process {local:7.1f} env-steps/s, policy=remote vs bench serve {remote:7.1f} env-steps/s: "
-          f"remote / in-process = {ratio:.3f} (target >= 0.9: {'met' if ratio >= 0.9 else 'NOT met'})")
-    print(f"  median over episodes of (in-process time / remote time) for the same episode: {paired:.3f}; "
-          f"mean round trip during the runs {rtt:.3f} ms")
-    print(f"  records equal to in-process (policy name and latency extras aside): {'yes' if same else 'NO'} "
-          f"({n} episodes)")
+    print(
+        f"  in process {local:7.1f} env-steps/s, policy=remote vs bench serve {remote:7.1f} env-steps/s: "
+        f"remote / in-process = {ratio:.3f} (target >= 0.9: {'met' if ratio >= 0.9 else 'NOT met'})"
+    )
+    print(
+        f"  median over episodes of (in-process time / remote time) for the same episode: {paired:.3f}; "
+        f"mean round trip during the runs {rtt:.3f} ms"
+    )
+    print(
+        f"  records equal to in-process (policy name and latency extras aside): {'yes' if same else 'NO'} "
+        f"({n} episodes)"
+    )
     return 0 if same else 1
 
 

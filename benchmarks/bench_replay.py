@@ -36,6 +36,7 @@ It also prints the ceiling any batching can reach on this machine: the physics a
 F / c us/step, and the loop / batched ratio cannot exceed loop us/step / (F / c). On the 3-joint arm
 F is about 0.9 us and the loop about 2 us, so 2 cores cap the ratio near 4-5x whatever the batching.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -95,7 +96,7 @@ def mj_step_loop(logs, segments: dict) -> tuple[dict[str, np.ndarray], int]:
         for i, start in enumerate(segs.start):
             n = segs.length if segs.mask is None else int(segs.mask[i].sum())
             d.qpos[:] = logs.full[start, : m.nq]
-            d.qvel[:] = logs.full[start, m.nq:]
+            d.qvel[:] = logs.full[start, m.nq :]
             for f in range(n):
                 u = logs.ctrl[start + f].reshape(sub, nu)
                 for j in range(sub):
@@ -124,8 +125,19 @@ def suite_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
         rec_dir = Path(tmp) / "rec"
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):  # the run's own tables are not the benchmark's
-            rc = bench_main(["run", "robots=[Panda]", f"episodes={n_eps}", f"horizon={horizon}", "workers=2",
-                             "policy=scripted", "run_id=bench", f"out={Path(tmp) / 'runs'}", f"record={rec_dir}"])
+            rc = bench_main(
+                [
+                    "run",
+                    "robots=[Panda]",
+                    f"episodes={n_eps}",
+                    f"horizon={horizon}",
+                    "workers=2",
+                    "policy=scripted",
+                    "run_id=bench",
+                    f"out={Path(tmp) / 'runs'}",
+                    f"record={rec_dir}",
+                ]
+            )
         assert rc == 0, rc
         t_record = time.perf_counter() - t0
         ds = read_dataset(rec_dir)
@@ -137,39 +149,50 @@ def suite_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
         best = {key: float("inf") for key in ["action", "mj_step", *threads]}
         preds = {}
         for _ in range(repeats):  # interleaved
-            t, (preds["action"], _) = _timed(lambda: replay_actions(logs.envs, logs.seeds, logs.full, logs.act,
-                                                                    logs.offsets, seg_a, logs.idx))
+            t, (preds["action"], _) = _timed(
+                lambda: replay_actions(logs.envs, logs.seeds, logs.full, logs.act, logs.offsets, seg_a, logs.idx)
+            )
             best["action"] = min(best["action"], t)
             t, (preds["mj_step"], _) = _timed(lambda: mj_step_loop(logs, seg_c))
             best["mj_step"] = min(best["mj_step"], t)
             for n in threads:
-                t, (preds[n], _) = _timed(lambda n=n: replay_ctrl(n, logs.envs, logs.full, logs.ctrl, logs.offsets,
-                                                              seg_c, logs.substeps, logs.idx, logs.ctrl_spec))
+                t, (preds[n], _) = _timed(
+                    lambda n=n: replay_ctrl(
+                        n, logs.envs, logs.full, logs.ctrl, logs.offsets, seg_c, logs.substeps, logs.idx, logs.ctrl_spec
+                    )
+                )
                 best[n] = min(best[n], t)
         m = logs.envs[0].model
         floor = physics_floor(m, logs.ctrl[0, : m.nu])
     finally:
         logs.close()
     sub = logs.substeps
-    print(f"\nsuite: held_out_robots Panda Lift, {n_eps} scripted episodes x {horizon} frames recorded in "
-          f"{t_record:.1f} s; {sub} physics steps/frame (dt {m.opt.timestep * 1e3:g} ms), k = {k}; frames replayed "
-          f"over the three horizons: action loop {fr_a:,}, ctrl {fr_c:,}; best of {repeats}")
-    per = {"action": best["action"] / fr_a, "mj_step": best["mj_step"] / fr_c,
-           **{n: best[n] / fr_c for n in threads}}
+    print(
+        f"\nsuite: held_out_robots Panda Lift, {n_eps} scripted episodes x {horizon} frames recorded in "
+        f"{t_record:.1f} s; {sub} physics steps/frame (dt {m.opt.timestep * 1e3:g} ms), k = {k}; frames replayed "
+        f"over the three horizons: action loop {fr_a:,}, ctrl {fr_c:,}; best of {repeats}"
+    )
+    per = {"action": best["action"] / fr_a, "mj_step": best["mj_step"] / fr_c, **{n: best[n] / fr_c for n in threads}}
     print(f"  action loop (env.step, OSC in Python)  {best['action']:7.2f} s   {per['action'] * 1e3:6.3f} ms/frame")
     print(f"  mj_step loop (logged ctrl)             {best['mj_step']:7.2f} s   {per['mj_step'] * 1e3:6.3f} ms/frame")
     for n in threads:
-        print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} (logged ctrl)  {best[n]:7.2f} s   "
-              f"{per[n] * 1e3:6.3f} ms/frame   speed-up x{per['action'] / per[n]:5.1f} over the action loop, "
-              f"x{per['mj_step'] / per[n]:4.2f} over the mj_step loop")
+        print(
+            f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} (logged ctrl)  {best[n]:7.2f} s   "
+            f"{per[n] * 1e3:6.3f} ms/frame   speed-up x{per['action'] / per[n]:5.1f} over the action loop, "
+            f"x{per['mj_step'] / per[n]:4.2f} over the mj_step loop"
+        )
     diff = max(float(np.abs(preds[n][h] - preds["mj_step"][h]).max()) for n in threads for h in seg_c)
     same = max(float(np.abs(preds[threads[0]][h] - preds["action"][h]).max()) for h in ("one_step", "free_run"))
     cores = os.cpu_count() or 1
-    print(f"  max |qpos difference|: batched vs mj_step loop {diff:.1e}; batched vs action loop (one-step, free "
-          f"run; nominal logs) {same:.1e}")
-    print(f"  physics alone: {floor * 1e6:.1f} us/step = {floor * sub * 1e3:.3f} ms/frame -> on {cores} cores the "
-          f"ceiling over the mj_step loop is x{per['mj_step'] / (floor * sub / cores):.1f}, over the action loop "
-          f"x{per['action'] / (floor * sub / cores):.1f}")
+    print(
+        f"  max |qpos difference|: batched vs mj_step loop {diff:.1e}; batched vs action loop (one-step, free "
+        f"run; nominal logs) {same:.1e}"
+    )
+    print(
+        f"  physics alone: {floor * 1e6:.1f} us/step = {floor * sub * 1e3:.3f} ms/frame -> on {cores} cores the "
+        f"ceiling over the mj_step loop is x{per['mj_step'] / (floor * sub / cores):.1f}, over the action loop "
+        f"x{per['action'] / (floor * sub / cores):.1f}"
+    )
 
 
 def physics_floor(model, ctrl: np.ndarray, steps: int = 20_000) -> float:
@@ -190,15 +213,15 @@ def physics_floor(model, ctrl: np.ndarray, steps: int = 20_000) -> float:
 class Args:
     """Keys of this benchmark (key=value)."""
 
-    case: str = "both"                  # both | arm | suite
-    k: int = 10                         # k-step horizon (frames)
-    repeats: int = 5                    # best of this many timings
+    case: str = "both"  # both | arm | suite
+    k: int = 10  # k-step horizon (frames)
+    repeats: int = 5  # best of this many timings
     threads: list[int] = field(default_factory=lambda: [1, 2])  # rollout thread counts to time
-    episodes: int = 8                   # arm case: episodes
-    duration: float = 6.0               # arm case: seconds per episode
-    fps: float = 100.0                  # arm case: log rate
-    suite_episodes: int = 6             # suite case: recorded held_out_robots episodes
-    horizon: int = 100                  # suite case: steps per episode
+    episodes: int = 8  # arm case: episodes
+    duration: float = 6.0  # arm case: seconds per episode
+    fps: float = 100.0  # arm case: log rate
+    suite_episodes: int = 6  # suite case: recorded held_out_robots episodes
+    horizon: int = 100  # suite case: steps per episode
 
 
 def main(argv: list[str]) -> int:
@@ -232,9 +255,11 @@ def arm_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
     windows = rec.episodes()
     segments = horizon_segments(rec, windows, k)
     nseg = {h: len(s) for h, s in segments.items()}
-    print(f"arm3 (3 hinge joints), {episodes} episodes x {duration:g} s at {fps:g} Hz = {len(rec.qpos)} frames, "
-          f"{substeps} substeps/frame (dt {model.opt.timestep * 1e3:g} ms), k = {k}; "
-          f"segments: {nseg}; mujoco {mujoco.__version__}; best of {repeats}")
+    print(
+        f"arm3 (3 hinge joints), {episodes} episodes x {duration:g} s at {fps:g} Hz = {len(rec.qpos)} frames, "
+        f"{substeps} substeps/frame (dt {model.opt.timestep * 1e3:g} ms), k = {k}; "
+        f"segments: {nseg}; mujoco {mujoco.__version__}; best of {repeats}"
+    )
 
     sims = {n: Simulator(model, rec, substeps, n) for n in threads}
     best = {key: float("inf") for key in ["loop", *threads]}
@@ -253,14 +278,18 @@ def arm_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
     diff = max(float(np.abs(errors[h].pred[errors[h].mask] - ref[h][errors[h].mask]).max()) for h in errors)
     for n in threads:
         t_batch = best[n]
-        print(f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} {t_batch:8.3f} s   {steps:,} steps   "
-              f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}")
+        print(
+            f"  mujoco.rollout, {n} thread{'s' if n > 1 else ' '} {t_batch:8.3f} s   {steps:,} steps   "
+            f"{t_batch / steps * 1e6:6.2f} us/step   speed-up x{t_loop / t_batch:5.2f}"
+        )
     print(f"  max |qpos difference| between the two: {diff:.1e} rad (all segments of all three horizons)")
     floor, cores = physics_floor(model, rec.ctrl[0], 100_000), os.cpu_count() or 1
-    print(f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} "
-          f"core{'s' if cores > 1 else ''} "
-          f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
-          f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)")
+    print(
+        f"  physics alone (mj_step nstep, one C call): {floor * 1e6:.2f} us/step -> on {cores} "
+        f"core{'s' if cores > 1 else ''} "
+        f"no batching can beat {floor / cores * 1e6:.2f} us/step: ceiling of the speed-up "
+        f"x{t_loop / steps / (floor / cores):.1f} (x{t_loop / steps / floor:.1f} per core)"
+    )
 
 
 if __name__ == "__main__":

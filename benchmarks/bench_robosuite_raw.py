@@ -9,6 +9,7 @@ steady state (envs built and warmed first). Harness = `bench.api.worker` running
 fsynced); raw = robosuite alone. `bench perf` measures the same against the suite's own env
 adapter, for any suite.
 """
+
 from __future__ import annotations
 
 import sys
@@ -27,8 +28,18 @@ def main(argv: list[str]) -> int:
     kv = dict(a.split("=", 1) for a in argv)
     robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
     horizon, seed = int(kv.get("horizon", 250)), int(kv.get("seed", 0))
-    plan = api.plan(api.RunConfig(suite="held_out_robots", policy="random", robots=[robot], episodes=episodes,
-                                  seed=seed, horizon=horizon, out=tempfile.gettempdir(), run_id="raw-bench"))
+    plan = api.plan(
+        api.RunConfig(
+            suite="held_out_robots",
+            policy="random",
+            robots=[robot],
+            episodes=episodes,
+            seed=seed,
+            horizon=horizon,
+            out=tempfile.gettempdir(),
+            run_id="raw-bench",
+        )
+    )
     worker = api.worker(plan)
     env, policy = worker.built(plan.jobs[0])
     actions = []
@@ -38,9 +49,18 @@ def main(argv: list[str]) -> int:
     _quiet_robosuite()
     import robosuite
 
-    raw = robosuite.make("Lift", robots=robot, has_renderer=False, has_offscreen_renderer=False,
-                         use_camera_obs=False, hard_reset=False, ignore_done=True, reward_shaping=True,
-                         horizon=horizon, seed=0)
+    raw = robosuite.make(
+        "Lift",
+        robots=robot,
+        has_renderer=False,
+        has_offscreen_renderer=False,
+        use_camera_obs=False,
+        hard_reset=False,
+        ignore_done=True,
+        reward_shaping=True,
+        horizon=horizon,
+        seed=0,
+    )
     worker.run(plan.jobs[0])
     raw.reset()
     for a in actions[0][:20]:

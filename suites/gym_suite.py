@@ -21,6 +21,7 @@ Metric:
     and the success rate with a Wilson interval for envs that report success
     (`metric=success_once`); per-axis sensitivity paired by episode seed.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -98,5 +99,6 @@ def _spec(env_id: str):
         return gym.spec(name)
     except gym.error.Error as exc:
         valid = sorted(gym.registry)
-        raise ConfigError(f"env_id={env_id!r}: not a registered Gymnasium env ({type(exc).__name__})."
-                          f"{did_you_mean(name, valid)}") from None
+        raise ConfigError(
+            f"env_id={env_id!r}: not a registered Gymnasium env ({type(exc).__name__}).{did_you_mean(name, valid)}"
+        ) from None

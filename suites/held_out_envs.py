@@ -38,6 +38,7 @@ Reference policy:
     `scripted` = Meta-World's own scripted policy per task, given the true goal
     through its input only.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -55,21 +56,67 @@ DEFAULT_CAMERAS = ("corner", "gripperPOV")
 # Meta-World 3.1.1's ML10_V3 / ML45_V3 (metaworld/env_dict.py), kept here so that listing the
 # suite does not import Meta-World; tests/test_held_out_envs.py checks them against the source.
 ML10 = {
-    "seen": ["reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-close-v3",
-             "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "sweep-v3", "basketball-v3"],
+    "seen": [
+        "reach-v3",
+        "push-v3",
+        "pick-place-v3",
+        "door-open-v3",
+        "drawer-close-v3",
+        "button-press-topdown-v3",
+        "peg-insert-side-v3",
+        "window-open-v3",
+        "sweep-v3",
+        "basketball-v3",
+    ],
     "unseen": ["drawer-open-v3", "door-close-v3", "shelf-place-v3", "sweep-into-v3", "lever-pull-v3"],
 }
 ML45 = {
     "seen": [
-        "assembly-v3", "basketball-v3", "button-press-topdown-v3", "button-press-topdown-wall-v3",
-        "button-press-v3", "button-press-wall-v3", "coffee-button-v3", "coffee-pull-v3", "coffee-push-v3",
-        "dial-turn-v3", "disassemble-v3", "door-close-v3", "door-open-v3", "drawer-close-v3",
-        "drawer-open-v3", "faucet-open-v3", "faucet-close-v3", "hammer-v3", "handle-press-side-v3",
-        "handle-press-v3", "handle-pull-side-v3", "handle-pull-v3", "lever-pull-v3", "pick-place-wall-v3",
-        "pick-out-of-hole-v3", "push-back-v3", "pick-place-v3", "plate-slide-v3", "plate-slide-side-v3",
-        "plate-slide-back-v3", "plate-slide-back-side-v3", "peg-insert-side-v3", "peg-unplug-side-v3",
-        "soccer-v3", "stick-push-v3", "stick-pull-v3", "push-wall-v3", "push-v3", "reach-wall-v3",
-        "reach-v3", "shelf-place-v3", "sweep-into-v3", "sweep-v3", "window-open-v3", "window-close-v3",
+        "assembly-v3",
+        "basketball-v3",
+        "button-press-topdown-v3",
+        "button-press-topdown-wall-v3",
+        "button-press-v3",
+        "button-press-wall-v3",
+        "coffee-button-v3",
+        "coffee-pull-v3",
+        "coffee-push-v3",
+        "dial-turn-v3",
+        "disassemble-v3",
+        "door-close-v3",
+        "door-open-v3",
+        "drawer-close-v3",
+        "drawer-open-v3",
+        "faucet-open-v3",
+        "faucet-close-v3",
+        "hammer-v3",
+        "handle-press-side-v3",
+        "handle-press-v3",
+        "handle-pull-side-v3",
+        "handle-pull-v3",
+        "lever-pull-v3",
+        "pick-place-wall-v3",
+        "pick-out-of-hole-v3",
+        "push-back-v3",
+        "pick-place-v3",
+        "plate-slide-v3",
+        "plate-slide-side-v3",
+        "plate-slide-back-v3",
+        "plate-slide-back-side-v3",
+        "peg-insert-side-v3",
+        "peg-unplug-side-v3",
+        "soccer-v3",
+        "stick-push-v3",
+        "stick-pull-v3",
+        "push-wall-v3",
+        "push-v3",
+        "reach-wall-v3",
+        "reach-v3",
+        "shelf-place-v3",
+        "sweep-into-v3",
+        "sweep-v3",
+        "window-open-v3",
+        "window-close-v3",
     ],
     "unseen": ["bin-picking-v3", "box-close-v3", "hand-insert-v3", "door-lock-v3", "door-unlock-v3"],
 }

@@ -36,6 +36,7 @@ Policies:
     `bc`, is the committed behaviour-cloning checkpoint trained on the seen arms only
     (results/coverage), so the default run shows a real seen -> unseen transfer gap.
 """
+
 from __future__ import annotations
 
 from typing import Any

@@ -40,6 +40,7 @@ Metric:
     success rate per scene with Wilson intervals; mean over seen and unseen scenes with
     a stratified bootstrap interval; transfer gap = seen - unseen.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -100,13 +101,16 @@ def region_relation(params: dict[str, Any]) -> str:
     spawn rectangle does not overlap the seen spawn square at all; "straddles" (a spawn
     region partly in the seen square, everything else inside) makes a split ambiguous.
     """
+
     def within(v: float, lo_hi: tuple[float, float]) -> bool:
         return lo_hi[0] - 1e-9 <= v <= lo_hi[1] + 1e-9
 
     r = SEEN_REGION
-    scalars_in = (within(params["table_height"], r["table_height"])
-                  and all(within(s, r["table_size"]) for s in params["table_size"])
-                  and within(params["table_friction"], r["table_friction"]))
+    scalars_in = (
+        within(params["table_height"], r["table_height"])
+        and all(within(s, r["table_size"]) for s in params["table_size"])
+        and within(params["table_friction"], r["table_friction"])
+    )
     w = r["spawn_half_width"]
     (x0, x1), (y0, y1) = params["spawn_x"], params["spawn_y"]
     spawn_in = -w - 1e-9 <= x0 and x1 <= w + 1e-9 and -w - 1e-9 <= y0 and y1 <= w + 1e-9
@@ -161,8 +165,14 @@ class HeldOutScenes(SuiteBase):
     def make_env(self, cell: Cell, horizon: int):
         from suites import lift
 
-        return lift.make_env(cell.task, cell.robot, horizon, env_kwargs(cell.options or scene_params(cell.env)),
-                             options=self.options, where=cell.key)
+        return lift.make_env(
+            cell.task,
+            cell.robot,
+            horizon,
+            env_kwargs(cell.options or scene_params(cell.env)),
+            options=self.options,
+            where=cell.key,
+        )
 
     def make_expert(self, cell: Cell, env):
         from suites import lift

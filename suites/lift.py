@@ -7,6 +7,7 @@ relative orientation compares), gripper opening normalised to 1 = fully open, 0 
 closed in free air (both measured once when the env is built), object pose, and the
 gripper-to-object vector.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
@@ -36,12 +37,14 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (x, y, z, w) quaternions (robosuite's convention)."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
-    return np.array([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ])
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
 
 
 def _quat_conj(q: np.ndarray) -> np.ndarray:
@@ -59,7 +62,7 @@ class LiftObserver:
         self._object = OBJECT[task]
         self._quat0_conj = np.array([0.0, 0.0, 0.0, 1.0])
 
-    def bind(self, env: "RobosuiteEnv") -> tuple[str, ...]:
+    def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
         self._env = env
         self._data = env.raw.sim.data._data
         self._grip_idx = np.asarray(env.raw.robots[0]._ref_gripper_joint_pos_indexes["right"])
@@ -116,8 +119,9 @@ class LiftObserver:
         return {STATE: out}
 
 
-def make_env(task: str, robot: str, horizon: int, env_kwargs: dict | None = None, options: Any = None,
-             where: str = "") -> Any:
+def make_env(
+    task: str, robot: str, horizon: int, env_kwargs: dict | None = None, options: Any = None, where: str = ""
+) -> Any:
     """A robosuite env of `task` on `robot` with the agnostic observation (and cameras per `options`)."""
     from bench.camera_env import with_cameras
     from bench.sim_robosuite import RobosuiteEnv

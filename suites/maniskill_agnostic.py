@@ -19,6 +19,7 @@ objects beyond the reach of Fetch's arm from where its base starts, so Fetch's s
 base's forward motion (a weighted joint of the least-squares step, sent as the base's forward
 velocity); its head and torso are held still.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -28,8 +29,14 @@ import numpy as np
 from bench.protocols import ActionSpec
 
 STATE_FIELDS: tuple[tuple[str, int], ...] = (
-    ("eef_pos", 3), ("eef_quat_rel", 4), ("gripper_opening", 1), ("object_pos", 3), ("object_quat", 4),
-    ("gripper_to_object", 3), ("goal_pos", 3), ("object_to_goal", 3),
+    ("eef_pos", 3),
+    ("eef_quat_rel", 4),
+    ("gripper_opening", 1),
+    ("object_pos", 3),
+    ("object_quat", 4),
+    ("gripper_to_object", 3),
+    ("goal_pos", 3),
+    ("object_to_goal", 3),
 )
 ACTION_NAMES = ("dx", "dy", "dz", "gripper")
 STEP_M = 0.1  # metres of TCP displacement per unit of action
@@ -45,8 +52,14 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (w, x, y, z) quaternions (SAPIEN's convention)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 def _conj(q: np.ndarray) -> np.ndarray:
@@ -107,8 +120,18 @@ class AgnosticInterface:
         goal = _np(self.goal.pose.p)
         q = self._qpos()[self._grip_idx]
         opening = min(1.0, max(0.0, (q - self._closed) / (self._open - self._closed)))
-        out = np.concatenate([eef, rel if rel[0] >= 0 else -rel, [opening], obj_pose[:3], obj_pose[3:],
-                              obj_pose[:3] - eef, goal, goal - obj_pose[:3]])
+        out = np.concatenate(
+            [
+                eef,
+                rel if rel[0] >= 0 else -rel,
+                [opening],
+                obj_pose[:3],
+                obj_pose[3:],
+                obj_pose[:3] - eef,
+                goal,
+                goal - obj_pose[:3],
+            ]
+        )
         return out.astype(np.float32)
 
     def command(self, action: np.ndarray) -> np.ndarray:
@@ -146,7 +169,7 @@ class AgnosticInterface:
         return _np(self.agent.tcp_pose.q)
 
     # -- SO-100, Fetch: damped least squares on pd_joint_pos ----------------------------------
-    _ROT_WEIGHT = 0.3   # metres of position error one radian of orientation error is worth
+    _ROT_WEIGHT = 0.3  # metres of position error one radian of orientation error is worth
     _DAMPING = 0.05
 
     def _bind_dls(self, limits: np.ndarray) -> None:
@@ -195,7 +218,7 @@ class AgnosticInterface:
             p, R = self._fk(dq)
             jac[:, k] = np.concatenate([(p - p0) / eps, -self._ROT_WEIGHT * self._rot_err(R, R0) / eps])
         winv = 1.0 / self._cost  # weighted damped least squares: costly joints move less
-        step = winv * (jac.T @ np.linalg.solve((jac * winv) @ jac.T + self._DAMPING ** 2 * np.eye(6), err))
+        step = winv * (jac.T @ np.linalg.solve((jac * winv) @ jac.T + self._DAMPING**2 * np.eye(6), err))
         arm = np.clip(q[self._arm] + step[: len(self._arm)], self._arm_limits[:, 0], self._arm_limits[:, 1])
         base_v = float(step[-1]) / self._dt if self._base is not None else 0.0
         return arm, base_v

@@ -4,6 +4,7 @@ Everything here is declared without importing ManiSkill (so `bench list` and `be
 without the `maniskill` extra); tests/test_maniskill_suites.py checks each table against the
 built envs.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -23,35 +24,60 @@ IMAGE_SIZES = (16, 1024)
 class Task:
     """One ManiSkill task as the suites use it."""
 
-    env_id: str             # ManiSkill's id
-    robot: str              # the robot its motion-planning solution is written for
-    instruction: str        # obs["task"]
+    env_id: str  # ManiSkill's id
+    robot: str  # the robot its motion-planning solution is written for
+    instruction: str  # obs["task"]
     objects: tuple[str, ...]  # scene actors that are the manipulated objects (perturb.mass)
 
 
-TASKS: dict[str, Task] = {t.env_id.split("-")[0]: t for t in (
-    Task("PickCube-v1", "panda", "pick up the red cube and move it to the green goal", ("cube",)),
-    Task("PushCube-v1", "panda", "push the cube onto the red and white target", ("cube",)),
-    Task("PullCube-v1", "panda", "pull the cube onto the red and white target", ("cube",)),
-    Task("StackCube-v1", "panda", "stack the red cube on top of the green cube", ("cubeA", "cubeB")),
-    Task("LiftPegUpright-v1", "panda", "lift the peg lying on the table and stand it upright", ("peg",)),
-    Task("PlaceSphere-v1", "panda", "place the blue ball into the bin", ("sphere",)),
-    Task("PegInsertionSide-v1", "panda_wristcam", "insert the peg sideways into the hole of the box", ("peg_0",)),
-    Task("StackPyramid-v1", "panda", "stack the three cubes into a pyramid", ("cubeA", "cubeB", "cubeC")),
-    Task("PlugCharger-v1", "panda", "plug the charger into the receptacle", ("charger",)),
-    Task("PokeCube-v1", "panda", "use the peg to push the cube onto the target", ("cube", "peg")),
-    Task("RollBall-v1", "panda", "roll the ball into the red and white target", ("ball",)),
-)}
+TASKS: dict[str, Task] = {
+    t.env_id.split("-")[0]: t
+    for t in (
+        Task("PickCube-v1", "panda", "pick up the red cube and move it to the green goal", ("cube",)),
+        Task("PushCube-v1", "panda", "push the cube onto the red and white target", ("cube",)),
+        Task("PullCube-v1", "panda", "pull the cube onto the red and white target", ("cube",)),
+        Task("StackCube-v1", "panda", "stack the red cube on top of the green cube", ("cubeA", "cubeB")),
+        Task("LiftPegUpright-v1", "panda", "lift the peg lying on the table and stand it upright", ("peg",)),
+        Task("PlaceSphere-v1", "panda", "place the blue ball into the bin", ("sphere",)),
+        Task("PegInsertionSide-v1", "panda_wristcam", "insert the peg sideways into the hole of the box", ("peg_0",)),
+        Task("StackPyramid-v1", "panda", "stack the three cubes into a pyramid", ("cubeA", "cubeB", "cubeC")),
+        Task("PlugCharger-v1", "panda", "plug the charger into the receptacle", ("charger",)),
+        Task("PokeCube-v1", "panda", "use the peg to push the cube onto the target", ("cube", "peg")),
+        Task("RollBall-v1", "panda", "roll the ball into the red and white target", ("ball",)),
+    )
+}
 
 # ManiSkill 3.0.1's control modes per robot (checked against the agents by the tests)
-_ARM_MODES = ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose", "pd_ee_pose",
-              "pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose", "pd_joint_vel",
-              "pd_joint_pos_vel", "pd_joint_delta_pos_vel")
+_ARM_MODES = (
+    "pd_joint_delta_pos",
+    "pd_joint_pos",
+    "pd_ee_delta_pos",
+    "pd_ee_delta_pose",
+    "pd_ee_pose",
+    "pd_joint_target_delta_pos",
+    "pd_ee_target_delta_pos",
+    "pd_ee_target_delta_pose",
+    "pd_joint_vel",
+    "pd_joint_pos_vel",
+    "pd_joint_delta_pos_vel",
+)
 CONTROL_MODES: dict[str, tuple[str, ...]] = {
-    "panda": _ARM_MODES, "panda_wristcam": _ARM_MODES,
-    "fetch": ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose", "pd_ee_delta_pose_align",
-              "pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose", "pd_joint_vel",
-              "pd_joint_pos_vel", "pd_joint_delta_pos_vel", "pd_joint_delta_pos_stiff_body"),
+    "panda": _ARM_MODES,
+    "panda_wristcam": _ARM_MODES,
+    "fetch": (
+        "pd_joint_delta_pos",
+        "pd_joint_pos",
+        "pd_ee_delta_pos",
+        "pd_ee_delta_pose",
+        "pd_ee_delta_pose_align",
+        "pd_joint_target_delta_pos",
+        "pd_ee_target_delta_pos",
+        "pd_ee_target_delta_pose",
+        "pd_joint_vel",
+        "pd_joint_pos_vel",
+        "pd_joint_delta_pos_vel",
+        "pd_joint_delta_pos_stiff_body",
+    ),
     "so100": ("pd_joint_delta_pos", "pd_joint_pos", "pd_joint_target_delta_pos"),
 }
 
@@ -75,8 +101,10 @@ def check_common(obs: str, cameras: Optional[Sequence[str]], image_size: int, si
         raise ConfigError("cameras=[] names no camera; leave it out for every camera of the cell")
     check_backend(sim_backend)
     if reset not in RESETS:
-        raise ConfigError(f"reset={reset!r}: valid: {', '.join(RESETS)} (rebuild: the same seed and actions give the "
-                          "same trajectory whatever ran before; soft: ManiSkill's own reset, faster)")
+        raise ConfigError(
+            f"reset={reset!r}: valid: {', '.join(RESETS)} (rebuild: the same seed and actions give the "
+            "same trajectory whatever ran before; soft: ManiSkill's own reset, faster)"
+        )
 
 
 def check_control_mode(mode: str, robot: str) -> None:
@@ -92,13 +120,16 @@ def cell_cameras(robot: str, obs: str, cameras: Optional[Sequence[str]]) -> tupl
     valid = cameras_of(robot)
     for cam in cameras or ():
         if cam not in valid:
-            raise ConfigError(f"cameras: {cam!r} is not a camera of a table-top task with {robot}; valid: "
-                              f"{', '.join(valid)}.{did_you_mean(cam, valid)}")
+            raise ConfigError(
+                f"cameras: {cam!r} is not a camera of a table-top task with {robot}; valid: "
+                f"{', '.join(valid)}.{did_you_mean(cam, valid)}"
+            )
     return tuple(cameras) if cameras else valid
 
 
-def obs_spec(state: Sequence[tuple[str, int]], robot: str, obs: str, cameras: Optional[Sequence[str]],
-             image_size: int) -> ObsSpec:
+def obs_spec(
+    state: Sequence[tuple[str, int]], robot: str, obs: str, cameras: Optional[Sequence[str]], image_size: int
+) -> ObsSpec:
     """state (when asked for) + one rgb.<camera> per camera + the task instruction."""
     spec: dict[str, Feature] = {}
     if "state" in obs:

@@ -36,6 +36,7 @@ Policies:
     observation and succeeds on the seen robots; it does not transfer to the unseen ones (their
     reach and hands differ), which is what the suite measures.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -59,11 +60,11 @@ CELLS: dict[str, tuple[tuple[str, ...], str, str]] = {
 class ManiSkillRobotsOptions:
     """Keys of suite=maniskill_held_out_robots."""
 
-    obs: str = "state"                     # state | rgb | state+rgb (rgb needs a Vulkan device)
-    cameras: Optional[list[str]] = None    # cameras for rgb (default: every camera of the cell)
-    image_size: int = 128                  # camera width = height in pixels, 16..1024
-    sim_backend: str = "physx_cpu"         # physx_cpu, or physx_cuda on a machine with a CUDA GPU
-    reset: str = "rebuild"                 # rebuild: same seed+actions -> same trajectory; soft: ManiSkill's reset
+    obs: str = "state"  # state | rgb | state+rgb (rgb needs a Vulkan device)
+    cameras: Optional[list[str]] = None  # cameras for rgb (default: every camera of the cell)
+    image_size: int = 128  # camera width = height in pixels, 16..1024
+    sim_backend: str = "physx_cpu"  # physx_cpu, or physx_cuda on a machine with a CUDA GPU
+    reset: str = "rebuild"  # rebuild: same seed+actions -> same trajectory; soft: ManiSkill's reset
 
 
 class ManiSkillHeldOutRobots(ManiSkillSuite):
@@ -77,10 +78,12 @@ class ManiSkillHeldOutRobots(ManiSkillSuite):
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
     capabilities = frozenset({"expert"})
 
-
     def all_cells(self) -> list[Cell]:
-        return [Cell(self.name, task, robot, "table", "seen" if robot in SEEN else "unseen")
-                for task, (robots, _, _) in CELLS.items() for robot in robots]
+        return [
+            Cell(self.name, task, robot, "table", "seen" if robot in SEEN else "unseen")
+            for task, (robots, _, _) in CELLS.items()
+            for robot in robots
+        ]
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
         from suites.maniskill_agnostic import STATE_FIELDS
@@ -94,9 +97,19 @@ class ManiSkillHeldOutRobots(ManiSkillSuite):
 
         o, task = self.options, TASKS[cell.task]
         _, obj, goal = CELLS[cell.task]
-        return ManiSkillEnv(task.env_id, cell.robot, horizon, interface=AgnosticInterface(cell.robot, obj, goal),
-                            obs=o.obs, cameras=o.cameras, image_size=o.image_size, object_names=task.objects,
-                            instruction=task.instruction, sim_backend=o.sim_backend, reset=o.reset)
+        return ManiSkillEnv(
+            task.env_id,
+            cell.robot,
+            horizon,
+            interface=AgnosticInterface(cell.robot, obj, goal),
+            obs=o.obs,
+            cameras=o.cameras,
+            image_size=o.image_size,
+            object_names=task.objects,
+            instruction=task.instruction,
+            sim_backend=o.sim_backend,
+            reset=o.reset,
+        )
 
     def make_expert(self, cell: Cell, env: Any) -> Policy:
         from baselines.maniskill_scripted import make_expert

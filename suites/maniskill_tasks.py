@@ -36,6 +36,7 @@ Policies:
     and RollBall (baselines/maniskill_solutions.py), run closed loop through the harness
     (baselines/maniskill_mp.py; needs control_mode=pd_joint_pos).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -52,38 +53,74 @@ STATE_FIELDS: dict[str, tuple[tuple[str, int], ...]] = {
     "PickCube": (("tcp_pose", 7), ("goal_pos", 3), ("obj_pose", 7), ("tcp_to_obj_pos", 3), ("obj_to_goal_pos", 3)),
     "PushCube": (("tcp_pose", 7), ("goal_pos", 3), ("obj_pose", 7)),
     "PullCube": (("tcp_pose", 7), ("goal_pos", 3), ("obj_pose", 7)),
-    "StackCube": (("tcp_pose", 7), ("cubeA_pose", 7), ("cubeB_pose", 7), ("tcp_to_cubeA_pos", 3),
-                  ("tcp_to_cubeB_pos", 3), ("cubeA_to_cubeB_pos", 3)),
+    "StackCube": (
+        ("tcp_pose", 7),
+        ("cubeA_pose", 7),
+        ("cubeB_pose", 7),
+        ("tcp_to_cubeA_pos", 3),
+        ("tcp_to_cubeB_pos", 3),
+        ("cubeA_to_cubeB_pos", 3),
+    ),
     "LiftPegUpright": (("tcp_pose", 7), ("obj_pose", 7)),
     "PlaceSphere": (("tcp_pose", 7), ("bin_pos", 3), ("obj_pose", 7), ("tcp_to_obj_pos", 3)),
-    "PegInsertionSide": (("tcp_pose", 7), ("peg_pose", 7), ("peg_half_size", 3), ("box_hole_pose", 7),
-                         ("box_hole_radius", 1)),
-    "StackPyramid": (("tcp_pose", 7), ("cubeA_pose", 7), ("cubeB_pose", 7), ("cubeC_pose", 7), ("tcp_to_cubeA_pos", 3),
-                     ("tcp_to_cubeB_pos", 3), ("tcp_to_cubeC_pos", 3), ("cubeA_to_cubeB_pos", 3),
-                     ("cubeB_to_cubeC_pos", 3), ("cubeA_to_cubeC_pos", 3)),
+    "PegInsertionSide": (
+        ("tcp_pose", 7),
+        ("peg_pose", 7),
+        ("peg_half_size", 3),
+        ("box_hole_pose", 7),
+        ("box_hole_radius", 1),
+    ),
+    "StackPyramid": (
+        ("tcp_pose", 7),
+        ("cubeA_pose", 7),
+        ("cubeB_pose", 7),
+        ("cubeC_pose", 7),
+        ("tcp_to_cubeA_pos", 3),
+        ("tcp_to_cubeB_pos", 3),
+        ("tcp_to_cubeC_pos", 3),
+        ("cubeA_to_cubeB_pos", 3),
+        ("cubeB_to_cubeC_pos", 3),
+        ("cubeA_to_cubeC_pos", 3),
+    ),
     "PlugCharger": (("tcp_pose", 7), ("charger_pose", 7), ("receptacle_pose", 7), ("goal_pose", 7)),
-    "PokeCube": (("tcp_pose", 7), ("cube_pose", 7), ("peg_pose", 7), ("goal_pos", 3), ("tcp_to_peg_pos", 3),
-                 ("peg_to_cube_pos", 3), ("cube_to_goal_pos", 3), ("peghead_to_cube_pos", 3)),
-    "RollBall": (("tcp_pose", 7), ("goal_pos", 3), ("ball_pose", 7), ("ball_vel", 3), ("tcp_to_ball_pos", 3),
-                 ("ball_to_goal_pos", 3)),
+    "PokeCube": (
+        ("tcp_pose", 7),
+        ("cube_pose", 7),
+        ("peg_pose", 7),
+        ("goal_pos", 3),
+        ("tcp_to_peg_pos", 3),
+        ("peg_to_cube_pos", 3),
+        ("cube_to_goal_pos", 3),
+        ("peghead_to_cube_pos", 3),
+    ),
+    "RollBall": (
+        ("tcp_pose", 7),
+        ("goal_pos", 3),
+        ("ball_pose", 7),
+        ("ball_vel", 3),
+        ("tcp_to_ball_pos", 3),
+        ("ball_to_goal_pos", 3),
+    ),
 }
 IS_GRASPED = ("PickCube", "PlaceSphere")  # tasks whose state starts the extras with is_grasped (1)
 # control modes whose controller keeps a target, which ManiSkill adds to the state after qvel
-TARGET_STATE = {"pd_joint_target_delta_pos": ("controller.arm.target_qpos", 7),
-                "pd_ee_target_delta_pos": ("controller.arm.target_pose", 7),
-                "pd_ee_target_delta_pose": ("controller.arm.target_pose", 7)}
+TARGET_STATE = {
+    "pd_joint_target_delta_pos": ("controller.arm.target_qpos", 7),
+    "pd_ee_target_delta_pos": ("controller.arm.target_pose", 7),
+    "pd_ee_target_delta_pose": ("controller.arm.target_pose", 7),
+}
 
 
 @dataclass(frozen=True)
 class ManiSkillTasksOptions:
     """Keys of suite=maniskill_tasks."""
 
-    obs: str = "state"                     # state | rgb | state+rgb (rgb needs a Vulkan device)
-    cameras: Optional[list[str]] = None    # cameras for rgb (default: every camera of the cell)
-    image_size: int = 128                  # camera width = height in pixels, 16..1024
-    control_mode: str = "pd_joint_pos"     # ManiSkill control mode; the scripted expert needs pd_joint_pos
-    sim_backend: str = "physx_cpu"         # physx_cpu, or physx_cuda on a machine with a CUDA GPU
-    reset: str = "rebuild"                 # rebuild: same seed+actions -> same trajectory; soft: ManiSkill's reset
+    obs: str = "state"  # state | rgb | state+rgb (rgb needs a Vulkan device)
+    cameras: Optional[list[str]] = None  # cameras for rgb (default: every camera of the cell)
+    image_size: int = 128  # camera width = height in pixels, 16..1024
+    control_mode: str = "pd_joint_pos"  # ManiSkill control mode; the scripted expert needs pd_joint_pos
+    sim_backend: str = "physx_cpu"  # physx_cpu, or physx_cuda on a machine with a CUDA GPU
+    reset: str = "rebuild"  # rebuild: same seed+actions -> same trajectory; soft: ManiSkill's reset
 
 
 def state_fields(task: str, control_mode: str) -> tuple[tuple[str, int], ...]:
@@ -113,8 +150,11 @@ class ManiSkillTasks(ManiSkillSuite):
             check_control_mode(self.options.control_mode, task.robot)
 
     def all_cells(self) -> list[Cell]:
-        return [Cell(self.name, t, TASKS[t].robot, "table", split)
-                for split, tasks in (("seen", SEEN), ("unseen", UNSEEN)) for t in tasks]
+        return [
+            Cell(self.name, t, TASKS[t].robot, "table", split)
+            for split, tasks in (("seen", SEEN), ("unseen", UNSEEN))
+            for t in tasks
+        ]
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
         o = self.options
@@ -124,9 +164,19 @@ class ManiSkillTasks(ManiSkillSuite):
         from bench.sim_maniskill import ManiSkillEnv, NativeInterface
 
         o, task = self.options, TASKS[cell.task]
-        return ManiSkillEnv(task.env_id, cell.robot, horizon, interface=NativeInterface(o.control_mode), obs=o.obs,
-                            cameras=o.cameras, image_size=o.image_size, object_names=task.objects,
-                            instruction=task.instruction, sim_backend=o.sim_backend, reset=o.reset)
+        return ManiSkillEnv(
+            task.env_id,
+            cell.robot,
+            horizon,
+            interface=NativeInterface(o.control_mode),
+            obs=o.obs,
+            cameras=o.cameras,
+            image_size=o.image_size,
+            object_names=task.objects,
+            instruction=task.instruction,
+            sim_backend=o.sim_backend,
+            reset=o.reset,
+        )
 
     def make_expert(self, cell: Cell, env: Any) -> Policy:
         from baselines.maniskill_mp import MotionPlanExpert

@@ -25,8 +25,10 @@ def vulkan_icd() -> str:
     """The Vulkan driver manifest (VK_ICD_FILENAMES) for tests marked `vulkan`; skip when none is set up."""
     icd = os.environ.get("VK_ICD_FILENAMES", "")
     if not icd or not all(Path(p).is_file() for p in icd.split(os.pathsep)):
-        pytest.skip("no Vulkan device set up: run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it "
-                    "prints (then pytest -m vulkan)")
+        pytest.skip(
+            "no Vulkan device set up: run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it "
+            "prints (then pytest -m vulkan)"
+        )
     return icd
 
 

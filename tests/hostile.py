@@ -11,6 +11,7 @@ case writes its own bad files into a folder of its own before the snapshot is ta
 tracebacks, silent acceptances, unbounded work, files left behind, unreadable output), how many
 inputs were tried and how many failed; the test module (tests/test_hostile_inputs.py) asserts each.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -24,9 +25,9 @@ import shutil
 import signal
 import sys
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -106,8 +107,16 @@ def _checkpoint(path: Path) -> None:
 
     torch.manual_seed(0)
     net = build("mlp", 2, 1, {"hidden": [4]})
-    save_checkpoint(path, net, {"architecture": "mlp", "kwargs": {"hidden": [4]},
-                                "obs_names": [["pos", 1], ["goal", 1]], "action_names": ["push"]})
+    save_checkpoint(
+        path,
+        net,
+        {
+            "architecture": "mlp",
+            "kwargs": {"hidden": [4]},
+            "obs_names": [["pos", 1], ["goal", 1]],
+            "action_names": ["push"],
+        },
+    )
 
 
 def build_workspace(root: Path) -> Path:
@@ -134,8 +143,9 @@ def build_workspace(root: Path) -> Path:
     (root / "data.csv").write_text("t,q,u\n" + "".join(f"{a:.3f},{np.sin(a):.5f},{np.cos(a):.5f}\n" for a in t))
     import scipy.io
 
-    scipy.io.savemat(root / "data.mat", {"t": t[:, None], "q": np.sin(t)[:, None], "u": np.cos(t)[:, None],
-                                         "k": np.array([[2.0]])})
+    scipy.io.savemat(
+        root / "data.mat", {"t": t[:, None], "q": np.sin(t)[:, None], "u": np.cos(t)[:, None], "k": np.array([[2.0]])}
+    )
     _rlds(root / "rlds")
     _checkpoint(root / "ckpt" / "policy.safetensors")
     (root / "cases").mkdir()
@@ -150,7 +160,7 @@ class Result:
     code: int | None
     out: str
     err: str
-    exc: str | None          # the traceback of an exception that escaped the command, if any
+    exc: str | None  # the traceback of an exception that escaped the command, if any
     seconds: float
 
 
@@ -162,8 +172,9 @@ def _alarm(signum, frame):
     raise _Timeout()
 
 
-def run_main(main: Callable[[list[str]], int], argv: list[str], cwd: Path, timeout: float = 60.0,
-             memory_gb: float | None = None) -> Result:
+def run_main(
+    main: Callable[[list[str]], int], argv: list[str], cwd: Path, timeout: float = 60.0, memory_gb: float | None = None
+) -> Result:
     """`main(argv)` in process with stdout/stderr captured, in `cwd`, under a time (and memory) limit."""
     import time
 
@@ -254,14 +265,14 @@ class Case:
 
     family: str
     name: str
-    argv: list[str]                     # `{ws}` is the workspace, `{case}` the case's own folder
-    match: str                          # regex the single stderr line must match
-    setup: Callable[[Path, Path], None] | None = None   # (workspace, case dir): writes the bad files
-    main: str = "bench"                 # "bench" or a module with main(argv), e.g. "baselines.bc"
+    argv: list[str]  # `{ws}` is the workspace, `{case}` the case's own folder
+    match: str  # regex the single stderr line must match
+    setup: Callable[[Path, Path], None] | None = None  # (workspace, case dir): writes the bad files
+    main: str = "bench"  # "bench" or a module with main(argv), e.g. "baselines.bc"
     cwd: str = "{case}"
     code: int = 2
-    needs: tuple[str, ...] = ()         # workspace entries the case needs (skipped without them)
-    memory_gb: float | None = 4.0     # address-space limit while it runs (a hostile input must not eat the machine)
+    needs: tuple[str, ...] = ()  # workspace entries the case needs (skipped without them)
+    memory_gb: float | None = 4.0  # address-space limit while it runs (a hostile input must not eat the machine)
     timeout: float = 60.0
     allowed: tuple[str, ...] = field(default=())  # paths (relative to the workspace) the command may create
 
@@ -282,8 +293,9 @@ def check(case: Case, ws: Path) -> tuple[list[str], Result | None]:
     before = snapshot(ws)
     argv = [case.expand(a, ws, case_dir) for a in case.argv]
     main = cli_main if case.main == "bench" else module_main(case.main)
-    res = run_main(main, argv, Path(case.expand(case.cwd, ws, case_dir)), timeout=case.timeout,
-                   memory_gb=case.memory_gb)
+    res = run_main(
+        main, argv, Path(case.expand(case.cwd, ws, case_dir)), timeout=case.timeout, memory_gb=case.memory_gb
+    )
     after = snapshot(ws)
     problems = []
     if res.exc is not None:
@@ -307,6 +319,7 @@ def check(case: Case, ws: Path) -> tuple[list[str], Result | None]:
 
 def write(rel: str, content: str | bytes) -> Callable[[Path, Path], None]:
     """A setup that writes `content` to the case folder's `rel`."""
+
     def setup(ws: Path, case: Path) -> None:
         p = case / rel
         p.parent.mkdir(parents=True, exist_ok=True)
@@ -314,11 +327,13 @@ def write(rel: str, content: str | bytes) -> Callable[[Path, Path], None]:
             p.write_bytes(content)
         else:
             p.write_text(content)
+
     return setup
 
 
 def copy(src: str, dst: str, edit: Callable[[Path], None] | None = None) -> Callable[[Path, Path], None]:
     """A setup that copies workspace `src` to the case folder's `dst`, then applies `edit` to the copy."""
+
     def setup(ws: Path, case: Path) -> None:
         s, d = ws / src, case / dst
         if s.is_dir():
@@ -328,17 +343,20 @@ def copy(src: str, dst: str, edit: Callable[[Path], None] | None = None) -> Call
             shutil.copy2(s, d)
         if edit:
             edit(d)
+
     return setup
 
 
 def edit_json(rel: str, fn: Callable[[dict], object]) -> Callable[[Path], None]:
     """An edit that rewrites the JSON file `rel` (inside the copy) with `fn(doc)` (the new document,
     or None when `fn` changed the document in place)."""
+
     def edit(root: Path) -> None:
         p = root / rel if rel else root
         doc = json.loads(p.read_text())
         new = fn(doc)
         p.write_text(json.dumps(doc if new is None else new, allow_nan=True))
+
     return edit
 
 
@@ -349,8 +367,9 @@ def summarize(results: list[tuple[Case, list[str]]]) -> str:
         rows = [(c, p) for c, p in results if c.family == fam]
         bad = [(c, p) for c, p in rows if p]
         lines.append(f"{fam:<20} {len(rows):>6} {len(rows) - len(bad):>6} {len(bad):>7}")
-    lines.append(f"{'total':<20} {len(results):>6} {sum(1 for _, p in results if not p):>6} "
-                 f"{sum(1 for _, p in results if p):>7}")
+    lines.append(
+        f"{'total':<20} {len(results):>6} {sum(1 for _, p in results if not p):>6} {sum(1 for _, p in results if p):>7}"
+    )
     for c, p in results:
         if p:
             lines.append(f"  FAIL [{c.family}] {c.name}: {'; '.join(p)}")
@@ -381,6 +400,10 @@ if __name__ == "__main__":  # python tests/hostile.py [WORKDIR]: run the corpus,
         if res is None:
             continue
         results.append((case, problems))
-        print(("FAIL " if problems else "ok   ") + f"{case.name} ({res.seconds:.1f}s)"
-              + (": " + "; ".join(problems) if problems else ""), flush=True)
+        print(
+            ("FAIL " if problems else "ok   ")
+            + f"{case.name} ({res.seconds:.1f}s)"
+            + (": " + "; ".join(problems) if problems else ""),
+            flush=True,
+        )
     print(summarize(results))

@@ -5,6 +5,7 @@ left behind, unreadable output), the command line (`{ws}`: the workspace of vali
 the case's own folder, where its setup wrote the bad files) and a regex the one stderr line must
 match — the field it names.
 """
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,14 @@ from pathlib import Path
 
 from hostile import SPEC_YAML, TOY, Case, copy, edit_json, write
 
-DL, TB, SA, UW, LB, UO = ("data loss", "traceback", "silent acceptance", "unbounded work", "left behind",
-                          "unreadable output")
+DL, TB, SA, UW, LB, UO = (
+    "data loss",
+    "traceback",
+    "silent acceptance",
+    "unbounded work",
+    "left behind",
+    "unreadable output",
+)
 CASES: list[Case] = []
 
 
@@ -24,12 +31,14 @@ def add(family: str, name: str, argv: list[str], match: str, **kw) -> None:
 
 def _set(path: str, value):
     """fn(doc) setting doc[a][b]... (a dotted path; integers index lists) to `value`."""
+
     def fn(doc):
         keys = [int(k) if k.lstrip("-").isdigit() else k for k in path.split("/" if "/" in path else ".")]
         node = doc
         for k in keys[:-1]:
             node = node[k]
         node[keys[-1]] = value
+
     return fn
 
 
@@ -40,6 +49,7 @@ def _del(path: str):
         for k in keys[:-1]:
             node = node[k]
         del node[keys[-1]]
+
     return fn
 
 
@@ -48,101 +58,287 @@ def _truncate(rel: str, keep: float = 0.5):
         p = root / rel if rel else root
         data = p.read_bytes()
         p.write_bytes(data[: int(len(data) * keep)])
+
     return edit
 
 
 def _bytes(rel: str, data: bytes):
     def edit(root: Path) -> None:
         (root / rel if rel else root).write_bytes(data)
+
     return edit
 
 
 RUN = ["run", TOY, "workers=1", "episodes=1", "out={case}/runs"]
 
 # ----------------------------------------------------------------------------- data loss
-add(DL, "report-into-its-run-dir", ["report", "{case}/run", "out={case}/run"], r"out=.*(is|contains|inside).*input",
-    setup=copy("run", "run"))
-add(DL, "report-into-its-run-dir-overwrite", ["report", "{case}/run", "out={case}/run", "overwrite=true"],
-    r"out=.*input", setup=copy("run", "run"))
-add(DL, "report-inside-its-run-dir", ["report", "{case}/run", "out={case}/run/report"], r"out=.*inside.*input",
-    setup=copy("run", "run"))
-add(DL, "report-out-parent-of-cwd", ["report", "run", "out=.."], r"out=.*contains.*input",
-    setup=copy("run", "work/run"), cwd="{case}/work")
-add(DL, "report-out-cwd-parent-overwrite", ["report", "run", "out=..", "overwrite=true"], r"out=.*input",
-    setup=copy("run", "work/run"), cwd="{case}/work")
-add(DL, "report-out-cwd", ["report", "run", "out=.", "overwrite=true"], r"out=.*input",
-    setup=copy("run", "work/run"), cwd="{case}/work")
-add(DL, "report-over-foreign-folder", ["report", "{ws}/run", "out={case}/mine", "overwrite=true"],
-    r"out=.*(not written by bench|bench did not write)", setup=write("mine/notes.txt", "my notes"))
-add(DL, "report-over-foreign-folder-no-overwrite", ["report", "{ws}/run", "out={case}/mine"],
-    r"out=.*(exists|not empty).*overwrite", setup=write("mine/notes.txt", "my notes"))
-add(DL, "report-over-a-file", ["report", "{ws}/run", "out={case}/file.txt"], r"out=.*(file|folder)",
-    setup=write("file.txt", "x"))
-add(DL, "import-out-cwd-overwrite", ["logs", "import", "data.csv", "out=.", "overwrite=true", "time=t"],
-    r"out=.*(contains|is).*input", setup=copy("data.csv", "data.csv"))
-add(DL, "import-out-parent-overwrite", ["logs", "import", "data.csv", "out=..", "overwrite=true", "time=t"],
-    r"out=.*contains.*input", setup=copy("data.csv", "sub/data.csv"), cwd="{case}/sub")
-add(DL, "import-out-parent-no-overwrite", ["logs", "import", "data.csv", "out=..", "time=t"],
-    r"out=.*contains.*input", setup=copy("data.csv", "sub/data.csv"), cwd="{case}/sub")
-add(DL, "import-over-foreign-folder", ["logs", "import", "{ws}/data.csv", "out={case}/d", "overwrite=true",
-                                       "time=t"], r"out=.*(not written by bench|bench did not write)",
-    setup=write("d/precious.txt", "keep me"))
-add(DL, "import-over-the-source-folder", ["logs", "import", "{case}/ds2/data.csv", "out={case}/ds2",
-                                          "overwrite=true", "time=t"], r"out=.*input",
-    setup=copy("data.csv", "ds2/data.csv"))
-add(DL, "leaderboard-merge-over-its-input", ["leaderboard", "merge", "{case}/lb.json", "{ws}/run",
-                                             "out={case}/lb.json"], r"out=.*input", setup=copy("lb.json", "lb.json"))
-add(DL, "leaderboard-merge-over-its-summary", ["leaderboard", "merge", "{case}/run/summary.json",
-                                               "out={case}/run/summary.json"], r"out=.*input",
-    setup=copy("run", "run"))
-add(DL, "leaderboard-merge-into-run-dir", ["leaderboard", "merge", "{case}/run", "out={case}/run/lb.json"],
-    r"out=.*inside.*input", setup=copy("run", "run"))
-add(DL, "leaderboard-merge-over-other-file", ["leaderboard", "merge", "{ws}/run", "out={case}/notes.json"],
-    r"out=.*exists.*overwrite", setup=write("notes.json", '{"mine": 1}'))
-add(DL, "leaderboard-merge-overwrite-foreign-file", ["leaderboard", "merge", "{ws}/run", "out={case}/notes.json",
-                                                    "overwrite=true"], r"out=.*(not written by bench|bench)",
-    setup=write("notes.json", '{"mine": 1}'))
-add(DL, "correlate-over-its-input", ["correlate", "sim={case}/sim.json", "real={ws}/real.json",
-                                     "out={case}/sim.json"], r"out=.*input", setup=copy("sim.json", "sim.json"))
-add(DL, "correlate-over-real", ["correlate", "sim={ws}/sim.json", "real={case}/real.json", "out={case}/real.json",
-                                "overwrite=true"], r"out=.*input", setup=copy("real.json", "real.json"))
-add(DL, "correlate-over-existing", ["correlate", "sim={ws}/sim.json", "real={ws}/real.json", "out={case}/x.json"],
-    r"out=.*exists.*overwrite", setup=write("x.json", "{}"))
-add(DL, "replay-into-logs", ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "out={case}/ds"], r"out=.*input",
-    setup=copy("ds", "ds"))
-add(DL, "replay-inside-logs", ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "out={case}/ds/replay"],
-    r"out=.*inside.*input", setup=copy("ds", "ds"))
-add(DL, "calibrate-into-logs", ["calibrate", "spec={ws}/spec.yaml", "logs={case}/ds", "out={case}/ds",
-                                "residual=false", "quiet=true"], r"out=.*input", setup=copy("ds", "ds"))
-add(DL, "calibrate-over-spec-folder", ["calibrate", "spec={case}/m/spec.yaml", "logs={ws}/ds", "out={case}/m",
-                                       "residual=false", "quiet=true"], r"out=.*input",
-    setup=lambda ws, c: (copy("spec.yaml", "m/spec.yaml")(ws, c), copy("arm.xml", "m/arm.xml")(ws, c)))
-add(DL, "card-out-inside-dataset", ["logs", "card", "{case}/ds", "out={case}/ds/card.json"], r"out=.*inside.*input",
-    setup=copy("ds", "ds"))
-add(DL, "card-out-over-info", ["logs", "card", "{case}/ds", "out={case}/ds/meta/info.json"], r"out=.*",
-    setup=copy("ds", "ds"))
+add(
+    DL,
+    "report-into-its-run-dir",
+    ["report", "{case}/run", "out={case}/run"],
+    r"out=.*(is|contains|inside).*input",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "report-into-its-run-dir-overwrite",
+    ["report", "{case}/run", "out={case}/run", "overwrite=true"],
+    r"out=.*input",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "report-inside-its-run-dir",
+    ["report", "{case}/run", "out={case}/run/report"],
+    r"out=.*inside.*input",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "report-out-parent-of-cwd",
+    ["report", "run", "out=.."],
+    r"out=.*contains.*input",
+    setup=copy("run", "work/run"),
+    cwd="{case}/work",
+)
+add(
+    DL,
+    "report-out-cwd-parent-overwrite",
+    ["report", "run", "out=..", "overwrite=true"],
+    r"out=.*input",
+    setup=copy("run", "work/run"),
+    cwd="{case}/work",
+)
+add(
+    DL,
+    "report-out-cwd",
+    ["report", "run", "out=.", "overwrite=true"],
+    r"out=.*input",
+    setup=copy("run", "work/run"),
+    cwd="{case}/work",
+)
+add(
+    DL,
+    "report-over-foreign-folder",
+    ["report", "{ws}/run", "out={case}/mine", "overwrite=true"],
+    r"out=.*(not written by bench|bench did not write)",
+    setup=write("mine/notes.txt", "my notes"),
+)
+add(
+    DL,
+    "report-over-foreign-folder-no-overwrite",
+    ["report", "{ws}/run", "out={case}/mine"],
+    r"out=.*(exists|not empty).*overwrite",
+    setup=write("mine/notes.txt", "my notes"),
+)
+add(
+    DL,
+    "report-over-a-file",
+    ["report", "{ws}/run", "out={case}/file.txt"],
+    r"out=.*(file|folder)",
+    setup=write("file.txt", "x"),
+)
+add(
+    DL,
+    "import-out-cwd-overwrite",
+    ["logs", "import", "data.csv", "out=.", "overwrite=true", "time=t"],
+    r"out=.*(contains|is).*input",
+    setup=copy("data.csv", "data.csv"),
+)
+add(
+    DL,
+    "import-out-parent-overwrite",
+    ["logs", "import", "data.csv", "out=..", "overwrite=true", "time=t"],
+    r"out=.*contains.*input",
+    setup=copy("data.csv", "sub/data.csv"),
+    cwd="{case}/sub",
+)
+add(
+    DL,
+    "import-out-parent-no-overwrite",
+    ["logs", "import", "data.csv", "out=..", "time=t"],
+    r"out=.*contains.*input",
+    setup=copy("data.csv", "sub/data.csv"),
+    cwd="{case}/sub",
+)
+add(
+    DL,
+    "import-over-foreign-folder",
+    ["logs", "import", "{ws}/data.csv", "out={case}/d", "overwrite=true", "time=t"],
+    r"out=.*(not written by bench|bench did not write)",
+    setup=write("d/precious.txt", "keep me"),
+)
+add(
+    DL,
+    "import-over-the-source-folder",
+    ["logs", "import", "{case}/ds2/data.csv", "out={case}/ds2", "overwrite=true", "time=t"],
+    r"out=.*input",
+    setup=copy("data.csv", "ds2/data.csv"),
+)
+add(
+    DL,
+    "leaderboard-merge-over-its-input",
+    ["leaderboard", "merge", "{case}/lb.json", "{ws}/run", "out={case}/lb.json"],
+    r"out=.*input",
+    setup=copy("lb.json", "lb.json"),
+)
+add(
+    DL,
+    "leaderboard-merge-over-its-summary",
+    ["leaderboard", "merge", "{case}/run/summary.json", "out={case}/run/summary.json"],
+    r"out=.*input",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "leaderboard-merge-into-run-dir",
+    ["leaderboard", "merge", "{case}/run", "out={case}/run/lb.json"],
+    r"out=.*inside.*input",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "leaderboard-merge-over-other-file",
+    ["leaderboard", "merge", "{ws}/run", "out={case}/notes.json"],
+    r"out=.*exists.*overwrite",
+    setup=write("notes.json", '{"mine": 1}'),
+)
+add(
+    DL,
+    "leaderboard-merge-overwrite-foreign-file",
+    ["leaderboard", "merge", "{ws}/run", "out={case}/notes.json", "overwrite=true"],
+    r"out=.*(not written by bench|bench)",
+    setup=write("notes.json", '{"mine": 1}'),
+)
+add(
+    DL,
+    "correlate-over-its-input",
+    ["correlate", "sim={case}/sim.json", "real={ws}/real.json", "out={case}/sim.json"],
+    r"out=.*input",
+    setup=copy("sim.json", "sim.json"),
+)
+add(
+    DL,
+    "correlate-over-real",
+    ["correlate", "sim={ws}/sim.json", "real={case}/real.json", "out={case}/real.json", "overwrite=true"],
+    r"out=.*input",
+    setup=copy("real.json", "real.json"),
+)
+add(
+    DL,
+    "correlate-over-existing",
+    ["correlate", "sim={ws}/sim.json", "real={ws}/real.json", "out={case}/x.json"],
+    r"out=.*exists.*overwrite",
+    setup=write("x.json", "{}"),
+)
+add(
+    DL,
+    "replay-into-logs",
+    ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "out={case}/ds"],
+    r"out=.*input",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "replay-inside-logs",
+    ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "out={case}/ds/replay"],
+    r"out=.*inside.*input",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "calibrate-into-logs",
+    ["calibrate", "spec={ws}/spec.yaml", "logs={case}/ds", "out={case}/ds", "residual=false", "quiet=true"],
+    r"out=.*input",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "calibrate-over-spec-folder",
+    ["calibrate", "spec={case}/m/spec.yaml", "logs={ws}/ds", "out={case}/m", "residual=false", "quiet=true"],
+    r"out=.*input",
+    setup=lambda ws, c: (copy("spec.yaml", "m/spec.yaml")(ws, c), copy("arm.xml", "m/arm.xml")(ws, c)),
+)
+add(
+    DL,
+    "card-out-inside-dataset",
+    ["logs", "card", "{case}/ds", "out={case}/ds/card.json"],
+    r"out=.*inside.*input",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "card-out-over-info",
+    ["logs", "card", "{case}/ds", "out={case}/ds/meta/info.json"],
+    r"out=.*",
+    setup=copy("ds", "ds"),
+)
 add(DL, "run-record-is-run-dir", [*RUN, "run_id=r", "record={case}/runs/r"], r"record=.*(inside|contains|run)")
-add(DL, "run-record-existing-dataset", [*RUN, "run_id=r", "record={case}/ds"], r"record=.*(exists|not empty)",
-    setup=copy("ds", "ds"))
-add(DL, "run-out-is-a-file", ["run", TOY, "workers=1", "episodes=1", "out={case}/f", "run_id=r"],
-    r"out=.*(file|folder)", setup=write("f", "x"))
-add(DL, "run-resume-foreign-folder", [*RUN, "run_id=mine"], r"run_id=.*(not a run|bench did not write|run.json)",
-    setup=write("runs/mine/notes.txt", "mine"))
-add(DL, "run-resume-other-config", ["run", TOY, "workers=1", "episodes=2", "run_id=run", "out={case}", "seed=3",
-                                     "n_boot=200"], r"seed",
-    setup=copy("run", "run"))
-add(DL, "coverage-out-over-data", ["coverage", "data={case}/ds", "suite=tests.toy_suite:ToySuite", "episodes=1",
-                                   "out={case}/ds/meta/info.json"], r"out=.*", setup=copy("ds", "ds"))
-add(DL, "actions-out-over-logs", ["actions", "logs={case}/ds", "suite=tests.toy_suite:ToySuite",
-                                   "out={case}/ds/meta/stats.json"], r"out=.*",
-    setup=copy("ds", "ds"))
-add(DL, "bc-out-over-data", ["data=[{case}/ds]", "out={case}/ds/policy.safetensors", "epochs=1"],
-    r"out=.*", setup=copy("ds", "ds"), main="baselines.bc")
-add(DL, "bc-out-existing-foreign", ["data=[{ws}/ds]", "out={case}/w.safetensors", "epochs=1"],
-    r"out=.*(exists|overwrite)", setup=write("w.safetensors", b"not mine"), main="baselines.bc")
-add(DL, "calibrate-generate-over-foreign", ["calibrate", "generate", "effect=none", "out={case}/g", "episodes=2",
-                                            "duration=1"], r"out=.*(exists|not empty|overwrite)",
-    setup=write("g/keep.txt", "keep"))
+add(
+    DL,
+    "run-record-existing-dataset",
+    [*RUN, "run_id=r", "record={case}/ds"],
+    r"record=.*(exists|not empty)",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "run-out-is-a-file",
+    ["run", TOY, "workers=1", "episodes=1", "out={case}/f", "run_id=r"],
+    r"out=.*(file|folder)",
+    setup=write("f", "x"),
+)
+add(
+    DL,
+    "run-resume-foreign-folder",
+    [*RUN, "run_id=mine"],
+    r"run_id=.*(not a run|bench did not write|run.json)",
+    setup=write("runs/mine/notes.txt", "mine"),
+)
+add(
+    DL,
+    "run-resume-other-config",
+    ["run", TOY, "workers=1", "episodes=2", "run_id=run", "out={case}", "seed=3", "n_boot=200"],
+    r"seed",
+    setup=copy("run", "run"),
+)
+add(
+    DL,
+    "coverage-out-over-data",
+    ["coverage", "data={case}/ds", "suite=tests.toy_suite:ToySuite", "episodes=1", "out={case}/ds/meta/info.json"],
+    r"out=.*",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "actions-out-over-logs",
+    ["actions", "logs={case}/ds", "suite=tests.toy_suite:ToySuite", "out={case}/ds/meta/stats.json"],
+    r"out=.*",
+    setup=copy("ds", "ds"),
+)
+add(
+    DL,
+    "bc-out-over-data",
+    ["data=[{case}/ds]", "out={case}/ds/policy.safetensors", "epochs=1"],
+    r"out=.*",
+    setup=copy("ds", "ds"),
+    main="baselines.bc",
+)
+add(
+    DL,
+    "bc-out-existing-foreign",
+    ["data=[{ws}/ds]", "out={case}/w.safetensors", "epochs=1"],
+    r"out=.*(exists|overwrite)",
+    setup=write("w.safetensors", b"not mine"),
+    main="baselines.bc",
+)
+add(
+    DL,
+    "calibrate-generate-over-foreign",
+    ["calibrate", "generate", "effect=none", "out={case}/g", "episodes=2", "duration=1"],
+    r"out=.*(exists|not empty|overwrite)",
+    setup=write("g/keep.txt", "keep"),
+)
 
 # ----------------------------------------------------------------------------- config grammar / run keys
 for name, extra, match in [
@@ -199,21 +395,49 @@ for name, extra, match in [
     ("policy-attr-missing", ["policy=json:nosuch"], r"policy"),
     ("policy-not-callable", ["policy=json:__version__"], r"policy"),
 ]:
-    add(SA if name not in ("horizon-million", "episodes-huge", "n-boot-huge", "workers-100k",
-                           "perturb-huge-latency") else UW,
-        f"run-{name}", [*RUN, *extra], match,
-        setup=write("c.json", b"\xff\xfe{garbage") if name == "calibration-garbage" else None)
+    add(
+        SA
+        if name not in ("horizon-million", "episodes-huge", "n-boot-huge", "workers-100k", "perturb-huge-latency")
+        else UW,
+        f"run-{name}",
+        [*RUN, *extra],
+        match,
+        setup=write("c.json", b"\xff\xfe{garbage") if name == "calibration-garbage" else None,
+    )
 
 add(SA, "run-checkpoint-missing", [*RUN, "policy=checkpoint", "checkpoint={case}/nope.safetensors"], r"checkpoint")
-add(TB, "run-checkpoint-garbage", [*RUN, "policy=checkpoint", "checkpoint={case}/w.safetensors"], r"checkpoint|w\.",
-    setup=write("w.safetensors", b"\x00" * 64))
-add(TB, "run-checkpoint-truncated", [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
-    r"checkpoint|policy", setup=copy("ckpt", "ckpt", _truncate("policy.safetensors", 0.6)))
-add(TB, "run-checkpoint-spec-not-utf8", [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
-    r"policy\.json|spec", setup=copy("ckpt", "ckpt", _bytes("policy.json", b"\xff\xfe\x00garbage")))
-add(TB, "run-checkpoint-spec-nan-norm", [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
-    r"normalization|NaN|spec", setup=copy("ckpt", "ckpt", edit_json(
-        "policy.json", _set("normalization", {"obs": {"mean": [float("nan"), 0], "std": [1, 1]}}))))
+add(
+    TB,
+    "run-checkpoint-garbage",
+    [*RUN, "policy=checkpoint", "checkpoint={case}/w.safetensors"],
+    r"checkpoint|w\.",
+    setup=write("w.safetensors", b"\x00" * 64),
+)
+add(
+    TB,
+    "run-checkpoint-truncated",
+    [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
+    r"checkpoint|policy",
+    setup=copy("ckpt", "ckpt", _truncate("policy.safetensors", 0.6)),
+)
+add(
+    TB,
+    "run-checkpoint-spec-not-utf8",
+    [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
+    r"policy\.json|spec",
+    setup=copy("ckpt", "ckpt", _bytes("policy.json", b"\xff\xfe\x00garbage")),
+)
+add(
+    TB,
+    "run-checkpoint-spec-nan-norm",
+    [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
+    r"normalization|NaN|spec",
+    setup=copy(
+        "ckpt",
+        "ckpt",
+        edit_json("policy.json", _set("normalization", {"obs": {"mean": [float("nan"), 0], "std": [1, 1]}})),
+    ),
+)
 
 
 def _nan_weights(root: Path) -> None:
@@ -232,30 +456,85 @@ def _nan_weights(root: Path) -> None:
     del torch
 
 
-add(SA, "run-checkpoint-nan-weights", [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
-    r"NaN|non-finite|inf", setup=copy("ckpt", "ckpt", _nan_weights))
-add(LB, "run-record-unwritable", [*RUN, "run_id=r", "record={case}/ro/rec"], r"record=.*(writ|permission)",
-    setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)))
-add(LB, "run-record-under-a-file", [*RUN, "run_id=r", "record={case}/f/rec"], r"record=.*(file|folder)",
-    setup=write("f", "x"))
-add(LB, "run-out-unwritable", ["run", TOY, "workers=1", "episodes=1", "out={case}/ro/runs", "run_id=r"],
-    r"out=.*(writ|permission)", setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)))
-add(LB, "run-long-component", ["run", TOY, "workers=1", "episodes=1", "out={case}/" + "d" * 300, "run_id=r"],
-    r"out=.*(long|255)")
+add(
+    SA,
+    "run-checkpoint-nan-weights",
+    [*RUN, "policy=checkpoint", "checkpoint={case}/ckpt/policy.safetensors"],
+    r"NaN|non-finite|inf",
+    setup=copy("ckpt", "ckpt", _nan_weights),
+)
+add(
+    LB,
+    "run-record-unwritable",
+    [*RUN, "run_id=r", "record={case}/ro/rec"],
+    r"record=.*(writ|permission)",
+    setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)),
+)
+add(
+    LB,
+    "run-record-under-a-file",
+    [*RUN, "run_id=r", "record={case}/f/rec"],
+    r"record=.*(file|folder)",
+    setup=write("f", "x"),
+)
+add(
+    LB,
+    "run-out-unwritable",
+    ["run", TOY, "workers=1", "episodes=1", "out={case}/ro/runs", "run_id=r"],
+    r"out=.*(writ|permission)",
+    setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)),
+)
+add(
+    LB,
+    "run-long-component",
+    ["run", TOY, "workers=1", "episodes=1", "out={case}/" + "d" * 300, "run_id=r"],
+    r"out=.*(long|255)",
+)
 
 # ----------------------------------------------------------------------------- score / records
 add(TB, "score-missing", ["score", "{case}/nope"], r"nope")
-add(TB, "score-run-json-not-utf8", ["score", "{case}/run"], r"run\.json",
-    setup=copy("run", "run", _bytes("run.json", b"\xff\xfe{")))
-add(TB, "score-run-json-list", ["score", "{case}/run"], r"run\.json", setup=copy("run", "run", _bytes("run.json", b"[]")))
-add(TB, "score-run-json-no-config", ["score", "{case}/run"], r"run\.json.*config",
-    setup=copy("run", "run", edit_json("run.json", _del("config"))))
-add(UW, "score-n-boot-huge", ["score", "{case}/run"], r"n_boot",
-    setup=copy("run", "run", edit_json("run.json", _set("config.n_boot", 10**12))))
-add(SA, "score-confidence-bad", ["score", "{case}/run"], r"confidence",
-    setup=copy("run", "run", edit_json("run.json", _set("config.confidence", 7))))
-add(SA, "score-seed-negative", ["score", "{case}/run"], r"seed",
-    setup=copy("run", "run", edit_json("run.json", _set("config.seed", -4))))
+add(
+    TB,
+    "score-run-json-not-utf8",
+    ["score", "{case}/run"],
+    r"run\.json",
+    setup=copy("run", "run", _bytes("run.json", b"\xff\xfe{")),
+)
+add(
+    TB,
+    "score-run-json-list",
+    ["score", "{case}/run"],
+    r"run\.json",
+    setup=copy("run", "run", _bytes("run.json", b"[]")),
+)
+add(
+    TB,
+    "score-run-json-no-config",
+    ["score", "{case}/run"],
+    r"run\.json.*config",
+    setup=copy("run", "run", edit_json("run.json", _del("config"))),
+)
+add(
+    UW,
+    "score-n-boot-huge",
+    ["score", "{case}/run"],
+    r"n_boot",
+    setup=copy("run", "run", edit_json("run.json", _set("config.n_boot", 10**12))),
+)
+add(
+    SA,
+    "score-confidence-bad",
+    ["score", "{case}/run"],
+    r"confidence",
+    setup=copy("run", "run", edit_json("run.json", _set("config.confidence", 7))),
+)
+add(
+    SA,
+    "score-seed-negative",
+    ["score", "{case}/run"],
+    r"seed",
+    setup=copy("run", "run", edit_json("run.json", _set("config.seed", -4))),
+)
 
 
 def _records_edit(fn):
@@ -264,29 +543,80 @@ def _records_edit(fn):
         lines = [json.loads(x) for x in p.read_text().splitlines() if x.strip()]
         fn(lines)
         p.write_text("".join(json.dumps(x, allow_nan=True) + "\n" for x in lines))
+
     return edit
 
 
-add(SA, "score-record-nan-return", ["score", "{case}/run"], r"episodes\.jsonl.*return",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("return", float("nan")))))
-add(TB, "score-record-return-string", ["score", "{case}/run"], r"episodes\.jsonl.*return",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("return", "x"))))
-add(TB, "score-record-missing-field", ["score", "{case}/run"], r"episodes\.jsonl.*(split|missing)",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].pop("split"))))
-add(TB, "score-record-extra-field", ["score", "{case}/run"], r"episodes\.jsonl.*(bogus|unknown)",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("bogus", 1))))
-add(TB, "score-record-not-object", ["score", "{case}/run"], r"episodes\.jsonl",
-    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_text("[1,2]\n" * 3)))
-add(TB, "score-record-not-utf8", ["score", "{case}/run"], r"episodes\.jsonl",
-    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_bytes(b"\xff\xfe\n" * 3)))
-add(SA, "score-record-success-string", ["score", "{case}/run"], r"episodes\.jsonl.*success",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("success_once", "yes"))))
-add(SA, "score-record-negative-seed", ["score", "{case}/run"], r"episodes\.jsonl.*seed",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("seed", -1))))
-add(SA, "score-record-negative-length", ["score", "{case}/run"], r"episodes\.jsonl.*length",
-    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("length", -5))))
-add(TB, "score-episodes-is-dir", ["score", "{case}/run"], r"episodes\.jsonl",
-    setup=copy("run", "run", lambda r: ((r / "episodes.jsonl").unlink(), (r / "episodes.jsonl").mkdir())))
+add(
+    SA,
+    "score-record-nan-return",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*return",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("return", float("nan")))),
+)
+add(
+    TB,
+    "score-record-return-string",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*return",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("return", "x"))),
+)
+add(
+    TB,
+    "score-record-missing-field",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*(split|missing)",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].pop("split"))),
+)
+add(
+    TB,
+    "score-record-extra-field",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*(bogus|unknown)",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("bogus", 1))),
+)
+add(
+    TB,
+    "score-record-not-object",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl",
+    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_text("[1,2]\n" * 3)),
+)
+add(
+    TB,
+    "score-record-not-utf8",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl",
+    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_bytes(b"\xff\xfe\n" * 3)),
+)
+add(
+    SA,
+    "score-record-success-string",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*success",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("success_once", "yes"))),
+)
+add(
+    SA,
+    "score-record-negative-seed",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*seed",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("seed", -1))),
+)
+add(
+    SA,
+    "score-record-negative-length",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl.*length",
+    setup=copy("run", "run", _records_edit(lambda L: L[0].__setitem__("length", -5))),
+)
+add(
+    TB,
+    "score-episodes-is-dir",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl",
+    setup=copy("run", "run", lambda r: ((r / "episodes.jsonl").unlink(), (r / "episodes.jsonl").mkdir())),
+)
 
 # ----------------------------------------------------------------------------- summaries / leaderboards / verdicts
 SUMMARY_EDITS = {
@@ -310,12 +640,27 @@ SUMMARY_EDITS = {
 }
 for name, fn in SUMMARY_EDITS.items():
     fam = TB if name in ("schema-int", "suite-not-object", "cells-not-list") else SA
-    add(fam, f"validate-summary-{name}", ["leaderboard", "validate", "{case}/s.json"], r"s\.json",
-        setup=copy("run/summary.json", "s.json", edit_json("", fn)))
-    add(fam, f"merge-summary-{name}", ["leaderboard", "merge", "{case}/s.json", "out={case}/out.json"], r"s\.json",
-        setup=copy("run/summary.json", "s.json", edit_json("", fn)))
-    add(fam, f"report-summary-{name}", ["report", "{case}/s.json", "out={case}/rep"], r"s\.json",
-        setup=copy("run/summary.json", "s.json", edit_json("", fn)))
+    add(
+        fam,
+        f"validate-summary-{name}",
+        ["leaderboard", "validate", "{case}/s.json"],
+        r"s\.json",
+        setup=copy("run/summary.json", "s.json", edit_json("", fn)),
+    )
+    add(
+        fam,
+        f"merge-summary-{name}",
+        ["leaderboard", "merge", "{case}/s.json", "out={case}/out.json"],
+        r"s\.json",
+        setup=copy("run/summary.json", "s.json", edit_json("", fn)),
+    )
+    add(
+        fam,
+        f"report-summary-{name}",
+        ["report", "{case}/s.json", "out={case}/rep"],
+        r"s\.json",
+        setup=copy("run/summary.json", "s.json", edit_json("", fn)),
+    )
 LB_EDITS = {
     "ci-reversed": _set("entries.0.score.ci", [0.9, 0.1]),
     "rate-above-1": _set("entries.0.score.value", 1.2),
@@ -325,13 +670,29 @@ LB_EDITS = {
     "suites-missing": _del("suites"),
 }
 for name, fn in LB_EDITS.items():
-    add(SA, f"show-leaderboard-{name}", ["leaderboard", "show", "{case}/lb.json"], r"lb\.json",
-        setup=copy("lb.json", "lb.json", edit_json("", fn)))
-    add(SA, f"merge-leaderboard-{name}", ["leaderboard", "merge", "{case}/lb.json", "out={case}/o.json"],
-        r"lb\.json", setup=copy("lb.json", "lb.json", edit_json("", fn)))
-for name, data in [("empty", b""), ("not-utf8", b"\xff\xfe\x00\x01"), ("truncated", b'{"schema": "bench.summ'),
-                   ("array", b"[1, 2]"), ("null", b"null"), ("deep", b"[" * 100000 + b"]" * 100000),
-                   ("huge-int", b'{"schema": "bench.summary/1", "confidence": 1' + b"0" * 5000 + b"}")]:
+    add(
+        SA,
+        f"show-leaderboard-{name}",
+        ["leaderboard", "show", "{case}/lb.json"],
+        r"lb\.json",
+        setup=copy("lb.json", "lb.json", edit_json("", fn)),
+    )
+    add(
+        SA,
+        f"merge-leaderboard-{name}",
+        ["leaderboard", "merge", "{case}/lb.json", "out={case}/o.json"],
+        r"lb\.json",
+        setup=copy("lb.json", "lb.json", edit_json("", fn)),
+    )
+for name, data in [
+    ("empty", b""),
+    ("not-utf8", b"\xff\xfe\x00\x01"),
+    ("truncated", b'{"schema": "bench.summ'),
+    ("array", b"[1, 2]"),
+    ("null", b"null"),
+    ("deep", b"[" * 100000 + b"]" * 100000),
+    ("huge-int", b'{"schema": "bench.summary/1", "confidence": 1' + b"0" * 5000 + b"}"),
+]:
     add(TB, f"validate-{name}", ["leaderboard", "validate", "{case}/x.json"], r"x\.json", setup=write("x.json", data))
     add(TB, f"show-{name}", ["leaderboard", "show", "{case}/x.json"], r"x\.json", setup=write("x.json", data))
     add(TB, f"report-{name}", ["report", "{case}/x.json", "out={case}/r"], r"x\.json", setup=write("x.json", data))
@@ -339,21 +700,54 @@ add(TB, "validate-a-folder", ["leaderboard", "validate", "{case}"], r"case|folde
 add(TB, "show-a-folder", ["leaderboard", "show", "{case}"], r"case|folder|directory")
 add(TB, "merge-out-not-json", ["leaderboard", "merge", "{ws}/run", "out={case}/x.txt"], r"out=")
 add(TB, "merge-unknown-key", ["leaderboard", "merge", "{ws}/run", "out={case}/x.json", "foo=1"], r"foo")
-add(TB, "merge-out-in-missing-readonly", ["leaderboard", "merge", "{ws}/run", "out={case}/ro/x/y.json"],
-    r"out=.*(writ|permission)", setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)))
-add(TB, "report-verdict-garbage", ["report", "{ws}/run", "out={case}/r", "verdict={case}/v.json"], r"v\.json",
-    setup=write("v.json", b"\xff"))
-add(TB, "report-verdict-is-summary", ["report", "{ws}/run", "out={case}/r", "verdict={ws}/run/summary.json"],
-    r"verdict|summary")
-add(TB, "report-calibration-garbage", ["report", "{ws}/run", "out={case}/r", "calibration={case}/c.json"],
-    r"c\.json", setup=write("c.json", b'{"schema": "bench.calibration/1", "errors": 3}'))
-add(TB, "report-calibration-nan", ["report", "{ws}/run", "out={case}/r", "calibration={case}/c.json"],
-    r"c\.json", setup=write("c.json", json.dumps({"schema": "bench.calibration/1", "errors": {
-        "nominal": {"free_run_nrmse": "x", "k_step_nrmse": None}}})))
+add(
+    TB,
+    "merge-out-in-missing-readonly",
+    ["leaderboard", "merge", "{ws}/run", "out={case}/ro/x/y.json"],
+    r"out=.*(writ|permission)",
+    setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)),
+)
+add(
+    TB,
+    "report-verdict-garbage",
+    ["report", "{ws}/run", "out={case}/r", "verdict={case}/v.json"],
+    r"v\.json",
+    setup=write("v.json", b"\xff"),
+)
+add(
+    TB,
+    "report-verdict-is-summary",
+    ["report", "{ws}/run", "out={case}/r", "verdict={ws}/run/summary.json"],
+    r"verdict|summary",
+)
+add(
+    TB,
+    "report-calibration-garbage",
+    ["report", "{ws}/run", "out={case}/r", "calibration={case}/c.json"],
+    r"c\.json",
+    setup=write("c.json", b'{"schema": "bench.calibration/1", "errors": 3}'),
+)
+add(
+    TB,
+    "report-calibration-nan",
+    ["report", "{ws}/run", "out={case}/r", "calibration={case}/c.json"],
+    r"c\.json",
+    setup=write(
+        "c.json",
+        json.dumps(
+            {"schema": "bench.calibration/1", "errors": {"nominal": {"free_run_nrmse": "x", "k_step_nrmse": None}}}
+        ),
+    ),
+)
 add(TB, "report-no-out", ["report", "{ws}/run"], r"out")
 add(TB, "report-title-list", ["report", "{ws}/run", "out={case}/r", "title=[1,2]"], r"title")
-add(TB, "report-run-videos-garbage", ["report", "{case}/run", "out={case}/r"], r"episodes\.jsonl",
-    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_text('{"run_id": 1}\n{"x": 2}\n')))
+add(
+    TB,
+    "report-run-videos-garbage",
+    ["report", "{case}/run", "out={case}/r"],
+    r"episodes\.jsonl",
+    setup=copy("run", "run", lambda r: (r / "episodes.jsonl").write_text('{"run_id": 1}\n{"x": 2}\n')),
+)
 
 # ----------------------------------------------------------------------------- correlate
 for name, data, match in [
@@ -364,29 +758,56 @@ for name, data, match in [
     ("missing-policy", [{"trials": 5, "successes": 1}], r"policy"),
     ("not-list", {"a": 1}, r"sim"),
     ("empty-list", [], r"sim|policies"),
-    ("duplicate-policy", [{"policy": "a", "trials": 5, "successes": 1}, {"policy": "a", "trials": 5, "successes": 2}],
-     r"policy"),
+    (
+        "duplicate-policy",
+        [{"policy": "a", "trials": 5, "successes": 1}, {"policy": "a", "trials": 5, "successes": 2}],
+        r"policy",
+    ),
     ("huge-trials", [{"policy": "a", "trials": 10**30, "successes": 1}], r"trials"),
     ("bool-trials", [{"policy": "a", "trials": True, "successes": 1}], r"trials"),
 ]:
     body = data if isinstance(data, str) else json.dumps(data)
-    add(SA if "above" in name or "duplicate" in name else TB, f"correlate-{name}",
-        ["correlate", "sim={case}/s.json", "real={ws}/real.json"], match, setup=write("s.json", body))
-for name, body in [("csv-garbage", "policy,trials\n\x00\x01,,,\n"), ("csv-not-utf8", b"\xff\xfe,,\n1,2,3\n"),
-                   ("csv-header-only", "policy,trials,successes\n"), ("csv-extra-cols", "policy,trials,successes\na,1,1,9\n")]:
-    add(TB, f"correlate-{name}", ["correlate", "sim={case}/s.csv", "real={ws}/real.json"], r"s\.csv",
-        setup=write("s.csv", body))
-for name, extra, match in [("n-boot-huge", ["n_boot=1000000000000"], r"n_boot"), ("n-boot-zero", ["n_boot=0"], r"n_boot"),
-                           ("level-2", ["level=2"], r"level"), ("level-nan", ["level=nan"], r"level"),
-                           ("seed-negative", ["seed=-1"], r"seed"), ("same-file", [], r"")]:
+    add(
+        SA if "above" in name or "duplicate" in name else TB,
+        f"correlate-{name}",
+        ["correlate", "sim={case}/s.json", "real={ws}/real.json"],
+        match,
+        setup=write("s.json", body),
+    )
+for name, body in [
+    ("csv-garbage", "policy,trials\n\x00\x01,,,\n"),
+    ("csv-not-utf8", b"\xff\xfe,,\n1,2,3\n"),
+    ("csv-header-only", "policy,trials,successes\n"),
+    ("csv-extra-cols", "policy,trials,successes\na,1,1,9\n"),
+]:
+    add(
+        TB,
+        f"correlate-{name}",
+        ["correlate", "sim={case}/s.csv", "real={ws}/real.json"],
+        r"s\.csv",
+        setup=write("s.csv", body),
+    )
+for name, extra, match in [
+    ("n-boot-huge", ["n_boot=1000000000000"], r"n_boot"),
+    ("n-boot-zero", ["n_boot=0"], r"n_boot"),
+    ("level-2", ["level=2"], r"level"),
+    ("level-nan", ["level=nan"], r"level"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+    ("same-file", [], r""),
+]:
     args = ["correlate", "sim={ws}/sim.json", "real={ws}/real.json", *extra]
     if name == "same-file":
         continue
     add(UW if "huge" in name else SA, f"correlate-{name}", args, match)
 add(TB, "correlate-missing-file", ["correlate", "sim={case}/nope.json", "real={ws}/real.json"], r"nope")
 add(TB, "correlate-folder", ["correlate", "sim={case}", "real={ws}/real.json"], r"sim|case")
-add(TB, "correlate-unknown-ext", ["correlate", "sim={case}/s.txt", "real={ws}/real.json"], r"s\.txt",
-    setup=write("s.txt", "x"))
+add(
+    TB,
+    "correlate-unknown-ext",
+    ["correlate", "sim={case}/s.txt", "real={ws}/real.json"],
+    r"s\.txt",
+    setup=write("s.txt", "x"),
+)
 
 # ----------------------------------------------------------------------------- logs info (LeRobot metadata)
 INFO_EDITS = {
@@ -419,22 +840,55 @@ INFO_EDITS = {
 }
 for name, fn in INFO_EDITS.items():
     fam = UO if name.startswith("fps") or name.startswith("shape") else SA
-    add(fam, f"info-{name}", ["logs", "info", "{case}/ds"], r"info\.json", setup=copy("ds", "ds", edit_json(
-        "meta/info.json", fn)))
+    add(
+        fam,
+        f"info-{name}",
+        ["logs", "info", "{case}/ds"],
+        r"info\.json",
+        setup=copy("ds", "ds", edit_json("meta/info.json", fn)),
+    )
 for name in ("data-path-escape", "shape-strings", "fps-bool", "dtype-unknown", "total-frames-negative"):
-    add(TB, f"replay-info-{name}", ["replay", "logs={case}/ds", "spec={ws}/spec.yaml"], r"info\.json",
-        setup=copy("ds", "ds", edit_json("meta/info.json", INFO_EDITS[name])))
-for name, data in [("not-utf8", b"\xff\xfe"), ("empty", b""), ("truncated", b'{"codebase_version": "v3.0", "fp'),
-                   ("array", b"[]"), ("nan", b'{"fps": NaN}')]:
-    add(TB, f"info-json-{name}", ["logs", "info", "{case}/ds"], r"info\.json",
-        setup=copy("ds", "ds", _bytes("meta/info.json", data)))
-for rel, short in [("meta/episodes/chunk-000/file-000.parquet", "episodes"), ("meta/tasks.parquet", "tasks"),
-                   ("data/chunk-000/file-000.parquet", "data")]:
+    add(
+        TB,
+        f"replay-info-{name}",
+        ["replay", "logs={case}/ds", "spec={ws}/spec.yaml"],
+        r"info\.json",
+        setup=copy("ds", "ds", edit_json("meta/info.json", INFO_EDITS[name])),
+    )
+for name, data in [
+    ("not-utf8", b"\xff\xfe"),
+    ("empty", b""),
+    ("truncated", b'{"codebase_version": "v3.0", "fp'),
+    ("array", b"[]"),
+    ("nan", b'{"fps": NaN}'),
+]:
+    add(
+        TB,
+        f"info-json-{name}",
+        ["logs", "info", "{case}/ds"],
+        r"info\.json",
+        setup=copy("ds", "ds", _bytes("meta/info.json", data)),
+    )
+for rel, short in [
+    ("meta/episodes/chunk-000/file-000.parquet", "episodes"),
+    ("meta/tasks.parquet", "tasks"),
+    ("data/chunk-000/file-000.parquet", "data"),
+]:
     for keep in (0.0, 0.3, 0.9):
-        add(TB, f"parquet-{short}-truncated-{keep}", ["logs", "info" if short != "data" else "card", "{case}/ds"],
-            short if short != "episodes" else r"episodes|file-000", setup=copy("ds", "ds", _truncate(rel, keep)))
-    add(TB, f"parquet-{short}-garbage", ["logs", "card", "{case}/ds"], short if short != "episodes" else r"file-000",
-        setup=copy("ds", "ds", _bytes(rel, b"PAR1" + b"\x00" * 100 + b"PAR1")))
+        add(
+            TB,
+            f"parquet-{short}-truncated-{keep}",
+            ["logs", "info" if short != "data" else "card", "{case}/ds"],
+            short if short != "episodes" else r"episodes|file-000",
+            setup=copy("ds", "ds", _truncate(rel, keep)),
+        )
+    add(
+        TB,
+        f"parquet-{short}-garbage",
+        ["logs", "card", "{case}/ds"],
+        short if short != "episodes" else r"file-000",
+        setup=copy("ds", "ds", _bytes(rel, b"PAR1" + b"\x00" * 100 + b"PAR1")),
+    )
 add(TB, "info-not-a-folder", ["logs", "info", "{ws}/data.csv"], r"data\.csv")
 add(TB, "info-missing", ["logs", "info", "{case}/nope"], r"nope")
 add(TB, "info-extra-arg", ["logs", "info", "{ws}/ds", "x"], r"one dataset folder|argument")
@@ -447,6 +901,7 @@ def _parquet_edit(rel: str, fn):
         p = root / rel
         table = pq.read_table(p)
         pq.write_table(fn(table), p)
+
     return edit
 
 
@@ -456,6 +911,7 @@ def _replace_col(name: str, values):
 
         i = table.column_names.index(name)
         return table.set_column(i, name, pa.array(values(table)))
+
     return fn
 
 
@@ -463,28 +919,63 @@ EP = "meta/episodes/chunk-000/file-000.parquet"
 DATA = "data/chunk-000/file-000.parquet"
 for name, rel, fn, match in [
     ("ep-length-negative", EP, _replace_col("length", lambda t: [-1] * t.num_rows), r"length"),
-    ("ep-index-strings", EP, _replace_col("episode_index", lambda t: [str(i) for i in range(t.num_rows)]),
-     r"episode_index"),
+    (
+        "ep-index-strings",
+        EP,
+        _replace_col("episode_index", lambda t: [str(i) for i in range(t.num_rows)]),
+        r"episode_index",
+    ),
     ("ep-tasks-ints", EP, _replace_col("tasks", lambda t: [[1]] * t.num_rows), r"tasks"),
-    ("ep-from-huge", EP, _replace_col("dataset_from_index", lambda t: [2**62] * t.num_rows), r"dataset_from_index|length"),
+    (
+        "ep-from-huge",
+        EP,
+        _replace_col("dataset_from_index", lambda t: [2**62] * t.num_rows),
+        r"dataset_from_index|length",
+    ),
     ("ep-chunk-negative", EP, _replace_col("data/chunk_index", lambda t: [-1] * t.num_rows), r"chunk_index"),
     ("ep-file-huge", EP, _replace_col("data/file_index", lambda t: [10**9] * t.num_rows), r"file_index|missing"),
-    ("ep-meta-not-json", EP, lambda t: t.append_column("bench/meta", __import__("pyarrow").array(["{x"] * t.num_rows)),
-     r"bench/meta"),
-    ("data-state-nan", DATA, _replace_col("observation.state", lambda t: [[float("nan"), 0.0]] * t.num_rows),
-     r"observation\.state.*(NaN|inf)"),
-    ("data-state-strings", DATA, _replace_col("observation.state", lambda t: [["a", "b"]] * t.num_rows),
-     r"observation\.state"),
-    ("data-timestamp-decreasing", DATA, _replace_col("timestamp", lambda t: [float(-i) for i in range(t.num_rows)]),
-     r"timestamp"),
+    (
+        "ep-meta-not-json",
+        EP,
+        lambda t: t.append_column("bench/meta", __import__("pyarrow").array(["{x"] * t.num_rows)),
+        r"bench/meta",
+    ),
+    (
+        "data-state-nan",
+        DATA,
+        _replace_col("observation.state", lambda t: [[float("nan"), 0.0]] * t.num_rows),
+        r"observation\.state.*(NaN|inf)",
+    ),
+    (
+        "data-state-strings",
+        DATA,
+        _replace_col("observation.state", lambda t: [["a", "b"]] * t.num_rows),
+        r"observation\.state",
+    ),
+    (
+        "data-timestamp-decreasing",
+        DATA,
+        _replace_col("timestamp", lambda t: [float(-i) for i in range(t.num_rows)]),
+        r"timestamp",
+    ),
     ("data-task-index-out", DATA, _replace_col("task_index", lambda t: [99] * t.num_rows), r"task_index"),
     ("data-action-wide", DATA, _replace_col("action", lambda t: [[0.0, 1.0, 2.0]] * t.num_rows), r"action"),
     ("data-action-inf", DATA, _replace_col("action", lambda t: [[float("inf")]] * t.num_rows), r"action"),
-    ("data-extra-column", DATA, lambda t: t.append_column("zzz", __import__("pyarrow").array([1] * t.num_rows)), r"zzz"),
+    (
+        "data-extra-column",
+        DATA,
+        lambda t: t.append_column("zzz", __import__("pyarrow").array([1] * t.num_rows)),
+        r"zzz",
+    ),
 ]:
     cmd = ["logs", "card", "{case}/ds"]
-    add(TB if "strings" in name or "huge" in name else SA, f"parquet-{name}", cmd, match,
-        setup=copy("ds", "ds", _parquet_edit(rel, fn)))
+    add(
+        TB if "strings" in name or "huge" in name else SA,
+        f"parquet-{name}",
+        cmd,
+        match,
+        setup=copy("ds", "ds", _parquet_edit(rel, fn)),
+    )
 
 # ----------------------------------------------------------------------------- logs import
 CSV_BAD = {
@@ -503,29 +994,57 @@ CSV_BAD = {
     "one-row": b"t,q,u\n0,1,1\n",
 }
 for name, data in CSV_BAD.items():
-    add(UO if name in ("huge-value", "time-huge") else TB, f"import-csv-{name}",
-        ["logs", "import", "{case}/x.csv", "out={case}/out", "time=t"], r"x\.csv|fps|time",
-        setup=write("x.csv", data))
+    add(
+        UO if name in ("huge-value", "time-huge") else TB,
+        f"import-csv-{name}",
+        ["logs", "import", "{case}/x.csv", "out={case}/out", "time=t"],
+        r"x\.csv|fps|time",
+        setup=write("x.csv", data),
+    )
 for name, extra, match in [
-    ("fps-zero", ["fps=0"], r"fps"), ("fps-negative", ["fps=-1"], r"fps"), ("fps-nan", ["fps=nan"], r"fps"),
-    ("fps-inf", ["fps=inf"], r"fps"), ("fps-absurd", ["fps=1e300"], r"fps"), ("fps-bool", ["fps=true"], r"fps"),
-    ("fps-list", ["fps=[1]"], r"fps"), ("delimiter-empty", ["delimiter="], r"delimiter"),
-    ("delimiter-long", ["delimiter=ab"], r"delimiter"), ("state-missing-col", ["state=[zz]"], r"zz"),
-    ("state-dict", ["state={a: 1}"], r"state"), ("overwrite-string", ["overwrite=maybe"], r"overwrite"),
-    ("unknown-key", ["frobnicate=1"], r"frobnicate"), ("format-bad", ["format=xls"], r"format"),
-    ("episode-missing-col", ["episode=zz"], r"zz"), ("task-list", ["task=[a,b]"], r"task"),
-    ("robot-type-dict", ["robot_type={a: 1}"], r"robot_type"), ("out-empty", ["out="], r"out"),
+    ("fps-zero", ["fps=0"], r"fps"),
+    ("fps-negative", ["fps=-1"], r"fps"),
+    ("fps-nan", ["fps=nan"], r"fps"),
+    ("fps-inf", ["fps=inf"], r"fps"),
+    ("fps-absurd", ["fps=1e300"], r"fps"),
+    ("fps-bool", ["fps=true"], r"fps"),
+    ("fps-list", ["fps=[1]"], r"fps"),
+    ("delimiter-empty", ["delimiter="], r"delimiter"),
+    ("delimiter-long", ["delimiter=ab"], r"delimiter"),
+    ("state-missing-col", ["state=[zz]"], r"zz"),
+    ("state-dict", ["state={a: 1}"], r"state"),
+    ("overwrite-string", ["overwrite=maybe"], r"overwrite"),
+    ("unknown-key", ["frobnicate=1"], r"frobnicate"),
+    ("format-bad", ["format=xls"], r"format"),
+    ("episode-missing-col", ["episode=zz"], r"zz"),
+    ("task-list", ["task=[a,b]"], r"task"),
+    ("robot-type-dict", ["robot_type={a: 1}"], r"robot_type"),
+    ("out-empty", ["out="], r"out"),
     ("time-and-fps-absurd", ["fps=100000000"], r"fps"),
 ]:
-    add(UO if "absurd" in name else SA, f"import-{name}",
-        ["logs", "import", "{ws}/data.csv", "out={case}/out", "time=t", *extra], match)
+    add(
+        UO if "absurd" in name else SA,
+        f"import-{name}",
+        ["logs", "import", "{ws}/data.csv", "out={case}/out", "time=t", *extra],
+        match,
+    )
 add(SA, "import-no-out", ["logs", "import", "{ws}/data.csv"], r"out")
 add(SA, "import-two-sources", ["logs", "import", "{ws}/data.csv", "{ws}/data.mat", "out={case}/o"], r"source")
 add(SA, "import-missing-source", ["logs", "import", "{case}/nope.csv", "out={case}/o"], r"nope")
-add(SA, "import-out-is-file", ["logs", "import", "{ws}/data.csv", "out={case}/f", "time=t"], r"out=.*(file|folder)",
-    setup=write("f", "x"))
-add(LB, "import-out-unwritable", ["logs", "import", "{ws}/data.csv", "out={case}/ro/out", "time=t"],
-    r"out=.*(writ|permission)", setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)))
+add(
+    SA,
+    "import-out-is-file",
+    ["logs", "import", "{ws}/data.csv", "out={case}/f", "time=t"],
+    r"out=.*(file|folder)",
+    setup=write("f", "x"),
+)
+add(
+    LB,
+    "import-out-unwritable",
+    ["logs", "import", "{ws}/data.csv", "out={case}/ro/out", "time=t"],
+    r"out=.*(writ|permission)",
+    setup=lambda ws, c: ((c / "ro").mkdir(), (c / "ro").chmod(0o500)),
+)
 MAT_BAD = {
     "garbage": b"MATLAB 5.0 MAT-file" + b"\x00" * 200,
     "random": bytes(range(256)) * 8,
@@ -533,8 +1052,13 @@ MAT_BAD = {
     "empty": b"",
 }
 for name, data in MAT_BAD.items():
-    add(TB, f"import-mat-{name}", ["logs", "import", "{case}/x.mat", "out={case}/out"], r"x\.mat",
-        setup=write("x.mat", data))
+    add(
+        TB,
+        f"import-mat-{name}",
+        ["logs", "import", "{case}/x.mat", "out={case}/out"],
+        r"x\.mat",
+        setup=write("x.mat", data),
+    )
 
 
 def _savemat(variables):
@@ -542,28 +1066,69 @@ def _savemat(variables):
         import numpy as np
         import scipy.io
 
-        scipy.io.savemat(case / "x.mat", {k: (np.asarray(v) if not isinstance(v, str) else v)
-                                          for k, v in variables.items()})
+        scipy.io.savemat(
+            case / "x.mat", {k: (np.asarray(v) if not isinstance(v, str) else v) for k, v in variables.items()}
+        )
+
     return setup
 
 
-add(TB, "import-mat-truncated", ["logs", "import", "{case}/data.mat", "out={case}/out"], r"data\.mat",
-    setup=copy("data.mat", "data.mat", _truncate("", 0.5)))
-add(TB, "import-mat-strings", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[s]"], r"\bs\b",
-    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "s": "hello"}))
-add(TB, "import-mat-complex", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[z]"], r"\bz\b",
-    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "z": [[1 + 2j], [1j], [2]]}))
-add(TB, "import-mat-nan", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"], r"\bq\b",
-    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [float("nan")], [2]]}))
-add(TB, "import-mat-3d", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"], r"\bq\b",
-    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[[1.0, 2.0]] * 3] * 3}))
-add(TB, "import-mat-scalar-nan-meta", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"],
-    r"\bk\b|meta|NaN", setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [2.0], [3.0]], "k": [[float("nan")]]}))
-add(TB, "import-mat-velocity-string", ["logs", "import", "{ws}/data.mat", "out={case}/out", "velocity=sometimes"],
-    r"velocity")
+add(
+    TB,
+    "import-mat-truncated",
+    ["logs", "import", "{case}/data.mat", "out={case}/out"],
+    r"data\.mat",
+    setup=copy("data.mat", "data.mat", _truncate("", 0.5)),
+)
+add(
+    TB,
+    "import-mat-strings",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[s]"],
+    r"\bs\b",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "s": "hello"}),
+)
+add(
+    TB,
+    "import-mat-complex",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[z]"],
+    r"\bz\b",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "z": [[1 + 2j], [1j], [2]]}),
+)
+add(
+    TB,
+    "import-mat-nan",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"],
+    r"\bq\b",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [float("nan")], [2]]}),
+)
+add(
+    TB,
+    "import-mat-3d",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"],
+    r"\bq\b",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[[1.0, 2.0]] * 3] * 3}),
+)
+add(
+    TB,
+    "import-mat-scalar-nan-meta",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"],
+    r"\bk\b|meta|NaN",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [2.0], [3.0]], "k": [[float("nan")]]}),
+)
+add(
+    TB,
+    "import-mat-velocity-string",
+    ["logs", "import", "{ws}/data.mat", "out={case}/out", "velocity=sometimes"],
+    r"velocity",
+)
 add(TB, "import-mat-time-missing", ["logs", "import", "{ws}/data.mat", "out={case}/out", "time=zz"], r"zz")
-add(TB, "import-mat-huge-values", ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"], r"\bq\b",
-    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [1e300], [2]]}))
+add(
+    TB,
+    "import-mat-huge-values",
+    ["logs", "import", "{case}/x.mat", "out={case}/out", "state=[q]"],
+    r"\bq\b",
+    setup=_savemat({"t": [[0.0], [0.1], [0.2]], "q": [[1.0], [1e300], [2]]}),
+)
 
 
 def _tfrecord(records: list[bytes], crc: bool = True) -> bytes:
@@ -572,8 +1137,12 @@ def _tfrecord(records: list[bytes], crc: bool = True) -> bytes:
     out = b""
     for r in records:
         head = struct.pack("<Q", len(r))
-        out += head + struct.pack("<I", masked_crc32c(head) if crc else 0) + r + struct.pack(
-            "<I", masked_crc32c(r) if crc else 0)
+        out += (
+            head
+            + struct.pack("<I", masked_crc32c(head) if crc else 0)
+            + r
+            + struct.pack("<I", masked_crc32c(r) if crc else 0)
+        )
     return out
 
 
@@ -581,6 +1150,7 @@ def _rlds_edit(fn):
     def edit(root: Path) -> None:
         shard = next(root.rglob("*.tfrecord*"))
         fn(root, shard)
+
     return edit
 
 
@@ -588,50 +1158,106 @@ RLDS = ["logs", "import", "{case}/rlds", "out={case}/out", "format=rlds", "fps=5
 for name, fn, match in [
     ("shard-truncated", lambda r, s: s.write_bytes(s.read_bytes()[:100]), r"tfrecord"),
     ("shard-bad-crc", lambda r, s: s.write_bytes(s.read_bytes()[:20] + b"\x00" * 8 + s.read_bytes()[28:]), r"tfrecord"),
-    ("shard-huge-length", lambda r, s: s.write_bytes(_tfrecord([b"x"], crc=False).replace(
-        struct.pack("<Q", 1), struct.pack("<Q", 2**60), 1)), r"tfrecord"),
+    (
+        "shard-huge-length",
+        lambda r, s: s.write_bytes(
+            _tfrecord([b"x"], crc=False).replace(struct.pack("<Q", 1), struct.pack("<Q", 2**60), 1)
+        ),
+        r"tfrecord",
+    ),
     ("shard-garbage-record", lambda r, s: s.write_bytes(_tfrecord([b"\xff" * 40])), r"tfrecord|Example"),
     ("shard-empty", lambda r, s: s.write_bytes(b""), r"tfrecord|records"),
     ("features-not-json", lambda r, s: (s.parent / "features.json").write_bytes(b"\xff{"), r"features\.json"),
     ("features-list", lambda r, s: (s.parent / "features.json").write_text("[]"), r"features\.json"),
-    ("features-huge-shape", lambda r, s: (s.parent / "features.json").write_text(
-        (s.parent / "features.json").read_text().replace('"7"', '"1000000000000"')), r"features\.json|shape"),
-    ("features-bad-dtype", lambda r, s: (s.parent / "features.json").write_text(
-        (s.parent / "features.json").read_text().replace('"float32"', '"floaty"')), r"features\.json|dtype"),
+    (
+        "features-huge-shape",
+        lambda r, s: (s.parent / "features.json").write_text(
+            (s.parent / "features.json").read_text().replace('"7"', '"1000000000000"')
+        ),
+        r"features\.json|shape",
+    ),
+    (
+        "features-bad-dtype",
+        lambda r, s: (s.parent / "features.json").write_text(
+            (s.parent / "features.json").read_text().replace('"float32"', '"floaty"')
+        ),
+        r"features\.json|dtype",
+    ),
 ]:
-    add(UW if "huge" in name else TB, f"import-rlds-{name}", RLDS, match, setup=copy("rlds", "rlds", _rlds_edit(fn)),
-        needs=("rlds",))
-add(SA, "import-rlds-no-fps", ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds"], r"fps",
-    needs=("rlds",))
-add(SA, "import-rlds-bad-split", ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds", "fps=5",
-                                  "split=nope"], r"split", needs=("rlds",))
-add(SA, "import-rlds-state-missing", ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds", "fps=5",
-                                      "state=observation/nope"], r"state", needs=("rlds",))
+    add(
+        UW if "huge" in name else TB,
+        f"import-rlds-{name}",
+        RLDS,
+        match,
+        setup=copy("rlds", "rlds", _rlds_edit(fn)),
+        needs=("rlds",),
+    )
+add(SA, "import-rlds-no-fps", ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds"], r"fps", needs=("rlds",))
+add(
+    SA,
+    "import-rlds-bad-split",
+    ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds", "fps=5", "split=nope"],
+    r"split",
+    needs=("rlds",),
+)
+add(
+    SA,
+    "import-rlds-state-missing",
+    ["logs", "import", "{ws}/rlds", "out={case}/out", "format=rlds", "fps=5", "state=observation/nope"],
+    r"state",
+    needs=("rlds",),
+)
 
 # ----------------------------------------------------------------------------- logs card / rank
-for name, extra, match in [("episodes-negative", ["episodes=-1"], r"episodes"), ("dup-tol-nan", ["dup_tol=nan"], r"dup_tol"),
-                           ("dup-tol-inf", ["dup_tol=inf"], r"dup_tol"), ("seed-string", ["seed=x"], r"seed"),
-                           ("unknown", ["foo=1"], r"foo"), ("out-existing", ["out={ws}/lb.json"], r"out="),
-                           ("episodes-huge", ["suite=tests.toy_suite:ToySuite", "episodes=1000000000"], r"episodes"),
-                           ("out-dir", ["out={case}"], r"out=")]:
+for name, extra, match in [
+    ("episodes-negative", ["episodes=-1"], r"episodes"),
+    ("dup-tol-nan", ["dup_tol=nan"], r"dup_tol"),
+    ("dup-tol-inf", ["dup_tol=inf"], r"dup_tol"),
+    ("seed-string", ["seed=x"], r"seed"),
+    ("unknown", ["foo=1"], r"foo"),
+    ("out-existing", ["out={ws}/lb.json"], r"out="),
+    ("episodes-huge", ["suite=tests.toy_suite:ToySuite", "episodes=1000000000"], r"episodes"),
+    ("out-dir", ["out={case}"], r"out="),
+]:
     add(UW if "huge" in name else SA, f"card-{name}", ["logs", "card", "{ws}/ds", *extra], match)
 add(TB, "rank-calibration-missing", ["logs", "rank", "{ws}/ds", "calibration={case}/nope.json"], r"nope|calibration")
-add(TB, "rank-calibration-garbage", ["logs", "rank", "{ws}/ds", "calibration={case}/c.json"], r"c\.json",
-    setup=write("c.json", b"\xff"))
-add(TB, "rank-calibration-wrong-schema", ["logs", "rank", "{ws}/ds", "calibration={ws}/lb.json"], r"lb\.json|calibration")
+add(
+    TB,
+    "rank-calibration-garbage",
+    ["logs", "rank", "{ws}/ds", "calibration={case}/c.json"],
+    r"c\.json",
+    setup=write("c.json", b"\xff"),
+)
+add(
+    TB,
+    "rank-calibration-wrong-schema",
+    ["logs", "rank", "{ws}/ds", "calibration={ws}/lb.json"],
+    r"lb\.json|calibration",
+)
 add(SA, "rank-top-negative", ["logs", "rank", "{ws}/ds", "calibration={ws}/lb.json", "top=-1"], r"top")
-add(SA, "rank-horizon-bad", ["logs", "rank", "{ws}/ds", "calibration={ws}/lb.json", "horizon=forever"],
-    r"horizon|lb\.json")
+add(
+    SA,
+    "rank-horizon-bad",
+    ["logs", "rank", "{ws}/ds", "calibration={ws}/lb.json", "horizon=forever"],
+    r"horizon|lb\.json",
+)
 
 # ----------------------------------------------------------------------------- replay
 REPLAY = ["replay", "logs={ws}/ds", "spec={ws}/spec.yaml"]
 for name, extra, match in [
-    ("k-zero", ["k=0"], r"\bk\b"), ("k-negative", ["k=-1"], r"\bk\b"), ("k-huge", ["k=1000000000000"], r"\bk\b"),
-    ("threads-zero", ["threads=0"], r"threads"), ("threads-huge", ["threads=1000000"], r"threads"),
-    ("plot-negative", ["plot=-1"], r"plot"), ("plot-huge", ["plot=1000000"], r"plot"),
-    ("episodes-negative", ["episodes=[-1]"], r"episodes"), ("episodes-out", ["episodes=[99]"], r"episodes"),
-    ("episodes-dup", ["episodes=[0,0]"], r"episodes"), ("commands-bad", ["commands=torque"], r"commands"),
-    ("spec-and-suite", ["suite=held_out_robots"], r"spec|suite"), ("k-float", ["k=2.5"], r"\bk\b"),
+    ("k-zero", ["k=0"], r"\bk\b"),
+    ("k-negative", ["k=-1"], r"\bk\b"),
+    ("k-huge", ["k=1000000000000"], r"\bk\b"),
+    ("threads-zero", ["threads=0"], r"threads"),
+    ("threads-huge", ["threads=1000000"], r"threads"),
+    ("plot-negative", ["plot=-1"], r"plot"),
+    ("plot-huge", ["plot=1000000"], r"plot"),
+    ("episodes-negative", ["episodes=[-1]"], r"episodes"),
+    ("episodes-out", ["episodes=[99]"], r"episodes"),
+    ("episodes-dup", ["episodes=[0,0]"], r"episodes"),
+    ("commands-bad", ["commands=torque"], r"commands"),
+    ("spec-and-suite", ["suite=held_out_robots"], r"spec|suite"),
+    ("k-float", ["k=2.5"], r"\bk\b"),
 ]:
     add(UW if "huge" in name else SA, f"replay-{name}", [*REPLAY, *extra], match)
 add(SA, "replay-no-logs", ["replay", "spec={ws}/spec.yaml"], r"logs")
@@ -641,7 +1267,7 @@ SPEC_BAD = {
     "empty": b"",
     "list": b"- 1\n- 2\n",
     "yaml-bomb": b"a: &a [1,1,1,1,1,1,1,1,1]\nb: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]\nc: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]\n"
-                 b"d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]\ne: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]\nf: [*e,*e,*e,*e,*e,*e,*e,*e]\n",
+    b"d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]\ne: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]\nf: [*e,*e,*e,*e,*e,*e,*e,*e]\n",
     "model-missing": b"model: nope.xml\nsignals: {qpos: {column: observation.state, index: [0]}, ctrl: {column: action, index: [0]}}\n",
     "model-not-xml": b"model: spec.yaml\nsignals: {qpos: {column: observation.state, index: [0]}, ctrl: {column: action, index: [0]}}\n",
 }
@@ -651,12 +1277,18 @@ def _spec(text: str):
     def setup(ws: Path, case: Path) -> None:
         (case / "arm.xml").write_text((ws / "arm.xml").read_text())
         (case / "spec.yaml").write_text(text)
+
     return setup
 
 
 for name, data in SPEC_BAD.items():
-    add(TB, f"replay-spec-{name}", ["replay", "logs={ws}/ds", "spec={case}/spec.yaml"], r"spec|model|nope",
-        setup=write("spec.yaml", data) if name != "model-not-xml" else _spec(data.decode()))
+    add(
+        TB,
+        f"replay-spec-{name}",
+        ["replay", "logs={ws}/ds", "spec={case}/spec.yaml"],
+        r"spec|model|nope",
+        setup=write("spec.yaml", data) if name != "model-not-xml" else _spec(data.decode()),
+    )
 BASE_SPEC = SPEC_YAML
 SPEC_EDITS = {
     "substeps-zero": ("substeps: 10", "substeps: 0"),
@@ -687,55 +1319,95 @@ for name, (old, new) in SPEC_EDITS.items():
     text = BASE_SPEC.replace(old, new)
     assert text != BASE_SPEC, name
     fam = UW if "huge" in name else SA
-    add(fam, f"calibrate-spec-{name}", ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/out",
-                                        "residual=false", "quiet=true"], r"spec|params|field|bounds|holdout|substeps"
-        r"|index|column|effects|model|threads|horizon|init", setup=_spec(text))
+    add(
+        fam,
+        f"calibrate-spec-{name}",
+        ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/out", "residual=false", "quiet=true"],
+        r"spec|params|field|bounds|holdout|substeps"
+        r"|index|column|effects|model|threads|horizon|init",
+        setup=_spec(text),
+    )
     if name in ("substeps-zero", "substeps-huge", "index-negative", "index-out", "column-missing", "model-is-dir"):
-        add(fam, f"replay-spec-{name}", ["replay", "logs={ws}/ds", "spec={case}/spec.yaml", "out={case}/out"],
-            r"spec|substeps|index|column|model", setup=_spec(text))
-for name, extra, match in [("threads-zero", ["threads=0"], r"threads"), ("threads-huge", ["threads=100000"], r"threads"),
-                           ("seed-negative", ["seed=-1"], r"seed"), ("effects-unknown", ["effects=[x]"], r"effects"),
-                           ("residual-string", ["residual=maybe"], r"residual"), ("unknown", ["frob=1"], r"frob"),
-                           ("quiet-string", ["quiet=loud"], r"quiet"), ("logs-missing", ["logs={case}/nope"], r"nope")]:
+        add(
+            fam,
+            f"replay-spec-{name}",
+            ["replay", "logs={ws}/ds", "spec={case}/spec.yaml", "out={case}/out"],
+            r"spec|substeps|index|column|model",
+            setup=_spec(text),
+        )
+for name, extra, match in [
+    ("threads-zero", ["threads=0"], r"threads"),
+    ("threads-huge", ["threads=100000"], r"threads"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+    ("effects-unknown", ["effects=[x]"], r"effects"),
+    ("residual-string", ["residual=maybe"], r"residual"),
+    ("unknown", ["frob=1"], r"frob"),
+    ("quiet-string", ["quiet=loud"], r"quiet"),
+    ("logs-missing", ["logs={case}/nope"], r"nope"),
+]:
     args = ["calibrate", "spec={ws}/spec.yaml", "logs={ws}/ds", "out={case}/out", "residual=false", "quiet=true"]
     args = [a for a in args if a.split("=")[0] not in [e.split("=")[0] for e in extra]] + extra
     add(UW if "huge" in name else SA, f"calibrate-{name}", args, match)
-for name, extra, match in [("episodes-huge", ["episodes=1000000000"], r"episodes"),
-                           ("duration-huge", ["duration=1e12"], r"duration"), ("fps-huge", ["fps=1e12"], r"fps"),
-                           ("fps-nan", ["fps=nan"], r"fps"), ("duration-inf", ["duration=inf"], r"duration"),
-                           ("effect-unknown", ["effect=teleport"], r"effect"), ("seed-negative", ["seed=-1"], r"seed")]:
+for name, extra, match in [
+    ("episodes-huge", ["episodes=1000000000"], r"episodes"),
+    ("duration-huge", ["duration=1e12"], r"duration"),
+    ("fps-huge", ["fps=1e12"], r"fps"),
+    ("fps-nan", ["fps=nan"], r"fps"),
+    ("duration-inf", ["duration=inf"], r"duration"),
+    ("effect-unknown", ["effect=teleport"], r"effect"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+]:
     args = ["calibrate", "generate", "effect=none", "out={case}/g", "episodes=2", "duration=1"]
     args = [a for a in args if a.split("=")[0] not in [e.split("=")[0] for e in extra]] + extra
     add(UW if "huge" in name or "inf" in name else SA, f"generate-{name}", args, match)
 
 # ----------------------------------------------------------------------------- actions / coverage / regress
-for name, extra, match in [("n-boot-huge", ["n_boot=1000000000000"], r"n_boot"), ("confidence-2", ["confidence=2"],
-                           r"confidence"), ("seed-negative", ["seed=-1"], r"seed"), ("no-logs", [], r"logs"),
-                           ("episodes-negative", ["episodes=[-1]"], r"episodes")]:
+for name, extra, match in [
+    ("n-boot-huge", ["n_boot=1000000000000"], r"n_boot"),
+    ("confidence-2", ["confidence=2"], r"confidence"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+    ("no-logs", [], r"logs"),
+    ("episodes-negative", ["episodes=[-1]"], r"episodes"),
+]:
     args = ["actions", *(["logs={ws}/ds"] if name != "no-logs" else []), "suite=tests.toy_suite:ToySuite", *extra]
     add(UW if "huge" in name else SA, f"actions-{name}", args, match)
-for name, extra, match in [("quantile-2", ["quantile=2"], r"quantile"), ("episodes-huge", ["episodes=1000000000"],
-                           r"episodes"), ("horizon-huge", ["horizon=100000000"], r"horizon"),
-                           ("seed-negative", ["seed=-1"], r"seed"), ("data-missing", ["data={case}/nope"], r"nope"),
-                           ("quantile-nan", ["quantile=nan"], r"quantile")]:
+for name, extra, match in [
+    ("quantile-2", ["quantile=2"], r"quantile"),
+    ("episodes-huge", ["episodes=1000000000"], r"episodes"),
+    ("horizon-huge", ["horizon=100000000"], r"horizon"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+    ("data-missing", ["data={case}/nope"], r"nope"),
+    ("quantile-nan", ["quantile=nan"], r"quantile"),
+]:
     args = ["coverage", "suite=tests.toy_suite:ToySuite", *([] if "data" in name else ["data={ws}/ds"]), *extra]
     add(UW if "huge" in name else SA, f"coverage-{name}", args, match)
-for name, extra, match in [("margin-nan", ["margin=nan"], r"margin"), ("alpha-2", ["alpha=2"], r"alpha"),
-                           ("batch-negative", ["batch=-1"], r"batch"), ("candidate-missing", ["baseline=scripted"],
-                           r"candidate"), ("margin-negative", ["margin=-1"], r"margin")]:
+for name, extra, match in [
+    ("margin-nan", ["margin=nan"], r"margin"),
+    ("alpha-2", ["alpha=2"], r"alpha"),
+    ("batch-negative", ["batch=-1"], r"batch"),
+    ("candidate-missing", ["baseline=scripted"], r"candidate"),
+    ("margin-negative", ["margin=-1"], r"margin"),
+]:
     args = ["regress", TOY, "candidate=scripted", "baseline=random", "runs={case}/runs", *extra]
     args = [a for a in args if not (name == "candidate-missing" and a.startswith(("candidate=", "baseline=")))]
     add(SA, f"regress-{name}", args, match)
 
 # ----------------------------------------------------------------------------- python -m baselines.bc
 BC = ["data=[{ws}/ds]", "out={case}/p.safetensors"]
-for name, extra, match in [("epochs-negative", ["epochs=-1"], r"epochs"), ("lr-nan", ["lr=nan"], r"\blr\b"),
-                           ("batch-zero", ["batch_size=0"], r"batch_size"), ("hidden-zero", ["hidden=[0]"], r"hidden"),
-                           ("threads-huge", ["threads=1000000"], r"threads"), ("epochs-huge", ["epochs=1000000000"],
-                           r"epochs"), ("out-suffix", ["out={case}/p.txt"], r"out"), ("data-missing",
-                           ["data=[{case}/nope]"], r"nope"), ("seed-negative", ["seed=-1"], r"seed"),
-                           ("hidden-huge", ["hidden=[100000000]"], r"hidden"), ("activation-bad", ["activation=x"],
-                           r"activation"), ("noise-inf", ["obs_noise=inf"], r"obs_noise")]:
+for name, extra, match in [
+    ("epochs-negative", ["epochs=-1"], r"epochs"),
+    ("lr-nan", ["lr=nan"], r"\blr\b"),
+    ("batch-zero", ["batch_size=0"], r"batch_size"),
+    ("hidden-zero", ["hidden=[0]"], r"hidden"),
+    ("threads-huge", ["threads=1000000"], r"threads"),
+    ("epochs-huge", ["epochs=1000000000"], r"epochs"),
+    ("out-suffix", ["out={case}/p.txt"], r"out"),
+    ("data-missing", ["data=[{case}/nope]"], r"nope"),
+    ("seed-negative", ["seed=-1"], r"seed"),
+    ("hidden-huge", ["hidden=[100000000]"], r"hidden"),
+    ("activation-bad", ["activation=x"], r"activation"),
+    ("noise-inf", ["obs_noise=inf"], r"obs_noise"),
+]:
     args = [a for a in BC if a.split("=")[0] not in [e.split("=")[0] for e in extra]] + extra
     add(UW if "huge" in name else SA, f"bc-{name}", args, match, main="baselines.bc")
 

@@ -2,6 +2,7 @@
 
 Registered into `hostile_corpus.CASES` through `add`; run with tests/hostile.py.
 """
+
 from __future__ import annotations
 
 from hostile_corpus import RUN, SA, UW, add
@@ -26,7 +27,11 @@ for name, extra, match in [
 ]:
     add(SA, f"run-{name}", [*RUN, *extra], match)
 
-add(UW, "run-g-steps-absurd", [*RUN[:3], "episodes=100000", "horizon=100000", *RUN[4:]],
-    r"episodes=100000 x horizon=100000")
+add(
+    UW,
+    "run-g-steps-absurd",
+    [*RUN[:3], "episodes=100000", "horizon=100000", *RUN[4:]],
+    r"episodes=100000 x horizon=100000",
+)
 add(SA, "correlate-g-level-zero", ["correlate", "sim={ws}/sim.json", "real={ws}/real.json", "level=0"], r"level")
 add(SA, "replay-g-k-nan", ["replay", "logs={ws}/ds", "spec={ws}/spec.yaml", "k=nan"], r"\bk\b")

@@ -7,6 +7,7 @@ returns them: float32 C x H x W in [0, 1]) and OUT_PREFIX.json (metadata lerobot
 every frame, and, when EPISODE is given, the global indices lerobot returns for that episode alone).
 No bench import: this runs where bench is not installed. Used by tests/test_lerobot_interop.py.
 """
+
 import json
 import os
 import sys
@@ -46,9 +47,11 @@ def main(root: str, out: str, episode: str | None = None) -> None:
     }
     if episode is not None:
         sub = LeRobotDataset("bench/interop", root=root, episodes=[int(episode)])
-        doc["episode_subset"] = {"episode": int(episode),
-                                 "index": [int(sub[i]["index"]) for i in range(len(sub))],
-                                 "episode_index": sorted({int(sub[i]["episode_index"]) for i in range(len(sub))})}
+        doc["episode_subset"] = {
+            "episode": int(episode),
+            "index": [int(sub[i]["index"]) for i in range(len(sub))],
+            "episode_index": sorted({int(sub[i]["episode_index"]) for i in range(len(sub))}),
+        }
     with open(out + ".json", "w") as f:
         json.dump(doc, f)
 

@@ -11,6 +11,7 @@ OUT_NPZ gets the frames that were handed to lerobot, stacked in frame order, so 
 decoding with them. No bench import: this runs where bench is not installed; `frame` is also used by the
 interop test on bench's side (from tests/video_frames.py; lerobot is imported only by `main`).
 """
+
 import os
 import sys
 
@@ -36,11 +37,12 @@ def main(root: str, out: str, vcodec: str | None = None) -> None:
     for key, (h, w) in CAMERAS.items():
         features[key] = {"dtype": "video", "shape": (h, w, 3), "names": ["height", "width", "channels"]}
     kwargs = {} if vcodec is None else {"vcodec": vcodec}
-    ds = LeRobotDataset.create("bench/lerobot-video", fps=FPS, features=features, root=root, robot_type="toy",
-                               use_videos=True, **kwargs)
+    ds = LeRobotDataset.create(
+        "bench/lerobot-video", fps=FPS, features=features, root=root, robot_type="toy", use_videos=True, **kwargs
+    )
     given: dict[str, list] = {k: [] for k in (*CAMERAS, "observation.state", "action", "next.reward")}
     rng = np.random.default_rng(0)
-    for e, (length, task) in enumerate(zip(LENGTHS, TASKS)):
+    for _e, (length, task) in enumerate(zip(LENGTHS, TASKS)):
         for t in range(length):
             row = {
                 "observation.state": rng.standard_normal(3).astype(np.float32),

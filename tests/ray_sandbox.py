@@ -15,6 +15,7 @@ it: a cluster cannot outlive its test, even when the test fails or times out.
 extra nodes (`ray start --block`, 1 CPU each by default) and kills a node's whole process
 tree (raylet and its workers: what a machine failure looks like to the driver).
 """
+
 from __future__ import annotations
 
 import os
@@ -41,8 +42,9 @@ def unavailable() -> str | None:
         if shutil.which(tool) is None:
             return f"needs the `{tool}` command to confine Ray to a loopback-only network namespace"
     try:
-        res = subprocess.run([*NAMESPACE, "sh", "-c", PRELUDE, "sh", "true"], capture_output=True, text=True,
-                             timeout=30)
+        res = subprocess.run(
+            [*NAMESPACE, "sh", "-c", PRELUDE, "sh", "true"], capture_output=True, text=True, timeout=30
+        )
     except (OSError, subprocess.TimeoutExpired) as exc:
         return f"cannot create a loopback-only namespace: {exc}"
     if res.returncode != 0:
@@ -53,8 +55,14 @@ def unavailable() -> str | None:
 def run(argv: list[str], timeout: float, cwd: Path = REPO) -> subprocess.CompletedProcess:
     """Run `argv` in a fresh loopback-only namespace; everything it started is killed when it ends."""
     env = {**os.environ, **ENV}
-    return subprocess.run([*NAMESPACE, "sh", "-c", PRELUDE, "sh", *argv], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [*NAMESPACE, "sh", "-c", PRELUDE, "sh", *argv],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 # -- inside the namespace ----------------------------------------------------------------------
@@ -116,10 +124,19 @@ class Cluster:
     def _start(self, args: list[str], cpus: int) -> subprocess.Popen:
         log = open(self.log_dir / f"node{len(self.nodes)}.log", "w") if self.log_dir else subprocess.DEVNULL
         ray = str(Path(sys.executable).with_name("ray"))
-        argv = [ray, "start", *args, f"--num-cpus={cpus}", "--node-ip-address=127.0.0.1", "--disable-usage-stats",
-                "--object-store-memory=200000000", "--block"]
-        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, **ENV})
+        argv = [
+            ray,
+            "start",
+            *args,
+            f"--num-cpus={cpus}",
+            "--node-ip-address=127.0.0.1",
+            "--disable-usage-stats",
+            "--object-store-memory=200000000",
+            "--block",
+        ]
+        proc = subprocess.Popen(
+            argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env={**os.environ, **ENV}
+        )
         self.nodes.append(proc)
         return proc
 
@@ -131,8 +148,13 @@ class Cluster:
     def alive_nodes(self) -> int:
         """Nodes the GCS counts as alive (`ray status`: one `node_...` line per active node)."""
         ray = str(Path(sys.executable).with_name("ray"))
-        res = subprocess.run([ray, "status", f"--address={self.address}"], capture_output=True, text=True,
-                             timeout=60, env={**os.environ, **ENV})
+        res = subprocess.run(
+            [ray, "status", f"--address={self.address}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, **ENV},
+        )
         active = res.stdout.split("Active:", 1)[-1].split("Pending:", 1)[0] if "Active:" in res.stdout else ""
         return sum(1 for line in active.splitlines() if line.strip().startswith("1 node_"))
 

@@ -6,6 +6,7 @@ Each scenario starts its own cluster on 127.0.0.1, drives `bench run` as a user 
 subprocess per run), and writes what it saw; tests/test_ray_executor.py asserts on it.
 Nothing here asserts, so a failing check reads as a normal pytest failure.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,11 +25,18 @@ from tests.ray_sandbox import REPO, Cluster, free_port
 TOY = "suite=tests.toy_suite:ToySuite"
 
 
-def bench(out: Path, run_id: str, *args: str, env: dict[str, str] | None = None, timeout: float = 300,
-          cwd: Path = REPO) -> dict[str, Any]:
+def bench(
+    out: Path, run_id: str, *args: str, env: dict[str, str] | None = None, timeout: float = 300, cwd: Path = REPO
+) -> dict[str, Any]:
     t0 = time.time()
-    res = subprocess.run([sys.executable, "-m", "bench", "run", *args, f"out={out}", f"run_id={run_id}"], cwd=cwd,
-                         capture_output=True, text=True, timeout=timeout, env={**os.environ, **(env or {})})
+    res = subprocess.run(
+        [sys.executable, "-m", "bench", "run", *args, f"out={out}", f"run_id={run_id}"],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, **(env or {})},
+    )
     return {"rc": res.returncode, "stderr": res.stderr[-4000:], "seconds": round(time.time() - t0, 2)}
 
 
@@ -38,9 +46,13 @@ def records(out: Path, run_id: str) -> list[dict[str, Any]]:
 
 
 def start_bg(out: Path, run_id: str, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "bench", "run", *args, f"out={out}", f"run_id={run_id}"],
-                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=open(out / f"{run_id}.stderr", "w"),
-                            start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench", "run", *args, f"out={out}", f"run_id={run_id}"],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=open(out / f"{run_id}.stderr", "w"),
+        start_new_session=True,
+    )
 
 
 def wait_records(out: Path, run_id: str, n: int, proc: subprocess.Popen, timeout: float = 240) -> int:
@@ -59,11 +71,15 @@ def basics(out: Path) -> dict[str, Any]:
     facts["auto_none"] = bench(out, "auto", TOY, "executor=ray", "ray_address=auto")
     facts["closed_port"] = bench(out, "closed", TOY, "executor=ray", f"ray_address=127.0.0.1:{free_port()}")
     port = free_port()  # something that is not Ray listening there (checked while the cluster starts)
-    http = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    http = subprocess.Popen(
+        [sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     time.sleep(1)
-    not_ray = threading.Thread(target=lambda: facts.update(
-        not_ray=bench(out, "notray", TOY, "executor=ray", f"ray_address=127.0.0.1:{port}")))
+    not_ray = threading.Thread(
+        target=lambda: facts.update(not_ray=bench(out, "notray", TOY, "executor=ray", f"ray_address=127.0.0.1:{port}"))
+    )
     not_ray.start()
     with Cluster(head_cpus=2, log_dir=out) as cluster:
         not_ray.join()
@@ -81,10 +97,19 @@ def basics(out: Path) -> dict[str, Any]:
         plugins.mkdir()
         shutil.copy(REPO / "tests" / "toy_suite.py", plugins / "toyplug.py")
         env = {"PYTHONPATH": str(plugins)}
-        facts["plugin_installed"] = bench(out, "plug_installed", "suite=toyplug:ToySuite", "episodes=1", "actors=2",
-                                          "ray_env=installed", *ray, env=env)
-        facts["plugin_code"] = bench(out, "plug_code", "suite=toyplug:ToySuite", "episodes=1", "actors=2",
-                                     "ray_env=code", *ray, env=env)
+        facts["plugin_installed"] = bench(
+            out,
+            "plug_installed",
+            "suite=toyplug:ToySuite",
+            "episodes=1",
+            "actors=2",
+            "ray_env=installed",
+            *ray,
+            env=env,
+        )
+        facts["plugin_code"] = bench(
+            out, "plug_code", "suite=toyplug:ToySuite", "episodes=1", "actors=2", "ray_env=code", *ray, env=env
+        )
         facts["mismatch"] = mismatch(out, cluster.address)
         facts["no_gpu"] = bench(out, "nogpu", TOY, "actor_gpus=1", *ray)
     facts["private"] = bench(out, "private", TOY, "episodes=1", "executor=ray", "ray_address=local", "actors=1")
@@ -104,8 +129,16 @@ def mismatch(out: Path, address: str) -> dict[str, Any]:
     fake = out / "fake_site" / "mujoco-0.0.1.dist-info"
     fake.mkdir(parents=True)
     (fake / "METADATA").write_text("Metadata-Version: 2.1\nName: mujoco\nVersion: 0.0.1\n")
-    cfg = api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", episodes=1, out=str(out),
-                        run_id="mismatch", executor="ray", ray_address=address, actors=1)
+    cfg = api.RunConfig(
+        suite="tests.toy_suite:ToySuite",
+        policy="scripted",
+        episodes=1,
+        out=str(out),
+        run_id="mismatch",
+        executor="ray",
+        ray_address=address,
+        actors=1,
+    )
     executor = RayExecutor(address, actors=1, runtime_env={"env_vars": {"PYTHONPATH": str(fake.parent)}})
     try:
         api.run(cfg, executor=executor)
@@ -126,16 +159,22 @@ def faults(out: Path) -> dict[str, Any]:
         wait_records(out, "worker_kill", 3, proc)
         victim = records(out, "worker_kill")[-1]["worker_pid"]
         os.kill(victim, signal.SIGKILL)
-        facts["worker_kill"] = {"rc": proc.wait(300), "victim": victim,
-                                "stderr": (out / "worker_kill.stderr").read_text()[-3000:]}
+        facts["worker_kill"] = {
+            "rc": proc.wait(300),
+            "victim": victim,
+            "stderr": (out / "worker_kill.stderr").read_text()[-3000:],
+        }
         # 2. the second node killed (raylet, object store, its workers): its episodes finish on the head
         proc = start_bg(out, "node_kill", *slow, *ray)
         wait_records(out, "node_kill", 4, proc)
         pids_on_node2 = {r["worker_pid"] for r in records(out, "node_kill")}
         killed = cluster.kill_node(node2)
-        facts["node_kill"] = {"rc": proc.wait(300), "killed": killed,
-                              "node2_ran": sorted(pids_on_node2 & set(killed)),
-                              "stderr": (out / "node_kill.stderr").read_text()[-3000:]}
+        facts["node_kill"] = {
+            "rc": proc.wait(300),
+            "killed": killed,
+            "node2_ran": sorted(pids_on_node2 & set(killed)),
+            "stderr": (out / "node_kill.stderr").read_text()[-3000:],
+        }
     facts["local"] = bench(out, "local", *slow, "workers=2")
     for run_id in ("worker_kill", "node_kill", "local"):
         facts[f"records_{run_id}"] = records(out, run_id)

@@ -1,4 +1,5 @@
 """Sim-real agreement: statistics checked against hand computations, bootstrap, tables and CLI."""
+
 from __future__ import annotations
 
 import json
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bench.agreement import Outcome, agreement, load_outcomes, main, mmrv, point_estimates, _batch
+from bench.agreement import Outcome, _batch, agreement, load_outcomes, main, mmrv, point_estimates
 from bench.cli import main as bench_main
 from bench.errors import DataError
 
@@ -89,7 +90,7 @@ def test_report_and_bootstrap():
     rep = agreement(SIM, REAL, n_boot=500, seed=0)
     st = rep["statistics"]
     assert st["pearson"]["value"] == pytest.approx(0.837611, abs=1e-6) and st["mmrv"]["value"] == pytest.approx(0.05)
-    for name, entry in st.items():
+    for _name, entry in st.items():
         lo, hi = entry["ci"]
         assert lo <= hi and entry["reason"] is None
         assert -1 <= lo and hi <= 1
@@ -136,8 +137,12 @@ def test_load_formats(tmp_path):
     rows = [{"policy": p, "trials": o.trials, "successes": o.successes} for p, o in SIM.items()]
     (tmp_path / "a.json").write_text(json.dumps(rows))
     (tmp_path / "b.json").write_text(json.dumps({"policies": rows}))
-    (tmp_path / "c.json").write_text(json.dumps({r["policy"]: {"trials": r["trials"], "successes": r["successes"]} for r in rows}))
-    (tmp_path / "d.csv").write_text("policy,trials,successes\n" + "".join(f"{r['policy']},{r['trials']},{r['successes']}\n" for r in rows))
+    (tmp_path / "c.json").write_text(
+        json.dumps({r["policy"]: {"trials": r["trials"], "successes": r["successes"]} for r in rows})
+    )
+    (tmp_path / "d.csv").write_text(
+        "policy,trials,successes\n" + "".join(f"{r['policy']},{r['trials']},{r['successes']}\n" for r in rows)
+    )
     for name in ("a.json", "b.json", "c.json", "d.csv"):
         assert load_outcomes(tmp_path / name) == SIM
 
@@ -197,7 +202,10 @@ def test_cli_null_in_json(tmp_path):
 
 
 def test_cli_errors(tmp_path, capsys):
-    sim, real = _write(tmp_path, "sim.json", SIM), _write(tmp_path, "real.json", {"A": Outcome(3, 1), "B": Outcome(3, 2)})
+    sim, real = (
+        _write(tmp_path, "sim.json", SIM),
+        _write(tmp_path, "real.json", {"A": Outcome(3, 1), "B": Outcome(3, 2)}),
+    )
     assert bench_main(["correlate", f"sim={sim}", f"real={real}"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "policy 'C' is in" in err

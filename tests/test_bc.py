@@ -1,5 +1,6 @@
 """Behaviour cloning (baselines.bc): data selection, normalisation, gripper as a sign, determinism,
 and the checkpoint it writes loading as `policy=checkpoint`."""
+
 from __future__ import annotations
 
 import hashlib
@@ -15,8 +16,8 @@ from baselines import bc
 from baselines.checkpoint import load_policy, spec_path
 from bench.errors import ConfigError, DataError
 from bench.logs import from_arrays, write_dataset
-from bench.recording import _expand
 from bench.protocols import STATE, ActionSpec, Feature
+from bench.recording import _expand
 from bench.sim_robosuite import ACTION_NAMES
 from suites.lift import OBS_FIELDS as OBS_NAMES
 
@@ -37,8 +38,19 @@ def _toy_dataset(root: Path, robots=("Panda", "Sawyer"), episodes=3, frames=40, 
             eps.append({"observation.state": obs, "action": act})
             tasks.append(f"Lift/{r}/default")
             ok = True if success is None else success(r, e)
-            meta.append({"task": "Lift", "robot": r, "env": "default", "split": "seen", "condition": "nominal",
-                         "seed": e, "params": {}, "success_once": ok, "success_at_end": ok})
+            meta.append(
+                {
+                    "task": "Lift",
+                    "robot": r,
+                    "env": "default",
+                    "split": "seen",
+                    "condition": "nominal",
+                    "seed": e,
+                    "params": {},
+                    "success_once": ok,
+                    "success_at_end": ok,
+                }
+            )
     ds = from_arrays(eps, fps=20, task=tasks, meta=meta, names={"observation.state": OBS_FLAT, "action": ACTION_NAMES})
     return write_dataset(root, ds)
 
@@ -70,8 +82,14 @@ def test_selection_filters_robots_successes_and_counts(tmp_path: Path):
 
 def test_learns_the_expert_and_saves_a_loadable_checkpoint(tmp_path: Path):
     data = _toy_dataset(tmp_path / "d", episodes=6)
-    args = bc.Args(data=[str(data)], out=str(tmp_path / "ck" / "policy.safetensors"), epochs=60, hidden=[64, 64],
-                   batch_size=64, lr=3e-3)
+    args = bc.Args(
+        data=[str(data)],
+        out=str(tmp_path / "ck" / "policy.safetensors"),
+        epochs=60,
+        hidden=[64, 64],
+        batch_size=64,
+        lr=3e-3,
+    )
     path, info = bc.train(args)
     assert info["episodes"] == 12 and info["frames"] == 480 and info["gripper_accuracy"] > 0.97
     spec = json.loads(spec_path(path).read_text())
@@ -111,19 +129,24 @@ def test_gripper_sign_refuses_zero_commands(tmp_path: Path):
     assert spec["meta"]["gripper_dims"] == []
 
 
-@pytest.mark.parametrize("argv, match", [
-    (["data=[x]", "epoch=3"], "Did you mean 'epochs'"),
-    (["data=[/nonexistent/ds]"], "not a dataset folder"),
-    (["data=[x]", "gripper=soft"], "valid: sign, regress"),
-    ([], "data: give at least one dataset folder"),
-])
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["data=[x]", "epoch=3"], "Did you mean 'epochs'"),
+        (["data=[/nonexistent/ds]"], "not a dataset folder"),
+        (["data=[x]", "gripper=soft"], "valid: sign, regress"),
+        ([], "data: give at least one dataset folder"),
+    ],
+)
 def test_bad_arguments_are_one_line_errors(argv, match):
     with pytest.raises(ConfigError, match=match):
         bc.main(argv)
 
 
 def test_cli_help_lists_every_field_with_its_docstring():
-    out = subprocess.run([sys.executable, "-m", "baselines.bc", "--help"], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "baselines.bc", "--help"], capture_output=True, text=True, check=True
+    ).stdout
     for name in ("data", "seed", "gripper_sharpness", "obs_noise"):
         assert f"  {name} " in out
     assert "seeds random, numpy and torch" in out
@@ -132,12 +155,29 @@ def test_cli_help_lists_every_field_with_its_docstring():
 @pytest.mark.slow
 def test_recorded_demos_train_a_policy_bench_run_loads(tmp_path: Path):
     """Real pipeline, tiny: 1 scripted Panda episode of 25 steps -> BC -> bench run policy=checkpoint."""
-    run = [sys.executable, "-m", "bench", "run", "robots=[Panda]", "episodes=1", "horizon=25", "workers=1",
-           f"out={tmp_path / 'runs'}"]
-    subprocess.run(run + ["policy=scripted", "run_id=demo", f"record={tmp_path / 'demo'}"], check=True,
-                   capture_output=True)
-    path, info = bc.train(bc.Args(data=[str(tmp_path / "demo")], out=str(tmp_path / "ck" / "p.safetensors"),
-                                  epochs=2, hidden=[32], successful_only=False))  # 25 steps: no lift yet
+    run = [
+        sys.executable,
+        "-m",
+        "bench",
+        "run",
+        "robots=[Panda]",
+        "episodes=1",
+        "horizon=25",
+        "workers=1",
+        f"out={tmp_path / 'runs'}",
+    ]
+    subprocess.run(
+        run + ["policy=scripted", "run_id=demo", f"record={tmp_path / 'demo'}"], check=True, capture_output=True
+    )
+    path, info = bc.train(
+        bc.Args(
+            data=[str(tmp_path / "demo")],
+            out=str(tmp_path / "ck" / "p.safetensors"),
+            epochs=2,
+            hidden=[32],
+            successful_only=False,
+        )
+    )  # 25 steps: no lift yet
     assert info["frames"] == 25
     subprocess.run(run + ["policy=checkpoint", f"checkpoint={path}", "run_id=eval"], check=True, capture_output=True)
     rec = json.loads((tmp_path / "runs" / "eval" / "episodes.jsonl").read_text().splitlines()[0])

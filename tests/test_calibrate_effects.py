@@ -1,4 +1,5 @@
 """The effect library: every effect is nested (zero = absent) and realised in the simulation itself."""
+
 import json
 
 import mujoco
@@ -29,8 +30,11 @@ def _candidate(plant: Plant, name: str) -> Candidate:
     itself skips families the spec declares free and offers Stribeck / asymmetric only over Coulomb)."""
     eff = EFFECTS[name]
     kind = "joint" if eff.kind == "joint" else eff.kind
-    target = {"joint": plant.targets("joint")[1], "actuator": plant.targets("actuator")[1],
-              "body": plant.targets("body")[2]}[kind]
+    target = {
+        "joint": plant.targets("joint")[1],
+        "actuator": plant.targets("actuator")[1],
+        "body": plant.targets("body")[2],
+    }[kind]
     if name == "input_channel":
         target = Target("joint", target.name, target.index, target.dof, target.joint, 0, plant.rec.input_names[0])
     return Candidate(eff, target, eff.bounds(plant.scales, target))
@@ -104,7 +108,7 @@ def test_delay_shifts_the_applied_command(plant):
     s = plant.substeps
     shifted = plant._delayed(plant.base_ctrl[:, 0], 2 * s)  # two frames
     n = plant.rec.offsets[1] * s
-    assert np.allclose(shifted[2 * s:n], plant.base_ctrl[: n - 2 * s, 0])
+    assert np.allclose(shifted[2 * s : n], plant.base_ctrl[: n - 2 * s, 0])
     assert np.allclose(shifted[: 2 * s], plant.base_ctrl[0, 0])  # held at the episode start
 
 
@@ -140,17 +144,24 @@ def test_collinear_declared_parameters_are_flagged(tmp_path):
         q[i] = d.qpos[0]
         d.ctrl[0] = ui
         mujoco.mj_step(model, d)
-    raw = {"model": "emps.xml", "substeps": 1,
-           "signals": {"qpos": {"column": "q", "index": [0]}, "ctrl": {"column": "u", "index": [0]}},
-           "params": [{"name": "mass", "field": "body_mass", "elements": ["carriage"], "bounds": [10, 300]},
-                      {"name": "armature", "field": "dof_armature", "elements": ["axis"], "bounds": [0, 100]}]}
+    raw = {
+        "model": "emps.xml",
+        "substeps": 1,
+        "signals": {"qpos": {"column": "q", "index": [0]}, "ctrl": {"column": "u", "index": [0]}},
+        "params": [
+            {"name": "mass", "field": "body_mass", "elements": ["carriage"], "bounds": [10, 300]},
+            {"name": "armature", "field": "dof_armature", "elements": ["axis"], "bounds": [0, 100]},
+        ],
+    }
     spec = parse_spec(raw, base_dir=MODELS)
     rec = extract(spec, [{"q": q, "u": u}], 1000.0, nq=1, nv=1, nu=1)
     plant = Plant(spec, load_model(spec.model), rec)
     sim = plant.simulator()
     scale = np.array([q.std(), 1.0])
-    f = fit(Objective(sim, Layout(plant, []), horizons(rec, rec.train, 200), rec, scale, np.arange(1)),
-            plant.declared_init())
+    f = fit(
+        Objective(sim, Layout(plant, []), horizons(rec, rec.train, 200), rec, scale, np.arange(1)),
+        plant.declared_init(),
+    )
     assert any("ill-conditioned" in w or "not identifiable" in w for w in f.warnings), f.warnings
     assert any("armature" in w and "mass" in w for w in f.warnings), f.warnings
 
@@ -175,8 +186,9 @@ def test_play_model_appends_a_rotor_and_keeps_every_index():
         assert m.dof_armature[p.rotor_dof] == base.dof_armature[1] and m.dof_armature[p.link_dof] == 0.0
         c = coordinates(m, [(p, 0.04)], 3, warmup=0)
         assert list(c.qpos_adr) == ([0, 1, 2] if side == "link" else [0, 3, 2])
-        q, v = c.init(np.array([0]), np.array([[0.1, 0.2, 0.3]]), np.array([[1.0, 2.0, 3.0]]),
-                      np.array([[0.0, 5.0, 0.0]]))
+        q, v = c.init(
+            np.array([0]), np.array([[0.1, 0.2, 0.3]]), np.array([[1.0, 2.0, 3.0]]), np.array([[0.0, 5.0, 0.0]])
+        )
         assert np.allclose(q[0, 3] - q[0, 1], 0.02)  # pushing forwards: the rotor leads by half the play
         assert np.allclose(q[0, c.qpos_adr], [0.1, 0.2, 0.3]) and np.allclose(v[0, [1, 3]], 2.0)
 
@@ -203,8 +215,10 @@ def test_warm_up_finds_the_side_the_log_does_not_measure(tmp_path):
     warm = layout.realise(x)
     assert warm.coords is not None and warm.coords.warmup == 10
     cold = replace(warm, coords=replace(warm.coords, warmup=0))
-    errs = [float(np.sqrt(np.mean(((sim.run([v], segs)[0] - obj.target) * obj.weight)[obj.mask] ** 2)))
-            for v in (warm, cold)]
+    errs = [
+        float(np.sqrt(np.mean(((sim.run([v], segs)[0] - obj.target) * obj.weight)[obj.mask] ** 2)))
+        for v in (warm, cold)
+    ]
     sim.close()
     assert errs[0] < 0.8 * errs[1], errs  # measured: 0.051 with the warm-up, 0.073 without
 

@@ -7,6 +7,7 @@ Some families look alike and every case runs with all of them in the library: a 
 own rest position vs a constant offset (bias) or a gravity load (payload mass, which pulls towards
 the hanging pose); backlash (position play) vs Coulomb friction or a force dead band.
 """
+
 import json
 import math
 
@@ -31,8 +32,9 @@ def _calibrate(tmp_path, effect, target=None, params=None):
     return run(spec, episodes, 100.0, seed=0), truth
 
 
-CASES = [pytest.param(e, None, None, marks=() if e in FAST else pytest.mark.slow, id=e) for e in DEFAULTS] + \
-    [pytest.param(*case, marks=pytest.mark.slow, id=name) for name, case in COMPETING.items()]
+CASES = [pytest.param(e, None, None, marks=() if e in FAST else pytest.mark.slow, id=e) for e in DEFAULTS] + [
+    pytest.param(*case, marks=pytest.mark.slow, id=name) for name, case in COMPETING.items()
+]
 
 
 @pytest.mark.parametrize("effect, target, true_params", CASES)
@@ -68,8 +70,18 @@ def test_cli_end_to_end_report(tmp_path, capsys):
     from bench.cli import main
 
     case = write_case(tmp_path / "case", "bias", episodes=4, duration=3.0, seed=1)
-    assert main(["calibrate", f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={tmp_path / 'out'}",
-                 "quiet=true"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                f"spec={case / 'spec.yaml'}",
+                f"logs={case / 'logs'}",
+                f"out={tmp_path / 'out'}",
+                "quiet=true",
+            ]
+        )
+        == 0
+    )
     assert "effects added: bias@j2" in capsys.readouterr().out
     doc = _no_nan((tmp_path / "out" / "calibration.json").read_text())
     assert doc["schema"] == "bench.calibration/1"
@@ -101,8 +113,12 @@ def test_pendulum_smoke(shared_dir, tmp_path):
     from bench.calibrate.trace import run as run_loop
     from bench.logs import import_csv
 
-    ds = import_csv(shared_dir / "data/real/simple_pendulum/data_measured.csv", time="time",
-                    state=["position", "velocity"], action=["torque"])
+    ds = import_csv(
+        shared_dir / "data/real/simple_pendulum/data_measured.csv",
+        time="time",
+        state=["position", "velocity"],
+        action=["torque"],
+    )
     spec = load_spec(MODELS / "pendulum.yaml")
     cal = run_loop(spec, [e.data for e in ds.episodes], ds.fps)
     doc = _no_nan(write_report(cal, tmp_path).read_text())

@@ -1,5 +1,6 @@
 """The learned residual: it explains what the effect library cannot, adds nothing on clean data, is
 deterministic, and stays apart from the physics (same effects and errors with or without it)."""
+
 import json
 import re
 
@@ -36,8 +37,9 @@ def test_residual_explains_a_force_outside_the_library(cogging):
 def test_residual_is_kept_apart_from_the_physics(cogging, tmp_path):
     plain = _run(tmp_path, "cogging", residual=False)
     assert plain.learned is None
-    assert [(a["name"], a["target"], a["params"]) for a in plain.added] == \
-        [(a["name"], a["target"], a["params"]) for a in cogging.added]
+    assert [(a["name"], a["target"], a["params"]) for a in plain.added] == [
+        (a["name"], a["target"], a["params"]) for a in cogging.added
+    ]
     assert plain.errors == cogging.errors  # `final` is the physics alone
     physics = cogging.learned["heldout"]["physics"]
     assert physics["k_step_nrmse"] == pytest.approx(cogging.errors["final"]["k_step_nrmse"])
@@ -72,12 +74,33 @@ def test_cli_reports_it_in_its_own_section(tmp_path, capsys):
     assert "not part of the physical model" in res["note"]
     assert all(np.isfinite(v) for v in res["heldout"]["physics_plus_residual"].values())
     assert "## Learned residual (not part of the physical model)" in (out / "report.md").read_text()
-    assert main(["calibrate", f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={tmp_path / 'o2'}",
-                 "quiet=true", "residual=false"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                f"spec={case / 'spec.yaml'}",
+                f"logs={case / 'logs'}",
+                f"out={tmp_path / 'o2'}",
+                "quiet=true",
+                "residual=false",
+            ]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "o2" / "calibration.json").read_text())["learned_residual"] is None
     capsys.readouterr()
-    assert main(["calibrate", f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={tmp_path / 'o3'}",
-                 "residual=maybe"]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                f"spec={case / 'spec.yaml'}",
+                f"logs={case / 'logs'}",
+                f"out={tmp_path / 'o3'}",
+                "residual=maybe",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and re.search(r"key 'residual' must be true or false", err), err
     assert not (tmp_path / "o3").exists()

@@ -1,4 +1,5 @@
 """Calibration spec: a good spec parses; each kind of mistake is a one-line SpecError naming the field, exit 2."""
+
 import json
 from pathlib import Path
 
@@ -52,35 +53,80 @@ def test_good_spec_yaml_and_json_agree(case, tmp_path, episodes):
 
 BAD = [
     ({"modle": "x.xml"}, r"unknown spec field 'modle'.*Did you mean 'model'"),
-    ({"params": [{"name": "d", "field": "dof_damping", "elements": ["j1"], "bounds": [0, 1], "bound": 2}]},
-     r"unknown spec field 'params\[0\].bound'"),
-    ({"params": [{"name": "d", "field": "dof_damping", "elements": ["j9"], "bounds": [0, 1]}]},
-     r"'params\[0\].elements': 'j9' is not a joint of arm3_declared.xml"),
-    ({"params": [{"name": "d", "field": "dof_dampin", "elements": ["j1"], "bounds": [0, 1]}]},
-     r"'params\[0\].field': 'dof_dampin' is not an MjModel field.*Did you mean 'dof_damping'"),
-    ({"params": [{"name": "d", "field": "dof_damping", "elements": ["j1"], "bounds": [1, 0]}]},
-     r"'params\[0\].bounds' must have low < high"),
-    ({"params": [{"name": "m", "field": "body_mass", "elements": ["link9"], "bounds": [0, 1]}]},
-     r"'link9' is not a body"),
+    (
+        {"params": [{"name": "d", "field": "dof_damping", "elements": ["j1"], "bounds": [0, 1], "bound": 2}]},
+        r"unknown spec field 'params\[0\].bound'",
+    ),
+    (
+        {"params": [{"name": "d", "field": "dof_damping", "elements": ["j9"], "bounds": [0, 1]}]},
+        r"'params\[0\].elements': 'j9' is not a joint of arm3_declared.xml",
+    ),
+    (
+        {"params": [{"name": "d", "field": "dof_dampin", "elements": ["j1"], "bounds": [0, 1]}]},
+        r"'params\[0\].field': 'dof_dampin' is not an MjModel field.*Did you mean 'dof_damping'",
+    ),
+    (
+        {"params": [{"name": "d", "field": "dof_damping", "elements": ["j1"], "bounds": [1, 0]}]},
+        r"'params\[0\].bounds' must have low < high",
+    ),
+    (
+        {"params": [{"name": "m", "field": "body_mass", "elements": ["link9"], "bounds": [0, 1]}]},
+        r"'link9' is not a body",
+    ),
     ({"effects": ["coulomb_fricton"]}, r"unknown effect 'coulomb_fricton'.*Did you mean 'coulomb_friction'"),
     ({"holdout": 2}, r"spec field 'holdout' must be a number in"),
-    ({"signals": {"qpos": {"column": "observation.state", "index": [0, 1, 2]}}},
-     r"spec field 'signals.ctrl' is required"),
-    ({"signals": {"qpos": {"column": "observation.state", "index": [0, 1, 7]},
-                  "ctrl": {"column": "action", "index": [0, 1, 2]}}},
-     r"'signals.qpos.index': index 7 is out of range for column 'observation.state' of width 6"),
-    ({"signals": {"qpos": {"column": "observation.stat", "index": [0, 1, 2]},
-                  "ctrl": {"column": "action", "index": [0, 1, 2]}}},
-     r"'signals.qpos.column': column 'observation.stat' is not in the log"),
-    ({"signals": {"qpos": {"column": "observation.state", "index": [0, 1]},
-                  "ctrl": {"column": "action", "index": [0, 1, 2]}}},
-     r"'signals.qpos.index' lists 2 columns; the model has nq=3"),
+    (
+        {"signals": {"qpos": {"column": "observation.state", "index": [0, 1, 2]}}},
+        r"spec field 'signals.ctrl' is required",
+    ),
+    (
+        {
+            "signals": {
+                "qpos": {"column": "observation.state", "index": [0, 1, 7]},
+                "ctrl": {"column": "action", "index": [0, 1, 2]},
+            }
+        },
+        r"'signals.qpos.index': index 7 is out of range for column 'observation.state' of width 6",
+    ),
+    (
+        {
+            "signals": {
+                "qpos": {"column": "observation.stat", "index": [0, 1, 2]},
+                "ctrl": {"column": "action", "index": [0, 1, 2]},
+            }
+        },
+        r"'signals.qpos.column': column 'observation.stat' is not in the log",
+    ),
+    (
+        {
+            "signals": {
+                "qpos": {"column": "observation.state", "index": [0, 1]},
+                "ctrl": {"column": "action", "index": [0, 1, 2]},
+            }
+        },
+        r"'signals.qpos.index' lists 2 columns; the model has nq=3",
+    ),
 ]
 
 
-@pytest.mark.parametrize("changes, pattern", BAD, ids=[
-    "unknown-field", "unknown-param-key", "element-not-in-model", "not-a-field", "bad-bounds", "unknown-body",
-    "unknown-effect", "holdout-range", "missing-ctrl", "index-out-of-range", "missing-column", "width-vs-model"])
+@pytest.mark.parametrize(
+    "changes, pattern",
+    BAD,
+    ids=[
+        "unknown-field",
+        "unknown-param-key",
+        "element-not-in-model",
+        "not-a-field",
+        "bad-bounds",
+        "unknown-body",
+        "unknown-effect",
+        "holdout-range",
+        "missing-ctrl",
+        "index-out-of-range",
+        "missing-column",
+        "width-vs-model",
+    ],
+)
 def test_malformed_spec_is_one_line_spec_error(case, episodes, changes, pattern):
     raw = _spec(case, **changes)
     with pytest.raises(SpecError, match=pattern) as info:
@@ -93,8 +139,9 @@ def test_missing_model_file(tmp_path):
         parse_spec({"model": "nope.xml", "signals": {}}, base_dir=tmp_path)
 
 
-@pytest.mark.parametrize("changes, pattern", [BAD[0], BAD[2], BAD[9]], ids=["unknown-field", "bad-element",
-                                                                          "index-out-of-range"])
+@pytest.mark.parametrize(
+    "changes, pattern", [BAD[0], BAD[2], BAD[9]], ids=["unknown-field", "bad-element", "index-out-of-range"]
+)
 def test_cli_malformed_spec_exit_2_one_line(tmp_path, capsys, changes, pattern):
     from bench.calibrate.generate import write_case
     from bench.cli import main

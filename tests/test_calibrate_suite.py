@@ -1,5 +1,6 @@
 """Suite-level calibration: a suite's robot fitted from `bench run record=` logs in its own scene, and
 the result carried into runs (`calibration=`), refused for another suite, robot or model."""
+
 import json
 import re
 
@@ -16,16 +17,44 @@ def logs(tmp_path_factory):
     """Scripted Panda Lift, recorded nominal and with 5x joint damping: 3 + 3 episodes x 40 frames (~20 s)."""
     tmp = tmp_path_factory.mktemp("suitecal")
     rec = tmp / "rec"
-    assert main(["run", "robots=[Panda]", "episodes=3", "horizon=40", "workers=2", "run_id=r", "policy=scripted",
-                 f"out={tmp / 'runs'}", f"record={rec}", f"perturb.damping=[{DAMPING:g}]"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "robots=[Panda]",
+                "episodes=3",
+                "horizon=40",
+                "workers=2",
+                "run_id=r",
+                "policy=scripted",
+                f"out={tmp / 'runs'}",
+                f"record={rec}",
+                f"perturb.damping=[{DAMPING:g}]",
+            ]
+        )
+        == 0
+    )
     return rec
 
 
 @pytest.fixture(scope="module")
 def calibrated(logs, tmp_path_factory):
     out = tmp_path_factory.mktemp("cal") / "out"
-    assert main(["calibrate", "suite=held_out_robots", "robot=Panda", f"logs={logs}", f"out={out}",
-                 f"condition=damping={DAMPING:g}", "quiet=true", "residual=false"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "suite=held_out_robots",
+                "robot=Panda",
+                f"logs={logs}",
+                f"out={out}",
+                f"condition=damping={DAMPING:g}",
+                "quiet=true",
+                "residual=false",
+            ]
+        )
+        == 0
+    )
     return out / "calibration.json"
 
 
@@ -45,16 +74,26 @@ def test_suite_calibration_recovers_the_real_robot(calibrated):
     for i in range(1, 8):
         e = by[("dof_damping", f"robot0_joint{i}")]
         assert e["value"] == pytest.approx(e["nominal"] * damping["value"])
-    assert all(e["field"] in ("dof_damping", "dof_armature", "dof_frictionloss", "body_mass", "actuator_gainprm")
-               for e in apply["edits"])
+    assert all(
+        e["field"] in ("dof_damping", "dof_armature", "dof_frictionloss", "body_mass", "actuator_gainprm")
+        for e in apply["edits"]
+    )
 
 
 def test_run_with_the_calibration_uses_the_calibrated_model(calibrated, tmp_path):
     from bench import api
     from bench.leaderboard import entry_from_summary
 
-    cfg = api.RunConfig(robots=["Panda"], policy="scripted", episodes=1, horizon=5, workers=1, run_id="c",
-                        out=str(tmp_path), calibration=str(calibrated.parent))
+    cfg = api.RunConfig(
+        robots=["Panda"],
+        policy="scripted",
+        episodes=1,
+        horizon=5,
+        workers=1,
+        run_id="c",
+        out=str(tmp_path),
+        calibration=str(calibrated.parent),
+    )
     p = api.plan(cfg)
     worker = api.worker(p)
     try:
@@ -86,26 +125,43 @@ def _tampered(calibrated, tmp_path, **change):
 BAD_RUNS = [
     (lambda c, t: ["robots=[Sawyer]", f"calibration={c}"], r"is for robot 'Panda', which no selected cell has"),
     (lambda c, t: ["suite=held_out_scenes", f"calibration={c}"], r"fitted for suite 'held_out_robots'"),
-    (lambda c, t: ["robots=[Panda]", f"calibration={_tampered(c, t, apply__model_hash='0' * 64)}"],
-     r"fitted on another model of robot 'Panda' \(model fingerprint 000000000000"),
+    (
+        lambda c, t: ["robots=[Panda]", f"calibration={_tampered(c, t, apply__model_hash='0' * 64)}"],
+        r"fitted on another model of robot 'Panda' \(model fingerprint 000000000000",
+    ),
     (lambda c, t: ["robots=[Panda]", f"calibration={t / 'none.json'}"], r"calibration=.*no such file"),
 ]
 
 
 @pytest.mark.parametrize("make, pattern", BAD_RUNS, ids=["other-robot", "other-suite", "other-model", "missing"])
 def test_run_refuses_a_calibration_that_does_not_fit(calibrated, tmp_path, capsys, make, pattern):
-    code = main(["run", "policy=scripted", "episodes=1", "horizon=5", "workers=1", "run_id=x",
-                 f"out={tmp_path / 'runs'}", *make(calibrated, tmp_path)])
+    code = main(
+        [
+            "run",
+            "policy=scripted",
+            "episodes=1",
+            "horizon=5",
+            "workers=1",
+            "run_id=x",
+            f"out={tmp_path / 'runs'}",
+            *make(calibrated, tmp_path),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and re.search(pattern, err), err
     assert not (tmp_path / "runs" / "x").exists()
 
 
 BAD_CALIBRATIONS = [
-    (["suite=held_out_robots", "robot=UR5e"], r"robot='UR5e': no episode of .* was recorded with it; robots in the "
-     r"log: Panda"),
-    (["suite=held_out_robots", "robot=Panda", "condition=damping=9"],
-     r"condition='damping=9': no episode .*; conditions: damping=5, nominal"),
+    (
+        ["suite=held_out_robots", "robot=UR5e"],
+        r"robot='UR5e': no episode of .* was recorded with it; robots in the "
+        r"log: Panda",
+    ),
+    (
+        ["suite=held_out_robots", "robot=Panda", "condition=damping=9"],
+        r"condition='damping=9': no episode .*; conditions: damping=5, nominal",
+    ),
     (["suite=held_out_robotz", "robot=Panda"], r"held_out_robotz"),
 ]
 

@@ -1,6 +1,7 @@
 """Offscreen cameras (bench.camera) and visual perturbation axes (bench.perturb_visual) on a real MuJoCo scene
 rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a floor, a wall, a
 light, a fixed front camera and a camera on a moving body."""
+
 from __future__ import annotations
 
 import os
@@ -68,8 +69,13 @@ def test_images_are_named_shaped_and_deterministic(scene):
     moved = rig.render()
     assert not np.array_equal(moved["rgb.wrist"], first["rgb.wrist"])
     np.testing.assert_array_equal(moved["rgb.front"], first["rgb.front"])
-    assert rig.describe() == {"cameras": ["front", "wrist"], "height": 64, "width": 80,
-                              "scene": {"shadows": False, "reflections": False, "skybox": False}, "gl": rig.describe()["gl"]}
+    assert rig.describe() == {
+        "cameras": ["front", "wrist"],
+        "height": 64,
+        "width": 80,
+        "scene": {"shadows": False, "reflections": False, "skybox": False},
+        "gl": rig.describe()["gl"],
+    }
 
 
 def test_orientation_top_row_is_the_top_of_the_view(scene):
@@ -83,12 +89,16 @@ def test_orientation_top_row_is_the_top_of_the_view(scene):
 
 def test_bad_cameras_and_sizes(scene):
     model, _, _ = scene
-    with pytest.raises(ConfigError, match=r"cameras: 'frnt' is not a camera of scene; valid: front, wrist\. Did you mean 'front'\?"):
+    with pytest.raises(
+        ConfigError, match=r"cameras: 'frnt' is not a camera of scene; valid: front, wrist\. Did you mean 'front'\?"
+    ):
         check_cameras(["frnt"], model, "scene")
     with pytest.raises(ConfigError, match="names a camera twice"):
         check_cameras(["front", "front"], model, "scene")
     for bad in (8, 2048, "abc", 0, 64.5, [64, 12]):
-        with pytest.raises(ConfigError, match=r"image_size: .* image sizes are whole numbers of pixels in \[16, 1024\]"):
+        with pytest.raises(
+            ConfigError, match=r"image_size: .* image sizes are whole numbers of pixels in \[16, 1024\]"
+        ):
             parse_image_size(bad)
     assert parse_image_size(128) == (128, 128) and parse_image_size([96, "128"]) == (96, 128)
     empty = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='1' type='sphere'/></worldbody></mujoco>")
@@ -105,9 +115,11 @@ def test_large_image_grows_the_offscreen_buffer():
 
 def test_no_renderer_is_one_line_naming_mujoco_gl():
     """With a backend that cannot start here (GLFW needs a display), the error says how to enable EGL."""
-    code = ("import mujoco\nfrom bench.camera import CameraRig, RendererError\n"
-            "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><camera name='c'/></worldbody></mujoco>\")\n"
-            "try:\n    CameraRig(m, mujoco.MjData(m), ['c'], (32, 32)).start()\nexcept RendererError as e:\n    print('ERR', e)\n")
+    code = (
+        "import mujoco\nfrom bench.camera import CameraRig, RendererError\n"
+        "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><camera name='c'/></worldbody></mujoco>\")\n"
+        "try:\n    CameraRig(m, mujoco.MjData(m), ['c'], (32, 32)).start()\nexcept RendererError as e:\n    print('ERR', e)\n"
+    )
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["MUJOCO_GL"] = "glfw"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120).stdout
@@ -115,10 +127,21 @@ def test_no_renderer_is_one_line_naming_mujoco_gl():
     assert "set MUJOCO_GL=egl" in out and len(out.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("axis,level", [
-    ("light", 0.4), ("light_dir", 40), ("camera_pos", 0.1), ("camera_rot", 8), ("object_color", 1.0),
-    ("table_color", 0.8), ("background", 0.9), ("texture", 1), ("texture", 4), ("distractors", 5),
-])
+@pytest.mark.parametrize(
+    "axis,level",
+    [
+        ("light", 0.4),
+        ("light_dir", 40),
+        ("camera_pos", 0.1),
+        ("camera_rot", 8),
+        ("object_color", 1.0),
+        ("table_color", 0.8),
+        ("background", 0.9),
+        ("texture", 1),
+        ("texture", 4),
+        ("distractors", 5),
+    ],
+)
 def test_each_visual_axis_changes_the_image_and_clears_exactly(scene, axis, level):
     model, data, rig = scene
     vs = VisualScene(rig, object_bodies=["cube"], where="scene")
@@ -163,7 +186,9 @@ def test_physics_untouched_and_camera_targets(scene):
 
 def test_visual_axes_that_cannot_apply_say_why(scene):
     model, _, _ = scene
-    with pytest.raises(ConfigError, match=r"perturb.camera_pos.cameras: 'top' is not a rendered camera of scene; valid: front, wrist"):
+    with pytest.raises(
+        ConfigError, match=r"perturb.camera_pos.cameras: 'top' is not a rendered camera of scene; valid: front, wrist"
+    ):
         check(model, ["cube"], "camera_pos", {"cameras": ["top"]}, ["front", "wrist"], "scene")
     with pytest.raises(ConfigError, match="perturb.object_color: scene declares no manipulated object"):
         check(model, [], "object_color", {}, ["front"], "scene")
@@ -171,7 +196,9 @@ def test_visual_axes_that_cannot_apply_say_why(scene):
         check(model, ["cube"], "texture", {"geoms": ["cube_g"]}, ["front"], "scene")
     with pytest.raises(ConfigError, match=r"perturb.table_color.geoms: 'tabel' is not a geom of scene.*Did you mean"):
         check(model, ["cube"], "table_color", {"geoms": ["tabel"]}, ["front"], "scene")
-    bare = mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><geom size='.1'/></body><camera name='c'/></worldbody></mujoco>")
+    bare = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body><geom size='.1'/></body><camera name='c'/></worldbody></mujoco>"
+    )
     with pytest.raises(ConfigError, match="perturb.table_color: found no table in bare"):
         check(bare, [], "table_color", {}, ["c"], "bare")
     with pytest.raises(ConfigError, match="perturb.distractors: bare has no table .* or floor plane"):

@@ -1,6 +1,7 @@
 """Cameras end to end on the real simulators: image observations in every MuJoCo suite, visual perturbations in
 a run (recorded, paired, deterministic), episode videos and their place in the report, camera streams in
 `record=` datasets, and the one-line errors for bad camera input. Rendering is EGL (software on CPU)."""
+
 from __future__ import annotations
 
 import json
@@ -26,12 +27,19 @@ def _plan(*argv: str):
     return api.plan(api.config_from_argv(list(argv)))
 
 
-@pytest.mark.parametrize("argv,keys", [
-    (["suite=held_out_robots", "robots=[Panda]", "obs=state+rgb"], {"state", "rgb.agentview", "rgb.robot0_eye_in_hand"}),
-    (["suite=held_out_scenes", "envs=[table_up_4cm]", "obs=rgb", "cameras=[frontview]"], {"rgb.frontview"}),
-    (["suite=held_out_envs", "tasks=[reach-v3]", "obs=state+rgb"], {"state", "rgb.corner", "rgb.gripperPOV"}),
-    (["suite=gym", "env_id=HalfCheetah-v5", "obs=rgb"], {"rgb.track"}),
-], ids=["held_out_robots", "held_out_scenes", "held_out_envs", "gym"])
+@pytest.mark.parametrize(
+    "argv,keys",
+    [
+        (
+            ["suite=held_out_robots", "robots=[Panda]", "obs=state+rgb"],
+            {"state", "rgb.agentview", "rgb.robot0_eye_in_hand"},
+        ),
+        (["suite=held_out_scenes", "envs=[table_up_4cm]", "obs=rgb", "cameras=[frontview]"], {"rgb.frontview"}),
+        (["suite=held_out_envs", "tasks=[reach-v3]", "obs=state+rgb"], {"state", "rgb.corner", "rgb.gripperPOV"}),
+        (["suite=gym", "env_id=HalfCheetah-v5", "obs=rgb"], {"rgb.track"}),
+    ],
+    ids=["held_out_robots", "held_out_scenes", "held_out_envs", "gym"],
+)
 def test_image_observations_declared_returned_and_deterministic(argv, keys):
     p = _plan(*argv, "image_size=24", "policy=random")
     cell = p.cells[0]
@@ -55,8 +63,11 @@ def test_image_observations_declared_returned_and_deterministic(argv, keys):
 
 def test_bad_camera_input_is_one_line_exit_2(capsys):
     cases = [
-        (["cameras=[agentveiw]"], "cameras: 'agentveiw' is not a camera of robosuite Lift; valid: frontview, birdview, "
-                                  "agentview, sideview, robot0_robotview, robot0_eye_in_hand. Did you mean 'agentview'?"),
+        (
+            ["cameras=[agentveiw]"],
+            "cameras: 'agentveiw' is not a camera of robosuite Lift; valid: frontview, birdview, "
+            "agentview, sideview, robot0_robotview, robot0_eye_in_hand. Did you mean 'agentview'?",
+        ),
         (["image_size=2000"], "image_size: 2000 is invalid; image sizes are whole numbers of pixels in [16, 1024]"),
         (["obs=pixels"], "obs: 'pixels' is not an observation mode; valid: state, rgb, state+rgb"),
         (["obs=rgb", "perturb.light=[0.5]"], "policy 'scripted' needs observation keys ['state']"),
@@ -77,9 +88,24 @@ def test_bad_camera_input_is_one_line_exit_2(capsys):
 def test_no_renderer_for_obs_rgb_is_one_line(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["MUJOCO_GL"] = "glfw"  # cannot start without a display
-    proc = subprocess.run([sys.executable, "-m", "bench", "run", "suite=held_out_robots", "robots=[Panda]", "obs=rgb",
-                           "policy=random", "episodes=1", f"out={tmp_path}"], capture_output=True, text=True, env=env,
-                          timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bench",
+            "run",
+            "suite=held_out_robots",
+            "robots=[Panda]",
+            "obs=rgb",
+            "policy=random",
+            "episodes=1",
+            f"out={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "no offscreen OpenGL renderer could start with MUJOCO_GL=glfw" in lines[0]
@@ -88,9 +114,18 @@ def test_no_renderer_for_obs_rgb_is_one_line(tmp_path):
 
 
 def test_visual_axes_in_a_run_recorded_paired_and_deterministic(tmp_path):
-    argv = [*LIFT, "policy=random", "obs=rgb", "episodes=2", "horizon=3", f"out={tmp_path}",
-            "perturb.light=[0.3]", "perturb.distractors=uniform(1,3)", "perturb.camera_pos.levels=[0.05]",
-            "perturb.camera_pos.cameras=[agentview]"]
+    argv = [
+        *LIFT,
+        "policy=random",
+        "obs=rgb",
+        "episodes=2",
+        "horizon=3",
+        f"out={tmp_path}",
+        "perturb.light=[0.3]",
+        "perturb.distractors=uniform(1,3)",
+        "perturb.camera_pos.levels=[0.05]",
+        "perturb.camera_pos.cameras=[agentview]",
+    ]
     first = api.run(api.config_from_argv([*argv, "run_id=a"]))
     recs = {r.job_id: r for r in first.records}
     assert all(r.error is None for r in recs.values())
@@ -108,16 +143,35 @@ def test_visual_axes_in_a_run_recorded_paired_and_deterministic(tmp_path):
 
 
 def test_video_of_first_n_episodes_and_report(tmp_path):
-    run = api.run(api.config_from_argv([*LIFT, "policy=scripted", "episodes=2", "horizon=6", "video=1",
-                                        f"out={tmp_path}", "run_id=v", "obs=state+rgb", "perturb.table_color=[0.9]"]))
+    run = api.run(
+        api.config_from_argv(
+            [
+                *LIFT,
+                "policy=scripted",
+                "episodes=2",
+                "horizon=6",
+                "video=1",
+                f"out={tmp_path}",
+                "run_id=v",
+                "obs=state+rgb",
+                "perturb.table_color=[0.9]",
+            ]
+        )
+    )
     videos = sorted((tmp_path / "v" / "videos").iterdir())
-    assert [v.name for v in videos] == ["Lift__Panda__default--nominal--0.mp4",
-                                        "Lift__Panda__default--table_color-0.9--0.mp4"]  # episode 0 of each condition
+    assert [v.name for v in videos] == [
+        "Lift__Panda__default--nominal--0.mp4",
+        "Lift__Panda__default--table_color-0.9--0.mp4",
+    ]  # episode 0 of each condition
     rec = next(r for r in run.records if r.job_id == "Lift/Panda/default|nominal|0")
     assert rec.extras["video"] == {"path": "videos/Lift__Panda__default--nominal--0.mp4", "frames": 7, "fps": 20}
     assert "video" not in next(r for r in run.records if r.episode == 1).extras
     info = probe(videos[0])
-    assert (info["video.width"], info["video.height"], info["video.codec"]) == (64, 32, "h264")  # two cameras side by side
+    assert (info["video.width"], info["video.height"], info["video.codec"]) == (
+        64,
+        32,
+        "h264",
+    )  # two cameras side by side
     frames = decode_frames(videos[0], np.arange(7) / 20)
     assert frames.shape == (7, 32, 64, 3)
     nominal, coloured = decode_frames(videos[0], [0.0]), decode_frames(videos[1], [0.0])
@@ -133,8 +187,20 @@ def test_video_of_first_n_episodes_and_report(tmp_path):
 def test_record_writes_camera_streams_as_video_features(tmp_path):
     from bench.logs import info, read_dataset
 
-    api.run(api.config_from_argv([*LIFT, "policy=random", "episodes=2", "horizon=5", f"out={tmp_path}",
-                                  "run_id=r", "obs=rgb", f"record={tmp_path / 'rec'}"]))
+    api.run(
+        api.config_from_argv(
+            [
+                *LIFT,
+                "policy=random",
+                "episodes=2",
+                "horizon=5",
+                f"out={tmp_path}",
+                "run_id=r",
+                "obs=rgb",
+                f"record={tmp_path / 'rec'}",
+            ]
+        )
+    )
     ds = read_dataset(tmp_path / "rec")
     assert "observation.state" not in ds.features  # obs=rgb: the policy saw images only
     for cam in ("agentview", "robot0_eye_in_hand"):
@@ -157,13 +223,41 @@ def test_robustness_table_pools_levels_and_pairs_by_seed():
     from bench.robustness import table
 
     def rec(cond, axis, ep, ok):
-        return EpisodeRecord(run_id="x", job_id=f"T/R/E|{cond}|{ep}", suite="s", suite_version="1", task="T", robot="R",
-                             env="E", split="seen", condition=cond, axis=axis, level=None, params={}, episode=ep,
-                             seed=ep, init_state_hash="h", success_once=ok, success_at_end=ok, return_=0.0, length=1,
-                             steps_to_success=None, error=None, policy="p", checkpoint_sha256=None, backend="b",
-                             wall_s=0.0, finished_at=0.0, worker_pid=0, versions={})
+        return EpisodeRecord(
+            run_id="x",
+            job_id=f"T/R/E|{cond}|{ep}",
+            suite="s",
+            suite_version="1",
+            task="T",
+            robot="R",
+            env="E",
+            split="seen",
+            condition=cond,
+            axis=axis,
+            level=None,
+            params={},
+            episode=ep,
+            seed=ep,
+            init_state_hash="h",
+            success_once=ok,
+            success_at_end=ok,
+            return_=0.0,
+            length=1,
+            steps_to_success=None,
+            error=None,
+            policy="p",
+            checkpoint_sha256=None,
+            backend="b",
+            wall_s=0.0,
+            finished_at=0.0,
+            worker_pid=0,
+            versions={},
+        )
+
     recs = [rec("nominal", None, e, True) for e in range(4)]
-    recs += [rec("light=0.2", "light", e, e < 1) for e in range(4)] + [rec("light=0.5", "light", e, e < 3) for e in range(4)]
+    recs += [rec("light=0.2", "light", e, e < 1) for e in range(4)] + [
+        rec("light=0.5", "light", e, e < 3) for e in range(4)
+    ]
     recs += [rec("texture=1", "texture", e, True) for e in range(4)]
     rows = table(recs, "success_once", np.random.default_rng(0), n_boot=200)
     assert [r["axis"] for r in rows] == ["light", "texture"]  # most harmful first

@@ -1,4 +1,5 @@
 """bench check: split hygiene catches overlaps and seed wrap-around; clean suites pass."""
+
 import pytest
 
 from bench.check import check_cells, check_manifest, check_seeds
@@ -32,7 +33,8 @@ def test_run_refuses_a_dirty_split(tmp_path, capsys, monkeypatch):
         "from tests.toy_suite import ToySuite\n\n\n"
         "class Leaky(ToySuite):\n"
         "    name = 'leaky'\n"
-        "    manifest = {'robots': {'seen': ['a', 'b'], 'unseen': ['a', 'c']}}\n")
+        "    manifest = {'robots': {'seen': ['a', 'b'], 'unseen': ['a', 'c']}}\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "runs"
     assert main(["run", "suite=leaky_suite:Leaky", f"out={out}"]) == 2
@@ -46,7 +48,8 @@ def test_check_verifies_the_suite_contract(tmp_path, capsys, monkeypatch):
         "class Broken(ToySuite):\n"
         "    name = 'broken'\n"
         "    default_metric = 'speed'\n"
-        "    capabilities = frozenset({'expert', 'teleport'})\n")
+        "    capabilities = frozenset({'expert', 'teleport'})\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     assert main(["check", "suite=broken_suite:Broken", "states=false"]) == 2
     out = capsys.readouterr().out

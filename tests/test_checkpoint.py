@@ -1,4 +1,5 @@
 """Checkpoint policies: safetensors/weights-only round trips, spec checks, and `bench run policy=checkpoint`."""
+
 from __future__ import annotations
 
 import json
@@ -21,8 +22,7 @@ from suites.lift import OBS_FIELDS as OBS_NAMES
 
 
 def _spec(**extra) -> dict:
-    spec = {"architecture": "mlp", "kwargs": {"hidden": [16, 16]}, "obs_names": OBS_NAMES,
-            "action_names": ACTION_NAMES}
+    spec = {"architecture": "mlp", "kwargs": {"hidden": [16, 16]}, "obs_names": OBS_NAMES, "action_names": ACTION_NAMES}
     spec.update(extra)
     return spec
 
@@ -32,8 +32,10 @@ def ckpt(tmp_path: Path) -> Path:
     torch.manual_seed(0)
     model = build("mlp", 18, 7, {"hidden": [16, 16]})
     rng = np.random.default_rng(0)
-    norm = {"obs": {"mean": rng.normal(size=18), "std": rng.uniform(0.5, 2, 18)},
-            "action": {"mean": np.zeros(7), "std": np.full(7, 0.5)}}
+    norm = {
+        "obs": {"mean": rng.normal(size=18), "std": rng.uniform(0.5, 2, 18)},
+        "action": {"mean": np.zeros(7), "std": np.full(7, 0.5)},
+    }
     return save_checkpoint(tmp_path / "bc" / "policy.safetensors", model, _spec(normalization=norm))
 
 
@@ -98,17 +100,29 @@ def test_corrupt_safetensors(ckpt: Path):
         load_policy(ckpt)
 
 
-@pytest.mark.parametrize("edit, match", [
-    (lambda s: s.update(architecture="mlpp"), r"architecture='mlpp' is not registered.*Did you mean 'mlp'"),
-    (lambda s: s.update(kwargs={"hiden": [16]}), r"unknown argument 'hiden'.*Did you mean 'hidden'"),
-    (lambda s: s.update(kwargs={"hidden": [16, 32]}), "weights do not fit"),
-    (lambda s: s.update(obs_dim=19), r"obs_dim=19 but the names give 18"),
-    (lambda s: s.update(normalizaton={}), r"unknown field 'normalizaton'"),
-    (lambda s: s["normalization"]["obs"].update(std=[0.0] * 18), r"normalization.obs.std must be > 0"),
-    (lambda s: s["normalization"]["obs"].update(mean=[0.0] * 3), r"normalization.obs.mean has shape \[3\]"),
-    (lambda s: s.pop("obs_names"), "missing field 'obs_names'"),
-], ids=["unknown-arch", "unknown-kwarg", "shape-mismatch", "dim-mismatch", "unknown-field", "zero-std",
-        "bad-mean-shape", "no-obs-names"])
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda s: s.update(architecture="mlpp"), r"architecture='mlpp' is not registered.*Did you mean 'mlp'"),
+        (lambda s: s.update(kwargs={"hiden": [16]}), r"unknown argument 'hiden'.*Did you mean 'hidden'"),
+        (lambda s: s.update(kwargs={"hidden": [16, 32]}), "weights do not fit"),
+        (lambda s: s.update(obs_dim=19), r"obs_dim=19 but the names give 18"),
+        (lambda s: s.update(normalizaton={}), r"unknown field 'normalizaton'"),
+        (lambda s: s["normalization"]["obs"].update(std=[0.0] * 18), r"normalization.obs.std must be > 0"),
+        (lambda s: s["normalization"]["obs"].update(mean=[0.0] * 3), r"normalization.obs.mean has shape \[3\]"),
+        (lambda s: s.pop("obs_names"), "missing field 'obs_names'"),
+    ],
+    ids=[
+        "unknown-arch",
+        "unknown-kwarg",
+        "shape-mismatch",
+        "dim-mismatch",
+        "unknown-field",
+        "zero-std",
+        "bad-mean-shape",
+        "no-obs-names",
+    ],
+)
 def test_malformed_spec_is_one_line_spec_error(ckpt: Path, edit, match):
     # drop the embedded copy so the sidecar is what is checked (as for a checkpoint written by other tools)
     from safetensors.torch import load_file, save_file
@@ -159,8 +173,9 @@ def test_obs_names_mismatch_is_config_error(ckpt: Path):
 def test_policy_checkpoint_needs_its_key_and_others_refuse_it(tmp_path: Path, ckpt: Path):
     res = _bench("run", "policy=checkpoint", "robots=[Panda]", "episodes=1", f"out={tmp_path / 'runs'}", cwd=tmp_path)
     assert res.returncode == 2 and "checkpoint: required" in res.stderr, res.stderr
-    res = _bench("run", "policy=scripted", f"checkpoint={ckpt}", "robots=[Panda]", f"out={tmp_path / 'runs'}",
-                 cwd=tmp_path)
+    res = _bench(
+        "run", "policy=scripted", f"checkpoint={ckpt}", "robots=[Panda]", f"out={tmp_path / 'runs'}", cwd=tmp_path
+    )
     assert res.returncode == 2 and "unknown key 'checkpoint'" in res.stderr and "policy scripted: (none)" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "runs").exists()
 
@@ -172,8 +187,18 @@ def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 def test_bench_run_records_checkpoint_sha(ckpt: Path, tmp_path: Path):
     from bench.io import sha256_file
 
-    res = _bench("run", "policy=checkpoint", f"checkpoint={ckpt}", "robots=[Panda]", "episodes=1", "workers=1",
-                 "horizon=20", "run_id=r", f"out={tmp_path / 'runs'}", cwd=tmp_path)
+    res = _bench(
+        "run",
+        "policy=checkpoint",
+        f"checkpoint={ckpt}",
+        "robots=[Panda]",
+        "episodes=1",
+        "workers=1",
+        "horizon=20",
+        "run_id=r",
+        f"out={tmp_path / 'runs'}",
+        cwd=tmp_path,
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     recs = [json.loads(line) for line in (tmp_path / "runs" / "r" / "episodes.jsonl").read_text().splitlines()]
     assert len(recs) == 1 and recs[0]["error"] is None and recs[0]["length"] == 20
@@ -187,8 +212,17 @@ def test_bench_run_bad_spec_exits_2_and_writes_nothing(ckpt: Path, tmp_path: Pat
 
     save_file(load_file(str(ckpt)), str(ckpt))  # no embedded copy
     spec_path(ckpt).write_text(json.dumps(spec))
-    res = _bench("run", "policy=checkpoint", f"checkpoint={ckpt}", "robots=[Panda]", "episodes=1", "workers=1",
-                 "run_id=r", f"out={tmp_path / 'runs'}", cwd=tmp_path)
+    res = _bench(
+        "run",
+        "policy=checkpoint",
+        f"checkpoint={ckpt}",
+        "robots=[Panda]",
+        "episodes=1",
+        "workers=1",
+        "run_id=r",
+        f"out={tmp_path / 'runs'}",
+        cwd=tmp_path,
+    )
     assert res.returncode == 2
     assert res.stderr.strip().startswith("error:") and len(res.stderr.strip().splitlines()) == 1
     assert "weights do not fit" in res.stderr

@@ -1,4 +1,5 @@
 """The example CI workflow in docs/ is valid YAML; its `bench regress` and `bench run` lines are accepted."""
+
 from __future__ import annotations
 
 import re
@@ -42,7 +43,7 @@ def test_workflow_is_valid_yaml_with_the_expected_shape():
     on = doc.get("on", doc.get(True))  # YAML 1.1 reads the bare key `on` as True
     assert any("checkpoints/" in p for p in on["pull_request"]["paths"])  # runs when a checkpoint changes
     uses = [s.get("uses", "") for s in _steps(doc)]
-    assert any(u.startswith("actions/cache@") for u in uses)            # the baseline run is cached
+    assert any(u.startswith("actions/cache@") for u in uses)  # the baseline run is cached
     assert any(u.startswith("actions/upload-artifact@") for u in uses)  # the HTML report is uploaded
     assert any("bench report" in s.get("run", "") for s in _steps(doc))
     assert any("GITHUB_STEP_SUMMARY" in s.get("run", "") and "verdict.md" in s.get("run", "") for s in _steps(doc))

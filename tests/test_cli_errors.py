@@ -1,4 +1,5 @@
 """Bad input at the command line: one line on stderr, exit 2, nothing written."""
+
 import subprocess
 import sys
 
@@ -26,9 +27,23 @@ from bench.cli import main
         (["run", "splits=[held]"], "splits: 'held' is not a split"),
         (["runn"], "unknown command 'runn'.*Did you mean 'run'"),
     ],
-    ids=["misspelled-key", "bad-type", "zero-episodes", "key-twice", "key-of-no-part", "missing-suite-key",
-         "empty-selection", "zero-timeout", "negative-seed", "negative-horizon", "unknown-suite", "unknown-policy",
-         "unknown-robot", "bad-split", "unknown-command"],
+    ids=[
+        "misspelled-key",
+        "bad-type",
+        "zero-episodes",
+        "key-twice",
+        "key-of-no-part",
+        "missing-suite-key",
+        "empty-selection",
+        "zero-timeout",
+        "negative-seed",
+        "negative-horizon",
+        "unknown-suite",
+        "unknown-policy",
+        "unknown-robot",
+        "bad-split",
+        "unknown-command",
+    ],
 )
 def test_bad_input_exit_2_nothing_written(tmp_path, capsys, argv, pattern):
     out = tmp_path / "runs"

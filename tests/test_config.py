@@ -1,11 +1,12 @@
 """Config: Hydra-style overrides onto typed frozen configs; errors are one line with a suggestion."""
+
 import dataclasses
 
 import pytest
 
+from bench.api import RunConfig
 from bench.config import build, parse_kv, split_args
 from bench.errors import ConfigError
-from bench.api import RunConfig
 
 
 def test_overrides_nested_and_lists():

@@ -1,5 +1,6 @@
 """Coverage metrics on hand-made data with known answers, the slope fit on synthetic numbers,
 `bench coverage` end to end on small datasets, the sweep's argument checks and its plot."""
+
 from __future__ import annotations
 
 import json
@@ -11,13 +12,17 @@ import pytest
 from baselines import coverage_sweep as sweep
 from bench import coverage as cov
 from bench import trend
+from bench.axes import conditions_from_config
 from bench.errors import ConfigError
 from bench.logs import from_arrays, write_dataset
-from bench.axes import conditions_from_config
 from bench.suite import Cell
 
-CELLS = [Cell("s", "Lift", "Panda", "default", "seen"), Cell("s", "Lift", "Sawyer", "default", "seen"),
-         Cell("s", "Lift", "UR5e", "default", "unseen"), Cell("s", "Lift", "Jaco", "default", "unseen")]
+CELLS = [
+    Cell("s", "Lift", "Panda", "default", "seen"),
+    Cell("s", "Lift", "Sawyer", "default", "seen"),
+    Cell("s", "Lift", "UR5e", "default", "unseen"),
+    Cell("s", "Lift", "Jaco", "default", "unseen"),
+]
 MANIFEST = {"robots": {"seen": ["Panda", "Sawyer"], "unseen": ["UR5e", "Jaco"]}}
 
 
@@ -34,8 +39,12 @@ def test_support_counts_present_vs_evaluated_per_split():
     assert r["episodes"] == {"Panda": 2, "UR5e": 1}
     assert r["unseen_in_training"] == ["UR5e"]  # held-out robot leaked into the training data
     assert s["tasks"]["fraction"] == 1.0 and s["envs"]["covered"] == ["default"]
-    assert s["cells"] == {"evaluated": 4, "covered": 2, "fraction": 0.5,
-                          "missing": ["Lift/Sawyer/default", "Lift/Jaco/default"]}
+    assert s["cells"] == {
+        "evaluated": 4,
+        "covered": 2,
+        "fraction": 0.5,
+        "missing": ["Lift/Sawyer/default", "Lift/Jaco/default"],
+    }
 
 
 # -- state coverage --------------------------------------------------------------------------
@@ -157,15 +166,20 @@ def _dataset(root: Path, episodes: list[tuple[str, np.ndarray, dict]]) -> Path:
 
 def test_cli_writes_the_report_with_known_values(tmp_path: Path, capsys):
     base = np.zeros((4, 2), np.float32)
-    train = _dataset(tmp_path / "train", [
-        ("Panda", base, {"params": {"gain": 0.9}}), ("Panda", base + [0, 1], {"params": {"gain": 1.1}}),
-        ("Sawyer", base + [1, 0], {}),
-    ])
+    train = _dataset(
+        tmp_path / "train",
+        [
+            ("Panda", base, {"params": {"gain": 0.9}}),
+            ("Panda", base + [0, 1], {"params": {"gain": 1.1}}),
+            ("Sawyer", base + [1, 0], {}),
+        ],
+    )
     # evaluation: Panda starts where training did; UR5e starts far away
     ev = _dataset(tmp_path / "eval", [("Panda", base, {}), ("UR5e", base + [5, 5], {})])
     out = tmp_path / "cov.json"
-    rc = cov.main([f"data={train}", "suite=held_out_robots", f"eval_data={ev}", "perturb.gain=uniform(0.5,1.5)",
-                   f"out={out}"])
+    rc = cov.main(
+        [f"data={train}", "suite=held_out_robots", f"eval_data={ev}", "perturb.gain=uniform(0.5,1.5)", f"out={out}"]
+    )
     assert rc == 0
     doc = json.loads(out.read_text())
     assert doc["support"]["robots"]["covered"] == ["Panda", "Sawyer"]
@@ -177,30 +191,36 @@ def test_cli_writes_the_report_with_known_values(tmp_path: Path, capsys):
     assert "state coverage" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, match", [
-    (["suite=held_out_robots"], "data: give the training dataset"),
-    (["data=/nonexistent", "eval_data=/nonexistent"], "eval_data='/nonexistent': not a dataset folder"),
-    (["data=x", "quantil=0.9"], "Did you mean 'quantile'"),
-    (["data=x", "robots=[UR5]"], "Did you mean 'UR5e'"),
-    (["data=x", "quantile=1.5"], "quantile=1.5: must be in"),
-    (["sweep"], "the coverage sweep is an experiment script now: python -m baselines.coverage_sweep"),
-])
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["suite=held_out_robots"], "data: give the training dataset"),
+        (["data=/nonexistent", "eval_data=/nonexistent"], "eval_data='/nonexistent': not a dataset folder"),
+        (["data=x", "quantil=0.9"], "Did you mean 'quantile'"),
+        (["data=x", "robots=[UR5]"], "Did you mean 'UR5e'"),
+        (["data=x", "quantile=1.5"], "quantile=1.5: must be in"),
+        (["sweep"], "the coverage sweep is an experiment script now: python -m baselines.coverage_sweep"),
+    ],
+)
 def test_bad_input_is_a_one_line_error(argv, match):
     with pytest.raises(ConfigError, match=match):
         cov.main(argv)
 
 
-@pytest.mark.parametrize("argv, match", [
-    (["parts=[robot]"], "Did you mean 'robots'"),
-    (["order=[Panda,UR5e]"], "'UR5e' is not a seen robot"),
-    (["dr_axis=latency"], "DR widths are scales of nominal"),
-    (["dr_widths=[1.5]"], r"must be in \(0, 1\)"),
-    (["surrogate_perturb=latency"], "write AXIS=LEVEL"),
-    (["surrogate_perturb=lateny=4"], "Did you mean 'latency'"),
-    (["bc.epoch=3"], "Did you mean 'epochs'"),
-    (["budget=half"], "valid: fixed, per_robot"),
-    (["seeds=[1,1]"], "distinct training seeds"),
-])
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["parts=[robot]"], "Did you mean 'robots'"),
+        (["order=[Panda,UR5e]"], "'UR5e' is not a seen robot"),
+        (["dr_axis=latency"], "DR widths are scales of nominal"),
+        (["dr_widths=[1.5]"], r"must be in \(0, 1\)"),
+        (["surrogate_perturb=latency"], "write AXIS=LEVEL"),
+        (["surrogate_perturb=lateny=4"], "Did you mean 'latency'"),
+        (["bc.epoch=3"], "Did you mean 'epochs'"),
+        (["budget=half"], "valid: fixed, per_robot"),
+        (["seeds=[1,1]"], "distinct training seeds"),
+    ],
+)
 def test_sweep_arguments_are_checked_before_any_work(argv, match, tmp_path: Path):
     with pytest.raises(ConfigError, match=match):
         sweep.main([f"workdir={tmp_path / 'w'}", f"out={tmp_path / 'o'}", *argv])
@@ -214,22 +234,42 @@ def test_help_lists_keys():
 
 def _point(name, x, held, ind):
     est = lambda v: {"value": v, "ci": [max(0, v - 0.1), min(1, v + 0.1)]}  # noqa: E731
-    return {"name": name, "x": x, "train_robots": ["Panda"], "held_out": est(held), "in_distribution": est(ind),
-            "gap": {"value": ind - held, "ci": [ind - held - 0.2, ind - held + 0.2]},
-            "training": {"episodes": 10, "train_wall_s": 1.0}, "coverage": {"state_unseen_covered": 0.5}}
+    return {
+        "name": name,
+        "x": x,
+        "train_robots": ["Panda"],
+        "held_out": est(held),
+        "in_distribution": est(ind),
+        "gap": {"value": ind - held, "ci": [ind - held - 0.2, ind - held + 0.2]},
+        "training": {"episodes": 10, "train_wall_s": 1.0},
+        "coverage": {"state_unseen_covered": 0.5},
+    }
 
 
 def test_plot_and_table_render_a_sweep_document(tmp_path: Path):
     slope = {"value": 0.1, "ci": [0.0, 0.2], "intercept": 0.2}
-    doc = {"confidence": 0.95,
-           "robots": {"x_label": "robots", "points": [_point("robots1", 1, 0.3, 0.9), _point("robots2", 2, 0.4, 0.9)],
-                      "held_out_slope": slope, "gap_slope": slope},
-           "surrogate": {"target": "Lift/Panda/default", "in_domain_episodes": 12, "surrogate_episodes": 24,
-                         "variants": {"in_domain": {"training": {"episodes": 12}, "success": {"value": 0.5, "ci": [0.3, 0.7]}},
-                                      "plus_other_robots": {"training": {"episodes": 36},
-                                                            "success": {"value": 0.6, "ci": [0.4, 0.8]},
-                                                            "vs_in_domain": {"value": 0.1, "ci": [-0.1, 0.3],
-                                                                             "verdict": "no detectable effect"}}}}}
+    doc = {
+        "confidence": 0.95,
+        "robots": {
+            "x_label": "robots",
+            "points": [_point("robots1", 1, 0.3, 0.9), _point("robots2", 2, 0.4, 0.9)],
+            "held_out_slope": slope,
+            "gap_slope": slope,
+        },
+        "surrogate": {
+            "target": "Lift/Panda/default",
+            "in_domain_episodes": 12,
+            "surrogate_episodes": 24,
+            "variants": {
+                "in_domain": {"training": {"episodes": 12}, "success": {"value": 0.5, "ci": [0.3, 0.7]}},
+                "plus_other_robots": {
+                    "training": {"episodes": 36},
+                    "success": {"value": 0.6, "ci": [0.4, 0.8]},
+                    "vs_in_domain": {"value": 0.1, "ci": [-0.1, 0.3], "verdict": "no detectable effect"},
+                },
+            },
+        },
+    }
     path = sweep.plot_sweep(doc, tmp_path / "s.png")
     assert path.stat().st_size > 10_000 and path.read_bytes()[:4] == b"\x89PNG"
     from rich.console import Console
@@ -264,7 +304,9 @@ def test_initial_states_use_the_runs_episode_seeds():
 def test_sweep_selects_the_first_episodes_across_sources(tmp_path: Path):
     s = np.zeros((3, 2), np.float32)
     a = _dataset(tmp_path / "a", [("Panda", s, {}), ("Panda", s, {"success_once": False}), ("Sawyer", s, {})])
-    b = _dataset(tmp_path / "b", [("Panda", s + 1, {}), ("Panda", s + 2, {"condition": "gain=2", "success_once": False})])
+    b = _dataset(
+        tmp_path / "b", [("Panda", s + 1, {}), ("Panda", s + 2, {"condition": "gain=2", "success_once": False})]
+    )
     d = sweep._select([a, b], [("Panda", "nominal", 2), ("Sawyer", "nominal", 1)])
     assert [(Path(e["source"]).name, e["index"]) for e in d.episodes] == [("a", 0), ("b", 0), ("a", 2)]
     # under a perturbation failed demonstrations are kept (no truncation of the randomised range)
@@ -277,9 +319,22 @@ def test_sweep_selects_the_first_episodes_across_sources(tmp_path: Path):
 def test_tiny_sweep_end_to_end(tmp_path: Path):
     """Every part on real robosuite at a toy budget (minutes): records, trains, evaluates, writes JSON + PNG."""
     out = tmp_path / "out"
-    argv = ["order=[Panda,Sawyer]", "total_episodes=2", "eval_episodes=1", "horizon=30", "dr_widths=[0.3]",
-            "surrogate_in_domain=1", "surrogate_episodes=1", "surrogate_eval_episodes=2", "bc.successful_only=false",
-            "bc.epochs=1", "workers=1", "n_boot=200", f"workdir={tmp_path / 'work'}", f"out={out}"]
+    argv = [
+        "order=[Panda,Sawyer]",
+        "total_episodes=2",
+        "eval_episodes=1",
+        "horizon=30",
+        "dr_widths=[0.3]",
+        "surrogate_in_domain=1",
+        "surrogate_episodes=1",
+        "surrogate_eval_episodes=2",
+        "bc.successful_only=false",
+        "bc.epochs=1",
+        "workers=1",
+        "n_boot=200",
+        f"workdir={tmp_path / 'work'}",
+        f"out={out}",
+    ]
     assert sweep.main(argv + ["seeds=[0,1]"]) == 0
     doc = json.loads((out / "sweep.json").read_text())
     assert [p["name"] for p in doc["robots"]["points"]] == ["robots1", "robots2"]

@@ -1,4 +1,5 @@
 """The gate's statistics (bench.gate): alpha spending, weighted Holm, per-cell tests, bounds; the power calculation."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,23 +7,36 @@ import pytest
 
 from bench import gate, gate_power, scoring
 
-SEVEN = tuple(("Lift", r, "default", "nominal", s) for r, s in
-              (("Panda", "seen"), ("Sawyer", "seen"), ("IIWA", "seen"), ("UR5e", "unseen"), ("Kinova3", "unseen"),
-               ("Jaco", "unseen"), ("XArm7", "unseen")))
+SEVEN = tuple(
+    ("Lift", r, "default", "nominal", s)
+    for r, s in (
+        ("Panda", "seen"),
+        ("Sawyer", "seen"),
+        ("IIWA", "seen"),
+        ("UR5e", "unseen"),
+        ("Kinova3", "unseen"),
+        ("Jaco", "unseen"),
+        ("XArm7", "unseen"),
+    )
+)
 
 
 def design(episodes: int = 20, batch: int = 5, cells=SEVEN, **kw) -> gate.Design:
     return gate.Design(schedule=tuple(gate.looks_schedule(episodes, batch)), cells=tuple(cells), **kw)
 
 
-@pytest.mark.parametrize("episodes, batch, want", [(20, 5, [5, 10, 15, 20]), (6, 4, [4, 6]), (10, 0, [10]),
-                                                   (3, 5, [3])], ids=["even", "ragged", "single", "batch>episodes"])
+@pytest.mark.parametrize(
+    "episodes, batch, want",
+    [(20, 5, [5, 10, 15, 20]), (6, 4, [4, 6]), (10, 0, [10]), (3, 5, [3])],
+    ids=["even", "ragged", "single", "batch>episodes"],
+)
 def test_looks_schedule(episodes, batch, want):
     assert gate.looks_schedule(episodes, batch) == want
 
 
-@pytest.mark.parametrize("episodes, batch, cell_alpha", [(20, 5, 0.5), (10, 5, 0.5), (5, 0, 0.5), (40, 5, 0.3),
-                                                         (20, 5, 0.0)])
+@pytest.mark.parametrize(
+    "episodes, batch, cell_alpha", [(20, 5, 0.5), (10, 5, 0.5), (5, 0, 0.5), (40, 5, 0.3), (20, 5, 0.0)]
+)
 def test_alpha_spent_over_tests_and_looks_sums_to_alpha(episodes, batch, cell_alpha):
     d = design(episodes, batch, cell_alpha=cell_alpha)
     assert sum(sum(t.values()) for t in d.thresholds) == pytest.approx(0.05)
@@ -101,8 +115,9 @@ def test_identical_outcomes_never_fail_and_pass_once_the_budget_can_certify():
     outcomes = rng.random((7, 20)) < 0.7
     same = {k: gate.pairs_of(outcomes[i], outcomes[i]) for i, k in enumerate(SEVEN)}
     d = design(20, 5)
-    small = gate.evaluate_look({k: gate.pairs_of(outcomes[i, :5], outcomes[i, :5]) for i, k in enumerate(SEVEN)}, d,
-                               0, rng, 500)
+    small = gate.evaluate_look(
+        {k: gate.pairs_of(outcomes[i, :5], outcomes[i, :5]) for i, k in enumerate(SEVEN)}, d, 0, rng, 500
+    )
     assert small["mean"]["value"] == 0 and small["decision"] == "continue" and not small["regressed"]
     # with no discordant pair the upper bound is z²/(n + z²), not 0 (a bootstrap would claim certainty)
     z = 2.2414  # certification: one-sided at 1 - 0.05 / 4 looks (the IQM is not used with 5 pairs per cell)

@@ -6,6 +6,7 @@ command. Each input must either parse or raise a `BenchError` whose message is o
 any other exception is a bug. A sample also goes through `bench.cli.main` in an empty
 temporary folder, which must stay empty when the command is refused.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,8 +21,9 @@ from bench import api
 from bench import config as config_mod
 from bench.errors import BenchError
 
-SETTINGS = dict(deadline=None, derandomize=True,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+SETTINGS = dict(
+    deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+)
 
 
 def _schemas() -> list[type]:
@@ -33,8 +35,16 @@ def _schemas() -> list[type]:
     from bench.replay.common import ReplayConfig
     from bench.report import ReportConfig
 
-    return [api.RunConfig, CorrelateConfig, CheckConfig, CoverageConfig, PerfConfig, RegressConfig,
-            ReplayConfig, ReportConfig]
+    return [
+        api.RunConfig,
+        CorrelateConfig,
+        CheckConfig,
+        CoverageConfig,
+        PerfConfig,
+        RegressConfig,
+        ReplayConfig,
+        ReportConfig,
+    ]
 
 
 SCHEMAS = _schemas()
@@ -44,18 +54,80 @@ ALL_KEYS = sorted({f.name for s in SCHEMAS for f in dataclasses.fields(s)})
 numbers = st.one_of(
     st.integers(min_value=-(2**70), max_value=2**70).map(str),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
-    st.sampled_from(["nan", "NaN", "inf", "-inf", ".inf", "-.inf", "1e300", "-1e300", "1e-320", "0", "-0",
-                     "0x10", "1_000", "007", "2**63", "9" * 40]),
+    st.sampled_from(
+        [
+            "nan",
+            "NaN",
+            "inf",
+            "-inf",
+            ".inf",
+            "-.inf",
+            "1e300",
+            "-1e300",
+            "1e-320",
+            "0",
+            "-0",
+            "0x10",
+            "1_000",
+            "007",
+            "2**63",
+            "9" * 40,
+        ]
+    ),
 )
 weird = st.text(st.characters(codec="utf-8", exclude_categories=("Cs",)), max_size=12)
-punct = st.sampled_from(["[", "]", "[]", "{}", "{", "}", "'", '"', "''", ",", ":", "=", "${x}", "${", "\\", "/",
-                         "..", "\x00", "\x1b[31m", "\n", " ", "[Panda", "[a,[b]]", "[1,2", "a,b", "~", "null",
-                         "true", "yes", "%", "!!python/object", "&a", "*a", "#"])
-values = st.one_of(numbers, weird, punct,
-                   st.lists(st.one_of(numbers, weird, punct), max_size=3).map(lambda xs: "[" + ",".join(xs) + "]"))
-keys = st.one_of(st.sampled_from(ALL_KEYS), st.sampled_from(ALL_KEYS).map(lambda k: k + ".x"),
-                 weird, st.sampled_from(["", ".", "a..b", "perturb.friction", "perturb.latency", "perturb.",
-                                         "robots[0]", "__class__", "suite.x"]))
+punct = st.sampled_from(
+    [
+        "[",
+        "]",
+        "[]",
+        "{}",
+        "{",
+        "}",
+        "'",
+        '"',
+        "''",
+        ",",
+        ":",
+        "=",
+        "${x}",
+        "${",
+        "\\",
+        "/",
+        "..",
+        "\x00",
+        "\x1b[31m",
+        "\n",
+        " ",
+        "[Panda",
+        "[a,[b]]",
+        "[1,2",
+        "a,b",
+        "~",
+        "null",
+        "true",
+        "yes",
+        "%",
+        "!!python/object",
+        "&a",
+        "*a",
+        "#",
+    ]
+)
+values = st.one_of(
+    numbers,
+    weird,
+    punct,
+    st.lists(st.one_of(numbers, weird, punct), max_size=3).map(lambda xs: "[" + ",".join(xs) + "]"),
+)
+keys = st.one_of(
+    st.sampled_from(ALL_KEYS),
+    st.sampled_from(ALL_KEYS).map(lambda k: k + ".x"),
+    weird,
+    st.sampled_from(
+        ["", ".", "a..b", "perturb.friction", "perturb.latency", "perturb.", "robots[0]", "__class__", "suite.x"]
+    ),
+)
 overrides = st.lists(st.tuples(keys, values).map(lambda kv: f"{kv[0]}={kv[1]}"), min_size=0, max_size=4)
 
 
@@ -98,9 +170,15 @@ def test_build_parses_or_refuses_in_one_line(schema: type, argv: list[str]) -> N
 
 
 @settings(max_examples=400, **SETTINGS)
-@given(st.lists(st.tuples(st.sampled_from(RUN_KEYS + ["perturb.friction", "perturb.latency", "checkpoint",
-                                                      "robots", "nonsense"]), values)
-                .map(lambda kv: f"{kv[0]}={kv[1]}"), max_size=4))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(RUN_KEYS + ["perturb.friction", "perturb.latency", "checkpoint", "robots", "nonsense"]),
+            values,
+        ).map(lambda kv: f"{kv[0]}={kv[1]}"),
+        max_size=4,
+    )
+)
 def test_run_config_parses_or_refuses_in_one_line(argv: list[str]) -> None:
     """`bench run` arguments routed to runner, suite and policy, then the runner's ranges."""
     try:
@@ -125,10 +203,19 @@ def test_a_key_given_twice_is_refused(key: str, vals: list[str]) -> None:
 
 
 @settings(max_examples=150, **SETTINGS)
-@given(st.sampled_from(["score", "correlate", "replay", "report", "regress", "coverage", "perf"]),
-       st.lists(st.tuples(st.sampled_from(["n_boot", "confidence", "level", "seed", "k", "workers", "horizon",
-                                           "timeout", "episodes", "nonsense"]), values)
-                .map(lambda kv: f"{kv[0]}={kv[1]}"), min_size=1, max_size=3))
+@given(
+    st.sampled_from(["score", "correlate", "replay", "report", "regress", "coverage", "perf"]),
+    st.lists(
+        st.tuples(
+            st.sampled_from(
+                ["n_boot", "confidence", "level", "seed", "k", "workers", "horizon", "timeout", "episodes", "nonsense"]
+            ),
+            values,
+        ).map(lambda kv: f"{kv[0]}={kv[1]}"),
+        min_size=1,
+        max_size=3,
+    ),
+)
 def test_cli_refuses_in_one_line_and_writes_nothing(tmp_path_factory, capsys, command: str, argv: list[str]) -> None:
     """`bench <command>` with hostile numeric keys: exit 0/2 with one stderr line; an empty cwd stays empty
     when refused. The run directory argument points at a folder that does not exist, so nothing runs."""
@@ -152,8 +239,9 @@ def test_cli_refuses_in_one_line_and_writes_nothing(tmp_path_factory, capsys, co
 
 def test_absurd_work_is_refused_up_front_naming_the_keys(tmp_path) -> None:
     """Every key in range, the product not: refused by plan() before anything is written."""
-    cfg = api.config_from_argv(["suite=tests.toy_suite:ToySuite", "episodes=100000", "horizon=100000",
-                                f"out={tmp_path}/runs"])
+    cfg = api.config_from_argv(
+        ["suite=tests.toy_suite:ToySuite", "episodes=100000", "horizon=100000", f"out={tmp_path}/runs"]
+    )
     with pytest.raises(BenchError, match=r"control steps, over the limit of 1e\+10; reduce episodes=, horizon="):
         api.plan(cfg)
     assert not any(tmp_path.iterdir())

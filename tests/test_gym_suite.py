@@ -1,4 +1,5 @@
 """suite=gym: any Gymnasium env id as a one-cell suite, with perturbations; bad input exits 2 writing nothing."""
+
 import json
 
 import numpy as np
@@ -6,15 +7,26 @@ import pytest
 
 from bench.cli import main
 from bench.errors import ConfigError
-from bench.schema import validate
 from bench.records import comparable, read_records
+from bench.schema import validate
 
 pytest.importorskip("gymnasium")
 
 
 def run(tmp_path, run_id, *extra, env_id="InvertedPendulum-v5"):
-    return main(["run", "suite=gym", f"env_id={env_id}", "episodes=3", "workers=1", "horizon=40",
-                 f"out={tmp_path}", f"run_id={run_id}", *extra])
+    return main(
+        [
+            "run",
+            "suite=gym",
+            f"env_id={env_id}",
+            "episodes=3",
+            "workers=1",
+            "horizon=40",
+            f"out={tmp_path}",
+            f"run_id={run_id}",
+            *extra,
+        ]
+    )
 
 
 def test_suite_needs_a_registered_env_id():
@@ -22,7 +34,9 @@ def test_suite_needs_a_registered_env_id():
 
     with pytest.raises(ConfigError, match=r"env_id: suite=gym needs a Gymnasium env id"):
         GymSuite()
-    with pytest.raises(ConfigError, match=r"env_id='HalfCheeta-v5': not a registered Gymnasium env .*Did you mean 'HalfCheetah-v5'\?"):
+    with pytest.raises(
+        ConfigError, match=r"env_id='HalfCheeta-v5': not a registered Gymnasium env .*Did you mean 'HalfCheetah-v5'\?"
+    ):
         GymSuite(GymOptions("HalfCheeta-v5"))
     suite = GymSuite(GymOptions("HalfCheetah-v5"))
     assert suite.default_horizon == 1000 and suite.default_metric == "return"
@@ -38,7 +52,8 @@ def test_env_id_module_prefix_imports_the_registering_module(tmp_path, monkeypat
     (tmp_path / "my_envs_mod.py").write_text(
         "import gymnasium\n"
         "gymnasium.register(id='MyPendulum-v0', entry_point='gymnasium.envs.classic_control:PendulumEnv', "
-        "max_episode_steps=77)\n")
+        "max_episode_steps=77)\n"
+    )
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(tmp_path))
     suite = GymSuite(GymOptions("my_envs_mod:MyPendulum-v0"))
@@ -89,8 +104,16 @@ def test_discrete_actions_are_rounded_within_bounds():
 
 
 def test_run_with_perturbations_records_params_and_sensitivity(tmp_path):
-    assert run(tmp_path, "a", "perturb.friction=[0.5,2.0]", "perturb.gravity=uniform(0.5,1.5)",
-               "perturb.action_noise=[0.3]") == 0
+    assert (
+        run(
+            tmp_path,
+            "a",
+            "perturb.friction=[0.5,2.0]",
+            "perturb.gravity=uniform(0.5,1.5)",
+            "perturb.action_noise=[0.3]",
+        )
+        == 0
+    )
     recs = read_records(tmp_path / "a" / "episodes.jsonl")
     assert len(recs) == 15 and all(r.error is None for r in recs)
     by_cond = {}
@@ -122,20 +145,38 @@ def test_same_seed_with_domain_randomisation_gives_identical_records(tmp_path):
     assert run(tmp_path, "c", "seed=1", *args) == 0
     c = read_records(tmp_path / "c" / "episodes.jsonl")
     assert {r.params.get("link_mass") for r in c if r.axis == "link_mass"}.isdisjoint(
-        {r.params["link_mass"] for r in a if r.axis == "link_mass"})
+        {r.params["link_mass"] for r in a if r.axis == "link_mass"}
+    )
 
 
-@pytest.mark.parametrize("extra, match", [
-    (["perturb.fricton=[0.5]"], r"perturb.fricton: unknown perturbation axis; .*Did you mean 'friction'\?"),
-    (["perturb.friction=[-1]"], r"perturb.friction: -1 is invalid; friction levels \(scale of nominal\) must be >= 0"),
-    (["perturb.mass.levels=[2]", "perturb.mass.bodies=[pole2]"],
-     r"perturb.mass.bodies: 'pole2' is not a body of InvertedPendulum-v5/default/default; valid: world, cart, pole.*Did you mean 'pole'\?"),
-    (["perturb.mass=[2]"], r"perturb.mass: InvertedPendulum-v5/default/default declares no manipulated object"),
-    (["perturb.damping=[2]", "CartPole-v1"], r"perturb.damping: .* cannot apply it; model axes there: none"),
-    (["perturb.friction=[0.5]", "perturb.friction.bodies=[pole]"],
-     r"perturb.friction is set to a value and also given the sub-key perturb.friction.bodies; .*perturb.friction.levels="),
-], ids=["unknown-axis", "negative-scale", "unknown-body", "mass-without-object", "model-axis-on-non-mujoco",
-        "levels-and-subkeys-mixed"])
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (["perturb.fricton=[0.5]"], r"perturb.fricton: unknown perturbation axis; .*Did you mean 'friction'\?"),
+        (
+            ["perturb.friction=[-1]"],
+            r"perturb.friction: -1 is invalid; friction levels \(scale of nominal\) must be >= 0",
+        ),
+        (
+            ["perturb.mass.levels=[2]", "perturb.mass.bodies=[pole2]"],
+            r"perturb.mass.bodies: 'pole2' is not a body of InvertedPendulum-v5/default/default; valid: world, cart, pole.*Did you mean 'pole'\?",
+        ),
+        (["perturb.mass=[2]"], r"perturb.mass: InvertedPendulum-v5/default/default declares no manipulated object"),
+        (["perturb.damping=[2]", "CartPole-v1"], r"perturb.damping: .* cannot apply it; model axes there: none"),
+        (
+            ["perturb.friction=[0.5]", "perturb.friction.bodies=[pole]"],
+            r"perturb.friction is set to a value and also given the sub-key perturb.friction.bodies; .*perturb.friction.levels=",
+        ),
+    ],
+    ids=[
+        "unknown-axis",
+        "negative-scale",
+        "unknown-body",
+        "mass-without-object",
+        "model-axis-on-non-mujoco",
+        "levels-and-subkeys-mixed",
+    ],
+)
 def test_bad_perturbation_exits_2_and_writes_nothing(tmp_path, capsys, extra, match):
     env_id = extra[-1] if extra[-1] == "CartPole-v1" else "InvertedPendulum-v5"
     assert run(tmp_path, "bad", *[e for e in extra if e != env_id], env_id=env_id) == 2

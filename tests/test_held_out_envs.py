@@ -1,4 +1,5 @@
 """held_out_envs on real Meta-World: manifests, cells, seeding that pins the initial state, the expert."""
+
 import subprocess
 import sys
 import warnings
@@ -6,9 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
+from bench.api import RunConfig
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.api import RunConfig
 from bench.suite import select_cells
 from suites.held_out_envs import ML10, ML45, HeldOutEnvs, HeldOutEnvsML45
 
@@ -46,8 +47,10 @@ def test_manifest_parsed_from_source_equals_imported_definition(benchmark):
 
 
 def test_metaworld_manifest_is_fast_and_imports_no_metaworld():
-    code = ("import sys, time; from bench.sim_metaworld import metaworld_manifest; t = time.perf_counter(); "
-            "metaworld_manifest('ML45'); print('metaworld' in sys.modules, time.perf_counter() - t < 0.5)")
+    code = (
+        "import sys, time; from bench.sim_metaworld import metaworld_manifest; t = time.perf_counter(); "
+        "metaworld_manifest('ML45'); print('metaworld' in sys.modules, time.perf_counter() - t < 0.5)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "True"]
 

@@ -1,10 +1,11 @@
 """held_out_scenes: declared scene split, cells, and one real robosuite scene with its table where declared."""
+
 import numpy as np
 import pytest
 
+from bench.api import RunConfig
 from bench.env import state_hash
 from bench.errors import ConfigError
-from bench.api import RunConfig
 from bench.suite import select_cells
 from suites.held_out_scenes import (
     NOMINAL,
@@ -101,7 +102,9 @@ def test_spawn_region_is_where_declared(scene_env):
 def test_scene_is_part_of_the_initial_state(scene_env):
     """Nominal and the slippery table start from the same joint state; the hashes must still differ."""
     nominal, slippery = scene_env("nominal"), scene_env("table_slippery")
-    assert slippery.mujoco.model.geom_friction[slippery.mujoco.model.geom("table_collision").id][0] == pytest.approx(0.2)
+    assert slippery.mujoco.model.geom_friction[slippery.mujoco.model.geom("table_collision").id][0] == pytest.approx(
+        0.2
+    )
     nominal.reset(4)
     slippery.reset(4)
     n_state, s_state = nominal.init_state(), slippery.init_state()

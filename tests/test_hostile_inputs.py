@@ -7,6 +7,7 @@ be unreliable inside pytest's own, larger process); each test then reads its cas
 Cases listed in KNOWN_FAILING are strict xfails with the reason they still fail: fixing one turns its
 test red until it leaves the list.
 """
+
 from __future__ import annotations
 
 import os
@@ -31,8 +32,13 @@ KNOWN_FAILING: dict[str, str] = {}
 def verdicts(tmp_path_factory) -> dict[str, str]:
     work = tmp_path_factory.mktemp("hostile")
     env = {**os.environ, "PYTHONPATH": str(REPO), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    res = subprocess.run([sys.executable, str(REPO / "tests" / "hostile.py"), str(work)], capture_output=True,
-                         text=True, env=env, timeout=1800)
+    res = subprocess.run(
+        [sys.executable, str(REPO / "tests" / "hostile.py"), str(work)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1800,
+    )
     out: dict[str, str] = {}
     for line in res.stdout.splitlines():
         m = re.match(r"^(ok|FAIL)\s+(\S+) \(", line)

@@ -1,5 +1,6 @@
 """Leaderboard merge/show: one entry per policy x checkpoint x suite version, ranking by the lower bound,
 refusals (other suite version or manifest, corrupt or foreign JSON) that leave the existing file untouched."""
+
 from __future__ import annotations
 
 import copy
@@ -11,8 +12,8 @@ import pytest
 from bench import cli
 from bench.errors import DataError
 from bench.leaderboard import merge, read_input
-from bench.schema import validate
 from bench.records import EpisodeRecord
+from bench.schema import validate
 from bench.summary import build
 
 MANIFEST = {"robots": {"seen": ["A", "B"], "unseen": ["C", "D"]}}
@@ -24,26 +25,70 @@ def _records(run_id: str, rates: dict[str, float], episodes: int = 10) -> list[E
         split = "seen" if robot in MANIFEST["robots"]["seen"] else "unseen"
         for e in range(episodes):
             ok = e < round(p * episodes)
-            out.append(EpisodeRecord(
-                run_id=run_id, job_id=f"Lift/{robot}/default|nominal|{e}", suite="toy", suite_version="1",
-                task="Lift", robot=robot, env="default", split=split, condition="nominal", axis=None, level=None,
-                params={}, episode=e, seed=e, init_state_hash="h", success_once=ok, success_at_end=ok, return_=0.0,
-                length=5, steps_to_success=None, error=None, policy="p", checkpoint_sha256=None, backend="b",
-                wall_s=0.0, finished_at=0.0, worker_pid=0))
+            out.append(
+                EpisodeRecord(
+                    run_id=run_id,
+                    job_id=f"Lift/{robot}/default|nominal|{e}",
+                    suite="toy",
+                    suite_version="1",
+                    task="Lift",
+                    robot=robot,
+                    env="default",
+                    split=split,
+                    condition="nominal",
+                    axis=None,
+                    level=None,
+                    params={},
+                    episode=e,
+                    seed=e,
+                    init_state_hash="h",
+                    success_once=ok,
+                    success_at_end=ok,
+                    return_=0.0,
+                    length=5,
+                    steps_to_success=None,
+                    error=None,
+                    policy="p",
+                    checkpoint_sha256=None,
+                    backend="b",
+                    wall_s=0.0,
+                    finished_at=0.0,
+                    worker_pid=0,
+                )
+            )
     return out
 
 
-def summary(run_id: str, policy: str, rates: dict[str, float], *, sha: str | None = None, version: str = "1",
-            manifest: dict | None = None, finished: str = "2026-01-01T00:00:00+00:00") -> dict:
+def summary(
+    run_id: str,
+    policy: str,
+    rates: dict[str, float],
+    *,
+    sha: str | None = None,
+    version: str = "1",
+    manifest: dict | None = None,
+    finished: str = "2026-01-01T00:00:00+00:00",
+) -> dict:
     meta = {
         "run_id": run_id,
         "suite": {"name": "toy", "version": version, "manifest": copy.deepcopy(manifest or MANIFEST)},
         "policy": {"name": policy, "checkpoint": "c.safetensors" if sha else None, "checkpoint_sha256": sha},
         "config": {"seed": 0, "n_boot": 500, "confidence": 0.95, "metric": "success_once"},
         "expected_episodes": 10 * len(rates),
-        "provenance": {"bench_version": "0", "git_sha": None, "packages": {}, "python": "3", "platform": "x",
-                       "cores": 2, "workers": 1, "backend": ["b"], "seed": 0, "episode_seeds": list(range(10)),
-                       "started_at": "s", "finished_at": finished},
+        "provenance": {
+            "bench_version": "0",
+            "git_sha": None,
+            "packages": {},
+            "python": "3",
+            "platform": "x",
+            "cores": 2,
+            "workers": 1,
+            "backend": ["b"],
+            "seed": 0,
+            "episode_seeds": list(range(10)),
+            "started_at": "s",
+            "finished_at": finished,
+        },
     }
     s = build(_records(run_id, rates), run_meta=meta)
     validate(s)
@@ -94,11 +139,17 @@ def test_runs_with_a_cell_selection_are_not_ranked_against_full_runs():
     assert all(e["rank"] == 1 for e in board["entries"])
 
 
-@pytest.mark.parametrize("change, match", [
-    (lambda s: s["suite"].update(version="2"), "refusing to rank across suite versions"),
-    (lambda s: s["suite"]["manifest"]["robots"].update(seen=["A"], unseen=["B", "C", "D"]),
-     "refusing to rank across split manifests"),
-], ids=["suite-version", "split-manifest"])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda s: s["suite"].update(version="2"), "refusing to rank across suite versions"),
+        (
+            lambda s: s["suite"]["manifest"]["robots"].update(seen=["A"], unseen=["B", "C", "D"]),
+            "refusing to rank across split manifests",
+        ),
+    ],
+    ids=["suite-version", "split-manifest"],
+)
 def test_merge_refuses_incomparable_suites(change, match):
     a, b = summary("a", "expert", ALL), summary("b", "random", ALL)
     change(b)
@@ -114,13 +165,17 @@ def existing(tmp_path: Path) -> Path:
     return out
 
 
-@pytest.mark.parametrize("bad, match", [
-    ("{\"schema\": \"bench.summary/1\", ", "not valid JSON"),
-    (json.dumps({"name": "someone else's file"}), "not a bench result (no 'schema' field)"),
-    (json.dumps({"schema": "other.tool/3"}), "unknown schema 'other.tool/3'"),
-    (json.dumps({"schema": "bench.summary/1", "run_id": "x"}), "is a required property"),
-    (json.dumps({"schema": "bench.summary/1", "value": float("nan")}), "NaN"),
-], ids=["corrupt", "foreign", "unknown-schema", "incomplete-summary", "nan"])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ('{"schema": "bench.summary/1", ', "not valid JSON"),
+        (json.dumps({"name": "someone else's file"}), "not a bench result (no 'schema' field)"),
+        (json.dumps({"schema": "other.tool/3"}), "unknown schema 'other.tool/3'"),
+        (json.dumps({"schema": "bench.summary/1", "run_id": "x"}), "is a required property"),
+        (json.dumps({"schema": "bench.summary/1", "value": float("nan")}), "NaN"),
+    ],
+    ids=["corrupt", "foreign", "unknown-schema", "incomplete-summary", "nan"],
+)
 def test_bad_input_exits_2_and_leaves_the_leaderboard_untouched(existing: Path, tmp_path: Path, capsys, bad, match):
     before = existing.read_bytes()
     bad_file = write(tmp_path / "bad.json", bad)

@@ -11,6 +11,7 @@ Video tolerances, stated: lerobot (torchcodec on the system's FFmpeg) and bench 
 same file to frames that differ by at most 1 level of 255 (measured: identical); decoded frames differ from
 the frames written by the codec's loss, held to `video_frames.MAE` per frame and to the right order.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,10 @@ SHARED = REPO.parent / "shared" / "data"
 def lerobot_python() -> str:
     py = os.environ.get("BENCH_LEROBOT_PYTHON", "")
     if not py:
-        pytest.skip("BENCH_LEROBOT_PYTHON is not set: lerobot lives in a side venv (it brings pandas and a CUDA "
-                    "torch); build it with `bash .ci/lerobot-venv.sh` and set BENCH_LEROBOT_PYTHON=.lerobot-venv/bin/python")
+        pytest.skip(
+            "BENCH_LEROBOT_PYTHON is not set: lerobot lives in a side venv (it brings pandas and a CUDA "
+            "torch); build it with `bash .ci/lerobot-venv.sh` and set BENCH_LEROBOT_PYTHON=.lerobot-venv/bin/python"
+        )
     if not Path(py).exists():
         pytest.fail(f"BENCH_LEROBOT_PYTHON={py} does not exist")
     return py
@@ -98,16 +101,23 @@ def _synthetic():
     eps = []
     for e in range(4):
         t = 5 + 4 * e
-        eps.append({
-            "observation.state": rng.standard_normal((t, 14)),
-            "action": rng.standard_normal((t, 14)),
-            "next.reward": rng.standard_normal(t),
-            "next.done": np.arange(t) == t - 1,
-            "observation.images.cam": rng.integers(0, 256, (t, 12, 10, 3), dtype=np.uint8),
-        })
-    return from_arrays(eps, fps=30, task=["fold towel", "open drawer", "fold towel", "stack cups"],
-                       names={"action": [f"j{i}" for i in range(14)]}, robot_type="aloha",
-                       meta=[{"success": e % 2 == 0} for e in range(4)])
+        eps.append(
+            {
+                "observation.state": rng.standard_normal((t, 14)),
+                "action": rng.standard_normal((t, 14)),
+                "next.reward": rng.standard_normal(t),
+                "next.done": np.arange(t) == t - 1,
+                "observation.images.cam": rng.integers(0, 256, (t, 12, 10, 3), dtype=np.uint8),
+            }
+        )
+    return from_arrays(
+        eps,
+        fps=30,
+        task=["fold towel", "open drawer", "fold towel", "stack cups"],
+        names={"action": [f"j{i}" for i in range(14)]},
+        robot_type="aloha",
+        meta=[{"success": e % 2 == 0} for e in range(4)],
+    )
 
 
 def _video_episodes(codec_sizes: dict[str, tuple[int, int]]) -> tuple[list[dict], dict[str, np.ndarray]]:
@@ -117,8 +127,11 @@ def _video_episodes(codec_sizes: dict[str, tuple[int, int]]) -> tuple[list[dict]
     written: dict[str, list] = {k: [] for k in codec_sizes}
     for e in range(4):
         t = 6 + 3 * e
-        ep = {"observation.state": rng.standard_normal((t, 4)), "action": rng.standard_normal((t, 2)),
-              "next.reward": rng.standard_normal(t)}
+        ep = {
+            "observation.state": rng.standard_normal((t, 4)),
+            "action": rng.standard_normal((t, 2)),
+            "next.reward": rng.standard_normal(t),
+        }
         for c, (key, (h, w)) in enumerate(codec_sizes.items()):
             ep[key] = frames(t, h, w, camera=c, start=start)
             written[key].append(ep[key])
@@ -134,8 +147,7 @@ def test_lerobot_loads_written_video_dataset(lerobot_python, tmp_path, codec):
     eps, written = _video_episodes(cams)
     for ep in eps:
         ep["observation.images.png"] = ep["observation.images.side"][:, :12, :10]
-    ds = from_arrays(eps, fps=15, task=["pick", "place", "pick", "place"], robot_type="toy",
-                     video=list(cams))
+    ds = from_arrays(eps, fps=15, task=["pick", "place", "pick", "place"], robot_type="toy", video=list(cams))
     root = write_dataset(tmp_path / codec, ds, video_codec=codec)
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=2)
     for key in cams:
@@ -159,8 +171,12 @@ def test_lerobot_loads_video_split_over_files(lerobot_python, tmp_path, monkeypa
 def test_bench_reads_lerobot_video_dataset(lerobot_python, tmp_path, vcodec):
     """A dataset lerobot itself recorded (add_frame / save_episode, its encoder): bench reads every frame."""
     root, given = tmp_path / "by_lerobot", tmp_path / "given.npz"
-    proc = subprocess.run([lerobot_python, str(WRITER), str(root), str(given)] + ([vcodec] if vcodec else []),
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [lerobot_python, str(WRITER), str(root), str(given)] + ([vcodec] if vcodec else []),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     codec = vcodec or "av1"
     with np.load(given) as z:
@@ -212,8 +228,23 @@ def test_lerobot_loads_rlds_import(lerobot_python, tmp_path):
 def test_lerobot_loads_bench_run_recording(lerobot_python, tmp_path):
     """`bench run record=` (robosuite rollouts, nominal and perturbed, success per episode)."""
     root = tmp_path / "rec"
-    assert main(["run", "policy=scripted", "robots=[Panda]", "episodes=1", "horizon=15", "workers=1", "run_id=r",
-                 f"out={tmp_path / 'runs'}", f"record={root}", "perturb.link_mass=[3]"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "policy=scripted",
+                "robots=[Panda]",
+                "episodes=1",
+                "horizon=15",
+                "workers=1",
+                "run_id=r",
+                f"out={tmp_path / 'runs'}",
+                f"record={root}",
+                "perturb.link_mass=[3]",
+            ]
+        )
+        == 0
+    )
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert doc["total_episodes"] == 2
 
@@ -221,8 +252,25 @@ def test_lerobot_loads_bench_run_recording(lerobot_python, tmp_path):
 def test_lerobot_loads_bench_run_recording_with_cameras(lerobot_python, tmp_path):
     """`bench run obs=state+rgb record=`: both cameras become video features lerobot decodes like bench."""
     root = tmp_path / "rec_cam"
-    assert main(["run", "robots=[Panda]", "episodes=2", "horizon=12", "workers=1", "run_id=rc", "obs=state+rgb",
-                 "image_size=48", f"out={tmp_path / 'runs'}", f"record={root}"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "robots=[Panda]",
+                "episodes=2",
+                "horizon=12",
+                "workers=1",
+                "run_id=rc",
+                "obs=state+rgb",
+                "image_size=48",
+                f"out={tmp_path / 'runs'}",
+                f"record={root}",
+            ]
+        )
+        == 0
+    )
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert {k for k, v in doc["features"].items() if v["dtype"] == "video"} == {
-        "observation.images.agentview", "observation.images.robot0_eye_in_hand"}
+        "observation.images.agentview",
+        "observation.images.robot0_eye_in_hand",
+    }

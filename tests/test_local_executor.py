@@ -1,6 +1,7 @@
 """The local executor and the job queue both executors share: cell-major with warm cells first,
 bounded retries of episodes whose worker died, the parent working while children start,
 and the same records whatever the number of workers (toy suite, tests/toy_suite.py)."""
+
 from __future__ import annotations
 
 import os
@@ -24,8 +25,8 @@ def jobs(cells: str = "ab", episodes: int = 3):
 def test_queue_is_cell_major_and_prefers_a_warm_cell():
     q = JobQueue(jobs("abc", 2))
     assert [q.take().cell.robot for _ in range(3)] == ["a", "a", "b"]
-    assert q.take(warm={"reach/c/line"}).cell.robot == "c"       # a worker that built c stays on c
-    assert q.take(warm={"reach/a/line"}).cell.robot == "b"       # a is done: the next cell in order
+    assert q.take(warm={"reach/c/line"}).cell.robot == "c"  # a worker that built c stays on c
+    assert q.take(warm={"reach/a/line"}).cell.robot == "b"  # a is done: the next cell in order
     assert q.take().cell.robot == "c" and q.take() is None and not q
 
 
@@ -35,7 +36,7 @@ def test_a_lost_job_goes_first_and_is_given_up_after_bounded_retries():
     q.take()
     assert q.lost(first, "worker 1 died") and q.take(warm={"reach/b/line"}) == first  # retried before all else
     assert q.lost(first, "worker 2 died") and q.take() == first
-    assert not q.lost(first, "worker 3 died")                     # third loss: given up, not queued again
+    assert not q.lost(first, "worker 3 died")  # third loss: given up, not queued again
     assert q.attempts(first) == ["worker 1 died", "worker 2 died", "worker 3 died"]
     assert given_up_message(q.attempts(first)) == "worker lost on each of 3 attempts (last: worker 3 died)"
     assert [j.cell.robot for j in iter(q.take, None)] == ["b", "b"]
@@ -59,8 +60,9 @@ def test_a_killed_worker_process_loses_no_episode(tmp_path):
     ref = api.run(cfg("one", tmp_path, episodes=6, workers=1))  # step_delay changes no record
     assert killed and len(res.records) == 18 and len({r.job_id for r in res.records}) == 18
     retried = [r for r in res.records if "retries" in r.extras]
-    assert retried and all(r.extras["retries"] == [f"worker process {killed[0]} was killed by signal 9"]
-                           for r in retried)
+    assert retried and all(
+        r.extras["retries"] == [f"worker process {killed[0]} was killed by signal 9"] for r in retried
+    )
     assert all(r.worker_pid != killed[0] for r in retried) and all(r.error is None for r in res.records)
 
     def same(r):
@@ -68,8 +70,9 @@ def test_a_killed_worker_process_loses_no_episode(tmp_path):
         d.pop("extras", None)
         return d
 
-    assert sorted(map(same, res.records), key=lambda d: d["job_id"]) == \
-        sorted(map(same, ref.records), key=lambda d: d["job_id"])
+    assert sorted(map(same, res.records), key=lambda d: d["job_id"]) == sorted(
+        map(same, ref.records), key=lambda d: d["job_id"]
+    )
 
 
 def test_parent_and_children_share_the_work(tmp_path):
@@ -78,15 +81,18 @@ def test_parent_and_children_share_the_work(tmp_path):
     assert os.getpid() in pids and len(pids) == 3  # the parent ran episodes while the two children started
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["executor=dask"], "executor='dask': valid: local, ray"),
-    (["actors=2"], "actors=2 applies to executor=ray; add executor=ray or leave it out"),
-    (["ray_env=pip"], "ray_env='pip' applies to executor=ray"),
-    (["executor=ray", "workers=2"], "workers=2 applies to executor=local; with executor=ray give actors="),
-    (["executor=ray", "ray_address=somewhere"], "ray_address='somewhere': give auto, local or HOST:PORT"),
-    (["executor=ray", "ray_env=conda"], "ray_env='conda': valid: code, pip, installed"),
-    (["executor=ray", "actor_cpus=0"], "actor_cpus=0: must be in (0, 1024]"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["executor=dask"], "executor='dask': valid: local, ray"),
+        (["actors=2"], "actors=2 applies to executor=ray; add executor=ray or leave it out"),
+        (["ray_env=pip"], "ray_env='pip' applies to executor=ray"),
+        (["executor=ray", "workers=2"], "workers=2 applies to executor=local; with executor=ray give actors="),
+        (["executor=ray", "ray_address=somewhere"], "ray_address='somewhere': give auto, local or HOST:PORT"),
+        (["executor=ray", "ray_env=conda"], "ray_env='conda': valid: code, pip, installed"),
+        (["executor=ray", "actor_cpus=0"], "actor_cpus=0: must be in (0, 1024]"),
+    ],
+)
 def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
         api.plan(api.config_from_argv([f"suite={TOY}", f"out={tmp_path}", "run_id=x", *argv]))
@@ -94,5 +100,4 @@ def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message)
 
 
 def test_executor_keys_may_change_on_resume():
-    assert {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"} <= \
-        api.RESUMABLE_KEYS
+    assert {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"} <= api.RESUMABLE_KEYS

@@ -2,11 +2,12 @@
 
 Each case starts from a good dataset written in tmp_path and breaks one thing.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pyarrow as pa
@@ -25,7 +26,9 @@ LEN = 20  # frames per episode; 4 episodes
 @pytest.fixture
 def good(tmp_path: Path) -> Path:
     rng = np.random.default_rng(0)
-    eps = [{"observation.state": rng.standard_normal((LEN, 3)), "action": rng.standard_normal((LEN, 2))} for _ in range(4)]
+    eps = [
+        {"observation.state": rng.standard_normal((LEN, 3)), "action": rng.standard_normal((LEN, 2))} for _ in range(4)
+    ]
     return write_dataset(tmp_path / "good", from_arrays(eps, fps=10))
 
 
@@ -61,7 +64,9 @@ def test_wrong_shape_declared(good):
     info = json.loads((good / "meta/info.json").read_text())
     info["features"]["observation.state"]["shape"] = [4]
     (good / "meta/info.json").write_text(json.dumps(info))
-    _raises(good, rf"{DATA}: column 'observation.state' has 3 values per frame but meta/info.json declares shape \[4\]", 1)
+    _raises(
+        good, rf"{DATA}: column 'observation.state' has 3 values per frame but meta/info.json declares shape \[4\]", 1
+    )
 
 
 def test_wrong_shape_in_data(good):
@@ -142,7 +147,10 @@ def test_task_index_out_of_range(good):
         (lambda i: i.update(codebase_version="v2.1"), "field 'codebase_version' is 'v2.1'"),
         (lambda i: i.update(total_episodes=5), "field 'total_episodes' is 5 but"),
         (lambda i: i["features"].pop("timestamp"), "lacks the default feature 'timestamp'"),
-        (lambda i: i["features"]["action"].update(shape=[0]), r"field 'features.action.shape' is \[0\]; valid: a non-empty list of integers"),
+        (
+            lambda i: i["features"]["action"].update(shape=[0]),
+            r"field 'features.action.shape' is \[0\]; valid: a non-empty list of integers",
+        ),
     ],
     ids=["no-fps", "old-version", "total-episodes", "no-timestamp", "bad-shape"],
 )

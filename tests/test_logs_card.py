@@ -1,5 +1,6 @@
 """`bench logs card`: N_eff = N (1 - d) (1 - n) (1 - c) on logs whose answer is known; `bench logs rank`
 on a spec calibration; bad input is one line, exit 2, nothing written."""
+
 import json
 import re
 
@@ -58,8 +59,19 @@ def arm_case(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("rank")
     case = write_case(root / "case", "coulomb_friction", episodes=3, duration=2.0, seed=0)
-    assert main(["calibrate", f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={root / 'cal'}",
-                 "quiet=true", "residual=false"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                f"spec={case / 'spec.yaml'}",
+                f"logs={case / 'logs'}",
+                f"out={root / 'cal'}",
+                "quiet=true",
+                "residual=false",
+            ]
+        )
+        == 0
+    )
     return case, root / "cal"
 
 
@@ -87,13 +99,26 @@ BAD = [
     (lambda t, c: ["card", str(c[0] / "logs"), "dup_tol=-1"], r"key 'dup_tol' must be a non-negative number"),
     (lambda t, c: ["rank", str(c[0] / "logs")], r"missing key 'calibration'"),
     (lambda t, c: ["rank", str(c[0] / "logs"), f"calibration={t}"], r"calibration=.*no such file"),
-    (lambda t, c: ["rank", str(c[0] / "logs"), f"calibration={c[1]}", "horizon=long"],
-     r"horizon='long'; valid: free_run, k_step"),
+    (
+        lambda t, c: ["rank", str(c[0] / "logs"), f"calibration={c[1]}", "horizon=long"],
+        r"horizon='long'; valid: free_run, k_step",
+    ),
 ]
 
 
-@pytest.mark.parametrize("make, pattern", BAD, ids=["card-missing", "card-key", "card-out-exists", "card-tol",
-                                                     "rank-no-calibration", "rank-missing-file", "rank-horizon"])
+@pytest.mark.parametrize(
+    "make, pattern",
+    BAD,
+    ids=[
+        "card-missing",
+        "card-key",
+        "card-out-exists",
+        "card-tol",
+        "rank-no-calibration",
+        "rank-missing-file",
+        "rank-horizon",
+    ],
+)
 def test_bad_input_one_line_exit_2(arm_case, tmp_path, capsys, make, pattern):
     assert main(["logs", *make(tmp_path, arm_case)]) == 2
     err = capsys.readouterr().err

@@ -1,4 +1,5 @@
 """`bench logs info|import` through the top-level dispatcher."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,7 +19,9 @@ def _need(path: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("argv", [["logs"], ["logs", "--help"], ["logs", "info", "--help"], ["logs", "import", "--help"]])
+@pytest.mark.parametrize(
+    "argv", [["logs"], ["logs", "--help"], ["logs", "info", "--help"], ["logs", "import", "--help"]]
+)
 def test_help(argv, capsys):
     assert main(argv) == 0
     assert "usage: bench logs" in capsys.readouterr().out
@@ -32,8 +35,13 @@ def test_import_help_lists_keys(capsys):
 
 
 def test_info(tmp_path, capsys):
-    ds = from_arrays([{"observation.state": np.zeros((3, 2)), "action": np.zeros((3, 1))}] * 2, fps=15,
-                     names={"action": ["u"]}, task="reach", robot_type="arm")
+    ds = from_arrays(
+        [{"observation.state": np.zeros((3, 2)), "action": np.zeros((3, 1))}] * 2,
+        fps=15,
+        names={"action": ["u"]},
+        task="reach",
+        robot_type="arm",
+    )
     write_dataset(tmp_path / "d", ds)
     assert main(["logs", "info", str(tmp_path / "d")]) == 0
     text = capsys.readouterr().out
@@ -58,7 +66,9 @@ def test_import_csv(tmp_path, capsys):
 
 def test_import_mat_emps(tmp_path):
     src = _need(SHARED / "real" / "emps" / "DATA_EMPS.mat")
-    assert main(["logs", "import", str(src), f"out={tmp_path / 'e'}", "state=[qm]", "action=[vir]", "velocity=true"]) == 0
+    assert (
+        main(["logs", "import", str(src), f"out={tmp_path / 'e'}", "state=[qm]", "action=[vir]", "velocity=true"]) == 0
+    )
     ds = read_dataset(tmp_path / "e")
     assert ds.features["observation.state"]["names"] == ["qm", "qm_dot"] and ds.fps == 1000
 

@@ -1,4 +1,5 @@
 """Importers: CSV, MATLAB .mat and RLDS (TFRecord + tf.train.Example parsed without TensorFlow)."""
+
 from __future__ import annotations
 
 import csv
@@ -11,8 +12,7 @@ import numpy as np
 import pytest
 
 from bench.errors import DataError
-from bench.logs import import_csv, import_mat, import_rlds, read_dataset, write_dataset
-from bench.logs import tfrecord
+from bench.logs import import_csv, import_mat, import_rlds, read_dataset, tfrecord, write_dataset
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 RLDS = SHARED / "formats" / "rlds_toy"
@@ -55,7 +55,9 @@ def test_pendulum_round_trip(tmp_path):
 
 def test_csv_episodes_and_fps(tmp_path):
     path = tmp_path / "log.csv"
-    path.write_text("run,q1,q2,u\n" + "".join(f"{r},{i},{2 * i},{-i}\n" for r in ("a", "b") for i in range(3 + (r == "b"))))
+    path.write_text(
+        "run,q1,q2,u\n" + "".join(f"{r},{i},{2 * i},{-i}\n" for r in ("a", "b") for i in range(3 + (r == "b")))
+    )
     ds = import_csv(path, episode="run", action="u", fps=50)
     assert [len(e) for e in ds.episodes] == [3, 4]
     assert ds.features["observation.state"]["names"] == ["q1", "q2"]  # the numeric columns not used otherwise
@@ -100,7 +102,9 @@ def test_emps_mat():
     np.testing.assert_array_equal(ep.data["observation.state"][:, 0], raw["qm"][:, 0].astype(np.float32))
     np.testing.assert_array_equal(ep.data["action"][:, 0], raw["vir"][:, 0].astype(np.float32))
     t, qm = raw["t"][:, 0], raw["qm"][:, 0]
-    np.testing.assert_allclose(ep.data["observation.state"][1:-1, 1], ((qm[2:] - qm[:-2]) / (t[2:] - t[:-2])).astype(np.float32), atol=1e-6)
+    np.testing.assert_allclose(
+        ep.data["observation.state"][1:-1, 1], ((qm[2:] - qm[:-2]) / (t[2:] - t[:-2])).astype(np.float32), atol=1e-6
+    )
     assert ep.meta["mat"] == pytest.approx({"gtau": 35.15065188, "kp": 160.18, "kv": 243.45})
     assert ep.data["timestamp"][-1] == np.float32(24.84)
 
@@ -240,17 +244,48 @@ def test_unpacked_repeated_fields():
 def test_sequence_example_rlds(tmp_path):
     """A SequenceExample layout (context + one Feature per step) imports like the flat Example layout."""
     spec = {
-        "featuresDict": {"features": {
-            "episode_metadata": {"featuresDict": {"features": {
-                "episode_id": {"tensor": {"dtype": "int32", "encoding": "none", "shape": {}}}}}},
-            "steps": {"sequence": {"feature": {"featuresDict": {"features": {
-                "action": {"tensor": {"dtype": "float32", "encoding": "none", "shape": {"dimensions": ["2"]}}},
-                "observation": {"featuresDict": {"features": {
-                    "state": {"tensor": {"dtype": "float32", "encoding": "none", "shape": {"dimensions": ["3"]}}}}}},
-                "is_last": {"tensor": {"dtype": "bool", "encoding": "none", "shape": {}}},
-                "language_instruction": {"text": {}},
-            }}}, "length": "-1"}},
-        }}
+        "featuresDict": {
+            "features": {
+                "episode_metadata": {
+                    "featuresDict": {
+                        "features": {"episode_id": {"tensor": {"dtype": "int32", "encoding": "none", "shape": {}}}}
+                    }
+                },
+                "steps": {
+                    "sequence": {
+                        "feature": {
+                            "featuresDict": {
+                                "features": {
+                                    "action": {
+                                        "tensor": {
+                                            "dtype": "float32",
+                                            "encoding": "none",
+                                            "shape": {"dimensions": ["2"]},
+                                        }
+                                    },
+                                    "observation": {
+                                        "featuresDict": {
+                                            "features": {
+                                                "state": {
+                                                    "tensor": {
+                                                        "dtype": "float32",
+                                                        "encoding": "none",
+                                                        "shape": {"dimensions": ["3"]},
+                                                    }
+                                                }
+                                            }
+                                        }
+                                    },
+                                    "is_last": {"tensor": {"dtype": "bool", "encoding": "none", "shape": {}}},
+                                    "language_instruction": {"text": {}},
+                                }
+                            }
+                        },
+                        "length": "-1",
+                    }
+                },
+            }
+        }
     }
     folder = tmp_path / "seq" / "1.0.0"
     folder.mkdir(parents=True)
@@ -261,12 +296,17 @@ def test_sequence_example_rlds(tmp_path):
     for eid, t in ((7, 4), (3, 2)):
         state, action = rng.standard_normal((t, 3)).astype(np.float32), rng.standard_normal((t, 2)).astype(np.float32)
         truth[eid] = (state, action)
-        records.append(tfrecord.encode_example(
-            {"episode_metadata/episode_id": np.array([eid])},
-            {"steps/observation/state": list(state), "steps/action": list(action),
-             "steps/is_last": [np.array([i == t - 1]) for i in range(t)],
-             "steps/language_instruction": [[f"task {eid}".encode()] for _ in range(t)]},
-        ))
+        records.append(
+            tfrecord.encode_example(
+                {"episode_metadata/episode_id": np.array([eid])},
+                {
+                    "steps/observation/state": list(state),
+                    "steps/action": list(action),
+                    "steps/is_last": [np.array([i == t - 1]) for i in range(t)],
+                    "steps/language_instruction": [[f"task {eid}".encode()] for _ in range(t)],
+                },
+            )
+        )
     tfrecord.write_records(folder / "seq-train.tfrecord-00000-of-00001", records)
     ds = import_rlds(tmp_path / "seq", fps=10)
     assert [e.meta["episode_id"] for e in ds.episodes] == [3, 7]

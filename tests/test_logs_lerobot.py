@@ -1,5 +1,6 @@
 """LeRobot v3.0 read/write: the shared references read exactly, round trips are identical, and
 what we write has the schema and metadata of what lerobot writes."""
+
 from __future__ import annotations
 
 import io
@@ -57,8 +58,12 @@ def _sample(n_episodes: int = 3, images: bool = True) -> LogDataset:
             ep["observation.images.cam"] = rng.integers(0, 256, (t, 6, 5, 3), dtype=np.uint8)
         eps.append(ep)
     return from_arrays(
-        eps, fps=20, task=["reach", "push", "reach"][:n_episodes], names={"action": ["x", "y"]},
-        robot_type="toy", meta=[{"success": e % 2 == 0, "seed": e} for e in range(n_episodes)],
+        eps,
+        fps=20,
+        task=["reach", "push", "reach"][:n_episodes],
+        names={"action": ["x", "y"]},
+        robot_type="toy",
+        meta=[{"success": e % 2 == 0, "seed": e} for e in range(n_episodes)],
     )
 
 
@@ -173,7 +178,11 @@ def test_one_row_group_per_episode_and_episode_table(tmp_path):
     assert [md.row_group(i).num_rows for i in range(md.num_row_groups)] == [4, 7, 10]
     eps = pq.read_table(out / EPISODES).to_pylist()
     assert [e["episode_index"] for e in eps] == [0, 1, 2]
-    assert [(e["dataset_from_index"], e["dataset_to_index"], e["length"]) for e in eps] == [(0, 4, 4), (4, 11, 7), (11, 21, 10)]
+    assert [(e["dataset_from_index"], e["dataset_to_index"], e["length"]) for e in eps] == [
+        (0, 4, 4),
+        (4, 11, 7),
+        (11, 21, 10),
+    ]
     assert [e["tasks"] for e in eps] == [["reach"], ["push"], ["reach"]]
     assert json.loads(eps[0]["bench/meta"]) == {"success": True, "seed": 0}
     assert eps[1]["stats/action/count"] == [7]
@@ -211,8 +220,14 @@ def test_written_schema_matches_reference(formats, tmp_path):
     ref = formats / "lerobot_v3_image"
     # Built from scratch with the reference's shapes (not read from it): same columns, types, metadata.
     rng = np.random.default_rng(0)
-    eps = [{"observation.state": rng.standard_normal((t, 6)), "action": rng.standard_normal((t, 6)),
-            "observation.images.cam": rng.integers(0, 256, (t, 8, 8, 3), dtype=np.uint8)} for t in (5, 7)]
+    eps = [
+        {
+            "observation.state": rng.standard_normal((t, 6)),
+            "action": rng.standard_normal((t, 6)),
+            "observation.images.cam": rng.integers(0, 256, (t, 8, 8, 3), dtype=np.uint8),
+        }
+        for t in (5, 7)
+    ]
     names = {"observation.state": [f"j{i}" for i in range(6)], "action": [f"j{i}" for i in range(6)]}
     ds = from_arrays(eps, fps=10, task=["pick cube", "place cube"], names=names, robot_type="so100")
     out = write_dataset(tmp_path / "ds", ds)
@@ -226,11 +241,19 @@ def test_written_schema_matches_reference(formats, tmp_path):
     want, got = pandas_meta(ref), pandas_meta(out)
     for key in ("index_columns", "column_indexes", "columns"):
         assert got[key] == want[key], key
-    assert pq.read_table(out / "meta/tasks.parquet").to_pylist() == pq.read_table(ref / "meta/tasks.parquet").to_pylist()
-    info_ref, info_out = json.loads((ref / "meta/info.json").read_text()), json.loads((out / "meta/info.json").read_text())
+    assert (
+        pq.read_table(out / "meta/tasks.parquet").to_pylist() == pq.read_table(ref / "meta/tasks.parquet").to_pylist()
+    )
+    info_ref, info_out = (
+        json.loads((ref / "meta/info.json").read_text()),
+        json.loads((out / "meta/info.json").read_text()),
+    )
     assert list(info_out) == list(info_ref)
     assert info_out == info_ref  # same totals, paths, splits and features
-    stats_ref, stats_out = json.loads((ref / "meta/stats.json").read_text()), json.loads((out / "meta/stats.json").read_text())
+    stats_ref, stats_out = (
+        json.loads((ref / "meta/stats.json").read_text()),
+        json.loads((out / "meta/stats.json").read_text()),
+    )
     assert set(stats_out) == set(stats_ref)
     for name in stats_ref:
         assert set(stats_out[name]) == set(stats_ref[name])
@@ -245,10 +268,15 @@ def test_written_schema_matches_reference(formats, tmp_path):
 def test_reference_stats_reproduced(formats, tmp_path):
     ref = formats / "lerobot_v3_state"
     out = write_dataset(tmp_path / "ds", read_dataset(ref))
-    stats_ref, stats_out = json.loads((ref / "meta/stats.json").read_text()), json.loads((out / "meta/stats.json").read_text())
+    stats_ref, stats_out = (
+        json.loads((ref / "meta/stats.json").read_text()),
+        json.loads((out / "meta/stats.json").read_text()),
+    )
     for name in stats_ref:
         for stat in ("min", "max", "mean", "std", "count"):  # lerobot's quantiles are histogram estimates
-            np.testing.assert_allclose(stats_out[name][stat], stats_ref[name][stat], rtol=1e-6, atol=1e-7, err_msg=f"{name}/{stat}")
+            np.testing.assert_allclose(
+                stats_out[name][stat], stats_ref[name][stat], rtol=1e-6, atol=1e-7, err_msg=f"{name}/{stat}"
+            )
 
 
 def test_no_pandas_needed():
@@ -266,7 +294,9 @@ def test_no_pandas_needed():
         "read_dataset(d + '/x'); read_episode(d + '/x', 0)\n"
         "assert 'pandas' not in sys.modules\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO, env={"PYTHONPATH": str(REPO), "PATH": ""}, timeout=60)
+    subprocess.run(
+        [sys.executable, "-c", code], check=True, cwd=REPO, env={"PYTHONPATH": str(REPO), "PATH": ""}, timeout=60
+    )
 
 
 # ----------------------------------------------------------------------------- atomic writes
@@ -337,12 +367,18 @@ def _video_dataset(n_episodes: int = 3, size: tuple[int, int] = (64, 96)) -> tup
     eps, start = [], 0
     for e in range(n_episodes):
         t = 5 + 2 * e
-        eps.append({"observation.state": rng.standard_normal((t, 3)), "action": rng.standard_normal((t, 2)),
-                    "observation.images.front": frames(t, *size, start=start),
-                    "observation.images.png": rng.integers(0, 256, (t, 6, 5, 3), dtype=np.uint8)})
+        eps.append(
+            {
+                "observation.state": rng.standard_normal((t, 3)),
+                "action": rng.standard_normal((t, 2)),
+                "observation.images.front": frames(t, *size, start=start),
+                "observation.images.png": rng.integers(0, 256, (t, 6, 5, 3), dtype=np.uint8),
+            }
+        )
         start += t
-    ds = from_arrays(eps, fps=20, task="reach", video=["observation.images.front"],
-                     meta=[{"seed": e} for e in range(n_episodes)])
+    ds = from_arrays(
+        eps, fps=20, task="reach", video=["observation.images.front"], meta=[{"seed": e} for e in range(n_episodes)]
+    )
     return ds, np.concatenate([ep["observation.images.front"] for ep in eps])
 
 
@@ -354,9 +390,19 @@ def test_video_roundtrip_layout_and_metadata(tmp_path):
     doc = json.loads((out / "meta/info.json").read_text())
     assert doc["video_path"] == lerobot.VIDEO_PATH
     feat = doc["features"]["observation.images.front"]
-    assert feat["dtype"] == "video" and feat["shape"] == [64, 96, 3] and feat["names"] == ["height", "width", "channels"]
-    assert feat["info"] == {"video.height": 64, "video.width": 96, "video.codec": "h264", "video.pix_fmt": "yuv420p",
-                            "video.is_depth_map": False, "video.fps": 20, "video.channels": 3, "has_audio": False}
+    assert (
+        feat["dtype"] == "video" and feat["shape"] == [64, 96, 3] and feat["names"] == ["height", "width", "channels"]
+    )
+    assert feat["info"] == {
+        "video.height": 64,
+        "video.width": 96,
+        "video.codec": "h264",
+        "video.pix_fmt": "yuv420p",
+        "video.is_depth_map": False,
+        "video.fps": 20,
+        "video.channels": 3,
+        "has_audio": False,
+    }
     assert "observation.images.front" not in pq.read_schema(out / DATA).names  # no parquet column
     eps = pq.read_table(out / EPISODES)
     assert eps.column("videos/observation.images.front/from_timestamp").to_pylist() == [0.0, 0.25, 0.6]
@@ -373,11 +419,17 @@ def test_video_roundtrip_layout_and_metadata(tmp_path):
     got = np.concatenate([ep.data["observation.images.front"] for ep in back.episodes])
     assert_close_frames(got, written, "h264")
     one = read_episode(out, 2)  # seeks to the episode's first frame in the shared file
-    np.testing.assert_array_equal(one.data["observation.images.front"], back.episodes[2].data["observation.images.front"])
+    np.testing.assert_array_equal(
+        one.data["observation.images.front"], back.episodes[2].data["observation.images.front"]
+    )
     assert "observation.images.front" not in read_dataset(out, videos=False).features
     assert "observation.images.front" not in read_episode(out, 1, videos=False).data
     assert info(out)["features"]["observation.images.front"]["video"] == {
-        "codec": "h264", "pix_fmt": "yuv420p", "fps": 20, "files": 1}
+        "codec": "h264",
+        "pix_fmt": "yuv420p",
+        "fps": 20,
+        "files": 1,
+    }
 
 
 def test_video_files_roll_over_and_av1(tmp_path, monkeypatch):
@@ -404,7 +456,9 @@ def test_video_bad_input_is_refused_before_writing(tmp_path):
         write_dataset(target, ds)
     ds.fps = 20.0
     ds.episodes[1].data["timestamp"] = ds.episodes[1].data["timestamp"] * 1.5
-    with pytest.raises(DataError, match=r"column 'timestamp' is 0.075000 at frame 1 of episode 1 .* frame/fps = 0.050000"):
+    with pytest.raises(
+        DataError, match=r"column 'timestamp' is 0.075000 at frame 1 of episode 1 .* frame/fps = 0.050000"
+    ):
         write_dataset(target, ds)
     odd = from_arrays([{"cam": frames(3, 45, 61)}], fps=10, video=True)
     with pytest.raises(DataError, match="feature 'cam': video frames are 45x61: AV1"):
@@ -424,7 +478,9 @@ def test_video_damage_is_a_one_line_error(tmp_path):
     mp4 = out / "videos/observation.images.front/chunk-000/file-000.mp4"
     data = mp4.read_bytes()
     mp4.write_bytes(data[: len(data) // 3])  # truncated: the index at the end is gone
-    with pytest.raises(DataError, match="video feature 'observation.images.front' of episode\\(s\\) 0, 1: .*file-000.mp4"):
+    with pytest.raises(
+        DataError, match="video feature 'observation.images.front' of episode\\(s\\) 0, 1: .*file-000.mp4"
+    ):
         read_dataset(out)
     mp4.unlink()
     with pytest.raises(DataError, match=r"file-000.mp4: file is missing \(video of feature 'observation.images.front'"):
@@ -449,6 +505,18 @@ def test_logs_info_shows_video_features(tmp_path, capsys):
     assert main(["logs", "info", str(out)]) == 0
     lines = capsys.readouterr().out.splitlines()
     row = next(line for line in lines if "observation.images.front" in line)
-    assert row.split() == ["observation.images.front", "video", "[64,", "96,", "3]", "av1", "yuv420p,", "20", "fps,",
-                           "1", "mp4", "file"]
+    assert row.split() == [
+        "observation.images.front",
+        "video",
+        "[64,",
+        "96,",
+        "3]",
+        "av1",
+        "yuv420p,",
+        "20",
+        "fps,",
+        "1",
+        "mp4",
+        "file",
+    ]
     assert any(line.split()[:2] == ["observation.images.png", "image"] for line in lines)

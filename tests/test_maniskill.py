@@ -5,6 +5,7 @@ Without a Vulkan device (these machines) the stand-ins of `bench.sapien_novulkan
 in this process by the first env built; tests that need real Vulkan materials run in a
 subprocess with `VK_ICD_FILENAMES` (marked `vulkan`, skipped when no device is set up).
 """
+
 from __future__ import annotations
 
 import json
@@ -137,8 +138,11 @@ def test_stand_ins_refuse_unchecked_versions(monkeypatch):
 
     monkeypatch.setattr(nv, "_state", {"mode": None})
     monkeypatch.setattr(nv, "installed_versions", lambda: {"mani-skill": "3.0.2", "sapien": "3.0.3"})
-    with pytest.raises(ConfigError, match=r"checked against mani-skill==3\.0\.1, sapien==3\.0\.3, found mani-skill "
-                                          r"3\.0\.2, sapien 3\.0\.3"):
+    with pytest.raises(
+        ConfigError,
+        match=r"checked against mani-skill==3\.0\.1, sapien==3\.0\.3, found mani-skill "
+        r"3\.0\.2, sapien 3\.0\.3",
+    ):
         nv.install()
 
 
@@ -172,8 +176,9 @@ def _probe(mode: str, vulkan: str | None) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "VK_ICD_FILENAMES"}
     if vulkan:
         env["VK_ICD_FILENAMES"] = vulkan
-    out = subprocess.run([sys.executable, "-c", _PROBE, mode], capture_output=True, text=True, cwd=REPO, env=env,
-                         timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE, mode], capture_output=True, text=True, cwd=REPO, env=env, timeout=300
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -200,8 +205,11 @@ def test_robot_needing_download_is_one_line_and_never_prompts(monkeypatch, tmp_p
 
     with pytest.raises(ConfigError, match=r"PickCube-v1 with robot xarm6_robotiq: needs an asset download \(xarm6\)"):
         ManiSkillEnv("PickCube-v1", "xarm6_robotiq", 10)
-    with pytest.raises(ConfigError, match=r"TurnFaucet-v1 with robot panda: needs an asset download "
-                                          r"\(partnet_mobility_faucet \(\d+ of \d+ parts\)\)"):
+    with pytest.raises(
+        ConfigError,
+        match=r"TurnFaucet-v1 with robot panda: needs an asset download "
+        r"\(partnet_mobility_faucet \(\d+ of \d+ parts\)\)",
+    ):
         ManiSkillEnv("TurnFaucet-v1", "panda", 10)
     assert os.environ["MS_SKIP_ASSET_DOWNLOAD_PROMPT"] == "1"
 
@@ -225,8 +233,11 @@ def test_unknown_task_robot_and_control_mode():
         ManiSkillEnv("PickCube", "panda", 10)
     with pytest.raises(ConfigError, match=r"robot 'pandas' is not a ManiSkill robot\. Did you mean 'panda'"):
         ManiSkillEnv("PickCube-v1", "pandas", 10)
-    with pytest.raises(ConfigError, match=r"control_mode='pd_ee_velocity': panda supports pd_joint_delta_pos, "
-                                          r"pd_joint_pos, pd_ee_delta_pos"):
+    with pytest.raises(
+        ConfigError,
+        match=r"control_mode='pd_ee_velocity': panda supports pd_joint_delta_pos, "
+        r"pd_joint_pos, pd_ee_delta_pos",
+    ):
         make(control_mode="pd_ee_velocity")
 
 
@@ -305,13 +316,19 @@ def test_gravity_rebuilds_scene_same_initial_state_and_back():
 def test_named_targets_and_unsupported_axes_are_one_line():
     env = make()
     axes = env.model_axes
-    with pytest.raises(ConfigError, match=r"perturb\.mass\.bodies: 'cubee' is not a body of PickCube-v1 with panda; "
-                                          r"valid: .*Did you mean 'cube'\?"):
+    with pytest.raises(
+        ConfigError,
+        match=r"perturb\.mass\.bodies: 'cubee' is not a body of PickCube-v1 with panda; "
+        r"valid: .*Did you mean 'cube'\?",
+    ):
         axes.apply("mass", 2.0, {"bodies": ["cubee"]})
     with pytest.raises(ConfigError, match=r"perturb\.damping\.joints: 'joint1' is not a joint"):
         axes.apply("damping", 2.0, {"joints": ["joint1"]})
-    with pytest.raises(ConfigError, match=r"perturb\.armature: not available on ManiSkill/PhysX; model axes there: "
-                                          r"damping, friction, gain, gravity, link_mass, mass"):
+    with pytest.raises(
+        ConfigError,
+        match=r"perturb\.armature: not available on ManiSkill/PhysX; model axes there: "
+        r"damping, friction, gain, gravity, link_mass, mass",
+    ):
         axes.apply("armature", 2.0, {})
     with pytest.raises(ConfigError, match=r"perturb\.friction\.geoms: friction takes no geoms"):
         axes.apply("friction", 2.0, {"geoms": ["x"]})

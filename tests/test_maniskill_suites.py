@@ -4,6 +4,7 @@ Real ManiSkill/SAPIEN/PhysX on CPU (no Vulkan needed); skipped as a whole withou
 the tests of what a user without the extra sees. The reference-policy success rates over every
 seen cell are `slow`; image observations need a Vulkan device (`vulkan`).
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,9 @@ def test_without_the_extra_list_says_what_is_missing_and_check_skips(monkeypatch
     from bench import registry, sim_maniskill
     from bench.check import main as check_main
 
-    monkeypatch.setattr(sim_maniskill, "missing_extra", lambda: "needs mani-skill and sapien: pip install -e "
-                                                                "'.[maniskill]'")
+    monkeypatch.setattr(
+        sim_maniskill, "missing_extra", lambda: "needs mani-skill and sapien: pip install -e '.[maniskill]'"
+    )
     assert registry.main_list([]) == 0
     out = capsys.readouterr().out
     assert "maniskill_tasks (v1" in out and "tasks   unseen PegInsertionSide" in out
@@ -94,8 +96,9 @@ def _as_list(x):
 
 
 @needs_ms
-@pytest.mark.parametrize("name,task,robot", [("maniskill_tasks", "PushCube", "panda"),
-                                             ("maniskill_held_out_robots", "PickCube", "so100")])
+@pytest.mark.parametrize(
+    "name,task,robot", [("maniskill_tasks", "PushCube", "panda"), ("maniskill_held_out_robots", "PickCube", "so100")]
+)
 def test_bench_check_contract(name, task, robot):
     from bench.check import check_contract, check_suite
 
@@ -112,8 +115,11 @@ def test_bad_options_are_one_line():
         suite("maniskill_tasks", obs="depth")
     with pytest.raises(ConfigError, match=r"image_size=8: must be in \[16, 1024\]"):
         suite("maniskill_tasks", obs="rgb", image_size=8)
-    with pytest.raises(ConfigError, match=r"control_mode='pd_joint_position': panda supports pd_joint_delta_pos, "
-                                          r"pd_joint_pos.* Did you mean 'pd_joint_pos'\?"):
+    with pytest.raises(
+        ConfigError,
+        match=r"control_mode='pd_joint_position': panda supports pd_joint_delta_pos, "
+        r"pd_joint_pos.* Did you mean 'pd_joint_pos'\?",
+    ):
         suite("maniskill_tasks", control_mode="pd_joint_position")
     with pytest.raises(ConfigError, match=r"cameras=\['base_camera'\]: cameras need obs=rgb"):
         suite("maniskill_held_out_robots", cameras=["base_camera"])
@@ -121,15 +127,23 @@ def test_bad_options_are_one_line():
         suite("maniskill_held_out_robots", reset="hard")
     s = suite("maniskill_held_out_robots", obs="rgb", cameras=["hand_camera"])
     cell = next(c for c in s.all_cells() if c.robot == "fetch")
-    with pytest.raises(ConfigError, match=r"cameras: 'hand_camera' is not a camera of a table-top task with fetch; "
-                                          r"valid: base_camera, fetch_head, fetch_hand"):
+    with pytest.raises(
+        ConfigError,
+        match=r"cameras: 'hand_camera' is not a camera of a table-top task with fetch; "
+        r"valid: base_camera, fetch_head, fetch_hand",
+    ):
         s.obs_spec(cell)
 
 
 @needs_ms
 def test_cli_bad_control_mode_exits_2_with_one_line(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "bench", "run", "suite=maniskill_tasks", "control_mode=pd_ee_posee",
-                          f"out={tmp_path}"], capture_output=True, text=True, cwd=REPO, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-m", "bench", "run", "suite=maniskill_tasks", "control_mode=pd_ee_posee", f"out={tmp_path}"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
     assert out.returncode == 2
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: control_mode='pd_ee_posee': panda supports")
@@ -155,15 +169,26 @@ def test_maniskill_tasks_expert_through_the_runner(tmp_path):
     again = _run(tmp_path, "maniskill_tasks", tasks=["PickCube", "PokeCube"], episodes=2, run_id="b").records
     key = lambda r: r.job_id  # noqa: E731
     for x, y in zip(sorted(recs, key=key), sorted(again, key=key)):  # deterministic expert and resets
-        assert (x.success_once, x.length, x.steps_to_success, x.init_state_hash) == \
-               (y.success_once, y.length, y.steps_to_success, y.init_state_hash)
+        assert (x.success_once, x.length, x.steps_to_success, x.init_state_hash) == (
+            y.success_once,
+            y.length,
+            y.steps_to_success,
+            y.init_state_hash,
+        )
         assert x.return_ == pytest.approx(y.return_, abs=1e-9)
 
 
 @needs_ms
 def test_held_out_robots_perturbations_recorded_and_paired(tmp_path):
-    res = _run(tmp_path, "maniskill_held_out_robots", robots=["panda"], tasks=["PickCube"], episodes=2,
-               perturb={"friction": [0.5], "gravity": [0.5], "action_noise": [0.1]}, run_id="p")
+    res = _run(
+        tmp_path,
+        "maniskill_held_out_robots",
+        robots=["panda"],
+        tasks=["PickCube"],
+        episodes=2,
+        perturb={"friction": [0.5], "gravity": [0.5], "action_noise": [0.1]},
+        run_id="p",
+    )
     recs = res.records
     assert len(recs) == 8 and all(r.error is None for r in recs), [r.error for r in recs]
     by_cond: dict[str, list] = {}
@@ -178,16 +203,30 @@ def test_held_out_robots_perturbations_recorded_and_paired(tmp_path):
 
 @needs_ms
 def test_expert_needs_pd_joint_pos(tmp_path):
-    res = _run(tmp_path, "maniskill_tasks", tasks=["PushCube"], episodes=1, run_id="c",
-               suite_options={"control_mode": "pd_ee_delta_pos"})
+    res = _run(
+        tmp_path,
+        "maniskill_tasks",
+        tasks=["PushCube"],
+        episodes=1,
+        run_id="c",
+        suite_options={"control_mode": "pd_ee_delta_pos"},
+    )
     (rec,) = res.records
     assert "the motion-planning expert for PushCube commands pd_joint_pos" in rec.error
 
 
 @needs_ms
 def test_random_policy_and_interface_axes_on_every_robot(tmp_path):
-    res = _run(tmp_path, "maniskill_held_out_robots", policy="random", tasks=["PickCube"], episodes=1, horizon=20,
-               perturb={"latency": [1]}, run_id="r")
+    res = _run(
+        tmp_path,
+        "maniskill_held_out_robots",
+        policy="random",
+        tasks=["PickCube"],
+        episodes=1,
+        horizon=20,
+        perturb={"latency": [1]},
+        run_id="r",
+    )
     assert len(res.records) == 8 and all(r.error is None for r in res.records), [r.error for r in res.records]
     assert {r.robot for r in res.records} == {"panda", "panda_wristcam", "fetch", "so100"}
 

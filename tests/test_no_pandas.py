@@ -1,4 +1,5 @@
 """No pandas anywhere in the core dependency tree (lerobot brings it; it lives only in a side venv, see README)."""
+
 import re
 from importlib.metadata import PackageNotFoundError, distribution
 

@@ -1,4 +1,5 @@
 """Perturbation library: CLI grammar, model axes on real MuJoCo models, interface wrapper, errors."""
+
 import json
 
 import mujoco
@@ -90,13 +91,25 @@ def apply(env, c, seed=0):
 
 # -- grammar ----------------------------------------------------------------------------------
 def test_grid_and_range_conditions_are_named_and_nominal_first():
-    conds = axes.conditions_from_config({
-        "friction": [0.25, 0.5, 1.0, 2.0], "mass": "uniform(0.8,1.2)", "latency": 4,
-        "damping": {"levels": [0.5], "loguniform": [0.5, 2], "joints": ["hinge1"]},
-    })
+    conds = axes.conditions_from_config(
+        {
+            "friction": [0.25, 0.5, 1.0, 2.0],
+            "mass": "uniform(0.8,1.2)",
+            "latency": 4,
+            "damping": {"levels": [0.5], "loguniform": [0.5, 2], "joints": ["hinge1"]},
+        }
+    )
     assert [c.name for c in conds] == [
-        "nominal", "friction=0.25", "friction=0.5", "friction=1", "friction=2", "mass~U(0.8,1.2)", "latency=4",
-        "damping=0.5", "damping~logU(0.5,2)"]
+        "nominal",
+        "friction=0.25",
+        "friction=0.5",
+        "friction=1",
+        "friction=2",
+        "mass~U(0.8,1.2)",
+        "latency=4",
+        "damping=0.5",
+        "damping~logU(0.5,2)",
+    ]
     assert conds[5].level == [0.8, 1.2] and conds[5].spec["kind"] == "uniform"
     assert conds[7].spec["targets"] == {"joints": ["hinge1"]}
     assert axes.conditions_from_config({}) == [NOMINAL]
@@ -106,26 +119,49 @@ def test_cli_grammar_through_the_run_config():
     from bench import config
     from bench.api import RunConfig
 
-    cfg = config.build(RunConfig, ["perturb.friction=[0.5,2]", "perturb.gravity=uniform(0.9,1.1)",
-                                   "perturb.mass.levels=[2]", "perturb.mass.bodies=[box]", "perturb.link_mass.uniform=[0.5,1.5]"])
+    cfg = config.build(
+        RunConfig,
+        [
+            "perturb.friction=[0.5,2]",
+            "perturb.gravity=uniform(0.9,1.1)",
+            "perturb.mass.levels=[2]",
+            "perturb.mass.bodies=[box]",
+            "perturb.link_mass.uniform=[0.5,1.5]",
+        ],
+    )
     names = [c.name for c in axes.conditions_from_config(cfg.perturb)]
     assert names == ["nominal", "friction=0.5", "friction=2", "gravity~U(0.9,1.1)", "mass=2", "link_mass~U(0.5,1.5)"]
 
 
-@pytest.mark.parametrize("perturb_cfg, match", [
-    ({"fricton": [0.5]}, r"perturb.fricton: unknown perturbation axis; valid: .*Did you mean 'friction'\?"),
-    ({"friction": [-0.5]}, r"perturb.friction: -0.5 is invalid; friction levels \(scale of nominal\) must be >= 0"),
-    ({"mass": [0]}, r"perturb.mass: 0 is invalid; .* must be > 0"),
-    ({"latency": [1.5]}, r"perturb.latency: 1.5 is not a whole number"),
-    ({"action_hold": [0]}, r"must be >= 1"),
-    ({"friction": "uniform(1.2,0.8)"}, r"low > high"),
-    ({"friction": "uniform(0.8)"}, r"cannot parse|not a number"),
-    ({"friction": "abc"}, r"'abc' is not a number"),
-    ({"mass": {"levels": [2], "bodys": ["box"]}}, r"perturb.mass.bodys: unknown key; .*Did you mean 'bodies'\?"),
-    ({"friction": {"joints": ["hinge1"], "levels": [2]}}, r"perturb.friction.joints: unknown key"),
-    ({"mass": {"bodies": ["box"]}}, r"give levels=\[...\] or a range"),
-], ids=["unknown-axis", "negative-scale", "zero-mass", "fractional-latency", "hold-zero", "range-reversed",
-        "range-one-bound", "not-a-number", "bad-target-key", "target-key-of-other-axis", "targets-without-levels"])
+@pytest.mark.parametrize(
+    "perturb_cfg, match",
+    [
+        ({"fricton": [0.5]}, r"perturb.fricton: unknown perturbation axis; valid: .*Did you mean 'friction'\?"),
+        ({"friction": [-0.5]}, r"perturb.friction: -0.5 is invalid; friction levels \(scale of nominal\) must be >= 0"),
+        ({"mass": [0]}, r"perturb.mass: 0 is invalid; .* must be > 0"),
+        ({"latency": [1.5]}, r"perturb.latency: 1.5 is not a whole number"),
+        ({"action_hold": [0]}, r"must be >= 1"),
+        ({"friction": "uniform(1.2,0.8)"}, r"low > high"),
+        ({"friction": "uniform(0.8)"}, r"cannot parse|not a number"),
+        ({"friction": "abc"}, r"'abc' is not a number"),
+        ({"mass": {"levels": [2], "bodys": ["box"]}}, r"perturb.mass.bodys: unknown key; .*Did you mean 'bodies'\?"),
+        ({"friction": {"joints": ["hinge1"], "levels": [2]}}, r"perturb.friction.joints: unknown key"),
+        ({"mass": {"bodies": ["box"]}}, r"give levels=\[...\] or a range"),
+    ],
+    ids=[
+        "unknown-axis",
+        "negative-scale",
+        "zero-mass",
+        "fractional-latency",
+        "hold-zero",
+        "range-reversed",
+        "range-one-bound",
+        "not-a-number",
+        "bad-target-key",
+        "target-key-of-other-axis",
+        "targets-without-levels",
+    ],
+)
 def test_bad_perturbations_are_one_line_config_errors(perturb_cfg, match):
     with pytest.raises(ConfigError, match=match) as exc:
         axes.conditions_from_config(perturb_cfg)
@@ -136,7 +172,9 @@ def test_bad_perturbations_are_one_line_config_errors(perturb_cfg, match):
 def test_validate_names_against_the_model():
     env = MjcfEnv()
     perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["box"]}}))
-    with pytest.raises(ConfigError, match=r"perturb.mass.bodies: 'bx' is not a body of the env; valid: .*Did you mean 'box'\?"):
+    with pytest.raises(
+        ConfigError, match=r"perturb.mass.bodies: 'bx' is not a body of the env; valid: .*Did you mean 'box'\?"
+    ):
         perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["bx"]}}))
     with pytest.raises(ConfigError, match=r"perturb.damping.joints: 'hinge3' is not a joint"):
         perturb.validate(env, axes.conditions_from_config({"damping": {"levels": [2], "joints": ["hinge3"]}}))
@@ -159,14 +197,17 @@ def _ids(m, kind, *names):
     return [getattr(m, kind)(n).id for n in names]
 
 
-@pytest.mark.parametrize("axis, field, picks", [
-    ("friction", "geom_friction", lambda m: list(range(m.ngeom))),
-    ("mass", "body_mass", lambda m: _ids(m, "body", "box")),
-    ("link_mass", "body_mass", lambda m: _ids(m, "body", "link1", "link2")),
-    ("damping", "dof_damping", lambda m: [0, 1]),
-    ("armature", "dof_armature", lambda m: [0, 1]),
-    ("frictionloss", "dof_frictionloss", lambda m: [0, 1]),
-])
+@pytest.mark.parametrize(
+    "axis, field, picks",
+    [
+        ("friction", "geom_friction", lambda m: list(range(m.ngeom))),
+        ("mass", "body_mass", lambda m: _ids(m, "body", "box")),
+        ("link_mass", "body_mass", lambda m: _ids(m, "body", "link1", "link2")),
+        ("damping", "dof_damping", lambda m: [0, 1]),
+        ("armature", "dof_armature", lambda m: [0, 1]),
+        ("frictionloss", "dof_frictionloss", lambda m: [0, 1]),
+    ],
+)
 def test_model_axis_scales_its_targets_and_never_drifts(axis, field, picks):
     env = MjcfEnv()
     m = env.model
@@ -320,8 +361,11 @@ def test_model_axis_needs_a_mujoco_model():
     from bench.sim_gym import GymEnv
 
     env = GymEnv("CartPole-v1", 20)
-    with pytest.raises(ConfigError, match=r"perturb.friction: the env \(gymnasium-.*\) cannot apply it; model axes "
-                                          r"there: none; interface axes work everywhere"):
+    with pytest.raises(
+        ConfigError,
+        match=r"perturb.friction: the env \(gymnasium-.*\) cannot apply it; model axes "
+        r"there: none; interface axes work everywhere",
+    ):
         perturb.validate(env, axes.conditions_from_config({"friction": [0.5]}))
     stepper, params = apply(env, cond("latency", [1]))  # interface axes work on any env
     assert params == {"latency": 1} and stepper.step(np.array([1.0]))[0][STATE].shape == (4,)
@@ -345,18 +389,30 @@ def test_robosuite_object_mass_survives_soft_reset_and_names_are_checked():
         apply(env, NOMINAL)
         assert model.body_mass[cube] == pytest.approx(m0)
         # the check `bench run` makes before writing anything (exit 2 path: tests/test_gym_suite.py)
-        with pytest.raises(ConfigError, match=r"perturb.mass.bodies: 'cube' is not a body of Lift/Panda/default; "
-                                              r"valid: .*Did you mean 'cube_main'\?"):
-            perturb.validate(env, axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["cube"]}}),
-                             where="Lift/Panda/default")
+        with pytest.raises(
+            ConfigError,
+            match=r"perturb.mass.bodies: 'cube' is not a body of Lift/Panda/default; "
+            r"valid: .*Did you mean 'cube_main'\?",
+        ):
+            perturb.validate(
+                env,
+                axes.conditions_from_config({"mass": {"levels": [2], "bodies": ["cube"]}}),
+                where="Lift/Panda/default",
+            )
     finally:
         env.close()
 
 
 def test_nominal_after_perturbations_replays_a_fresh_env_exactly():
     fresh, used = MjcfEnv(), MjcfEnv()
-    for axis, value in [("link_mass", [3.0]), ("armature", [0.2]), ("mass", "uniform(2,3)"), ("gain", [0.3]),
-                        ("friction", [0.1]), ("gravity", [0.2])]:
+    for axis, value in [
+        ("link_mass", [3.0]),
+        ("armature", [0.2]),
+        ("mass", "uniform(2,3)"),
+        ("gain", [0.3]),
+        ("friction", [0.1]),
+        ("gravity", [0.2]),
+    ]:
         apply(used, cond(axis, value))
     actions = np.random.default_rng(1).uniform(-1, 1, size=(300, 2))
 

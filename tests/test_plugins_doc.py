@@ -1,4 +1,5 @@
 """docs/plugins.md: the suite shown there, extracted verbatim, runs through `bench check` and `bench run`."""
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,9 @@ def _doc_code() -> str:
 
 
 def _bench(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_the_documented_suite_is_about_60_lines_and_runs(tmp_path: Path):
@@ -36,8 +38,9 @@ def test_the_documented_suite_is_about_60_lines_and_runs(tmp_path: Path):
     seen = summary["splits"]["seen"]["success_once"]["mean"]["value"]
     unseen = summary["splits"]["unseen"]["success_once"]["mean"]["value"]
     assert seen > unseen  # the controller tuned for light masses transfers worse to the heavy one
-    res = _bench(tmp_path, "run", "suite=my_suite:PointSuite", "policy=my_suite:push", "radius=0.1", "episodes=2",
-                 "run_id=b")
+    res = _bench(
+        tmp_path, "run", "suite=my_suite:PointSuite", "policy=my_suite:push", "radius=0.1", "episodes=2", "run_id=b"
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     res = _bench(tmp_path, "run", "suite=my_suite:PointSuite", "radiu=0.1", "run_id=c")
     assert res.returncode == 2 and "Did you mean 'radius'" in res.stderr

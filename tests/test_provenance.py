@@ -1,4 +1,5 @@
 """Checkpoint provenance for the gate's verdict: sha256, size, training metadata read from the file generically."""
+
 from __future__ import annotations
 
 import hashlib
@@ -28,8 +29,11 @@ def test_any_safetensors_header_is_read_without_the_tensors(tmp_path: Path):
 
     spec = {"architecture": "tiny", "meta": {"dataset": "demos_v3", "steps": 1200, "lr": float("nan")}}
     path = tmp_path / "w.safetensors"
-    save_file({"w": np.zeros(3, np.float32)}, str(path),
-              metadata={POLICY_SPEC_KEY: json.dumps(spec), "format": "pt", "git": "abc123"})
+    save_file(
+        {"w": np.zeros(3, np.float32)},
+        str(path),
+        metadata={POLICY_SPEC_KEY: json.dumps(spec), "format": "pt", "git": "abc123"},
+    )
     assert safetensors_metadata(path) == {POLICY_SPEC_KEY: json.dumps(spec), "format": "pt", "git": "abc123"}
     prov = checkpoint_provenance(path)
     assert prov["training"] == {"dataset": "demos_v3", "steps": 1200, "lr": None}  # NaN never reaches the verdict
@@ -46,10 +50,16 @@ def test_weights_only_checkpoint_reads_the_spec_beside_it(tmp_path: Path):
     assert prov["training"] == {"seed": 3} and prov["format"] == "pt" and prov["size_bytes"] == 15
 
 
-@pytest.mark.parametrize("data, match", [(b"\x01", "header length -1"), (b"\xff" * 8 + b"{}", "header length"),
-                                         (b"\x04\x00\x00\x00\x00\x00\x00\x00[1,2", "not valid JSON"),
-                                         (b"\x02\x00\x00\x00\x00\x00\x00\x00[]", "not a JSON object")],
-                         ids=["short", "huge-length", "bad-json", "not-object"])
+@pytest.mark.parametrize(
+    "data, match",
+    [
+        (b"\x01", "header length -1"),
+        (b"\xff" * 8 + b"{}", "header length"),
+        (b"\x04\x00\x00\x00\x00\x00\x00\x00[1,2", "not valid JSON"),
+        (b"\x02\x00\x00\x00\x00\x00\x00\x00[]", "not a JSON object"),
+    ],
+    ids=["short", "huge-length", "bad-json", "not-object"],
+)
 def test_corrupt_safetensors_header_is_one_line_and_a_note(tmp_path: Path, data: bytes, match: str):
     path = tmp_path / "bad.safetensors"
     path.write_bytes(data)

@@ -2,6 +2,7 @@
 
 No cluster here: these build the runtime env and compare version reports (the cluster tests,
 tests/test_ray_executor.py, run them for real)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,7 +37,7 @@ def test_pip_pins_the_drivers_versions_of_the_project_requirements():
     mine = provenance.package_versions()
     for name in ("numpy", "mujoco", "robosuite", "scipy"):
         assert f"{name}=={mine[name]}" in pins
-    assert any(p.startswith("rich") for p in pins)      # unpinned requirements keep their specifier
+    assert any(p.startswith("rich") for p in pins)  # unpinned requirements keep their specifier
     assert not any(p.startswith("bench-harness") for p in pins) and env["py_modules"]
 
 
@@ -44,8 +45,9 @@ def test_installed_ships_nothing_and_extra_fields_merge(monkeypatch):
     for name in ray_env.PASS_ENV:  # other tests' imports set some of them (e.g. ManiSkill's prompt switch)
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("MUJOCO_GL", "egl")
-    env = ray_env.runtime_env("installed", "held_out_robots", "scripted",
-                              {"env_vars": {"OMP_NUM_THREADS": "1"}, "container": {"image": "x"}})
+    env = ray_env.runtime_env(
+        "installed", "held_out_robots", "scripted", {"env_vars": {"OMP_NUM_THREADS": "1"}, "container": {"image": "x"}}
+    )
     assert env == {"env_vars": {"MUJOCO_GL": "egl", "OMP_NUM_THREADS": "1"}, "container": {"image": "x"}}
     with pytest.raises(ConfigError, match="ray_env='conda': valid: code, pip, installed"):
         ray_env.runtime_env("conda", "held_out_robots", "scripted")
@@ -57,11 +59,13 @@ def test_version_mismatch_names_the_first_difference_in_one_line():
     other = {"python": "3.11", "packages": {"mujoco": "3.3.2", "numpy": "1.26.4"}}
     assert ray_env.version_mismatch(me, other, "pid 7 on node a") == (
         "the cluster has mujoco 3.3.2 (pid 7 on node a), this driver 3.3.0; install the same versions on every "
-        "node (ray_env=pip installs this driver's, docs/ray.md)")
+        "node (ray_env=pip installs this driver's, docs/ray.md)"
+    )
     missing = {"python": "3.11", "packages": {"numpy": "1.26.4"}}
     assert "the cluster has mujoco (not installed)" in ray_env.version_mismatch(me, missing, "n")
     assert ray_env.version_mismatch(me, {**me, "python": "3.10"}, "n").startswith(
-        "the cluster runs Python 3.10 (n), this driver Python 3.11")
+        "the cluster runs Python 3.10 (n), this driver Python 3.11"
+    )
 
 
 @pytest.mark.parametrize("address", ["auto", "local", "10.0.0.5:6379", "head.cluster:6379", "[::1]:6379"])

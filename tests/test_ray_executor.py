@@ -2,6 +2,7 @@
 tests/ray_sandbox.py; the runs themselves in tests/ray_scenarios.py): the records of a local
 run, timeouts and errors alike, one line for each bad input, and nothing lost or duplicated
 when a worker process, a node or the driver is killed mid-run (the last two are slow)."""
+
 from __future__ import annotations
 
 import json
@@ -14,8 +15,9 @@ import pytest
 from tests import ray_sandbox
 
 REPO = Path(__file__).resolve().parents[1]
-ray_missing = pytest.mark.skipif(__import__("importlib").util.find_spec("ray") is None,
-                                 reason="Ray is not installed (pip install -e '.[ray]')")
+ray_missing = pytest.mark.skipif(
+    __import__("importlib").util.find_spec("ray") is None, reason="Ray is not installed (pip install -e '.[ray]')"
+)
 
 
 def scenario(name: str, out: Path, timeout: float) -> dict:
@@ -67,20 +69,28 @@ def test_timeouts_and_episode_errors_are_recorded_as_locally(basics):
     hang = [r for r in basics["records_hang"] if r["robot"] == "c"]
     assert len(hang) == 2 and all(r["error"].startswith("timeout after 0.5 s at step 2") for r in hang)
     boom = [r for r in basics["records_raise"] if r["robot"] == "c"]
-    assert len(boom) == 2 and all(r["error"].startswith("RuntimeError: toy env exploded (toy_suite.py:")
-                                  for r in boom)
+    assert len(boom) == 2 and all(r["error"].startswith("RuntimeError: toy env exploded (toy_suite.py:") for r in boom)
     assert all(r["error"] is None for r in basics["records_raise"] if r["robot"] != "c")
     assert basics["summary_raise"]["counts"]["errors"] == 2
 
 
 @ray_missing
-@pytest.mark.parametrize("case, message", [
-    ("closed_port", "error: ray_address=127.0.0.1:{port}: no Ray cluster answers at 127.0.0.1:{port} "
-                    "(Connection refused); start one with `ray start --head --port={port}` there"),
-    ("auto_none", "error: ray_address=auto: no Ray cluster is running on this machine"),
-    ("not_ray", "error: ray_address=127.0.0.1:{port}: something listens at 127.0.0.1:{port} but no Ray GCS "
-                "answered within 20 s"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        (
+            "closed_port",
+            "error: ray_address=127.0.0.1:{port}: no Ray cluster answers at 127.0.0.1:{port} "
+            "(Connection refused); start one with `ray start --head --port={port}` there",
+        ),
+        ("auto_none", "error: ray_address=auto: no Ray cluster is running on this machine"),
+        (
+            "not_ray",
+            "error: ray_address=127.0.0.1:{port}: something listens at 127.0.0.1:{port} but no Ray GCS "
+            "answered within 20 s",
+        ),
+    ],
+)
 def test_no_cluster_is_one_line_within_30_s(basics, case, message):
     fact = basics[case]
     lines = bench_lines(fact["stderr"])
@@ -122,8 +132,9 @@ def test_gpu_requests_are_checked_against_the_cluster(basics):
     fact = basics["no_gpu"]
     lines = bench_lines(fact["stderr"])
     assert fact["rc"] == 2 and len(lines) == 1, lines
-    assert lines[0].startswith("error: the Ray cluster at 127.0.0.1:") and \
-        lines[0].endswith("has 2 CPUs and 0 GPUs; one actor needs actor_cpus=1 actor_gpus=1")
+    assert lines[0].startswith("error: the Ray cluster at 127.0.0.1:") and lines[0].endswith(
+        "has 2 CPUs and 0 GPUs; one actor needs actor_cpus=1 actor_gpus=1"
+    )
 
 
 @ray_missing
@@ -133,13 +144,16 @@ def test_a_private_cluster_for_one_run(basics):
 
 
 def test_executor_ray_without_ray_installed_gives_the_install_command(tmp_path):
-    code = ("import sys; sys.modules['ray'] = None\n"  # what an environment without the extra looks like
-            "from bench.cli import main\n"
-            f"sys.exit(main(['run', 'suite=tests.toy_suite:ToySuite', 'executor=ray', 'out={tmp_path}']))")
+    code = (
+        "import sys; sys.modules['ray'] = None\n"  # what an environment without the extra looks like
+        "from bench.cli import main\n"
+        f"sys.exit(main(['run', 'suite=tests.toy_suite:ToySuite', 'executor=ray', 'out={tmp_path}']))"
+    )
     res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and res.stderr.strip().splitlines() == [
         "error: executor=ray needs Ray, which is not installed here: pip install 'bench-harness[ray]' "
-        "(in a checkout: pip install -e '.[ray]')"]
+        "(in a checkout: pip install -e '.[ray]')"
+    ]
     assert not any(tmp_path.iterdir())
 
 

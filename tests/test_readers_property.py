@@ -4,6 +4,7 @@ Every mutation (type swaps, deletions, NaN/inf, huge numbers, truncation, random
 non-UTF-8 bytes) must end in a `BenchError` with a one-line message, or be accepted;
 any other exception is a bug in the reader.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,8 +21,9 @@ from bench.schema import load_json, validate
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = REPO / "results" / "bc_image" / "bc_image-visual" / "summary.json"
 
-SWAPS = st.sampled_from([None, True, -1, 0, 10**30, 1e308, math.nan, math.inf, -math.inf,
-                         "", "x" * 300, [], [1, "a"], {}, {"k": None}])
+SWAPS = st.sampled_from(
+    [None, True, -1, 0, 10**30, 1e308, math.nan, math.inf, -math.inf, "", "x" * 300, [], [1, "a"], {}, {"k": None}]
+)
 
 
 def _paths(doc, prefix=()):
@@ -62,8 +64,9 @@ def summary_text():
     return SUMMARY.read_text()
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(data=st.data(), value=SWAPS, delete=st.booleans())
 def test_summary_json_mutations(summary_text, tmp_path_factory, data, value, delete):
     doc = json.loads(summary_text)
@@ -75,8 +78,9 @@ def test_summary_json_mutations(summary_text, tmp_path_factory, data, value, del
     _check(lambda: validate(load_json(f), str(f)))
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(data=st.data(), junk=st.binary(max_size=64))
 def test_summary_bytes_mutations(summary_text, tmp_path_factory, data, junk):
     raw = summary_text.encode()
@@ -93,8 +97,9 @@ def test_summary_bytes_mutations(summary_text, tmp_path_factory, data, junk):
     _check(lambda: validate(load_json(f), str(f)))
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(data=st.data(), value=SWAPS, delete=st.booleans())
 def test_leaderboard_read_input_mutations(summary_text, tmp_path_factory, data, value, delete):
     from bench.leaderboard import entry_from_summary, read_input
@@ -109,11 +114,13 @@ def test_leaderboard_read_input_mutations(summary_text, tmp_path_factory, data, 
         source, got = read_input(str(run))
         if got.get("schema") == "bench.summary/1":
             entry_from_summary(got, source)
+
     _check(go)
 
 
-@settings(max_examples=200, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(data=st.data(), value=SWAPS, delete=st.booleans())
 def test_lerobot_info_mutations(shared_dir, tmp_path_factory, data, value, delete):
     import shutil

@@ -8,6 +8,7 @@ properties also check exit 2 and exactly one line on stderr.
 Examples per test are fixed (`derandomize=True`) so CI is deterministic; the total is about
 1,300 generated inputs (see EXAMPLES below).
 """
+
 from __future__ import annotations
 
 import copy
@@ -26,29 +27,80 @@ from bench.schema import load_json, validate
 from bench.summary import check_run_meta
 
 SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
-EXAMPLES = {"records": 300, "run_meta": 200, "info": 300, "json_bytes": 200, "summary_like": 150, "cli": 100,
-            "spec_bytes": 100}
+EXAMPLES = {
+    "records": 300,
+    "run_meta": 200,
+    "info": 300,
+    "json_bytes": 200,
+    "summary_like": 150,
+    "cli": 100,
+    "spec_bytes": 100,
+}
 
-RECORD = dict(run_id="r", job_id="Lift/Panda/default|nominal|0", suite="s", suite_version="1", task="Lift",
-              robot="Panda", env="default", split="seen", condition="nominal", axis=None, level=None, params={},
-              episode=0, seed=100, init_state_hash="abc", success_once=True, success_at_end=False, length=10,
-              steps_to_success=3, error=None, policy="scripted", checkpoint_sha256=None, backend="x", wall_s=0.1,
-              finished_at=1.0, worker_pid=1, **{"return": 1.5})
-RUN_META = {"run_id": "r", "suite": {"name": "s", "version": "1"}, "policy": {"name": "p"},
-            "config": {"n_boot": 2000, "confidence": 0.95, "seed": 0, "metric": "success_once"},
-            "provenance": {}, "expected_episodes": 3}
-INFO = {"codebase_version": "v3.0", "robot_type": "arm", "total_episodes": 2, "total_frames": 20, "total_tasks": 1,
-        "fps": 10, "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-        "features": {"observation.state": {"dtype": "float32", "shape": [2], "names": None},
-                     "action": {"dtype": "float32", "shape": [2], "names": ["a", "b"]}}}
+RECORD = dict(
+    run_id="r",
+    job_id="Lift/Panda/default|nominal|0",
+    suite="s",
+    suite_version="1",
+    task="Lift",
+    robot="Panda",
+    env="default",
+    split="seen",
+    condition="nominal",
+    axis=None,
+    level=None,
+    params={},
+    episode=0,
+    seed=100,
+    init_state_hash="abc",
+    success_once=True,
+    success_at_end=False,
+    length=10,
+    steps_to_success=3,
+    error=None,
+    policy="scripted",
+    checkpoint_sha256=None,
+    backend="x",
+    wall_s=0.1,
+    finished_at=1.0,
+    worker_pid=1,
+    **{"return": 1.5},
+)
+RUN_META = {
+    "run_id": "r",
+    "suite": {"name": "s", "version": "1"},
+    "policy": {"name": "p"},
+    "config": {"n_boot": 2000, "confidence": 0.95, "seed": 0, "metric": "success_once"},
+    "provenance": {},
+    "expected_episodes": 3,
+}
+INFO = {
+    "codebase_version": "v3.0",
+    "robot_type": "arm",
+    "total_episodes": 2,
+    "total_frames": 20,
+    "total_tasks": 1,
+    "fps": 10,
+    "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+    "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+    "features": {
+        "observation.state": {"dtype": "float32", "shape": [2], "names": None},
+        "action": {"dtype": "float32", "shape": [2], "names": ["a", "b"]},
+    },
+}
 LEADERBOARD = {"schema": "bench.leaderboard/1", "suites": [], "ranking": "x", "entries": []}
 
 # values swapped in: wrong types, non-finite, huge and negative numbers
-NASTY = st.one_of(st.none(), st.booleans(), st.integers(min_value=-(10**30), max_value=10**30),
-                  st.sampled_from([math.nan, math.inf, -math.inf, 1e300, -1e300, -1, 0, 10**19]),
-                  st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
-                  st.lists(st.integers(), max_size=3), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
+NASTY = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(10**30), max_value=10**30),
+    st.sampled_from([math.nan, math.inf, -math.inf, 1e300, -1e300, -1, 0, 10**19]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+    st.lists(st.integers(), max_size=3),
+    st.dictionaries(st.text(max_size=3), st.integers(), max_size=2),
+)
 
 
 def _paths(doc, prefix=()):
@@ -117,8 +169,11 @@ def test_run_json_checker_refuses_or_accepts(doc):
 @given(doc=mutated(INFO))
 def test_lerobot_info_checker_refuses_or_accepts(doc):
     try:
-        check_info(doc, Path("ds/meta/info.json"), ("codebase_version", "fps", "features", "total_episodes",
-                                                    "total_frames", "data_path"))
+        check_info(
+            doc,
+            Path("ds/meta/info.json"),
+            ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path"),
+        )
     except BenchError as exc:
         assert "info.json" in str(exc) and "\n" not in str(exc)
         return
@@ -129,12 +184,20 @@ def test_lerobot_info_checker_refuses_or_accepts(doc):
 
 def _byte_mutations(valid: bytes):
     return st.one_of(
-        st.integers(0, len(valid)).map(lambda n: valid[:n]),                       # truncation
-        st.binary(max_size=64),                                                      # random bytes
+        st.integers(0, len(valid)).map(lambda n: valid[:n]),  # truncation
+        st.binary(max_size=64),  # random bytes
         st.tuples(st.integers(0, len(valid)), st.binary(min_size=1, max_size=4)).map(
-            lambda t: valid[:t[0]] + t[1] + valid[t[0]:]),                           # inserted bytes
-        st.sampled_from([b"\xff\xfe", b"\x80" + valid, valid.replace(b'"', b"\xc3", 1), b"[" * 5000,
-                         b'{"schema": 1' + b"0" * 5000 + b"}"]),                     # non-UTF-8, deep, huge ints
+            lambda t: valid[: t[0]] + t[1] + valid[t[0] :]
+        ),  # inserted bytes
+        st.sampled_from(
+            [
+                b"\xff\xfe",
+                b"\x80" + valid,
+                valid.replace(b'"', b"\xc3", 1),
+                b"[" * 5000,
+                b'{"schema": 1' + b"0" * 5000 + b"}",
+            ]
+        ),  # non-UTF-8, deep, huge ints
     )
 
 
@@ -150,8 +213,16 @@ def test_json_bytes_refused_in_one_line(tmp_path_factory, data):
 
 
 @settings(max_examples=EXAMPLES["summary_like"], **SETTINGS)
-@given(doc=mutated({"schema": "bench.leaderboard/1", "suites": [{"name": "s", "version": "1", "manifest": {}}],
-                    "ranking": "x", "entries": []}))
+@given(
+    doc=mutated(
+        {
+            "schema": "bench.leaderboard/1",
+            "suites": [{"name": "s", "version": "1", "manifest": {}}],
+            "ranking": "x",
+            "entries": [],
+        }
+    )
+)
 def test_leaderboard_validate_refuses_or_accepts(doc):
     try:
         validate(doc, "lb.json")
@@ -176,8 +247,10 @@ def test_cli_score_exits_2_with_one_line(tmp_path_factory, capsys, doc):
         assert sorted(p.name for p in run.iterdir()) == before
 
 
-SPEC = b"model: arm.xml\nsubsteps: 4\nsignals:\n  qpos: {column: observation.state, index: [0]}\n" \
-       b"  ctrl: {column: action, index: [0]}\n"
+SPEC = (
+    b"model: arm.xml\nsubsteps: 4\nsignals:\n  qpos: {column: observation.state, index: [0]}\n"
+    b"  ctrl: {column: action, index: [0]}\n"
+)
 
 
 @settings(max_examples=EXAMPLES["spec_bytes"], **SETTINGS)

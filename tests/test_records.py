@@ -1,4 +1,5 @@
 """Records: append-only, torn tail repaired, dedupe, comparable view."""
+
 import json
 
 import pytest
@@ -8,11 +9,35 @@ from bench.records import EpisodeRecord, RecordWriter, comparable, dedupe, read_
 
 
 def _rec(i, **kw):
-    base = dict(run_id="r", job_id=f"Lift/Panda/default|nominal|{i}", suite="s", suite_version="1", task="Lift",
-                robot="Panda", env="default", split="seen", condition="nominal", axis=None, level=None, params={},
-                episode=i, seed=100 + i, init_state_hash="abc", success_once=True, success_at_end=False, return_=1.5,
-                length=10, steps_to_success=3, error=None, policy="scripted", checkpoint_sha256=None, backend="x",
-                wall_s=0.1, finished_at=1.0, worker_pid=1)
+    base = dict(
+        run_id="r",
+        job_id=f"Lift/Panda/default|nominal|{i}",
+        suite="s",
+        suite_version="1",
+        task="Lift",
+        robot="Panda",
+        env="default",
+        split="seen",
+        condition="nominal",
+        axis=None,
+        level=None,
+        params={},
+        episode=i,
+        seed=100 + i,
+        init_state_hash="abc",
+        success_once=True,
+        success_at_end=False,
+        return_=1.5,
+        length=10,
+        steps_to_success=3,
+        error=None,
+        policy="scripted",
+        checkpoint_sha256=None,
+        backend="x",
+        wall_s=0.1,
+        finished_at=1.0,
+        worker_pid=1,
+    )
     base.update(kw)
     return EpisodeRecord(**base)
 

@@ -1,4 +1,5 @@
 """Registry: entry points, lazy imports, misses with suggestions."""
+
 import subprocess
 import sys
 
@@ -22,8 +23,11 @@ def test_every_suite_declares_identity(name):
 
 
 def test_suite_miss_lists_valid_names():
-    with pytest.raises(RegistryError, match=r"suite='held_out_robts' is not registered; valid: .*held_out_robots.*"
-                                            r"Did you mean 'held_out_robots'\?"):
+    with pytest.raises(
+        RegistryError,
+        match=r"suite='held_out_robts' is not registered; valid: .*held_out_robots.*"
+        r"Did you mean 'held_out_robots'\?",
+    ):
         registry.make_suite("held_out_robts")
 
 
@@ -37,9 +41,11 @@ def test_policy_miss():
 
 
 def test_list_imports_no_simulator():
-    code = ("import sys; from bench.cli import main; main(['list']); "
-            "heavy = [m for m in ('robosuite', 'metaworld', 'mujoco', 'torch', 'sapien', 'mani_skill') if m in sys.modules]; "
-            "print('HEAVY', heavy)")
+    code = (
+        "import sys; from bench.cli import main; main(['list']); "
+        "heavy = [m for m in ('robosuite', 'metaworld', 'mujoco', 'torch', 'sapien', 'mani_skill') if m in sys.modules]; "
+        "print('HEAVY', heavy)"
+    )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "held_out_robots" in res.stdout and "seen" in res.stdout

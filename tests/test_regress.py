@@ -1,4 +1,5 @@
 """The regression gate end to end: pairing records, the CLI, its outputs and its refusals (statistics: test_gate.py)."""
+
 from __future__ import annotations
 
 import json
@@ -18,20 +19,56 @@ from bench.suite import episode_seed
 REPO = Path(__file__).resolve().parents[1]
 
 
-def rec(robot: str, episode: int, success: bool, *, seed: int | None = None, error: str | None = None,
-        init: str | None = "h", policy: str = "p", split: str = "seen") -> EpisodeRecord:
+def rec(
+    robot: str,
+    episode: int,
+    success: bool,
+    *,
+    seed: int | None = None,
+    error: str | None = None,
+    init: str | None = "h",
+    policy: str = "p",
+    split: str = "seen",
+) -> EpisodeRecord:
     return EpisodeRecord(
-        run_id="r", job_id=f"Lift/{robot}/default|nominal|{episode}", suite="s", suite_version="1", task="Lift",
-        robot=robot, env="default", split=split, condition="nominal", axis=None, level=None, params={},
-        episode=episode, seed=episode_seed(0, episode) if seed is None else seed,
-        init_state_hash=f"{init}{robot}{episode}" if init else None, success_once=success, success_at_end=success,
-        return_=0.0, length=10, steps_to_success=None, error=error, policy=policy, checkpoint_sha256=None,
-        backend="b", wall_s=0.0, finished_at=0.0, worker_pid=0)
+        run_id="r",
+        job_id=f"Lift/{robot}/default|nominal|{episode}",
+        suite="s",
+        suite_version="1",
+        task="Lift",
+        robot=robot,
+        env="default",
+        split=split,
+        condition="nominal",
+        axis=None,
+        level=None,
+        params={},
+        episode=episode,
+        seed=episode_seed(0, episode) if seed is None else seed,
+        init_state_hash=f"{init}{robot}{episode}" if init else None,
+        success_once=success,
+        success_at_end=success,
+        return_=0.0,
+        length=10,
+        steps_to_success=None,
+        error=error,
+        policy=policy,
+        checkpoint_sha256=None,
+        backend="b",
+        wall_s=0.0,
+        finished_at=0.0,
+        worker_pid=0,
+    )
 
 
 def test_pairing_by_cell_and_episode_counts_errors_as_failures():
-    cand = [rec("A", 0, True), rec("A", 1, False, error="boom"), rec("A", 2, True), rec("B", 0, False),
-            rec("B", 1, False, error="timeout")]
+    cand = [
+        rec("A", 0, True),
+        rec("A", 1, False, error="boom"),
+        rec("A", 2, True),
+        rec("B", 0, False),
+        rec("B", 1, False, error="timeout"),
+    ]
     base = [rec("A", 0, True), rec("A", 1, True), rec("B", 0, True), rec("B", 1, False, error="timeout")]
     out = pair_records(cand, base)  # A/2 has no twin; B/1 errored on both sides
     assert out["errors"] == {"candidate": 1, "baseline": 0, "both": 1} and out["unpaired"] == 1
@@ -59,14 +96,18 @@ def _one_line_error(res: subprocess.CompletedProcess, match: str) -> None:
     assert len(lines) == 1 and lines[0].startswith("error:") and match in lines[0], res.stderr
 
 
-@pytest.mark.parametrize("args, match", [
-    (["candidate=random"], "baseline= is required"),
-    (["candidate=random", "baseline=scripted", "policy=x"], "key 'policy' is not valid for bench regress"),
-    (["candidate=random", "baseline=scripted", "margn=0.1"], "unknown key 'margn'"),
-    (["candidate=randm", "baseline=scripted"], "Did you mean 'random'"),
-    (["candidate=random", "baseline=scripted", "margin=1.5"], "margin=1.5"),
-    (["candidate=random", "baseline=nope/run"], "no such file or directory"),
-], ids=["no-baseline", "policy-key", "typo-key", "typo-policy", "bad-margin", "missing-dir"])
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["candidate=random"], "baseline= is required"),
+        (["candidate=random", "baseline=scripted", "policy=x"], "key 'policy' is not valid for bench regress"),
+        (["candidate=random", "baseline=scripted", "margn=0.1"], "unknown key 'margn'"),
+        (["candidate=randm", "baseline=scripted"], "Did you mean 'random'"),
+        (["candidate=random", "baseline=scripted", "margin=1.5"], "margin=1.5"),
+        (["candidate=random", "baseline=nope/run"], "no such file or directory"),
+    ],
+    ids=["no-baseline", "policy-key", "typo-key", "typo-policy", "bad-margin", "missing-dir"],
+)
 def test_bad_arguments_exit_2(tmp_path: Path, args, match):
     _one_line_error(_bench("regress", *args, f"runs={tmp_path / 'runs'}", cwd=tmp_path), match)
     assert not (tmp_path / "runs").exists()
@@ -86,8 +127,19 @@ def test_foreign_or_corrupt_json_baseline_exits_2(tmp_path: Path):
 
 def test_gate_detects_random_policy_against_expert(tmp_path: Path):
     """1 robot x 6 paired episodes: the expert succeeds, random never does -> regression, exit 1, CI outputs beside."""
-    res = _bench("regress", "candidate=random", "baseline=scripted", "robots=[Panda]", "episodes=6", "batch=0",
-                 "horizon=70", "workers=1", f"runs={tmp_path}", "run_id=g", cwd=tmp_path)
+    res = _bench(
+        "regress",
+        "candidate=random",
+        "baseline=scripted",
+        "robots=[Panda]",
+        "episodes=6",
+        "batch=0",
+        "horizon=70",
+        "workers=1",
+        f"runs={tmp_path}",
+        "run_id=g",
+        cwd=tmp_path,
+    )
     assert res.returncode == 1, res.stderr[-2000:]
     v = json.loads((tmp_path / "g" / "verdict.json").read_text())
     assert v["schema"] == "bench.regress/2" and v["verdict"] == "regression" and v["looks"][-1]["baseline_only"] == 6
@@ -95,8 +147,10 @@ def test_gate_detects_random_policy_against_expert(tmp_path: Path):
     assert [r["id"] for r in v["regressed"]] == ["pooled"]  # one cell: its test is the pooled one
     assert v["regressed"][0]["lcb"] > v["margin"] and v["candidate"]["provenance"] is None  # no checkpoint
     # both sides are ordinary runs with the same episode seeds
-    seeds = [sorted(json.loads(line)["seed"] for line in (tmp_path / "g" / f"g-{s}" / "episodes.jsonl").open())
-             for s in ("candidate", "baseline")]
+    seeds = [
+        sorted(json.loads(line)["seed"] for line in (tmp_path / "g" / f"g-{s}" / "episodes.jsonl").open())
+        for s in ("candidate", "baseline")
+    ]
     assert seeds[0] == seeds[1] == sorted(episode_seed(0, e) for e in range(6))
     # JUnit: one case per cell (failed), the aggregate tests, the verdict (failed: exit 1)
     root = ET.parse(tmp_path / "g" / "verdict.junit.xml").getroot()
@@ -107,8 +161,13 @@ def test_gate_detects_random_policy_against_expert(tmp_path: Path):
     md = (tmp_path / "g" / "verdict.md").read_text()
     assert "regression (exit 1)" in md and "| Lift/Panda/default | seen | 6 | 100% | 0% | +1.00 |" in md
     # the HTML report takes the new verdict
-    rep = _bench("report", str(tmp_path / "g" / "g-candidate"), f"out={tmp_path / 'rep'}",
-                 f"verdict={tmp_path / 'g' / 'verdict.json'}", cwd=tmp_path)
+    rep = _bench(
+        "report",
+        str(tmp_path / "g" / "g-candidate"),
+        f"out={tmp_path / 'rep'}",
+        f"verdict={tmp_path / 'g' / 'verdict.json'}",
+        cwd=tmp_path,
+    )
     assert rep.returncode == 0, rep.stderr[-1500:]
     assert "Regressed" in (tmp_path / "rep" / "index.html").read_text()
 
@@ -137,8 +196,15 @@ def test_gate_names_the_one_robot_that_collapsed(tmp_path: Path):
     base = _run(tmp_path, "base", "policy=scripted", "robots=[Panda,IIWA]", "episodes=8")
     bad = _run(tmp_path, "bad", "policy=random", "robots=[Panda]", "episodes=8")
     cand = _mixed_run(tmp_path, "cand", base, bad, "Panda")
-    res = _bench("regress", f"candidate={cand}", f"baseline={base}", f"runs={tmp_path}", "run_id=g",
-                 f"out={tmp_path / 'v.json'}", cwd=tmp_path)
+    res = _bench(
+        "regress",
+        f"candidate={cand}",
+        f"baseline={base}",
+        f"runs={tmp_path}",
+        "run_id=g",
+        f"out={tmp_path / 'v.json'}",
+        cwd=tmp_path,
+    )
     assert res.returncode == 1, res.stderr[-2000:]
     v = json.loads((tmp_path / "v.json").read_text())
     cells = {c["robot"]: c for c in v["cells"]}
@@ -150,12 +216,30 @@ def test_gate_names_the_one_robot_that_collapsed(tmp_path: Path):
 
 
 def test_gate_reuses_a_recorded_baseline_run(tmp_path: Path):
-    base = _bench("run", "policy=scripted", "robots=[Panda]", "episodes=2", "horizon=70", "workers=1", "seed=3",
-                  "run_id=base", f"out={tmp_path}", cwd=tmp_path)
+    base = _bench(
+        "run",
+        "policy=scripted",
+        "robots=[Panda]",
+        "episodes=2",
+        "horizon=70",
+        "workers=1",
+        "seed=3",
+        "run_id=base",
+        f"out={tmp_path}",
+        cwd=tmp_path,
+    )
     assert base.returncode == 0, base.stderr[-2000:]
     before = (tmp_path / "base" / "episodes.jsonl").read_bytes()
-    res = _bench("regress", "candidate=scripted", f"baseline={tmp_path / 'base'}", "workers=1", f"runs={tmp_path}",
-                 "run_id=g", f"out={tmp_path / 'v.json'}", cwd=tmp_path)
+    res = _bench(
+        "regress",
+        "candidate=scripted",
+        f"baseline={tmp_path / 'base'}",
+        "workers=1",
+        f"runs={tmp_path}",
+        "run_id=g",
+        f"out={tmp_path / 'v.json'}",
+        cwd=tmp_path,
+    )
     assert res.returncode == 0, res.stderr[-2000:]  # 2 identical pairs: inconclusive, passes (not strict)
     v = json.loads((tmp_path / "v.json").read_text())
     assert v["baseline"]["reused"] is True and v["seed"] == 3 and v["verdict"] == "inconclusive"
@@ -163,13 +247,28 @@ def test_gate_reuses_a_recorded_baseline_run(tmp_path: Path):
     assert not (tmp_path / "g" / "g-baseline").exists()
     assert (tmp_path / "base" / "episodes.jsonl").read_bytes() == before
     # a different seed than the recorded baseline's is refused (the episodes would not pair)
-    _one_line_error(_bench("regress", "candidate=scripted", f"baseline={tmp_path / 'base'}", "seed=4",
-                           f"runs={tmp_path}", cwd=tmp_path), "seed=4 differs from the baseline run")
+    _one_line_error(
+        _bench(
+            "regress", "candidate=scripted", f"baseline={tmp_path / 'base'}", "seed=4", f"runs={tmp_path}", cwd=tmp_path
+        ),
+        "seed=4 differs from the baseline run",
+    )
     # a different horizon or other robots (other suite cells) are refused too, naming the key; nothing is written
-    for key, match in (("horizon=80", "horizon=80 differs from the baseline run"),
-                       ("robots=[IIWA]", "robots=['IIWA'] differs from the baseline run")):
-        _one_line_error(_bench("regress", "candidate=scripted", f"baseline={tmp_path / 'base'}", key,
-                               f"runs={tmp_path / 'refused'}", cwd=tmp_path), match)
+    for key, match in (
+        ("horizon=80", "horizon=80 differs from the baseline run"),
+        ("robots=[IIWA]", "robots=['IIWA'] differs from the baseline run"),
+    ):
+        _one_line_error(
+            _bench(
+                "regress",
+                "candidate=scripted",
+                f"baseline={tmp_path / 'base'}",
+                key,
+                f"runs={tmp_path / 'refused'}",
+                cwd=tmp_path,
+            ),
+            match,
+        )
     assert not (tmp_path / "refused").exists()
 
 
@@ -188,17 +287,20 @@ def test_baseline_run_with_other_cells_or_seeds_is_refused_before_any_episode(tm
     base = _run(tmp_path, "base", "policy=scripted", "robots=[Panda,IIWA]", "episodes=2")
     reseeded = _doctored(tmp_path, base, "reseeded", lambda r: {**r, "seed": r["seed"] + 1})
     partial = _doctored(tmp_path, base, "partial", lambda r: r if r["robot"] == "Panda" else None)
-    for baseline, match in ((reseeded, "was made with other episode seeds: Lift/"),
-                            (partial, "was made with other suite cells: it lacks cell Lift/IIWA/default/nominal")):
+    for baseline, match in (
+        (reseeded, "was made with other episode seeds: Lift/"),
+        (partial, "was made with other suite cells: it lacks cell Lift/IIWA/default/nominal"),
+    ):
         runs = tmp_path / f"runs-{baseline.name}"
         assert cli.main(["regress", "candidate=random", f"baseline={baseline}", f"runs={runs}"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and match in err[0], err
         assert not runs.exists()  # no candidate episode was run
     # outputs may not land inside an input; metric=return is not a success rate
-    for args, match in (([f"baseline={base}", f"out={base / 'verdict.json'}"],
-                         "would be written inside the baseline run directory"),
-                        (["baseline=scripted", "metric=return"], "metric='return': the gate compares success")):
+    for args, match in (
+        ([f"baseline={base}", f"out={base / 'verdict.json'}"], "would be written inside the baseline run directory"),
+        (["baseline=scripted", "metric=return"], "metric='return': the gate compares success"),
+    ):
         assert cli.main(["regress", "candidate=random", f"runs={tmp_path / 'r'}", *args]) == 2
         assert match in capsys.readouterr().err
     assert not (base / "verdict.json").exists() and not (tmp_path / "r").exists()
@@ -212,8 +314,15 @@ def test_identical_checkpoints_run_nothing_and_say_so(tmp_path: Path):
     shutil.copy(ckpt.with_suffix(".json"), copy.with_suffix(".json"))
     for baseline in (ckpt, REPO / "results" / "runs" / "held_out_robots-bc-s0"):
         out = tmp_path / f"v-{baseline.stem}.json"
-        res = _bench("regress", f"candidate={copy}", f"baseline={baseline}", f"runs={tmp_path / 'runs'}",
-                     f"out={out}", "strict=true", cwd=tmp_path)
+        res = _bench(
+            "regress",
+            f"candidate={copy}",
+            f"baseline={baseline}",
+            f"runs={tmp_path / 'runs'}",
+            f"out={out}",
+            "strict=true",
+            cwd=tmp_path,
+        )
         assert res.returncode == 0, res.stderr[-2000:]
         v = json.loads(out.read_text())
         assert v["identical"] and v["verdict"] == "no_regression" and v["looks"] == [] and "no episode" in v["note"]

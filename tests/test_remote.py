@@ -3,6 +3,7 @@
 Servers listen on 127.0.0.1 only. The "bad" servers are real websocket servers built on openpi-client's
 serializer that answer wrongly on purpose (wrong shape, NaN, non-msgpack, text, too late, dying).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -84,8 +85,16 @@ def greedy(obs, key="state"):
 
 def run_cfg(tmp_path, run_id, policy, **kw):
     policy_options = {k: kw.pop(k) for k in ("host", "port", "timeout_s", "replan_every", "obs_map") if k in kw}
-    return api.RunConfig(suite=TOY, policy=policy, episodes=kw.pop("episodes", 3), workers=1, out=str(tmp_path),
-                         run_id=run_id, policy_options=policy_options, **kw)
+    return api.RunConfig(
+        suite=TOY,
+        policy=policy,
+        episodes=kw.pop("episodes", 3),
+        workers=1,
+        out=str(tmp_path),
+        run_id=run_id,
+        policy_options=policy_options,
+        **kw,
+    )
 
 
 def same(a, b):
@@ -101,8 +110,10 @@ def free_port() -> int:
 
 
 # -- policy=remote against bench serve -------------------------------------------------------------
-@pytest.mark.parametrize("policy, replan", [("scripted", 0), ("tests.toy_suite:chunk_policy", 0),
-                                            ("tests.toy_suite:chunk_policy", 2), ("random", 0)])
+@pytest.mark.parametrize(
+    "policy, replan",
+    [("scripted", 0), ("tests.toy_suite:chunk_policy", 0), ("tests.toy_suite:chunk_policy", 2), ("random", 0)],
+)
 def test_remote_records_equal_in_process(tmp_path, policy, replan):
     local = api.run(run_cfg(tmp_path, "local", policy))
     with bench_server(policy) as port:
@@ -126,14 +137,27 @@ def test_checkpoint_identity_travels(tmp_path):
     from baselines.architectures import build
     from baselines.checkpoint import save_checkpoint
 
-    spec = {"architecture": "mlp", "kwargs": {"hidden": [8]}, "obs_names": [["pos", 1], ["goal", 1]],
-            "action_names": ["push"]}
+    spec = {
+        "architecture": "mlp",
+        "kwargs": {"hidden": [8]},
+        "obs_names": [["pos", 1], ["goal", 1]],
+        "action_names": ["push"],
+    }
     torch.manual_seed(0)
     model = build("mlp", 2, 1, {"hidden": [8]})
     path = tmp_path / "toy.safetensors"
     save_checkpoint(path, model, spec)
-    local = api.run(api.RunConfig(suite=TOY, policy="checkpoint", episodes=2, workers=1, out=str(tmp_path),
-                                  run_id="local", policy_options={"checkpoint": str(path)}))
+    local = api.run(
+        api.RunConfig(
+            suite=TOY,
+            policy="checkpoint",
+            episodes=2,
+            workers=1,
+            out=str(tmp_path),
+            run_id="local",
+            policy_options={"checkpoint": str(path)},
+        )
+    )
     with bench_server("checkpoint", checkpoint=str(path)) as port:
         remote = api.run(run_cfg(tmp_path, "remote", "remote", port=port, episodes=2))
     assert same(local.records, remote.records)
@@ -143,8 +167,17 @@ def test_checkpoint_identity_travels(tmp_path):
 def test_obs_map_and_task_reach_the_server(tmp_path):
     server = FaultServer(lambda obs: greedy(obs, "observation/state"))
     try:
-        res = api.run(run_cfg(tmp_path, "m", "remote", port=server.port, episodes=1, robots=["a"],
-                              obs_map=["observation/state:state", "prompt:task", "goal_only:state.goal"]))
+        res = api.run(
+            run_cfg(
+                tmp_path,
+                "m",
+                "remote",
+                port=server.port,
+                episodes=1,
+                robots=["a"],
+                obs_map=["observation/state:state", "prompt:task", "goal_only:state.goal"],
+            )
+        )
     finally:
         server.close()
     assert all(r.error is None for r in res.records) and any(r.success_once for r in res.records)
@@ -164,9 +197,13 @@ def test_bench_server_renames_openpi_style_keys():
 # -- openpi's client against bench serve -----------------------------------------------------------
 def test_openpi_client_against_bench_serve_command():
     """The real `bench serve` command in its own process; openpi-client's WebsocketClientPolicy queries it."""
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "serve", "policy=scripted", f"suite={TOY}",
-                             "cell=reach/c/line", "port=0"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench", "serve", "policy=scripted", f"suite={TOY}", "cell=reach/c/line", "port=0"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         if "bench serve: policy scripted on ws://127.0.0.1:" not in line:
@@ -207,13 +244,28 @@ def test_malformed_requests_are_refused_without_dying():
     with bench_server(log=log) as port:
         with connect(f"ws://127.0.0.1:{port}", compression=None, proxy=None) as ws:
             ws.recv()  # metadata
-            for bad in (b"\xc1garbage", "a text frame", openpi_msgpack.packb([1, 2]),
-                        openpi_msgpack.packb({"state": {b"__ndarray__": True, b"data": b"\0" * 8, b"dtype": "|O",
-                                                        b"shape": [1]}}),
-                        openpi_msgpack.packb({"__bench__": {"op": "launch"}}),
-                        openpi_msgpack.packb({"__bench__": {"op": "reset", "seed": 1, "suite": "toy",
-                                                            "suite_class": "os:system", "cell": "reach/a/line",
-                                                            "run_seed": 0, "horizon": 5}})):
+            for bad in (
+                b"\xc1garbage",
+                "a text frame",
+                openpi_msgpack.packb([1, 2]),
+                openpi_msgpack.packb(
+                    {"state": {b"__ndarray__": True, b"data": b"\0" * 8, b"dtype": "|O", b"shape": [1]}}
+                ),
+                openpi_msgpack.packb({"__bench__": {"op": "launch"}}),
+                openpi_msgpack.packb(
+                    {
+                        "__bench__": {
+                            "op": "reset",
+                            "seed": 1,
+                            "suite": "toy",
+                            "suite_class": "os:system",
+                            "cell": "reach/a/line",
+                            "run_seed": 0,
+                            "horizon": 5,
+                        }
+                    }
+                ),
+            ):
                 ws.send(bad)
                 answer = ws.recv(timeout=10)
                 assert isinstance(answer, str) and answer.startswith("error: "), answer
@@ -236,16 +288,21 @@ def test_remote_against_an_openpi_style_server(tmp_path):
     assert sorted(server.requests[0]) == ["state", "task"]
 
 
-@pytest.mark.parametrize("answer, reason", [
-    (lambda obs: {"actions": np.zeros((3, 2), np.float32)},
-     "answered actions of shape [3, 2]; this env needs (1,) or a chunk (T, 1)"),
-    (lambda obs: {"actions": np.array([[np.nan]], np.float32)}, "answered a non-finite action (NaN or inf)"),
-    (lambda obs: {"action": np.zeros((1, 1))}, "has no 'actions' entry"),
-    (lambda obs: {"actions": "left"}, "answered actions of type str"),
-    (lambda obs: b"\xc1 not msgpack", "the server's answer is not msgpack"),
-    (lambda obs: "Traceback: boom", "refused the request: Traceback: boom"),
-    (lambda obs: None, "closed the connection"),
-])
+@pytest.mark.parametrize(
+    "answer, reason",
+    [
+        (
+            lambda obs: {"actions": np.zeros((3, 2), np.float32)},
+            "answered actions of shape [3, 2]; this env needs (1,) or a chunk (T, 1)",
+        ),
+        (lambda obs: {"actions": np.array([[np.nan]], np.float32)}, "answered a non-finite action (NaN or inf)"),
+        (lambda obs: {"action": np.zeros((1, 1))}, "has no 'actions' entry"),
+        (lambda obs: {"actions": "left"}, "answered actions of type str"),
+        (lambda obs: b"\xc1 not msgpack", "the server's answer is not msgpack"),
+        (lambda obs: "Traceback: boom", "refused the request: Traceback: boom"),
+        (lambda obs: None, "closed the connection"),
+    ],
+)
 def test_bad_answers_fail_the_episode_with_the_reason(tmp_path, answer, reason):
     server = FaultServer(answer)
     try:
@@ -285,7 +342,7 @@ def test_episodes_fail_while_the_server_is_down_and_succeed_when_it_is_back(tmp_
         if state["n"] == 2:
             state["ws"].shutdown()  # the server dies after the second episode ...
         if state["n"] == 4:
-            start()                 # ... and is back two episodes later
+            start()  # ... and is back two episodes later
 
     start()
     try:
@@ -301,29 +358,39 @@ def test_episodes_fail_while_the_server_is_down_and_succeed_when_it_is_back(tmp_
 def test_nothing_listening_is_one_line_naming_host_port(tmp_path, capsys):
     port = free_port()
     t0 = time.monotonic()
-    rc = main(["run", f"suite={TOY}", "policy=remote", f"port={port}", "timeout_s=0.5", f"out={tmp_path}",
-               "run_id=x"])
+    rc = main(["run", f"suite={TOY}", "policy=remote", f"port={port}", "timeout_s=0.5", f"out={tmp_path}", "run_id=x"])
     err = capsys.readouterr().err
     assert rc == 2 and time.monotonic() - t0 < 5
     assert err.count("\n") == 1 and f"no policy server at 127.0.0.1:{port}: connection refused" in err
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["port=0"], "port=0: must be in [1, 65535]"),
-    (["timeout_s=0"], "timeout_s=0.0: must be > 0"),
-    (["replan_every=-1"], "replan_every=-1: must be >= 0"),
-    (["obs_map=[observation/state]"], "entry 'observation/state' is not WIRE_KEY:SOURCE"),
-    (["obs_map=[img:rgb.front]"], "policy 'remote' needs observation keys ['rgb.front']; suite 'toy' cell "
-                                  "reach/a/line provides state(2) float32"),
-    (["obs_map=[g:state.gaol]"], "obs_map: g:state.gaol: the state of suite 'toy' cell reach/a/line has no field "
-                                 "'gaol'"),
-    (["host=a b"], "host='a b': give a host name or IP address"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["port=0"], "port=0: must be in [1, 65535]"),
+        (["timeout_s=0"], "timeout_s=0.0: must be > 0"),
+        (["replan_every=-1"], "replan_every=-1: must be >= 0"),
+        (["obs_map=[observation/state]"], "entry 'observation/state' is not WIRE_KEY:SOURCE"),
+        (
+            ["obs_map=[img:rgb.front]"],
+            "policy 'remote' needs observation keys ['rgb.front']; suite 'toy' cell "
+            "reach/a/line provides state(2) float32",
+        ),
+        (
+            ["obs_map=[g:state.gaol]"],
+            "obs_map: g:state.gaol: the state of suite 'toy' cell reach/a/line has no field 'gaol'",
+        ),
+        (["host=a b"], "host='a b': give a host name or IP address"),
+    ],
+)
 def test_bad_remote_keys(tmp_path, capsys, args, message):
     with bench_server() as port:
-        rc = main(["run", f"suite={TOY}", "policy=remote", f"port={port}", *args, f"out={tmp_path}", "run_id=x"]
-                  if "port" not in args[0] else ["run", f"suite={TOY}", "policy=remote", *args, f"out={tmp_path}"])
+        rc = main(
+            ["run", f"suite={TOY}", "policy=remote", f"port={port}", *args, f"out={tmp_path}", "run_id=x"]
+            if "port" not in args[0]
+            else ["run", f"suite={TOY}", "policy=remote", *args, f"out={tmp_path}"]
+        )
     err = capsys.readouterr().err
     assert rc == 2 and message in err and err.count("\n") == 1, err
 
@@ -340,14 +407,17 @@ def test_server_refuses_a_suite_it_does_not_serve(tmp_path, capsys):
     assert "restart it with suite=tests.toy_suite:ToySuite" in err and not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["policy=nope"], "policy='nope' is not registered"),
-    (["port=70000"], "port=70000: must be in [0, 65535]"),
-    (["cell=reach/z/line"], "cell='reach/z/line' is not a cell of suite"),
-    (["obs_map=[s:state.pos]"], "a server can only rename whole entries"),
-    (["checkpoint=x.safetensors"], "unknown key 'checkpoint'"),
-    (["policy=checkpoint", "checkpoint=/nonexistent.safetensors"], "no such file"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["policy=nope"], "policy='nope' is not registered"),
+        (["port=70000"], "port=70000: must be in [0, 65535]"),
+        (["cell=reach/z/line"], "cell='reach/z/line' is not a cell of suite"),
+        (["obs_map=[s:state.pos]"], "a server can only rename whole entries"),
+        (["checkpoint=x.safetensors"], "unknown key 'checkpoint'"),
+        (["policy=checkpoint", "checkpoint=/nonexistent.safetensors"], "no such file"),
+    ],
+)
 def test_bench_serve_bad_input(capsys, args, message):
     port = [] if any(a.startswith("port=") for a in args) else ["port=0"]
     assert main(["serve", f"suite={TOY}", *port, *args]) == 2
@@ -377,12 +447,22 @@ def test_bench_actions_accepts_a_remote_policy(tmp_path):
     from bench.policy_on_logs import ActionsConfig, evaluate
     from bench.remote.client import RemoteOptions
 
-    api.run(api.RunConfig(suite=TOY, policy="scripted", episodes=2, workers=1, out=str(tmp_path), run_id="rec",
-                          record=str(tmp_path / "demos")))
+    api.run(
+        api.RunConfig(
+            suite=TOY,
+            policy="scripted",
+            episodes=2,
+            workers=1,
+            out=str(tmp_path),
+            run_id="rec",
+            record=str(tmp_path / "demos"),
+        )
+    )
     ref = evaluate(ActionsConfig(logs=str(tmp_path / "demos"), policy="scripted", suite=TOY))
     with bench_server() as port:
-        got = evaluate(ActionsConfig(logs=str(tmp_path / "demos"), policy="remote", suite=TOY),
-                       RemoteOptions(port=port))
+        got = evaluate(
+            ActionsConfig(logs=str(tmp_path / "demos"), policy="remote", suite=TOY), RemoteOptions(port=port)
+        )
     assert got["per_dim"] == ref["per_dim"] and got["frames"] == ref["frames"] > 0
     assert got["policy_latency"]["requests"] == got["frames"]
 
@@ -414,8 +494,15 @@ def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_pat
     images against the cell's spec), and an openpi-style server gets the very pixels under LIBERO-style names."""
     monkeypatch.setenv("MUJOCO_GL", "egl")
     cams = {"obs": "state+rgb", "image_size": 32}
-    cfg = dict(suite="held_out_robots", robots=["Panda"], episodes=1, horizon=3, workers=1, out=str(tmp_path),
-               suite_options=cams)
+    cfg = dict(
+        suite="held_out_robots",
+        robots=["Panda"],
+        episodes=1,
+        horizon=3,
+        workers=1,
+        out=str(tmp_path),
+        suite_options=cams,
+    )
     plan = api.plan(api.RunConfig(policy="scripted", run_id="local", **cfg))
     worker = api.worker(plan)
     local = [worker.run(job) for job in plan.jobs]
@@ -426,11 +513,21 @@ def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_pat
         remote = api.run(api.RunConfig(policy="remote", run_id="remote", policy_options={"port": port}, **cfg))
     assert all(r.error is None for r in remote.records) and same(local, remote.records)
     server = FaultServer(lambda obs: {"actions": np.zeros((10, 7), np.float32)})
-    libero = ["observation/image:rgb.agentview", "observation/wrist_image:rgb.robot0_eye_in_hand",
-              "observation/state:state.eef_pos+state.eef_quat_rel+state.gripper_opening", "prompt:task"]
+    libero = [
+        "observation/image:rgb.agentview",
+        "observation/wrist_image:rgb.robot0_eye_in_hand",
+        "observation/state:state.eef_pos+state.eef_quat_rel+state.gripper_opening",
+        "prompt:task",
+    ]
     try:
-        res = api.run(api.RunConfig(policy="remote", run_id="libero", **cfg,
-                                    policy_options={"port": server.port, "obs_map": libero, "replan_every": 5}))
+        res = api.run(
+            api.RunConfig(
+                policy="remote",
+                run_id="libero",
+                **cfg,
+                policy_options={"port": server.port, "obs_map": libero, "replan_every": 5},
+            )
+        )
     finally:
         server.close()
     assert all(r.error is None for r in res.records) and len(server.requests) == 1  # 3 steps < 5 per chunk

@@ -1,4 +1,5 @@
 """The remote-policy wire format against openpi-client's own serializer, obs_map parsing, latency pooling."""
+
 from __future__ import annotations
 
 import pickle
@@ -39,26 +40,30 @@ def test_non_contiguous_and_empty_arrays():
 
 
 def _ndarray(dtype: str, shape: list, data: bytes) -> bytes:
-    return msgpack.packb({"obs": {b"__ndarray__": True, b"data": data, b"dtype": dtype, b"shape": shape}},
-                         use_bin_type=True)
+    return msgpack.packb(
+        {"obs": {b"__ndarray__": True, b"data": data, b"dtype": dtype, b"shape": shape}}, use_bin_type=True
+    )
 
 
-@pytest.mark.parametrize("frame, match", [
-    (_ndarray("|O", [1], b"\0" * 8), r"dtype object is not allowed"),
-    (_ndarray("|V8", [1], b"\0" * 8), r"dtype \|V8 is not allowed"),
-    (_ndarray("<c8", [1], b"\0" * 8), r"dtype complex64 is not allowed"),
-    (_ndarray("[('a', '<f4')]", [1], b"\0" * 4), r"not a numpy dtype string|not allowed"),
-    (_ndarray("<f4", [3], b"\0" * 8), r"needs 12 bytes, got 8"),
-    (_ndarray("<f4", [-1], b""), r"shape must be a list of at most 8 non-negative integers"),
-    (_ndarray("<f4", [1] * 9, b"\0" * 4), r"at most 8"),
-    (_ndarray("nonsense", [1], b"\0" * 4), r"not a numpy dtype string"),
-    (b"\x93\x01\x02", r"is not msgpack|is a msgpack list"),
-    (msgpack.packb([1, 2, 3]), r"is a msgpack list, not a map"),
-    (msgpack.packb({1: 2}), r"non-string key|not msgpack"),
-    (b"\xc1garbage", r"is not msgpack"),
-    (pickle.dumps({"state": np.zeros(3)}), r"is not msgpack|not a map"),
-    ("error: a text frame", r"is a text frame"),
-])
+@pytest.mark.parametrize(
+    "frame, match",
+    [
+        (_ndarray("|O", [1], b"\0" * 8), r"dtype object is not allowed"),
+        (_ndarray("|V8", [1], b"\0" * 8), r"dtype \|V8 is not allowed"),
+        (_ndarray("<c8", [1], b"\0" * 8), r"dtype complex64 is not allowed"),
+        (_ndarray("[('a', '<f4')]", [1], b"\0" * 4), r"not a numpy dtype string|not allowed"),
+        (_ndarray("<f4", [3], b"\0" * 8), r"needs 12 bytes, got 8"),
+        (_ndarray("<f4", [-1], b""), r"shape must be a list of at most 8 non-negative integers"),
+        (_ndarray("<f4", [1] * 9, b"\0" * 4), r"at most 8"),
+        (_ndarray("nonsense", [1], b"\0" * 4), r"not a numpy dtype string"),
+        (b"\x93\x01\x02", r"is not msgpack|is a msgpack list"),
+        (msgpack.packb([1, 2, 3]), r"is a msgpack list, not a map"),
+        (msgpack.packb({1: 2}), r"non-string key|not msgpack"),
+        (b"\xc1garbage", r"is not msgpack"),
+        (pickle.dumps({"state": np.zeros(3)}), r"is not msgpack|not a map"),
+        ("error: a text frame", r"is a text frame"),
+    ],
+)
 def test_bad_frames_are_refused_with_the_reason(frame, match):
     with pytest.raises(wire.WireError, match=match):
         wire.decode(frame)
@@ -81,8 +86,15 @@ SPEC = {STATE: Feature.state([("eef_pos", 3), ("gripper", 1), ("object_pos", 3)]
 
 
 def test_obs_map_selects_renames_and_slices_fields():
-    entries = obs_map.parse(["observation/image:rgb.front", "observation/state:state.eef_pos+state.gripper",
-                             "observation.environment_state:state.object_pos", "prompt:task", "raw:state"])
+    entries = obs_map.parse(
+        [
+            "observation/image:rgb.front",
+            "observation/state:state.eef_pos+state.gripper",
+            "observation.environment_state:state.object_pos",
+            "prompt:task",
+            "raw:state",
+        ]
+    )
     obs_map.check(entries, SPEC, "toy")
     assert obs_map.env_keys(entries) == ("rgb.front", STATE)
     img = np.zeros((4, 4, 3), np.uint8)
@@ -93,32 +105,45 @@ def test_obs_map_selects_renames_and_slices_fields():
     assert msg["observation.environment_state"].tolist() == [4, 5, 6] and msg["prompt"] == "Lift"
     assert msg["observation/image"] is img and msg["raw"] is state
     # the env's own instruction wins over the cell's task name
-    assert obs_map.ClientMap(entries, SPEC, "Lift")({STATE: state, "rgb.front": img, "task": "lift it"})["prompt"] \
+    assert (
+        obs_map.ClientMap(entries, SPEC, "Lift")({STATE: state, "rgb.front": img, "task": "lift it"})["prompt"]
         == "lift it"
+    )
     # no map: everything under bench's names, plus the task
     assert sorted(obs_map.ClientMap(None, SPEC, "Lift")({STATE: state})) == ["state", "task"]
-    assert obs_map.server_map(obs_map.parse(["observation/state:state", "prompt:task"])) == \
-        {"observation/state": "state", "prompt": "task"}
+    assert obs_map.server_map(obs_map.parse(["observation/state:state", "prompt:task"])) == {
+        "observation/state": "state",
+        "prompt": "task",
+    }
 
 
-@pytest.mark.parametrize("entries, match", [
-    (["observation/state"], r"entry 'observation/state' is not WIRE_KEY:SOURCE"),
-    (["a:velocity"], r"source 'velocity' is not state, state.<field>, rgb.<camera>, depth.<camera> or task"),
-    (["a:state", "a:task"], r"wire key 'a' is given twice"),
-    (["__bench__:state"], r"reserved"),
-    (["a:state.eef_pos+gripper"], r"a field selection is state.<field>"),
-])
+@pytest.mark.parametrize(
+    "entries, match",
+    [
+        (["observation/state"], r"entry 'observation/state' is not WIRE_KEY:SOURCE"),
+        (["a:velocity"], r"source 'velocity' is not state, state.<field>, rgb.<camera>, depth.<camera> or task"),
+        (["a:state", "a:task"], r"wire key 'a' is given twice"),
+        (["__bench__:state"], r"reserved"),
+        (["a:state.eef_pos+gripper"], r"a field selection is state.<field>"),
+    ],
+)
 def test_obs_map_syntax_errors(entries, match):
     with pytest.raises(ConfigError, match=match):
         obs_map.parse(entries)
 
 
 def test_obs_map_sources_are_checked_against_the_spec():
-    with pytest.raises(ConfigError, match=r"reads 'rgb.wrist', which toy does not provide; it provides state, "
-                                          r"rgb.front. Did you mean 'rgb.front'\?"):
+    with pytest.raises(
+        ConfigError,
+        match=r"reads 'rgb.wrist', which toy does not provide; it provides state, "
+        r"rgb.front. Did you mean 'rgb.front'\?",
+    ):
         obs_map.check(obs_map.parse(["img:rgb.wrist"]), SPEC, "toy")
-    with pytest.raises(ConfigError, match=r"the state of toy has no field 'eef_quat'; fields: eef_pos, gripper, "
-                                          r"object_pos"):
+    with pytest.raises(
+        ConfigError,
+        match=r"the state of toy has no field 'eef_quat'; fields: eef_pos, gripper, "
+        r"object_pos",
+    ):
         obs_map.check(obs_map.parse(["s:state.eef_quat"]), SPEC, "toy")
     with pytest.raises(ConfigError, match="a server can only rename whole entries"):
         obs_map.server_map(obs_map.parse(["s:state.eef_pos"]))

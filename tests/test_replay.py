@@ -4,6 +4,7 @@ Logs come from `bench.calibrate.generate` (a 3-joint arm under PD tracking, sens
 1e-2 rad/s), from the plain arm and from arms with one physical change; all are replayed in the
 plain arm (`models/arm3.xml`).
 """
+
 import json
 import re
 
@@ -23,6 +24,7 @@ HORIZONS = ("one_step", "k_step", "free_run")
 def _strict_json(path):
     def bad(const):
         raise AssertionError(f"{path}: {const} in JSON")
+
     return json.loads(path.read_text(), parse_constant=bad)
 
 
@@ -40,8 +42,10 @@ def nominal_spec(tmp_path_factory):
 def cases(tmp_path_factory):
     """Logs of the plain arm and of two changed arms: 2 episodes x 2 s at 100 Hz each."""
     root = tmp_path_factory.mktemp("cases")
-    return {str(e): write_case(root / str(e), e, episodes=2, duration=2.0, seed=0) / "logs"
-            for e in (None, "payload_mass", "viscous_damping")}
+    return {
+        str(e): write_case(root / str(e), e, episodes=2, duration=2.0, seed=0) / "logs"
+        for e in (None, "payload_mass", "viscous_damping")
+    }
 
 
 @pytest.fixture(scope="module")
@@ -154,30 +158,57 @@ BAD = [
     (lambda t, logs, spec: [f"logs={logs}", f"spec={t / 'none.yaml'}"], r"spec file .*none.yaml' does not exist"),
     (lambda t, logs, spec: [f"logs={logs}"], r"spec= is required"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "suite=held_out_robots"], r"not both"),
-    (lambda t, logs, spec: [f"logs={logs}",
-                            f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}"],
-     r"'signals.qpos.column': column 'observation.stat' is not in the log.*valid: action"),
-    (lambda t, logs, spec: [f"logs={logs}",
-                            f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
-     r"'signals.ctrl.index' lists 2 columns; the model has nu=3"),
-    (lambda t, logs, spec: [f"logs={logs}",
-                            f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}"],
-     r"'signals.qvel.index': index 9 is out of range .* width 6"),
+    (
+        lambda t, logs, spec: [
+            f"logs={logs}",
+            f"spec={_bad_spec(t, qpos={'column': 'observation.stat', 'index': [0, 1, 2]})}",
+        ],
+        r"'signals.qpos.column': column 'observation.stat' is not in the log.*valid: action",
+    ),
+    (
+        lambda t, logs, spec: [f"logs={logs}", f"spec={_bad_spec(t, ctrl={'column': 'action', 'index': [0, 1]})}"],
+        r"'signals.ctrl.index' lists 2 columns; the model has nu=3",
+    ),
+    (
+        lambda t, logs, spec: [
+            f"logs={logs}",
+            f"spec={_bad_spec(t, qvel={'column': 'observation.state', 'index': [3, 4, 9]})}",
+        ],
+        r"'signals.qvel.index': index 9 is out of range .* width 6",
+    ),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "k=0"], r"k=0: must be in \[1, "),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[0,7]"], r"episode 7 is not in .*valid: 0..1"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "episodes=[]"], r"episodes=\[\] selects nothing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "kk=3"], r"unknown key 'kk'.*Did you mean 'k'"),
     (lambda t, logs, spec: [f"logs={logs}", "suite=held_out_robots"], r"feature 'observation.sim_state' missing"),
     (lambda t, logs, spec: [f"logs={logs}", f"spec={spec}", "commands=ctrl"], r"commands= applies to suite= replays"),
-    (lambda t, logs, spec: [f"logs={logs}", f"spec={_typo_spec(t)}"],
-     r"unknown spec field 'substep'.*Did you mean 'substeps'"),
+    (
+        lambda t, logs, spec: [f"logs={logs}", f"spec={_typo_spec(t)}"],
+        r"unknown spec field 'substep'.*Did you mean 'substeps'",
+    ),
 ]
 
 
-@pytest.mark.parametrize("make_argv, pattern", BAD, ids=[
-    "missing-logs", "missing-spec", "no-spec", "spec-and-suite", "column-not-in-log", "ctrl-width-vs-model",
-    "index-out-of-range", "k-zero", "unknown-episode", "no-episode", "unknown-key", "suite-needs-sim-state",
-    "commands-with-spec", "signal-map-typo"])
+@pytest.mark.parametrize(
+    "make_argv, pattern",
+    BAD,
+    ids=[
+        "missing-logs",
+        "missing-spec",
+        "no-spec",
+        "spec-and-suite",
+        "column-not-in-log",
+        "ctrl-width-vs-model",
+        "index-out-of-range",
+        "k-zero",
+        "unknown-episode",
+        "no-episode",
+        "unknown-key",
+        "suite-needs-sim-state",
+        "commands-with-spec",
+        "signal-map-typo",
+    ],
+)
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, cases, nominal_spec, make_argv, pattern):
     out = tmp_path / "out"
     code = main(["replay", *make_argv(tmp_path, cases["None"], nominal_spec), f"out={out}"])
@@ -209,10 +240,16 @@ def test_replay_is_the_base_layer_it_never_imports_calibrate():
 
     for path in sorted(Path(bench.replay.__file__).parent.glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            assert not any(n == "bench.calibrate" or n.startswith("bench.calibrate.") for n in names), \
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
+            assert not any(n == "bench.calibrate" or n.startswith("bench.calibrate.") for n in names), (
                 f"{path.name} imports {names}"
+            )
 
 
 def test_help_names_every_key(capsys):
@@ -227,8 +264,22 @@ def robosuite_rec(tmp_path_factory):
     """`bench run record=` logs of Panda Lift: one nominal episode, one with 3x heavier links (~5 s)."""
     tmp = tmp_path_factory.mktemp("rec")
     rec = tmp / "rec"
-    assert main(["run", "robots=[Panda]", "episodes=1", "horizon=30", "workers=1", "run_id=r",
-                 f"out={tmp / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "robots=[Panda]",
+                "episodes=1",
+                "horizon=30",
+                "workers=1",
+                "run_id=r",
+                f"out={tmp / 'runs'}",
+                f"record={rec}",
+                "perturb.link_mass=[3]",
+            ]
+        )
+        == 0
+    )
     return rec
 
 
@@ -241,8 +292,9 @@ def test_robosuite_recording_replays_in_the_nominal_env(robosuite_rec, commands)
     """Nominal episodes replay exactly, a heavier-link episode does not, with either kind of command."""
     doc = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, commands=commands)).doc
     assert doc["commands"] == commands
-    assert doc["backend"] == ("held_out_robots ctrl, mujoco.rollout (1 thread)" if commands == "ctrl"
-                              else "held_out_robots step loop")
+    assert doc["backend"] == (
+        "held_out_robots ctrl, mujoco.rollout (1 thread)" if commands == "ctrl" else "held_out_robots step loop"
+    )
     assert "robot0_joint1" in doc["joints"] and "cube_joint0.z" in doc["joints"]
     by = _by_condition(doc)
     assert set(by) == {"nominal", "link_mass=3"}
@@ -280,7 +332,7 @@ def test_recording_logs_ctrl_that_reproduce_the_physics(robosuite_rec):
         state, ctrl = ep.data["observation.sim_state"].astype(np.float64), ep.data["action.ctrl"].astype(np.float64)
         worst = 0.0
         for t in range(len(state) - 1):
-            d.qpos[:], d.qvel[:] = state[t, : m.nq], state[t, m.nq:]
+            d.qpos[:], d.qvel[:] = state[t, : m.nq], state[t, m.nq :]
             for u in ctrl[t].reshape(25, m.nu):
                 d.ctrl[:] = u
                 mujoco.mj_step(m, d)
@@ -303,12 +355,18 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
     renamed.features["action.ctrl"]["names"] = ["motor" + n for n in names]
     renamed = write_dataset(tmp_path / "renamed", renamed)
     cases = [
-        ([f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"],
-         r"commands is 'torque'; valid: ctrl, action"),
-        ([f"logs={plain}", "suite=held_out_robots", "commands=ctrl"],
-         r"feature 'action.ctrl' missing.*commands=action"),
-        ([f"logs={renamed}", "suite=held_out_robots"],
-         r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'"),
+        (
+            [f"logs={robosuite_rec}", "suite=held_out_robots", "commands=torque"],
+            r"commands is 'torque'; valid: ctrl, action",
+        ),
+        (
+            [f"logs={plain}", "suite=held_out_robots", "commands=ctrl"],
+            r"feature 'action.ctrl' missing.*commands=action",
+        ),
+        (
+            [f"logs={renamed}", "suite=held_out_robots"],
+            r"'action.ctrl' element 0 is 'motorrobot0_torq_j1@0', but input 0 of the model is 'robot0_torq_j1'",
+        ),
     ]
     for argv, pattern in cases:
         out = tmp_path / "out"
@@ -325,15 +383,30 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
     from bench.logs import read_dataset
 
     rec = tmp_path / "rec"
-    assert main(["run", "suite=held_out_envs", "tasks=[reach-v3]", "episodes=1", "horizon=40", "workers=1",
-                 "run_id=m", f"out={tmp_path / 'runs'}", f"record={rec}", "perturb.link_mass=[3]"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "suite=held_out_envs",
+                "tasks=[reach-v3]",
+                "episodes=1",
+                "horizon=40",
+                "workers=1",
+                "run_id=m",
+                f"out={tmp_path / 'runs'}",
+                f"record={rec}",
+                "perturb.link_mass=[3]",
+            ]
+        )
+        == 0
+    )
     ds = read_dataset(rec)
     names = ds.features["action.ctrl"]["names"]
     assert names[:4] == ["actuator0@0", "actuator1@0", "mocap.mocap_x@0", "mocap.mocap_y@0"]
     assert ds.features["action.ctrl"]["shape"] == [5 * 9]  # frame_skip 5 x (2 ctrl + 3 pos + 4 quat)
-    assert {ep.meta["ctrl_spec"] for ep in ds.episodes} == {int(mujoco.mjtState.mjSTATE_CTRL
-                                                               | mujoco.mjtState.mjSTATE_MOCAP_POS
-                                                               | mujoco.mjtState.mjSTATE_MOCAP_QUAT)}
+    assert {ep.meta["ctrl_spec"] for ep in ds.episodes} == {
+        int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT)
+    }
     batched = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5)).doc
     loop = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5, commands="action")).doc
     assert batched["commands"] == "ctrl" and loop["commands"] == "action"
@@ -350,8 +423,22 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
 def test_recordings_from_several_scenes_replay_batched_per_model(tmp_path):
     """Two robosuite scenes (two models, same joints) in one log: one rollout per model, both replay exactly."""
     rec = tmp_path / "rec"
-    assert main(["run", "suite=held_out_scenes", "envs=[nominal,table_up_12cm]", "episodes=1", "horizon=20",
-                 "workers=1", "run_id=s", f"out={tmp_path / 'runs'}", f"record={rec}"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "suite=held_out_scenes",
+                "envs=[nominal,table_up_12cm]",
+                "episodes=1",
+                "horizon=20",
+                "workers=1",
+                "run_id=s",
+                f"out={tmp_path / 'runs'}",
+                f"record={rec}",
+            ]
+        )
+        == 0
+    )
     doc = run(ReplayConfig(logs=str(rec), suite="held_out_scenes", k=5, threads=2)).doc
     assert doc["commands"] == "ctrl" and len(doc["per_episode"]) == 2
     for row in doc["per_episode"]:  # a wrong model (the other scene's table) would put the cube elsewhere

@@ -1,4 +1,5 @@
 """`bench report`: HTML + PNG figures for runs (with sensitivity), leaderboards, calibration and verdicts."""
+
 from __future__ import annotations
 
 import json
@@ -6,28 +7,56 @@ from pathlib import Path
 
 import pytest
 from PIL import Image
+from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ is on sys.path)
 
 from bench import cli
 from bench.leaderboard import merge
 from bench.records import EpisodeRecord
 from bench.summary import build
 
-from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ is on sys.path)
-
 
 def _perturbed_summary() -> dict:
     recs = []
     for robot, split in (("A", "seen"), ("C", "unseen")):
-        for cond, axis, level, p in (("nominal", None, None, 0.9), ("friction=0.5", "friction", 0.5, 0.6),
-                                     ("friction=2", "friction", 2.0, 0.8), ("mass=[1,3]", "mass", [1.0, 3.0], 0.3)):
+        for cond, axis, level, p in (
+            ("nominal", None, None, 0.9),
+            ("friction=0.5", "friction", 0.5, 0.6),
+            ("friction=2", "friction", 2.0, 0.8),
+            ("mass=[1,3]", "mass", [1.0, 3.0], 0.3),
+        ):
             for e in range(10):
                 ok = e < round(p * 10)
-                recs.append(EpisodeRecord(
-                    run_id="pert", job_id=f"Lift/{robot}/default|{cond}|{e}", suite="toy", suite_version="1",
-                    task="Lift", robot=robot, env="default", split=split, condition=cond, axis=axis, level=level,
-                    params={axis: 1.0} if axis else {}, episode=e, seed=e, init_state_hash="h", success_once=ok,
-                    success_at_end=ok, return_=float(ok), length=5, steps_to_success=None, error=None, policy="p",
-                    checkpoint_sha256=None, backend="b", wall_s=0.0, finished_at=0.0, worker_pid=0))
+                recs.append(
+                    EpisodeRecord(
+                        run_id="pert",
+                        job_id=f"Lift/{robot}/default|{cond}|{e}",
+                        suite="toy",
+                        suite_version="1",
+                        task="Lift",
+                        robot=robot,
+                        env="default",
+                        split=split,
+                        condition=cond,
+                        axis=axis,
+                        level=level,
+                        params={axis: 1.0} if axis else {},
+                        episode=e,
+                        seed=e,
+                        init_state_hash="h",
+                        success_once=ok,
+                        success_at_end=ok,
+                        return_=float(ok),
+                        length=5,
+                        steps_to_success=None,
+                        error=None,
+                        policy="p",
+                        checkpoint_sha256=None,
+                        backend="b",
+                        wall_s=0.0,
+                        finished_at=0.0,
+                        worker_pid=0,
+                    )
+                )
     base = summary("tmp", "p", ALL)
     meta = {k: base[k] for k in ("suite", "policy", "config", "provenance")}
     meta["run_id"], meta["expected_episodes"] = "pert", len(recs)
@@ -62,9 +91,20 @@ def test_run_report_with_sensitivity(tmp_path: Path, capsys):
 def test_leaderboard_report_with_calibration_and_verdict(tmp_path: Path):
     board = merge([("a", summary("a", "expert", ALL)), ("b", summary("b", "random", {k: 0.1 for k in ALL}))])
     (tmp_path / "lb.json").write_text(json.dumps(board))
-    cal = {"schema": "bench.calibration/1", "errors": {
-        stage: {"one_step_nrmse": v, "k_step_nrmse": 2 * v, "free_run_nrmse": 3 * v, "free_run_rmse": v, "r2": 1 - v}
-        for stage, v in (("nominal", 0.3), ("declared", 0.1), ("final", 0.05))}, "added": [{"name": "coulomb"}]}
+    cal = {
+        "schema": "bench.calibration/1",
+        "errors": {
+            stage: {
+                "one_step_nrmse": v,
+                "k_step_nrmse": 2 * v,
+                "free_run_nrmse": 3 * v,
+                "free_run_rmse": v,
+                "r2": 1 - v,
+            }
+            for stage, v in (("nominal", 0.3), ("declared", 0.1), ("final", 0.05))
+        },
+        "added": [{"name": "coulomb"}],
+    }
     (tmp_path / "cal").mkdir()
     (tmp_path / "cal" / "calibration.json").write_text(json.dumps(cal))
     out = tmp_path / "rep"
@@ -78,11 +118,15 @@ def test_leaderboard_report_with_calibration_and_verdict(tmp_path: Path):
     _pngs_ok(out, {"leaderboard.png"})
 
 
-@pytest.mark.parametrize("make_input, match", [
-    (lambda d: d / "missing", "no such file"),
-    (lambda d: (d / "x.json").write_text("{oops") and d / "x.json", "not valid JSON"),
-    (lambda d: (d / "y.json").write_text('{"a": 1}') and d / "y.json", "not a bench result"),
-], ids=["missing", "corrupt", "foreign"])
+@pytest.mark.parametrize(
+    "make_input, match",
+    [
+        (lambda d: d / "missing", "no such file"),
+        (lambda d: (d / "x.json").write_text("{oops") and d / "x.json", "not valid JSON"),
+        (lambda d: (d / "y.json").write_text('{"a": 1}') and d / "y.json", "not a bench result"),
+    ],
+    ids=["missing", "corrupt", "foreign"],
+)
 def test_bad_input_exits_2_and_writes_nothing(tmp_path: Path, capsys, make_input, match):
     src = make_input(tmp_path)
     out = tmp_path / "rep"
@@ -95,7 +139,9 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path: Path, capsys, make_input
 def test_bad_calibration_exits_2(tmp_path: Path, capsys):
     (tmp_path / "s.json").write_text(json.dumps(summary("s", "p", ALL)))
     (tmp_path / "c.json").write_text(json.dumps({"schema": "bench.calibration/1", "errors": []}))
-    assert cli.main(["report", str(tmp_path / "s.json"), f"out={tmp_path / 'r'}",
-                     f"calibration={tmp_path / 'c.json'}"]) == 2
+    assert (
+        cli.main(["report", str(tmp_path / "s.json"), f"out={tmp_path / 'r'}", f"calibration={tmp_path / 'c.json'}"])
+        == 2
+    )
     assert "errors must hold" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()

@@ -1,5 +1,6 @@
 """Committed reference results: every summary validates and re-scores identically from its own records,
 and results/leaderboard.json is exactly the merge of the committed runs."""
+
 from __future__ import annotations
 
 import json
@@ -8,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from bench.leaderboard import merge, read_input
-from bench.schema import load_json, validate
 from bench.records import EPISODES, read_records
+from bench.schema import load_json, validate
 from bench.summary import build
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,5 +49,6 @@ def test_leaderboard_is_the_merge_of_the_committed_runs(monkeypatch):
     assert validate(board) == "bench.leaderboard/1"
     monkeypatch.chdir(REPO)  # sources are recorded relative to the repository root
     inputs = [read_input(str(Path("results/runs") / r.name)) for r in RUNS]
-    assert json.loads(json.dumps(merge(inputs))) == board, \
+    assert json.loads(json.dumps(merge(inputs))) == board, (
         "results/leaderboard.json is stale: bench leaderboard merge results/runs/* out=results/leaderboard.json overwrite=true"
+    )

@@ -1,4 +1,5 @@
 """End to end on real robosuite: smoke run, determinism, resume after kill -9, schema."""
+
 import json
 import os
 import signal
@@ -9,15 +10,26 @@ import time
 import pytest
 
 from bench.cli import main
-from bench.schema import validate
 from bench.records import comparable, read_records
+from bench.schema import validate
 
 pytest.importorskip("robosuite")
 
 
 def _run(tmp_path, run_id, *extra):
-    return main(["run", "suite=held_out_robots", "policy=scripted", "robots=[Panda,UR5e]", "episodes=1", "workers=1",
-                 f"out={tmp_path}", f"run_id={run_id}", *extra])
+    return main(
+        [
+            "run",
+            "suite=held_out_robots",
+            "policy=scripted",
+            "robots=[Panda,UR5e]",
+            "episodes=1",
+            "workers=1",
+            f"out={tmp_path}",
+            f"run_id={run_id}",
+            *extra,
+        ]
+    )
 
 
 def test_smoke_two_arms_records_and_summary(tmp_path):
@@ -47,8 +59,17 @@ def test_smoke_two_arms_records_and_summary(tmp_path):
 
 
 def test_resume_after_kill_9(tmp_path):
-    cmd = [sys.executable, "-m", "bench", "run", "robots=[Panda]", "episodes=6", "workers=1",
-           f"out={tmp_path}", "run_id=k"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "bench",
+        "run",
+        "robots=[Panda]",
+        "episodes=6",
+        "workers=1",
+        f"out={tmp_path}",
+        "run_id=k",
+    ]
     episodes = tmp_path / "k" / "episodes.jsonl"
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:

@@ -1,5 +1,6 @@
 """The runner on the pure-numpy toy suite (tests/toy_suite.py, loaded as suite=tests.toy_suite:ToySuite):
 workers, resume after kill -9, timeouts, envs that raise or return NaN, action chunks, plugin keys."""
+
 from __future__ import annotations
 
 import json
@@ -53,10 +54,21 @@ def test_two_workers_give_the_records_of_one(tmp_path):
 
 def test_resume_after_kill_9(tmp_path):
     """Kill the whole process group mid-run; the rerun finishes it, and equals an uninterrupted run."""
-    args = [sys.executable, "-m", "bench", "run", TOY, "episodes=20", "workers=2", "step_delay=0.01",
-            f"out={tmp_path}", "run_id=k"]
-    proc = subprocess.Popen(args, cwd=REPO, start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    args = [
+        sys.executable,
+        "-m",
+        "bench",
+        "run",
+        TOY,
+        "episodes=20",
+        "workers=2",
+        "step_delay=0.01",
+        f"out={tmp_path}",
+        "run_id=k",
+    ]
+    proc = subprocess.Popen(
+        args, cwd=REPO, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     path = tmp_path / "k" / "episodes.jsonl"
     deadline = time.time() + 120
     while time.time() < deadline and (not path.exists() or len(path.read_bytes().splitlines()) < 8):
@@ -82,11 +94,14 @@ def test_a_hanging_env_times_out_and_the_run_goes_on(tmp_path):
     assert all(r.error is None for r in recs if r.robot != "c")
 
 
-@pytest.mark.parametrize("fault, message", [
-    ("raise", "RuntimeError: toy env exploded (toy_suite.py:"),
-    ("nan_reward", "non-finite reward (nan) at step 2"),
-    ("nan_obs", "non-finite observation 'state' at step 3"),
-])
+@pytest.mark.parametrize(
+    "fault, message",
+    [
+        ("raise", "RuntimeError: toy env exploded (toy_suite.py:"),
+        ("nan_reward", "non-finite reward (nan) at step 2"),
+        ("nan_obs", "non-finite observation 'state' at step 3"),
+    ],
+)
 def test_env_faults_are_recorded_and_the_run_goes_on(tmp_path, fault, message):
     assert run(tmp_path, "f", f"fault={fault}") == 0
     recs = records(tmp_path, "f")
@@ -113,8 +128,10 @@ def test_action_chunks_run_open_loop(tmp_path):
 def test_policy_obs_keys_are_checked_before_anything_is_written(tmp_path, capsys):
     assert run(tmp_path, "cam", "policy=tests.toy_suite:NeedsCamera") == 2
     err = capsys.readouterr().err
-    assert "policy 'tests.toy_suite:NeedsCamera' needs observation keys ['rgb.front']; suite 'toy' cell " \
-           "reach/a/line provides state(2) float32" in err
+    assert (
+        "policy 'tests.toy_suite:NeedsCamera' needs observation keys ['rgb.front']; suite 'toy' cell "
+        "reach/a/line provides state(2) float32" in err
+    )
     assert not (tmp_path / "cam").exists()
 
 
@@ -132,18 +149,39 @@ def test_entry_point_name_must_equal_suite_name(monkeypatch):
 
     ep = EntryPoint(name="toy2", value="tests.toy_suite:ToySuite", group=registry.SUITES)
     monkeypatch.setattr(registry, "_group", lambda group: {"toy2": ep})
-    with pytest.raises(RegistryError, match=r"suite='toy2': the entry point loads tests.toy_suite.ToySuite, whose "
-                                            r"name is 'toy'; an entry-point name must equal its Suite.name"):
+    with pytest.raises(
+        RegistryError,
+        match=r"suite='toy2': the entry point loads tests.toy_suite.ToySuite, whose "
+        r"name is 'toy'; an entry-point name must equal its Suite.name",
+    ):
         registry.suite_class("toy2")
 
 
 def test_typed_api(tmp_path):
-    result = api.run(api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", episodes=3, workers=1,
-                                   out=str(tmp_path), run_id="api", suite_options={"goal": 0.2}))
+    result = api.run(
+        api.RunConfig(
+            suite="tests.toy_suite:ToySuite",
+            policy="scripted",
+            episodes=3,
+            workers=1,
+            out=str(tmp_path),
+            run_id="api",
+            suite_options={"goal": 0.2},
+        )
+    )
     assert result.ran == 9 and result.resumed == 0 and len(result.records) == 9
     assert result.summary["splits"]["seen"]["success_once"]["mean"]["value"] == 1.0
-    again = api.run(api.RunConfig(suite="tests.toy_suite:ToySuite", policy="scripted", episodes=3, workers=1,
-                                  out=str(tmp_path), run_id="api", suite_options={"goal": 0.2}))
+    again = api.run(
+        api.RunConfig(
+            suite="tests.toy_suite:ToySuite",
+            policy="scripted",
+            episodes=3,
+            workers=1,
+            out=str(tmp_path),
+            run_id="api",
+            suite_options={"goal": 0.2},
+        )
+    )
     assert again.ran == 0 and again.resumed == 9
     assert api.score(tmp_path / "api") == again.summary
     with pytest.raises(ConfigError, match="unknown key 'goals' for suite tests.toy_suite:ToySuite; valid: goal"):

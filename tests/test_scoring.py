@@ -1,4 +1,5 @@
 """Scoring math against values computed by hand."""
+
 import math
 
 import numpy as np
@@ -25,8 +26,8 @@ def test_wilson_extremes_and_empty():
 
 def test_aggregate_and_gap_points():
     rng = np.random.default_rng(0)
-    seen = [np.array([1, 1, 1, 0]), np.array([1, 0])]        # cell rates 0.75, 0.5 -> mean 0.625
-    unseen = [np.array([0, 0]), np.array([1, 0, 0, 0])]      # cell rates 0.0, 0.25 -> mean 0.125
+    seen = [np.array([1, 1, 1, 0]), np.array([1, 0])]  # cell rates 0.75, 0.5 -> mean 0.625
+    unseen = [np.array([0, 0]), np.array([1, 0, 0, 0])]  # cell rates 0.0, 0.25 -> mean 0.125
     agg = scoring.aggregate(seen, rng)
     assert agg.value == pytest.approx(0.625)
     assert 0.0 <= agg.lo <= 0.625 <= agg.hi <= 1.0

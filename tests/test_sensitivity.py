@@ -1,4 +1,5 @@
 """Per-axis sensitivity: pairing by seed, McNemar, intervals, schema, table."""
+
 import json
 
 import numpy as np
@@ -9,27 +10,51 @@ from bench import sensitivity as sens
 from bench.records import EpisodeRecord
 
 
-def rec(condition, episode, success, robot="Panda", axis=None, level=None, params=None, error=None, at_end=None,
-        ret=0.0):
+def rec(
+    condition, episode, success, robot="Panda", axis=None, level=None, params=None, error=None, at_end=None, ret=0.0
+):
     return EpisodeRecord(
-        run_id="r", job_id=f"Lift/{robot}/default|{condition}|{episode}", suite="s", suite_version="1", task="Lift",
-        robot=robot, env="default", split="seen", condition=condition, axis=axis, level=level, params=params or {},
-        episode=episode, seed=1000 + episode, init_state_hash="h", success_once=bool(success),
-        success_at_end=bool(success if at_end is None else at_end), return_=float(ret), length=10,
-        steps_to_success=None, error=error, policy="p", checkpoint_sha256=None, backend="b", wall_s=0.1,
-        finished_at=0.0, worker_pid=1,
+        run_id="r",
+        job_id=f"Lift/{robot}/default|{condition}|{episode}",
+        suite="s",
+        suite_version="1",
+        task="Lift",
+        robot=robot,
+        env="default",
+        split="seen",
+        condition=condition,
+        axis=axis,
+        level=level,
+        params=params or {},
+        episode=episode,
+        seed=1000 + episode,
+        init_state_hash="h",
+        success_once=bool(success),
+        success_at_end=bool(success if at_end is None else at_end),
+        return_=float(ret),
+        length=10,
+        steps_to_success=None,
+        error=error,
+        policy="p",
+        checkpoint_sha256=None,
+        backend="b",
+        wall_s=0.1,
+        finished_at=0.0,
+        worker_pid=1,
     )
 
 
 def run_records(nominal, perturbed, axis="friction", level=0.1, robot="Panda"):
     name = f"{axis}={level:g}"
-    return ([rec("nominal", i, s, robot) for i, s in enumerate(nominal)]
-            + [rec(name, i, s, robot, axis, level, {axis: level}) for i, s in enumerate(perturbed)])
+    return [rec("nominal", i, s, robot) for i, s in enumerate(nominal)] + [
+        rec(name, i, s, robot, axis, level, {axis: level}) for i, s in enumerate(perturbed)
+    ]
 
 
 def entries_for(records, **kw):
-    return sens.sensitivity(records, np.random.default_rng(0), n_boot=kw.get("n_boot", 1000),
-                            confidence=kw.get("confidence", 0.95))
+    return sens.sensitivity(
+        records, np.random.default_rng(0), n_boot=kw.get("n_boot", 1000), confidence=kw.get("confidence", 0.95)
+    )
 
 
 def test_drop_is_paired_by_episode_and_tested_with_mcnemar():
@@ -93,8 +118,10 @@ def test_no_pairs_is_null_with_reason_and_json_has_no_nan():
 
 def test_ranges_summarise_the_sampled_values_and_sort_after_grids():
     recs = [rec("nominal", i, 1) for i in range(3)]
-    recs += [rec("mass~U(0.5,2)", i, 1, axis="mass", level=[0.5, 2.0], params={"mass": v})
-             for i, v in enumerate([0.6, 1.5, 1.9])]
+    recs += [
+        rec("mass~U(0.5,2)", i, 1, axis="mass", level=[0.5, 2.0], params={"mass": v})
+        for i, v in enumerate([0.6, 1.5, 1.9])
+    ]
     recs += [rec("mass=2", i, 0, axis="mass", level=2.0, params={"mass": 2.0}) for i in range(3)]
     recs += [rec("friction=0.5", i, 1, axis="friction", level=0.5, params={"friction": 0.5}) for i in range(3)]
     out = entries_for(recs)
@@ -130,12 +157,27 @@ def test_summary_with_sensitivity_validates_against_the_schema():
 
     recs = run_records([1, 1, 0, 1], [0, 1, 0, 0])
     recs += [rec("latency~U(0,4)", i, 1, axis="latency", level=[0, 4], params={"latency": i}) for i in range(4)]
-    meta = {"run_id": "r", "suite": {"name": "s", "version": "1", "manifest": {}},
-            "policy": {"name": "p", "checkpoint": None, "checkpoint_sha256": None},
-            "config": {"seed": 0, "n_boot": 200, "confidence": 0.9}, "expected_episodes": 12,
-            "provenance": {"bench_version": "0", "git_sha": None, "packages": {}, "python": "3", "platform": "x",
-                           "cores": 2, "workers": 1, "backend": [], "seed": 0, "episode_seeds": [1],
-                           "started_at": "t", "finished_at": None}}
+    meta = {
+        "run_id": "r",
+        "suite": {"name": "s", "version": "1", "manifest": {}},
+        "policy": {"name": "p", "checkpoint": None, "checkpoint_sha256": None},
+        "config": {"seed": 0, "n_boot": 200, "confidence": 0.9},
+        "expected_episodes": 12,
+        "provenance": {
+            "bench_version": "0",
+            "git_sha": None,
+            "packages": {},
+            "python": "3",
+            "platform": "x",
+            "cores": 2,
+            "workers": 1,
+            "backend": [],
+            "seed": 0,
+            "episode_seeds": [1],
+            "started_at": "t",
+            "finished_at": None,
+        },
+    }
     summary = build(recs, run_meta=meta)
     assert validate(summary) == "bench.summary/1"
     assert [e["condition"] for e in summary["sensitivity"]] == ["nominal", "friction=0.1", "latency~U(0,4)"]
@@ -157,8 +199,10 @@ def test_render_prints_conditions_intervals_and_p_values():
     assert "sampled" not in text  # a grid's value is its level
 
     recs = [rec("nominal", i, 1) for i in range(3)]
-    recs += [rec("mass~U(0.5,2)", i, 1, axis="mass", level=[0.5, 2.0], params={"mass": v})
-             for i, v in enumerate([0.6, 1.5, 1.9])]
+    recs += [
+        rec("mass~U(0.5,2)", i, 1, axis="mass", level=[0.5, 2.0], params={"mass": v})
+        for i, v in enumerate([0.6, 1.5, 1.9])
+    ]
     console = Console(record=True, width=200)
     sens.render(entries_for(recs), console)
     assert "mass 0.6–1.9" in console.export_text()  # the range of values a randomised condition drew

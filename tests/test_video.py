@@ -1,5 +1,6 @@
 """bench.video: MP4 encoding (in the caller's thread and behind a bounded queue on a background thread) and
 frame-accurate decoding, with real PyAV encoders; codec tolerance as stated in tests/video_frames.py."""
+
 from __future__ import annotations
 
 import threading

@@ -5,6 +5,7 @@ Its own keys: `goal=` (where the point must get to) and fault injection for the 
 error paths: `fault=raise|nan_reward|nan_obs|hang` on the episodes of robot `fault_robot`
 from step `fault_step`.
 """
+
 from __future__ import annotations
 
 import time
@@ -23,11 +24,11 @@ GAINS = {"a": 0.1, "b": 0.08, "c": 0.04}  # robot c is slow: a short horizon lea
 class ToyOptions:
     """Keys of the toy suite."""
 
-    goal: float = 0.5            # where the point must get to
-    fault: str = "none"          # inject a fault: none, raise, nan_reward, nan_obs, hang
-    fault_robot: str = "c"       # the robot whose episodes get the fault
-    fault_step: int = 3          # the step at which it happens
-    step_delay: float = 0.0      # wall seconds each step sleeps (to make runs slow enough to kill)
+    goal: float = 0.5  # where the point must get to
+    fault: str = "none"  # inject a fault: none, raise, nan_reward, nan_obs, hang
+    fault_robot: str = "c"  # the robot whose episodes get the fault
+    fault_step: int = 3  # the step at which it happens
+    step_delay: float = 0.0  # wall seconds each step sleeps (to make runs slow enough to kill)
 
 
 class ToyEnv:
@@ -41,8 +42,9 @@ class ToyEnv:
     obs_spec = {STATE: Feature.state([("pos", 1), ("goal", 1)])}
     action_spec = ActionSpec.box(["push"], -1.0, 1.0)
 
-    def __init__(self, horizon: int, goal: float, gain: float, fault: str = "none", fault_step: int = 3,
-                 step_delay: float = 0.0):
+    def __init__(
+        self, horizon: int, goal: float, gain: float, fault: str = "none", fault_step: int = 3, step_delay: float = 0.0
+    ):
         self.horizon, self.goal, self.gain, self.fault, self.fault_step = horizon, goal, gain, fault, fault_step
         self.step_delay = step_delay
         self.x, self.t = 0.0, 0

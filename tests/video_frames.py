@@ -7,6 +7,7 @@ error of `MAE[codec]` levels of 255 (measured on 45x61 .. 96x128 frames: H.264 a
 at its own index than to any other frame (the scene moves every frame), so a frame off by one fails even where
 the error bound alone would pass.
 """
+
 from __future__ import annotations
 
 import numpy as np

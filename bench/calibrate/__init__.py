@@ -8,6 +8,7 @@ signal map, recording and batched simulator (`bench.replay.spec`, `.data`, `.sim
 residual (the learned residual, apart from the physics), suite + apply (suite calibrations and runs
 with them), rank (episodes by surprise); generate writes synthetic cases. See docs/calibration.md.
 """
+
 from __future__ import annotations
 
 from bench.calibrate.spec import CalibrationSpec, load_spec, parse_spec

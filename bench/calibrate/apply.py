@@ -7,6 +7,7 @@ the robot, a fingerprint of the nominal model it was fitted on (`model_hash`), a
 it (`apply`), so perturbations scale the calibrated values and every episode starts from them. A
 file for another suite, robot or model version is refused with one line naming what differs.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -21,9 +22,14 @@ from bench.errors import ConfigError, DataError
 
 # the MjModel fields a suite calibration may edit: every one is realised by MuJoCo itself, so an env
 # carries it without any change to its controller or step loop
-FIELDS = {"dof_damping": mujoco.mjtObj.mjOBJ_JOINT, "dof_armature": mujoco.mjtObj.mjOBJ_JOINT,
-          "dof_frictionloss": mujoco.mjtObj.mjOBJ_JOINT, "jnt_stiffness": mujoco.mjtObj.mjOBJ_JOINT,
-          "body_mass": mujoco.mjtObj.mjOBJ_BODY, "actuator_gainprm": mujoco.mjtObj.mjOBJ_ACTUATOR}
+FIELDS = {
+    "dof_damping": mujoco.mjtObj.mjOBJ_JOINT,
+    "dof_armature": mujoco.mjtObj.mjOBJ_JOINT,
+    "dof_frictionloss": mujoco.mjtObj.mjOBJ_JOINT,
+    "jnt_stiffness": mujoco.mjtObj.mjOBJ_JOINT,
+    "body_mass": mujoco.mjtObj.mjOBJ_BODY,
+    "actuator_gainprm": mujoco.mjtObj.mjOBJ_ACTUATOR,
+}
 
 
 def _row(model: mujoco.MjModel, field: str, name: str) -> int:
@@ -40,17 +46,29 @@ def _get(model: mujoco.MjModel, field: str, row: int) -> float:
 
 def model_hash(model: mujoco.MjModel, joints: list[str]) -> str:
     """Fingerprint of a robot's nominal model: its structure and the values a calibration edits."""
-    names = {k: [mujoco.mj_id2name(model, obj, i) for i in range(n)]
-             for k, obj, n in (("joint", mujoco.mjtObj.mjOBJ_JOINT, model.njnt),
-                               ("body", mujoco.mjtObj.mjOBJ_BODY, model.nbody),
-                               ("actuator", mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu))}
+    names = {
+        k: [mujoco.mj_id2name(model, obj, i) for i in range(n)]
+        for k, obj, n in (
+            ("joint", mujoco.mjtObj.mjOBJ_JOINT, model.njnt),
+            ("body", mujoco.mjtObj.mjOBJ_BODY, model.nbody),
+            ("actuator", mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu),
+        )
+    }
     values = {}
     for field, obj in FIELDS.items():
-        kind = "joint" if obj == mujoco.mjtObj.mjOBJ_JOINT else "body" if obj == mujoco.mjtObj.mjOBJ_BODY \
-            else "actuator"
+        kind = (
+            "joint" if obj == mujoco.mjtObj.mjOBJ_JOINT else "body" if obj == mujoco.mjtObj.mjOBJ_BODY else "actuator"
+        )
         values[field] = [round(_get(model, field, _row(model, field, n)), 9) for n in names[kind] if n]
-    doc = {"nq": model.nq, "nv": model.nv, "nu": model.nu, "names": names, "values": values, "joints": joints,
-           "timestep": model.opt.timestep}
+    doc = {
+        "nq": model.nq,
+        "nv": model.nv,
+        "nu": model.nu,
+        "names": names,
+        "values": values,
+        "joints": joints,
+        "timestep": model.opt.timestep,
+    }
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
@@ -62,8 +80,14 @@ def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any
         a, b = (a[:, 0], b[:, 0]) if a.ndim == 2 else (a, b)
         for row in np.flatnonzero(~np.isclose(a, b, rtol=1e-12, atol=0.0)):
             idx = int(nominal.dof_jntid[row]) if field.startswith("dof_") else int(row)
-            out.append({"field": field, "element": mujoco.mj_id2name(nominal, obj, idx),
-                        "nominal": float(a[row]), "value": float(b[row])})
+            out.append(
+                {
+                    "field": field,
+                    "element": mujoco.mj_id2name(nominal, obj, idx),
+                    "nominal": float(a[row]),
+                    "value": float(b[row]),
+                }
+            )
     return out
 
 
@@ -73,8 +97,9 @@ def read_calibration(path: str | Path) -> tuple[Path, bytes, Any]:
     if p.is_dir():
         p = p / "calibration.json"
     if not p.is_file():
-        raise ConfigError(f"calibration={str(path)!r}: no such file (a `bench calibrate` output folder or its "
-                          "calibration.json)")
+        raise ConfigError(
+            f"calibration={str(path)!r}: no such file (a `bench calibrate` output folder or its calibration.json)"
+        )
     raw = p.read_bytes()
     try:
         return p, raw, json.loads(raw)
@@ -87,29 +112,44 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
     p, raw, doc = read_calibration(path)
     section = doc.get("apply") if isinstance(doc, dict) else None
     if not isinstance(doc, dict) or doc.get("schema") != "bench.calibration/1" or not isinstance(section, dict):
-        raise DataError(f"calibration={str(p)!r} is not a suite calibration (schema bench.calibration/1 with an "
-                        "'apply' section, written by `bench calibrate suite=NAME robot=NAME logs=DIR`)")
+        raise DataError(
+            f"calibration={str(p)!r} is not a suite calibration (schema bench.calibration/1 with an "
+            "'apply' section, written by `bench calibrate suite=NAME robot=NAME logs=DIR`)"
+        )
     where = doc.get("suite", {})
     if where.get("name") != suite or str(where.get("version")) != str(suite_version):
-        raise ConfigError(f"calibration={str(p)!r} was fitted for suite {where.get('name')!r} version "
-                          f"{where.get('version')!r}; this run is suite {suite!r} version {suite_version!r}")
+        raise ConfigError(
+            f"calibration={str(p)!r} was fitted for suite {where.get('name')!r} version "
+            f"{where.get('version')!r}; this run is suite {suite!r} version {suite_version!r}"
+        )
     if section.get("robot") not in robots:
-        raise ConfigError(f"calibration={str(p)!r} is for robot {section.get('robot')!r}, which no selected cell "
-                          f"has (robots: {', '.join(sorted(set(robots)))})")
-    return {"path": str(p.resolve()), "sha256": hashlib.sha256(raw).hexdigest(), "robot": section["robot"],
-            "model_hash": section["model_hash"], "joints": section["joints"], "edits": section["edits"]}
+        raise ConfigError(
+            f"calibration={str(p)!r} is for robot {section.get('robot')!r}, which no selected cell "
+            f"has (robots: {', '.join(sorted(set(robots)))})"
+        )
+    return {
+        "path": str(p.resolve()),
+        "sha256": hashlib.sha256(raw).hexdigest(),
+        "robot": section["robot"],
+        "model_hash": section["model_hash"],
+        "joints": section["joints"],
+        "edits": section["edits"],
+    }
 
 
 def check(mj: Any, cal: dict[str, Any]) -> None:
     """Refuse a calibration fitted on another model of its robot (one line naming both fingerprints)."""
     if mj is None:
-        raise ConfigError(f"calibration {cal['path']!r} edits a MuJoCo model; the env of robot {cal['robot']!r} "
-                          "has none")
+        raise ConfigError(
+            f"calibration {cal['path']!r} edits a MuJoCo model; the env of robot {cal['robot']!r} has none"
+        )
     have = model_hash(mj.model, cal["joints"])
     if have != cal["model_hash"]:
-        raise ConfigError(f"calibration {cal['path']!r} was fitted on another model of robot {cal['robot']!r} "
-                          f"(model fingerprint {cal['model_hash'][:12]}, this env's {have[:12]}); recalibrate "
-                          "against this suite version")
+        raise ConfigError(
+            f"calibration {cal['path']!r} was fitted on another model of robot {cal['robot']!r} "
+            f"(model fingerprint {cal['model_hash'][:12]}, this env's {have[:12]}); recalibrate "
+            "against this suite version"
+        )
 
 
 def verify(suite: Any, cells: list, horizon: int, cal: dict[str, Any]) -> None:

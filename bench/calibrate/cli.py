@@ -1,4 +1,5 @@
 """`bench calibrate`: fit a model to logs and trace the residual; generate test data; list the effects."""
+
 from __future__ import annotations
 
 import sys
@@ -60,9 +61,9 @@ def _check(kv: dict, valid: tuple[str, ...], required: tuple[str, ...]) -> None:
             raise ConfigError(f"missing key {key!r}; usage: bench calibrate {' '.join(k + '=...' for k in required)}")
 
 
-MAX_THREADS = 256          # rollout threads: far above any core count here, far below what hangs a machine
-MAX_EPISODES = 10_000      # generated episodes
-MAX_FRAMES = 5_000_000     # generated frames in all (a few hundred MB of logs)
+MAX_THREADS = 256  # rollout threads: far above any core count here, far below what hangs a machine
+MAX_EPISODES = 10_000  # generated episodes
+MAX_FRAMES = 5_000_000  # generated frames in all (a few hundred MB of logs)
 
 
 def _int(kv: dict, key: str, default: int, lo: int = 0, hi: int | None = None) -> int:
@@ -93,8 +94,10 @@ def _effects(value: Any):
     names = value if isinstance(value, list) else [value]
     for n in names:
         if n not in EFFECTS:
-            raise ConfigError(f"key 'effects': unknown effect {n!r}; valid: all, none, {', '.join(EFFECTS)}."
-                              f"{did_you_mean(str(n), EFFECTS)}")
+            raise ConfigError(
+                f"key 'effects': unknown effect {n!r}; valid: all, none, {', '.join(EFFECTS)}."
+                f"{did_you_mean(str(n), EFFECTS)}"
+            )
     return tuple(EffectRequest(str(n)) for n in names)
 
 
@@ -120,8 +123,16 @@ def cmd_run(kv: dict) -> int:
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     threads = _int(kv, "threads", spec.threads, lo=1, hi=MAX_THREADS)
     residual = _residual(kv)
-    cal = run(spec, episodes, fps, seed=_int(kv, "seed", 0), effects=_effects(kv.get("effects")), threads=threads,
-              log=log, residual=residual)
+    cal = run(
+        spec,
+        episodes,
+        fps,
+        seed=_int(kv, "seed", 0),
+        effects=_effects(kv.get("effects")),
+        threads=threads,
+        log=log,
+        residual=residual,
+    )
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
     path = _write(out, cal)
@@ -166,13 +177,17 @@ def _summary(cal, path: Path) -> None:
     e = cal.errors
     added = ", ".join(f"{a['name']}@{a['target']}" for a in cal.added) or "none"
     print(f"effects added: {added}")
-    print(f"held-out free-run NRMSE: nominal {e['nominal']['free_run_nrmse']:.4g} -> declared "
-          f"{e['declared']['free_run_nrmse']:.4g} -> final {e['final']['free_run_nrmse']:.4g} "
-          f"(RMSE {e['declared']['free_run_rmse']:.4g} -> {e['final']['free_run_rmse']:.4g})")
+    print(
+        f"held-out free-run NRMSE: nominal {e['nominal']['free_run_nrmse']:.4g} -> declared "
+        f"{e['declared']['free_run_nrmse']:.4g} -> final {e['final']['free_run_nrmse']:.4g} "
+        f"(RMSE {e['declared']['free_run_rmse']:.4g} -> {e['final']['free_run_rmse']:.4g})"
+    )
     if cal.learned:
         h = cal.learned["heldout"]
-        print("learned residual, apart from the physics (held-out k-step NRMSE): "
-              f"{h['physics']['k_step_nrmse']:.4g} -> {h['physics_plus_residual']['k_step_nrmse']:.4g}")
+        print(
+            "learned residual, apart from the physics (held-out k-step NRMSE): "
+            f"{h['physics']['k_step_nrmse']:.4g} -> {h['physics_plus_residual']['k_step_nrmse']:.4g}"
+        )
     print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s)")
 
 
@@ -184,15 +199,24 @@ def cmd_suite(kv: dict) -> int:
     out = _out(kv, {"logs": str(kv["logs"])})
     residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1, hi=MAX_THREADS), _int(kv, "seed", 0)
     log = (lambda msg: None) if _flag(kv, "quiet") else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    cal, extra = calibrate_suite(str(kv["suite"]), str(kv["robot"]), Path(str(kv["logs"])), seed=seed,
-                                 threads=threads, log=log, residual=residual,
-                                 condition=None if kv.get("condition") is None else str(kv["condition"]))
+    cal, extra = calibrate_suite(
+        str(kv["suite"]),
+        str(kv["robot"]),
+        Path(str(kv["logs"])),
+        seed=seed,
+        threads=threads,
+        log=log,
+        residual=residual,
+        condition=None if kv.get("condition") is None else str(kv["condition"]),
+    )
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
     path = _write(out, cal, extra)
     _summary(cal, path)
-    print(f"{len(extra['apply']['edits'])} model edit(s) for {kv['robot']}; run with them: bench run "
-          f"suite={kv['suite']} robots=[{kv['robot']}] calibration={path}")
+    print(
+        f"{len(extra['apply']['edits'])} model edit(s) for {kv['robot']}; run with them: bench run "
+        f"suite={kv['suite']} robots=[{kv['robot']}] calibration={path}"
+    )
     return 0
 
 
@@ -206,12 +230,20 @@ def cmd_generate(kv: dict) -> int:
     out = _out(kv, {})
     episodes = _int(kv, "episodes", 8, lo=2, hi=MAX_EPISODES)
     duration, fps = _float(kv, "duration", 6.0, 3600.0), _float(kv, "fps", 100.0, 10_000.0)
-    params = dict(episodes=episodes, duration=duration, fps=fps, seed=_int(kv, "seed", 0), target=kv.get("target"),
-                  disturbance=kv.get("disturbance"))
+    params = dict(
+        episodes=episodes,
+        duration=duration,
+        fps=fps,
+        seed=_int(kv, "seed", 0),
+        target=kv.get("target"),
+        disturbance=kv.get("disturbance"),
+    )
     frames = episodes * duration * fps
     if frames > MAX_FRAMES:
-        raise ConfigError(f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
-                          "(lower episodes=, duration= or fps=)")
+        raise ConfigError(
+            f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
+            "(lower episodes=, duration= or fps=)"
+        )
     outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0
@@ -240,6 +272,8 @@ def main(argv: list[str]) -> int:
     if positional[:1] == ["effects"]:
         return cmd_effects()
     if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; subcommands: generate, effects "
-                          f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)")
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; subcommands: generate, effects "
+            f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)"
+        )
     return cmd_suite(kv) if "suite" in kv else cmd_run(kv)

@@ -18,6 +18,7 @@ attaches to one target (a joint, an actuator or a body) and is realised in the s
 Bounds are scaled to the system from the logs (`Scales`), so one library serves a 1 kg arm and a
 95 kg carriage; a spec can override them per effect.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -135,6 +136,7 @@ class Effect:
 
 # --- primitive transforms shared by the calibration rollouts and the data generator -------------
 
+
 def deadband(u: np.ndarray, width: np.ndarray | float) -> np.ndarray:
     """Command with a dead band of half-width `width` around zero (lost motion of a drive with play)."""
     return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
@@ -156,6 +158,7 @@ def stribeck_force(v: np.ndarray, fs: np.ndarray | float, vs: np.ndarray | float
 
 
 # --- bounds and realisations ---------------------------------------------------------------------
+
 
 def _f(s: Scales, t: Target) -> float:
     return float(s.force[t.dof])
@@ -203,7 +206,7 @@ def _intervals_spring(x: np.ndarray, cov: np.ndarray, s: Scales, t: Target) -> d
     sd_k = float(np.sqrt(max(cov[0, 0], 0.0)))
     out: dict[str, list | None] = {"stiffness": [k - 1.96 * sd_k, k + 1.96 * sd_k], "reference": None}
     if k > 0:  # delta method: d(p/k) = [-p/k^2, 1/k]
-        g = np.array([-p / k ** 2, 1.0 / k])
+        g = np.array([-p / k**2, 1.0 / k])
         sd = float(np.sqrt(max(g @ cov @ g, 0.0)))
         r = float(s.spring_ref[t.dof]) + p / k
         out["reference"] = [r - 1.96 * sd, r + 1.96 * sd]
@@ -251,8 +254,10 @@ def _apply_saturation(b: Builder, t: Target, x: np.ndarray, s: Scales) -> None:
 
 
 def _report_saturation(x: np.ndarray, s: Scales, t: Target) -> dict[str, float]:
-    return {"limit": saturation_limit(float(x[0]), s, t.index) * float(s.ctrl_gain[t.index]),
-            "clipped_share": float(x[0])}
+    return {
+        "limit": saturation_limit(float(x[0]), s, t.index) * float(s.ctrl_gain[t.index]),
+        "clipped_share": float(x[0]),
+    }
 
 
 def _input_gain_max(s: Scales, t: Target) -> float:
@@ -261,72 +266,185 @@ def _input_gain_max(s: Scales, t: Target) -> float:
 
 PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
-EFFECTS: dict[str, Effect] = {e.name: e for e in [
-    Effect("coulomb_friction", "joint", ("friction",), ("N·m|N",),
-           lambda s, t: [(0.0, 0.5 * _f(s, t))], _apply_coulomb,
-           "dry friction of constant magnitude opposing motion (MuJoCo friction loss)",
-           fields=("dof_frictionloss",)),
-    Effect("asymmetric_friction", "joint", ("friction_pos", "friction_neg"), ("N·m|N", "N·m|N"),
-           lambda s, t: [(0.0, 0.5 * _f(s, t))] * 2, _apply_asymmetric,
-           "dry friction whose magnitude depends on the direction of motion",
-           fields=("dof_frictionloss",),
-           extends={"coulomb_friction": lambda x, b: np.array([x[0], x[0]])}, contrast=(1.0, -1.0)),
-    Effect("stribeck_friction", "joint", ("friction", "static_excess", "stribeck_velocity"),
-           ("N·m|N", "N·m|N", "rad/s|m/s"),
-           lambda s, t: [(0.0, 0.5 * _f(s, t)), (0.0, 0.5 * _f(s, t)),
-                         (0.01 * float(s.vel[t.dof]), 1.0 * float(s.vel[t.dof]))],
-           _apply_stribeck,
-           "dry friction that is higher at rest and falls to its kinetic level above the Stribeck velocity",
-           fields=("dof_frictionloss",), shape=(0.15,),
-           extends={"coulomb_friction": lambda x, b: np.array([x[0], 0.0, b[2][0] + 0.15 * (b[2][1] - b[2][0])])},
-           contrast=(0.0, 1.0, 0.0)),
-    Effect("viscous_damping", "joint", ("damping",), ("N·m·s/rad|N·s/m",),
-           lambda s, t: [(0.0, _f(s, t) / max(float(s.vel[t.dof]), 1e-9))], _apply_viscous,
-           "force proportional to velocity (MuJoCo dof damping)", fields=("dof_damping",)),
-    Effect("armature", "joint", ("armature",), ("kg·m²|kg",),
-           lambda s, t: [(0.0, 2.0 * float(s.inertia[t.dof]))], _apply_armature,
-           "reflected rotor inertia added to the joint (MuJoCo armature)", fields=("dof_armature",)),
-    Effect("actuator_delay", "actuator", ("delay",), ("s",),
-           lambda s, t: [(0.0, max(0.1, 10 * s.dt))], _apply_delay,
-           "transport delay between the logged command and the force applied"),
-    Effect("torque_saturation", "actuator", ("clipped_share",), ("1",),
-           lambda s, t: [(0.0, 0.9)], _apply_saturation,
-           "drive force clipped at a limit (parameter: the share of logged commands above it; 0 = no clipping)",
-           report=_report_saturation, threshold=True),
-    Effect("deadband", "actuator", ("deadband",), ("N·m|N",),
-           lambda s, t: [(0.0, 0.25 * _f(s, t))], _apply_deadband,
-           "dead band on the drive force: small commands are lost (stiction in the drive, an amplifier's "
-           "dead zone)", threshold=True),
-    Effect("backlash_link", "actuator", ("play",), ("rad|m",),
-           lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))], _apply_play,
-           "position play between motor and link (total width), measured on the link side: the rotor "
-           "crosses the gap unseen, then the link is driven", threshold=True, group="play", play_side="link",
-           fd_step=0.02, scan=PLAY_SCAN),
-    Effect("backlash_motor", "actuator", ("play",), ("rad|m",),
-           lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))], _apply_play,
-           "position play between motor and link (total width), measured on the motor side: the motor "
-           "crosses the gap fast and free, the link lags", threshold=True, group="play", play_side="motor",
-           fd_step=0.02, scan=PLAY_SCAN),
-    Effect("payload_mass", "body", ("mass",), ("kg",),
-           lambda s, t: [(0.0, max(s.mass, 1e-3))], _apply_payload,
-           "extra point mass at the body's centre of mass", fields=("body_mass",)),
-    Effect("joint_spring", "joint", ("stiffness", "preload"), ("N·m/rad|N/m", "N·m|N"),
-           lambda s, t: [(0.0, _f(s, t) / max(float(s.half_range[t.dof]), 1e-6)), (-0.5 * _f(s, t), 0.5 * _f(s, t))],
-           _apply_spring,
-           "spring with its own rest position (cables, hoses, gravity compensators); reported as stiffness and "
-           "reference (rest position)", fields=("jnt_stiffness",), report=_report_spring,
-           intervals=_intervals_spring, gate=(0,), standalone=True,
-           extends={"bias": lambda x, b: np.array([0.0, x[0]])}, contrast=(1.0, 0.0)),
-    Effect("actuator_gain", "actuator", ("gain_error",), ("1",),
-           lambda s, t: [(-0.5, 0.5)], _apply_gain,
-           "relative error of the drive gain (force = (1 + e) x nominal)", fields=("actuator_gainprm",)),
-    Effect("bias", "joint", ("force",), ("N·m|N",),
-           lambda s, t: [(-0.5 * _f(s, t), 0.5 * _f(s, t))], _apply_bias,
-           "constant generalised force (offset of the drive or of the force measurement)"),
-    Effect("input_channel", "joint", ("gain",), ("(N·m|N) per input unit",),
-           lambda s, t: [(-_input_gain_max(s, t), _input_gain_max(s, t))], _apply_input,
-           "a known extra logged signal acting on the joint with an unknown gain"),
-]}
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in [
+        Effect(
+            "coulomb_friction",
+            "joint",
+            ("friction",),
+            ("N·m|N",),
+            lambda s, t: [(0.0, 0.5 * _f(s, t))],
+            _apply_coulomb,
+            "dry friction of constant magnitude opposing motion (MuJoCo friction loss)",
+            fields=("dof_frictionloss",),
+        ),
+        Effect(
+            "asymmetric_friction",
+            "joint",
+            ("friction_pos", "friction_neg"),
+            ("N·m|N", "N·m|N"),
+            lambda s, t: [(0.0, 0.5 * _f(s, t))] * 2,
+            _apply_asymmetric,
+            "dry friction whose magnitude depends on the direction of motion",
+            fields=("dof_frictionloss",),
+            extends={"coulomb_friction": lambda x, b: np.array([x[0], x[0]])},
+            contrast=(1.0, -1.0),
+        ),
+        Effect(
+            "stribeck_friction",
+            "joint",
+            ("friction", "static_excess", "stribeck_velocity"),
+            ("N·m|N", "N·m|N", "rad/s|m/s"),
+            lambda s, t: [
+                (0.0, 0.5 * _f(s, t)),
+                (0.0, 0.5 * _f(s, t)),
+                (0.01 * float(s.vel[t.dof]), 1.0 * float(s.vel[t.dof])),
+            ],
+            _apply_stribeck,
+            "dry friction that is higher at rest and falls to its kinetic level above the Stribeck velocity",
+            fields=("dof_frictionloss",),
+            shape=(0.15,),
+            extends={"coulomb_friction": lambda x, b: np.array([x[0], 0.0, b[2][0] + 0.15 * (b[2][1] - b[2][0])])},
+            contrast=(0.0, 1.0, 0.0),
+        ),
+        Effect(
+            "viscous_damping",
+            "joint",
+            ("damping",),
+            ("N·m·s/rad|N·s/m",),
+            lambda s, t: [(0.0, _f(s, t) / max(float(s.vel[t.dof]), 1e-9))],
+            _apply_viscous,
+            "force proportional to velocity (MuJoCo dof damping)",
+            fields=("dof_damping",),
+        ),
+        Effect(
+            "armature",
+            "joint",
+            ("armature",),
+            ("kg·m²|kg",),
+            lambda s, t: [(0.0, 2.0 * float(s.inertia[t.dof]))],
+            _apply_armature,
+            "reflected rotor inertia added to the joint (MuJoCo armature)",
+            fields=("dof_armature",),
+        ),
+        Effect(
+            "actuator_delay",
+            "actuator",
+            ("delay",),
+            ("s",),
+            lambda s, t: [(0.0, max(0.1, 10 * s.dt))],
+            _apply_delay,
+            "transport delay between the logged command and the force applied",
+        ),
+        Effect(
+            "torque_saturation",
+            "actuator",
+            ("clipped_share",),
+            ("1",),
+            lambda s, t: [(0.0, 0.9)],
+            _apply_saturation,
+            "drive force clipped at a limit (parameter: the share of logged commands above it; 0 = no clipping)",
+            report=_report_saturation,
+            threshold=True,
+        ),
+        Effect(
+            "deadband",
+            "actuator",
+            ("deadband",),
+            ("N·m|N",),
+            lambda s, t: [(0.0, 0.25 * _f(s, t))],
+            _apply_deadband,
+            "dead band on the drive force: small commands are lost (stiction in the drive, an amplifier's dead zone)",
+            threshold=True,
+        ),
+        Effect(
+            "backlash_link",
+            "actuator",
+            ("play",),
+            ("rad|m",),
+            lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))],
+            _apply_play,
+            "position play between motor and link (total width), measured on the link side: the rotor "
+            "crosses the gap unseen, then the link is driven",
+            threshold=True,
+            group="play",
+            play_side="link",
+            fd_step=0.02,
+            scan=PLAY_SCAN,
+        ),
+        Effect(
+            "backlash_motor",
+            "actuator",
+            ("play",),
+            ("rad|m",),
+            lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))],
+            _apply_play,
+            "position play between motor and link (total width), measured on the motor side: the motor "
+            "crosses the gap fast and free, the link lags",
+            threshold=True,
+            group="play",
+            play_side="motor",
+            fd_step=0.02,
+            scan=PLAY_SCAN,
+        ),
+        Effect(
+            "payload_mass",
+            "body",
+            ("mass",),
+            ("kg",),
+            lambda s, t: [(0.0, max(s.mass, 1e-3))],
+            _apply_payload,
+            "extra point mass at the body's centre of mass",
+            fields=("body_mass",),
+        ),
+        Effect(
+            "joint_spring",
+            "joint",
+            ("stiffness", "preload"),
+            ("N·m/rad|N/m", "N·m|N"),
+            lambda s, t: [(0.0, _f(s, t) / max(float(s.half_range[t.dof]), 1e-6)), (-0.5 * _f(s, t), 0.5 * _f(s, t))],
+            _apply_spring,
+            "spring with its own rest position (cables, hoses, gravity compensators); reported as stiffness and "
+            "reference (rest position)",
+            fields=("jnt_stiffness",),
+            report=_report_spring,
+            intervals=_intervals_spring,
+            gate=(0,),
+            standalone=True,
+            extends={"bias": lambda x, b: np.array([0.0, x[0]])},
+            contrast=(1.0, 0.0),
+        ),
+        Effect(
+            "actuator_gain",
+            "actuator",
+            ("gain_error",),
+            ("1",),
+            lambda s, t: [(-0.5, 0.5)],
+            _apply_gain,
+            "relative error of the drive gain (force = (1 + e) x nominal)",
+            fields=("actuator_gainprm",),
+        ),
+        Effect(
+            "bias",
+            "joint",
+            ("force",),
+            ("N·m|N",),
+            lambda s, t: [(-0.5 * _f(s, t), 0.5 * _f(s, t))],
+            _apply_bias,
+            "constant generalised force (offset of the drive or of the force measurement)",
+        ),
+        Effect(
+            "input_channel",
+            "joint",
+            ("gain",),
+            ("(N·m|N) per input unit",),
+            lambda s, t: [(-_input_gain_max(s, t), _input_gain_max(s, t))],
+            _apply_input,
+            "a known extra logged signal acting on the joint with an unknown gain",
+        ),
+    ]
+}
 
 # two families on one target that together are exactly a third: (a, b) -> (merged, lift of a's and b's params)
 MERGES: dict[tuple[str, str], tuple[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]] = {

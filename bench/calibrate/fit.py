@@ -9,6 +9,7 @@ time tau: within a truncated horizon the error of one initial state persists for
 the residual holds about n / tau independent values, not n. The same n_eff = n / tau enters the
 information criteria, which would otherwise accept any improvement at all.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,9 @@ VIF_WARN = 100.0  # variance inflation above which a parameter is reported ill-c
 class Objective:
     """Normalised residuals sim - log of a layout on a set of segments (positions, and logged velocities)."""
 
-    def __init__(self, sim: Simulator, layout: Layout, segs: Segments, rec: Recording, scale: np.ndarray,
-                 channels: np.ndarray) -> None:
+    def __init__(
+        self, sim: Simulator, layout: Layout, segs: Segments, rec: Recording, scale: np.ndarray, channels: np.ndarray
+    ) -> None:
         self.sim, self.layout, self.segs = sim, layout, segs
         self.channels = channels
         self.target = logged(rec, segs)[..., channels]
@@ -130,8 +132,9 @@ def _jacobian(obj: Objective, x: np.ndarray, f0: np.ndarray, lo: np.ndarray, hi:
     return ((fs - f0[None]) / steps[:, None]).T  # (size, p) in normalised units
 
 
-def covariance(jz: np.ndarray, r: np.ndarray, tau: float, span: np.ndarray, labels: list[str]) \
-        -> tuple[np.ndarray, np.ndarray, list[str]]:
+def covariance(
+    jz: np.ndarray, r: np.ndarray, tau: float, span: np.ndarray, labels: list[str]
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Parameter covariance (physical units), standard deviations and conditioning warnings."""
     n, p = jz.shape
     warnings: list[str] = []
@@ -161,8 +164,7 @@ def covariance(jz: np.ndarray, r: np.ndarray, tau: float, span: np.ndarray, labe
     return cov, sd, warnings
 
 
-def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6, broyden: bool = False) \
-        -> FitResult:
+def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6, broyden: bool = False) -> FitResult:
     """Bounded least squares of the objective from x0; intervals and warnings at the optimum.
 
     `tol` is the relative cost and step tolerance; a coarse one is enough to judge a candidate, and
@@ -214,8 +216,18 @@ def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6
         return jacs[key]
 
     if len(x0):
-        res = least_squares(fun, z0, jac=broyden_jac if broyden else exact_jac, bounds=(0.0, 1.0), method="trf",
-                            x_scale=1.0, ftol=tol, xtol=tol, gtol=1e-8, max_nfev=max_nfev)
+        res = least_squares(
+            fun,
+            z0,
+            jac=broyden_jac if broyden else exact_jac,
+            bounds=(0.0, 1.0),
+            method="trf",
+            x_scale=1.0,
+            ftol=tol,
+            xtol=tol,
+            gtol=1e-8,
+            max_nfev=max_nfev,
+        )
         z, nfev, success = res.x, res.nfev, bool(res.success)
     else:
         z, nfev, success = np.zeros(0), 0, True
@@ -225,5 +237,15 @@ def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6
     tau = autocorrelation_time(grid)
     jz = exact_jac(z) if len(x) else np.zeros((len(r), 0))
     cov, sd, warnings = covariance(jz, r, tau, span, labels)
-    return FitResult(x=x, labels=labels, ssr=float(r @ r), n=len(r), tau=tau, sd=sd, cov=cov,
-                     nfev=nfev, success=success, warnings=warnings)
+    return FitResult(
+        x=x,
+        labels=labels,
+        ssr=float(r @ r),
+        n=len(r),
+        tau=tau,
+        sd=sd,
+        cov=cov,
+        nfev=nfev,
+        success=success,
+        warnings=warnings,
+    )

@@ -7,6 +7,7 @@ carries one effect from the library, realised by the library's own code (model f
 command, generalised forces). What is written: a LeRobot v3 dataset, the declared model (its joint
 damping set off from the truth, and without the effect), a spec for it and `truth.json`.
 """
+
 from __future__ import annotations
 
 import json
@@ -46,8 +47,9 @@ def _disturbance(name: str | None, model: mujoco.MjModel) -> np.ndarray | None:
     if name is None:
         return None
     if name not in DISTURBANCES:
-        raise ConfigError(f"unknown disturbance {name!r}; valid: {', '.join(DISTURBANCES)}."
-                          f"{did_you_mean(name, DISTURBANCES)}")
+        raise ConfigError(
+            f"unknown disturbance {name!r}; valid: {', '.join(DISTURBANCES)}.{did_you_mean(name, DISTURBANCES)}"
+        )
     dof = int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, DISTURBANCES[name][0])])
     return np.array([dof, 0.8, 6.0])
 
@@ -73,8 +75,11 @@ DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
 
 
 def _target(model: mujoco.MjModel, kind: str, name: str) -> Target:
-    obj = {"joint": mujoco.mjtObj.mjOBJ_JOINT, "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
-           "body": mujoco.mjtObj.mjOBJ_BODY}[kind]
+    obj = {
+        "joint": mujoco.mjtObj.mjOBJ_JOINT,
+        "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+        "body": mujoco.mjtObj.mjOBJ_BODY,
+    }[kind]
     idx = mujoco.mj_name2id(model, obj, name)
     if idx < 0:
         raise ConfigError(f"target {name!r} is not a {kind} of arm3.xml")
@@ -113,21 +118,36 @@ class Truth:
     disturbance: str | None = None  # a force outside the effect library (`DISTURBANCES`)
 
     def to_json(self) -> dict:
-        return {"effect": self.effect, "target": self.target, "joint": self.joint, "params": self.params,
-                **({"disturbance": self.disturbance} if self.disturbance else {})}
+        return {
+            "effect": self.effect,
+            "target": self.target,
+            "joint": self.joint,
+            "params": self.params,
+            **({"disturbance": self.disturbance} if self.disturbance else {}),
+        }
 
 
-def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0, fps: float = 100.0,
-                 substeps: int = 5, seed: int = 0, target: str | None = None,
-                 params: dict[str, float] | None = None, noise: tuple[float, float] = (5e-4, 1e-2),
-                 disturbance: str | None = None) -> tuple[list[dict[str, np.ndarray]], Truth]:
+def simulate_arm(
+    effect: str | None,
+    *,
+    episodes: int = 8,
+    duration: float = 6.0,
+    fps: float = 100.0,
+    substeps: int = 5,
+    seed: int = 0,
+    target: str | None = None,
+    params: dict[str, float] | None = None,
+    noise: tuple[float, float] = (5e-4, 1e-2),
+    disturbance: str | None = None,
+) -> tuple[list[dict[str, np.ndarray]], Truth]:
     """Closed-loop episodes of the arm with one hidden effect (None: the plain arm) as column arrays.
 
     `disturbance` adds a force outside the effect library (`DISTURBANCES`) on top.
     """
     if effect is not None and effect not in EFFECTS:
-        raise ConfigError(f"unknown effect {effect!r}; valid: none, {', '.join(EFFECTS)}."
-                          f"{did_you_mean(effect, EFFECTS)}")
+        raise ConfigError(
+            f"unknown effect {effect!r}; valid: none, {', '.join(EFFECTS)}.{did_you_mean(effect, EFFECTS)}"
+        )
     rng = np.random.default_rng(seed)
     xml = arm_xml(effect, target)
     true = mujoco.MjModel.from_xml_string(xml)
@@ -168,9 +188,17 @@ def simulate_arm(effect: str | None, *, episodes: int = 8, duration: float = 6.0
     return out, truth
 
 
-def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.ndarray, fps: float,
-             substeps: int, rng: np.random.Generator, noise: tuple[float, float],
-             dist: np.ndarray | None) -> dict[str, np.ndarray]:
+def _episode(
+    true: mujoco.MjModel,
+    declared: mujoco.MjModel,
+    b: Edits,
+    t: np.ndarray,
+    fps: float,
+    substeps: int,
+    rng: np.random.Generator,
+    noise: tuple[float, float],
+    dist: np.ndarray | None,
+) -> dict[str, np.ndarray]:
     nT, nu, nv = len(t), declared.nu, declared.nv
     amps = (0.6, 0.8, 1.0)
     ref = np.empty((nT, nv))
@@ -198,7 +226,7 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
         obs[k, :nv], obs[k, nv:] = q, v
         act[k] = u
         u = act[k].astype(np.float64)  # the plant gets exactly what is logged
-        hist[k * substeps:(k + 1) * substeps] = u
+        hist[k * substeps : (k + 1) * substeps] = u
         for s in range(substeps):
             n = k * substeps + s
             applied = hist[n].copy()
@@ -220,8 +248,7 @@ def _episode(true: mujoco.MjModel, declared: mujoco.MjModel, b: Edits, t: np.nda
                 d.qfrc_applied[dof] += dist[1] * np.sin(dist[2] * d.qpos[dof])
             mujoco.mj_step(true, d)
     extra_meas = (extra + rng.normal(0, 0.01, nT)).astype(np.float32)[:, None]
-    return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas,
-            "timestamp": t.astype(np.float32)}
+    return {"observation.state": obs, "action": act, INPUT_COLUMN: extra_meas, "timestamp": t.astype(np.float32)}
 
 
 def arm_xml(effect: str | None, target: str | None = None) -> str:
@@ -289,10 +316,18 @@ def write_case(out: str | Path, effect: str | None, **kw) -> Path:
     out = Path(out)
     fps = kw.get("fps", 100.0)
     episodes, truth = simulate_arm(effect, **kw)
-    ds = from_arrays(episodes, fps=fps, task="track a multisine reference", robot_type="arm3",
-                     names={"observation.state": [f"{j}.pos" for j in JOINTS] + [f"{j}.vel" for j in JOINTS],
-                            "action": [f"{j}.torque" for j in JOINTS], INPUT_COLUMN: ["load"]},
-                     meta=[{"generator": "bench.calibrate.generate", "truth": truth.to_json()}] * len(episodes))
+    ds = from_arrays(
+        episodes,
+        fps=fps,
+        task="track a multisine reference",
+        robot_type="arm3",
+        names={
+            "observation.state": [f"{j}.pos" for j in JOINTS] + [f"{j}.vel" for j in JOINTS],
+            "action": [f"{j}.torque" for j in JOINTS],
+            INPUT_COLUMN: ["load"],
+        },
+        meta=[{"generator": "bench.calibrate.generate", "truth": truth.to_json()}] * len(episodes),
+    )
     declared_files(out, effect, kw.get("target"))
     write_dataset(out / "logs", ds, overwrite=True)
     (out / "truth.json").write_text(json.dumps(truth.to_json(), indent=2) + "\n")

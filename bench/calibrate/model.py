@@ -5,6 +5,7 @@ parameter vector: a model copy with the declared parameters and model-field effe
 command actually applied at every substep (after delay / deadband / saturation), the applied
 generalised forces, and the Stribeck force (the only state-dependent part) as the variant's force hook.
 """
+
 from __future__ import annotations
 
 import copy
@@ -59,20 +60,28 @@ class Slot:
 
 def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_name: str) -> list[Slot]:
     """Resolve each declared parameter's field and element names in the model."""
-    array_fields = sorted(n for n in dir(model) if any(n.startswith(p) for p in _PREFIX)
-                          and isinstance(getattr(model, n, None), np.ndarray)
-                          and np.issubdtype(getattr(model, n).dtype, np.floating))  # ids, addresses, types: not physics
+    array_fields = sorted(
+        n
+        for n in dir(model)
+        if any(n.startswith(p) for p in _PREFIX)
+        and isinstance(getattr(model, n, None), np.ndarray)
+        and np.issubdtype(getattr(model, n).dtype, np.floating)
+    )  # ids, addresses, types: not physics
     slots = []
     for i, p in enumerate(params):
         where = f"params[{i}]"
         prefix = next((pre for pre in _PREFIX if p.field.startswith(pre)), None)
         if prefix is None or p.field not in array_fields:
             kind = getattr(getattr(model, p.field, None), "dtype", None)
-            what = (f"an integer MjModel field ({kind}: ids, addresses or types), not a physical parameter"
-                    if kind is not None and not np.issubdtype(kind, np.floating) else
-                    "not an MjModel field of joints, dofs, bodies, actuators, geoms or tendons")
-            raise SpecError(f"spec field '{where}.field': {p.field!r} is {what}; calibration parameters are "
-                            f"floating-point model arrays.{did_you_mean(p.field, array_fields)}")
+            what = (
+                f"an integer MjModel field ({kind}: ids, addresses or types), not a physical parameter"
+                if kind is not None and not np.issubdtype(kind, np.floating)
+                else "not an MjModel field of joints, dofs, bodies, actuators, geoms or tendons"
+            )
+            raise SpecError(
+                f"spec field '{where}.field': {p.field!r} is {what}; calibration parameters are "
+                f"floating-point model arrays.{did_you_mean(p.field, array_fields)}"
+            )
         obj, word, count_attr = _PREFIX[prefix]
         arr = getattr(model, p.field)
         if arr.ndim == 2 and arr.shape[1] > 1 and p.column is None:
@@ -81,15 +90,26 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
             width = 1 if arr.ndim == 1 else arr.shape[1]
             raise SpecError(f"spec field '{where}.column': {p.column} is out of range for {p.field} (width {width})")
         col = p.column if arr.ndim == 2 else None
-        valid = _names(model, obj, {"joint": model.njnt, "body": model.nbody, "actuator": model.nu,
-                                    "geom": model.ngeom, "tendon": model.ntendon}[word])
+        valid = _names(
+            model,
+            obj,
+            {
+                "joint": model.njnt,
+                "body": model.nbody,
+                "actuator": model.nu,
+                "geom": model.ngeom,
+                "tendon": model.ntendon,
+            }[word],
+        )
         lo, hi = p.bounds
         scaled = []
         for name in p.elements:
             idx = mujoco.mj_name2id(model, obj, name)
             if idx < 0:
-                raise SpecError(f"spec field '{where}.elements': {name!r} is not a {word} of {model_name}; "
-                                f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}")
+                raise SpecError(
+                    f"spec field '{where}.elements': {name!r} is not a {word} of {model_name}; "
+                    f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}"
+                )
             row = int(model.jnt_dofadr[idx]) if prefix == "dof_" else idx
             nominal = float(arr[row] if col is None else arr[row, col])
             if p.scale:
@@ -103,8 +123,10 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
         if p.scale:  # one factor, 1 = the model as given
             init = 1.0 if p.init is None else p.init
             if not lo <= init <= hi:
-                raise SpecError(f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}] "
-                                "(a scale: 1 is the model as given)")
+                raise SpecError(
+                    f"spec field '{where}.init': {init} is outside the bounds [{lo}, {hi}] "
+                    "(a scale: 1 is the model as given)"
+                )
             slots.append(Slot(p.name, p.field, scaled[0][0], col, (lo, hi), 1.0, float(init), tuple(scaled)))
     return slots
 
@@ -188,17 +210,18 @@ class Scene:
     each segment's initial state (gripper, objects) comes from the full logged state (`coords.init`).
     """
 
-    coords: Coordinates          # the logged coordinates in the model
-    ctrl: np.ndarray             # (N * substeps, nu) logged command of every physics step
+    coords: Coordinates  # the logged coordinates in the model
+    ctrl: np.ndarray  # (N * substeps, nu) logged command of every physics step
     substeps: int
-    joints: tuple[int, ...]      # the calibrated joints: effects attach to them, their actuators and bodies
+    joints: tuple[int, ...]  # the calibrated joints: effects attach to them, their actuators and bodies
 
 
 class Plant:
     """Nominal model, log-derived scales and the declared parameter slots for one calibration."""
 
-    def __init__(self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording, scene: Scene | None = None) \
-            -> None:
+    def __init__(
+        self, spec: CalibrationSpec, model: mujoco.MjModel, rec: Recording, scene: Scene | None = None
+    ) -> None:
         self.spec = spec
         self.rec = rec
         self.scene = scene
@@ -212,8 +235,9 @@ class Plant:
             self._write(self.model, slot, value)
         mujoco.mj_setConst(self.model, mujoco.MjData(self.model))
         self.base_ctrl = hold(rec.ctrl, self.substeps) if scene is None else scene.ctrl
-        self.joint_names = [self.model.joint(int(j)).name for j in
-                            (range(self.model.njnt) if scene is None else scene.joints)]
+        self.joint_names = [
+            self.model.joint(int(j)).name for j in (range(self.model.njnt) if scene is None else scene.joints)
+        ]
         self.scales = self._scales()
         self._plays: dict[tuple[tuple[int, str], ...], PlayModel] = {}
 
@@ -247,11 +271,13 @@ class Plant:
 
     def realise(self, declared: np.ndarray, effects: list[tuple[Candidate, np.ndarray]]) -> Variant:
         """Model copy + applied signals for declared values and active effects with their parameters."""
-        plays = tuple(sorted((c.target.index, str(c.effect.play_side)) for c, x in effects
-                             if c.effect.play_side and x[0] > 0))
+        plays = tuple(
+            sorted((c.target.index, str(c.effect.play_side)) for c, x in effects if c.effect.play_side and x[0] > 0)
+        )
         pm = self.play_model(plays) if plays else None
-        b = Edits(copy.copy(pm.model if pm else self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1],
-                  pm)
+        b = Edits(
+            copy.copy(pm.model if pm else self.model), 0 if self.rec.inputs is None else self.rec.inputs.shape[1], pm
+        )
         for slot, value in zip(self.slots, declared):
             self._write(b.model, slot, float(value))
             if slot.field in _SETCONST_FIELDS:
@@ -264,8 +290,14 @@ class Plant:
             if coords is not None:
                 raise ValueError("backlash (a rebuilt model) is not supported in a suite's scene")
             coords = self.scene.coords
-        return Variant(b.finish_model(), self.applied_ctrl(b.ops), b.qfrc, gain,
-                       _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None, coords)
+        return Variant(
+            b.finish_model(),
+            self.applied_ctrl(b.ops),
+            b.qfrc,
+            gain,
+            _stribeck(b.fs, b.vs) if np.any(b.fs != 0) else None,
+            coords,
+        )
 
     # --- the applied command -----------------------------------------------------------------
     def applied_ctrl(self, ops: list[tuple[str, int, float]]) -> np.ndarray:
@@ -370,15 +402,20 @@ class Plant:
                 if self.rec.inputs is None:
                     notes.append("input_channel: no signals.inputs declared in the spec; skipped")
                     continue
-                targets = [Target("joint", t.name, t.index, t.dof, t.joint, c, self.rec.input_names[c])
-                           for c in range(self.rec.inputs.shape[1]) for t in targets]
+                targets = [
+                    Target("joint", t.name, t.index, t.dof, t.joint, c, self.rec.input_names[c])
+                    for c in range(self.rec.inputs.shape[1])
+                    for t in targets
+                ]
             if req.targets is not None:
                 valid = sorted({t.name for t in targets})
                 for name in req.targets:
                     if name not in valid:
-                        raise SpecError(f"spec field 'effects[{i}].targets': {name!r} is not a {eff.kind} of "
-                                        f"{self.spec.model.name}; valid: {', '.join(valid)}."
-                                        f"{did_you_mean(name, valid)}")
+                        raise SpecError(
+                            f"spec field 'effects[{i}].targets': {name!r} is not a {eff.kind} of "
+                            f"{self.spec.model.name}; valid: {', '.join(valid)}."
+                            f"{did_you_mean(name, valid)}"
+                        )
                 targets = [t for t in targets if t.name in req.targets]
             for t in targets:
                 row = {"dof_": t.dof, "jnt_": t.index, "body_": t.index, "actuator_": t.index}
@@ -424,7 +461,7 @@ class Layout:
         parts, i = [], n
         for c in self.active:
             k = len(c.effect.params)
-            parts.append((c, x[i:i + k]))
+            parts.append((c, x[i : i + k]))
             i += k
         return x[:n], parts
 

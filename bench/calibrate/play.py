@@ -16,6 +16,7 @@ measures either side (`Side`): the link (an output encoder) or the motor (an enc
 shaft, as on most geared drives); the other side's position is not logged and starts at the edge
 of the play the logged command pushes towards (`coordinates`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -70,8 +71,7 @@ def build(source: Path | str, plays: tuple[tuple[int, str], ...], like: mujoco.M
         j = mujoco.mj_name2id(base, mujoco.mjtObj.mjOBJ_JOINT, link)
         body = spec.worldbody.add_body(name=f"{a.name or act}_rotor")
         body.mass, body.inertia, body.explicitinertial = 1e-9, [1e-9, 1e-9, 1e-9], True
-        body.add_joint(name=f"{a.name or act}_rotor", type=mujoco.mjtJoint(base.jnt_type[j]),
-                       axis=[0.0, 0.0, 1.0])
+        body.add_joint(name=f"{a.name or act}_rotor", type=mujoco.mjtJoint(base.jnt_type[j]), axis=[0.0, 0.0, 1.0])
         tendon = spec.add_tendon(name=f"{a.name or act}_play", limited=True, range=[-1.0, 1.0])  # set_play sets it
         tendon.solref_limit = [PLAY_TIMECONST, 1.0]
         tendon.wrap_joint(f"{a.name or act}_rotor", 1.0)
@@ -111,8 +111,7 @@ def coordinates(model: mujoco.MjModel, plays: list[tuple[Play, float]], nq: int,
         follows.append(p.link_dof)
     sign = np.sign(model.actuator_gear[:, 0] * model.actuator_gainprm[:, 0])
 
-    def init(frames: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray) \
-            -> tuple[np.ndarray, np.ndarray]:
+    def init(frames: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(qpos)
         full_q, full_v = np.zeros((n, model.nq)), np.zeros((n, model.nv))
         full_q[:, :nq], full_v[:, :nq] = qpos, qvel

@@ -10,6 +10,7 @@ calibration's k). An episode's surprise is its position NRMSE (each joint's RMSE
 that joint's spread over the whole log, averaged over joints): high where the calibrated simulator
 still parts from the robot, which is what to replay, inspect or collect more of next.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -32,9 +33,11 @@ def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
 
         plant, info = suite_plant(doc["suite"]["name"], doc["apply"]["robot"], logs)
         if info["model_hash"] != doc["apply"]["model_hash"]:
-            raise DataError(f"the calibration was fitted on another model of robot {doc['apply']['robot']!r} "
-                            f"(fingerprint {doc['apply']['model_hash'][:12]}, the suite's now "
-                            f"{info['model_hash'][:12]})")
+            raise DataError(
+                f"the calibration was fitted on another model of robot {doc['apply']['robot']!r} "
+                f"(fingerprint {doc['apply']['model_hash'][:12]}, the suite's now "
+                f"{info['model_hash'][:12]})"
+            )
         return plant, info["suite"]["episodes"]
     from bench.calibrate.data import extract
     from bench.calibrate.spec import parse_spec
@@ -51,7 +54,7 @@ def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
 def _layout(plant: Plant, labels: list[str]) -> Layout:
     """The layout whose parameter labels are `labels` (the declared slots, then each effect's)."""
     keys: list[str] = []
-    for label in labels[len(plant.slots):]:
+    for label in labels[len(plant.slots) :]:
         key = label.rsplit(".", 1)[0]
         if key not in keys:
             keys.append(key)
@@ -99,11 +102,22 @@ def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -
     for e in range(rec.n_episodes):
         sel = episode == e
         rmse = np.sqrt(np.sum(err[sel] ** 2, axis=(0, 1)) / max(int(mask[sel].sum()), 1))
-        rows.append({"episode": int(index[e]),
-                     "frames": int(rec.offsets[e + 1] - rec.offsets[e]),
-                     "surprise": float(np.mean(rmse / spread)),
-                     "per_joint": dict(zip(plant.joint_names, (rmse / spread).tolist()))})
+        rows.append(
+            {
+                "episode": int(index[e]),
+                "frames": int(rec.offsets[e + 1] - rec.offsets[e]),
+                "surprise": float(np.mean(rmse / spread)),
+                "per_joint": dict(zip(plant.joint_names, (rmse / spread).tolist())),
+            }
+        )
     rows.sort(key=lambda r: -r["surprise"])
     what = "free-run (open-loop, whole episode)" if horizon == "free_run" else f"k-step (k = {k} frames)"
-    return {"schema": "bench.logs_rank/1", "calibration": str(path), "logs": str(logs), "horizon": horizon, "k": k,
-            "statistic": f"{what} position NRMSE per episode under the calibrated model", "episodes": rows}
+    return {
+        "schema": "bench.logs_rank/1",
+        "calibration": str(path),
+        "logs": str(logs),
+        "horizon": horizon,
+        "k": k,
+        "statistic": f"{what} position NRMSE per episode under the calibrated model",
+        "episodes": rows,
+    }

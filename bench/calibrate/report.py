@@ -2,6 +2,7 @@
 
 The JSON has no NaN or infinity anywhere: a value that cannot be computed is null.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -39,8 +40,12 @@ def to_json(cal: Calibration) -> dict:
     declared = {}
     for i, slot in enumerate(plant.slots):
         declared[slot.label] = {
-            "field": slot.field, "value": final.x[i], "interval": list(final.interval(i)),
-            "value_without_effects": decl.x[i], "nominal": slot.nominal, "bounds": list(slot.bounds),
+            "field": slot.field,
+            "value": final.x[i],
+            "interval": list(final.interval(i)),
+            "value_without_effects": decl.x[i],
+            "nominal": slot.nominal,
+            "bounds": list(slot.bounds),
         }
     d, f, n = (cal.errors[k]["free_run_nrmse"] for k in ("declared", "final", "nominal"))
     windows = lambda ws: [{"episode": w.episode, "start": w.start, "stop": w.stop} for w in ws]  # noqa: E731
@@ -48,25 +53,44 @@ def to_json(cal: Calibration) -> dict:
         "schema": SCHEMA,
         "spec": cal.spec.to_json(),
         "model": {"file": str(cal.spec.model), "timestep": plant.model.opt.timestep, "substeps": plant.substeps},
-        "data": {"fps": rec.fps, "episodes": rec.n_episodes, "frames": int(rec.offsets[-1]),
-                 "velocity": "logged" if rec.qvel_logged else "estimated from positions",
-                 "train": windows(rec.train), "holdout": windows(rec.holdout), "seed": cal.seed},
+        "data": {
+            "fps": rec.fps,
+            "episodes": rec.n_episodes,
+            "frames": int(rec.offsets[-1]),
+            "velocity": "logged" if rec.qvel_logged else "estimated from positions",
+            "train": windows(rec.train),
+            "holdout": windows(rec.holdout),
+            "seed": cal.seed,
+        },
         "declared": declared,
         "effects_added": [{k: v for k, v in e.items()} for e in cal.added],
         "effects_rejected": cal.rejected,
         "rounds": [{"round": i + 1, "candidates": r} for i, r in enumerate(cal.rounds)],
-        "errors": {k: {**{key: cal.errors[k].get(key) for key in ERROR_KEYS},
-                       "k_step_rmse": cal.errors[k].get("k_step_rmse"),
-                       "one_step_rmse": cal.errors[k].get("one_step_rmse"),
-                       "k": cal.errors[k].get("k"), "per_joint": cal.errors[k].get("per_joint")}
-                   for k in ("nominal", "declared", "final")},
+        "errors": {
+            k: {
+                **{key: cal.errors[k].get(key) for key in ERROR_KEYS},
+                "k_step_rmse": cal.errors[k].get("k_step_rmse"),
+                "one_step_rmse": cal.errors[k].get("one_step_rmse"),
+                "k": cal.errors[k].get("k"),
+                "per_joint": cal.errors[k].get("per_joint"),
+            }
+            for k in ("nominal", "declared", "final")
+        },
         "free_run_nrmse_cut": {
             "declared_to_final": (1.0 - f / d) if d else None,
             "nominal_to_final": (1.0 - f / n) if n else None,
         },
-        "fit": {"declared": {"ssr": decl.ssr, "n": decl.n, "tau": decl.tau, "evaluations": decl.nfev},
-                "final": {"ssr": final.ssr, "n": final.n, "tau": final.tau, "evaluations": final.nfev,
-                          "parameters": final.labels, "x": final.x}},
+        "fit": {
+            "declared": {"ssr": decl.ssr, "n": decl.n, "tau": decl.tau, "evaluations": decl.nfev},
+            "final": {
+                "ssr": final.ssr,
+                "n": final.n,
+                "tau": final.tau,
+                "evaluations": final.nfev,
+                "parameters": final.labels,
+                "x": final.x,
+            },
+        },
         "learned_residual": cal.learned,
         "warnings": cal.warnings,
         "notes": cal.notes,
@@ -172,34 +196,53 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
     """report.md: errors before / after, what was added and why, what was rejected, plots."""
     lines = [f"# Calibration report: {Path(doc['model']['file']).name}", ""]
     data = doc["data"]
-    lines += [f"{data['episodes']} episode(s), {data['frames']} frames at {data['fps']:g} Hz; "
-              f"held out: {len(data['holdout'])} window(s); velocity {data['velocity']}. "
-              f"Wall time {doc['wall_seconds']:.1f} s.", ""]
-    lines += ["## Held-out errors (positions)", "",
-              "| model | one-step NRMSE | k-step NRMSE | free-run NRMSE | free-run RMSE | R² |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        f"{data['episodes']} episode(s), {data['frames']} frames at {data['fps']:g} Hz; "
+        f"held out: {len(data['holdout'])} window(s); velocity {data['velocity']}. "
+        f"Wall time {doc['wall_seconds']:.1f} s.",
+        "",
+    ]
+    lines += [
+        "## Held-out errors (positions)",
+        "",
+        "| model | one-step NRMSE | k-step NRMSE | free-run NRMSE | free-run RMSE | R² |",
+        "|---|---|---|---|---|---|",
+    ]
     for key in ("nominal", "declared", "final"):
         e = doc["errors"][key]
         lines.append(f"| {key} | " + " | ".join(_fmt(e[k]) for k in ERROR_KEYS) + " |")
     cut = doc["free_run_nrmse_cut"]["declared_to_final"]
-    lines += ["", f"k = {doc['errors']['final']['k']} frames. Free-run NRMSE cut from the declared fit: "
-              f"{_fmt(None if cut is None else 100 * cut)}%.", ""]
+    lines += [
+        "",
+        f"k = {doc['errors']['final']['k']} frames. Free-run NRMSE cut from the declared fit: "
+        f"{_fmt(None if cut is None else 100 * cut)}%.",
+        "",
+    ]
     lines += ["## Effects added", ""]
     if doc["effects_added"]:
         lines += ["| effect | target | parameters (95% interval) | held-out drop | ΔIC |", "|---|---|---|---|---|"]
         for e in doc["effects_added"]:
-            params = ", ".join(f"{k} = {_fmt(v)} [{_fmt((e['interval'].get(k) or [None, None])[0])}, "
-                               f"{_fmt((e['interval'].get(k) or [None, None])[1])}]" for k, v in e["params"].items())
-            lines.append(f"| {e['name']} | {e['target']} | {params} | {_fmt(100 * e['heldout_drop'])}% | "
-                         f"{_fmt(e['delta_ic'])} |")
+            params = ", ".join(
+                f"{k} = {_fmt(v)} [{_fmt((e['interval'].get(k) or [None, None])[0])}, "
+                f"{_fmt((e['interval'].get(k) or [None, None])[1])}]"
+                for k, v in e["params"].items()
+            )
+            lines.append(
+                f"| {e['name']} | {e['target']} | {params} | {_fmt(100 * e['heldout_drop'])}% | {_fmt(e['delta_ic'])} |"
+            )
     else:
         lines.append("None: no candidate passed all three tests (held-out drop, information criterion, interval).")
     lines += ["", "## Declared parameters", "", "| parameter | nominal | fitted | 95% interval |", "|---|---|---|---|"]
     for name, p in doc["declared"].items():
         iv = p["interval"]
         lines.append(f"| {name} | {_fmt(p['nominal'])} | {_fmt(p['value'])} | [{_fmt(iv[0])}, {_fmt(iv[1])}] |")
-    lines += ["", "## Candidates not added (best scores first)", "", "| effect | target | score | reason |",
-              "|---|---|---|---|"]
+    lines += [
+        "",
+        "## Candidates not added (best scores first)",
+        "",
+        "| effect | target | score | reason |",
+        "|---|---|---|---|",
+    ]
     for e in doc["effects_rejected"][:15]:
         lines.append(f"| {e['name']} | {e['target']} | {_fmt(e.get('score'))} | {e.get('reason', '')} |")
     if len(doc["effects_rejected"]) > 15:
@@ -209,9 +252,11 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
     if doc["warnings"]:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in doc["warnings"]]
     lines += ["", "## Plots", ""]
-    for key, caption in (("freerun", "Held-out free run, logged vs simulated (nominal, declared fit, final)"),
-                         ("residual", "k-step residual on held-out horizons, declared fit vs final"),
-                         ("scores", "Candidate scores per round")):
+    for key, caption in (
+        ("freerun", "Held-out free run, logged vs simulated (nominal, declared fit, final)"),
+        ("residual", "k-step residual on held-out horizons, declared fit vs final"),
+        ("scores", "Candidate scores per round"),
+    ):
         if key in files:
             lines += [f"![{caption}]({files[key]})", "", f"*{caption}.*", ""]
     return "\n".join(lines) + "\n"
@@ -221,10 +266,16 @@ def _apply(suite: dict | None, apply: dict | None) -> list[str]:
     """A suite calibration's model edits and how to run with them."""
     if not suite or not apply:
         return []
-    lines = ["", f"## Applying it: `bench run suite={suite['name']} ... calibration=FILE`", "",
-             f"Suite {suite['name']} version {suite['version']}, robot {apply['robot']} (model fingerprint "
-             f"{apply['model_hash'][:12]}); the cells of that robot run with these values:", "",
-             "| field | element | nominal | calibrated |", "|---|---|---|---|"]
+    lines = [
+        "",
+        f"## Applying it: `bench run suite={suite['name']} ... calibration=FILE`",
+        "",
+        f"Suite {suite['name']} version {suite['version']}, robot {apply['robot']} (model fingerprint "
+        f"{apply['model_hash'][:12]}); the cells of that robot run with these values:",
+        "",
+        "| field | element | nominal | calibrated |",
+        "|---|---|---|---|",
+    ]
     lines += [f"| {e['field']} | {e['element']} | {_fmt(e['nominal'])} | {_fmt(e['value'])} |" for e in apply["edits"]]
     if not apply["edits"]:
         lines.append("| – | – | – | nothing changes |")
@@ -236,15 +287,24 @@ def _learned(res: dict | None) -> list[str]:
     if not res:
         return []
     h = res["heldout"]
-    lines = ["", "## Learned residual (not part of the physical model)", "",
-             f"{res['model']}; target: {res['target']}. {res['samples']} training samples, ridge strength "
-             f"{_fmt(res['lambda'])} (cross-validated R² {_fmt(res['cv_r2'])}), seed {res['seed']}.", "",
-             "| held-out | one-step NRMSE | k-step NRMSE | free-run NRMSE |", "|---|---|---|---|"]
+    lines = [
+        "",
+        "## Learned residual (not part of the physical model)",
+        "",
+        f"{res['model']}; target: {res['target']}. {res['samples']} training samples, ridge strength "
+        f"{_fmt(res['lambda'])} (cross-validated R² {_fmt(res['cv_r2'])}), seed {res['seed']}.",
+        "",
+        "| held-out | one-step NRMSE | k-step NRMSE | free-run NRMSE |",
+        "|---|---|---|---|",
+    ]
     for key, label in (("physics", "physics (final)"), ("physics_plus_residual", "physics + learned residual")):
         cells = [_fmt(h[key][f"{m}_nrmse"]) for m in ("one_step", "k_step", "free_run")]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", f"The residual {res['verdict']}. The effects above and their errors are the physics alone; the "
-              "residual says how much the library leaves unexplained, not which effect it is."]
+    lines += [
+        "",
+        f"The residual {res['verdict']}. The effects above and their errors are the physics alone; the "
+        "residual says how much the library leaves unexplained, not which effect it is.",
+    ]
     return lines
 
 

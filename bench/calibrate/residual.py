@@ -15,6 +15,7 @@ those of the physical model alone; the residual has its own section in calibrati
 (`learned_residual`) and report.md. Every random draw (the features) comes from the calibration
 seed; the regularisation is chosen by cross-validation over contiguous blocks of training frames.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -29,7 +30,7 @@ from bench.replay.simulate import Simulator, StateForce, Variant, horizons
 
 FEATURES = 32  # random Fourier features per input (plus the inputs themselves and a constant)
 FREQUENCY = 2.0  # spread of their frequencies, in radians per standardised input unit
-LAMBDAS = tuple(10.0 ** k for k in range(-4, 4))  # ridge strengths tried (relative to the mean feature energy)
+LAMBDAS = tuple(10.0**k for k in range(-4, 4))  # ridge strengths tried (relative to the mean feature energy)
 FOLDS = 5
 
 
@@ -102,8 +103,11 @@ def _targets(sim: Simulator, v: Variant, nq: int) -> tuple[np.ndarray, np.ndarra
     d = mujoco.MjData(m)
     force = np.empty_like(accel)
     full = np.zeros((m.nv, m.nv))
-    qpos = rec.qpos[start] if v.coords is None else \
-        v.coords.init(start, rec.qpos[start], rec.qvel[start], rec.ctrl[start])[0]
+    qpos = (
+        rec.qpos[start]
+        if v.coords is None
+        else v.coords.init(start, rec.qpos[start], rec.qvel[start], rec.ctrl[start])[0]
+    )
     for i, q in enumerate(qpos):
         d.qpos[:] = q
         mujoco.mj_forward(m, d)
@@ -128,8 +132,9 @@ def _hook(model: Residual, v: Variant, nq: int) -> StateForce:
 
 
 def _summary(errors: dict) -> dict[str, Any]:
-    return {f"{label}_{m}": finite(float(getattr(e, m).mean()))
-            for label, e in errors.items() for m in ("nrmse", "rmse")}
+    return {
+        f"{label}_{m}": finite(float(getattr(e, m).mean())) for label, e in errors.items() for m in ("nrmse", "rmse")
+    }
 
 
 def learn(sim: Simulator, v: Variant, k: int, seed: int) -> dict[str, Any]:
@@ -141,22 +146,33 @@ def learn(sim: Simulator, v: Variant, k: int, seed: int) -> dict[str, Any]:
     physics = horizon_errors(sim, v, rec, rec.holdout, k)
     hybrid = horizon_errors(sim, replace(v, force=_hook(model, v, nq)), rec, rec.holdout, k)
     without, with_ = _summary(physics), _summary(hybrid)
-    cut = {label: (None if not without[f"{label}_nrmse"] or with_[f"{label}_nrmse"] is None
-                   else 1.0 - with_[f"{label}_nrmse"] / without[f"{label}_nrmse"]) for label in physics}
+    cut = {
+        label: (
+            None
+            if not without[f"{label}_nrmse"] or with_[f"{label}_nrmse"] is None
+            else 1.0 - with_[f"{label}_nrmse"] / without[f"{label}_nrmse"]
+        )
+        for label in physics
+    }
     k_cut = cut["k_step"]
-    verdict = ("cannot be evaluated" if k_cut is None else
-               f"lowers the held-out k-step error by {100 * k_cut:.0f}%: the effect library leaves this much "
-               "unexplained"
-               if k_cut > 0.05 else
-               f"does not help on held-out data (k-step error {100 * -k_cut:+.0f}%): nothing the library misses is "
-               "learnable from these logs")
+    verdict = (
+        "cannot be evaluated"
+        if k_cut is None
+        else f"lowers the held-out k-step error by {100 * k_cut:.0f}%: the effect library leaves this much unexplained"
+        if k_cut > 0.05
+        else f"does not help on held-out data (k-step error {100 * -k_cut:+.0f}%): nothing the library misses is "
+        "learnable from these logs"
+    )
     return {
         "model": f"ridge regression on {FEATURES} random Fourier features of each input (frequencies drawn from "
-                 f"N(0, {FREQUENCY:g}²) per standardised unit; an additive model) of the logged qpos, qvel and the "
-                 "applied command, plus those inputs and a constant",
+        f"N(0, {FREQUENCY:g}²) per standardised unit; an additive model) of the logged qpos, qvel and the "
+        "applied command, plus those inputs and a constant",
         "target": "generalised force the calibrated physics misses over one frame from each training state "
-                  "(M(q) x missed velocity / frame period)",
-        "samples": int(len(x)), "seed": seed, "lambda": stats["lambda"], "cv_r2": finite(stats["cv_r2"]),
+        "(M(q) x missed velocity / frame period)",
+        "samples": int(len(x)),
+        "seed": seed,
+        "lambda": stats["lambda"],
+        "cv_r2": finite(stats["cv_r2"]),
         "train_r2": [finite(v) for v in stats["train_r2"]],
         "heldout": {"physics": without, "physics_plus_residual": with_, "nrmse_cut": cut, "k": k},
         "verdict": verdict,

@@ -6,6 +6,7 @@ the sensitivities of the parameters already in the model (a linearised refit, as
 so a candidate scores only for what re-tuning the current parameters cannot explain. All variants
 of a round run in one batched rollout.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -20,12 +21,21 @@ from bench.calibrate.model import Candidate, Layout
 CUR_STEP = 1e-2  # step for the current parameters' sensitivities (normalised units)
 SHAPE_GRID = (0.05, 0.15, 0.4)  # shares of a shape parameter's range tried before a refit
 SCAN_STARTS = 3  # best scanned amplitudes (`Effect.scan`) checked on held-out data before a refit
+
+
 class Linearisation:
     """The residual of the current model on a set of segments and its sensitivities to the current
     parameters: what a change of the simulated output leaves after re-tuning them (linearised)."""
 
-    def __init__(self, obj: Objective, base: np.ndarray, cur_steps: np.ndarray, moved: np.ndarray,
-                 dlo: np.ndarray, dhi: np.ndarray) -> None:
+    def __init__(
+        self,
+        obj: Objective,
+        base: np.ndarray,
+        cur_steps: np.ndarray,
+        moved: np.ndarray,
+        dlo: np.ndarray,
+        dhi: np.ndarray,
+    ) -> None:
         self.obj, self.base, self.dlo, self.dhi = obj, base, dlo, dhi
         self.r = ((base - obj.target) * obj.weight)[obj.mask]  # sim - log
         cols = [self.change(m) / h for m, h in zip(moved, cur_steps)]
@@ -35,8 +45,9 @@ class Linearisation:
         """Weighted change of the simulated channels (n, length, C) from the current model's."""
         return ((pred - self.base) * self.obj.weight)[self.obj.mask]
 
-    def best(self, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray, res: np.ndarray | None = None) \
-            -> tuple[float, np.ndarray]:
+    def best(
+        self, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray, res: np.ndarray | None = None
+    ) -> tuple[float, np.ndarray]:
         """Least SSR of res + cols @ u over the bounded u, and u."""
         res = self.r if res is None else res
         if cols.shape[1] == 0 or not np.any(cols):
@@ -65,9 +76,13 @@ class Score:
     lin: Linearisation | None = None  # the round's linearisation (to re-tune the current parameters)
 
     def to_json(self) -> dict:
-        return {"name": self.cand.effect.name, "target": self.cand.target.label, "score": round(self.score, 6),
-                "predicted_delta_ic": round(self.predicted, 3),
-                **({"replaces": self.replaces.key} if self.replaces else {})}
+        return {
+            "name": self.cand.effect.name,
+            "target": self.cand.target.label,
+            "score": round(self.score, 6),
+            "predicted_delta_ic": round(self.predicted, 3),
+            **({"replaces": self.replaces.key} if self.replaces else {}),
+        }
 
 
 def relation(cand: Candidate, active: list[Candidate]) -> tuple[str, Candidate | None]:
@@ -91,8 +106,9 @@ def relation(cand: Candidate, active: list[Candidate]) -> tuple[str, Candidate |
     return "new", None
 
 
-def with_candidate(layout: Layout, x: np.ndarray, cand: Candidate, replaces: Candidate | None,
-          params: np.ndarray) -> tuple[Layout, np.ndarray, int]:
+def with_candidate(
+    layout: Layout, x: np.ndarray, cand: Candidate, replaces: Candidate | None, params: np.ndarray
+) -> tuple[Layout, np.ndarray, int]:
     """Layout and vector with `cand` added (or swapped in for `replaces`); offset of its parameters."""
     if replaces is None:
         new = Layout(layout.plant, layout.active + [cand])
@@ -100,19 +116,20 @@ def with_candidate(layout: Layout, x: np.ndarray, cand: Candidate, replaces: Can
     off = layout.offset(replaces)
     k = len(replaces.effect.params)
     new = Layout(layout.plant, [cand if a is replaces else a for a in layout.active])
-    return new, np.concatenate([x[:off], params, x[off + k:]]), off
+    return new, np.concatenate([x[:off], params, x[off + k :]]), off
 
 
 def start_vector(cand: Candidate, replaces: Candidate | None, layout: Layout, x: np.ndarray) -> np.ndarray:
     if replaces is None:
         return cand.start()
     off = layout.offset(replaces)
-    old = x[off:off + len(replaces.effect.params)]
+    old = x[off : off + len(replaces.effect.params)]
     return np.asarray(cand.effect.extends[replaces.effect.name](old, cand.bounds), dtype=float)
 
 
-def score_candidates(obj: Objective, layout: Layout, x: np.ndarray, cands: list[Candidate],
-                     criterion: str, n_eff: float) -> list[Score]:
+def score_candidates(
+    obj: Objective, layout: Layout, x: np.ndarray, cands: list[Candidate], criterion: str, n_eff: float
+) -> list[Score]:
     """Score every candidate's signature against the residual of `obj` (sorted, best first)."""
     lo_cur, hi_cur = layout.bounds
     span_cur = hi_cur - lo_cur
@@ -143,7 +160,7 @@ def score_candidates(obj: Objective, layout: Layout, x: np.ndarray, cands: list[
             levels.append(steps)
         plan.append((cand, replaces, x0, levels))
     grid = obj.sim.run(variants, obj.segs)[..., obj.channels]
-    lin = Linearisation(obj, grid[0], cur_steps, grid[1:1 + len(x)], lo_cur - x, hi_cur - x)
+    lin = Linearisation(obj, grid[0], cur_steps, grid[1 : 1 + len(x)], lo_cur - x, hi_cur - x)
     r, jcur, dlo, dhi, best = lin.r, lin.jcur, lin.dlo, lin.dhi, lin.best
 
     def column(j: int, h: float) -> np.ndarray:
@@ -187,7 +204,7 @@ def scan(obj: Objective, layout: Layout, x: np.ndarray, scores: list[Score]) -> 
         for share in eff.scan:
             amp = np.clip(x0[:kn] + share * np.maximum(np.abs(lo), np.abs(hi)), lo, hi) - x0[:kn]
             xi = xfull.copy()
-            xi[off:off + kn] += amp
+            xi[off : off + kn] += amp
             variants.append(new.realise(xi))
             amps.append(amp)
     if not variants:

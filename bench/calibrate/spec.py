@@ -6,6 +6,7 @@ signal map that replay reads (`bench.replay.spec`); this module adds `params`, `
 uses are checked against the model in `bench.calibrate.model` and against the data in
 `bench.replay.data.extract`. Every problem is a one-line `SpecError` that names the field.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -73,15 +74,26 @@ class CalibrationSpec(SignalMap):
         return {
             **head,
             "params": [
-                {"name": p.name, "field": p.field, "elements": list(p.elements), "bounds": list(p.bounds),
-                 **({"column": p.column} if p.column is not None else {}),
-                 **({"init": p.init} if p.init is not None else {}),
-                 **({"scale": True} if p.scale else {})}
+                {
+                    "name": p.name,
+                    "field": p.field,
+                    "elements": list(p.elements),
+                    "bounds": list(p.bounds),
+                    **({"column": p.column} if p.column is not None else {}),
+                    **({"init": p.init} if p.init is not None else {}),
+                    **({"scale": True} if p.scale else {}),
+                }
                 for p in self.params
             ],
-            "effects": "all" if self.effects is None else [
-                {"name": e.name, **({"targets": list(e.targets)} if e.targets else {}),
-                 **({"bounds": [list(b) for b in e.bounds]} if e.bounds else {})} for e in self.effects
+            "effects": "all"
+            if self.effects is None
+            else [
+                {
+                    "name": e.name,
+                    **({"targets": list(e.targets)} if e.targets else {}),
+                    **({"bounds": [list(b) for b in e.bounds]} if e.bounds else {}),
+                }
+                for e in self.effects
             ],
             "holdout": self.holdout,
             "horizon": self.horizon,
@@ -132,8 +144,10 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
         item = check_keys(item, EFFECT_KEYS, where)
         name = item.get("name")
         if name not in EFFECTS:
-            raise SpecError(f"spec field {where + '.name'!r}: unknown effect {name!r}; valid: "
-                            f"{', '.join(EFFECTS)}.{did_you_mean(str(name), EFFECTS)}")
+            raise SpecError(
+                f"spec field {where + '.name'!r}: unknown effect {name!r}; valid: "
+                f"{', '.join(EFFECTS)}.{did_you_mean(str(name), EFFECTS)}"
+            )
         targets = _names(item["targets"], where + ".targets") if "targets" in item else None
         bounds = None
         if "bounds" in item:
@@ -142,8 +156,10 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
             if nparam == 1 and isinstance(b, (list, tuple)) and len(b) == 2 and not isinstance(b[0], (list, tuple)):
                 b = [b]
             if not isinstance(b, (list, tuple)) or len(b) != nparam:
-                raise SpecError(f"spec field {where + '.bounds'!r} needs {nparam} [low, high] pairs for "
-                                f"{', '.join(EFFECTS[name].params)}; got {item['bounds']!r}")
+                raise SpecError(
+                    f"spec field {where + '.bounds'!r} needs {nparam} [low, high] pairs for "
+                    f"{', '.join(EFFECTS[name].params)}; got {item['bounds']!r}"
+                )
             bounds = tuple(_bounds(x, where + ".bounds") for x in b)
         out.append(EffectRequest(name=name, targets=targets, bounds=bounds))
     return tuple(out)
@@ -174,9 +190,17 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         scale = p.get("scale", False)
         if not isinstance(scale, bool):
             raise SpecError(f"spec field {where + '.scale'!r} must be true or false; got {scale!r}")
-        params.append(ParamSpec(name=name, field=p["field"], elements=_names(p["elements"], where + ".elements"),
-                                bounds=_bounds(p["bounds"], where + ".bounds"), column=column, init=init,
-                                scale=scale))
+        params.append(
+            ParamSpec(
+                name=name,
+                field=p["field"],
+                elements=_names(p["elements"], where + ".elements"),
+                bounds=_bounds(p["bounds"], where + ".bounds"),
+                column=column,
+                init=init,
+                scale=scale,
+            )
+        )
     trace_raw = check_keys(raw.get("trace") or {}, TRACE_KEYS, "trace")
     trace_kw: dict[str, Any] = {}
     for key, value in trace_raw.items():

@@ -15,6 +15,7 @@ the model's own values); searched: the effects a run can carry in the model itse
 friction per joint, a payload per link, a gain error per motor). The result can be applied to runs
 (`bench.calibrate.apply`).
 """
+
 from __future__ import annotations
 
 import copy
@@ -57,22 +58,28 @@ def _episodes(ds: Any, logs: Path, robot: str, condition: str | None) -> list:
     eps = [ep for ep, m in zip(ds.episodes, meta) if m.get("robot") == robot]
     if not eps:
         listing = ", ".join(robots) or "none (not a `bench run record=` dataset?)"
-        raise ConfigError(f"robot={robot!r}: no episode of {logs} was recorded with it; robots in the log: "
-                          f"{listing}.{did_you_mean(robot, robots)}")
+        raise ConfigError(
+            f"robot={robot!r}: no episode of {logs} was recorded with it; robots in the log: "
+            f"{listing}.{did_you_mean(robot, robots)}"
+        )
     if condition is not None:
         conds = sorted({str(m.get("condition")) for ep, m in zip(ds.episodes, meta) if m.get("robot") == robot})
         eps = [ep for ep in eps if ep.meta.get("condition") == condition]
         if not eps:
-            raise ConfigError(f"condition={condition!r}: no episode of robot {robot!r} in {logs} has it; conditions: "
-                              f"{', '.join(conds)}.{did_you_mean(condition, conds)}")
+            raise ConfigError(
+                f"condition={condition!r}: no episode of robot {robot!r} in {logs} has it; conditions: "
+                f"{', '.join(conds)}.{did_you_mean(condition, conds)}"
+            )
     if len(eps) < 2:
-        raise DataError(f"{logs}: {len(eps)} episode of robot {robot!r}; calibration holds out whole episodes and "
-                        "needs at least 2")
+        raise DataError(
+            f"{logs}: {len(eps)} episode of robot {robot!r}; calibration holds out whole episodes and needs at least 2"
+        )
     return eps
 
 
-def suite_plant(suite: str, robot: str, logs: str | Path, seed: int = 0, threads: int = 1,
-                condition: str | None = None) -> tuple[Plant, dict[str, Any]]:
+def suite_plant(
+    suite: str, robot: str, logs: str | Path, seed: int = 0, threads: int = 1, condition: str | None = None
+) -> tuple[Plant, dict[str, Any]]:
     """The plant of a suite's robot in its nominal scene, with the logs of that robot; and what identifies it."""
     from bench import registry
     from bench.logs import read_dataset
@@ -89,11 +96,14 @@ def suite_plant(suite: str, robot: str, logs: str | Path, seed: int = 0, threads
     try:
         scenes = len({id(e) for e in sl.envs})
         if scenes != 1:
-            raise DataError(f"{path}: the episodes of robot {robot!r} come from {scenes} scenes; calibrate one "
-                            "scene at a time")
+            raise DataError(
+                f"{path}: the episodes of robot {robot!r} come from {scenes} scenes; calibrate one scene at a time"
+            )
         if sl.ctrl_spec != int(mujoco.mjtState.mjSTATE_CTRL):
-            raise DataError(f"{path}: {CTRL!r} holds more than actuator commands (ctrl_spec {sl.ctrl_spec}); "
-                            "a suite calibration drives the model by its actuators only")
+            raise DataError(
+                f"{path}: {CTRL!r} holds more than actuator commands (ctrl_spec {sl.ctrl_spec}); "
+                "a suite calibration drives the model by its actuators only"
+            )
         model = copy.copy(sl.envs[0].mujoco.model)
     finally:
         sl.close()
@@ -101,16 +111,26 @@ def suite_plant(suite: str, robot: str, logs: str | Path, seed: int = 0, threads
     names = [model.joint(j).name for j in joints]
     qadr, dadr = model.jnt_qposadr[joints], model.jnt_dofadr[joints]
     if not joints or not (np.array_equal(qadr, np.arange(len(joints))) and np.array_equal(dadr, qadr)):
-        raise DataError(f"suite {suite!r}: the motor-driven joints of {robot} ({', '.join(names) or 'none'}) are not "
-                        "the model's leading coordinates; this suite's scene cannot be calibrated")
+        raise DataError(
+            f"suite {suite!r}: the motor-driven joints of {robot} ({', '.join(names) or 'none'}) are not "
+            "the model's leading coordinates; this suite's scene cannot be calibrated"
+        )
     full, nq = sl.full, model.nq
     assert sl.ctrl is not None  # need_ctrl
     lengths = [int(sl.offsets[i + 1] - sl.offsets[i]) for i in range(len(sl.eps))]
     ctrl = sl.ctrl.reshape(len(full) * sl.substeps, model.nu)
     train, hold = split(lengths, HOLDOUT, seed)
-    rec = Recording(fps=float(ds.fps), qpos=full[:, qadr], qvel=full[:, nq + dadr],
-                    ctrl=ctrl[::sl.substeps].copy(), inputs=None, offsets=sl.offsets, train=train, holdout=hold,
-                    qvel_logged=True)
+    rec = Recording(
+        fps=float(ds.fps),
+        qpos=full[:, qadr],
+        qvel=full[:, nq + dadr],
+        ctrl=ctrl[:: sl.substeps].copy(),
+        inputs=None,
+        offsets=sl.offsets,
+        train=train,
+        holdout=hold,
+        qvel_logged=True,
+    )
 
     def init(frames: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return full[frames, :nq].copy(), full[frames, nq:].copy()  # the whole scene as logged
@@ -118,32 +138,67 @@ def suite_plant(suite: str, robot: str, logs: str | Path, seed: int = 0, threads
     scene = Scene(Coordinates(qadr, dadr, init), ctrl, sl.substeps, tuple(joints))
     spec = CalibrationSpec(
         model=Path(f"{suite}/{robot}"),
-        signals={"qpos": SignalSpec("observation.sim_state", tuple(int(i) for i in qadr)),
-                 "qvel": SignalSpec("observation.sim_state", tuple(int(nq + i) for i in dadr)),
-                 "ctrl": SignalSpec(CTRL, tuple(range(model.nu)))},
+        signals={
+            "qpos": SignalSpec("observation.sim_state", tuple(int(i) for i in qadr)),
+            "qvel": SignalSpec("observation.sim_state", tuple(int(nq + i) for i in dadr)),
+            "ctrl": SignalSpec(CTRL, tuple(range(model.nu))),
+        },
         substeps=sl.substeps,
-        params=(ParamSpec("damping_scale", "dof_damping", tuple(names), (0.1, 100.0), scale=True),
-                ParamSpec("armature_scale", "dof_armature", tuple(names), (0.25, 4.0), scale=True)),
-        effects=tuple(EffectRequest(e) for e in EFFECTS), holdout=HOLDOUT, horizon=HORIZON,
-        trace=TraceSpec(max_effects=MAX_EFFECTS), threads=threads, source=path)
-    info = {"suite": {"name": cls.name, "version": cls.version, "robot": robot, "logs": str(path.resolve()),
-                      "condition": condition, "episodes": [int(ep.index) for ep in sl.eps]},
-            "nominal": copy.copy(model), "joints": names, "model_hash": model_hash(model, names)}
+        params=(
+            ParamSpec("damping_scale", "dof_damping", tuple(names), (0.1, 100.0), scale=True),
+            ParamSpec("armature_scale", "dof_armature", tuple(names), (0.25, 4.0), scale=True),
+        ),
+        effects=tuple(EffectRequest(e) for e in EFFECTS),
+        holdout=HOLDOUT,
+        horizon=HORIZON,
+        trace=TraceSpec(max_effects=MAX_EFFECTS),
+        threads=threads,
+        source=path,
+    )
+    info = {
+        "suite": {
+            "name": cls.name,
+            "version": cls.version,
+            "robot": robot,
+            "logs": str(path.resolve()),
+            "condition": condition,
+            "episodes": [int(ep.index) for ep in sl.eps],
+        },
+        "nominal": copy.copy(model),
+        "joints": names,
+        "model_hash": model_hash(model, names),
+    }
     return Plant(spec, model, rec, scene), info
 
 
-def calibrate_suite(suite: str, robot: str, logs: str | Path, *, seed: int = 0, threads: int = 1,
-                    log: Callable[[str], None] = lambda msg: None, residual: bool = False,
-                    condition: str | None = None) -> tuple[Calibration, dict[str, Any]]:
+def calibrate_suite(
+    suite: str,
+    robot: str,
+    logs: str | Path,
+    *,
+    seed: int = 0,
+    threads: int = 1,
+    log: Callable[[str], None] = lambda msg: None,
+    residual: bool = False,
+    condition: str | None = None,
+) -> tuple[Calibration, dict[str, Any]]:
     """The loop on a suite's robot; the calibration and the `suite` and `apply` sections of its JSON.
 
     `condition` keeps only the episodes recorded under it (a log that mixes conditions)."""
     plant, info = suite_plant(suite, robot, logs, seed, threads, condition)
-    log(f"{suite} {robot}: {plant.rec.n_episodes} episodes, {len(plant.rec.qpos)} frames at {plant.rec.fps:g} Hz, "
-        f"{plant.substeps} physics steps per frame; calibrating {', '.join(info['joints'])}")
+    log(
+        f"{suite} {robot}: {plant.rec.n_episodes} episodes, {len(plant.rec.qpos)} frames at {plant.rec.fps:g} Hz, "
+        f"{plant.substeps} physics steps per frame; calibrating {', '.join(info['joints'])}"
+    )
     cal = calibrate(plant, seed=seed, threads=threads, log=log, residual=residual)
     fitted = cal.layout.realise(cal.final_fit.x).model
-    extra = {"suite": info["suite"],
-             "apply": {"robot": robot, "joints": info["joints"], "model_hash": info["model_hash"],
-                       "edits": edits(info["nominal"], fitted)}}
+    extra = {
+        "suite": info["suite"],
+        "apply": {
+            "robot": robot,
+            "joints": info["joints"],
+            "model_hash": info["model_hash"],
+            "edits": edits(info["nominal"], fitted),
+        },
+    }
     return cal, extra

@@ -13,6 +13,7 @@ Of several that pass, the largest held-out drop wins. An effect accepted earlier
 now includes zero is removed; pairs that together are one family are merged. The loop stops when
 no candidate passes or `trace.max_effects` are in.
 """
+
 from __future__ import annotations
 
 import time
@@ -72,34 +73,40 @@ def _merge(layout: Layout, x: np.ndarray) -> tuple[Layout, np.ndarray, list[tupl
     done = []
     for (a_name, b_name), (m_name, lift) in MERGES.items():
         for a in list(layout.active):
-            b = next((c for c in layout.active if c.effect.name == b_name and c.target.dof == a.target.dof
-                      and c.target.kind == a.target.kind), None)
+            b = next(
+                (
+                    c
+                    for c in layout.active
+                    if c.effect.name == b_name and c.target.dof == a.target.dof and c.target.kind == a.target.kind
+                ),
+                None,
+            )
             if a.effect.name != a_name or b is None:
                 continue
             eff = EFFECTS[m_name]
             merged = Candidate(eff, a.target, eff.bounds(plant.scales, a.target))
-            xa = x[layout.offset(a):layout.offset(a) + len(a.effect.params)]
-            xb = x[layout.offset(b):layout.offset(b) + len(b.effect.params)]
+            xa = x[layout.offset(a) : layout.offset(a) + len(a.effect.params)]
+            xb = x[layout.offset(b) : layout.offset(b) + len(b.effect.params)]
             xm = lift(xa, xb)
             if not all(lo <= v <= hi for v, (lo, hi) in zip(xm, merged.bounds)):
                 continue
             rest = [c for c in layout.active if c is not a and c is not b]
-            parts = [x[layout.offset(c):layout.offset(c) + len(c.effect.params)] for c in rest]
+            parts = [x[layout.offset(c) : layout.offset(c) + len(c.effect.params)] for c in rest]
             layout = Layout(plant, rest + [merged])
-            x = np.concatenate([x[:len(plant.slots)], *parts, xm])
+            x = np.concatenate([x[: len(plant.slots)], *parts, xm])
             done.append((a, b, merged))
     return layout, x, done
 
 
 def _physical(cand: Candidate, f: FitResult, off: int, plant: Plant) -> tuple[dict, dict]:
     k = len(cand.effect.params)
-    x = f.x[off:off + k]
-    sd = f.sd[off:off + k]
+    x = f.x[off : off + k]
+    sd = f.sd[off : off + k]
     val = cand.effect.physical(x, plant.scales, cand.target)
     if not np.all(np.isfinite(sd)):
         return val, {p: None for p in val}
     if cand.effect.intervals is not None:
-        return val, cand.effect.intervals(x, f.cov[off:off + k, off:off + k], plant.scales, cand.target)
+        return val, cand.effect.intervals(x, f.cov[off : off + k, off : off + k], plant.scales, cand.target)
     a = cand.effect.physical(x - 1.96 * sd, plant.scales, cand.target)
     b = cand.effect.physical(x + 1.96 * sd, plant.scales, cand.target)
     return val, {p: sorted([a[p], b[p]]) for p in val}
@@ -113,8 +120,17 @@ def _entry(cand: Candidate, **kw) -> dict:
 class _Loop:
     """State of one calibration: the simulator, the data split and the current model."""
 
-    def __init__(self, plant: Plant, sim: Simulator, train: Segments, hold: Segments, scale: np.ndarray,
-                 channels: np.ndarray, log: Callable[[str], None], seed: int = 0) -> None:
+    def __init__(
+        self,
+        plant: Plant,
+        sim: Simulator,
+        train: Segments,
+        hold: Segments,
+        scale: np.ndarray,
+        channels: np.ndarray,
+        log: Callable[[str], None],
+        seed: int = 0,
+    ) -> None:
         self.plant, self.sim, self.train, self.hold = plant, sim, train, hold
         self.scale, self.channels, self.log = scale, channels, log
         self.tr = plant.spec.trace
@@ -148,8 +164,16 @@ class _Loop:
         n_eff = obj.size / autocorrelation_time(obj.residual_grid(x[None])[0])
         return score_candidates(obj, layout, x, cands, self.tr.criterion, n_eff)
 
-    def judge(self, sc: Score, start: tuple[Layout, np.ndarray, int], layout: Layout, cur: FitResult, err0: float,
-              rnd: int, step: float) -> tuple[dict, FitResult, Layout, list[str]]:
+    def judge(
+        self,
+        sc: Score,
+        start: tuple[Layout, np.ndarray, int],
+        layout: Layout,
+        cur: FitResult,
+        err0: float,
+        rnd: int,
+        step: float,
+    ) -> tuple[dict, FitResult, Layout, list[str]]:
         """Refit with the candidate in (on the judging horizons); the entry for the report and the
         reasons it fails (none: passes)."""
         new, xinit, off = start
@@ -171,15 +195,26 @@ class _Loop:
         if not excl:
             reasons.append("parameter interval includes zero")
         params, interval = _physical(sc.cand, f, off, self.plant)
-        entry = _entry(sc.cand, params=params, interval=interval, round=rnd, score=sc.score, heldout_drop=drop,
-                       delta_ic=d_ic, **({"replaces": sc.replaces.key} if sc.replaces else {}))
-        self.log(f"round {rnd}: {sc.cand.key} score {sc.score:.3f}, step {100 * step:.1f}% ({f.nfev} evaluations), "
-                 f"held-out {err0:.4g} -> {err:.4g} ({100 * drop:.1f}%), d{crit.upper()} {d_ic:+.1f} -> "
-                 f"{'passes' if not reasons else '; '.join(reasons)}")
+        entry = _entry(
+            sc.cand,
+            params=params,
+            interval=interval,
+            round=rnd,
+            score=sc.score,
+            heldout_drop=drop,
+            delta_ic=d_ic,
+            **({"replaces": sc.replaces.key} if sc.replaces else {}),
+        )
+        self.log(
+            f"round {rnd}: {sc.cand.key} score {sc.score:.3f}, step {100 * step:.1f}% ({f.nfev} evaluations), "
+            f"held-out {err0:.4g} -> {err:.4g} ({100 * drop:.1f}%), d{crit.upper()} {d_ic:+.1f} -> "
+            f"{'passes' if not reasons else '; '.join(reasons)}"
+        )
         return entry, f, new, reasons
 
-    def round(self, rnd: int, layout: Layout, cur: FitResult, err0: float, scores: list[Score],
-              tried: dict[str, dict]) -> tuple[Score, dict, FitResult, Layout] | None:
+    def round(
+        self, rnd: int, layout: Layout, cur: FitResult, err0: float, scores: list[Score], tried: dict[str, dict]
+    ) -> tuple[Score, dict, FitResult, Layout] | None:
         """Check, refit and judge the shortlisted candidates; the winner, if any passes."""
         shortlist = [s for s in scores if s.score >= self.tr.min_score and s.predicted < 0][: self.tr.max_tries]
         scan(self.objective(layout, self.scored), layout, cur.x, shortlist)
@@ -187,14 +222,15 @@ class _Loop:
         errs = self.heldout([(new, xi) for opts in options for new, xi, _ in opts])
         checked, i0 = [], 0
         for sc, opts in zip(shortlist, options):
-            e = errs[i0:i0 + len(opts)]
+            e = errs[i0 : i0 + len(opts)]
             i0 += len(opts)
             checked.append((1.0 - min(e) / err0, sc, opts[int(np.argmin(e))]))
         best = None
         for step, sc, start in sorted(checked, key=lambda c: -c[0]):
             if step <= 0:  # even the signature's own step raises the held-out error: not worth a refit
-                tried[sc.cand.key] = _entry(sc.cand, score=sc.score, reason="its signature step raises the "
-                                            f"held-out error ({-100 * step:.1f}%)")
+                tried[sc.cand.key] = _entry(
+                    sc.cand, score=sc.score, reason=f"its signature step raises the held-out error ({-100 * step:.1f}%)"
+                )
                 continue
             if best is not None and step < 0.5 * best[4]:
                 break  # not competitive with the one that already passed
@@ -209,18 +245,22 @@ class _Loop:
                 tried[sc.cand.key] = {**entry, "reason": f"passed; {best[0].cand.key} cut the error more"}
         return None if best is None else best[:4]
 
-    def prune(self, rnd: int, layout: Layout, cur: FitResult, keep: Candidate, added: list[dict],
-              tried: dict[str, dict]) -> tuple[Layout, FitResult]:
+    def prune(
+        self, rnd: int, layout: Layout, cur: FitResult, keep: Candidate, added: list[dict], tried: dict[str, dict]
+    ) -> tuple[Layout, FitResult]:
         """Drop effects accepted earlier that the new one made redundant (no amplitude excludes zero)."""
         while True:
-            weak = [c for c in layout.active if c is not keep and not any(
-                cur.excludes_zero(layout.offset(c) + i) for i in c.effect.gated)]
+            weak = [
+                c
+                for c in layout.active
+                if c is not keep and not any(cur.excludes_zero(layout.offset(c) + i) for i in c.effect.gated)
+            ]
             if not weak:
                 return layout, cur
             c = weak[0]
             off, kc = layout.offset(c), len(c.effect.params)
             layout = Layout(self.plant, [a for a in layout.active if a is not c])
-            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc:]]), broyden=True)
+            cur = self.fit(layout, np.concatenate([cur.x[:off], cur.x[off + kc :]]), broyden=True)
             gone = next(a for a in added if f"{a['name']}@{a['target']}" == c.key)
             added.remove(gone)
             tried[c.key] = {**gone, "reason": f"removed after {keep.key} was added: interval includes zero"}
@@ -237,8 +277,9 @@ class _Loop:
             for e in parts:
                 added.remove(e)
             params, interval = _physical(m, cur, layout.offset(m), self.plant)
-            added.append({**parts[-1], **_entry(m), "params": params, "interval": interval,
-                          "merged_from": [a.key, b.key]})
+            added.append(
+                {**parts[-1], **_entry(m), "params": params, "interval": interval, "merged_from": [a.key, b.key]}
+            )
             self.log(f"round {rnd}: {a.key} + {b.key} are together {m.key}; merged")
         return layout, cur
 
@@ -252,17 +293,28 @@ def _rejected(scores: list[Score], tried: dict[str, dict], added: list[dict], mi
         if key in added_keys:
             continue
         seen.add(key)
-        why = ("not tried: ranked below the tried candidates" if sc.score >= min_score and sc.predicted < 0
-               else "not tried: its signature explains too little of the residual")
+        why = (
+            "not tried: ranked below the tried candidates"
+            if sc.score >= min_score and sc.predicted < 0
+            else "not tried: its signature explains too little of the residual"
+        )
         base = tried.get(key) or _entry(sc.cand, reason=why)
         out.append({**base, "score": sc.score, "predicted_delta_ic": sc.predicted})
     out += [e for k, e in tried.items() if k not in seen and k not in added_keys]
     return sorted(out, key=lambda e: -e.get("score", 0.0))
 
 
-def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float, *, seed: int = 0,
-        effects: tuple[EffectRequest, ...] | None | str = "spec", threads: int | None = None,
-        log: Callable[[str], None] = lambda msg: None, residual: bool = False) -> Calibration:
+def run(
+    spec: CalibrationSpec,
+    episodes: list[dict[str, np.ndarray]],
+    fps: float,
+    *,
+    seed: int = 0,
+    effects: tuple[EffectRequest, ...] | None | str = "spec",
+    threads: int | None = None,
+    log: Callable[[str], None] = lambda msg: None,
+    residual: bool = False,
+) -> Calibration:
     """Run the whole loop on logged episodes (arrays keyed by column) and return what it found.
 
     `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests. With `residual`,
@@ -271,13 +323,21 @@ def run(spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float
     t0 = time.perf_counter()
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
-    return calibrate(Plant(spec, model, rec), seed=seed, effects=effects, threads=threads, log=log,
-                     residual=residual, t0=t0)
+    return calibrate(
+        Plant(spec, model, rec), seed=seed, effects=effects, threads=threads, log=log, residual=residual, t0=t0
+    )
 
 
-def calibrate(plant: Plant, *, seed: int = 0, effects: tuple[EffectRequest, ...] | None | str = "spec",
-              threads: int | None = None, log: Callable[[str], None] = lambda msg: None, residual: bool = False,
-              t0: float | None = None) -> Calibration:
+def calibrate(
+    plant: Plant,
+    *,
+    seed: int = 0,
+    effects: tuple[EffectRequest, ...] | None | str = "spec",
+    threads: int | None = None,
+    log: Callable[[str], None] = lambda msg: None,
+    residual: bool = False,
+    t0: float | None = None,
+) -> Calibration:
     """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
     suite's robot in its scene); arguments as `run`."""
     t0 = time.perf_counter() if t0 is None else t0
@@ -292,13 +352,20 @@ def calibrate(plant: Plant, *, seed: int = 0, effects: tuple[EffectRequest, ...]
             cal.learned = learn(sim, cal.layout.realise(cal.final_fit.x), cal.k, seed)
             cal.wall["residual"] = time.perf_counter() - t1
             h = cal.learned["heldout"]
-            log("learned residual (apart from the physics): held-out NRMSE, physics -> physics + residual: " +
-                ", ".join(f"{lb.replace('_', '-')} {_fmt(h['physics'][f'{lb}_nrmse'])} -> "
-                          f"{_fmt(h['physics_plus_residual'][f'{lb}_nrmse'])}" for lb in ("k_step", "free_run")))
+            log(
+                "learned residual (apart from the physics): held-out NRMSE, physics -> physics + residual: "
+                + ", ".join(
+                    f"{lb.replace('_', '-')} {_fmt(h['physics'][f'{lb}_nrmse'])} -> "
+                    f"{_fmt(h['physics_plus_residual'][f'{lb}_nrmse'])}"
+                    for lb in ("k_step", "free_run")
+                )
+            )
     finally:
         sim.close()
-    log(f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE "
-        f"{cal.errors['final']['free_run_nrmse']:.4g} ({cal.wall['total']:.1f} s)")
+    log(
+        f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE "
+        f"{cal.errors['final']['free_run_nrmse']:.4g} ({cal.wall['total']:.1f} s)"
+    )
     return cal
 
 
@@ -306,8 +373,15 @@ def _fmt(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.4g}"
 
 
-def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
-               effects: tuple[EffectRequest, ...] | None | str, log: Callable[[str], None], t0: float) -> Calibration:
+def _calibrate(
+    spec: CalibrationSpec,
+    plant: Plant,
+    sim: Simulator,
+    seed: int,
+    effects: tuple[EffectRequest, ...] | None | str,
+    log: Callable[[str], None],
+    t0: float,
+) -> Calibration:
     """Nominal errors, declared fit, the add / refit / accept rounds, final errors."""
     rec = plant.rec
     k = max(1, int(round(spec.horizon * rec.fps)))
@@ -328,8 +402,10 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
     t1 = time.perf_counter()
     declared = loop.fit(layout, plant.declared_init())
     errors["declared"], traces["declared"] = evaluate(sim, layout, declared.x, rec, rec.holdout, k, names)
-    log(f"declared fit ({declared.nfev} evaluations): held-out free-run NRMSE "
-        f"{errors['declared']['free_run_nrmse']:.4g}")
+    log(
+        f"declared fit ({declared.nfev} evaluations): held-out free-run NRMSE "
+        f"{errors['declared']['free_run_nrmse']:.4g}"
+    )
     t2 = time.perf_counter()
 
     cands, notes = plant.candidates(spec.effects if isinstance(effects, str) else effects)
@@ -361,8 +437,11 @@ def _calibrate(spec: CalibrationSpec, plant: Plant, sim: Simulator, seed: int,
     cal.rejected = _rejected(scores, tried, cal.added, spec.trace.min_score)
     cal.layout, cal.final_fit = layout, cur
     errors["final"], traces["final"] = evaluate(sim, layout, cur.x, rec, rec.holdout, k, names)
-    cal.residual = {"declared": loop.objective(Layout(plant, []), hold).residual_grid(declared.x[None])[0],
-                    "final": loop.objective(layout, hold).residual_grid(cur.x[None])[0], "start": hold.start}
+    cal.residual = {
+        "declared": loop.objective(Layout(plant, []), hold).residual_grid(declared.x[None])[0],
+        "final": loop.objective(layout, hold).residual_grid(cur.x[None])[0],
+        "start": hold.start,
+    }
     cal.warnings = sorted(set(declared.warnings) | set(cur.warnings))
     t3 = time.perf_counter()
     cal.wall = {"total": t3 - t0, "declared_fit": t2 - t1, "trace": t3 - t2, "sim_steps": sim.steps}

@@ -7,6 +7,7 @@
 
 See `bench.logs.dataset` for the in-memory conventions (shapes, dtypes, default columns).
 """
+
 from __future__ import annotations
 
 from bench.logs.dataset import Episode, LogDataset, from_arrays, validate

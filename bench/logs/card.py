@@ -16,6 +16,7 @@
   CLI builds them, `starts`). Data that starts where the evaluation starts leaks the test set into
   training. Without them, c is not measured (0, said so).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -41,8 +42,9 @@ def _trajectories(eps: list, key: str) -> list[np.ndarray]:
 def _resampled(x: np.ndarray) -> np.ndarray:
     t = np.linspace(0.0, 1.0, len(x))
     grid = np.linspace(0.0, 1.0, POINTS)
-    return np.stack([np.interp(grid, t, x[:, c]) if len(x) > 1 else np.full(POINTS, x[0, c])
-                     for c in range(x.shape[1])], axis=1)
+    return np.stack(
+        [np.interp(grid, t, x[:, c]) if len(x) > 1 else np.full(POINTS, x[0, c]) for c in range(x.shape[1])], axis=1
+    )
 
 
 def near_duplicates(trajs: list[np.ndarray], scale: np.ndarray, tol: float) -> list[tuple[int, int, float]]:
@@ -72,8 +74,14 @@ def noise_share(trajs: list[np.ndarray]) -> tuple[float, np.ndarray]:
     return float(share.mean()), share
 
 
-def card(ds: Any, *, starts: dict[str, np.ndarray] | None = None, where: str = "", dup_tol: float = 0.05,
-         overlap_tol: float = 0.01) -> dict[str, Any]:
+def card(
+    ds: Any,
+    *,
+    starts: dict[str, np.ndarray] | None = None,
+    where: str = "",
+    dup_tol: float = 0.05,
+    overlap_tol: float = 0.01,
+) -> dict[str, Any]:
     """The data card of a dataset (a `bench.logs` Dataset): N, d, n, c, N_eff and what each found.
 
     `starts`: the initial observations of an evaluation per cell key (an episode's cell is its task
@@ -94,8 +102,10 @@ def card(ds: Any, *, starts: dict[str, np.ndarray] | None = None, where: str = "
             if key not in starts:
                 continue
             if starts[key].shape[1] != x.shape[1]:
-                raise DataError(f"episode {ep.index}: observation.state has width {x.shape[1]}, the evaluation's "
-                                f"{starts[key].shape[1]} ({where}); was the log recorded with this suite?")
+                raise DataError(
+                    f"episode {ep.index}: observation.state has width {x.shape[1]}, the evaluation's "
+                    f"{starts[key].shape[1]} ({where}); was the log recorded with this suite?"
+                )
             dist = np.sqrt(np.mean(((starts[key] - x[0]) / scale) ** 2, axis=1))
             j = int(np.argmin(dist))
             if dist[j] < overlap_tol:
@@ -106,11 +116,15 @@ def card(ds: Any, *, starts: dict[str, np.ndarray] | None = None, where: str = "
     d = len(dups) / n_total
     return {
         "schema": "bench.logs_card/1",
-        "N": n_total, "d": d, "n": n_share, "c": c,
+        "N": n_total,
+        "d": d,
+        "n": n_share,
+        "c": c,
         "N_eff": n_total * (1.0 - d) * (1.0 - n_share) * (1.0 - c),
         "frames": int(sum(len(x) for x in trajs)),
-        "duplicates": [{"episode": int(eps[i].index), "of": int(eps[j].index), "distance": dist}
-                       for i, j, dist in dups],
+        "duplicates": [
+            {"episode": int(eps[i].index), "of": int(eps[j].index), "distance": dist} for i, j, dist in dups
+        ],
         "noise_per_channel": [float(v) for v in per_channel],
         "overlap": overlap,
         "settings": {"dup_tol": dup_tol, "overlap_tol": overlap_tol, "points": POINTS, "evaluation": where or None},
@@ -119,10 +133,11 @@ def card(ds: Any, *, starts: dict[str, np.ndarray] | None = None, where: str = "
 
 
 def format_card(doc: dict[str, Any]) -> str:
-    lines = [f"N     {doc['N']:>8d}   episodes ({doc['frames']} frames)",
-             f"d     {doc['d']:8.3f}   near-duplicate share ({len(doc['duplicates'])} episode(s) repeat an "
-             "earlier one)",
-             f"n     {doc['n']:8.3f}   noise share (white-noise variance / variance, mean over state channels)",
-             f"c     {doc['c']:8.3f}   overlap with the evaluation's initial states ({len(doc['overlap'])} episode(s))",
-             f"N_eff {doc['N_eff']:8.1f}   = N (1 - d) (1 - n) (1 - c)"]
+    lines = [
+        f"N     {doc['N']:>8d}   episodes ({doc['frames']} frames)",
+        f"d     {doc['d']:8.3f}   near-duplicate share ({len(doc['duplicates'])} episode(s) repeat an earlier one)",
+        f"n     {doc['n']:8.3f}   noise share (white-noise variance / variance, mean over state channels)",
+        f"c     {doc['c']:8.3f}   overlap with the evaluation's initial states ({len(doc['overlap'])} episode(s))",
+        f"N_eff {doc['N_eff']:8.1f}   = N (1 - d) (1 - n) (1 - c)",
+    ]
     return "\n".join(lines + [f"note: {n}" for n in doc["notes"]])

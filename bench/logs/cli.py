@@ -1,4 +1,5 @@
 """`bench logs`: inspect LeRobot v3.0 datasets and import CSV / MAT / RLDS logs into one."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -194,26 +195,43 @@ def cmd_import(argv: list[str]) -> int:
     task = _text(kv.get("task"), "task", "default")
     if fmt == "csv":
         ds = import_csv(
-            src, state=_names(kv.get("state"), "state"), action=_names(kv.get("action"), "action"),
-            time=_text(kv.get("time"), "time", None), episode=_text(kv.get("episode"), "episode", None), task=task,
-            delimiter=delimiter, **common,
+            src,
+            state=_names(kv.get("state"), "state"),
+            action=_names(kv.get("action"), "action"),
+            time=_text(kv.get("time"), "time", None),
+            episode=_text(kv.get("episode"), "episode", None),
+            task=task,
+            delimiter=delimiter,
+            **common,
         )
     elif fmt == "mat":
         pairs = (("observation.state", "state"), ("action", "action"))
         mapping = {feature: _names(kv.get(key), key) for feature, key in pairs if kv.get(key)}
         ds = import_mat(
-            src, mapping or None, common["fps"], time=_text(kv.get("time"), "time", None),
-            velocity=_bool(kv.get("velocity", False), "velocity"), task=task,
+            src,
+            mapping or None,
+            common["fps"],
+            time=_text(kv.get("time"), "time", None),
+            velocity=_bool(kv.get("velocity", False), "velocity"),
+            task=task,
             robot_type=common["robot_type"],
         )
     else:
         ds = import_rlds(
-            src, split=str(kv.get("split", "train")), state=str(kv.get("state", "observation/state")),
-            action=str(kv.get("action", "action")), instruction=str(kv.get("instruction", "language_instruction")),
-            task=task, **common,
+            src,
+            split=str(kv.get("split", "train")),
+            state=str(kv.get("state", "observation/state")),
+            action=str(kv.get("action", "action")),
+            instruction=str(kv.get("instruction", "language_instruction")),
+            task=task,
+            **common,
         )
-    out = write_dataset(Path(str(kv["out"])).expanduser(), ds, overwrite=_bool(kv.get("overwrite", False), "overwrite"),
-                        inputs={"SRC": src})
+    out = write_dataset(
+        Path(str(kv["out"])).expanduser(),
+        ds,
+        overwrite=_bool(kv.get("overwrite", False), "overwrite"),
+        inputs={"SRC": src},
+    )
     print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
     print(format_info(_info(out)))
     return 0
@@ -247,8 +265,10 @@ def format_info(summary: dict) -> str:
         video = feat.get("video")
         if video:  # frames in MP4 files beside the parquet data
             files = video["files"]
-            shown = (f"{video.get('codec') or '?'} {video.get('pix_fmt') or '?'}, {video.get('fps') or '?'} fps, "
-                     f"{files} mp4 file{'s' if files != 1 else ''}")
+            shown = (
+                f"{video.get('codec') or '?'} {video.get('pix_fmt') or '?'}, {video.get('fps') or '?'} fps, "
+                f"{files} mp4 file{'s' if files != 1 else ''}"
+            )
         lines.append(f"  {name.ljust(width)}  {feat['dtype']:<8} {str(feat['shape']):<14} {shown}".rstrip())
     lines.append(f"tasks     {len(summary['tasks'])}")
     for i, task in enumerate(summary["tasks"][:20]):
@@ -279,15 +299,18 @@ def _eval_starts(suite_name: str, ds: Any, episodes: int, seed: int) -> dict:
     cells = {c.key: c for c in suite.all_cells()}
     named = sorted({ep.tasks[0] for ep in ds.episodes if ep.tasks} & set(cells))
     if not named:
-        raise DataError(f"no episode of the log names a cell of suite {suite_name!r} in its task string (cells: "
-                        f"{', '.join(sorted(cells)[:5])}...); was it recorded with `bench run suite={suite_name} "
-                        "record=`?")
+        raise DataError(
+            f"no episode of the log names a cell of suite {suite_name!r} in its task string (cells: "
+            f"{', '.join(sorted(cells)[:5])}...); was it recorded with `bench run suite={suite_name} "
+            "record=`?"
+        )
     out = {}
     for key in named:
         env = suite.make_env(cells[key], suite.default_horizon)
         try:
-            out[key] = np.stack([np.asarray(env.reset(episode_seed(seed, e))[STATE], dtype=np.float64).ravel()
-                                 for e in range(episodes)])
+            out[key] = np.stack(
+                [np.asarray(env.reset(episode_seed(seed, e))[STATE], dtype=np.float64).ravel() for e in range(episodes)]
+            )
         finally:
             env.close()
     return out
@@ -380,11 +403,16 @@ def main(argv: list[str]) -> int:
         print(USAGE)
         return 0
     sub, rest = argv[0], argv[1:]
-    commands = {"info": (cmd_info, INFO_USAGE), "import": (cmd_import, IMPORT_USAGE), "card": (cmd_card, CARD_USAGE),
-                "rank": (cmd_rank, RANK_USAGE)}
+    commands = {
+        "info": (cmd_info, INFO_USAGE),
+        "import": (cmd_import, IMPORT_USAGE),
+        "card": (cmd_card, CARD_USAGE),
+        "rank": (cmd_rank, RANK_USAGE),
+    }
     if sub not in commands:
-        raise ConfigError(f"unknown logs subcommand {sub!r}; valid: {', '.join(commands)}."
-                          f"{did_you_mean(sub, commands)}")
+        raise ConfigError(
+            f"unknown logs subcommand {sub!r}; valid: {', '.join(commands)}.{did_you_mean(sub, commands)}"
+        )
     handler, usage = commands[sub]
     if not rest or any(a in ("-h", "--help") for a in rest):
         print(usage)

@@ -13,10 +13,12 @@ Conventions (shared by the reader, the writer, the importers and every consumer)
 - Floats are float32 (LeRobot reads float64 back as float32); absolute times, when kept, are
   int64 nanoseconds.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -85,11 +87,15 @@ def _infer_feature(name: str, arr: np.ndarray, names: list[str] | None, video: b
     """Feature entry for a (T, ...) array: images are (T, H, W, C) uint8, the rest numeric."""
     if arr.dtype == np.uint8 and arr.ndim == 4 and arr.shape[-1] in (1, 3, 4):
         if video and arr.shape[-1] != 3:
-            raise DataError(f"from_arrays: feature {name!r} has {arr.shape[-1]} channels; a video feature needs 3 (RGB)")
+            raise DataError(
+                f"from_arrays: feature {name!r} has {arr.shape[-1]} channels; a video feature needs 3 (RGB)"
+            )
         return {"dtype": "video" if video else "image", "shape": list(arr.shape[1:]), "names": list(IMAGE_NAMES)}
     if video:
-        raise DataError(f"from_arrays: feature {name!r} is {arr.dtype} {list(arr.shape[1:])}, not (T, H, W, 3) uint8 "
-                        f"frames; only camera streams can be stored as video")
+        raise DataError(
+            f"from_arrays: feature {name!r} is {arr.dtype} {list(arr.shape[1:])}, not (T, H, W, 3) uint8 "
+            f"frames; only camera streams can be stored as video"
+        )
     shape = list(arr.shape[1:]) or [1]
     if names is not None and len(names) != int(np.prod(shape)):
         raise DataError(f"from_arrays: names[{name!r}] has {len(names)} entries but the feature has shape {shape}")

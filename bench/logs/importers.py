@@ -5,6 +5,7 @@ Every importer returns the same in-memory form as `read_dataset` (see `bench.log
 from the episode start, and, when the source has a time column, the source's absolute time as
 an int64 nanosecond feature `time_ns` (T, 1) — float32 seconds lose precision on long logs.
 """
+
 from __future__ import annotations
 
 import io
@@ -12,14 +13,15 @@ import json
 import os
 import re
 import zlib
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
+import bench.logs.tfrecord as tfrecord
 from bench.errors import DataError, did_you_mean
 from bench.logs.dataset import LogDataset, first_bad_row, from_arrays
-import bench.logs.tfrecord as tfrecord
 
 TIME_NAMES = ("t", "time", "Time", "timestamp")
 
@@ -124,13 +126,18 @@ def import_csv(
     state_cols, action_cols = _as_list(state), _as_list(action) or []
     used = {c for c in (time, episode) if c}
     if state_cols is None:
-        numeric = [c for c in columns if pa.types.is_integer(table.column(c).type)
-                   or pa.types.is_floating(table.column(c).type)]
+        numeric = [
+            c
+            for c in columns
+            if pa.types.is_integer(table.column(c).type) or pa.types.is_floating(table.column(c).type)
+        ]
         state_cols = [c for c in numeric if c not in used and c not in action_cols]
         text = [c for c in columns if c not in numeric and c not in used]
         if text:
-            raise DataError(f"{path}: column {text[0]!r} is {table.column(text[0]).type}, not numeric; pass "
-                            "state=[...] (and action=[...]) to choose the columns to import")
+            raise DataError(
+                f"{path}: column {text[0]!r} is {table.column(text[0]).type}, not numeric; pass "
+                "state=[...] (and action=[...]) to choose the columns to import"
+            )
     if not state_cols and not action_cols:
         raise DataError(f"{path}: no state or action columns; pass state=[...] and/or action=[...]")
     for c in state_cols + action_cols:
@@ -165,8 +172,10 @@ def import_csv(
             if big >= 0:
                 cols = state_cols if name == "observation.state" else action_cols
                 c = next(c for j, c in enumerate(cols) if abs(float(arr[big, j])) > F32_MAX)
-                raise DataError(f"{path}: column {c!r} is {float(arr[big, cols.index(c)]):g} at row {int(rows[big])}, "
-                                "beyond what float32 holds (3.4e38)")
+                raise DataError(
+                    f"{path}: column {c!r} is {float(arr[big, cols.index(c)]):g} at row {int(rows[big])}, "
+                    "beyond what float32 holds (3.4e38)"
+                )
         if t_all is not None:
             t = t_all[rows]
             _check_time(t, str(path), time, offset=int(rows[0]))  # type: ignore[arg-type]
@@ -176,8 +185,14 @@ def import_csv(
         episodes.append(data)
         meta.append({"source": path.name, **({"episode": key} if key is not None else {})})
     names = {k: v for k, v in (("observation.state", state_cols), ("action", action_cols)) if v}
-    return from_arrays(episodes, fps=float(rate), task=task, names=names,  # type: ignore[arg-type]
-                       robot_type=robot_type, meta=meta)
+    return from_arrays(
+        episodes,
+        fps=float(rate),
+        task=task,
+        names=names,  # type: ignore[arg-type]
+        robot_type=robot_type,
+        meta=meta,
+    )
 
 
 # ----------------------------------------------------------------------------- MATLAB
@@ -292,8 +307,14 @@ def import_mat(
     if odd is not None:  # metadata is JSON: NaN / inf has no place there
         raise DataError(f"{path}: scalar variable {odd!r} is {scalars[odd]}; metadata must be finite (drop or fix it)")
     meta = {"source": path.name, **({"mat": scalars} if scalars else {})}
-    return from_arrays([data], fps=float(rate), task=task, names=names,  # type: ignore[arg-type]
-                       robot_type=robot_type, meta=[meta])
+    return from_arrays(
+        [data],
+        fps=float(rate),
+        task=task,
+        names=names,  # type: ignore[arg-type]
+        robot_type=robot_type,
+        meta=[meta],
+    )
 
 
 # ----------------------------------------------------------------------------- RLDS (TFDS)
@@ -310,8 +331,14 @@ def _resolve_rlds(path: Path, split: str) -> tuple[Path, list[Path]]:
     else:
         spec_dir = path
         if not (spec_dir / "features.json").is_file():
-            versions = sorted((d for d in path.iterdir() if d.is_dir() and (d / "features.json").is_file()),
-                              key=lambda d: _version_key(d.name)) if path.is_dir() else []
+            versions = (
+                sorted(
+                    (d for d in path.iterdir() if d.is_dir() and (d / "features.json").is_file()),
+                    key=lambda d: _version_key(d.name),
+                )
+                if path.is_dir()
+                else []
+            )
             if not versions:
                 raise DataError(f"{path / 'features.json'}: file is missing (not a TFDS/RLDS dataset folder?)")
             spec_dir = versions[-1]
@@ -337,7 +364,10 @@ def _leaves(node: dict, prefix: str, stepwise: bool, out: dict[str, dict], where
         body = node[kind]
         dims = [int(d) for d in body.get("shape", {}).get("dimensions", [])]
         out[prefix[:-1]] = {
-            "kind": kind, "dtype": body.get("dtype", "uint8"), "shape": dims, "stepwise": stepwise,
+            "kind": kind,
+            "dtype": body.get("dtype", "uint8"),
+            "shape": dims,
+            "stepwise": stepwise,
             "encoding": body.get("encoding", "none"),
         }
     elif "text" in node:
@@ -418,8 +448,10 @@ def _decode_record(buf: memoryview, leaves: dict[str, dict], where: str) -> tupl
             decoded = [_decode_image(b, spec, key, where) for b in value]
             for img in decoded:
                 if spec["shape"] and all(d > 0 for d in spec["shape"]) and list(img.shape) != spec["shape"]:
-                    raise DataError(f"{where}: image feature {key!r} has shape {list(img.shape)}, "
-                                    f"features.json declares {spec['shape']}")
+                    raise DataError(
+                        f"{where}: image feature {key!r} has shape {list(img.shape)}, "
+                        f"features.json declares {spec['shape']}"
+                    )
             n = len(decoded)
             decoded = np.stack(decoded) if decoded else np.zeros([0] + spec["shape"], dtype=np.uint8)
         else:
@@ -515,16 +547,20 @@ def import_rlds(
             try:
                 np.dtype(leaf["dtype"])
             except TypeError:
-                raise DataError(f"{spec_path}: feature {key!r} has dtype {leaf['dtype']!r}, which is not a numpy "
-                                "dtype (e.g. float32, uint8)") from None
+                raise DataError(
+                    f"{spec_path}: feature {key!r} has dtype {leaf['dtype']!r}, which is not a numpy "
+                    "dtype (e.g. float32, uint8)"
+                ) from None
     step_leaves = {k: v for k, v in leaves.items() if v["stepwise"]}
     if not step_leaves:
         raise DataError(f"{spec_path}: no step features (expected an RLDS 'steps' sequence)")
     for rel, label in ((state, "state"), (action, "action")):
         if f"steps/{rel}" not in step_leaves:
-            rels = [k[len('steps/'):] for k in step_leaves]
-            raise DataError(f"{spec_path}: field {label!r} names step feature {rel!r}, which is not there; "
-                            f"step features: {', '.join(rels)}.{did_you_mean(rel, rels)}")
+            rels = [k[len("steps/") :] for k in step_leaves]
+            raise DataError(
+                f"{spec_path}: field {label!r} names step feature {rel!r}, which is not there; "
+                f"step features: {', '.join(rels)}.{did_you_mean(rel, rels)}"
+            )
 
     records: list[tuple[dict, dict, int, str]] = []
     for shard in shards:
@@ -546,16 +582,19 @@ def import_rlds(
     text_key = f"steps/{instruction}"
     for steps, episode, length, source in records:
         named = {
-            _feature_name(key[len("steps/"):], leaves[key], state, action): value
-            for key, value in steps.items() if leaves[key]["kind"] != "text"
+            _feature_name(key[len("steps/") :], leaves[key], state, action): value
+            for key, value in steps.items()
+            if leaves[key]["kind"] != "text"
         }
         first = ["observation.state", "action"] + sorted(n for n in named if n.startswith("observation.images."))
         data = {n: named[n] for n in first if n in named}
         data.update((n, v) for n, v in named.items() if n not in data)
         words = steps.get(text_key) or [task] * length
         per_frame_tasks.append([w if w else task for w in words])
-        meta = {k.split("/")[-1] if k.startswith("episode_metadata/") else k.replace("/", "."): v
-                for k, v in episode.items()}
+        meta = {
+            k.split("/")[-1] if k.startswith("episode_metadata/") else k.replace("/", "."): v
+            for k, v in episode.items()
+        }
         meta["source"] = source
         metas.append(meta)
         arrays.append(data)

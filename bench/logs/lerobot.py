@@ -18,6 +18,7 @@ Video features have no parquet column. Both are decoded to (T, H, W, C) uint8 wi
 request, lerobot's own default). Per-episode metadata of ours (`Episode.meta`) travels as a JSON
 string column `bench/meta` in the episodes file, which lerobot ignores.
 """
+
 from __future__ import annotations
 
 import io
@@ -26,10 +27,10 @@ import os
 import shutil
 import tempfile
 import uuid
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -63,11 +64,28 @@ META_COLUMN = "bench/meta"
 # info.json keys, in lerobot's order; the reader needs the first group, lerobot needs all of them.
 REQUIRED_INFO_KEYS = ("codebase_version", "fps", "features", "total_episodes", "total_frames", "data_path")
 INFO_KEYS = (
-    "codebase_version", "robot_type", "total_episodes", "total_frames", "total_tasks", "chunks_size",
-    "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits", "data_path", "video_path", "features",
+    "codebase_version",
+    "robot_type",
+    "total_episodes",
+    "total_frames",
+    "total_tasks",
+    "chunks_size",
+    "data_files_size_in_mb",
+    "video_files_size_in_mb",
+    "fps",
+    "splits",
+    "data_path",
+    "video_path",
+    "features",
 )
 EPISODE_COLUMNS = (
-    "episode_index", "tasks", "length", "data/chunk_index", "data/file_index", "dataset_from_index", "dataset_to_index",
+    "episode_index",
+    "tasks",
+    "length",
+    "data/chunk_index",
+    "data/file_index",
+    "dataset_from_index",
+    "dataset_to_index",
 )
 STAT_NAMES = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
@@ -76,14 +94,29 @@ QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
 _PANDAS_TASKS_META = {
     "index_columns": ["__index_level_0__"],
     "column_indexes": [
-        {"name": None, "field_name": None, "pandas_type": "unicode", "numpy_type": "str",
-         "metadata": {"encoding": "UTF-8"}}
+        {
+            "name": None,
+            "field_name": None,
+            "pandas_type": "unicode",
+            "numpy_type": "str",
+            "metadata": {"encoding": "UTF-8"},
+        }
     ],
     "columns": [
-        {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
-         "metadata": None},
-        {"name": None, "field_name": "__index_level_0__", "pandas_type": "object", "numpy_type": "str",
-         "metadata": None},
+        {
+            "name": "task_index",
+            "field_name": "task_index",
+            "pandas_type": "int64",
+            "numpy_type": "int64",
+            "metadata": None,
+        },
+        {
+            "name": None,
+            "field_name": "__index_level_0__",
+            "pandas_type": "object",
+            "numpy_type": "str",
+            "metadata": None,
+        },
     ],
     "attributes": {},
     "creator": {"library": "pyarrow", "version": pa.__version__},
@@ -122,7 +155,8 @@ class _Index:
     def video_file(self, key: str, e: int) -> str:
         cols = self.video_index[key]
         return str(self.info["video_path"]).format(
-            video_key=key, chunk_index=int(cols["chunk_index"][e]), file_index=int(cols["file_index"][e]))
+            video_key=key, chunk_index=int(cols["chunk_index"][e]), file_index=int(cols["file_index"][e])
+        )
 
     def episode_tasks(self, e: int) -> list[str]:
         """Task strings of episode e (parsed on demand: opening a dataset stays cheap)."""
@@ -293,12 +327,16 @@ def _build_index(root: Path) -> _Index:
     rels = _episode_files(root)
     videos = {k: v for k, v in info["features"].items() if v["dtype"] == "video"}
     if videos and not isinstance(info.get("video_path"), str):
-        raise DataError(f"{root / INFO_PATH}: field 'video_path' is {info.get('video_path')!r} but features "
-                        f"{', '.join(videos)} are videos; expected a template like {VIDEO_PATH!r}")
+        raise DataError(
+            f"{root / INFO_PATH}: field 'video_path' is {info.get('video_path')!r} but features "
+            f"{', '.join(videos)} are videos; expected a template like {VIDEO_PATH!r}"
+        )
     for key, feat in videos.items():
         if len(feat["shape"]) != 3 or feat["shape"][2] != 3:
-            raise DataError(f"{root / INFO_PATH}: field 'features.{key}' is a video of shape {feat['shape']}; "
-                            f"expected [height, width, 3]")
+            raise DataError(
+                f"{root / INFO_PATH}: field 'features.{key}' is a video of shape {feat['shape']}; "
+                f"expected [height, width, 3]"
+            )
     cols = _load_episodes(root, rels, list(videos))
     where = _where(root, rels[0])
 
@@ -347,30 +385,50 @@ def _build_index(root: Path) -> _Index:
         video_index[key] = {c: col(f"videos/{key}/{c}") for c in VIDEO_COLUMNS[:2]}
         for c in VIDEO_COLUMNS[2:]:
             column = cols[f"videos/{key}/{c}"]
-            if column is None or column.null_count or not (pa.types.is_floating(column.type)
-                                                           or pa.types.is_integer(column.type)):
+            if (
+                column is None
+                or column.null_count
+                or not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type))
+            ):
                 raise DataError(f"{where}: column 'videos/{key}/{c}' has missing or non-numeric values")
             video_index[key][c] = np.asarray(column.to_numpy(), dtype=np.float64)[order]
     chunk, file = col("data/chunk_index"), col("data/file_index")
-    for name, values in [("data/chunk_index", chunk), ("data/file_index", file),
-                         *[(f"videos/{k}/{c}", v) for k, vi in video_index.items() for c, v in vi.items()]]:
+    for name, values in [
+        ("data/chunk_index", chunk),
+        ("data/file_index", file),
+        *[(f"videos/{k}/{c}", v) for k, vi in video_index.items() for c, v in vi.items()],
+    ]:
         bad = first_bad_row(values < 0)
         if bad >= 0:
             raise DataError(f"{where}: column {name!r} is {values[bad]} for episode {bad}; valid: an index >= 0")
     ttype = cols["tasks"].type if cols["tasks"] is not None else None
-    if ttype is not None and not ((pa.types.is_list(ttype) or pa.types.is_large_list(ttype))
-                                  and (pa.types.is_string(ttype.value_type)
-                                       or pa.types.is_large_string(ttype.value_type))):
+    if ttype is not None and not (
+        (pa.types.is_list(ttype) or pa.types.is_large_list(ttype))
+        and (pa.types.is_string(ttype.value_type) or pa.types.is_large_string(ttype.value_type))
+    ):
         raise DataError(f"{where}: column 'tasks' has type {ttype}; valid: a list of task strings")
     base = start.copy()
     for key in set(zip(chunk.tolist(), file.tolist())):
         members = (chunk == key[0]) & (file == key[1])
         base[members] = start[members].min()
     return _Index(
-        root=root, info=info, features=features, videos=videos, video_index=video_index, tasks=tasks,
-        episodes_file=rels[0], episode_index=ep,
-        length=length, chunk=chunk, file=file, start=start, stop=stop, base=base,
-        order=order, raw_tasks=cols["tasks"], raw_meta=cols[META_COLUMN],
+        root=root,
+        info=info,
+        features=features,
+        videos=videos,
+        video_index=video_index,
+        tasks=tasks,
+        episodes_file=rels[0],
+        episode_index=ep,
+        length=length,
+        chunk=chunk,
+        file=file,
+        start=start,
+        stop=stop,
+        base=base,
+        order=order,
+        raw_tasks=cols["tasks"],
+        raw_meta=cols[META_COLUMN],
     )
 
 
@@ -425,8 +483,12 @@ def _feature_summary(idx: _Index, name: str, feat: dict) -> dict:
         vinfo: dict = raw if isinstance(raw, dict) else {}
         cols = idx.video_index[name]
         files = len(set(zip(cols["chunk_index"].tolist(), cols["file_index"].tolist())))
-        out["video"] = {"codec": vinfo.get("video.codec"), "pix_fmt": vinfo.get("video.pix_fmt"),
-                        "fps": vinfo.get("video.fps"), "files": files}
+        out["video"] = {
+            "codec": vinfo.get("video.codec"),
+            "pix_fmt": vinfo.get("video.pix_fmt"),
+            "fps": vinfo.get("video.fps"),
+            "files": files,
+        }
     return out
 
 
@@ -593,8 +655,9 @@ def _read_videos(idx: _Index, eps: np.ndarray, offsets: np.ndarray, timestamps: 
                 raise DataError(f"{path}: file is missing (video of feature {key!r}, episode {int(eps[ks[0]])})")
             rows = np.concatenate([np.arange(offsets[k], offsets[k + 1]) for k in ks])
             start = idx.video_index[key]["from_timestamp"]
-            times = np.concatenate([
-                start[eps[k]] + timestamps[offsets[k]:offsets[k + 1]].astype(np.float64) for k in ks])
+            times = np.concatenate(
+                [start[eps[k]] + timestamps[offsets[k] : offsets[k + 1]].astype(np.float64) for k in ks]
+            )
             try:
                 frames[rows] = decode_frames(path, times, shape)
             except VideoError as exc:
@@ -613,10 +676,16 @@ def _dataset(idx: _Index, episodes: list[Episode], videos: bool) -> LogDataset:
     fps = idx.info["fps"]
     names = [k for k in idx.info["features"] if k in idx.features or (videos and k in idx.videos)]
     # A video's `info` (codec, pixel format) describes files this dataset has; a writer makes its own.
-    features = {k: {f: v for f, v in idx.info["features"][k].items() if not (f == "info" and k in idx.videos)}
-                for k in names}
-    return LogDataset(fps=float(fps), features=features, episodes=episodes, tasks=list(idx.tasks),
-                      robot_type=idx.info.get("robot_type"))
+    features = {
+        k: {f: v for f, v in idx.info["features"][k].items() if not (f == "info" and k in idx.videos)} for k in names
+    }
+    return LogDataset(
+        fps=float(fps),
+        features=features,
+        episodes=episodes,
+        tasks=list(idx.tasks),
+        robot_type=idx.info.get("robot_type"),
+    )
 
 
 def _check_file_rows(idx: _Index, rel: str, eps: np.ndarray, num_rows: int) -> np.ndarray:
@@ -793,7 +862,7 @@ def _feature_stats(cols: dict[str, np.ndarray], features: dict[str, dict]) -> di
         whole.update(_quantiles(x))
         edges = np.cumsum([0] + [b.shape[1] for b in blocks])
         for k, name in enumerate(numeric):
-            part = {stat: v[edges[k]:edges[k + 1]] for stat, v in whole.items()}
+            part = {stat: v[edges[k] : edges[k + 1]] for stat, v in whole.items()}
             if np.dtype(features[name]["dtype"]).kind in "iub":  # integer features keep integer bounds
                 part["min"], part["max"] = part["min"].astype(np.int64), part["max"].astype(np.int64)
             part["count"] = np.asarray([t], dtype=np.int64)
@@ -890,7 +959,8 @@ def _check_video_timestamps(ds: LogDataset, where: str) -> None:
             raise DataError(
                 f"{where}: column 'timestamp' is {float(ts[frame]):.6f} at frame {frame} of episode {ep.index} but "
                 f"video frames are shown at frame/fps = {float(want[frame]):.6f} s; video features need evenly spaced "
-                f"timestamps (store the cameras as dtype 'image' otherwise)")
+                f"timestamps (store the cameras as dtype 'image' otherwise)"
+            )
 
 
 def _write_into(tmp: Path, ds: LogDataset, video_codec: str, crf: int | None) -> None:
@@ -944,14 +1014,21 @@ def _write_into(tmp: Path, ds: LogDataset, video_codec: str, crf: int | None) ->
             sink.abort()
 
     fields = [
-        pa.field("episode_index", pa.int64()), pa.field("tasks", pa.list_(pa.string())), pa.field("length", pa.int64()),
-        pa.field("data/chunk_index", pa.int64()), pa.field("data/file_index", pa.int64()),
-        pa.field("dataset_from_index", pa.int64()), pa.field("dataset_to_index", pa.int64()),
+        pa.field("episode_index", pa.int64()),
+        pa.field("tasks", pa.list_(pa.string())),
+        pa.field("length", pa.int64()),
+        pa.field("data/chunk_index", pa.int64()),
+        pa.field("data/file_index", pa.int64()),
+        pa.field("dataset_from_index", pa.int64()),
+        pa.field("dataset_to_index", pa.int64()),
     ]
     for key in videos:
-        fields += [pa.field(f"videos/{key}/chunk_index", pa.int64()), pa.field(f"videos/{key}/file_index", pa.int64()),
-                   pa.field(f"videos/{key}/from_timestamp", pa.float64()),
-                   pa.field(f"videos/{key}/to_timestamp", pa.float64())]
+        fields += [
+            pa.field(f"videos/{key}/chunk_index", pa.int64()),
+            pa.field(f"videos/{key}/file_index", pa.int64()),
+            pa.field(f"videos/{key}/from_timestamp", pa.float64()),
+            pa.field(f"videos/{key}/to_timestamp", pa.float64()),
+        ]
     arrays = [pa.array(rows[f.name], f.type) for f in fields]
     for name, feat in ds.features.items():
         for stat in STAT_NAMES:
@@ -977,16 +1054,26 @@ def _write_into(tmp: Path, ds: LogDataset, video_codec: str, crf: int | None) ->
     from bench.video import probe
 
     fps = int(ds.fps) if float(ds.fps).is_integer() else float(ds.fps)
-    features = {k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")} for k, v in ds.features.items()}
+    features = {
+        k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")} for k, v in ds.features.items()
+    }
     for key, sink in sinks.items():  # as lerobot: the codec etc. of the feature's first file
         assert sink.first is not None
         features[key]["info"] = probe(sink.first)
     info_doc = {
-        "codebase_version": CODEBASE_VERSION, "robot_type": ds.robot_type, "total_episodes": n,
-        "total_frames": offset, "total_tasks": len(ds.tasks), "chunks_size": CHUNKS_SIZE,
-        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB, "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
-        "fps": fps, "splits": {"train": f"0:{n}"}, "data_path": DATA_PATH,
-        "video_path": VIDEO_PATH if videos else None, "features": features,
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": ds.robot_type,
+        "total_episodes": n,
+        "total_frames": offset,
+        "total_tasks": len(ds.tasks),
+        "chunks_size": CHUNKS_SIZE,
+        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+        "fps": fps,
+        "splits": {"train": f"0:{n}"},
+        "data_path": DATA_PATH,
+        "video_path": VIDEO_PATH if videos else None,
+        "features": features,
     }
     (tmp / INFO_PATH).write_text(json.dumps(info_doc, indent=4))
 
@@ -999,8 +1086,13 @@ def _aggregate_stats(stat_rows: dict[str, list], name: str, feature: dict) -> di
     get = lambda s: np.asarray(stat_rows[f"stats/{name}/{s}"], dtype=np.float64)  # noqa: E731
     mean = np.tensordot(w, get("mean"), axes=1)
     var = np.tensordot(w, get("std") ** 2 + (get("mean") - mean) ** 2, axes=1)
-    out = {"min": get("min").min(axis=0), "max": get("max").max(axis=0), "mean": mean, "std": np.sqrt(var),
-           "count": np.asarray([int(counts.sum())])}
+    out = {
+        "min": get("min").min(axis=0),
+        "max": get("max").max(axis=0),
+        "mean": mean,
+        "std": np.sqrt(var),
+        "count": np.asarray([int(counts.sum())]),
+    }
     if not is_image(feature) and np.dtype(feature["dtype"]).kind in "iub":
         out["min"], out["max"] = out["min"].astype(np.int64), out["max"].astype(np.int64)
     for q in QUANTILES:
@@ -1023,8 +1115,16 @@ def _replace(tmp: Path, root: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
-def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = False, video_codec: str = "h264",
-                  crf: int | None = None, *, key: str = "out", inputs: Mapping[str, Any] | None = None) -> Path:
+def write_dataset(
+    root: str | os.PathLike,
+    ds: LogDataset,
+    overwrite: bool = False,
+    video_codec: str = "h264",
+    crf: int | None = None,
+    *,
+    key: str = "out",
+    inputs: Mapping[str, Any] | None = None,
+) -> Path:
     """Write `ds` as a LeRobot v3.0 folder that lerobot itself can load.
 
     `frame_index` and `index` are derived on write (position in episode / in dataset). The files
@@ -1067,7 +1167,9 @@ def write_dataset(root: str | os.PathLike, ds: LogDataset, overwrite: bool = Fal
             except VideoError as exc:
                 raise DataError(f"{where}: feature {name!r}: {exc}") from None
         if not float(ds.fps).is_integer():
-            raise DataError(f"{where}: field 'fps' is {ds.fps!r}; video features need a whole number of frames per second")
+            raise DataError(
+                f"{where}: field 'fps' is {ds.fps!r}; video features need a whole number of frames per second"
+            )
         _check_video_timestamps(ds, where)
     from bench import outputs
 

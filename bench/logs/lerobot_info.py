@@ -5,6 +5,7 @@ readers use is checked here once, with one line naming the file, the field, what
 found and what is valid. The writer calls `check_fps` too, so a dataset bench writes
 can always be read back.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,10 +19,24 @@ MAX_FPS = 10_000.0  # frames per second; beyond this a value is a unit mistake, 
 MAX_DIM = 1 << 16  # one axis of a feature's shape
 MAX_ELEMENTS = 1 << 28  # values per frame of one feature (an 8K RGB frame is ~1e8)
 MAX_TOTAL = 10**12  # total_episodes / total_frames
-DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
-          "float16", "float32", "float64", "string", "image", "video")
-PATH_KEYS = {"data_path": {"chunk_index", "file_index"},
-             "video_path": {"video_key", "chunk_index", "file_index"}}
+DTYPES = (
+    "bool",
+    "int8",
+    "int16",
+    "int32",
+    "int64",
+    "uint8",
+    "uint16",
+    "uint32",
+    "uint64",
+    "float16",
+    "float32",
+    "float64",
+    "string",
+    "image",
+    "video",
+)
+PATH_KEYS = {"data_path": {"chunk_index", "file_index"}, "video_path": {"video_key", "chunk_index", "file_index"}}
 
 
 def _is_number(v: Any) -> bool:
@@ -46,8 +61,10 @@ def _check_path_template(info: dict, key: str, path: Path) -> None:
     except ValueError as exc:
         raise DataError(f"{path}: field {key!r} is {tpl!r:.80}: {exc}") from None
     if names - PATH_KEYS[key]:
-        raise DataError(f"{path}: field {key!r} uses {', '.join(sorted(names - PATH_KEYS[key]))}; valid "
-                        f"placeholders: {', '.join(sorted(PATH_KEYS[key]))}")
+        raise DataError(
+            f"{path}: field {key!r} uses {', '.join(sorted(names - PATH_KEYS[key]))}; valid "
+            f"placeholders: {', '.join(sorted(PATH_KEYS[key]))}"
+        )
     parts = Path(tpl).parts
     if tpl.startswith("/") or ".." in parts or "\\" in tpl:
         raise DataError(f"{path}: field {key!r} is {tpl!r:.80}; valid: a relative path inside the dataset")
@@ -65,8 +82,11 @@ def _check_feature(name: str, feat: Any, path: Path) -> None:
     if dtype not in DTYPES:
         raise DataError(f"{where}.dtype' is {dtype!r:.40}; valid: {', '.join(DTYPES)}")
     shape = feat.get("shape")
-    if not isinstance(shape, list) or not shape or not all(
-            isinstance(s, int) and not isinstance(s, bool) and 0 < s <= MAX_DIM for s in shape):
+    if (
+        not isinstance(shape, list)
+        or not shape
+        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 < s <= MAX_DIM for s in shape)
+    ):
         raise DataError(f"{where}.shape' is {shape!r:.60}; valid: a non-empty list of integers in [1, {MAX_DIM}]")
     if math.prod(shape) > MAX_ELEMENTS:
         raise DataError(f"{where}.shape' is {shape}: {math.prod(shape)} values per frame; at most {MAX_ELEMENTS}")
@@ -88,8 +108,9 @@ def check_info(info: Any, path: Path, required: tuple[str, ...]) -> dict:
             raise DataError(f"{path}: field {key!r} is missing")
     version = info["codebase_version"]
     if not isinstance(version, str) or not version.startswith("v3."):
-        raise DataError(f"{path}: field 'codebase_version' is {version!r:.40}; only LeRobot v3.x datasets "
-                        "are supported")
+        raise DataError(
+            f"{path}: field 'codebase_version' is {version!r:.40}; only LeRobot v3.x datasets are supported"
+        )
     check_fps(info["fps"], str(path))
     for key in ("total_episodes", "total_frames", "total_tasks"):
         v = info.get(key, 0)

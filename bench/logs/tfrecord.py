@@ -17,13 +17,15 @@ The protobufs are read from the wire format directly (tensorflow/core/example/{e
     BytesList { repeated bytes value = 1; }  FloatList { repeated float value = 1 [packed]; }
     Int64List { repeated int64 value = 1 [packed]; }
 """
+
 from __future__ import annotations
 
 import functools
 import os
 import struct
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, Union
+from typing import Union
 
 import numpy as np
 
@@ -124,7 +126,7 @@ def crc32c(data: bytes | memoryview) -> int:
     lanes = int(min(4096, max(64, np.sqrt(n))))
     width = -(-n // lanes)
     buf = np.zeros(lanes * width, dtype=np.uint8)
-    buf[lanes * width - n:] = np.frombuffer(data, dtype=np.uint8)  # leading zeros leave a raw CRC of 0 unchanged
+    buf[lanes * width - n :] = np.frombuffer(data, dtype=np.uint8)  # leading zeros leave a raw CRC of 0 unchanged
     blocks = buf.reshape(lanes, width)
     regs = np.zeros(lanes, dtype=np.uint32)
     for j in range(width):
@@ -165,7 +167,7 @@ def iter_records(path: str | os.PathLike, verify: bool = True) -> Iterator[memor
             raise DataError(f"{path}: record {k} at byte {pos}: truncated header ({size - pos} of 12 bytes)")
         (length,) = struct.unpack_from("<Q", blob, pos)
         (length_crc,) = struct.unpack_from("<I", blob, pos + 8)
-        if verify and masked_crc32c(view[pos:pos + 8]) != length_crc:
+        if verify and masked_crc32c(view[pos : pos + 8]) != length_crc:
             raise DataError(f"{path}: record {k} at byte {pos}: field 'length' fails its CRC (corrupt file?)")
         start, end = pos + 12, pos + 12 + length
         if end + 4 > size:
@@ -219,16 +221,16 @@ def _fields(buf: memoryview) -> Iterator[tuple[int, int, object]]:
         elif wire == 1:
             if pos + 8 > end:
                 raise ProtoError("truncated fixed64")
-            value, pos = buf[pos:pos + 8], pos + 8
+            value, pos = buf[pos : pos + 8], pos + 8
         elif wire == 2:
             length, pos = _varint(buf, pos)
             if pos + length > end:
                 raise ProtoError(f"field {number}: length {length} runs past the message end")
-            value, pos = buf[pos:pos + length], pos + length
+            value, pos = buf[pos : pos + length], pos + length
         elif wire == 5:
             if pos + 4 > end:
                 raise ProtoError("truncated fixed32")
-            value, pos = buf[pos:pos + 4], pos + 4
+            value, pos = buf[pos : pos + 4], pos + 4
         else:
             raise ProtoError(f"field {number}: unsupported wire type {wire}")
         yield number, wire, value
@@ -351,6 +353,7 @@ def encode_feature(value: Value) -> bytes:
 
 def encode_example(features: dict[str, Value], feature_lists: dict[str, list[Value]] | None = None) -> bytes:
     """Encode an Example (or a SequenceExample when `feature_lists` is given)."""
+
     def entry(key: str, value: bytes) -> bytes:  # one map<string, M> entry
         return _enc_field(1, _enc_field(1, key.encode()) + _enc_field(2, value))
 

@@ -16,6 +16,7 @@ Before any worker starts, the plugin connects once (`identity`/`preflight`): not
 is one line naming host:port (exit 2); a bench server also checks that it can serve the run's
 suite and cells.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -93,8 +94,16 @@ class Connection:
             attempts += 1
             left = deadline - time.monotonic()
             try:
-                ws = connect(self.uri, open_timeout=max(left, 0.01), close_timeout=1.0, compression=None,
-                             max_size=MAX_REPLY_BYTES, ping_interval=None, proxy=None, **_legacy_flag())
+                ws = connect(
+                    self.uri,
+                    open_timeout=max(left, 0.01),
+                    close_timeout=1.0,
+                    compression=None,
+                    max_size=MAX_REPLY_BYTES,
+                    ping_interval=None,
+                    proxy=None,
+                    **_legacy_flag(),
+                )
             except InvalidURI as exc:
                 raise RemoteError(f"host={self.host!r} port={self.port}: not a valid address ({exc})") from None
             except (OSError, TimeoutError, InvalidHandshake, EOFError) as exc:
@@ -109,8 +118,10 @@ class Connection:
                 return self.metadata
             left = deadline - time.monotonic()
             if left <= 0:
-                raise RemoteError(f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
-                                  f"timeout_s={self.timeout_s:g} s; is bench serve or the server running?)")
+                raise RemoteError(
+                    f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
+                    f"timeout_s={self.timeout_s:g} s; is bench serve or the server running?)"
+                )
             time.sleep(min(delay, left))
             delay = min(delay * 2, BACKOFF_MAX_S)
 
@@ -118,8 +129,10 @@ class Connection:
         try:
             frame = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
         except TimeoutError:
-            raise RemoteError(f"the server at {self.where} accepted the connection but sent no metadata within "
-                              f"timeout_s={self.timeout_s:g} s (is it a websocket policy server?)") from None
+            raise RemoteError(
+                f"the server at {self.where} accepted the connection but sent no metadata within "
+                f"timeout_s={self.timeout_s:g} s (is it a websocket policy server?)"
+            ) from None
         except Exception as exc:
             raise RemoteError(f"the server at {self.where} closed before sending metadata: {_reason(exc)}") from None
         try:
@@ -141,8 +154,9 @@ class Connection:
             answer = self.ws.recv(timeout=self.timeout_s)
             ok = True
         except TimeoutError:
-            raise RemoteError(f"the server at {self.where} did not answer within timeout_s={self.timeout_s:g} s") \
-                from None
+            raise RemoteError(
+                f"the server at {self.where} did not answer within timeout_s={self.timeout_s:g} s"
+            ) from None
         except Exception as exc:
             from websockets.exceptions import ConnectionClosed
 
@@ -190,8 +204,9 @@ def check_actions(reply: dict[str, Any], dim: int, where: str) -> np.ndarray:
     if actions.ndim == 1:
         actions = actions[None, :]
     if actions.ndim != 2 or actions.shape[0] < 1 or actions.shape[1] != dim:
-        raise RemoteError(f"{where} answered actions of shape {list(np.shape(raw))}; this env needs ({dim},) "
-                          f"or a chunk (T, {dim})")
+        raise RemoteError(
+            f"{where} answered actions of shape {list(np.shape(raw))}; this env needs ({dim},) or a chunk (T, {dim})"
+        )
     if not np.all(np.isfinite(actions)):
         raise RemoteError(f"{where} answered a non-finite action (NaN or inf)")
     return actions
@@ -212,8 +227,16 @@ class RemotePolicy:
 
     def _reset_message(self, seed: int) -> dict[str, Any]:
         suite = self.ctx.suite
-        return {wire.CONTROL: {"op": "reset", "seed": int(seed), "cell": self.cell.key,
-                               **suite_ref(suite), "run_seed": int(self.ctx.seed), "horizon": int(self.ctx.horizon)}}
+        return {
+            wire.CONTROL: {
+                "op": "reset",
+                "seed": int(seed),
+                "cell": self.cell.key,
+                **suite_ref(suite),
+                "run_seed": int(self.ctx.seed),
+                "horizon": int(self.ctx.horizon),
+            }
+        }
 
     def reset(self, seed: int) -> None:
         self._rtt, self._server_ms = [], []
@@ -256,9 +279,13 @@ def suite_ref(suite: Any) -> dict[str, Any]:
     """How a client names its suite to a bench server: name, class path and options (JSON)."""
     cls = type(suite)
     opts = getattr(suite, "options", None)
-    return {"suite": str(getattr(suite, "name", cls.__name__)), "suite_class": f"{cls.__module__}:{cls.__qualname__}",
-            "suite_options": _jsonable(dataclasses.asdict(opts))
-            if dataclasses.is_dataclass(opts) and not isinstance(opts, type) else {}}
+    return {
+        "suite": str(getattr(suite, "name", cls.__name__)),
+        "suite_class": f"{cls.__module__}:{cls.__qualname__}",
+        "suite_options": _jsonable(dataclasses.asdict(opts))
+        if dataclasses.is_dataclass(opts) and not isinstance(opts, type)
+        else {},
+    }
 
 
 def _jsonable(x: Any) -> Any:
@@ -271,8 +298,9 @@ def _control(conn: Connection, message: dict[str, Any]) -> dict[str, Any]:
     reply = conn.request(message)
     body = reply.get(wire.CONTROL)
     if not isinstance(body, dict) or not body.get("ok"):
-        raise RemoteError(f"the server at {conn.where} did not acknowledge {message[wire.CONTROL]['op']!r}: "
-                          f"{str(body)[:200]}")
+        raise RemoteError(
+            f"the server at {conn.where} did not acknowledge {message[wire.CONTROL]['op']!r}: {str(body)[:200]}"
+        )
     return body
 
 
@@ -280,10 +308,10 @@ def _control(conn: Connection, message: dict[str, Any]) -> dict[str, Any]:
 class RemoteOptions:
     """Keys of policy=remote."""
 
-    host: str = "127.0.0.1"              # the policy server's address (bench serve, openpi, the lerobot adapter)
-    port: int = 8000                     # its port (8000 is openpi's and bench serve's default)
-    timeout_s: float = 10.0              # bound on connecting (with retries) and on each answer; then the episode fails
-    replan_every: int = 0                # rows of each action chunk executed before asking again; 0 = the whole chunk
+    host: str = "127.0.0.1"  # the policy server's address (bench serve, openpi, the lerobot adapter)
+    port: int = 8000  # its port (8000 is openpi's and bench serve's default)
+    timeout_s: float = 10.0  # bound on connecting (with retries) and on each answer; then the episode fails
+    replan_every: int = 0  # rows of each action chunk executed before asking again; 0 = the whole chunk
     obs_map: Optional[list[str]] = None  # WIRE_KEY:SOURCE entries, e.g. [observation/state:state,prompt:task]
 
 

@@ -16,6 +16,7 @@ Each episode record of a `policy=remote` run carries, under `extras["policy"]`:
 The histograms add exactly, so a run's latency distribution (`pool`) is the sum of its episodes'
 and its quantiles are exact to within one bin (12% at 20 bins per decade).
 """
+
 from __future__ import annotations
 
 import math
@@ -24,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-START_MS = 1e-3        # lowest bin edge: 1 microsecond
+START_MS = 1e-3  # lowest bin edge: 1 microsecond
 PER_DECADE = 20
 
 
@@ -52,8 +53,13 @@ def episode_stats(rtt_s: Iterable[float], server_ms: Iterable[float], fps: float
         counts[b] = counts.get(b, 0) + 1
     out: dict[str, Any] = {
         "requests": int(rtt.size),
-        "rtt_ms": {"p50": _q(rtt, 0.5), "p90": _q(rtt, 0.9), "p99": _q(rtt, 0.99), "max": round(float(rtt.max()), 4),
-                   "mean": round(float(rtt.mean()), 4)},
+        "rtt_ms": {
+            "p50": _q(rtt, 0.5),
+            "p90": _q(rtt, 0.9),
+            "p99": _q(rtt, 0.99),
+            "max": round(float(rtt.max()), 4),
+            "mean": round(float(rtt.mean()), 4),
+        },
     }
     srv = np.asarray(list(server_ms), np.float64)
     srv = srv[np.isfinite(srv)]
@@ -95,10 +101,17 @@ def pool(stats: Iterable[dict[str, Any]]) -> dict[str, Any] | None:
         i = bins[int(np.searchsorted(cum, q * total, side="left"))]
         return round(math.sqrt(edge(i) * edge(i + 1)), 4)
 
-    out: dict[str, Any] = {"episodes": episodes, "requests": total,
-                           "rtt_ms": {"p50": quantile(0.5), "p90": quantile(0.9), "p99": quantile(0.99),
-                                      "max": round(top, 4) or round(edge(bins[-1] + 1), 4)},
-                           "bins": [[b, counts[b]] for b in bins]}
+    out: dict[str, Any] = {
+        "episodes": episodes,
+        "requests": total,
+        "rtt_ms": {
+            "p50": quantile(0.5),
+            "p90": quantile(0.9),
+            "p99": quantile(0.99),
+            "max": round(top, 4) or round(edge(bins[-1] + 1), 4),
+        },
+        "bins": [[b, counts[b]] for b in bins],
+    }
     if fps:
         out["fps"] = fps
         out["rtt_steps"] = {k: round(v * fps / 1000.0, 4) for k, v in out["rtt_ms"].items()}

@@ -15,6 +15,7 @@ goes under bench's own names (`state`, `rgb.<camera>`, ...), plus `task` — wha
 expects. A server (`bench serve obs_map=...`) reads the same syntax the other way round:
 wire key -> bench key (plain keys only; a field selection cannot be inverted).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -34,9 +35,9 @@ class Entry:
     """One `WIRE_KEY:SOURCE` entry, parsed."""
 
     wire: str
-    source: str                      # as written
-    keys: tuple[str, ...]            # the observation entries it reads ("state" for field selections)
-    fields: tuple[str, ...] = ()     # state fields, when SOURCE selects some
+    source: str  # as written
+    keys: tuple[str, ...]  # the observation entries it reads ("state" for field selections)
+    fields: tuple[str, ...] = ()  # state fields, when SOURCE selects some
 
 
 def parse(entries: Sequence[str] | None, key: str = "obs_map") -> list[Entry] | None:
@@ -51,20 +52,23 @@ def parse(entries: Sequence[str] | None, key: str = "obs_map") -> list[Entry] | 
         wire, sep, source = text.rpartition(":")
         wire, source = wire.strip(), source.strip()
         if not sep or not wire or not source:
-            raise ConfigError(f"{key}: entry {text!r} is not WIRE_KEY:SOURCE (e.g. observation/state:state, "
-                              "prompt:task)")
+            raise ConfigError(
+                f"{key}: entry {text!r} is not WIRE_KEY:SOURCE (e.g. observation/state:state, prompt:task)"
+            )
         if wire == "__bench__":
             raise ConfigError(f"{key}: wire key {wire!r} is reserved for the protocol's control messages")
         if source.startswith(FIELD_PREFIX):
-            fields = tuple(f[len(FIELD_PREFIX):] if f.startswith(FIELD_PREFIX) else "" for f in source.split("+"))
+            fields = tuple(f[len(FIELD_PREFIX) :] if f.startswith(FIELD_PREFIX) else "" for f in source.split("+"))
             if not all(fields):
                 raise ConfigError(f"{key}: entry {text!r}: a field selection is state.<field>[+state.<field>...]")
             out.append(Entry(wire, source, (STATE,), fields))
         elif source in (STATE, TASK) or source.startswith((RGB, DEPTH)):
             out.append(Entry(wire, source, (source,)))
         else:
-            raise ConfigError(f"{key}: entry {text!r}: source {source!r} is not state, state.<field>, "
-                              "rgb.<camera>, depth.<camera> or task")
+            raise ConfigError(
+                f"{key}: entry {text!r}: source {source!r} is not state, state.<field>, "
+                "rgb.<camera>, depth.<camera> or task"
+            )
     wires = [e.wire for e in out]
     twice = next((w for i, w in enumerate(wires) if w in wires[:i]), None)
     if twice is not None:
@@ -90,14 +94,18 @@ def check(entries: list[Entry] | None, spec: ObsSpec, where: str, key: str = "ob
     for e in entries or []:
         for k in e.keys:
             if k != TASK and k not in spec:
-                raise ConfigError(f"{key}: {e.wire}:{e.source} reads {k!r}, which {where} does not provide; it "
-                                  f"provides {', '.join(spec)}.{did_you_mean(k, list(spec))}")
+                raise ConfigError(
+                    f"{key}: {e.wire}:{e.source} reads {k!r}, which {where} does not provide; it "
+                    f"provides {', '.join(spec)}.{did_you_mean(k, list(spec))}"
+                )
         if e.fields:
             names = [n for n, _ in spec[STATE].fields]
             for f in e.fields:
                 if f not in names:
-                    raise ConfigError(f"{key}: {e.wire}:{e.source}: the state of {where} has no field {f!r}; "
-                                      f"fields: {', '.join(names)}.{did_you_mean(f, names)}")
+                    raise ConfigError(
+                        f"{key}: {e.wire}:{e.source}: the state of {where} has no field {f!r}; "
+                        f"fields: {', '.join(names)}.{did_you_mean(f, names)}"
+                    )
 
 
 class ClientMap:
@@ -108,7 +116,7 @@ class ClientMap:
         state = spec.get(STATE)
         offsets: dict[str, slice] = {}
         start = 0
-        for name, width in (state.fields if isinstance(state, Feature) else ()):
+        for name, width in state.fields if isinstance(state, Feature) else ():
             offsets[name] = slice(start, start + width)
             start += width
         self._slices = {e.wire: [offsets[f] for f in e.fields] for e in entries or [] if e.fields}
@@ -137,6 +145,8 @@ def server_map(entries: list[Entry] | None, key: str = "obs_map") -> dict[str, s
         return None
     for e in entries:
         if e.fields:
-            raise ConfigError(f"{key}: {e.wire}:{e.source}: a server can only rename whole entries "
-                              "(state, rgb.<camera>, depth.<camera>, task), not select state fields")
+            raise ConfigError(
+                f"{key}: {e.wire}:{e.source}: a server can only rename whole entries "
+                "(state, rgb.<camera>, depth.<camera>, task), not select state fields"
+            )
     return {e.wire: e.source for e in entries}

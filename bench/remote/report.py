@@ -6,6 +6,7 @@ round trip of the run (log-spaced bins), one line per condition, with the contro
 robot; and a table with the measured quantiles, the injected `perturb.latency` and the effective delay
 (injected + measured) in control steps.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,16 +28,27 @@ def fig_latency(block: dict[str, Any], path: Path) -> bool:
     lo, hi = min(b for b, _ in bins), max(b for b, _ in bins) + 1
     edges = [latency.edge(i) for i in range(lo, hi + 1)]
     counts = dict((int(b), int(n)) for b, n in bins)
-    ax.stairs([counts.get(i, 0) / total for i in range(lo, hi)], edges, fill=True, alpha=0.35, color="#3b6fb6",
-              label=f"all ({total} requests)")
+    ax.stairs(
+        [counts.get(i, 0) / total for i in range(lo, hi)],
+        edges,
+        fill=True,
+        alpha=0.35,
+        color="#3b6fb6",
+        label=f"all ({total} requests)",
+    )
     conditions = block.get("conditions") or []
     if len(conditions) > 1:
         colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         for k, c in enumerate(conditions):
             n = sum(m for _, m in c.get("bins", [])) or 1
             cc = {int(b): int(m) for b, m in c.get("bins", [])}
-            ax.stairs([cc.get(i, 0) / n for i in range(lo, hi)], edges, lw=1, color=colours[(k + 1) % len(colours)],
-                      label=f"{c['condition']} ({c['requests']})")
+            ax.stairs(
+                [cc.get(i, 0) / n for i in range(lo, hi)],
+                edges,
+                lw=1,
+                color=colours[(k + 1) % len(colours)],
+                label=f"{c['condition']} ({c['requests']})",
+            )
     p50 = block["rtt_ms"]["p50"]
     ax.axvline(p50, color="#3b6fb6", lw=1, ls=":", label=f"median {p50:.3g} ms")
     fps = block.get("fps")
@@ -65,12 +77,33 @@ def latency_section(summary: dict[str, Any], tmp: Path) -> str:
     rows = []
     for c in block.get("conditions", []):
         steps, eff = c.get("rtt_steps"), c.get("effective_steps")
-        rows.append([_e(c["condition"]), str(c["requests"]), fmt(c["rtt_ms"]), fmt(steps) if steps else "n/a",
-                     f"{c['injected_steps']:g}", fmt(eff) if eff else "n/a"])
-    parts.append(_table(["condition", "requests", "round trip ms p50 / p90 / p99 / max",
-                         "in control steps", "injected (perturb.latency)", "effective steps (injected + measured)"],
-                        rows, {1, 4}))
-    parts.append("<p class='note'>Measured by the client from encoding the observation to decoding the answer. "
-                 "Simulated time stands still during a round trip, so it does not change the rollouts; the effective "
-                 "delay is what a robot at the env's control rate would see. docs/remote-policies.md</p>")
+        rows.append(
+            [
+                _e(c["condition"]),
+                str(c["requests"]),
+                fmt(c["rtt_ms"]),
+                fmt(steps) if steps else "n/a",
+                f"{c['injected_steps']:g}",
+                fmt(eff) if eff else "n/a",
+            ]
+        )
+    parts.append(
+        _table(
+            [
+                "condition",
+                "requests",
+                "round trip ms p50 / p90 / p99 / max",
+                "in control steps",
+                "injected (perturb.latency)",
+                "effective steps (injected + measured)",
+            ],
+            rows,
+            {1, 4},
+        )
+    )
+    parts.append(
+        "<p class='note'>Measured by the client from encoding the observation to decoding the answer. "
+        "Simulated time stands still during a round trip, so it does not change the rollouts; the effective "
+        "delay is what a robot at the env's control rate would see. docs/remote-policies.md</p>"
+    )
     return "".join(parts)

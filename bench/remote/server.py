@@ -18,6 +18,7 @@ connection stays usable; nothing a client sends is unpickled or imported: suites
 server's registered ones or its own `suite=`. The server listens on 127.0.0.1 unless `host=`
 says otherwise, answers `GET /healthz`, and stops cleanly on Ctrl-C or SIGTERM.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -46,15 +47,15 @@ MAX_HORIZON = 100_000
 class ServeConfig:
     """Keys of `bench serve` (the served policy's own keys, and its suite's, are accepted too)."""
 
-    policy: str = "scripted"              # registered policy name or package.module:attr, as in bench run
-    suite: str = "held_out_robots"        # suite for clients that name none (openpi's); bench clients name theirs
-    cell: Optional[str] = None            # that suite's cell TASK/ROBOT/ENV for such clients; default: its first cell
-    seed: int = 0                         # run seed and episode seed for such clients
-    horizon: int = 0                      # horizon given to policy factories for such clients; 0 = the suite's default
-    host: str = "127.0.0.1"               # address to listen on (0.0.0.0: every interface, i.e. other machines too)
-    port: int = 8000                      # port to listen on; 0 = any free port (printed at start)
-    obs_map: Optional[list[str]] = None   # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
-    max_message_mb: float = 64.0          # largest request accepted, in MiB
+    policy: str = "scripted"  # registered policy name or package.module:attr, as in bench run
+    suite: str = "held_out_robots"  # suite for clients that name none (openpi's); bench clients name theirs
+    cell: Optional[str] = None  # that suite's cell TASK/ROBOT/ENV for such clients; default: its first cell
+    seed: int = 0  # run seed and episode seed for such clients
+    horizon: int = 0  # horizon given to policy factories for such clients; 0 = the suite's default
+    host: str = "127.0.0.1"  # address to listen on (0.0.0.0: every interface, i.e. other machines too)
+    port: int = 8000  # port to listen on; 0 = any free port (printed at start)
+    obs_map: Optional[list[str]] = None  # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
+    max_message_mb: float = 64.0  # largest request accepted, in MiB
 
 
 @dataclass
@@ -73,8 +74,9 @@ def class_path(cls: type) -> str:
 class PolicyServer:
     """Serves one bench policy plugin over websockets (one thread and one `Session` per connection)."""
 
-    def __init__(self, cfg: ServeConfig, suite_options: Any, policy_options: Any,
-                 log: Callable[[str], None] | None = None):
+    def __init__(
+        self, cfg: ServeConfig, suite_options: Any, policy_options: Any, log: Callable[[str], None] | None = None
+    ):
         from bench import registry
 
         self.cfg = cfg
@@ -92,18 +94,28 @@ class PolicyServer:
         if cfg.cell is not None and cfg.cell not in cells:
             from bench.errors import did_you_mean
 
-            raise ConfigError(f"cell={cfg.cell!r} is not a cell of suite {cfg.suite!r}; valid: {', '.join(cells)}."
-                              f"{did_you_mean(cfg.cell, cells)}")
+            raise ConfigError(
+                f"cell={cfg.cell!r} is not a cell of suite {cfg.suite!r}; valid: {', '.join(cells)}."
+                f"{did_you_mean(cfg.cell, cells)}"
+            )
         self.default_cell = cfg.cell or next(iter(cells))
         self.default_horizon = cfg.horizon or suite.default_horizon
         self.identity = self.plugin.identity(policy_options)
-        self.metadata = {"bench": {
-            "protocol": wire.PROTOCOL, "policy": cfg.policy, "policy_options": _json(policy_options),
-            "checkpoint": self.identity.checkpoint, "checkpoint_sha256": self.identity.checkpoint_sha256,
-            "suite": suite.name, "cell": self.default_cell, "obs_keys": list(self.needs),
-            "obs_map": list(cfg.obs_map) if cfg.obs_map else None, "bench_version": _version(),
-        }}
-        self._suites: dict[str, Any] = {}   # suites clients named, by class path and options (built once)
+        self.metadata = {
+            "bench": {
+                "protocol": wire.PROTOCOL,
+                "policy": cfg.policy,
+                "policy_options": _json(policy_options),
+                "checkpoint": self.identity.checkpoint,
+                "checkpoint_sha256": self.identity.checkpoint_sha256,
+                "suite": suite.name,
+                "cell": self.default_cell,
+                "obs_keys": list(self.needs),
+                "obs_map": list(cfg.obs_map) if cfg.obs_map else None,
+                "bench_version": _version(),
+            }
+        }
+        self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
 
     # -- suites and cells, resolved from what a client names ------------------------------
@@ -118,8 +130,10 @@ class PolicyServer:
             candidates.append(registry.suite_class(name))
         cls: Any = next((c for c in candidates if class_path(c) == path), None)
         if cls is None:
-            raise RequestError(f"suite {name!r} ({path}) is not served here: this server serves registered suites "
-                               f"and suite={self.cfg.suite}; restart it with suite={path}")
+            raise RequestError(
+                f"suite {name!r} ({path}) is not served here: this server serves registered suites "
+                f"and suite={self.cfg.suite}; restart it with suite={path}"
+            )
         if not isinstance(options, dict):
             raise RequestError("suite_options must be a map")
         key = json.dumps([path, options], sort_keys=True, default=str)
@@ -141,8 +155,10 @@ class PolicyServer:
         try:
             missing = [k for k in self.needs if k not in env.obs_spec]
             if missing:
-                raise RequestError(f"policy {self.cfg.policy!r} needs observation keys {missing}; cell {cell_key} "
-                                   f"gives {sorted(env.obs_spec)}")
+                raise RequestError(
+                    f"policy {self.cfg.policy!r} needs observation keys {missing}; cell {cell_key} "
+                    f"gives {sorted(env.obs_spec)}"
+                )
             ctx = PolicyContext(self.policy_options, suite, int(run_seed), int(horizon))
             policy = self.plugin.make(cell, env, ctx)
         except BaseException:
@@ -153,8 +169,15 @@ class PolicyServer:
     # -- serving --------------------------------------------------------------------------
     def websocket(self) -> WebsocketServer:
         """The websocket server of this policy (not yet listening)."""
-        return WebsocketServer(lambda: Session(self), self.metadata, self.cfg.host, self.cfg.port,
-                               int(self.cfg.max_message_mb * 2**20), self.log, f"policy {self.cfg.policy!r} failed")
+        return WebsocketServer(
+            lambda: Session(self),
+            self.metadata,
+            self.cfg.host,
+            self.cfg.port,
+            int(self.cfg.max_message_mb * 2**20),
+            self.log,
+            f"policy {self.cfg.policy!r} failed",
+        )
 
     def start(self) -> tuple[WebsocketServer, int]:
         """Listen and serve from a background thread (tests, benchmarks): (server, port)."""
@@ -234,8 +257,10 @@ class Session:
             named = {k: v for k, v in msg.items() if k in spec or k == TASK}
         missing = [k for k in self.server.needs if k not in named]
         if missing:
-            raise RequestError(f"the observation lacks {missing} (policy {self.server.cfg.policy!r} needs "
-                               f"{list(self.server.needs)}; the request has {sorted(msg)[:12]})")
+            raise RequestError(
+                f"the observation lacks {missing} (policy {self.server.cfg.policy!r} needs "
+                f"{list(self.server.needs)}; the request has {sorted(msg)[:12]})"
+            )
         obs: dict[str, Any] = {}
         for key, value in named.items():
             feat = spec.get(key)
@@ -248,8 +273,9 @@ class Session:
             arr = value if isinstance(value, np.ndarray) else np.asarray(value)
             want = np.dtype(feat.dtype)
             if arr.shape != feat.shape:
-                raise RequestError(f"obs[{key!r}] has shape {list(arr.shape)}; this cell's {key} is {list(feat.shape)} "
-                                   f"{feat.dtype}")
+                raise RequestError(
+                    f"obs[{key!r}] has shape {list(arr.shape)}; this cell's {key} is {list(feat.shape)} {feat.dtype}"
+                )
             if arr.dtype != want:
                 if arr.dtype.kind not in "biuf" or not np.can_cast(arr.dtype, want, "same_kind"):
                     raise RequestError(f"obs[{key!r}] has dtype {arr.dtype}; this cell's {key} is {feat.dtype}")
@@ -285,15 +311,18 @@ def help_text() -> str:
     return config_mod.command_help(
         "usage: bench serve [policy=scripted] [host=127.0.0.1] [port=8000] [suite=...] [policy keys ...]",
         "Serves a bench policy over openpi's websocket protocol (msgpack-numpy, metadata on connect,\n"
-        "infer(obs) -> {\"actions\": (T, A)}), so `bench run policy=remote` or openpi's client can use it\n"
+        'infer(obs) -> {"actions": (T, A)}), so `bench run policy=remote` or openpi\'s client can use it\n'
         "from another process, venv or machine. Bench clients name their suite, cell and seeds (records\n"
         "equal in-process ones); other clients get the policy of suite=/cell=. Malformed requests get a\n"
         "one-line text answer and the server goes on. The served policy's own keys (checkpoint= ...) and\n"
         "its suite's are accepted too. Ctrl-C or SIGTERM stops it. docs/remote-policies.md",
         ServeConfig,
-        ["bench serve policy=scripted",
-         "bench serve policy=checkpoint checkpoint=bc/policy.safetensors port=8001",
-         "bench serve policy=scripted suite=held_out_envs host=0.0.0.0   # reachable from other machines"])
+        [
+            "bench serve policy=scripted",
+            "bench serve policy=checkpoint checkpoint=bc/policy.safetensors port=8001",
+            "bench serve policy=scripted suite=held_out_envs host=0.0.0.0   # reachable from other machines",
+        ],
+    )
 
 
 def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
@@ -303,14 +332,17 @@ def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
 
     positional, overrides = config_mod.split_args(argv)
     if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench serve takes key=value only "
-                          "(bench serve --help)")
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; bench serve takes key=value only (bench serve --help)"
+        )
     head = config_mod.build(ServeConfig, [o for o in overrides if config_mod.top_key(o) in ("policy", "suite")])
     plugin = registry.load_policy(head.policy)
     suite_cls: Any = registry.suite_class(head.suite)
-    owners = {"serve": [f.name for f in dataclasses.fields(ServeConfig)],
-              f"suite {head.suite}": option_keys(suite_cls.Options),
-              f"policy {head.policy}": option_keys(plugin.Options)}
+    owners = {
+        "serve": [f.name for f in dataclasses.fields(ServeConfig)],
+        f"suite {head.suite}": option_keys(suite_cls.Options),
+        f"policy {head.policy}": option_keys(plugin.Options),
+    }
     context = f"bench serve policy={head.policy} suite={head.suite}"
     parts = list(config_mod.partition(overrides, owners, context).values())
     cfg = config_mod.build(ServeConfig, parts[0])
@@ -340,10 +372,15 @@ def main(argv: list[str]) -> int:
     try:
         port = ws.bind()
     except AddressInUse as exc:
-        raise ConfigError(f"host={cfg.host} port={cfg.port}: cannot listen there ({exc.strerror}); pick another "
-                          "port (port=0 = any free one)") from None
+        raise ConfigError(
+            f"host={cfg.host} port={cfg.port}: cannot listen there ({exc.strerror}); pick another "
+            "port (port=0 = any free one)"
+        ) from None
     where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
 
-    ws.serve_until_stopped(f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
-                           f"default cell {server.default_cell}); Ctrl-C stops", "bench serve")
+    ws.serve_until_stopped(
+        f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
+        f"default cell {server.default_cell}); Ctrl-C stops",
+        "bench serve",
+    )
     return 0

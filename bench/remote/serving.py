@@ -11,6 +11,7 @@ This module needs only numpy, msgpack and websockets, so an adapter running in a
 venv (e.g. `baselines/lerobot_server.py` in lerobot's) serves with the same code as
 `bench serve`.
 """
+
 from __future__ import annotations
 
 import threading
@@ -27,11 +28,9 @@ class RequestError(Exception):
 class Session(Protocol):
     """One connection's state."""
 
-    def handle(self, request: dict[str, Any]) -> dict[str, Any]:
-        ...
+    def handle(self, request: dict[str, Any]) -> dict[str, Any]: ...
 
-    def close(self) -> None:
-        ...
+    def close(self) -> None: ...
 
 
 class AddressInUse(OSError):
@@ -41,9 +40,16 @@ class AddressInUse(OSError):
 class WebsocketServer:
     """A websocket policy server: one thread and one session per connection."""
 
-    def __init__(self, open_session: Callable[[], Session], metadata: dict[str, Any], host: str = "127.0.0.1",
-                 port: int = 8000, max_message_bytes: int = 64 * 2**20, log: Callable[[str], None] | None = None,
-                 failure_prefix: str = "the policy failed"):
+    def __init__(
+        self,
+        open_session: Callable[[], Session],
+        metadata: dict[str, Any],
+        host: str = "127.0.0.1",
+        port: int = 8000,
+        max_message_bytes: int = 64 * 2**20,
+        log: Callable[[str], None] | None = None,
+        failure_prefix: str = "the policy failed",
+    ):
         self.open_session, self.metadata = open_session, metadata
         self.host, self.port, self.max_message_bytes = host, int(port), int(max_message_bytes)
         self.log = log or (lambda text: None)
@@ -56,9 +62,16 @@ class WebsocketServer:
         from websockets.sync.server import serve
 
         try:
-            self._server = serve(self._handle, self.host, self.port, compression=None,
-                                 max_size=self.max_message_bytes, ping_interval=None, process_request=_health,
-                                 logger=_quiet_logger())
+            self._server = serve(
+                self._handle,
+                self.host,
+                self.port,
+                compression=None,
+                max_size=self.max_message_bytes,
+                ping_interval=None,
+                process_request=_health,
+                logger=_quiet_logger(),
+            )
         except OSError as exc:
             raise AddressInUse(exc.errno, exc.strerror or str(exc)) from None
         return int(self._server.socket.getsockname()[1])

@@ -20,6 +20,7 @@ The protocol on top (openpi's websocket policy server, plus one optional extensi
        single key `__bench__` is a control request (`op`: "reset" at each episode start, "check"
        before a run); the answer is `{"__bench__": {"ok": True, ...}}`.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,9 +30,9 @@ import msgpack
 import numpy as np
 
 PROTOCOL = "bench.remote/1"
-CONTROL = "__bench__"                 # key of a control request / answer (never an observation key)
-ACTIONS = "actions"                    # key of the action chunk in an answer (openpi's)
-ALLOWED_KINDS = frozenset("biufU")     # bool, int, uint, float, unicode: plain bytes, nothing executable
+CONTROL = "__bench__"  # key of a control request / answer (never an observation key)
+ACTIONS = "actions"  # key of the action chunk in an answer (openpi's)
+ALLOWED_KINDS = frozenset("biufU")  # bool, int, uint, float, unicode: plain bytes, nothing executable
 MAX_DIMS = 8
 
 
@@ -78,8 +79,11 @@ def _dtype(value: Any) -> np.dtype:
 def _array(obj: dict) -> np.ndarray:
     dt = _dtype(obj.get(b"dtype"))
     shape, data = obj.get(b"shape"), obj.get(b"data")
-    if not isinstance(shape, (list, tuple)) or len(shape) > MAX_DIMS or \
-            not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape):
+    if (
+        not isinstance(shape, (list, tuple))
+        or len(shape) > MAX_DIMS
+        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
+    ):
         raise WireError(f"array shape must be a list of at most {MAX_DIMS} non-negative integers, got {shape!r}")
     if not isinstance(data, bytes):
         raise WireError(f"array data must be bytes, got {type(data).__name__}")
@@ -112,8 +116,7 @@ def decode(frame: Any, what: str = "message") -> dict[str, Any]:
     if not isinstance(frame, (bytes, bytearray, memoryview)):
         raise WireError(f"{what} is a {type(frame).__name__}, not a binary frame")
     try:
-        out = msgpack.unpackb(bytes(frame), object_hook=_decode_hook, raw=False, strict_map_key=True,
-                              use_list=True)
+        out = msgpack.unpackb(bytes(frame), object_hook=_decode_hook, raw=False, strict_map_key=True, use_list=True)
     except WireError:
         raise
     except Exception as exc:  # msgpack's ExtraData, FormatError, StackError, UnicodeDecodeError, ValueError ...

@@ -32,6 +32,7 @@ This package is the base layer of Real2Sim: `spec` (the signal map), `data` (the
 `simulate` (batched rollouts of model variants from logged states) and `metrics` (per-joint errors
 per horizon) are what `bench.calibrate` builds on; nothing here imports `bench.calibrate`.
 """
+
 from __future__ import annotations
 
 from bench.replay.cli import HELP, main, plot, render, run, write
@@ -39,6 +40,24 @@ from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, su
 from bench.replay.mjcf import replay_mjcf
 from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
-__all__ = ["COMMANDS", "CTRL", "HELP", "SCHEMA", "Replay", "ReplayConfig", "SuiteLogs", "load_suite_logs", "main",
-           "plot", "render", "replay_actions", "replay_ctrl", "replay_mjcf", "replay_suite", "run", "suite_segments",
-           "summarise", "write"]
+__all__ = [
+    "COMMANDS",
+    "CTRL",
+    "HELP",
+    "SCHEMA",
+    "Replay",
+    "ReplayConfig",
+    "SuiteLogs",
+    "load_suite_logs",
+    "main",
+    "plot",
+    "render",
+    "replay_actions",
+    "replay_ctrl",
+    "replay_mjcf",
+    "replay_suite",
+    "run",
+    "suite_segments",
+    "summarise",
+    "write",
+]

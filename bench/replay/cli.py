@@ -1,4 +1,5 @@
 """`bench replay`: the table, the plot, replay.json and the command."""
+
 from __future__ import annotations
 
 import sys
@@ -19,8 +20,11 @@ def render(doc: dict, console=None) -> None:
 
     console = console or Console()
     hz = doc["horizons"]
-    t = Table(title=f"replay of {len(doc['episodes'])} episode(s), {doc['frames']} frames at {doc['fps']:g} Hz "
-                    f"({doc['backend']}; k = {doc['k']} frames)", title_justify="left")
+    t = Table(
+        title=f"replay of {len(doc['episodes'])} episode(s), {doc['frames']} frames at {doc['fps']:g} Hz "
+        f"({doc['backend']}; k = {doc['k']} frames)",
+        title_justify="left",
+    )
     t.add_column("joint", overflow="fold")
     for label in hz:
         t.add_column(f"{HORIZON_LABELS[label]} RMSE", justify="right")
@@ -46,8 +50,9 @@ def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
     if n_ep == 0:
         return None
     nj = len(rep.joints)
-    fig, axes = plt.subplots(nj, n_ep, figsize=(6.0 * n_ep, 1.9 * nj + 0.8), sharex="col", squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        nj, n_ep, figsize=(6.0 * n_ep, 1.9 * nj + 0.8), sharex="col", squeeze=False, layout="constrained"
+    )
     free, kst = rep.errors["free_run"], rep.errors["k_step"]
     for c in range(n_ep):
         a, b = int(rep.offsets[c]), int(rep.offsets[c + 1])
@@ -60,13 +65,24 @@ def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
             for s in ksel:  # each k-step segment starts from the logged state
                 f0 = int(kst.start[s]) - a
                 m = kst.mask[s]
-                ax.plot(t[f0:f0 + 1 + int(m.sum())], np.r_[rep.qpos[a + f0, j], kst.pred[s, m, j]],
-                        color="tab:orange", lw=1.0, label="k-step" if s == ksel[0] else None)
+                ax.plot(
+                    t[f0 : f0 + 1 + int(m.sum())],
+                    np.r_[rep.qpos[a + f0, j], kst.pred[s, m, j]],
+                    color="tab:orange",
+                    lw=1.0,
+                    label="k-step" if s == ksel[0] else None,
+                )
                 ax.plot(t[f0], rep.qpos[a + f0, j], ".", color="tab:orange", ms=3)
             for s in fsel:
                 m = free.mask[s]
-                ax.plot(t[:1 + int(m.sum())], np.r_[rep.qpos[a, j], free.pred[s, m, j]], color="tab:blue",
-                        lw=1.2, ls="--", label="free run")
+                ax.plot(
+                    t[: 1 + int(m.sum())],
+                    np.r_[rep.qpos[a, j], free.pred[s, m, j]],
+                    color="tab:blue",
+                    lw=1.2,
+                    ls="--",
+                    label="free run",
+                )
             if c == 0:
                 ax.set_ylabel(rep.joints[j])
             if j == 0:

@@ -1,4 +1,5 @@
 """What both replay backends share: the config, reading and selecting episodes, the error summary."""
+
 from __future__ import annotations
 
 import time
@@ -24,16 +25,16 @@ ROLLOUT_BYTES = 256 * 2**20  # states returned by one mujoco.rollout call, at mo
 class ReplayConfig:
     """Keys of `bench replay`."""
 
-    logs: Optional[str] = None            # LeRobot v3 dataset folder
-    spec: Optional[str] = None            # signal map (YAML/JSON; a calibration spec is one): MJCF model, log columns
-    suite: Optional[str] = None           # instead of spec: suite whose env replays a `bench run record=` dataset
+    logs: Optional[str] = None  # LeRobot v3 dataset folder
+    spec: Optional[str] = None  # signal map (YAML/JSON; a calibration spec is one): MJCF model, log columns
+    suite: Optional[str] = None  # instead of spec: suite whose env replays a `bench run record=` dataset
     k: int = ranged(10, 1, 100_000)  # frames per k-step horizon
     episodes: Optional[list[int]] = None  # dataset episode indices (default: all)
-    out: Optional[str] = None             # folder for replay.json and replay.png (never an input or inside one)
-    overwrite: bool = False               # replace an existing out= folder that bench wrote
+    out: Optional[str] = None  # folder for replay.json and replay.png (never an input or inside one)
+    overwrite: bool = False  # replace an existing out= folder that bench wrote
     plot: int = ranged(2, 0, 50)  # episodes drawn in replay.png (0: no plot)
     threads: int = ranged(1, 1, 256)  # mujoco.rollout threads (results do not depend on it)
-    commands: Optional[str] = None        # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
+    commands: Optional[str] = None  # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
 
 
 @dataclass
@@ -64,8 +65,10 @@ def _read_logs(cfg: ReplayConfig):
     have = {ep.index: ep for ep in ds.episodes}
     missing = [i for i in cfg.episodes if i not in have]
     if missing:
-        raise ConfigError(f"episodes={list(cfg.episodes)}: episode {missing[0]} is not in {path}; valid: "
-                          f"{min(have)}..{max(have)} ({len(have)} episodes)")
+        raise ConfigError(
+            f"episodes={list(cfg.episodes)}: episode {missing[0]} is not in {path}; valid: "
+            f"{min(have)}..{max(have)} ({len(have)} episodes)"
+        )
     if len(set(cfg.episodes)) != len(cfg.episodes):
         raise ConfigError(f"episodes={list(cfg.episodes)}: an episode is listed twice")
     return ds, [have[i] for i in cfg.episodes]
@@ -77,8 +80,10 @@ def _check_cfg(cfg: ReplayConfig) -> None:
     if cfg.spec and cfg.suite:
         raise ConfigError("give spec= (MJCF replay) or suite= (replay of a `bench run record=` dataset), not both")
     if not cfg.spec and not cfg.suite:
-        raise ConfigError("spec= is required (a signal map naming the MJCF model and the log columns, "
-                          "docs/replay.md); for datasets written by `bench run record=`, give suite=NAME")
+        raise ConfigError(
+            "spec= is required (a signal map naming the MJCF model and the log columns, "
+            "docs/replay.md); for datasets written by `bench run record=`, give suite=NAME"
+        )
     if cfg.episodes is not None and not cfg.episodes:
         raise ConfigError("episodes=[] selects nothing; list dataset episode indices, e.g. episodes=[0,3], or omit it")
     if cfg.k < 1:
@@ -90,16 +95,19 @@ def _check_cfg(cfg: ReplayConfig) -> None:
     if cfg.commands is not None and cfg.commands not in COMMANDS:
         raise ConfigError(f"commands is {cfg.commands!r}; valid: {', '.join(COMMANDS)} (suite logs only)")
     if cfg.commands is not None and not cfg.suite:
-        raise ConfigError("commands= applies to suite= replays of `bench run record=` datasets; an MJCF replay "
-                          "(spec=) applies the ctrl columns the spec names")
+        raise ConfigError(
+            "commands= applies to suite= replays of `bench run record=` datasets; an MJCF replay "
+            "(spec=) applies the ctrl columns the spec names"
+        )
 
 
 def _episode_of(offsets: np.ndarray, start: np.ndarray) -> np.ndarray:
     return np.searchsorted(offsets, start, side="right") - 1
 
 
-def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[str], episodes: list[int],
-              k: int) -> tuple[dict, list[dict]]:
+def summarise(
+    errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[str], episodes: list[int], k: int
+) -> tuple[dict, list[dict]]:
     """JSON-able per-horizon (per joint) and per-episode errors; NRMSE is null for joints that never move.
 
     Per-episode NRMSE divides by the spread over all replayed episodes, so episodes compare.
@@ -130,17 +138,40 @@ def summarise(errors: dict, qpos: np.ndarray, offsets: np.ndarray, joints: list[
             m = e.mask[sel]
             n = max(int(m.sum()), 1)
             err = np.where(m[..., None], e.pred[sel] - e.target[sel], 0.0)
-            rmse = np.sqrt((err ** 2).sum(axis=(0, 1)) / n)
+            rmse = np.sqrt((err**2).sum(axis=(0, 1)) / n)
             row[f"{label}_rmse"] = finite(float(rmse.mean()))
             row[f"{label}_nrmse"] = finite(float((rmse[moving] / spread[moving]).mean())) if moving.any() else None
         per_episode.append(row)
     return horizons, per_episode
 
 
-def _doc(cfg: ReplayConfig, backend: str, fps: float, index: list[int], frames: int, joints: list[str],
-         horizons: dict, per_episode: list[dict], steps: int, t0: float, notes: list[str], **extra) -> dict:
+def _doc(
+    cfg: ReplayConfig,
+    backend: str,
+    fps: float,
+    index: list[int],
+    frames: int,
+    joints: list[str],
+    horizons: dict,
+    per_episode: list[dict],
+    steps: int,
+    t0: float,
+    notes: list[str],
+    **extra,
+) -> dict:
     """The replay.json document (schema bench.replay/1): fields common to both backends, then `extra`."""
     head = {"schema": SCHEMA, "backend": backend, "logs": str(cfg.logs)}
-    return {**head, **extra, "fps": float(fps), "k": int(cfg.k), "episodes": [int(i) for i in index],
-            "frames": int(frames), "joints": joints, "horizons": horizons, "per_episode": per_episode,
-            "sim_steps": int(steps), "wall_s": round(time.perf_counter() - t0, 4), "notes": notes}
+    return {
+        **head,
+        **extra,
+        "fps": float(fps),
+        "k": int(cfg.k),
+        "episodes": [int(i) for i in index],
+        "frames": int(frames),
+        "joints": joints,
+        "horizons": horizons,
+        "per_episode": per_episode,
+        "sim_steps": int(steps),
+        "wall_s": round(time.perf_counter() - t0, 4),
+        "notes": notes,
+    }

@@ -3,6 +3,7 @@
 The core never reads files: callers hand it episodes as `dict[column, array]` (what
 `bench.logs.Episode.data` holds) and a signal map (`bench.replay.spec`) picks the columns.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -50,15 +51,18 @@ class Recording:
 
     def frames(self, windows: list[Window]) -> np.ndarray:
         """Global frame indices covered by `windows`."""
-        return np.concatenate([np.arange(self.offsets[w.episode] + w.start, self.offsets[w.episode] + w.stop)
-                               for w in windows])
+        return np.concatenate(
+            [np.arange(self.offsets[w.episode] + w.start, self.offsets[w.episode] + w.stop) for w in windows]
+        )
 
 
 def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> np.ndarray:
     if sig.column not in ep:
         valid = sorted(k for k, v in ep.items() if np.asarray(v).ndim in (1, 2))
-        raise SpecError(f"spec field '{where}.column': column {sig.column!r} is not in the log (episode {i}); "
-                        f"valid: {', '.join(valid)}")
+        raise SpecError(
+            f"spec field '{where}.column': column {sig.column!r} is not in the log (episode {i}); "
+            f"valid: {', '.join(valid)}"
+        )
     arr = np.asarray(ep[sig.column], dtype=np.float64)
     if arr.ndim == 1:
         arr = arr[:, None]
@@ -66,8 +70,10 @@ def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> n
         raise DataError(f"log column {sig.column!r} has shape {arr.shape}; expected (T,) or (T, D)")
     bad = [j for j in sig.index if j >= arr.shape[1]]
     if bad:
-        raise SpecError(f"spec field '{where}.index': index {bad[0]} is out of range for column {sig.column!r} "
-                        f"of width {arr.shape[1]} (valid 0..{arr.shape[1] - 1})")
+        raise SpecError(
+            f"spec field '{where}.index': index {bad[0]} is out of range for column {sig.column!r} "
+            f"of width {arr.shape[1]} (valid 0..{arr.shape[1] - 1})"
+        )
     out = arr[:, list(sig.index)]
     if not np.all(np.isfinite(out)):
         raise DataError(f"log column {sig.column!r} (episode {i}) holds NaN or inf values")
@@ -98,8 +104,17 @@ def split(lengths: list[int], holdout: float, seed: int) -> tuple[list[Window], 
     return train, test
 
 
-def extract(spec: SignalMap, episodes: list[dict[str, np.ndarray]], fps: float, *, nq: int, nv: int, nu: int,
-            holdout: float | None = None, seed: int = 0) -> Recording:
+def extract(
+    spec: SignalMap,
+    episodes: list[dict[str, np.ndarray]],
+    fps: float,
+    *,
+    nq: int,
+    nv: int,
+    nu: int,
+    holdout: float | None = None,
+    seed: int = 0,
+) -> Recording:
     """Pick the map's signals out of the episodes and check their widths against the model.
 
     With `holdout` (a share), the episodes are split into train and held out (`split`); without,
@@ -113,8 +128,10 @@ def extract(spec: SignalMap, episodes: list[dict[str, np.ndarray]], fps: float, 
     for key, n in want.items():
         sig = spec.signals.get(key)
         if sig is not None and len(sig.index) != n:
-            raise SpecError(f"spec field 'signals.{key}.index' lists {len(sig.index)} columns; the model has "
-                            f"{'nq' if key == 'qpos' else 'nv' if key == 'qvel' else 'nu'}={n}")
+            raise SpecError(
+                f"spec field 'signals.{key}.index' lists {len(sig.index)} columns; the model has "
+                f"{'nq' if key == 'qpos' else 'nv' if key == 'qvel' else 'nu'}={n}"
+            )
     parts: dict[str, list[np.ndarray]] = {"qpos": [], "qvel": [], "ctrl": [], "inputs": []}
     lengths = []
     for i, ep in enumerate(episodes):

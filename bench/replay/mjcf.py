@@ -1,4 +1,5 @@
 """MJCF backend of `bench replay`: a spec's model replayed as given, batched in `mujoco.rollout`."""
+
 from __future__ import annotations
 
 import time
@@ -39,7 +40,21 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
         notes.append("qvel is not logged: initial velocities are estimated from qpos (Savitzky-Golay)")
     if ignored.get("params"):
         notes.append("the spec's free parameters keep the model's values (replay uses the model as given)")
-    doc = _doc(cfg, "mujoco.rollout", rec.fps, index, len(rec.qpos), joints, horizons, per_episode, steps, t0, notes,
-               spec={**given.to_json(), "ignored": sorted(ignored)},  # a calibration spec's own fields: unused
-               model=str(given.model), substeps=int(substeps), timestep=float(model.opt.timestep))
+    doc = _doc(
+        cfg,
+        "mujoco.rollout",
+        rec.fps,
+        index,
+        len(rec.qpos),
+        joints,
+        horizons,
+        per_episode,
+        steps,
+        t0,
+        notes,
+        spec={**given.to_json(), "ignored": sorted(ignored)},  # a calibration spec's own fields: unused
+        model=str(given.model),
+        substeps=int(substeps),
+        timestep=float(model.opt.timestep),
+    )
     return Replay(doc, errors, rec.qpos, rec.offsets, float(rec.fps), joints, index)

@@ -9,6 +9,7 @@ variants with a state-dependent force run in a stepped rollout that advances eve
 substep per call and adds that force in between. Callers (replay as given, calibration's
 parameter variants) build the variants; this module only runs them.
 """
+
 from __future__ import annotations
 
 import copy
@@ -62,8 +63,9 @@ class Coordinates:
     follows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # logged index
     warmup: int = 0
 
-    def anchor(self, q: np.ndarray, v: np.ndarray, log_q: np.ndarray, log_v: np.ndarray) \
-            -> tuple[np.ndarray, np.ndarray]:
+    def anchor(
+        self, q: np.ndarray, v: np.ndarray, log_q: np.ndarray, log_v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Simulated full rows moved onto the logged coordinates, hidden ones keeping their offsets."""
         q, v = q.copy(), v.copy()
         q[:, self.hidden] += log_q[:, self.follows] - q[:, self.qpos_adr[self.follows]]
@@ -110,8 +112,7 @@ def as_given(model: mujoco.MjModel, rec: Recording, substeps: int) -> Variant:
     return Variant(model, hold(rec.ctrl, substeps), np.zeros(model.nv))
 
 
-def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None = None,
-             seed: int = 0) -> Segments:
+def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None = None, seed: int = 0) -> Segments:
     """Back-to-back k-frame horizons covering each window (the last one overlaps to reach its end).
 
     With `limit`, a seeded subset of at most that many horizons (the fit's cost is linear in them).
@@ -192,8 +193,9 @@ class Simulator:
             st[:, qp] = rec.qpos[segs.start]
             st[:, qv] = rec.qvel[segs.start]
             return st
-        st[:, qp], st[:, qv] = v.coords.init(segs.start, rec.qpos[segs.start], rec.qvel[segs.start],
-                                             rec.ctrl[segs.start])
+        st[:, qp], st[:, qv] = v.coords.init(
+            segs.start, rec.qpos[segs.start], rec.qvel[segs.start], rec.ctrl[segs.start]
+        )
         w = v.coords.warmup
         if w <= 0:
             return st
@@ -205,8 +207,9 @@ class Simulator:
         frames = self._full([unwarmed], pre, self._initial(unwarmed, pre))
         has = lead > 0
         sim = frames[has, lead[has] - 1]
-        st[has, qp], st[has, qv] = v.coords.anchor(sim[:, :m.nq], sim[:, m.nq:], rec.qpos[segs.start[has]],
-                                                   rec.qvel[segs.start[has]])
+        st[has, qp], st[has, qv] = v.coords.anchor(
+            sim[:, : m.nq], sim[:, m.nq :], rec.qpos[segs.start[has]], rec.qvel[segs.start[has]]
+        )
         return st
 
     def _controls(self, v: Variant, segs: Segments) -> np.ndarray:
@@ -268,9 +271,18 @@ class Simulator:
         if all(v.force is None for v in variants):
             state = np.empty((len(models), nstep, len(template)))
             sens = np.empty((len(models), nstep, m.nsensordata))
-            self.pool.rollout(models, datas, init, ctrl, control_spec=CONTROL_SPEC, skip_checks=True,
-                              nstep=nstep, state=state, sensordata=sens)
-            return state[:, s - 1::s, 1:1 + m.nq + m.nv]
+            self.pool.rollout(
+                models,
+                datas,
+                init,
+                ctrl,
+                control_spec=CONTROL_SPEC,
+                skip_checks=True,
+                nstep=nstep,
+                state=state,
+                sensordata=sens,
+            )
+            return state[:, s - 1 :: s, 1 : 1 + m.nq + m.nv]
         st = init
         frames = np.empty((len(models), segs.length, m.nq + m.nv))
         state = np.empty((len(models), 1, len(template)))
@@ -278,13 +290,14 @@ class Simulator:
         qp, qv = slice(1, 1 + m.nq), slice(1 + m.nq, 1 + m.nq + m.nv)
         rows = [slice(i * n, (i + 1) * n) for i in range(len(variants))]
         for k in range(nstep):
-            u = ctrl[:, k:k + 1].copy()
+            u = ctrl[:, k : k + 1].copy()
             for v, r in zip(variants, rows):
                 if v.force is not None:
-                    u[r, 0, m.nu:] += v.force(st[r, qp], st[r, qv], u[r, 0, :m.nu])
-            self.pool.rollout(models, datas, st, u, control_spec=CONTROL_SPEC, skip_checks=True,
-                              nstep=1, state=state, sensordata=sens)
+                    u[r, 0, m.nu :] += v.force(st[r, qp], st[r, qv], u[r, 0, : m.nu])
+            self.pool.rollout(
+                models, datas, st, u, control_spec=CONTROL_SPEC, skip_checks=True, nstep=1, state=state, sensordata=sens
+            )
             st = np.ascontiguousarray(state[:, 0])
             if k % s == s - 1:
-                frames[:, k // s] = st[:, 1:1 + m.nq + m.nv]
+                frames[:, k // s] = st[:, 1 : 1 + m.nq + m.nv]
         return frames

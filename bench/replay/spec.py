@@ -6,6 +6,7 @@ of qpos, qvel, ctrl and extra inputs). The calibration spec (`bench.calibrate.sp
 with free parameters, effects and the held-out split; `bench replay spec=` reads such a file and
 ignores what it adds. Every problem is a one-line `SpecError` that names the field.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,9 +42,12 @@ class SignalMap:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form, for embedding the signal map in a result file."""
-        return {"model": str(self.model), "substeps": self.substeps,
-                "signals": {k: {"column": s.column, "index": list(s.index)} for k, s in self.signals.items()},
-                "source": str(self.source) if self.source else None}
+        return {
+            "model": str(self.model),
+            "substeps": self.substeps,
+            "signals": {k: {"column": s.column, "index": list(s.index)} for k, s in self.signals.items()},
+            "source": str(self.source) if self.source else None,
+        }
 
 
 def read_spec_file(path: str | Path) -> tuple[Any, Path]:
@@ -72,8 +76,10 @@ def check_keys(obj: Any, valid: tuple[str, ...], where: str) -> dict:
         raise SpecError(f"spec field {where!r} must be a mapping with keys {', '.join(valid)}; got {obj!r}")
     for key in obj:
         if key not in valid:
-            raise SpecError(f"unknown spec field {(where + '.' if where else '') + str(key)!r}; "
-                            f"valid: {', '.join(valid)}.{did_you_mean(str(key), valid)}")
+            raise SpecError(
+                f"unknown spec field {(where + '.' if where else '') + str(key)!r}; "
+                f"valid: {', '.join(valid)}.{did_you_mean(str(key), valid)}"
+            )
     return obj
 
 
@@ -132,8 +138,10 @@ def load_signal_map(path: str | Path) -> tuple[SignalMap, dict[str, Any]]:
     for key in ignored:
         hint = did_you_mean(key, MAP_KEYS)
         if hint:
-            raise SpecError(f"unknown spec field {key!r}; valid: {', '.join(MAP_KEYS)} (and a calibration "
-                            f"spec's own fields, which replay ignores).{hint}")
+            raise SpecError(
+                f"unknown spec field {key!r}; valid: {', '.join(MAP_KEYS)} (and a calibration "
+                f"spec's own fields, which replay ignores).{hint}"
+            )
     return SignalMap(**map_fields(raw, path.parent), source=path), ignored
 
 

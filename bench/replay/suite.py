@@ -3,6 +3,7 @@
 Logged inputs batched in `mujoco.rollout` (`commands=ctrl`) or logged actions through the env's step loop
 (`commands=action`); see the package docstring.
 """
+
 from __future__ import annotations
 
 import time
@@ -63,14 +64,18 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
                 if env.mujoco is None:
                     raise DataError(f"suite {cfg.suite!r}: cell {key} has no MuJoCo model/data to set states in")
                 if env.mujoco.model.nq + env.mujoco.model.nv != width:
-                    raise DataError(f"{cfg.logs}: observation.sim_state has width {width}, but cell {key}'s model "
-                                    f"has nq + nv = {env.mujoco.model.nq + env.mujoco.model.nv}; was it recorded with this suite?")
+                    raise DataError(
+                        f"{cfg.logs}: observation.sim_state has width {width}, but cell {key}'s model "
+                        f"has nq + nv = {env.mujoco.model.nq + env.mujoco.model.nv}; was it recorded with this suite?"
+                    )
                 n, i = _coordinates(env.mujoco.model)
                 if names is None:
                     names, idx = n, i
                 elif n != names:
-                    raise DataError(f"{cfg.logs}: cells {next(iter(built))} and {key} have different joints; "
-                                    f"replay one robot and task at a time (episodes=[...])")
+                    raise DataError(
+                        f"{cfg.logs}: cells {next(iter(built))} and {key} have different joints; "
+                        f"replay one robot and task at a time (episodes=[...])"
+                    )
             envs.append(built[key])
     except BaseException:
         for env in built.values():
@@ -108,11 +113,17 @@ def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
 
     from bench.env import mj_input_names
 
-    specs = {int(ep.meta.get("ctrl_spec", mujoco.mjtState.mjSTATE_CTRL)) if isinstance(ep.meta, dict)
-             else int(mujoco.mjtState.mjSTATE_CTRL) for ep in eps}
+    specs = {
+        int(ep.meta.get("ctrl_spec", mujoco.mjtState.mjSTATE_CTRL))
+        if isinstance(ep.meta, dict)
+        else int(mujoco.mjtState.mjSTATE_CTRL)
+        for ep in eps
+    }
     if len(specs) != 1:
-        raise DataError(f"{cfg.logs}: episodes log different inputs in {CTRL!r} (ctrl_spec {sorted(specs)}); "
-                        f"replay them separately (episodes=[...]) or use commands=action")
+        raise DataError(
+            f"{cfg.logs}: episodes log different inputs in {CTRL!r} (ctrl_spec {sorted(specs)}); "
+            f"replay them separately (episodes=[...]) or use commands=action"
+        )
     spec = specs.pop()
     width = ds.feature_shape(CTRL)[0]
     names = ds.features[CTRL].get("names") or []
@@ -123,18 +134,23 @@ def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
             raise DataError(f"{cfg.logs}: episode metadata 'ctrl_spec': {exc}") from None
         size = len(inputs)
         if size == 0 or width % size:
-            raise DataError(f"{cfg.logs}: feature {CTRL!r} has width {width}, not a multiple of the model's {size} "
-                            f"inputs ({', '.join(inputs[:4])}...); was it recorded with suite {cfg.suite!r}?")
+            raise DataError(
+                f"{cfg.logs}: feature {CTRL!r} has width {width}, not a multiple of the model's {size} "
+                f"inputs ({', '.join(inputs[:4])}...); was it recorded with suite {cfg.suite!r}?"
+            )
         logged = [str(n).rsplit("@", 1)[0] for n in names[:size]]
         if names and logged != inputs:
             i = next(i for i, (a, b) in enumerate(zip(logged + [None] * size, inputs)) if a != b)
-            raise DataError(f"{cfg.logs}: feature {CTRL!r} element {i} is {names[i]!r}, but input {i} of the model "
-                            f"is {inputs[i]!r}; replay with commands=action or with the suite that recorded it")
+            raise DataError(
+                f"{cfg.logs}: feature {CTRL!r} element {i} is {names[i]!r}, but input {i} of the model "
+                f"is {inputs[i]!r}; replay with commands=action or with the suite that recorded it"
+            )
     return spec, width // size
 
 
-def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets: np.ndarray, segments: dict,
-                    idx: np.ndarray) -> tuple[dict[str, np.ndarray], int]:
+def replay_actions(
+    envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets: np.ndarray, segments: dict, idx: np.ndarray
+) -> tuple[dict[str, np.ndarray], int]:
     """Positions after each frame of every segment, from logged actions stepped through the env in Python."""
     out, steps = {}, 0
     for label, segs in segments.items():
@@ -156,8 +172,17 @@ def replay_actions(envs, seeds: list, full: np.ndarray, act: np.ndarray, offsets
     return out, steps
 
 
-def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets: np.ndarray, segments: dict,
-                substeps: int, idx: np.ndarray, ctrl_spec: int | None = None) -> tuple[dict[str, np.ndarray], int]:
+def replay_ctrl(
+    threads: int,
+    envs,
+    full: np.ndarray,
+    ctrl: np.ndarray,
+    offsets: np.ndarray,
+    segments: dict,
+    substeps: int,
+    idx: np.ndarray,
+    ctrl_spec: int | None = None,
+) -> tuple[dict[str, np.ndarray], int]:
     """Positions after each frame of every segment, from logged ctrl batched in `mujoco.rollout`.
 
     Each segment starts from the logged qpos/qvel (the rest of the state is the env's current one)
@@ -187,18 +212,18 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
                 size, width = mujoco.mj_stateSize(m, spec), mujoco.mj_stateSize(m, inputs)
                 per = max(1, ROLLOUT_BYTES // (8 * nstep * (size + m.nsensordata)))
                 for lo in range(0, len(members), per):
-                    chunk = members[lo:lo + per]
+                    chunk = members[lo : lo + per]
                     init = np.zeros((len(chunk), size))
                     control = np.zeros((len(chunk), nstep, width))
                     for row, sgi in enumerate(chunk):
                         start, n = int(segs.start[sgi]), int(n_frames[sgi])
                         d.qpos[:] = full[start, : m.nq]
-                        d.qvel[:] = full[start, m.nq:]
+                        d.qvel[:] = full[start, m.nq :]
                         d.time = 0.0
                         mujoco.mj_getState(m, d, init[row], spec)
-                        control[row, : n * substeps] = ctrl[start:start + n].reshape(n * substeps, width)
+                        control[row, : n * substeps] = ctrl[start : start + n].reshape(n * substeps, width)
                     state, _ = pool.rollout(m, datas[key], init, control, control_spec=inputs, nstep=nstep)
-                    qpos = state[:, substeps - 1::substeps, 1:1 + m.nq]  # after each frame's last physics step
+                    qpos = state[:, substeps - 1 :: substeps, 1 : 1 + m.nq]  # after each frame's last physics step
                     pred[chunk] = qpos[:, :, idx]
                     steps += int(n_frames[chunk].sum()) * substeps
             out[label] = pred
@@ -211,20 +236,20 @@ def replay_ctrl(threads: int, envs, full: np.ndarray, ctrl: np.ndarray, offsets:
 class SuiteLogs:
     """A `bench run record=` dataset made ready to replay: nominal envs plus the logged arrays, concatenated."""
 
-    eps: list                  # dataset episodes, in replay order
-    envs: list                 # the nominal env of each episode (shared by episodes of one cell)
-    seeds: list                # each episode's reset seed (None if not logged)
-    joints: list[str]          # compared coordinates
-    idx: np.ndarray            # their qpos addresses
-    full: np.ndarray           # (N, nq + nv) logged MuJoCo state before each frame
-    act: np.ndarray            # (N, A) logged policy actions
-    ctrl: np.ndarray | None    # (N, substeps * size) logged inputs (actuator commands, mocap poses), if recorded
-    ctrl_spec: int             # their mjtState mask (0 without ctrl)
-    substeps: int              # physics steps per frame (0 without ctrl)
-    offsets: np.ndarray        # (E + 1,)
-    rec: Any                   # bench.calibrate.data.Recording of the compared positions
+    eps: list  # dataset episodes, in replay order
+    envs: list  # the nominal env of each episode (shared by episodes of one cell)
+    seeds: list  # each episode's reset seed (None if not logged)
+    joints: list[str]  # compared coordinates
+    idx: np.ndarray  # their qpos addresses
+    full: np.ndarray  # (N, nq + nv) logged MuJoCo state before each frame
+    act: np.ndarray  # (N, A) logged policy actions
+    ctrl: np.ndarray | None  # (N, substeps * size) logged inputs (actuator commands, mocap poses), if recorded
+    ctrl_spec: int  # their mjtState mask (0 without ctrl)
+    substeps: int  # physics steps per frame (0 without ctrl)
+    offsets: np.ndarray  # (E + 1,)
+    rec: Any  # bench.calibrate.data.Recording of the compared positions
     windows: list
-    exact: int                 # episodes whose first state is the exact reset(seed) state
+    exact: int  # episodes whose first state is the exact reset(seed) state
 
     def close(self) -> None:
         for env in _distinct(self.envs):
@@ -241,9 +266,14 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
 
     for feat in ("observation.sim_state", "action", *((CTRL,) if need_ctrl else ())):
         if feat not in ds.features:
-            hint = ("recorded by an env without a Python controller, or by robots with different actuators; "
-                    "use commands=action") if feat == CTRL else \
-                "suite replay needs a dataset written by `bench run ... record=DIR` with one robot (or spec=)"
+            hint = (
+                (
+                    "recorded by an env without a Python controller, or by robots with different actuators; "
+                    "use commands=action"
+                )
+                if feat == CTRL
+                else "suite replay needs a dataset written by `bench run ... record=DIR` with one robot (or spec=)"
+            )
             raise DataError(f"{cfg.logs}: feature {feat!r} missing; {hint}")
     lengths = [len(ep.data["action"]) for ep in eps]
     short = next((ep.index for ep, n in zip(eps, lengths) if n < 2), None)
@@ -269,8 +299,17 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
     full = np.concatenate(states)
     act = np.concatenate([np.asarray(ep.data["action"], dtype=np.float64) for ep in eps])
     ctrl = np.concatenate([np.asarray(ep.data[CTRL], dtype=np.float64) for ep in eps]) if need_ctrl else None
-    rec = Recording(fps=float(ds.fps), qpos=full[:, idx], qvel=np.zeros((len(full), 0)), ctrl=act, inputs=None,
-                    offsets=offsets, train=[], holdout=[], qvel_logged=True)
+    rec = Recording(
+        fps=float(ds.fps),
+        qpos=full[:, idx],
+        qvel=np.zeros((len(full), 0)),
+        ctrl=act,
+        inputs=None,
+        offsets=offsets,
+        train=[],
+        holdout=[],
+        qvel_logged=True,
+    )
     windows = [Window(i, 0, n) for i, n in enumerate(lengths)]
     return SuiteLogs(eps, envs, seeds, joints, idx, full, act, ctrl, ctrl_spec, substeps, offsets, rec, windows, exact)
 
@@ -301,8 +340,17 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
         segments = suite_segments(logs, cfg.k, commands)
         if commands == "ctrl":
             assert logs.ctrl is not None, "load_suite_logs(need_ctrl=True) loads the logged inputs"
-            preds, steps = replay_ctrl(cfg.threads, logs.envs, logs.full, logs.ctrl, logs.offsets, segments,
-                                       logs.substeps, logs.idx, logs.ctrl_spec)
+            preds, steps = replay_ctrl(
+                cfg.threads,
+                logs.envs,
+                logs.full,
+                logs.ctrl,
+                logs.offsets,
+                segments,
+                logs.substeps,
+                logs.idx,
+                logs.ctrl_spec,
+            )
         else:
             preds, steps = replay_actions(logs.envs, logs.seeds, logs.full, logs.act, logs.offsets, segments, logs.idx)
     finally:
@@ -315,11 +363,30 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     for row, ep in zip(per_episode, eps):
         meta = ep.meta if isinstance(ep.meta, dict) else {}
         row.update({k: meta[k] for k in ("condition", "params", "robot", "task", "env") if k in meta})
-    backend = (f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
-               if commands == "ctrl" else f"{cfg.suite} step loop")
-    notes = [f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} episode(s) "
-             f"start from the exact state of reset(seed), the rest from the logged float32 state"]
+    backend = (
+        f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
+        if commands == "ctrl"
+        else f"{cfg.suite} step loop"
+    )
+    notes = [
+        f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} episode(s) "
+        f"start from the exact state of reset(seed), the rest from the logged float32 state"
+    ]
     # sim_steps: physics steps for commands=ctrl, control (env) steps for commands=action
-    doc = _doc(cfg, backend, ds.fps, index, len(logs.full), joints, horizons, per_episode, steps, t0, notes,
-               commands=commands, suite=cfg.suite, spec=None)
+    doc = _doc(
+        cfg,
+        backend,
+        ds.fps,
+        index,
+        len(logs.full),
+        joints,
+        horizons,
+        per_episode,
+        steps,
+        t0,
+        notes,
+        commands=commands,
+        suite=cfg.suite,
+        spec=None,
+    )
     return Replay(doc, errors, rec.qpos, offsets, float(ds.fps), joints, index)
