@@ -218,6 +218,7 @@ def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
         kv = OmegaConf.to_container(OmegaConf.from_dotlist(overrides), resolve=True)
     except Exception as exc:  # omegaconf grammar errors
         raise ConfigError(f"cannot parse overrides {overrides}: {_first_line(exc)}") from None
+    assert isinstance(kv, dict)  # a dotlist always builds a mapping
     for k, v in kv.items():
         check_values(str(k), v)
     return positional, kv  # type: ignore[return-value]

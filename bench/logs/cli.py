@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -188,11 +189,11 @@ def cmd_import(argv: list[str]) -> int:
             )
     if not kv.get("out"):
         raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
-    common = {"fps": _fps(kv.get("fps")), "robot_type": _text(kv.get("robot_type"), "robot_type", None)}
+    fps, robot_type = _fps(kv.get("fps")), _text(kv.get("robot_type"), "robot_type", None)
     delimiter = _text(kv.get("delimiter"), "delimiter", ",")
     if delimiter is None or len(delimiter) != 1:
         raise ConfigError(f"delimiter is {delimiter!r}; expected one character (e.g. , or ; or a tab)")
-    task = _text(kv.get("task"), "task", "default")
+    task = _text(kv.get("task"), "task", "default") or "default"
     if fmt == "csv":
         ds = import_csv(
             src,
@@ -202,19 +203,22 @@ def cmd_import(argv: list[str]) -> int:
             episode=_text(kv.get("episode"), "episode", None),
             task=task,
             delimiter=delimiter,
-            **common,
+            fps=fps,
+            robot_type=robot_type,
         )
     elif fmt == "mat":
         pairs = (("observation.state", "state"), ("action", "action"))
-        mapping = {feature: _names(kv.get(key), key) for feature, key in pairs if kv.get(key)}
+        mapping: dict[str, str | Sequence[str]] = {
+            feature: names for feature, key in pairs if kv.get(key) and (names := _names(kv.get(key), key))
+        }
         ds = import_mat(
             src,
             mapping or None,
-            common["fps"],
+            fps,
             time=_text(kv.get("time"), "time", None),
             velocity=_bool(kv.get("velocity", False), "velocity"),
             task=task,
-            robot_type=common["robot_type"],
+            robot_type=robot_type,
         )
     else:
         ds = import_rlds(
@@ -224,7 +228,8 @@ def cmd_import(argv: list[str]) -> int:
             action=str(kv.get("action", "action")),
             instruction=str(kv.get("instruction", "language_instruction")),
             task=task,
-            **common,
+            fps=fps,
+            robot_type=robot_type,
         )
     out = write_dataset(
         Path(str(kv["out"])).expanduser(),

@@ -185,6 +185,7 @@ def import_csv(
         episodes.append(data)
         meta.append({"source": path.name, **({"episode": key} if key is not None else {})})
     names = {k: v for k, v in (("observation.state", state_cols), ("action", action_cols)) if v}
+    assert rate is not None  # fps given, or measured from the time column above
     return from_arrays(
         episodes,
         fps=float(rate),
@@ -307,6 +308,7 @@ def import_mat(
     if odd is not None:  # metadata is JSON: NaN / inf has no place there
         raise DataError(f"{path}: scalar variable {odd!r} is {scalars[odd]}; metadata must be finite (drop or fix it)")
     meta = {"source": path.name, **({"mat": scalars} if scalars else {})}
+    assert rate is not None  # fps given, or measured from the time column above
     return from_arrays(
         [data],
         fps=float(rate),
@@ -376,8 +378,8 @@ def _leaves(node: dict, prefix: str, stepwise: bool, out: dict[str, dict], where
         out[prefix[:-1]] = {"kind": "tensor", "dtype": "int64", "shape": [], "stepwise": stepwise, "encoding": "none"}
     else:
         kinds = ", ".join(k for k in node if k != "pythonClassName")
-        kind = kinds or node.get("pythonClassName")
-        raise DataError(f"{where}: feature {prefix[:-1]!r} has unsupported kind {kind!r}")
+        what = kinds or node.get("pythonClassName")
+        raise DataError(f"{where}: feature {prefix[:-1]!r} has unsupported kind {what!r}")
 
 
 def _decode_tensor(value: Any, spec: dict, key: str, where: str) -> np.ndarray:
@@ -402,7 +404,7 @@ def _decode_image(blob: bytes, spec: dict, key: str, where: str) -> np.ndarray:
     from PIL import Image
 
     try:
-        img = Image.open(io.BytesIO(blob))
+        img: Image.Image = Image.open(io.BytesIO(blob))
         if spec["shape"] and spec["shape"][-1] == 3 and img.mode != "RGB":
             img = img.convert("RGB")
         pix = np.asarray(img)
@@ -574,7 +576,7 @@ def import_rlds(
         raise DataError(f"{shards[0]}: no records")
     ids = [r[1].get("episode_metadata/episode_id") for r in records]
     if all(isinstance(i, int) for i in ids):
-        records = [r for _, r in sorted(zip(ids, records), key=lambda p: p[0])]
+        records = [r for _, r in sorted(zip(ids, records), key=lambda p: p[0] if p[0] is not None else -1)]
 
     arrays: list[dict[str, np.ndarray]] = []
     per_frame_tasks: list[list[str]] = []

@@ -269,6 +269,7 @@ def _load_tasks(root: Path) -> list[str]:
     names = table.column_names
     if "task_index" not in names:
         raise DataError(f"{_where(root, TASKS_PATH)}: column 'task_index' is missing")
+    text_col: str | None
     if "task" in names:
         text_col = "task"
     else:
@@ -343,7 +344,7 @@ def _build_index(root: Path) -> _Index:
     def ints(name: str) -> np.ndarray:
         column = cols[name]
         try:
-            if column.null_count or not pa.types.is_integer(column.type):
+            if column is None or column.null_count or not pa.types.is_integer(column.type):
                 raise ValueError
             return np.asarray(column.to_numpy(), dtype=np.int64)
         except (TypeError, ValueError, pa.ArrowException):
@@ -554,7 +555,7 @@ def _decode_images(arr: pa.Array, name: str, feature: dict, root: Path, rel: str
     out = np.empty((len(blobs),) + shape, dtype=np.uint8)
     for i, (blob, path) in enumerate(zip(blobs, paths)):
         try:
-            img = Image.open(io.BytesIO(blob) if blob is not None else root / str(path))
+            img: Image.Image = Image.open(io.BytesIO(blob) if blob is not None else root / str(path))
             if shape[-1] == 3 and img.mode != "RGB":
                 img = img.convert("RGB")
             pix = np.asarray(img)

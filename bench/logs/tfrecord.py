@@ -25,7 +25,7 @@ import os
 import struct
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Union
+from typing import Any, Union
 
 import numpy as np
 
@@ -210,9 +210,10 @@ def _varint(buf: memoryview, pos: int) -> tuple[int, int]:
             raise ProtoError("varint longer than 10 bytes")
 
 
-def _fields(buf: memoryview) -> Iterator[tuple[int, int, object]]:
-    """(field number, wire type, value): an int for varint/fixed fields, a memoryview for length-delimited."""
+def _fields(buf: memoryview) -> Iterator[tuple[int, int, Any]]:
+    """(field number, wire type, value): an int for varint fields, a memoryview for fixed and length-delimited."""
     pos, end = 0, len(buf)
+    value: Any
     while pos < end:
         tag, pos = _varint(buf, pos)
         number, wire = tag >> 3, tag & 7
@@ -254,10 +255,10 @@ def parse_feature(buf: memoryview) -> Value:
     kind: Value = np.zeros(0, dtype=np.float32)
     for number, _, value in _fields(buf):
         if number == 1:  # BytesList
-            kind = [bytes(v) for n, w, v in _fields(value) if n == 1 and w == 2]  # type: ignore[arg-type]
+            kind = [bytes(v) for n, w, v in _fields(value) if n == 1 and w == 2]
         elif number == 2:  # FloatList
             parts = []
-            for n, w, v in _fields(value):  # type: ignore[arg-type]
+            for n, w, v in _fields(value):
                 if n != 1:
                     continue
                 if w == 2:
@@ -269,29 +270,29 @@ def parse_feature(buf: memoryview) -> Value:
             kind = np.concatenate(parts).astype(np.float32) if parts else np.zeros(0, dtype=np.float32)
         elif number == 3:  # Int64List
             ints: list[int] = []
-            for n, w, v in _fields(value):  # type: ignore[arg-type]
+            for n, w, v in _fields(value):
                 if n != 1:
                     continue
                 if w == 2:
-                    ints.extend(_packed_varints(v))  # type: ignore[arg-type]
+                    ints.extend(_packed_varints(v))
                 elif w == 0:
-                    ints.append(v)  # type: ignore[arg-type]
+                    ints.append(v)
                 else:
                     raise ProtoError(f"Int64List.value with wire type {w}")
             kind = _to_int64(ints)
     return kind
 
 
-def _parse_map(buf: memoryview, value_parser) -> dict[str, object]:
+def _parse_map(buf: memoryview, value_parser: Any) -> dict[str, Any]:
     """A protobuf map<string, M> (field 1 of the enclosing message) as a dict."""
-    out: dict[str, object] = {}
+    out: dict[str, Any] = {}
     for number, wire, entry in _fields(buf):
         if number != 1 or wire != 2:
             continue
         key, value = "", None
-        for n, w, v in _fields(entry):  # type: ignore[arg-type]
+        for n, w, v in _fields(entry):
             if n == 1 and w == 2:
-                key = bytes(v).decode("utf-8")  # type: ignore[arg-type]
+                key = bytes(v).decode("utf-8")
             elif n == 2 and w == 2:
                 value = value_parser(v)
         out[key] = value if value is not None else value_parser(memoryview(b""))
@@ -299,7 +300,7 @@ def _parse_map(buf: memoryview, value_parser) -> dict[str, object]:
 
 
 def _parse_feature_list(buf: memoryview) -> list[Value]:
-    return [parse_feature(v) for n, w, v in _fields(buf) if n == 1 and w == 2]  # type: ignore[arg-type]
+    return [parse_feature(v) for n, w, v in _fields(buf) if n == 1 and w == 2]
 
 
 def parse_example(buf: bytes | memoryview) -> tuple[dict[str, Value], dict[str, list[Value]]]:
@@ -314,9 +315,9 @@ def parse_example(buf: bytes | memoryview) -> tuple[dict[str, Value], dict[str, 
     lists: dict[str, list[Value]] = {}
     for number, wire, value in _fields(buf):
         if number == 1 and wire == 2:
-            features.update(_parse_map(value, parse_feature))  # type: ignore[arg-type]
+            features.update(_parse_map(value, parse_feature))
         elif number == 2 and wire == 2:
-            lists.update(_parse_map(value, _parse_feature_list))  # type: ignore[arg-type]
+            lists.update(_parse_map(value, _parse_feature_list))
     return features, lists
 
 
