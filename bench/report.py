@@ -106,6 +106,10 @@ def load_calibration(arg: str) -> dict:
         isinstance(errors.get(s), dict) for s in ("nominal", "declared", "final")
     ):
         raise DataError(f"{path}: field errors must hold nominal/declared/final error summaries")
+    for stage, summary in errors.items():
+        for key, value in summary.items() if isinstance(summary, dict) else ():
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise DataError(f"{path}: field errors.{stage}.{key} is {value!r:.40}; valid: a number or null")
     return doc
 
 

@@ -31,7 +31,7 @@ add(
     UW,
     "run-g-steps-absurd",
     [*RUN[:3], "episodes=100000", "horizon=100000", *RUN[4:]],
-    r"episodes=100000 x horizon=100000",
+    r"control steps, over the limit of 1e\+10; reduce episodes=, horizon=",
 )
 add(SA, "correlate-g-level-zero", ["correlate", "sim={ws}/sim.json", "real={ws}/real.json", "level=0"], r"level")
 add(SA, "replay-g-k-nan", ["replay", "logs={ws}/ds", "spec={ws}/spec.yaml", "k=nan"], r"\bk\b")

@@ -22,8 +22,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 from hostile_corpus import CASES  # noqa: E402
 
-pytestmark = pytest.mark.slow  # the whole corpus takes minutes; .ci/run runs it with the slow tests
-
 # case name -> why it still fails (kept short; see the closing note of issue 14)
 KNOWN_FAILING: dict[str, str] = {}
 

@@ -303,6 +303,9 @@ def import_mat(
     if t is not None:
         data.update(_time_features(t))
         rate = rate or _fps_from_time(t, str(path), time)  # type: ignore[arg-type]
+    big = next((k for k, v in numeric.items() if v.size and np.abs(v.astype(np.float64)).max() > F32_MAX), None)
+    if big is not None:
+        raise DataError(f"{path}: variable {big!r} holds values beyond what float32 holds (3.4e38)")
     scalars = {k: float(v.reshape(-1)[0]) for k, v in numeric.items() if v.size == 1}
     odd = next((k for k, v in scalars.items() if not np.isfinite(v)), None)
     if odd is not None:  # metadata is JSON: NaN / inf has no place there
