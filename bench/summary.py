@@ -317,7 +317,7 @@ def check_run_meta(meta: dict[str, Any], source: str) -> None:
     """
     import math
 
-    from bench.api import MAX_N_BOOT
+    from bench.config import MAX_N_BOOT
     from bench.suite import METRICS as ALL_METRICS
 
     for key, typ, valid in (
