@@ -312,6 +312,22 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
     return out  # type: ignore[return-value]
 
 
+def _field_lines(source: str) -> list[str]:
+    """The source's lines, a field wrapped over several lines (`x: int = ranged(\n ...\n)  # doc`) joined into one."""
+    out: list[str] = []
+    depth = 0
+    for raw in source.splitlines():
+        line = raw.strip()
+        code = line.split("#", 1)[0]
+        if depth > 0:
+            out[-1] = f"{out[-1]} {line}"
+        else:
+            out.append(line)
+        depth += code.count("(") + code.count("[") - code.count(")") - code.count("]")
+        depth = max(depth, 0)
+    return out
+
+
 def key_help(schema: type) -> str:
     """One line per field of `schema`: its name and the comment beside it in the source.
 
@@ -330,8 +346,7 @@ def key_help(schema: type) -> str:
         else:
             required.add(f.name)
     rows = []
-    for line in inspect.getsource(schema).splitlines():
-        line = line.strip()
+    for line in _field_lines(inspect.getsource(schema)):
         m = re.match(r"^(\w+)\s*:[^#]*#\s*(.*)$", line)
         if m and m.group(1) in required:
             rows.append((m.group(1) + " (required)", m.group(2)))
