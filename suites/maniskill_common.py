@@ -152,3 +152,20 @@ class ManiSkillSuite(SuiteBase):
         o = self.options
         require_extra()
         check_common(o.obs, o.cameras, o.image_size, o.sim_backend, o.reset)
+
+    def _env(self, cell: Any, horizon: int, interface: Any) -> Any:
+        """The cell's ManiSkillEnv with this suite's common keys (obs, cameras, image size, backend, reset)."""
+        o, task = self.options, TASKS[cell.task]
+        return sim_maniskill.ManiSkillEnv(
+            task.env_id,
+            cell.robot,
+            horizon,
+            interface=interface,
+            obs=o.obs,
+            cameras=o.cameras,
+            image_size=o.image_size,
+            object_names=task.objects,
+            instruction=task.instruction,
+            sim_backend=o.sim_backend,
+            reset=o.reset,
+        )

@@ -44,7 +44,7 @@ from typing import Any, Optional
 
 from bench.protocols import EnvAdapter, ObsSpec, Policy
 from bench.suite import Cell
-from suites.maniskill_common import TASKS, ManiSkillSuite, obs_spec
+from suites.maniskill_common import ManiSkillSuite, obs_spec
 
 SEEN = ["panda", "panda_wristcam"]
 UNSEEN = ["fetch", "so100"]
@@ -92,24 +92,10 @@ class ManiSkillHeldOutRobots(ManiSkillSuite):
         return obs_spec(STATE_FIELDS, cell.robot, o.obs, o.cameras, o.image_size)
 
     def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
-        from bench.sim_maniskill import ManiSkillEnv
         from suites.maniskill_agnostic import AgnosticInterface
 
-        o, task = self.options, TASKS[cell.task]
         _, obj, goal = CELLS[cell.task]
-        return ManiSkillEnv(
-            task.env_id,
-            cell.robot,
-            horizon,
-            interface=AgnosticInterface(cell.robot, obj, goal),
-            obs=o.obs,
-            cameras=o.cameras,
-            image_size=o.image_size,
-            object_names=task.objects,
-            instruction=task.instruction,
-            sim_backend=o.sim_backend,
-            reset=o.reset,
-        )
+        return self._env(cell, horizon, AgnosticInterface(cell.robot, obj, goal))
 
     def make_expert(self, cell: Cell, env: Any) -> Policy:
         from baselines.maniskill_scripted import make_expert

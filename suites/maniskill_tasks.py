@@ -161,22 +161,9 @@ class ManiSkillTasks(ManiSkillSuite):
         return obs_spec(state_fields(cell.task, o.control_mode), cell.robot, o.obs, o.cameras, o.image_size)
 
     def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
-        from bench.sim_maniskill import ManiSkillEnv, NativeInterface
+        from bench.sim_maniskill import NativeInterface
 
-        o, task = self.options, TASKS[cell.task]
-        return ManiSkillEnv(
-            task.env_id,
-            cell.robot,
-            horizon,
-            interface=NativeInterface(o.control_mode),
-            obs=o.obs,
-            cameras=o.cameras,
-            image_size=o.image_size,
-            object_names=task.objects,
-            instruction=task.instruction,
-            sim_backend=o.sim_backend,
-            reset=o.reset,
-        )
+        return self._env(cell, horizon, NativeInterface(self.options.control_mode))
 
     def make_expert(self, cell: Cell, env: Any) -> Policy:
         from baselines.maniskill_mp import MotionPlanExpert
