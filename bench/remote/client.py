@@ -20,7 +20,6 @@ suite and cells.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import time
 import weakref
@@ -32,22 +31,12 @@ import numpy as np
 
 from bench.errors import BenchError, ConfigError
 from bench.protocols import Obs, PolicyContext, PolicyIdentity, PolicyPlugin
-from bench.remote import latency, wire
+from bench.remote import latency, link, wire
 from bench.remote import obs_map as obs_map_mod
 
 MAX_TIMEOUT_S = 3600.0
 MAX_REPLY_BYTES = 256 * 2**20
 BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.05, 1.0
-
-
-@functools.cache
-def _legacy_flag() -> dict[str, Any]:
-    """websockets >= 17 asks `connect(..., legacy=True)` for a plain connection (no reconnect iterator)."""
-    import inspect
-
-    from websockets.sync.client import connect
-
-    return {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
 
 
 class RemoteError(BenchError):
@@ -69,7 +58,7 @@ class Connection:
         self.host, self.port, self.timeout_s = host, int(port), float(timeout_s)
         self.where = address(host, port)
         self.uri = f"ws://{self.where}"
-        self.ws: Any = None
+        self.ws: link.Link | None = None
         self.metadata: dict[str, Any] = {}
 
     @property
@@ -84,9 +73,6 @@ class Connection:
 
     def connect(self) -> dict[str, Any]:
         """Open the socket and read the server's metadata; retry with backoff until `timeout_s` is spent."""
-        from websockets.exceptions import InvalidHandshake, InvalidURI
-        from websockets.sync.client import connect
-
         self.close()
         deadline = time.monotonic() + self.timeout_s
         delay, attempts, last = BACKOFF_FIRST_S, 0, "no attempt"
@@ -94,19 +80,10 @@ class Connection:
             attempts += 1
             left = deadline - time.monotonic()
             try:
-                ws = connect(
-                    self.uri,
-                    open_timeout=max(left, 0.01),
-                    close_timeout=1.0,
-                    compression=None,
-                    max_size=MAX_REPLY_BYTES,
-                    ping_interval=None,
-                    proxy=None,
-                    **_legacy_flag(),
-                )
-            except InvalidURI as exc:
+                ws = link.connect(self.uri, max(left, 0.01), MAX_REPLY_BYTES)
+            except ValueError as exc:  # not a ws:// address
                 raise RemoteError(f"host={self.host!r} port={self.port}: not a valid address ({exc})") from None
-            except (OSError, TimeoutError, InvalidHandshake, EOFError) as exc:
+            except (OSError, TimeoutError, EOFError) as exc:  # link.HandshakeFailed is an OSError
                 last = _reason(exc)
             else:
                 try:
@@ -125,7 +102,7 @@ class Connection:
             time.sleep(min(delay, left))
             delay = min(delay * 2, BACKOFF_MAX_S)
 
-    def _metadata(self, ws: Any, deadline: float) -> dict[str, Any]:
+    def _metadata(self, ws: link.Link, deadline: float) -> dict[str, Any]:
         try:
             frame = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
         except TimeoutError:
@@ -157,12 +134,8 @@ class Connection:
             raise RemoteError(
                 f"the server at {self.where} did not answer within timeout_s={self.timeout_s:g} s"
             ) from None
-        except Exception as exc:
-            from websockets.exceptions import ConnectionClosed
-
-            if isinstance(exc, ConnectionClosed):
-                raise RemoteError(f"the server at {self.where} closed the connection ({_reason(exc)})") from None
-            raise
+        except (link.Closed, OSError) as exc:
+            raise RemoteError(f"the server at {self.where} closed the connection ({_reason(exc)})") from None
         finally:
             if not ok:  # includes the episode's own timeout interrupting recv: never reuse this socket
                 self.close()

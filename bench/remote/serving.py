@@ -7,18 +7,20 @@
 convention) and the connection goes on; so does any other exception, prefixed with
 `failure_prefix`. It answers `GET /healthz` like openpi's server.
 
-This module needs only numpy, msgpack and websockets, so an adapter running in another
+This module needs only numpy, msgpack and websockets (its Sans-I/O protocol), so an adapter running in another
 venv (e.g. `baselines/lerobot_server.py` in lerobot's) serves with the same code as
 `bench serve`.
 """
 
 from __future__ import annotations
 
+import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from bench.remote import wire
+from bench.remote import link, wire
 
 
 class RequestError(Exception):
@@ -38,7 +40,7 @@ class AddressInUse(OSError):
 
 
 class WebsocketServer:
-    """A websocket policy server: one thread and one session per connection."""
+    """A websocket policy server: one thread and one session per connection (`bench.remote.link`, no reader threads)."""
 
     def __init__(
         self,
@@ -54,30 +56,47 @@ class WebsocketServer:
         self.host, self.port, self.max_message_bytes = host, int(port), int(max_message_bytes)
         self.log = log or (lambda text: None)
         self.failure_prefix = failure_prefix
-        self._server: Any = None
+        self._listener: socket.socket | None = None
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._stopping = threading.Event()
+        self._lock = threading.Lock()
+        self._links: set[socket.socket] = set()
+        self._threads: set[threading.Thread] = set()
         self._metadata_frame = wire.encode(metadata)
 
     def bind(self) -> int:
         """Open the listening socket and return its port (AddressInUse when that fails)."""
-        from websockets.sync.server import serve
-
+        family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
         try:
-            self._server = serve(
-                self._handle,
-                self.host,
-                self.port,
-                compression=None,
-                max_size=self.max_message_bytes,
-                ping_interval=None,
-                process_request=_health,
-                logger=_quiet_logger(),
-            )
+            self._listener = socket.create_server((self.host.strip("[]"), self.port), family=family, backlog=64)
         except OSError as exc:
             raise AddressInUse(exc.errno, exc.strerror or str(exc)) from None
-        return int(self._server.socket.getsockname()[1])
+        return int(self._listener.getsockname()[1])
 
     def serve_forever(self) -> None:
-        self._server.serve_forever()
+        """Accept connections until `shutdown()` (each served by its own thread)."""
+        import selectors
+
+        listener = self._listener
+        if listener is None:
+            raise RuntimeError("bind() first")
+        with selectors.DefaultSelector() as sel:
+            sel.register(listener, selectors.EVENT_READ)
+            sel.register(self._wake_r, selectors.EVENT_READ)
+            while not self._stopping.is_set():
+                ready = [key.fileobj for key, _ in sel.select()]
+                if self._wake_r in ready or self._stopping.is_set():
+                    break
+                try:
+                    sock, _ = listener.accept()
+                except OSError:
+                    continue
+                sock.setblocking(True)
+                thread = threading.Thread(target=self._connection, args=(sock,), name="bench-serve-conn", daemon=True)
+                with self._lock:
+                    self._links.add(sock)
+                    self._threads.add(thread)
+                thread.start()
 
     def serve_until_stopped(self, banner: str, label: str) -> None:
         """Print `banner`, serve until Ctrl-C or SIGTERM, shut down, and say so (`label: stopped`)."""
@@ -102,25 +121,50 @@ class WebsocketServer:
         threading.Thread(target=self.serve_forever, name="bench-serve", daemon=True).start()
         return port
 
-    def shutdown(self) -> None:
-        """Stop listening, close every connection and wait for their threads."""
-        if self._server is not None:
-            self._server.shutdown()
+    def shutdown(self, wait_s: float = 10.0) -> None:
+        """Stop listening, close every connection and wait (up to `wait_s`) for their threads."""
+        self._stopping.set()
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+        if self._listener is not None:
+            self._listener.close()
+        with self._lock:
+            links, threads = list(self._links), list(self._threads)
+        for sock in links:  # wakes the connection threads blocked in recv
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        deadline = time.monotonic() + wait_s
+        for thread in threads:
+            if thread is not threading.current_thread():
+                thread.join(max(deadline - time.monotonic(), 0.0))
 
-    def _handle(self, ws: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
+    def _connection(self, sock: socket.socket) -> None:
+        try:
+            ws = link.accept(sock, self.max_message_bytes, _health)
+            if ws is not None:
+                self._serve(ws)
+        finally:
+            try:
+                sock.close()
+            except OSError:
+                pass
+            with self._lock:
+                self._links.discard(sock)
+                self._threads.discard(threading.current_thread())
 
-        peer = _peer(ws)
+    def _serve(self, ws: link.Link) -> None:
+        peer = _peer(ws.sock)
         session = self.open_session()
         requests = 0
         self.log(f"client {peer} connected")
         try:
             ws.send(self._metadata_frame)
             while True:
-                try:
-                    frame = ws.recv()
-                except ConnectionClosed:
-                    break
+                frame = ws.recv()
                 requests += 1
                 try:
                     answer: bytes | str = wire.encode(session.handle(wire.decode(frame, "the request")))
@@ -130,38 +174,27 @@ class WebsocketServer:
                 except Exception as exc:  # the policy or its env failed: report it, keep serving
                     answer = wire.error_line(f"{self.failure_prefix}: {type(exc).__name__}: {exc}")
                     self.log(f"client {peer}: request {requests}: {answer[7:]}")
-                try:
-                    ws.send(answer)
-                except ConnectionClosed:
-                    break
-        except ConnectionClosed:
+                ws.send(answer)
+        except (link.Closed, OSError):
             pass
         finally:
+            ws.close()
             session.close()
             self.log(f"client {peer} disconnected after {requests} request(s)")
 
 
-def _peer(ws: Any) -> str:
+def _peer(sock: socket.socket) -> str:
     try:
-        host, port = ws.remote_address[:2]
+        host, port = sock.getpeername()[:2]
         return f"{host}:{port}"
     except Exception:
         return "?"
 
 
-def _health(connection: Any, request: Any) -> Any:
+def _health(protocol: Any, request: Any) -> Any:
     """`GET /healthz` -> 200 OK (as openpi's server); anything else goes on to the websocket handshake."""
     if request.path == "/healthz":
         from http import HTTPStatus
 
-        return connection.respond(HTTPStatus.OK, "OK\n")
+        return protocol.reject(HTTPStatus.OK, "OK\n")
     return None
-
-
-def _quiet_logger() -> Any:
-    """websockets' logger silenced: clients dropping mid-handshake are not worth a traceback (we log one line)."""
-    import logging
-
-    logger = logging.getLogger("bench.serve.websockets")
-    logger.setLevel(logging.CRITICAL)
-    return logger
