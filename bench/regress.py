@@ -129,8 +129,8 @@ def _override(key: str, value: Any) -> str:
 def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[str, str]]:
     """Own keys -> RegressConfig; `bench run` keys (the runner's and the suite's) forwarded verbatim."""
     from bench import registry
-    from bench.api import RUNNER_KEYS, RunConfig
     from bench.protocols import Suite, option_keys
+    from bench.run_config import RUNNER_KEYS, RunConfig
 
     positional, overrides = config_mod.split_args(argv)
     if positional:
