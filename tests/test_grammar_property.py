@@ -31,7 +31,7 @@ def _schemas() -> list[type]:
     from bench.check import CheckConfig
     from bench.coverage import CoverageConfig
     from bench.perf import PerfConfig
-    from bench.regress import RegressConfig
+    from bench.regress_args import RegressConfig
     from bench.replay.common import ReplayConfig
     from bench.report import ReportConfig
 
