@@ -100,4 +100,12 @@ def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message)
 
 
 def test_executor_keys_may_change_on_resume():
-    assert {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"} <= run_config.RESUMABLE_KEYS
+    assert {
+        "executor",
+        "ray_address",
+        "actors",
+        "actor_cpus",
+        "actor_gpus",
+        "ray_env",
+        "workers",
+    } <= run_config.RESUMABLE_KEYS
