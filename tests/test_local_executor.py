@@ -100,12 +100,5 @@ def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message)
 
 
 def test_executor_keys_may_change_on_resume():
-    assert {
-        "executor",
-        "ray_address",
-        "actors",
-        "actor_cpus",
-        "actor_gpus",
-        "ray_env",
-        "workers",
-    } <= run_config.RESUMABLE_KEYS
+    where_and_how = {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"}
+    assert where_and_how <= run_config.RESUMABLE_KEYS
