@@ -36,7 +36,7 @@ from baselines.coverage_sweep_stats import (  # noqa: F401  (render_sweep, plot_
     render_sweep,
 )
 from bench.api import RunConfig
-from bench.coverage import initial_states_from_suite
+from bench.coverage_metrics import initial_states_from_suite
 from bench.errors import ConfigError, DataError, did_you_mean
 from bench.trend import SeriesBootstrap
 

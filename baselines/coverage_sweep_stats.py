@@ -12,7 +12,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from bench import scoring
-from bench.coverage import TrainingData, coverage_report, fmt_pct
+from bench.coverage import fmt_pct
+from bench.coverage_metrics import TrainingData, coverage_report
 from bench.trend import SeriesBootstrap, slope_with_interval
 
 

@@ -1,9 +1,9 @@
 """Statistics of the regression gate (`bench regress`): paired tests pooled, per split and per cell.
 
-Pure functions over paired outcome counts: no records, files or simulators. `bench.regress`
-pairs the episodes and calls `evaluate_look` after each batch; `bench.gate_power` computes the
-budget a power target needs with the same thresholds; `benchmarks/bench_gate.py` drives these
-functions on synthetic outcomes to measure the error rates.
+Pure functions over paired outcome counts: no records, files or simulators. `bench.gate_pairs`
+pairs the episodes and `bench.regress` calls `evaluate_look` after each batch; `bench.gate_power`
+computes the budget a power target needs with the same thresholds; `benchmarks/bench_gate.py`
+drives these functions on synthetic outcomes to measure the error rates.
 
 drop = baseline success − candidate success. Every test asks "is the drop above `margin`?"
 (H0: drop <= margin, one-sided):

@@ -14,7 +14,8 @@ time `apply` sees it and restored before every episode: a reused env never
 drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
 observation noise and a slower control rate (action hold). Visual axes (kind "visual":
 light, camera pose, colours, textures, background, distractors) change only what the
-env's cameras render; they live in `bench.perturb_visual`, which this module calls.
+env's cameras render; `bench.visual_scene` applies them, called from here (the catalogue
+and its checks are `bench.perturb_visual`'s).
 The axes and the `perturb.*` grammar that makes conditions are `bench.axes`'.
 """
 
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from bench import perturb_visual
+from bench import visual_scene
 from bench.axes import AXES, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
 from bench.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
@@ -132,7 +133,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     """
     for cond in conditions:
         if cond.axis in VISUAL_AXES:
-            perturb_visual.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
+            visual_scene.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
             continue
         if cond.axis not in MODEL_AXES:
             continue
@@ -340,7 +341,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         nom.restore()
     if env.model_axes is not None:
         env.model_axes.restore()
-    perturb_visual.clear(env)
+    visual_scene.clear(env)
     axis = axis_named(condition.axis) if condition.axis is not None else None
     if axis is not None and axis.kind == "visual":
         if mj is not None and nom is not None and nom.const_dirty:
@@ -348,7 +349,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
             nom.const_dirty = False
             mj.forward()
         value = _draw(condition, rng)
-        return env, perturb_visual.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
+        return env, visual_scene.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
     if axis is None or axis.kind == "interface":
         if mj is not None and nom is not None and nom.const_dirty:
             _set_const(mj)

@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.logs import from_arrays, lerobot, read_dataset, read_episode, write_dataset
+from bench.logs import from_arrays, lerobot_index, lerobot_read, read_dataset, read_episode, write_dataset
 
 
 def _clear_caches() -> None:
-    lerobot._INDEX_CACHE.clear()
-    lerobot._FOOTER_CACHE.clear()
+    lerobot_index._INDEX_CACHE.clear()
+    lerobot_read._FOOTER_CACHE.clear()
 
 
 def _median_time(fn, repeats: int, setup=None) -> tuple[float, float]:

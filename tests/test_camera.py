@@ -1,6 +1,6 @@
-"""Offscreen cameras (bench.camera) and visual perturbation axes (bench.perturb_visual) on a real MuJoCo scene
-rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a floor, a wall, a
-light, a fixed front camera and a camera on a moving body."""
+"""Offscreen cameras (bench.camera) and visual perturbation axes (bench.perturb_visual, bench.visual_scene) on a
+real MuJoCo scene rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a
+floor, a wall, a light, a fixed front camera and a camera on a moving body."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import pytest
 
 from bench.camera import CameraRig, check_cameras, parse_image_size
 from bench.errors import ConfigError
-from bench.perturb_visual import AXES, VisualScene, check
+from bench.perturb_visual import AXES, check
+from bench.visual_scene import VisualScene
 
 mujoco = pytest.importorskip("mujoco")
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench import api, regress
+from bench import api, regress_args
 from bench.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,17 +51,17 @@ def test_workflow_is_valid_yaml_with_the_expected_shape():
 
 def test_workflow_gate_command_line_is_accepted_by_bench_regress():
     argv = _command(_workflow(), "bench regress")
-    cfg, forwarded, _ = regress.parse_args(argv)  # the real argument handling; nothing is run
+    cfg, forwarded, _ = regress_args.parse_args(argv)  # the real argument handling; nothing is run
     assert cfg.candidate == "checkpoints/policy.safetensors" and cfg.baseline == "baseline-run/baseline"
     assert cfg.out == "gate/verdict.json" and not cfg.plan
     # the check bites: one misspelt key and the same line is refused
     with pytest.raises(ConfigError, match="unknown key 'margn'"):
-        regress.parse_args([*argv, "margn=0.1"])
+        regress_args.parse_args([*argv, "margn=0.1"])
 
 
 def test_workflow_baseline_run_is_where_the_gate_reads_it():
     doc = _workflow()
     run_cfg = api.config_from_argv(_command(doc, "bench run"))  # typed by the runner, suite and policy
-    gate_cfg, _, _ = regress.parse_args(_command(doc, "bench regress"))
+    gate_cfg, _, _ = regress_args.parse_args(_command(doc, "bench regress"))
     assert str(Path(run_cfg.out) / str(run_cfg.run_id)) == gate_cfg.baseline
     assert run_cfg.policy_options["checkpoint"] == "baseline/policy.safetensors"

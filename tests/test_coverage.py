@@ -11,6 +11,7 @@ import pytest
 
 from baselines import coverage_sweep as sweep
 from bench import coverage as cov
+from bench import coverage_metrics as covm
 from bench import trend
 from bench.axes import conditions_from_config
 from bench.errors import ConfigError
@@ -32,7 +33,7 @@ def _meta(robot: str, **kw) -> dict:
 
 # -- support ---------------------------------------------------------------------------------
 def test_support_counts_present_vs_evaluated_per_split():
-    s = cov.support([_meta("Panda"), _meta("Panda"), _meta("UR5e")], CELLS, MANIFEST)
+    s = covm.support([_meta("Panda"), _meta("Panda"), _meta("UR5e")], CELLS, MANIFEST)
     r = s["robots"]
     assert r["covered"] == ["Panda", "UR5e"] and r["missing"] == ["Jaco", "Sawyer"] and r["fraction"] == 0.5
     assert r["by_split"]["seen"]["covered"] == ["Panda"] and r["by_split"]["unseen"]["fraction"] == 0.5
@@ -52,7 +53,7 @@ def test_state_coverage_known_distances_and_radius():
     train = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float)  # std 0.5 per dim
     episode = np.array([0, 0, 1, 1])
     ev = np.array([[0, 0], [3, 0]], float)
-    out = cov.state_coverage(train, episode, ev, ["a", "b"])
+    out = covm.state_coverage(train, episode, ev, ["a", "b"])
     # [3,0] -> nearest [1,0]: (2/0.5, 0) -> RMS 4/sqrt(2); training first states are 1/0.5 apart -> sqrt(2)
     assert out["distances"] == pytest.approx([0.0, 4 / np.sqrt(2)], abs=1e-6)
     assert out["reference_radius"] == pytest.approx(np.sqrt(2), abs=1e-6)
@@ -65,14 +66,14 @@ def test_leave_one_episode_out_looks_past_the_episodes_own_frames():
     rng = np.random.default_rng(0)
     train = np.concatenate([rng.normal(scale=1e-3, size=(200, 3)), np.full((5, 3), 2.0), np.full((5, 3), -2.0)])
     episode = np.repeat([0, 1, 2], [200, 5, 5])
-    out = cov.state_coverage(train, episode, np.zeros((1, 3)), scale=np.ones(3))
+    out = covm.state_coverage(train, episode, np.zeros((1, 3)), scale=np.ones(3))
     assert out["reference"]["n"] == 3
     assert out["reference"]["max"] == pytest.approx(np.sqrt(12) / np.sqrt(3), rel=1e-2)  # -2 -> +2 per dim
     assert out["reference"]["mean"] > 1.9  # no episode is "covered" by its own frames
 
 
 def test_single_episode_has_no_radius_but_distances():
-    out = cov.state_coverage(np.zeros((3, 2)), np.zeros(3), np.ones((2, 2)))
+    out = covm.state_coverage(np.zeros((3, 2)), np.zeros(3), np.ones((2, 2)))
     assert out["reference_radius"] is None and out["overall"]["covered"] is None
     assert "fewer than 2 episodes" in out["overall"]["reason"] and out["overall"]["mean"] > 0
 
@@ -81,7 +82,7 @@ def test_single_episode_has_no_radius_but_distances():
 def test_param_coverage_of_ranges_grids_and_nominal():
     conds = conditions_from_config({"gain": ["uniform(0.7,1.3)"], "latency": [2, 4]})
     train = [{"gain": 0.9}, {"gain": 1.1}, {}, {}]  # {} = ran at the nominal level
-    out = cov.param_coverage(train, conds)
+    out = covm.param_coverage(train, conds)
     g = out["gain"]
     assert g["evaluated"] == [0.7, 1.3] and g["training"] == [0.9, 1.1]
     assert g["coverage"] == pytest.approx(0.2 / 0.6, abs=1e-6)
@@ -296,7 +297,7 @@ def test_initial_states_use_the_runs_episode_seeds():
         def make_env(self, cell, horizon):
             return Env()
 
-    states, groups = cov.initial_states_from_suite(Suite(), CELLS[:2], seed=3, episodes=2)
+    states, groups = covm.initial_states_from_suite(Suite(), CELLS[:2], seed=3, episodes=2)
     assert groups == ["Lift/Panda/default"] * 2 + ["Lift/Sawyer/default"] * 2
     assert states[:, 0].tolist() == [episode_seed(3, i) % 1000 for i in (0, 1)] * 2
 

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench import api
+from bench import api, run_config
 from bench import config as config_mod
 from bench.errors import BenchError
 
@@ -31,7 +31,7 @@ def _schemas() -> list[type]:
     from bench.check import CheckConfig
     from bench.coverage import CoverageConfig
     from bench.perf import PerfConfig
-    from bench.regress import RegressConfig
+    from bench.regress_args import RegressConfig
     from bench.replay.common import ReplayConfig
     from bench.report import ReportConfig
 
@@ -183,14 +183,14 @@ def test_run_config_parses_or_refuses_in_one_line(argv: list[str]) -> None:
     """`bench run` arguments routed to runner, suite and policy, then the runner's ranges."""
     try:
         cfg = api.config_from_argv(["suite=held_out_robots", *argv])
-        api._check_runner(cfg)
+        run_config.check_runner(cfg)
     except BenchError as exc:
         _one_line(exc)
         return
     for f in ("timeout", "actor_cpus", "actor_gpus", "confidence"):
         assert math.isfinite(getattr(cfg, f)), f
-    assert 0 <= cfg.horizon <= api.MAX_HORIZON and 0 <= cfg.workers <= api.MAX_WORKERS
-    assert cfg.n_boot <= api.MAX_N_BOOT and cfg.seed >= 0
+    assert 0 <= cfg.horizon <= run_config.MAX_HORIZON and 0 <= cfg.workers <= run_config.MAX_WORKERS
+    assert cfg.n_boot <= run_config.MAX_N_BOOT and cfg.seed >= 0
 
 
 @settings(max_examples=200, **SETTINGS)

@@ -24,7 +24,7 @@ import pytest
 from video_frames import assert_close_frames, frames
 
 from bench.cli import main
-from bench.logs import from_arrays, lerobot, read_dataset, read_episode, write_dataset
+from bench.logs import from_arrays, lerobot, lerobot_write, read_dataset, read_episode, write_dataset
 from bench.logs.dataset import is_image
 
 REPO = Path(__file__).resolve().parents[1]
@@ -157,7 +157,7 @@ def test_lerobot_loads_written_video_dataset(lerobot_python, tmp_path, codec):
 
 
 def test_lerobot_loads_video_split_over_files(lerobot_python, tmp_path, monkeypatch):
-    monkeypatch.setattr(lerobot, "VIDEO_FILES_SIZE_IN_MB", 0)  # one mp4 file per episode
+    monkeypatch.setattr(lerobot_write, "VIDEO_FILES_SIZE_IN_MB", 0)  # one mp4 file per episode
     cams = {"observation.images.front": (64, 64)}
     eps, written = _video_episodes(cams)
     root = write_dataset(tmp_path / "split", from_arrays(eps, fps=10, video=True))
@@ -202,7 +202,7 @@ def test_lerobot_loads_written_dataset(lerobot_python, tmp_path):
 
 
 def test_lerobot_loads_dataset_split_over_files(lerobot_python, tmp_path, monkeypatch):
-    monkeypatch.setattr(lerobot, "DATA_FILES_SIZE_IN_MB", 0)  # one data file per episode
+    monkeypatch.setattr(lerobot_write, "DATA_FILES_SIZE_IN_MB", 0)  # one data file per episode
     root = write_dataset(tmp_path / "split", _synthetic())
     assert len(list((root / "data" / "chunk-000").iterdir())) == 4
     _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=3)

@@ -9,7 +9,7 @@ import signal
 
 import pytest
 
-from bench import api
+from bench import api, run_config
 from bench.errors import ConfigError
 from bench.records import comparable
 from bench.scheduling import JobQueue, given_up_message
@@ -100,4 +100,5 @@ def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message)
 
 
 def test_executor_keys_may_change_on_resume():
-    assert {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"} <= api.RESUMABLE_KEYS
+    where_and_how = {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"}
+    assert where_and_how <= run_config.RESUMABLE_KEYS

@@ -21,6 +21,7 @@ from bench.logs import (
     from_arrays,
     info,
     lerobot,
+    lerobot_write,
     read_dataset,
     read_episode,
     write_dataset,
@@ -205,7 +206,7 @@ def test_read_episode_reads_only_its_row_group(tmp_path, monkeypatch):
 
 
 def test_many_data_files(tmp_path, monkeypatch):
-    monkeypatch.setattr(lerobot, "DATA_FILES_SIZE_IN_MB", 0)  # a new file for every episode
+    monkeypatch.setattr(lerobot_write, "DATA_FILES_SIZE_IN_MB", 0)  # a new file for every episode
     ds = _sample()
     out = write_dataset(tmp_path / "ds", ds)
     assert sorted(p.name for p in (out / "data" / "chunk-000").iterdir()) == [f"file-{i:03d}.parquet" for i in range(3)]
@@ -330,7 +331,7 @@ def test_failed_write_keeps_old_dataset(tmp_path, monkeypatch):
         (tmp / "meta" / "info.json").write_text("{}")
         raise OSError("disk full")
 
-    monkeypatch.setattr(lerobot, "_write_into", boom)
+    monkeypatch.setattr(lerobot_write, "_write_into", boom)
     with pytest.raises(OSError, match="disk full"):
         write_dataset(target, _sample(images=False), overwrite=True)
     assert len(read_dataset(target).episodes) == 3
@@ -433,7 +434,7 @@ def test_video_roundtrip_layout_and_metadata(tmp_path):
 
 
 def test_video_files_roll_over_and_av1(tmp_path, monkeypatch):
-    monkeypatch.setattr(lerobot, "VIDEO_FILES_SIZE_IN_MB", 0)  # a new file after every episode
+    monkeypatch.setattr(lerobot_write, "VIDEO_FILES_SIZE_IN_MB", 0)  # a new file after every episode
     ds, written = _video_dataset()
     out = write_dataset(tmp_path / "ds", ds, video_codec="av1")
     files = sorted((out / "videos/observation.images.front/chunk-000").iterdir())

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from bench.errors import DataError
+from bench.gate_pairs import cell_counts, pair_records
 from bench.records import EpisodeRecord
-from bench.regress import cell_counts, pair_records
 from bench.suite import episode_seed
 
 REPO = Path(__file__).resolve().parents[1]

@@ -11,8 +11,9 @@ See `bench.logs.dataset` for the in-memory conventions (shapes, dtypes, default 
 from __future__ import annotations
 
 from bench.logs.dataset import Episode, LogDataset, from_arrays, validate
-from bench.logs.importers import import_csv, import_mat, import_rlds
+from bench.logs.importers import import_csv, import_mat
 from bench.logs.lerobot import info, iter_episodes, read_dataset, read_episode, write_dataset
+from bench.logs.rlds import import_rlds
 
 __all__ = [
     "Episode",

@@ -1,0 +1,68 @@
+"""The progress bar of `bench.api.run` on stderr (rich): done/total, successes, errors, elapsed, ETA."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from bench.records import EpisodeRecord
+from bench.run_config import RunConfig
+
+
+class RunProgress:
+    """A rich progress bar on stderr (done/total, successes, errors, elapsed, ETA), or nothing."""
+
+    def __init__(self, show: bool, cfg: RunConfig, todo: int, done: int, total: int, run_dir: Path, workers: int):
+        self.show = show
+        self.metric = "success_once" if cfg.metric == "return" else str(cfg.metric)
+        self.counts = {"succ": 0, "err": 0}
+        self.console = self.progress = None
+        if not show:
+            return
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.console = Console(stderr=True)
+        if done:
+            self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
+        where = f"{workers} Ray actor(s)" if cfg.executor == "ray" else f"{workers} worker(s)"
+        self.console.print(f"run {cfg.run_id}: {todo} episodes on {where} -> {run_dir}", soft_wrap=True)
+        columns = [
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("successes {task.fields[succ]}"),
+            TextColumn("errors {task.fields[err]}"),
+            TimeElapsedColumn(),
+            TextColumn("eta"),
+            TimeRemainingColumn(),
+        ]
+        self.progress = Progress(*columns, console=self.console, transient=False)
+        self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
+
+    def __enter__(self) -> RunProgress:
+        if self.progress is not None:
+            self.progress.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.progress is not None:
+            self.progress.stop()
+
+    def advance(self, record: EpisodeRecord) -> None:
+        if self.progress is None:
+            return
+        self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
+        self.counts["err"] += int(record.error is not None)
+        self.progress.update(self.task, advance=1, succ=self.counts["succ"], err=self.counts["err"])
+
+    def note(self, text: str) -> None:
+        if self.console is not None:
+            self.console.print(text, soft_wrap=True)
