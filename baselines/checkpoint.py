@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError, SpecError, did_you_mean
+from bench.errors import ConfigError, SpecError, valid_choices
 from bench.io import sha256_file, write_bytes_atomic, write_text_atomic
 from bench.protocols import STATE, Obs, PolicyContext, PolicyIdentity, PolicyPlugin
 
@@ -103,9 +103,7 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
         raise SpecError(f"{source}: must be a JSON object, got {type(spec).__name__}")
     for key in spec:
         if key not in SPEC_KEYS:
-            raise SpecError(
-                f"{source}: unknown field {key!r}; valid: {', '.join(SPEC_KEYS)}.{did_you_mean(key, SPEC_KEYS)}"
-            )
+            raise SpecError(f"{source}: unknown field {key!r}; {valid_choices(key, SPEC_KEYS)}")
     schema = spec.get("schema", SPEC_SCHEMA)
     if schema != SPEC_SCHEMA:
         raise SpecError(f"{source}: schema={schema!r} is not supported; valid: {SPEC_SCHEMA}")
@@ -115,10 +113,7 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
     arch = spec["architecture"]
     if arch not in ARCHITECTURES:
         valid = sorted(ARCHITECTURES)
-        raise SpecError(
-            f"{source}: architecture={arch!r} is not registered; valid: {', '.join(valid)}."
-            f"{did_you_mean(str(arch), valid)}"
-        )
+        raise SpecError(f"{source}: architecture={arch!r} is not registered; {valid_choices(str(arch), valid)}")
     kwargs = spec.get("kwargs") or {}
     if not isinstance(kwargs, dict):
         raise SpecError(f"{source}: kwargs must be an object, got {type(kwargs).__name__}")

@@ -13,39 +13,20 @@ closes), so one expert runs unchanged on every robot (see `suites.maniskill_agno
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from bench.env import obs_slices
 from bench.protocols import STATE
-
-FIELDS = (
-    ("eef_pos", 3),
-    ("eef_quat_rel", 4),
-    ("gripper_opening", 1),
-    ("object_pos", 3),
-    ("object_quat", 4),
-    ("gripper_to_object", 3),
-    ("goal_pos", 3),
-    ("object_to_goal", 3),
-)
-
-
-def _slices() -> dict[str, slice]:
-    out, start = {}, 0
-    for name, width in FIELDS:
-        out[name] = slice(start, start + width)
-        start += width
-    return out
-
-
-_S = _slices()
 
 
 class _Expert:
     gain = 10.0  # action per metre of error: saturates at 10 cm
 
-    def __init__(self) -> None:
+    def __init__(self, obs_names: Sequence[tuple[str, int]]) -> None:
+        self._s = obs_slices(list(obs_names))
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
@@ -63,7 +44,8 @@ class _Expert:
 
     def _read(self, obs: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         s = np.asarray(obs[STATE], dtype=np.float64)
-        return s[_S["eef_pos"]], s[_S["object_pos"]], s[_S["goal_pos"]], float(s[_S["gripper_opening"]][0])
+        at = self._s
+        return s[at["eef_pos"]], s[at["object_pos"]], s[at["goal_pos"]], float(s[at["gripper_opening"]][0])
 
     def _action(self, target: np.ndarray, eef: np.ndarray, grip: float, limit: float = 1.0) -> np.ndarray:
         out = np.zeros(4, dtype=np.float32)
@@ -151,10 +133,10 @@ class PushExpert(_Expert):
         return self._action(target, eef, 1.0, 0.5 if self.phase == "push" else 1.0)
 
 
-def make_expert(task: str) -> PickPlaceExpert | PushExpert:
-    """The scripted expert of a maniskill_held_out_robots task."""
+def make_expert(task: str, obs_names: Sequence[tuple[str, int]]) -> PickPlaceExpert | PushExpert:
+    """The scripted expert of a maniskill_held_out_robots task, reading a state laid out as `obs_names`."""
     if task == "PickCube":
-        return PickPlaceExpert()
+        return PickPlaceExpert(obs_names)
     if task in ("PushCube", "PullCube"):
-        return PushExpert()
+        return PushExpert(obs_names)
     raise ValueError(f"no scripted expert for task {task!r}; experts: PickCube, PushCube, PullCube")

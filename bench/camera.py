@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import BenchError, ConfigError, did_you_mean
+from bench.errors import BenchError, ConfigError, valid_choices
 from bench.protocols import RGB, Feature
 
 IMAGE_SIZE_RANGE = (16, 1024)
@@ -60,9 +60,7 @@ def check_cameras(requested: Sequence[str], model: Any, where: str, field: str =
         raise ConfigError(f"{field}: empty list; valid cameras of {where}: {', '.join(valid)}")
     for name in names:
         if name not in valid:
-            raise ConfigError(
-                f"{field}: {name!r} is not a camera of {where}; valid: {', '.join(valid)}.{did_you_mean(name, valid)}"
-            )
+            raise ConfigError(f"{field}: {name!r} is not a camera of {where}; {valid_choices(name, valid)}")
     if len(set(names)) != len(names):
         raise ConfigError(f"{field}: {names} names a camera twice")
     return names

@@ -6,7 +6,7 @@ Messages are one line: they name the field, the bad value and what would be vali
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 
 class BenchError(Exception):
@@ -39,6 +39,11 @@ def did_you_mean(value: str, valid: Iterable[str]) -> str:
     """Return ' Did you mean X?' for the closest valid name, or '' when nothing is close."""
     match = difflib.get_close_matches(str(value), [str(v) for v in valid], n=1, cutoff=0.5)
     return f" Did you mean {match[0]!r}?" if match else ""
+
+
+def valid_choices(value: str, valid: Sequence[str]) -> str:
+    """Return 'valid: A, B, C.' and, when one is close to `value`, ' Did you mean X?' (the end of an error line)."""
+    return f"valid: {', '.join(valid)}.{did_you_mean(value, valid)}"
 
 
 class ExecutorError(BenchError):

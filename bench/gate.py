@@ -352,6 +352,28 @@ def decide(looks: Sequence[Mapping[str, Any]], strict: bool) -> tuple[str, int]:
     return "inconclusive", 1 if strict else 0
 
 
+def _rates(g: Pairs) -> dict[str, Any]:
+    """A verdict row's pair count, success rates and drop (`g` has pairs)."""
+    return {
+        "pairs": g.n,
+        "baseline": round((g.n11 + g.n10) / g.n, 6),
+        "candidate": round((g.n11 + g.n01) / g.n, 6),
+        "drop": round(g.drop, 6),
+    }
+
+
+def _test_columns(t: Mapping[str, Any]) -> dict[str, Any]:
+    """A verdict row's test at the look (p, level, bounds on the drop, tested, regressed); `t` may be {}."""
+    return {
+        "p": t.get("p"),
+        "level": t.get("level"),
+        "drop_lcb": t.get("lcb"),
+        "drop_ucb": t.get("ucb"),
+        "tested": bool(t.get("tested", False)),
+        "regressed": bool(t.get("rejected", False)),
+    }
+
+
 def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Per-cell table of the verdict: rates, drop, the cell's test at the look (p, bounds, regressed)."""
     tests = {t["id"]: t for t in look.get("tests", [])}
@@ -367,18 +389,10 @@ def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[d
                 "env": k[2],
                 "condition": k[3],
                 "split": k[4],
-                "pairs": g.n,
-                "baseline": round((g.n11 + g.n10) / g.n, 6),
-                "candidate": round((g.n11 + g.n01) / g.n, 6),
-                "drop": round(g.drop, 6),
+                **_rates(g),
                 "baseline_only": g.n10,
                 "candidate_only": g.n01,
-                "p": t.get("p"),
-                "level": t.get("level"),
-                "drop_lcb": t.get("lcb"),
-                "drop_ucb": t.get("ucb"),
-                "tested": bool(t.get("tested", False)),
-                "regressed": bool(t.get("rejected", False)),
+                **_test_columns(t),
             }
         )
     return rows
@@ -399,16 +413,8 @@ def split_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[
             {
                 "split": s,
                 "cells": sum(1 for k in cells if k[4] == s and cells[k].n),
-                "pairs": g.n,
-                "baseline": round((g.n11 + g.n10) / g.n, 6),
-                "candidate": round((g.n11 + g.n01) / g.n, 6),
-                "drop": round(g.drop, 6),
-                "p": t.get("p"),
-                "level": t.get("level"),
-                "drop_lcb": t.get("lcb"),
-                "drop_ucb": t.get("ucb"),
-                "tested": bool(t.get("tested", False)),
-                "regressed": bool(t.get("rejected", False)),
+                **_rates(g),
+                **_test_columns(t),
             }
         )
     return rows

@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from bench.errors import DataError
 
 EPISODES = "episodes.jsonl"
 TIMING_FIELDS = ("wall_s", "finished_at", "worker_pid")
+SUCCESS_METRICS = ("success_once", "success_at_end")  # a record's 0/1 outcomes
 
 
 @dataclass
@@ -190,3 +193,14 @@ def comparable(record: EpisodeRecord) -> dict[str, Any]:
     for k in (*TIMING_FIELDS, "run_id"):
         d.pop(k, None)
     return d
+
+
+def completed_counts(records: Sequence[EpisodeRecord]) -> tuple[list[EpisodeRecord], dict[str, Any]]:
+    """The records that completed (no error), and the counts a summary row opens with: completed
+    episodes `n`, `errors`, and the completed episodes' `mean_return` (None when there are none)."""
+    ok = [r for r in records if r.error is None]
+    return ok, {
+        "n": len(ok),
+        "errors": len(records) - len(ok),
+        "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
+    }

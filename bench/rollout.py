@@ -208,8 +208,32 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
             traj["ctrl_names"] = mj_input_names(env.mujoco.model, log.spec)
             traj["ctrl_spec"] = [int(log.spec)]
         _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
+    record = job_record(
+        job,
+        ctx,
+        level=jsonable(job.condition.level, 10),
+        params=jsonable(params, 10),
+        init_state_hash=init_hash,
+        success_once=success_once,
+        success_at_end=success_at_end,
+        return_=float(ret),
+        length=length,
+        steps_to_success=first_success,
+        error=error,
+        backend=env.backend,
+        wall_s=round(time.perf_counter() - t0, 4),
+        extras={**({"policy": stats} if stats else {}), **extras},
+    )
+    return record, error is None
+
+
+def job_record(job: Job, ctx: RunContext, **outcome: Any) -> EpisodeRecord:
+    """The record of `job`: which run, cell, condition, episode and policy it is, plus its `outcome` fields.
+
+    The one place a job's identity is written into a record, for episodes that ran and for
+    those that could not start (`bench.runner.error_record`)."""
     cell = job.cell
-    record = EpisodeRecord(
+    return EpisodeRecord(
         run_id=ctx.run_id,
         job_id=job.job_id,
         suite=cell.suite,
@@ -220,27 +244,15 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
         split=cell.split,
         condition=job.condition.name,
         axis=job.condition.axis,
-        level=jsonable(job.condition.level, 10),
-        params=jsonable(params, 10),
         episode=job.episode,
         seed=job.seed,
-        init_state_hash=init_hash,
-        success_once=success_once,
-        success_at_end=success_at_end,
-        return_=float(ret),
-        length=length,
-        steps_to_success=first_success,
-        error=error,
         policy=ctx.policy_id,
         checkpoint_sha256=ctx.checkpoint_sha256,
-        backend=env.backend,
-        wall_s=round(time.perf_counter() - t0, 4),
         finished_at=round(time.time(), 3),
         worker_pid=os.getpid(),
         versions=ctx.versions,
-        extras={**({"policy": stats} if stats else {}), **extras},
+        **outcome,
     )
-    return record, error is None
 
 
 def _policy_stats(policy: Any) -> dict[str, Any]:

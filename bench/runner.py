@@ -24,7 +24,7 @@ from typing import Any
 from bench.errors import BenchError, ExecutorError
 from bench.protocols import EnvAdapter, Policy, PolicyContext
 from bench.records import EpisodeRecord
-from bench.rollout import RunContext, run_episode
+from bench.rollout import RunContext, job_record, run_episode
 from bench.scheduling import MAX_RETRIES, JobQueue, depth, given_up_message
 from bench.suite import Job
 
@@ -107,22 +107,11 @@ class Worker:
 
 def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
     """The record of an episode that could not start (its env or policy failed to build)."""
-    c = job.cell
-    return EpisodeRecord(
-        run_id=ctx.run_id,
-        job_id=job.job_id,
-        suite=c.suite,
-        suite_version=ctx.suite_version,
-        task=c.task,
-        robot=c.robot,
-        env=c.env,
-        split=c.split,
-        condition=job.condition.name,
-        axis=job.condition.axis,
+    return job_record(
+        job,
+        ctx,
         level=job.condition.level,
         params={},
-        episode=job.episode,
-        seed=job.seed,
         init_state_hash=None,
         success_once=False,
         success_at_end=False,
@@ -130,13 +119,8 @@ def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
         length=0,
         steps_to_success=None,
         error=error,
-        policy=ctx.policy_id,
-        checkpoint_sha256=ctx.checkpoint_sha256,
         backend=None,
         wall_s=0.0,
-        finished_at=round(time.time(), 3),
-        worker_pid=os.getpid(),
-        versions=ctx.versions,
     )
 
 

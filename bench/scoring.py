@@ -98,6 +98,24 @@ def _interval(samples: np.ndarray, confidence: float) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def _with_episodes(cells: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The cells that have completed episodes, as float arrays."""
+    return [np.asarray(c, dtype=float) for c in cells if len(c)]
+
+
+def _of_means(stat: Callable[[np.ndarray], np.ndarray], cells: list[np.ndarray]) -> float:
+    """`stat` over the cells' mean outcomes."""
+    return float(stat(np.array([c.mean() for c in cells])))
+
+
+def _covering(point: float, boot: np.ndarray, confidence: float) -> Estimate:
+    """`point` with the bootstrap interval of `boot`, widened to contain it.
+
+    As for the Jeffreys interval at k = 0 or k = n: the interval always contains the observed value."""
+    lo, hi = _interval(boot, confidence)
+    return Estimate(point, min(lo, point), max(hi, point))
+
+
 def aggregate(
     cells: Sequence[np.ndarray],
     rng: np.random.Generator,
@@ -111,15 +129,11 @@ def aggregate(
     Args:
         cells: one array of outcomes per cell (episodes of that cell): 0/1, or returns with binary=False.
     """
-    cells = [np.asarray(c, dtype=float) for c in cells if len(c)]
+    cells = _with_episodes(cells)
     if not cells:
         return Estimate(None, reason="no cell has completed episodes")
     stat = STATISTICS[statistic]
-    point = float(stat(np.array([c.mean() for c in cells])))
-    boot = stat(_resampled_means(cells, rng, n_boot, binary))
-    lo, hi = _interval(boot, confidence)
-    # as for the Jeffreys interval at k = 0 or k = n: the interval always contains the observed value
-    return Estimate(point, min(lo, point), max(hi, point))
+    return _covering(_of_means(stat, cells), stat(_resampled_means(cells, rng, n_boot, binary)), confidence)
 
 
 def gap(
@@ -132,16 +146,14 @@ def gap(
     binary: bool = True,
 ) -> Estimate:
     """Transfer gap = stat(reference cells) - stat(target cells), independent stratified bootstrap."""
-    reference = [np.asarray(c, dtype=float) for c in reference if len(c)]
-    target = [np.asarray(c, dtype=float) for c in target if len(c)]
+    reference, target = _with_episodes(reference), _with_episodes(target)
     if not reference or not target:
         side = "reference" if not reference else "target"
         return Estimate(None, reason=f"the {side} group has no completed episodes")
     stat = STATISTICS[statistic]
-    point = float(stat(np.array([c.mean() for c in reference])) - stat(np.array([c.mean() for c in target])))
+    point = _of_means(stat, reference) - _of_means(stat, target)
     boot = stat(_resampled_means(reference, rng, n_boot, binary)) - stat(_resampled_means(target, rng, n_boot, binary))
-    lo, hi = _interval(boot, confidence)
-    return Estimate(point, min(lo, point), max(hi, point))
+    return _covering(point, boot, confidence)
 
 
 def paired_gap(

@@ -20,9 +20,7 @@ from typing import Any
 import numpy as np
 
 from bench import scoring
-from bench.records import EpisodeRecord, dedupe
-
-METRICS = ("success_once", "success_at_end")
+from bench.records import SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe
 
 
 def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> dict[str, Any]:
@@ -99,23 +97,21 @@ def _entry(
     n_boot: int,
     confidence: float,
 ) -> dict[str, Any]:
-    ok = [r for r in recs if r.error is None]
+    ok, counts = completed_counts(recs)
     entry: dict[str, Any] = {
         "condition": cond,
         "axis": axis,
         "level": level,
         "kind": kind,
         **scope,
-        "n": len(ok),
-        "errors": len(recs) - len(ok),
-        "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
+        **counts,
         "params": _param_summary(ok),
     }
-    for m in METRICS:
+    for m in SUCCESS_METRICS:
         k = int(sum(getattr(r, m) for r in ok))
         entry[m] = {"successes": k, **scoring.wilson(k, len(ok), confidence).to_dict()}
     gap: dict[str, Any] = {}
-    for m in METRICS:
+    for m in SUCCESS_METRICS:
         if axis is None:
             gap[m] = {"value": None, "ci": None, "reason": "nominal is the reference", "n_pairs": 0}
             continue

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bench.errors import ConfigError, did_you_mean
+from bench.errors import ConfigError, valid_choices
 from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
 
 __all__ = [
@@ -156,9 +156,7 @@ def select_cells(suite: Any, selection: Any) -> list[Cell]:
             raise ConfigError(f"{key}=[] selects nothing; list some of: {', '.join(valid)} (or leave {key} out)")
         for w in wanted:
             if w not in valid:
-                raise ConfigError(
-                    f"{key}: {w!r} is not in suite {suite.name!r}; valid: {', '.join(valid)}.{did_you_mean(w, valid)}"
-                )
+                raise ConfigError(f"{key}: {w!r} is not in suite {suite.name!r}; {valid_choices(w, valid)}")
         cells = [c for c in cells if getattr(c, attr) in wanted]
     return cells
 

@@ -17,10 +17,9 @@ import numpy as np
 
 from bench import scoring
 from bench.errors import DataError
-from bench.records import EPISODES, EpisodeRecord, dedupe, read_records
+from bench.records import EPISODES, SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe, read_records
 
 SCHEMA_ID = "bench.summary/1"
-METRICS = ("success_once", "success_at_end")
 
 
 def _cells(records: list[EpisodeRecord]) -> dict[tuple, list[EpisodeRecord]]:
@@ -47,19 +46,17 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     groups = _cells(records)
     cells_out = []
     for (task, robot, env, split, cond), recs in groups.items():
-        ok = [r for r in recs if r.error is None]
+        ok, counts = completed_counts(recs)
         entry: dict[str, Any] = {
             "task": task,
             "robot": robot,
             "env": env,
             "split": split,
             "condition": cond,
-            "n": len(ok),
-            "errors": len(recs) - len(ok),
-            "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
+            **counts,
             "mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None,
         }
-        for m in METRICS:
+        for m in SUCCESS_METRICS:
             k = int(sum(getattr(r, m) for r in ok))
             entry[m] = {"successes": k, **scoring.wilson(k, len(ok), conf).to_dict()}
         cells_out.append(entry)
@@ -68,7 +65,7 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     splits_out: dict[str, Any] = {}
     gaps_out: list[dict[str, Any]] = []
     nominal = {k: v for k, v in groups.items() if k[4] == "nominal"}
-    for m in METRICS:
+    for m in SUCCESS_METRICS:
         by_split = {s: [_outcomes(v, m) for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
         for s, cells in by_split.items():
             if not any(len(c) for c in cells):

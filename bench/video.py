@@ -261,21 +261,12 @@ class BackgroundMp4Writer(_Finishes):
     encoder thread is raised by the next `write` or by `close` as a `VideoError`. `close()` waits
     for every queued frame and returns the path; `abort()` drops the queue and the file.
 
-    Args are those of `Mp4Writer`, plus `queue_size` (frames waiting at most).
+    Args are those of `Mp4Writer` (its options by keyword: codec, crf, gop, pad_odd, threads),
+    plus `queue_size` (frames waiting at most).
     """
 
-    def __init__(
-        self,
-        path: str | os.PathLike,
-        fps: float,
-        codec: str = "h264",
-        crf: int | None = None,
-        gop: int = 2,
-        pad_odd: bool = False,
-        threads: int = 1,
-        queue_size: int = 64,
-    ):
-        self._writer = Mp4Writer(path, fps, codec=codec, crf=crf, gop=gop, pad_odd=pad_odd, threads=threads)
+    def __init__(self, path: str | os.PathLike, fps: float, *, queue_size: int = 64, **options: Any):
+        self._writer = Mp4Writer(path, fps, **options)
         self.path = self._writer.path
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(queue_size)))
         self._error: BaseException | None = None

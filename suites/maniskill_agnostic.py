@@ -27,17 +27,10 @@ from typing import Any
 import numpy as np
 
 from bench.protocols import ActionSpec
+from suites.lift import OBS_FIELDS
 
-STATE_FIELDS: tuple[tuple[str, int], ...] = (
-    ("eef_pos", 3),
-    ("eef_quat_rel", 4),
-    ("gripper_opening", 1),
-    ("object_pos", 3),
-    ("object_quat", 4),
-    ("gripper_to_object", 3),
-    ("goal_pos", 3),
-    ("object_to_goal", 3),
-)
+# held_out_robots' agnostic observation (suites.lift) and the goal
+STATE_FIELDS: tuple[tuple[str, int], ...] = (*OBS_FIELDS, ("goal_pos", 3), ("object_to_goal", 3))
 ACTION_NAMES = ("dx", "dy", "dz", "gripper")
 STEP_M = 0.1  # metres of TCP displacement per unit of action
 CARTESIAN = ("panda", "panda_wristcam")  # robots run by ManiSkill's pd_ee_delta_pos

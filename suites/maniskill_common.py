@@ -18,6 +18,7 @@ from bench.sim_maniskill import OBS_MODES, RESETS, cameras_of, check_backend
 from bench.suite import SuiteBase
 
 IMAGE_SIZES = (16, 1024)
+COMMON_KEYS = ("obs", "cameras", "image_size", "sim_backend", "reset")  # every ManiSkill suite's camera/backend keys
 
 
 @dataclass(frozen=True)
@@ -47,13 +48,10 @@ TASKS: dict[str, Task] = {
     )
 }
 
-# ManiSkill 3.0.1's control modes per robot (checked against the agents by the tests)
-_ARM_MODES = (
-    "pd_joint_delta_pos",
-    "pd_joint_pos",
-    "pd_ee_delta_pos",
-    "pd_ee_delta_pose",
-    "pd_ee_pose",
+# ManiSkill 3.0.1's control modes per robot, in its order (checked against the agents by the tests):
+# the arms and fetch share the joint/end-effector delta modes and the target/velocity modes
+_DELTA_MODES = ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
+_TARGET_VEL_MODES = (
     "pd_joint_target_delta_pos",
     "pd_ee_target_delta_pos",
     "pd_ee_target_delta_pose",
@@ -61,23 +59,11 @@ _ARM_MODES = (
     "pd_joint_pos_vel",
     "pd_joint_delta_pos_vel",
 )
+_ARM_MODES = (*_DELTA_MODES, "pd_ee_pose", *_TARGET_VEL_MODES)
 CONTROL_MODES: dict[str, tuple[str, ...]] = {
     "panda": _ARM_MODES,
     "panda_wristcam": _ARM_MODES,
-    "fetch": (
-        "pd_joint_delta_pos",
-        "pd_joint_pos",
-        "pd_ee_delta_pos",
-        "pd_ee_delta_pose",
-        "pd_ee_delta_pose_align",
-        "pd_joint_target_delta_pos",
-        "pd_ee_target_delta_pos",
-        "pd_ee_target_delta_pose",
-        "pd_joint_vel",
-        "pd_joint_pos_vel",
-        "pd_joint_delta_pos_vel",
-        "pd_joint_delta_pos_stiff_body",
-    ),
+    "fetch": (*_DELTA_MODES, "pd_ee_delta_pose_align", *_TARGET_VEL_MODES, "pd_joint_delta_pos_stiff_body"),
     "so100": ("pd_joint_delta_pos", "pd_joint_pos", "pd_joint_target_delta_pos"),
 }
 
@@ -141,7 +127,11 @@ def obs_spec(
 
 
 class ManiSkillSuite(SuiteBase):
-    """What every ManiSkill suite shares: unavailable without the extra, and its common keys checked on construction."""
+    """What every ManiSkill suite shares: unavailable without the extra, its common keys checked on construction,
+    and an expert (`make_expert`) that is its reference policy."""
+
+    reference_policy = "scripted"
+    capabilities = frozenset({"expert"})
 
     @classmethod
     def unavailable(cls) -> str | None:
@@ -149,23 +139,22 @@ class ManiSkillSuite(SuiteBase):
 
     def __init__(self, options: Any = None) -> None:
         super().__init__(options)
-        o = self.options
         require_extra()
-        check_common(o.obs, o.cameras, o.image_size, o.sim_backend, o.reset)
+        check_common(**self._common())
+
+    def _common(self) -> dict[str, Any]:
+        """This suite's values of the COMMON_KEYS, by name."""
+        return {key: getattr(self.options, key) for key in COMMON_KEYS}
 
     def _env(self, cell: Any, horizon: int, interface: Any) -> Any:
         """The cell's ManiSkillEnv with this suite's common keys (obs, cameras, image size, backend, reset)."""
-        o, task = self.options, TASKS[cell.task]
+        task = TASKS[cell.task]
         return sim_maniskill.ManiSkillEnv(
             task.env_id,
             cell.robot,
             horizon,
             interface=interface,
-            obs=o.obs,
-            cameras=o.cameras,
-            image_size=o.image_size,
             object_names=task.objects,
             instruction=task.instruction,
-            sim_backend=o.sim_backend,
-            reset=o.reset,
+            **self._common(),
         )

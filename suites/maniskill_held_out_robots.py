@@ -73,10 +73,8 @@ class ManiSkillHeldOutRobots(ManiSkillSuite):
     name = "maniskill_held_out_robots"
     version = "1"
     Options = ManiSkillRobotsOptions
-    reference_policy = "scripted"
     default_horizon = 100
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
-    capabilities = frozenset({"expert"})
 
     def all_cells(self) -> list[Cell]:
         return [
@@ -99,5 +97,6 @@ class ManiSkillHeldOutRobots(ManiSkillSuite):
 
     def make_expert(self, cell: Cell, env: Any) -> Policy:
         from baselines.maniskill_scripted import make_expert
+        from suites.maniskill_agnostic import STATE_FIELDS
 
-        return make_expert(cell.task)
+        return make_expert(cell.task, STATE_FIELDS)

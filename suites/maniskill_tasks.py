@@ -139,10 +139,8 @@ class ManiSkillTasks(ManiSkillSuite):
     name = "maniskill_tasks"
     version = "1"
     Options = ManiSkillTasksOptions
-    reference_policy = "scripted"
     default_horizon = 250
     manifest = {"tasks": {"seen": SEEN, "unseen": UNSEEN}}
-    capabilities = frozenset({"expert"})
 
     def __init__(self, options: Any = None) -> None:
         super().__init__(options)

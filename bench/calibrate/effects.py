@@ -266,6 +266,28 @@ def _input_gain_max(s: Scales, t: Target) -> float:
 
 PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
+
+def _backlash(side: str, doc: str) -> Effect:
+    """Backlash as position play of up to 0.2 of the joint's half range, as the log measures it on `side`.
+
+    The two sides are one family each (`backlash_link`, `backlash_motor`) of one group: a target
+    takes at most one of them."""
+    return Effect(
+        f"backlash_{side}",
+        "actuator",
+        ("play",),
+        ("rad|m",),
+        lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))],
+        _apply_play,
+        doc,
+        threshold=True,
+        group="play",
+        play_side=side,
+        fd_step=0.02,
+        scan=PLAY_SCAN,
+    )
+
+
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in [
@@ -358,35 +380,15 @@ EFFECTS: dict[str, Effect] = {
             "dead band on the drive force: small commands are lost (stiction in the drive, an amplifier's dead zone)",
             threshold=True,
         ),
-        Effect(
-            "backlash_link",
-            "actuator",
-            ("play",),
-            ("rad|m",),
-            lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))],
-            _apply_play,
+        _backlash(
+            "link",
             "position play between motor and link (total width), measured on the link side: the rotor "
             "crosses the gap unseen, then the link is driven",
-            threshold=True,
-            group="play",
-            play_side="link",
-            fd_step=0.02,
-            scan=PLAY_SCAN,
         ),
-        Effect(
-            "backlash_motor",
-            "actuator",
-            ("play",),
-            ("rad|m",),
-            lambda s, t: [(0.0, 0.2 * float(s.half_range[t.dof]))],
-            _apply_play,
+        _backlash(
+            "motor",
             "position play between motor and link (total width), measured on the motor side: the motor "
             "crosses the gap fast and free, the link lags",
-            threshold=True,
-            group="play",
-            play_side="motor",
-            fd_step=0.02,
-            scan=PLAY_SCAN,
         ),
         Effect(
             "payload_mass",

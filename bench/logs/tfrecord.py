@@ -92,24 +92,26 @@ def _power(k: int) -> list[int]:
 def _zeros_matrix(n: int) -> tuple[int, ...]:
     """Matrix of feeding `n` zero bytes to the register."""
     out = [1 << i for i in range(32)]
-    k = 0
-    while n:
-        if n & 1:
-            out = _mat_mul(_power(k), out)
-        n >>= 1
-        k += 1
+    for power in _bit_powers(n):
+        out = _mat_mul(power, out)
     return tuple(out)
 
 
 def _feed_zeros(n: int, vec: int) -> int:
     """Register `vec` after feeding `n` zero bytes."""
+    for power in _bit_powers(n):
+        vec = _mat_vec(power, vec)
+    return vec
+
+
+def _bit_powers(n: int) -> Iterator[list[int]]:
+    """The matrices of feeding 2^k zero bytes, for each bit k set in `n` (lowest first)."""
     k = 0
     while n:
         if n & 1:
-            vec = _mat_vec(_power(k), vec)
+            yield _power(k)
         n >>= 1
         k += 1
-    return vec
 
 
 def crc32c(data: bytes | memoryview) -> int:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.errors import SpecError, did_you_mean
+from bench.errors import SpecError, did_you_mean, valid_choices
 
 MAP_KEYS = ("model", "substeps", "signals")
 MAX_SUBSTEPS = 10_000  # simulator steps per log frame: more is a typo, and multiplies every rollout
@@ -76,10 +76,8 @@ def check_keys(obj: Any, valid: tuple[str, ...], where: str) -> dict:
         raise SpecError(f"spec field {where!r} must be a mapping with keys {', '.join(valid)}; got {obj!r}")
     for key in obj:
         if key not in valid:
-            raise SpecError(
-                f"unknown spec field {(where + '.' if where else '') + str(key)!r}; "
-                f"valid: {', '.join(valid)}.{did_you_mean(str(key), valid)}"
-            )
+            name = (where + "." if where else "") + str(key)
+            raise SpecError(f"unknown spec field {name!r}; {valid_choices(str(key), valid)}")
     return obj
 
 
