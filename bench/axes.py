@@ -43,6 +43,8 @@ class Axis:
 
 
 MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
+# mass and link_mass scale body_mass (and inertia) of different bodies, the same way
+_BODY_MASS: dict[str, Any] = dict(strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE)
 MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
 
 
@@ -66,11 +68,7 @@ AXES: dict[str, Axis] = {
             "scale of nominal",
             "mass + inertia of the manipulated object",
             "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
-            strict=True,
-            targets=("bodies",),
-            field="body_mass",
-            setconst=True,
-            maximum=MAX_SCALE,
+            **_BODY_MASS,
         ),
         Axis(
             "link_mass",
@@ -79,11 +77,7 @@ AXES: dict[str, Axis] = {
             "mass + inertia of the robot's links",
             "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
             "or of the named bodies",
-            strict=True,
-            targets=("bodies",),
-            field="body_mass",
-            setconst=True,
-            maximum=MAX_SCALE,
+            **_BODY_MASS,
         ),
         Axis(
             "damping",

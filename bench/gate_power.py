@@ -23,7 +23,9 @@ the calculation against simulated gates.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -155,18 +157,30 @@ def episodes_needed(
     return hi * step, pw(hi)
 
 
-def plan_text(
-    power: float,
-    rate: float,
-    drop: float,
-    n_cells: int,
-    batch: int,
-    design: gate.Design,
-    episodes: int,
-    splits: Sequence[str] | None = None,
-    cells_from: str = "",
-) -> str:
+@dataclass(frozen=True)
+class Budget:
+    """What `bench regress plan=true` is asked: the power wanted against a drop from a success rate."""
+
+    power: float  # target power
+    rate: float  # the baseline's success rate per cell
+    drop: float  # the drop in that rate the gate should catch
+    n_cells: int  # cells (x conditions) compared; 0 = count those the forwarded bench run keys select
+    batch: int  # episodes per cell between looks; 0 = one look at the end
+    design: gate.Design  # margin, alpha and its per-cell share
+    episodes: int  # the budget the user has in mind (power is also printed at this many episodes per cell)
+
+
+def plan_text(b: Budget, splits: Sequence[str] | None = None, cells_from: str = "") -> str:
     """The report `bench regress plan=true` prints."""
+    power, rate, drop, n_cells, batch, design, episodes = (
+        b.power,
+        b.rate,
+        b.drop,
+        b.n_cells,
+        b.batch,
+        b.design,
+        b.episodes,
+    )
     split_note = ""
     if splits and len(set(splits)) > 1:
         split_note = " (" + ", ".join(f"{s}: {list(splits).count(s)}" for s in sorted(set(splits))) + ")"
@@ -199,35 +213,27 @@ def plan_text(
     return "\n".join(lines) + "\n"
 
 
-def plan_command(
-    power: float,
-    rate: float,
-    drop: float,
-    n_cells: int,
-    batch: int,
-    design: gate.Design,
-    episodes: int,
-    forwarded: Sequence[str],
-    unused: bool = False,
-) -> int:
+def plan_command(b: Budget, forwarded: Sequence[str], unused: bool = False) -> int:
     """`bench regress plan=true`: print the budget table; runs and writes nothing.
 
     Args:
-        n_cells: number of cells; 0 = count the cells (x perturbation conditions) that the
+        b: the question; `b.n_cells == 0` counts the cells (x perturbation conditions) that the
             forwarded `bench run` keys (suite, robots, tasks, envs, splits, perturb.*) select.
         forwarded: those keys, as `key=value` strings.
         unused: candidate=/baseline= were given (they are not used; said on stdout).
     """
     from bench.errors import ConfigError
 
-    if episodes < 1:
-        raise ConfigError(f"episodes={episodes}: must be >= 1")
-    if drop <= design.margin:
-        raise ConfigError(f"drop={drop}: must exceed margin={design.margin} (a drop within the margin is tolerated)")
-    if drop > rate:
-        raise ConfigError(f"drop={drop} exceeds rate={rate}: the candidate's success rate would be negative")
+    if b.episodes < 1:
+        raise ConfigError(f"episodes={b.episodes}: must be >= 1")
+    if b.drop <= b.design.margin:
+        raise ConfigError(
+            f"drop={b.drop}: must exceed margin={b.design.margin} (a drop within the margin is tolerated)"
+        )
+    if b.drop > b.rate:
+        raise ConfigError(f"drop={b.drop} exceeds rate={b.rate}: the candidate's success rate would be negative")
     splits, source = None, ""
-    if not n_cells:
+    if not b.n_cells:
         from bench import api, axes
         from bench.suite import select_cells
 
@@ -238,8 +244,9 @@ def plan_command(
         if not cells:
             raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell")
         splits = [c.split for c in cells for _ in conditions]
-        n_cells, source = len(splits), f" (suite {rc.suite}: {len(cells)} cells x {len(conditions)} condition(s))"
+        b = dataclasses.replace(b, n_cells=len(splits))
+        source = f" (suite {rc.suite}: {len(cells)} cells x {len(conditions)} condition(s))"
     if unused:
         print("plan=true runs nothing: candidate= and baseline= are not used")
-    print(plan_text(power, rate, drop, n_cells, batch, design, episodes, splits, source), end="")
+    print(plan_text(b, splits, source), end="")
     return 0

@@ -202,17 +202,10 @@ def main(argv: list[str]) -> int:
     if cfg.plan:
         from bench import gate_power
 
-        return gate_power.plan_command(
-            cfg.power,
-            cfg.rate,
-            cfg.drop,
-            cfg.cells,
-            cfg.batch,
-            gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha),
-            episodes_of(user_keys, DEFAULT_EPISODES),
-            forwarded,
-            unused=bool(cfg.candidate or cfg.baseline),
-        )
+        design = gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha)
+        episodes = episodes_of(user_keys, DEFAULT_EPISODES)
+        budget = gate_power.Budget(cfg.power, cfg.rate, cfg.drop, cfg.cells, cfg.batch, design, episodes)
+        return gate_power.plan_command(budget, forwarded, unused=bool(cfg.candidate or cfg.baseline))
     cand_info, base_info = resolve(cfg.candidate, "candidate"), resolve(cfg.baseline, "baseline")
     gate_id = cfg.run_id or f"regress-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     parent = Path(cfg.runs) / gate_id

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -145,33 +146,36 @@ def summarise(
     return horizons, per_episode
 
 
-def _doc(
+def measured(
     cfg: ReplayConfig,
+    traces: Replay,
     backend: str,
-    fps: float,
-    index: list[int],
     frames: int,
-    joints: list[str],
-    horizons: dict,
-    per_episode: list[dict],
     steps: int,
     t0: float,
     notes: list[str],
-    **extra,
-) -> dict:
-    """The replay.json document (schema bench.replay/1): fields common to both backends, then `extra`."""
-    head = {"schema": SCHEMA, "backend": backend, "logs": str(cfg.logs)}
-    return {
-        **head,
+    rows: list[dict[str, Any]] | None = None,
+    **extra: Any,
+) -> Replay:
+    """`traces` (its doc empty) with its replay.json document (schema bench.replay/1): the errors summarised
+    (`summarise`; `rows` adds fields to the per-episode rows), fields common to both backends, then `extra`."""
+    horizons, per_episode = summarise(traces.errors, traces.qpos, traces.offsets, traces.joints, traces.episodes, cfg.k)
+    for row, more in zip(per_episode, rows or []):
+        row.update(more)
+    doc = {
+        "schema": SCHEMA,
+        "backend": backend,
+        "logs": str(cfg.logs),
         **extra,
-        "fps": float(fps),
+        "fps": float(traces.fps),
         "k": int(cfg.k),
-        "episodes": [int(i) for i in index],
+        "episodes": [int(i) for i in traces.episodes],
         "frames": int(frames),
-        "joints": joints,
+        "joints": traces.joints,
         "horizons": horizons,
         "per_episode": per_episode,
         "sim_steps": int(steps),
         "wall_s": round(time.perf_counter() - t0, 4),
         "notes": notes,
     }
+    return dataclasses.replace(traces, doc=doc)

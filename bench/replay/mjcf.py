@@ -8,7 +8,7 @@ from pathlib import Path
 
 import mujoco
 
-from bench.replay.common import Replay, ReplayConfig, _doc, _read_logs, summarise
+from bench.replay.common import Replay, ReplayConfig, _read_logs, measured
 from bench.replay.data import extract
 from bench.replay.metrics import horizon_errors
 from bench.replay.simulate import Simulator, as_given, prepare_model
@@ -33,22 +33,17 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     finally:
         sim.close()
     joints = [model.joint(j).name or f"q{j}" for j in range(model.njnt)]
-    index = [ep.index for ep in eps]
-    horizons, per_episode = summarise(errors, rec.qpos, rec.offsets, joints, index, cfg.k)
     notes = []
     if not rec.qvel_logged:
         notes.append("qvel is not logged: initial velocities are estimated from qpos (Savitzky-Golay)")
     if ignored.get("params"):
         notes.append("the spec's free parameters keep the model's values (replay uses the model as given)")
-    doc = _doc(
+    traces = Replay({}, errors, rec.qpos, rec.offsets, float(rec.fps), joints, [ep.index for ep in eps])
+    return measured(
         cfg,
+        traces,
         "mujoco.rollout",
-        rec.fps,
-        index,
         len(rec.qpos),
-        joints,
-        horizons,
-        per_episode,
         steps,
         t0,
         notes,
@@ -57,4 +52,3 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
         substeps=int(substeps),
         timestep=float(model.opt.timestep),
     )
-    return Replay(doc, errors, rec.qpos, rec.offsets, float(rec.fps), joints, index)

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import DataError
-from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, _doc, _read_logs, summarise
+from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, _read_logs, measured
 
 
 def _coordinates(model) -> tuple[list[str], np.ndarray]:
@@ -358,11 +358,8 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     rec, offsets, joints = logs.rec, logs.offsets, logs.joints
     spread = np.maximum(rec.qpos.std(axis=0), 1e-12)
     errors = {label: segment_errors(preds[label], rec, segs, spread) for label, segs in segments.items()}
-    index = [ep.index for ep in eps]
-    horizons, per_episode = summarise(errors, rec.qpos, offsets, joints, index, cfg.k)
-    for row, ep in zip(per_episode, eps):
-        meta = ep.meta if isinstance(ep.meta, dict) else {}
-        row.update({k: meta[k] for k in ("condition", "params", "robot", "task", "env") if k in meta})
+    metas = [ep.meta if isinstance(ep.meta, dict) else {} for ep in eps]
+    rows = [{k: meta[k] for k in ("condition", "params", "robot", "task", "env") if k in meta} for meta in metas]
     backend = (
         f"{cfg.suite} ctrl, mujoco.rollout ({cfg.threads} thread{'s' if cfg.threads > 1 else ''})"
         if commands == "ctrl"
@@ -372,21 +369,8 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
         f"positions of hinge and slide joints, x/y/z of free joints; {logs.exact} of {len(eps)} episode(s) "
         f"start from the exact state of reset(seed), the rest from the logged float32 state"
     ]
+    traces = Replay({}, errors, rec.qpos, offsets, float(ds.fps), joints, [ep.index for ep in eps])
     # sim_steps: physics steps for commands=ctrl, control (env) steps for commands=action
-    doc = _doc(
-        cfg,
-        backend,
-        ds.fps,
-        index,
-        len(logs.full),
-        joints,
-        horizons,
-        per_episode,
-        steps,
-        t0,
-        notes,
-        commands=commands,
-        suite=cfg.suite,
-        spec=None,
+    return measured(
+        cfg, traces, backend, len(logs.full), steps, t0, notes, rows, commands=commands, suite=cfg.suite, spec=None
     )
-    return Replay(doc, errors, rec.qpos, offsets, float(ds.fps), joints, index)
