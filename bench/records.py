@@ -204,3 +204,15 @@ def completed_counts(records: Sequence[EpisodeRecord]) -> tuple[list[EpisodeReco
         "errors": len(records) - len(ok),
         "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
     }
+
+
+def success_rates(completed: Sequence[EpisodeRecord], confidence: float) -> dict[str, dict[str, Any]]:
+    """Per success metric (`SUCCESS_METRICS`): the successes among `completed` records and the rate's
+    Wilson interval, as summary rows hold them."""
+    from bench import scoring
+
+    out: dict[str, dict[str, Any]] = {}
+    for m in SUCCESS_METRICS:
+        k = int(sum(getattr(r, m) for r in completed))
+        out[m] = {"successes": k, **scoring.wilson(k, len(completed), confidence).to_dict()}
+    return out

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from bench import scoring
-from bench.records import SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe
+from bench.records import SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe, success_rates
 
 
 def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> dict[str, Any]:
@@ -107,9 +107,7 @@ def _entry(
         **counts,
         "params": _param_summary(ok),
     }
-    for m in SUCCESS_METRICS:
-        k = int(sum(getattr(r, m) for r in ok))
-        entry[m] = {"successes": k, **scoring.wilson(k, len(ok), confidence).to_dict()}
+    entry.update(success_rates(ok, confidence))
     gap: dict[str, Any] = {}
     for m in SUCCESS_METRICS:
         if axis is None:

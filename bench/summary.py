@@ -17,7 +17,15 @@ import numpy as np
 
 from bench import scoring
 from bench.errors import DataError
-from bench.records import EPISODES, SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe, read_records
+from bench.records import (
+    EPISODES,
+    SUCCESS_METRICS,
+    EpisodeRecord,
+    completed_counts,
+    dedupe,
+    read_records,
+    success_rates,
+)
 
 SCHEMA_ID = "bench.summary/1"
 
@@ -56,9 +64,7 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
             **counts,
             "mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None,
         }
-        for m in SUCCESS_METRICS:
-            k = int(sum(getattr(r, m) for r in ok))
-            entry[m] = {"successes": k, **scoring.wilson(k, len(ok), conf).to_dict()}
+        entry.update(success_rates(ok, conf))
         cells_out.append(entry)
 
     rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919])  # scoring draws, seeded from the run seed
