@@ -98,59 +98,42 @@ def _cells(n_cells: int, splits: Sequence[str] | None) -> list[gate.CellKey]:
     return [("task", f"cell{i}", "env", "nominal", splits[i]) for i in range(n_cells)]
 
 
-def scenario_power(
-    scenario: str,
-    episodes: int,
-    batch: int,
-    n_cells: int,
-    rate: float,
-    drop: float,
-    design: gate.Design,
-    splits: Sequence[str] | None = None,
-) -> float:
-    """Power of the gate's test for `scenario` ("cell" or "all") with up to `episodes` per cell in looks of `batch`."""
-    schedule = gate.looks_schedule(episodes, batch)
-    keys = _cells(n_cells, splits)
-    d = gate.Design(design.margin, design.alpha, design.cell_alpha, tuple(schedule), tuple(keys))
+def scenario_power(scenario: str, episodes: int, b: Budget, splits: Sequence[str] | None = None) -> float:
+    """Power of the gate's test for `scenario` ("cell" or "all") with up to `episodes` per cell in looks of `b.batch`
+    (the budget's own `episodes` and `power` are not used)."""
+    schedule = gate.looks_schedule(episodes, b.batch)
+    keys = _cells(b.n_cells, splits)
+    d = gate.Design(b.design.margin, b.design.alpha, b.design.cell_alpha, tuple(schedule), tuple(keys))
     # the collapsed cell is the first; with one cell its test is the pooled one
-    target = gate.cell_id(keys[0]) if scenario == "cell" and n_cells >= 2 else "pooled"
+    target = gate.cell_id(keys[0]) if scenario == "cell" and b.n_cells >= 2 else "pooled"
     thresholds = [t.get(target, 0.0) for t in d.thresholds]
-    pairs = [n if target != "pooled" else n * n_cells for n in schedule]
-    r2 = rate - drop
-    return sequential_power(pairs, thresholds, rate * (1 - r2), (1 - rate) * r2, design.margin)
+    pairs = [n if target != "pooled" else n * b.n_cells for n in schedule]
+    r2 = b.rate - b.drop
+    return sequential_power(pairs, thresholds, b.rate * (1 - r2), (1 - b.rate) * r2, b.design.margin)
 
 
-def episodes_needed(
-    scenario: str,
-    power: float,
-    batch: int,
-    n_cells: int,
-    rate: float,
-    drop: float,
-    design: gate.Design,
-    splits: Sequence[str] | None = None,
-) -> tuple[int | None, float]:
-    """Smallest budget (episodes per cell; a multiple of `batch` when it is > 0) reaching `power`, and its power.
+def episodes_needed(scenario: str, b: Budget, splits: Sequence[str] | None = None) -> tuple[int | None, float]:
+    """Smallest budget (episodes per cell; a multiple of `b.batch` when it is > 0) reaching `b.power`, and its power.
 
     Doubling then bisection over the number of looks (power grows with the budget up to the
     discreteness of the test); None when even MAX_EPISODES per cell fall short.
     """
-    step = batch if batch > 0 else 1
+    step = b.batch if b.batch > 0 else 1
 
     def pw(k: int) -> float:
-        return scenario_power(scenario, k * step, batch, n_cells, rate, drop, design, splits)
+        return scenario_power(scenario, k * step, b, splits)
 
     lo, hi = 0, 1
-    while pw(hi) < power:
+    while pw(hi) < b.power:
         lo, hi = hi, hi * 2
         if hi * step > MAX_EPISODES:
             hi = MAX_EPISODES // step
-            if pw(hi) < power:
+            if pw(hi) < b.power:
                 return None, pw(hi)
             break
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if pw(mid) >= power:
+        if pw(mid) >= b.power:
             hi = mid
         else:
             lo = mid
@@ -172,43 +155,36 @@ class Budget:
 
 def plan_text(b: Budget, splits: Sequence[str] | None = None, cells_from: str = "") -> str:
     """The report `bench regress plan=true` prints."""
-    power, rate, drop, n_cells, batch, design, episodes = (
-        b.power,
-        b.rate,
-        b.drop,
-        b.n_cells,
-        b.batch,
-        b.design,
-        b.episodes,
-    )
     split_note = ""
     if splits and len(set(splits)) > 1:
         split_note = " (" + ", ".join(f"{s}: {list(splits).count(s)}" for s in sorted(set(splits))) + ")"
-    looks = f"looks every {batch} episodes per cell" if batch > 0 else "one look at the end"
+    looks = f"looks every {b.batch} episodes per cell" if b.batch > 0 else "one look at the end"
     lines = [
-        f"budget plan: {n_cells} cells{split_note}{cells_from}; margin {design.margin}, alpha {design.alpha} "
-        f"({design.cell_alpha:g} of it to the per-cell tests, Holm); {looks}; target power {power:g}",
+        f"budget plan: {b.n_cells} cells{split_note}{cells_from}; margin {b.design.margin}, alpha {b.design.alpha} "
+        f"({b.design.cell_alpha:g} of it to the per-cell tests, Holm); {looks}; target power {b.power:g}",
         "method: exact law of the lost/won pair counts carried over the looks, each test at the gate's own "
         "thresholds; outcomes of a pair independent (conservative); lower bounds (other tests only add power)",
         "",
-        f"  {'scenario':<34} {'episodes/cell':>13} {'looks':>5} {'power':>6}   power at episodes={episodes}",
+        f"  {'scenario':<34} {'episodes/cell':>13} {'looks':>5} {'power':>6}   power at episodes={b.episodes}",
     ]
     for scenario, label in (
-        ("cell", f"one cell {rate:.2f} -> {rate - drop:.2f}"),
-        ("all", f"every cell {rate:.2f} -> {rate - drop:.2f}"),
+        ("cell", f"one cell {b.rate:.2f} -> {b.rate - b.drop:.2f}"),
+        ("all", f"every cell {b.rate:.2f} -> {b.rate - b.drop:.2f}"),
     ):
-        if scenario == "cell" and n_cells < 2:
+        if scenario == "cell" and b.n_cells < 2:
             label += " (1 cell: pooled test)"
-        need, got = episodes_needed(scenario, power, batch, n_cells, rate, drop, design, splits)
-        at = scenario_power(scenario, episodes, batch, n_cells, rate, drop, design, splits)
+        need, got = episodes_needed(scenario, b, splits)
+        at = scenario_power(scenario, b.episodes, b, splits)
         if need is None:
             lines.append(f"  {label:<34} {'> ' + str(MAX_EPISODES):>13} {'':>5} {got:>6.3f}   {at:.3f}")
         else:
-            lines.append(f"  {label:<34} {need:>13} {len(gate.looks_schedule(need, batch)):>5} {got:>6.3f}   {at:.3f}")
+            lines.append(
+                f"  {label:<34} {need:>13} {len(gate.looks_schedule(need, b.batch)):>5} {got:>6.3f}   {at:.3f}"
+            )
     lines.append("")
     lines.append(
-        f"run: bench regress candidate=... baseline=... episodes=N batch={batch} margin={design.margin} "
-        f"alpha={design.alpha}"
+        f"run: bench regress candidate=... baseline=... episodes=N batch={b.batch} margin={b.design.margin} "
+        f"alpha={b.design.alpha}"
     )
     return "\n".join(lines) + "\n"
 

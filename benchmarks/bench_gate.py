@@ -127,8 +127,9 @@ def plan_check(cells: int, episodes: int, batch: int, simulated: dict[str, float
     from bench import gate, gate_power
 
     d = gate.Design(0.05, 0.05, 0.5)
-    exact = gate_power.scenario_power("cell", episodes, batch, cells, 0.9, 0.6, d, SPLITS[:cells])
-    need, got = gate_power.episodes_needed("cell", 0.8, batch, cells, 0.9, 0.6, d, SPLITS[:cells])
+    budget = gate_power.Budget(power=0.8, rate=0.9, drop=0.6, n_cells=cells, batch=batch, design=d, episodes=episodes)
+    exact = gate_power.scenario_power("cell", episodes, budget, SPLITS[:cells])
+    need, got = gate_power.episodes_needed("cell", budget, SPLITS[:cells])
     sim = simulated.get("Panda 0.9 -> 0.3, rho 0")
     print(
         f"\nplan check (one cell 0.9 -> 0.3, outcomes independent): exact power of the cell's own test "

@@ -220,8 +220,8 @@ def test_exact_sequential_power_matches_monte_carlo():
 
 def test_episodes_needed_is_the_smallest_budget_reaching_the_power():
     d = gate.Design()
-    need, got = gate_power.episodes_needed("cell", 0.8, 5, 7, 0.9, 0.6, d)
+    need, got = gate_power.episodes_needed("cell", gate_power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0))
     assert need is not None and need % 5 == 0 and got >= 0.8
-    assert gate_power.scenario_power("cell", need - 5, 5, 7, 0.9, 0.6, d) < 0.8
-    never, _ = gate_power.episodes_needed("cell", 0.99, 5, 7, 0.2, 0.06, d)
+    assert gate_power.scenario_power("cell", need - 5, gate_power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0)) < 0.8
+    never, _ = gate_power.episodes_needed("cell", gate_power.Budget(0.99, 0.2, 0.06, 7, 5, d, 0))
     assert never is None  # a 1-point excess over the margin in one of 7 cells: no CI budget finds it
