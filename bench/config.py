@@ -250,12 +250,13 @@ def check_overrides(overrides: list[str], schema: type | None) -> None:
 
 
 def _bare_as_list(schema: type, overrides: list[str]) -> list[str]:
-    """`key=v` -> `key=[v]` for the `one_or_more` fields of `schema` given one bare value."""
+    """`key=v` -> `key=[v]` for the `one_or_more` fields of `schema` given one bare (scalar) value."""
     bare = {f.name for f in dataclasses.fields(schema) if f.metadata.get("bare")}
     out = []
     for item in overrides:
         key, _, value = item.partition("=")
-        out.append(f"{key}=[{value}]" if key in bare and not value.lstrip().startswith("[") else item)
+        scalar = not value.lstrip().startswith(("[", "{"))  # a list is kept, a mapping refused by the type
+        out.append(f"{key}=[{value}]" if key in bare and scalar else item)
     return out
 
 
