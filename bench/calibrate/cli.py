@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -62,18 +63,17 @@ class GenerateConfig:
     overwrite: bool = False  # replace an existing out folder that bench wrote
 
 
+GENERATE_USAGE = (
+    "usage: bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
+    "                                [target=NAME] [disturbance=cogging]"
+)
 USAGE = (
     "usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]\n"
     "                       [residual=true]\n"
     "       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]\n"
     "                       [residual=true]\n"
-    "       bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
-    "                                [target=NAME] [disturbance=cogging]\n"
+    f"       {GENERATE_USAGE.removeprefix('usage: ')}\n"
     "       bench calibrate effects"
-)
-GENERATE_USAGE = (
-    "usage: bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
-    "                                [target=NAME] [disturbance=cogging]"
 )
 GENERATE_ABOUT = (
     "generate writes a synthetic case: a 3-joint arm under PD tracking with ONE hidden effect\n"
@@ -282,14 +282,26 @@ def cmd_generate(cfg: GenerateConfig) -> int:
     return 0
 
 
-def cmd_effects() -> int:
-    """List the effect library."""
+def cmd_effects(argv: list[str]) -> int:
+    """List the effect library (`bench calibrate effects`, no arguments)."""
     from bench.calibrate.effects import EFFECTS
 
+    if argv:
+        raise ConfigError(f"unexpected argument {argv[0]!r}; bench calibrate effects takes none")
     width = max(len(n) for n in EFFECTS)
     for name, eff in EFFECTS.items():
         print(f"{name.ljust(width)}  {eff.kind:8s}  {', '.join(eff.params)}: {eff.doc}")
     return 0
+
+
+# subcommand -> (handler of the arguments after it, its --help); other arguments calibrate (spec= or suite=)
+SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
+    "generate": (
+        lambda argv: cmd_generate(config.build_from_argv(GenerateConfig, argv, "bench calibrate generate")),
+        generate_help,
+    ),
+    "effects": (cmd_effects, effects_help),
+}
 
 
 def main(argv: list[str]) -> int:
@@ -299,28 +311,18 @@ def main(argv: list[str]) -> int:
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(help_text(), end="")
         return 0
-    if positional[:1] == ["generate"]:
+    if positional and positional[0] in SUBCOMMANDS:
+        handler, help_of = SUBCOMMANDS[positional[0]]
         if wants_help:
-            print(generate_help(), end="")
+            print(help_of(), end="")
             return 0
-        return cmd_generate(
-            config.build_from_argv(GenerateConfig, positional[1:] + overrides, "bench calibrate generate")
-        )
-    if positional[:1] == ["effects"]:
-        if wants_help:
-            print(effects_help(), end="")
-            return 0
-        if len(argv) > 1:
-            raise ConfigError(
-                f"unexpected argument {(positional[1:] + overrides)[0]!r}; bench calibrate effects takes none"
-            )
-        return cmd_effects()
+        return handler(positional[1:] + overrides)
     if wants_help:
         print(help_text(), end="")
         return 0
     if positional:
         raise ConfigError(
-            f"unexpected argument {positional[0]!r}; subcommands: generate, effects "
+            f"unexpected argument {positional[0]!r}; subcommands: {', '.join(SUBCOMMANDS)} "
             f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)"
         )
     if any(config.top_key(o) == "suite" for o in overrides):
