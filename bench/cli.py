@@ -25,7 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "score": ("bench.run:main_score", "re-score a run directory from its episodes.jsonl"),
     "leaderboard": ("bench.leaderboard:main", "leaderboard tools: validate FILE | merge RUN... out=FILE | show FILE"),
     "perf": ("bench.perf:main", "measure harness throughput against raw simulator stepping"),
-    "logs": ("bench.logs.cli:main", "real-log tools: info DIR | import SRC out=DIR format=csv|mat|rlds"),
+    "logs": (
+        "bench.logs.cli:main",
+        "real-log tools: info DIR | import SRC out=DIR | card DIR | rank DIR calibration=FILE",
+    ),
     "replay": ("bench.replay.cli:main", "open-loop replay of logged commands in the simulator; per-joint RMSE/NRMSE"),
     "serve": ("bench.remote.server:main", "serve a bench policy over openpi's websocket protocol (for policy=remote)"),
     "actions": ("bench.policy_on_logs:main", "policy on logs: a policy fed logged observations vs the logged actions"),

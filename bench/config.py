@@ -89,6 +89,14 @@ def ranged(
     return dataclasses.field(default=default, metadata={"range": Range(lo, hi, lo_open, hi_open)})
 
 
+def one_or_more(default: Any = None) -> Any:
+    """A list field that also takes one bare value, which `build` reads as a list of one (`state=q` is `state=[q]`).
+
+    `state: Optional[list[str]] = one_or_more()  # columns of observation.state`
+    """
+    return dataclasses.field(default=default, metadata={"bare": True})
+
+
 def check_number(key: str, value: Any, rng: Range | None = None) -> None:
     """One numeric value of `key`: finite, inside the int64 range, inside `rng` (ConfigError naming the key)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -205,25 +213,6 @@ def partition(overrides: Iterable[str], owners: dict[str, list[str]], context: s
     return out
 
 
-def parse_kv(argv: Iterable[str]) -> tuple[list[str], dict[str, Any]]:
-    """Positional arguments and a nested dict of the `key=value` overrides (untyped).
-
-    For commands whose keys are checked by hand; typed commands use `build`.
-    """
-    from omegaconf import OmegaConf
-
-    positional, overrides = split_args(argv)
-    check_overrides(overrides, None)
-    try:
-        kv = OmegaConf.to_container(OmegaConf.from_dotlist(overrides), resolve=True)
-    except Exception as exc:  # omegaconf grammar errors
-        raise ConfigError(f"cannot parse overrides {overrides}: {_first_line(exc)}") from None
-    assert isinstance(kv, dict)  # a dotlist always builds a mapping
-    for k, v in kv.items():
-        check_values(str(k), v)
-    return positional, kv  # type: ignore[return-value]
-
-
 def _first_line(exc: BaseException) -> str:
     lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
     return lines[0] if lines else type(exc).__name__
@@ -260,6 +249,17 @@ def check_overrides(overrides: list[str], schema: type | None) -> None:
         raise ConfigError(f"key {twice!r} is given twice ({' and '.join(given)}); give it once")
 
 
+def _bare_as_list(schema: type, overrides: list[str]) -> list[str]:
+    """`key=v` -> `key=[v]` for the `one_or_more` fields of `schema` given one bare (scalar) value."""
+    bare = {f.name for f in dataclasses.fields(schema) if f.metadata.get("bare")}
+    out = []
+    for item in overrides:
+        key, _, value = item.partition("=")
+        scalar = not value.lstrip().startswith(("[", "{"))  # a list is kept, a mapping refused by the type
+        out.append(f"{key}=[{value}]" if key in bare and scalar else item)
+    return out
+
+
 def _fields(schema: type) -> list[str]:
     return [f.name for f in dataclasses.fields(schema)]
 
@@ -275,8 +275,9 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
     from omegaconf import OmegaConf
     from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, OmegaConfBaseException, ValidationError
 
-    overrides = list(overrides)
-    check_overrides(overrides, schema)
+    given = list(overrides)
+    check_overrides(given, schema)
+    overrides = _bare_as_list(schema, given)
     keys = [item.split("=", 1)[0] for item in overrides]
     for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
         child = next((k for k in keys if k.startswith(key + ".")), None)
@@ -307,7 +308,7 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
     except OmegaConfBaseException as exc:
         raise ConfigError(f"cannot parse overrides: {_first_line(exc)}") from None
     except (ValueError, TypeError) as exc:  # a value OmegaConf's own converters refuse
-        raise ConfigError(f"bad value in {' '.join(overrides) or 'the options'}: {_first_line(exc)}") from None
+        raise ConfigError(f"bad value in {' '.join(given) or 'the options'}: {_first_line(exc)}") from None
     validate(out)
     return out  # type: ignore[return-value]
 

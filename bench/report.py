@@ -44,25 +44,28 @@ class ReportConfig:
     title: Optional[str] = None  # page title; default from the input
 
 
-USAGE = """usage: bench report RUN|SUMMARY|LEADERBOARD out=DIR [calibration=DIR] [verdict=FILE] [title=TEXT]
-
-Writes DIR/index.html with matplotlib figures (PNG, next to it):
-  run:          success per task x robot/env with Wilson intervals, seen and unseen side by side; split
-                means and transfer gaps with intervals; sensitivity curves per perturbation axis when
-                the run has perturbed conditions; round-trip latency distribution for remote policies;
-                per-cell table. Given a run directory: its episode videos (bench run video=N) in the
-                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:
-                nominal vs perturbed success, drop with its interval).
-  leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.
-  calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.
-  verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.
-Inputs are validated before anything is written. DIR is never an input or inside one; an existing
-DIR is replaced (atomically) only with overwrite=true, and only when bench wrote everything in it.
-
-examples:
-  bench report runs/my_run out=report/
-  bench report results/leaderboard.json out=report/ calibration=runs/calib1
-"""
+def help_text() -> str:
+    """`bench report --help`: what a page holds for each input, and the keys (from ReportConfig)."""
+    return config_mod.command_help(
+        "usage: bench report RUN|SUMMARY|LEADERBOARD out=DIR [calibration=DIR] [verdict=FILE] [title=TEXT]",
+        "Writes DIR/index.html with matplotlib figures (PNG, next to it):\n"
+        "  run:          success per task x robot/env with Wilson intervals, seen and unseen side by side; split\n"
+        "                means and transfer gaps with intervals; sensitivity curves per perturbation axis when\n"
+        "                the run has perturbed conditions; round-trip latency distribution for remote policies;\n"
+        "                per-cell table. Given a run directory: its episode videos (bench run video=N) in the\n"
+        "                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:\n"
+        "                nominal vs perturbed success, drop with its interval).\n"
+        "  leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.\n"
+        "  calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.\n"
+        "  verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.\n"
+        "Inputs are validated before anything is written. DIR is never an input or inside one; an existing\n"
+        "DIR is replaced (atomically) only with overwrite=true, and only when bench wrote everything in it.",
+        ReportConfig,
+        examples=[
+            "bench report runs/my_run out=report/",
+            "bench report results/leaderboard.json out=report/ calibration=runs/calib1",
+        ],
+    )
 
 
 # -- inputs -------------------------------------------------------------------------------------
@@ -410,8 +413,8 @@ def build_page(
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] in ("-h", "--help"):
-        print(USAGE)
+    if not argv or any(a in ("-h", "--help") for a in argv):
+        print(help_text(), end="")
         return 0 if argv else 2
     positional, overrides = config_mod.split_args(argv)
     cfg: ReportConfig = config_mod.build(ReportConfig, overrides)

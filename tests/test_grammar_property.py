@@ -28,8 +28,11 @@ SETTINGS = dict(
 
 def _schemas() -> list[type]:
     from bench.agreement import CorrelateConfig
+    from bench.calibrate.cli import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.check import CheckConfig
     from bench.coverage import CoverageConfig
+    from bench.leaderboard import MergeConfig
+    from bench.logs.cli import FORMATS, CardConfig, ImportConfig, RankConfig
     from bench.perf import PerfConfig
     from bench.regress_args import RegressConfig
     from bench.replay.common import ReplayConfig
@@ -44,6 +47,14 @@ def _schemas() -> list[type]:
         RegressConfig,
         ReplayConfig,
         ReportConfig,
+        ImportConfig,
+        *FORMATS.values(),
+        CardConfig,
+        RankConfig,
+        CalibrateConfig,
+        SuiteCalibrateConfig,
+        GenerateConfig,
+        MergeConfig,
     ]
 
 

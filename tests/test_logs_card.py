@@ -96,7 +96,7 @@ BAD = [
     (lambda t, c: ["card", str(t / "nowhere")], r"logs folder .*nowhere' does not exist"),
     (lambda t, c: ["card", str(c[0] / "logs"), "dup=0.1"], r"unknown key 'dup'.*Did you mean 'dup_tol'"),
     (lambda t, c: ["card", str(c[0] / "logs"), f"out={c[0] / 'spec.yaml'}"], r"out=.*spec.yaml' exists"),
-    (lambda t, c: ["card", str(c[0] / "logs"), "dup_tol=-1"], r"key 'dup_tol' must be a non-negative number"),
+    (lambda t, c: ["card", str(c[0] / "logs"), "dup_tol=-1"], r"dup_tol=-1: must be in \[0, inf\)"),
     (lambda t, c: ["rank", str(c[0] / "logs")], r"missing key 'calibration'"),
     (lambda t, c: ["rank", str(c[0] / "logs"), f"calibration={t}"], r"calibration=.*no such file"),
     (

@@ -28,10 +28,19 @@ def test_help(argv, capsys):
 
 
 def test_import_help_lists_keys(capsys):
+    """The common keys, then one section per format with that format's keys (from their dataclasses)."""
     main(["logs", "import", "--help"])
     text = capsys.readouterr().out
-    for key in ("out", "format", "fps", "state=", "action=", "time=", "episode=", "velocity=", "split=", "overwrite"):
-        assert key in text
+    for key in ("out", "format", "fps", "task", "robot_type", "overwrite=false"):
+        assert f"\n  {key} " in text, key
+    for section, keys in [
+        ("csv keys:", ("state", "action", "time", "episode", "delimiter=,")),
+        ("mat keys", ("state", "action", "time", "velocity=false")),
+        ("rlds keys", ("split=train", "state=observation/state", "action=action", "instruction=")),
+    ]:
+        part = text.split(section, 1)[1].split("\n\n", 1)[0]
+        for key in keys:
+            assert f"\n  {key}" in part, (section, key)
 
 
 def test_info(tmp_path, capsys):
@@ -82,7 +91,10 @@ def test_import_rlds(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["logs", "import", "x.csv", "out=o", "velocity=true"], "unknown key 'velocity' for format=csv"),
+        (
+            ["logs", "import", "x.csv", "out=o", "velocity=true"],
+            "unknown key 'velocity' (for format=csv); valid keys — all formats: out, format",
+        ),
         (["logs", "import", "x.csv"], "missing key 'out'"),
         (["logs", "import", "x.bin", "out=o"], "cannot tell the format"),
         (["logs", "import", "x.csv", "out=o", "format=hdf5"], "format is 'hdf5'; valid: csv, mat, rlds"),

@@ -256,7 +256,7 @@ def test_help_names_every_key(capsys):
     assert main(["replay", "--help"]) == 0
     text = capsys.readouterr().out
     for key in ("logs", "spec", "suite", "commands", "k", "episodes", "out", "plot", "threads"):
-        assert re.search(rf"^  {key}\s", text, re.M), key
+        assert re.search(rf"^  {key}[\s=]", text, re.M), key  # `k=10`: the key with its default
 
 
 @pytest.fixture(scope="module")

@@ -3,82 +3,135 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
+from bench import config
+from bench.config import ranged
 from bench.errors import ConfigError, DataError, did_you_mean
-
-USAGE = """usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]
-                       [residual=true]
-       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]
-                       [residual=true]
-       bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]
-                                [target=NAME] [disturbance=cogging]
-       bench calibrate effects
-
-Real2Sim: fit the spec's declared parameters to the logs (bounded least squares on truncated
-horizons re-initialised from logged states), trace what is still wrong to a missing effect of the
-library, add it, refit, and report held-out errors before and after.
-
-  spec      calibration spec, YAML or JSON (docs/calibration.md)
-  logs      LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS)
-  out       folder for calibration.json, report.md and plots
-  seed      which episodes are held out (time split when there is one episode)
-  effects   override the spec's effect list: all, none or [name,...]
-  threads   rollout threads (default: the spec's, 1)
-  residual  also fit a learned residual (a small model of the force the calibrated physics still
-            misses) and report held-out errors with and without it, apart from the physics (default true)
-
-suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo
-state before each frame, the command of every physics step): a damping and an armature scale over
-the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.
-calibration.json then carries an `apply` section: `bench run suite=NAME ... calibration=OUT` runs
-that robot's cells with the calibrated model (a file for another suite, robot or model is refused).
-
-generate writes a synthetic case: a 3-joint arm under PD tracking with ONE hidden effect
-(or none), as LeRobot logs (OUT/logs) plus the declared model, its spec and truth.json;
-disturbance=cogging adds a force no effect of the library describes (for the learned residual). Then:
-  bench calibrate spec=OUT/spec.yaml logs=OUT/logs out=OUT/result
-
-examples:
-  bench calibrate generate effect=coulomb_friction out=/tmp/case
-  bench calibrate spec=/tmp/case/spec.yaml logs=/tmp/case/logs out=/tmp/case/result
-  bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir]
-  bench calibrate spec=bench/calibrate/models/emps.yaml logs=logs/emps out=runs/emps
-"""
-
-RUN_KEYS = ("spec", "logs", "out", "seed", "effects", "threads", "quiet", "residual", "overwrite")
-SUITE_KEYS = ("suite", "robot", "logs", "out", "seed", "threads", "quiet", "residual", "condition", "overwrite")
-GEN_KEYS = ("effect", "out", "episodes", "duration", "fps", "seed", "target", "disturbance", "overwrite")
-
-
-def _check(kv: dict, valid: tuple[str, ...], required: tuple[str, ...]) -> None:
-    for key in kv:
-        if key not in valid:
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{did_you_mean(key, valid)}")
-    for key in required:
-        if kv.get(key) in (None, ""):
-            raise ConfigError(f"missing key {key!r}; usage: bench calibrate {' '.join(k + '=...' for k in required)}")
-
 
 MAX_THREADS = 256  # rollout threads: far above any core count here, far below what hangs a machine
 MAX_EPISODES = 10_000  # generated episodes
 MAX_FRAMES = 5_000_000  # generated frames in all (a few hundred MB of logs)
 
 
-def _int(kv: dict, key: str, default: int, lo: int = 0, hi: int | None = None) -> int:
-    value = kv.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-        valid = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
-        raise ConfigError(f"key {key!r} must be {valid}; got {value!r}")
-    return value
+@dataclass(frozen=True)
+class CalibrateConfig:
+    """Keys of `bench calibrate spec=...`: a spec's model fitted to logs."""
+
+    spec: Optional[str] = None  # calibration spec, YAML or JSON (docs/calibration.md) (required)
+    logs: Optional[str] = None  # LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS) (required)
+    out: Optional[str] = None  # folder for calibration.json, report.md and plots (required)
+    seed: int = ranged(0, 0)  # which episodes are held out (time split when there is one episode)
+    effects: Any = None  # override the spec's effect list: all, none or [name,...]
+    threads: Optional[int] = ranged(None, 1, MAX_THREADS)  # rollout threads (default: the spec's, 1)
+    quiet: bool = False  # no progress lines on stderr
+    residual: bool = True  # also fit a learned residual (a model of the force the calibrated physics misses); held-out errors with and without it
+    overwrite: bool = False  # replace an existing out folder that bench wrote
 
 
-def _float(kv: dict, key: str, default: float, hi: float) -> float:
-    value = kv.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= hi:
-        raise ConfigError(f"key {key!r} must be a positive number <= {hi:g}; got {value!r}")
-    return float(value)
+@dataclass(frozen=True)
+class SuiteCalibrateConfig:
+    """Keys of `bench calibrate suite=...`: a suite's robot fitted in its scene to `bench run record=` logs."""
+
+    suite: Optional[str] = None  # suite whose robot is calibrated (required)
+    robot: Optional[str] = None  # the robot of the suite (required)
+    logs: Optional[str] = None  # `bench run suite=NAME ... record=DIR` logs of that robot (required)
+    out: Optional[str] = None  # folder for calibration.json (with its `apply` section), report.md and plots (required)
+    condition: Optional[str] = None  # keep only the episodes recorded under this condition (default: all)
+    seed: int = ranged(0, 0)  # which episodes are held out
+    threads: int = ranged(1, 1, MAX_THREADS)  # rollout threads
+    quiet: bool = False  # no progress lines on stderr
+    residual: bool = True  # also fit a learned residual (a model of the force the calibrated physics misses); held-out errors with and without it
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Keys of `bench calibrate generate`: a synthetic case with one hidden effect."""
+
+    effect: Optional[str] = None  # the hidden effect (`bench calibrate effects`), or none (required)
+    out: Optional[str] = None  # folder for logs/, arm3_declared.xml, spec.yaml and truth.json (required)
+    episodes: int = ranged(8, 2, MAX_EPISODES)  # episodes to simulate
+    duration: float = ranged(6.0, 0, 3600.0, lo_open=True)  # seconds per episode
+    fps: float = ranged(100.0, 0, 10_000.0, lo_open=True)  # frames per second
+    seed: int = ranged(0, 0)  # seed of the references and the hidden parameters
+    target: Optional[str] = None  # joint or body the effect acts on (default: the effect's own)
+    disturbance: Optional[str] = None  # cogging: a force no effect of the library describes (for the learned residual)
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+
+
+GENERATE_USAGE = (
+    "usage: bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
+    "                                [target=NAME] [disturbance=cogging]"
+)
+USAGE = (
+    "usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]\n"
+    "                       [residual=true]\n"
+    "       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]\n"
+    "                       [residual=true]\n"
+    f"       {GENERATE_USAGE.removeprefix('usage: ')}\n"
+    "       bench calibrate effects"
+)
+GENERATE_ABOUT = (
+    "generate writes a synthetic case: a 3-joint arm under PD tracking with ONE hidden effect\n"
+    "(or none), as LeRobot logs (OUT/logs) plus the declared model, its spec and truth.json;\n"
+    "disturbance=cogging adds a force no effect of the library describes (for the learned residual). Then:\n"
+    "  bench calibrate spec=OUT/spec.yaml logs=OUT/logs out=OUT/result"
+)
+
+
+def help_text() -> str:
+    """`bench calibrate --help`: the spec keys, the suite keys, generate and effects."""
+    return config.command_help(
+        USAGE,
+        "Real2Sim: fit the spec's declared parameters to the logs (bounded least squares on truncated\n"
+        "horizons re-initialised from logged states), trace what is still wrong to a missing effect of the\n"
+        "library, add it, refit, and report held-out errors before and after.",
+        CalibrateConfig,
+        notes="suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
+        "state before each frame, the command of every physics step): a damping and an armature scale over\n"
+        "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"
+        "calibration.json then carries an `apply` section: `bench run suite=NAME ... calibration=OUT` runs\n"
+        "that robot's cells with the calibrated model (a file for another suite, robot or model is refused).\n\n"
+        f"suite keys:\n{config.key_help(SuiteCalibrateConfig)}\n\n"
+        f"{GENERATE_ABOUT}\n\ngenerate keys (bench calibrate generate --help):\n{config.key_help(GenerateConfig)}\n\n"
+        "effects lists the effect library (bench calibrate effects).",
+        examples=[
+            "bench calibrate generate effect=coulomb_friction out=/tmp/case",
+            "bench calibrate spec=/tmp/case/spec.yaml logs=/tmp/case/logs out=/tmp/case/result",
+            "bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir]",
+            "bench calibrate spec=bench/calibrate/models/emps.yaml logs=logs/emps out=runs/emps",
+        ],
+    )
+
+
+def generate_help() -> str:
+    """`bench calibrate generate --help`."""
+    return config.command_help(
+        GENERATE_USAGE,
+        GENERATE_ABOUT,
+        GenerateConfig,
+        examples=["bench calibrate generate effect=coulomb_friction out=/tmp/case"],
+    )
+
+
+def effects_help() -> str:
+    """`bench calibrate effects --help`."""
+    return config.command_help(
+        "usage: bench calibrate effects",
+        "Lists the effect library: each effect's name, kind, parameters and what it models. It takes no keys.",
+    )
+
+
+def _require(cfg: Any, *keys: str) -> list[str]:
+    """The values of the required `keys` of `cfg` (ConfigError naming the first one not given)."""
+    for key in keys:
+        if getattr(cfg, key) is None:
+            raise ConfigError(f"missing key {key!r}; usage: bench calibrate {' '.join(k + '=...' for k in keys)}")
+    return [getattr(cfg, key) for key in keys]
 
 
 def _effects(value: Any):
@@ -110,28 +163,24 @@ def _load_logs(path: Path) -> tuple[list[dict], float]:
     return [ep.data for ep in ds.episodes], float(ds.fps)
 
 
-def cmd_run(kv: dict) -> int:
+def cmd_run(cfg: CalibrateConfig) -> int:
     """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
     from bench.calibrate.spec import load_spec
     from bench.calibrate.trace import run
 
-    _check(kv, RUN_KEYS, ("spec", "logs", "out"))
-    spec = load_spec(Path(str(kv["spec"])).expanduser())
-    out = _out(kv, {"spec": str(kv["spec"]), "model": str(spec.model), "logs": str(kv["logs"])})
-    episodes, fps = _load_logs(Path(str(kv["logs"])).expanduser())
-    quiet = _flag(kv, "quiet")
-    log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    threads = _int(kv, "threads", spec.threads, lo=1, hi=MAX_THREADS)
-    residual = _residual(kv)
+    spec_file, logs, out_dir = _require(cfg, "spec", "logs", "out")
+    spec = load_spec(Path(spec_file).expanduser())
+    out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})
+    episodes, fps = _load_logs(Path(logs).expanduser())
     cal = run(
         spec,
         episodes,
         fps,
-        seed=_int(kv, "seed", 0),
-        effects=_effects(kv.get("effects")),
-        threads=threads,
-        log=log,
-        residual=residual,
+        seed=cfg.seed,
+        effects=_effects(cfg.effects),
+        threads=spec.threads if cfg.threads is None else cfg.threads,
+        log=_log(cfg.quiet),
+        residual=cfg.residual,
     )
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -140,14 +189,16 @@ def cmd_run(kv: dict) -> int:
     return 0
 
 
-def _out(kv: dict, inputs: dict[str, Any]) -> Path:
+def _log(quiet: bool):
+    """Progress lines on stderr (none when quiet)."""
+    return (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+
+
+def _out(value: str, overwrite: bool, inputs: dict[str, Any]) -> Path:
     """OUT checked against `bench.outputs`' rule (never an input or inside one; overwrite=true for bench's own)."""
     from bench import outputs
 
-    overwrite = kv.get("overwrite", False)
-    if not isinstance(overwrite, bool):
-        raise ConfigError(f"key 'overwrite' must be true or false; got {overwrite!r}")
-    return outputs.check("out", str(kv["out"]), inputs, overwrite=overwrite)
+    return outputs.check("out", value, inputs, overwrite=overwrite)
 
 
 def _write(out: Path, cal: Any, extra: dict | None = None) -> Path:
@@ -157,20 +208,6 @@ def _write(out: Path, cal: Any, extra: dict | None = None) -> Path:
 
     outputs.replace_dir(out, lambda tmp: write_report(cal, tmp, extra))
     return out / "calibration.json"
-
-
-def _flag(kv: dict, key: str) -> bool:
-    value = kv.get(key, False)
-    if not isinstance(value, bool):
-        raise ConfigError(f"key {key!r} must be true or false; got {value!r}")
-    return value
-
-
-def _residual(kv: dict) -> bool:
-    residual = kv.get("residual", True)
-    if not isinstance(residual, bool):
-        raise ConfigError(f"key 'residual' must be true or false; got {residual!r}")
-    return residual
 
 
 def _summary(cal, path: Path) -> None:
@@ -191,89 +228,103 @@ def _summary(cal, path: Path) -> None:
     print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s)")
 
 
-def cmd_suite(kv: dict) -> int:
+def cmd_suite(cfg: SuiteCalibrateConfig) -> int:
     """Calibrate a suite's robot in its scene: logs of `bench run record=` -> OUT/calibration.json with `apply`."""
     from bench.calibrate.suite import calibrate_suite
 
-    _check(kv, SUITE_KEYS, ("suite", "robot", "logs", "out"))
-    out = _out(kv, {"logs": str(kv["logs"])})
-    residual, threads, seed = _residual(kv), _int(kv, "threads", 1, lo=1, hi=MAX_THREADS), _int(kv, "seed", 0)
-    log = (lambda msg: None) if _flag(kv, "quiet") else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    suite, robot, logs, out_dir = _require(cfg, "suite", "robot", "logs", "out")
+    out = _out(out_dir, cfg.overwrite, {"logs": logs})
     cal, extra = calibrate_suite(
-        str(kv["suite"]),
-        str(kv["robot"]),
-        Path(str(kv["logs"])),
-        seed=seed,
-        threads=threads,
-        log=log,
-        residual=residual,
-        condition=None if kv.get("condition") is None else str(kv["condition"]),
+        suite,
+        robot,
+        Path(logs),
+        seed=cfg.seed,
+        threads=cfg.threads,
+        log=_log(cfg.quiet),
+        residual=cfg.residual,
+        condition=cfg.condition,
     )
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
     path = _write(out, cal, extra)
     _summary(cal, path)
     print(
-        f"{len(extra['apply']['edits'])} model edit(s) for {kv['robot']}; run with them: bench run "
-        f"suite={kv['suite']} robots=[{kv['robot']}] calibration={path}"
+        f"{len(extra['apply']['edits'])} model edit(s) for {robot}; run with them: bench run "
+        f"suite={suite} robots=[{robot}] calibration={path}"
     )
     return 0
 
 
-def cmd_generate(kv: dict) -> int:
+def cmd_generate(cfg: GenerateConfig) -> int:
     """Write a synthetic case with one hidden effect."""
     from bench import outputs
     from bench.calibrate.generate import write_case
 
-    _check(kv, GEN_KEYS, ("effect", "out"))
-    effect = None if kv["effect"] in ("none", "null") else str(kv["effect"])
-    out = _out(kv, {})
-    episodes = _int(kv, "episodes", 8, lo=2, hi=MAX_EPISODES)
-    duration, fps = _float(kv, "duration", 6.0, 3600.0), _float(kv, "fps", 100.0, 10_000.0)
-    params = dict(
-        episodes=episodes,
-        duration=duration,
-        fps=fps,
-        seed=_int(kv, "seed", 0),
-        target=kv.get("target"),
-        disturbance=kv.get("disturbance"),
-    )
-    frames = episodes * duration * fps
+    name, out_dir = _require(cfg, "effect", "out")
+    effect = None if name in ("none", "null") else name
+    out = _out(out_dir, cfg.overwrite, {})
+    frames = cfg.episodes * cfg.duration * cfg.fps
     if frames > MAX_FRAMES:
         raise ConfigError(
             f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
             "(lower episodes=, duration= or fps=)"
         )
+    params = dict(
+        episodes=cfg.episodes,
+        duration=cfg.duration,
+        fps=cfg.fps,
+        seed=cfg.seed,
+        target=cfg.target,
+        disturbance=cfg.disturbance,
+    )
     outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0
 
 
-def cmd_effects() -> int:
-    """List the effect library."""
+def cmd_effects(argv: list[str]) -> int:
+    """List the effect library (`bench calibrate effects`, no arguments)."""
     from bench.calibrate.effects import EFFECTS
 
+    if argv:
+        raise ConfigError(f"unexpected argument {argv[0]!r}; bench calibrate effects takes none")
     width = max(len(n) for n in EFFECTS)
     for name, eff in EFFECTS.items():
         print(f"{name.ljust(width)}  {eff.kind:8s}  {', '.join(eff.params)}: {eff.doc}")
     return 0
 
 
-def main(argv: list[str]) -> int:
-    """Entry point of `bench calibrate ...`."""
-    from bench.config import parse_kv
+# subcommand -> (handler of the arguments after it, its --help); other arguments calibrate (spec= or suite=)
+SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
+    "generate": (
+        lambda argv: cmd_generate(config.build_from_argv(GenerateConfig, argv, "bench calibrate generate")),
+        generate_help,
+    ),
+    "effects": (cmd_effects, effects_help),
+}
 
+
+def main(argv: list[str]) -> int:
+    """Entry point of `bench calibrate ...`: spec=... or suite=... calibrates; generate and effects are subcommands."""
+    positional, overrides = config.split_args(argv)
+    wants_help = any(a in ("-h", "--help") for a in positional)
     if not argv or argv[0] in ("-h", "--help", "help"):
-        print(USAGE)
+        print(help_text(), end="")
         return 0
-    positional, kv = parse_kv(argv)
-    if positional[:1] == ["generate"]:
-        return cmd_generate(kv)
-    if positional[:1] == ["effects"]:
-        return cmd_effects()
+    if positional and positional[0] in SUBCOMMANDS:
+        handler, help_of = SUBCOMMANDS[positional[0]]
+        if wants_help:
+            print(help_of(), end="")
+            return 0
+        return handler(positional[1:] + overrides)
+    if wants_help:
+        print(help_text(), end="")
+        return 0
     if positional:
         raise ConfigError(
-            f"unexpected argument {positional[0]!r}; subcommands: generate, effects "
+            f"unexpected argument {positional[0]!r}; subcommands: {', '.join(SUBCOMMANDS)} "
             f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)"
         )
-    return cmd_suite(kv) if "suite" in kv else cmd_run(kv)
+    if any(config.top_key(o) == "suite" for o in overrides):
+        return cmd_suite(config.build(SuiteCalibrateConfig, overrides))
+    return cmd_run(config.build(CalibrateConfig, overrides))

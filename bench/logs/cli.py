@@ -2,120 +2,185 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional, TypeVar
 
+from bench import config
+from bench.config import MAX_SEED, one_or_more, ranged
 from bench.errors import ConfigError, did_you_mean
+from bench.logs.lerobot_info import MAX_FPS
 
-USAGE = """usage: bench logs info DIR
-       bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]
-       bench logs card DIR [suite=NAME] [episodes=10] [seed=0] [out=FILE]
-       bench logs rank DIR calibration=FILE [top=10] [out=FILE]
-
-Real-robot logs as LeRobot v3.0 datasets (parquet, read and written without pandas).
-
-subcommands:
-  info    episodes, frames, fps, features with shapes and tasks of a dataset folder
-  import  convert a CSV file, a MATLAB .mat file or RLDS tfrecord shards to a dataset
-  card    how many episodes are worth having: N_eff = N (1 - d) (1 - n) (1 - c)
-  rank    episodes ordered by sim-real surprise under a calibrated model
-
-`bench logs SUBCOMMAND --help` describes each.
-"""
-
-CARD_USAGE = """usage: bench logs card DIR [suite=NAME] [episodes=10] [seed=0] [dup_tol=0.05] [overlap_tol=0.01]
-                      [out=FILE]
-
-A data card of a log: N episodes, and how many of them count, N_eff = N (1 - d) (1 - n) (1 - c):
-  d  near-duplicate share: episodes whose observation.state trajectory (resampled to 32 instants,
-     standardised by the log's spread) is within dup_tol RMS of an earlier episode's
-  n  noise share: white-noise variance (var of second differences / 6) over variance, mean of channels
-  c  overlap with an evaluation: episodes whose first observation is within overlap_tol (RMS,
-     standardised) of an initial observation of `bench run suite=NAME episodes=K seed=S` (the
-     cells the episodes' task strings name; measured only with suite=)
-
-keys:
-  suite        suite whose evaluation the log must not overlap (builds its envs once per cell)
-  episodes     evaluation episodes per cell (default 10)
-  seed         evaluation run seed (default 0)
-  dup_tol      near-duplicate threshold, RMS in standardised units (default 0.05)
-  overlap_tol  overlap threshold, RMS in standardised units (default 0.01)
-  out          also write the card as JSON (bench.logs_card/1) to this new file
-"""
-
-RANK_USAGE = """usage: bench logs rank DIR calibration=FILE [horizon=free_run|k_step] [top=10] [out=FILE]
-
-Episodes of DIR ordered by sim-real surprise: the position NRMSE of each episode replayed in the
-calibrated model (a `bench calibrate` output: spec calibrations rebuild the spec's model, suite
-calibrations the suite's robot in its scene), highest first — what to replay, inspect or collect next.
-
-keys:
-  calibration  calibration.json (or its folder)
-  horizon      free_run (default): open loop from the episode's first state to its end;
-               k_step: re-initialised from the log every k frames (the calibration's k)
-  top          rows printed (default 10; out= holds all)
-  out          also write the ranking as JSON (bench.logs_rank/1) to this new file
-"""
-
-INFO_USAGE = """usage: bench logs info DIR
-
-Print a LeRobot v3.0 dataset's summary from its metadata (no frames are read): episodes,
-frames, episode lengths, fps, robot type, every feature with dtype and shape, the tasks.
-Camera features are dtype `image` (PNG inside the parquet) or `video` (MP4 files; shown with
-codec, pixel format, fps and number of files).
-"""
-
-IMPORT_USAGE = """usage: bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]
-
-Convert a log to a LeRobot v3.0 dataset folder. observation.state and action become
-float32 vectors; a time column gives `timestamp` (s from the episode start) and `time_ns`
-(absolute, int64 ns).
-
-keys (all formats):
-  out         target folder (required; must be new or empty unless overwrite=true)
-  format      csv | mat | rlds (default: from SRC: .csv, .mat, a folder or .tfrecord file)
-  fps         frame rate in Hz (csv/mat: default 1/median time step; rlds: required)
-  task        task string of the episodes (rlds: where an episode has no instruction)
-  robot_type  robot type written to info.json
-  overwrite   replace a non-empty out folder (default false)
-
-csv:
-  state=[c1,c2]   columns of observation.state (default: every numeric column not used)
-  action=[c1]     columns of action (default: none)
-  time=COL        time column in seconds (without it, fps is required)
-  episode=COL     column whose values split the rows into episodes
-  delimiter=,     field separator
-  example: bench logs import data_measured.csv out=logs/pendulum time=time state=[position,velocity] action=[torque]
-
-mat (one episode; scalar variables go to the episode metadata):
-  state=[v1,v2]   variables of observation.state (default: every vector but time)
-  action=[v1]     variables of action
-  time=VAR        time variable in seconds (default: t or time)
-  velocity=true   append d/dt of each state variable as <var>_dot
-  example: bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir] velocity=true
-
-rlds (TFDS shards; features.json gives shapes and dtypes; no TensorFlow needed):
-  split=train               shards to read
-  state=observation/state   step field of observation.state
-  action=action             step field of action
-  instruction=language_instruction   step field with the task text
-  example: bench logs import ~/tensorflow_datasets/bridge/1.0.0 out=logs/bridge format=rlds fps=5
-"""
-
-_COMMON = ("out", "format", "fps", "task", "robot_type", "overwrite")
-_KEYS = {
-    "csv": _COMMON + ("state", "action", "time", "episode", "delimiter"),
-    "mat": _COMMON + ("state", "action", "time", "velocity"),
-    "rlds": _COMMON + ("split", "state", "action", "instruction"),
-}
+T = TypeVar("T")
+MAX_CARD_EPISODES = 10_000  # evaluation initial states per cell a card compares the log with
 
 
-def _format_for(src: Path, given: Any) -> str:
+@dataclass(frozen=True)
+class ImportConfig:
+    """Keys of `bench logs import` for every format (SRC is positional)."""
+
+    out: Optional[str] = None  # target folder (required; must be new or empty unless overwrite=true)
+    format: Optional[str] = None  # csv | mat | rlds (default: from SRC: .csv, .mat, a folder or .tfrecord file)
+    fps: Optional[float] = ranged(
+        None, 0, MAX_FPS, lo_open=True
+    )  # frame rate in Hz (csv/mat: default 1/median time step; rlds: required)
+    task: Optional[str] = None  # task string of the episodes (rlds: where an episode has no instruction)
+    robot_type: Optional[str] = None  # robot type written to info.json
+    overwrite: bool = False  # replace a non-empty out folder
+
+
+@dataclass(frozen=True)
+class CsvKeys:
+    """Keys of `bench logs import` for a CSV file."""
+
+    state: Optional[list[str]] = one_or_more()  # columns of observation.state (default: every numeric column not used)
+    action: Optional[list[str]] = one_or_more()  # columns of action (default: none)
+    time: Optional[str] = None  # time column in seconds (without it, fps is required)
+    episode: Optional[str] = None  # column whose values split the rows into episodes
+    delimiter: str = ","  # field separator, one character
+
+
+@dataclass(frozen=True)
+class MatKeys:
+    """Keys of `bench logs import` for a MATLAB .mat file (one episode)."""
+
+    state: Optional[list[str]] = one_or_more()  # variables of observation.state (default: every vector but time)
+    action: Optional[list[str]] = one_or_more()  # variables of action
+    time: Optional[str] = None  # time variable in seconds (default: t or time)
+    velocity: bool = False  # append d/dt of each state variable as <var>_dot
+
+
+@dataclass(frozen=True)
+class RldsKeys:
+    """Keys of `bench logs import` for RLDS tfrecord shards."""
+
+    split: str = "train"  # shards to read
+    state: str = "observation/state"  # step field of observation.state
+    action: str = "action"  # step field of action
+    instruction: str = "language_instruction"  # step field with the task text
+
+
+FORMATS: dict[str, type] = {"csv": CsvKeys, "mat": MatKeys, "rlds": RldsKeys}
+
+
+@dataclass(frozen=True)
+class CardConfig:
+    """Keys of `bench logs card` (DIR is positional)."""
+
+    suite: Optional[str] = None  # suite whose evaluation the log must not overlap (builds its envs once per cell)
+    episodes: int = ranged(10, 0, MAX_CARD_EPISODES)  # evaluation episodes per cell (at least 1 with suite=)
+    seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed
+    dup_tol: float = ranged(0.05, 0)  # near-duplicate threshold, RMS in standardised units
+    overlap_tol: float = ranged(0.01, 0)  # overlap threshold, RMS in standardised units
+    out: Optional[str] = None  # also write the card as JSON (bench.logs_card/1) to this new file
+
+
+@dataclass(frozen=True)
+class RankConfig:
+    """Keys of `bench logs rank` (DIR is positional)."""
+
+    calibration: Optional[str] = None  # calibration.json of `bench calibrate`, or its folder (required)
+    horizon: str = "free_run"  # free_run | k_step (see below)
+    top: int = ranged(10, 0)  # rows printed (out= holds all)
+    out: Optional[str] = None  # also write the ranking as JSON (bench.logs_rank/1) to this new file
+
+
+INFO_USAGE = "usage: bench logs info DIR"
+IMPORT_USAGE = "usage: bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]"
+CARD_USAGE = (
+    "usage: bench logs card DIR [suite=NAME] [episodes=10] [seed=0] [dup_tol=0.05] [overlap_tol=0.01]\n"
+    "                      [out=FILE]"
+)
+RANK_USAGE = "usage: bench logs rank DIR calibration=FILE [horizon=free_run|k_step] [top=10] [out=FILE]"
+
+
+def help_text() -> str:
+    """`bench logs --help`: the subcommands (each has its own --help with its keys)."""
+    usages = [INFO_USAGE, IMPORT_USAGE, CARD_USAGE.split("\n")[0], RANK_USAGE]
+    return config.command_help(
+        "\n".join([usages[0]] + ["      " + u.removeprefix("usage:") for u in usages[1:]]),
+        "Real-robot logs as LeRobot v3.0 datasets (parquet, read and written without pandas).",
+        notes="subcommands:\n"
+        "  info    episodes, frames, fps, features with shapes and tasks of a dataset folder\n"
+        "  import  convert a CSV file, a MATLAB .mat file or RLDS tfrecord shards to a dataset\n"
+        "  card    how many episodes are worth having: N_eff = N (1 - d) (1 - n) (1 - c)\n"
+        "  rank    episodes ordered by sim-real surprise under a calibrated model\n\n"
+        "`bench logs SUBCOMMAND --help` describes each and lists its keys.",
+    )
+
+
+def info_help() -> str:
+    """`bench logs info --help`."""
+    return config.command_help(
+        INFO_USAGE,
+        "Print a LeRobot v3.0 dataset's summary from its metadata (no frames are read): episodes,\n"
+        "frames, episode lengths, fps, robot type, every feature with dtype and shape, the tasks.\n"
+        "Camera features are dtype `image` (PNG inside the parquet) or `video` (MP4 files; shown with\n"
+        "codec, pixel format, fps and number of files). It takes no keys.",
+        examples=["bench logs info logs/pendulum"],
+    )
+
+
+def import_help() -> str:
+    """`bench logs import --help`: the keys of every format, then each format's own."""
+    sections = {
+        "csv": "csv keys",
+        "mat": "mat keys (one episode; scalar variables go to the episode metadata)",
+        "rlds": "rlds keys (TFDS shards; features.json gives shapes and dtypes; no TensorFlow needed)",
+    }
+    return config.command_help(
+        IMPORT_USAGE,
+        "Convert a log to a LeRobot v3.0 dataset folder. observation.state and action become\n"
+        "float32 vectors; a time column gives `timestamp` (s from the episode start) and `time_ns`\n"
+        "(absolute, int64 ns). The keys below the first list belong to one format each.",
+        ImportConfig,
+        examples=[
+            "bench logs import data_measured.csv out=logs/pendulum time=time state=[position,velocity] action=[torque]",
+            "bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir] velocity=true",
+            "bench logs import ~/tensorflow_datasets/bridge/1.0.0 out=logs/bridge format=rlds fps=5",
+        ],
+        notes="\n\n".join(f"{title}:\n{config.key_help(FORMATS[fmt])}" for fmt, title in sections.items()),
+    )
+
+
+def card_help() -> str:
+    """`bench logs card --help`."""
+    return config.command_help(
+        CARD_USAGE,
+        "A data card of a log: N episodes, and how many of them count, N_eff = N (1 - d) (1 - n) (1 - c):\n"
+        "  d  near-duplicate share: episodes whose observation.state trajectory (resampled to 32 instants,\n"
+        "     standardised by the log's spread) is within dup_tol RMS of an earlier episode's\n"
+        "  n  noise share: white-noise variance (var of second differences / 6) over variance, mean of channels\n"
+        "  c  overlap with an evaluation: episodes whose first observation is within overlap_tol (RMS,\n"
+        "     standardised) of an initial observation of `bench run suite=NAME episodes=K seed=S` (the\n"
+        "     cells the episodes' task strings name; measured only with suite=)",
+        CardConfig,
+        examples=["bench logs card logs/pendulum", "bench logs card runs/rec suite=held_out_robots out=card.json"],
+    )
+
+
+def rank_help() -> str:
+    """`bench logs rank --help`."""
+    return config.command_help(
+        RANK_USAGE,
+        "Episodes of DIR ordered by sim-real surprise: the position NRMSE of each episode replayed in the\n"
+        "calibrated model (a `bench calibrate` output: spec calibrations rebuild the spec's model, suite\n"
+        "calibrations the suite's robot in its scene), highest first — what to replay, inspect or collect next.",
+        RankConfig,
+        notes="horizon:\n"
+        "  free_run  open loop from the episode's first state to its end (default)\n"
+        "  k_step    re-initialised from the log every k frames (the calibration's k)",
+        examples=["bench logs rank logs/emps calibration=runs/emps top=5"],
+    )
+
+
+def _format_for(src: Path, given: Optional[str]) -> str:
     if given is not None:
-        fmt = str(given).lower()
-        if fmt not in _KEYS:
-            raise ConfigError(f"format is {given!r}; valid: {', '.join(_KEYS)}.{did_you_mean(fmt, _KEYS)}")
+        fmt = given.lower()
+        if fmt not in FORMATS:
+            raise ConfigError(f"format is {given!r}; valid: {', '.join(FORMATS)}.{did_you_mean(fmt, FORMATS)}")
         return fmt
     if src.suffix.lower() == ".csv":
         return "csv"
@@ -126,117 +191,58 @@ def _format_for(src: Path, given: Any) -> str:
     raise ConfigError(f"cannot tell the format of {str(src)!r}; pass format=csv|mat|rlds")
 
 
-def _bool(value: Any, key: str) -> bool:
-    if isinstance(value, bool):
-        return value
-    if str(value).lower() in ("true", "1", "yes"):
-        return True
-    if str(value).lower() in ("false", "0", "no"):
-        return False
-    raise ConfigError(f"{key} is {value!r}; expected true or false")
-
-
-def _names(value: Any, key: str) -> list[str] | None:
-    if value is None:
-        return None
-    if isinstance(value, (list, tuple)):
-        return [str(v) for v in value]
-    if isinstance(value, (str, int, float)):
-        return [str(value)]
-    raise ConfigError(f"{key} is {value!r}; expected a name or a list [a,b]")
-
-
-def _fps(value: Any) -> float | None:
-    from bench.logs.lerobot_info import MAX_FPS
-
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]")
-    try:
-        fps = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]") from None
-    if not 0 < fps <= MAX_FPS:
-        raise ConfigError(f"fps is {value!r}; expected a number in (0, {MAX_FPS}]")
-    return fps
-
-
-def _text(value: Any, key: str, default: str | None) -> str | None:
-    """A string key (task, robot_type, column names): a list or a map is refused, not stringified."""
-    if value is None:
-        return default
-    if isinstance(value, (list, dict, tuple)) or isinstance(value, bool):
-        raise ConfigError(f"{key} is {value!r}; expected a text value")
-    return str(value)
+def _names(schema: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(schema)]
 
 
 def cmd_import(argv: list[str]) -> int:
     """`bench logs import SRC out=DIR [format=...] [key=value ...]`."""
-    from bench.config import parse_kv
     from bench.logs import import_csv, import_mat, import_rlds, write_dataset
 
-    positional, kv = parse_kv(argv)
+    positional, overrides = config.split_args(argv)
     if len(positional) != 1:
         raise ConfigError(f"expected one source path, got {len(positional)}: bench logs import SRC out=DIR")
     src = Path(positional[0]).expanduser()
-    fmt = _format_for(src, kv.get("format"))
-    for key in kv:
-        if key not in _KEYS[fmt]:
-            raise ConfigError(
-                f"unknown key {key!r} for format={fmt}; valid keys: {', '.join(_KEYS[fmt])}."
-                f"{did_you_mean(key, _KEYS[fmt])}"
-            )
-    if not kv.get("out"):
+    common = _names(ImportConfig)
+    cfg: ImportConfig = config.build(ImportConfig, [o for o in overrides if config.top_key(o) in common])
+    fmt = _format_for(src, cfg.format)
+    parts = config.partition(overrides, {"all formats": common, fmt: _names(FORMATS[fmt])}, f"for format={fmt}")
+    keys: Any = config.build(FORMATS[fmt], parts[fmt])
+    if not cfg.out:
         raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
-    fps, robot_type = _fps(kv.get("fps")), _text(kv.get("robot_type"), "robot_type", None)
-    delimiter = _text(kv.get("delimiter"), "delimiter", ",")
-    if delimiter is None or len(delimiter) != 1:
-        raise ConfigError(f"delimiter is {delimiter!r}; expected one character (e.g. , or ; or a tab)")
-    task = _text(kv.get("task"), "task", "default") or "default"
+    task = cfg.task or "default"
     if fmt == "csv":
+        if len(keys.delimiter) != 1:
+            raise ConfigError(f"delimiter is {keys.delimiter!r}; expected one character (e.g. , or ; or a tab)")
         ds = import_csv(
             src,
-            state=_names(kv.get("state"), "state"),
-            action=_names(kv.get("action"), "action"),
-            time=_text(kv.get("time"), "time", None),
-            episode=_text(kv.get("episode"), "episode", None),
+            state=keys.state,
+            action=keys.action,
+            time=keys.time,
+            episode=keys.episode,
             task=task,
-            delimiter=delimiter,
-            fps=fps,
-            robot_type=robot_type,
+            delimiter=keys.delimiter,
+            fps=cfg.fps,
+            robot_type=cfg.robot_type,
         )
     elif fmt == "mat":
-        pairs = (("observation.state", "state"), ("action", "action"))
-        mapping: dict[str, str | Sequence[str]] = {
-            feature: names for feature, key in pairs if kv.get(key) and (names := _names(kv.get(key), key))
-        }
+        pairs = (("observation.state", keys.state), ("action", keys.action))
+        mapping: dict[str, str | Sequence[str]] = {feature: names for feature, names in pairs if names}
         ds = import_mat(
-            src,
-            mapping or None,
-            fps,
-            time=_text(kv.get("time"), "time", None),
-            velocity=_bool(kv.get("velocity", False), "velocity"),
-            task=task,
-            robot_type=robot_type,
+            src, mapping or None, cfg.fps, time=keys.time, velocity=keys.velocity, task=task, robot_type=cfg.robot_type
         )
     else:
         ds = import_rlds(
             src,
-            split=str(kv.get("split", "train")),
-            state=str(kv.get("state", "observation/state")),
-            action=str(kv.get("action", "action")),
-            instruction=str(kv.get("instruction", "language_instruction")),
+            split=keys.split,
+            state=keys.state,
+            action=keys.action,
+            instruction=keys.instruction,
             task=task,
-            fps=fps,
-            robot_type=robot_type,
+            fps=cfg.fps,
+            robot_type=cfg.robot_type,
         )
-    out = write_dataset(
-        Path(str(kv["out"])).expanduser(),
-        ds,
-        overwrite=_bool(kv.get("overwrite", False), "overwrite"),
-        inputs={"SRC": src},
-    )
+    out = write_dataset(Path(cfg.out).expanduser(), ds, overwrite=cfg.overwrite, inputs={"SRC": src})
     print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
     print(format_info(_info(out)))
     return 0
@@ -284,9 +290,9 @@ def format_info(summary: dict) -> str:
 
 
 def cmd_info(argv: list[str]) -> int:
-    """`bench logs info DIR`."""
+    """`bench logs info DIR` (no keys)."""
     if len(argv) != 1 or "=" in argv[0]:
-        raise ConfigError("expected one dataset folder: bench logs info DIR")
+        raise ConfigError(f"expected one dataset folder: {INFO_USAGE.removeprefix('usage: ')}")
     print(format_info(_info(Path(argv[0]).expanduser())))
     return 0
 
@@ -330,25 +336,12 @@ def _new_file(value: Any, key: str, inputs: dict[str, Any]) -> Path | None:
     return outputs.check(key, str(value), inputs, kind="file", can_overwrite=False)
 
 
-def _dir_and_keys(argv: list[str], valid: tuple[str, ...], usage: str) -> tuple[Path, dict]:
-    from bench.config import parse_kv
-
-    positional, kv = parse_kv(argv)
+def _dir_and_config(argv: list[str], schema: type[T], usage: str) -> tuple[Path, T]:
+    """`DIR key=value ...` -> the dataset folder and the subcommand's frozen config."""
+    positional, overrides = config.split_args(argv)
     if len(positional) != 1:
         raise ConfigError(f"expected one dataset folder; {usage.splitlines()[0]}")
-    for key in kv:
-        if key not in valid:
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{did_you_mean(key, valid)}")
-    return Path(positional[0]).expanduser(), kv
-
-
-def _pos_number(kv: dict, key: str, default: float, integer: bool = False) -> Any:
-    value = kv.get(key, default)
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0
-    if not ok or (integer and not float(value).is_integer()):
-        kind = "a non-negative integer" if integer else "a non-negative number"
-        raise ConfigError(f"key {key!r} must be {kind}; got {value!r}")
-    return int(value) if integer else float(value)
+    return Path(positional[0]).expanduser(), config.build(schema, overrides)
 
 
 def cmd_card(argv: list[str]) -> int:
@@ -357,22 +350,20 @@ def cmd_card(argv: list[str]) -> int:
     from bench.logs import read_dataset
     from bench.logs.card import card, format_card
 
-    root, kv = _dir_and_keys(argv, ("suite", "episodes", "seed", "dup_tol", "overlap_tol", "out"), CARD_USAGE)
-    out = _new_file(kv.get("out"), "out", {"DIR": root})
-    episodes, seed = _pos_number(kv, "episodes", 10, integer=True), _pos_number(kv, "seed", 0, integer=True)
-    if episodes > 10_000:
-        raise ConfigError(f"key 'episodes' is {episodes}; at most 10000 evaluation initial states per cell")
-    tols = {k: _pos_number(kv, k, d) for k, d in (("dup_tol", 0.05), ("overlap_tol", 0.01))}
+    root, cfg = _dir_and_config(argv, CardConfig, CARD_USAGE)
+    out = _new_file(cfg.out, "out", {"DIR": root})
     if not root.exists():
         raise ConfigError(f"logs folder {str(root)!r} does not exist")
     ds = read_dataset(root)
     starts, where = None, ""
-    if kv.get("suite") is not None:
-        if episodes < 1:
+    if cfg.suite is not None:
+        if cfg.episodes < 1:
             raise ConfigError("key 'episodes' must be at least 1 with suite=")
-        starts = _eval_starts(str(kv["suite"]), ds, episodes, seed)
-        where = f"suite {kv['suite']}: {episodes} evaluation episode(s) of run seed {seed} in {len(starts)} cell(s)"
-    doc = card(ds, starts=starts, where=where, **tols)
+        starts = _eval_starts(cfg.suite, ds, cfg.episodes, cfg.seed)
+        where = (
+            f"suite {cfg.suite}: {cfg.episodes} evaluation episode(s) of run seed {cfg.seed} in {len(starts)} cell(s)"
+        )
+    doc = card(ds, starts=starts, where=where, dup_tol=cfg.dup_tol, overlap_tol=cfg.overlap_tol)
     print(format_card(doc))
     if out is not None:
         write_atomic(out, doc)
@@ -385,15 +376,14 @@ def cmd_rank(argv: list[str]) -> int:
     from bench.calibrate.rank import rank
     from bench.io import write_atomic
 
-    root, kv = _dir_and_keys(argv, ("calibration", "horizon", "top", "out"), RANK_USAGE)
-    if kv.get("calibration") in (None, ""):
+    root, cfg = _dir_and_config(argv, RankConfig, RANK_USAGE)
+    if cfg.calibration is None:
         raise ConfigError("missing key 'calibration' (a `bench calibrate` output folder or its calibration.json)")
-    out = _new_file(kv.get("out"), "out", {"DIR": root, "calibration": kv.get("calibration")})
-    top = _pos_number(kv, "top", 10, integer=True)
-    doc = rank(str(kv["calibration"]), root, str(kv.get("horizon", "free_run")))
+    out = _new_file(cfg.out, "out", {"DIR": root, "calibration": cfg.calibration})
+    doc = rank(cfg.calibration, root, cfg.horizon)
     print(f"surprise = {doc['statistic']}; {len(doc['episodes'])} episodes, most first")
     print(f"{'rank':>4}  {'episode':>7}  {'frames':>6}  {'surprise':>9}  worst joint")
-    for i, row in enumerate(doc["episodes"][:top]):
+    for i, row in enumerate(doc["episodes"][: cfg.top]):
         joint, value = max(row["per_joint"].items(), key=lambda kv_: kv_[1])
         print(f"{i + 1:>4}  {row['episode']:>7}  {row['frames']:>6}  {row['surprise']:>9.4g}  {joint} ({value:.3g})")
     if out is not None:
@@ -402,24 +392,27 @@ def cmd_rank(argv: list[str]) -> int:
     return 0
 
 
+# subcommand -> (handler, its --help)
+SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
+    "info": (cmd_info, info_help),
+    "import": (cmd_import, import_help),
+    "card": (cmd_card, card_help),
+    "rank": (cmd_rank, rank_help),
+}
+
+
 def main(argv: list[str]) -> int:
     """Dispatch `bench logs info|import|card|rank`."""
     if not argv or argv[0] in ("-h", "--help", "help"):
-        print(USAGE)
+        print(help_text(), end="")
         return 0
     sub, rest = argv[0], argv[1:]
-    commands = {
-        "info": (cmd_info, INFO_USAGE),
-        "import": (cmd_import, IMPORT_USAGE),
-        "card": (cmd_card, CARD_USAGE),
-        "rank": (cmd_rank, RANK_USAGE),
-    }
-    if sub not in commands:
+    if sub not in SUBCOMMANDS:
         raise ConfigError(
-            f"unknown logs subcommand {sub!r}; valid: {', '.join(commands)}.{did_you_mean(sub, commands)}"
+            f"unknown logs subcommand {sub!r}; valid: {', '.join(SUBCOMMANDS)}.{did_you_mean(sub, SUBCOMMANDS)}"
         )
-    handler, usage = commands[sub]
+    handler, help_of = SUBCOMMANDS[sub]
     if not rest or any(a in ("-h", "--help") for a in rest):
-        print(usage)
+        print(help_of(), end="")
         return 0
     return handler(rest)

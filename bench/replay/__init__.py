@@ -35,7 +35,7 @@ per horizon) are what `bench.calibrate` builds on; nothing here imports `bench.c
 
 from __future__ import annotations
 
-from bench.replay.cli import HELP, main, plot, render, run, write
+from bench.replay.cli import help_text, main, plot, render, run, write
 from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, summarise
 from bench.replay.mjcf import replay_mjcf
 from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
@@ -43,11 +43,11 @@ from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, repla
 __all__ = [
     "COMMANDS",
     "CTRL",
-    "HELP",
     "SCHEMA",
     "Replay",
     "ReplayConfig",
     "SuiteLogs",
+    "help_text",
     "load_suite_logs",
     "main",
     "plot",

@@ -107,42 +107,38 @@ def write(rep: Replay, out: Path, n_plot: int) -> Path:
     return path
 
 
-HELP = """usage: bench replay logs=DIR spec=SPEC [k=10] [episodes=[0,3]] [out=DIR] [plot=2] [threads=1]
-       bench replay logs=DIR suite=held_out_robots [commands=ctrl|action] [k=10] [episodes=[..]] [out=DIR] [threads=1]
-
-Open-loop replay: each logged episode is replayed from its logged states under its logged
-commands, and the simulated joint positions are compared with the logged ones, per joint:
-RMSE and NRMSE (RMSE / std of the logged position) at three horizons:
-  one-step   re-initialised from the logged state every frame, one frame ahead
-  k-step     re-initialised every k frames, k frames ahead
-  free run   initialised once at the episode start, to its end
-The model is replayed as given (no fitting: `bench calibrate` fits it). docs/replay.md.
-
-keys:
-  logs      LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS)
-  spec      signal map (YAML/JSON, docs/replay.md): the MJCF model, substeps per frame and the log
-            columns of qpos, qvel (optional) and ctrl; a calibration spec works too (its own
-            fields are ignored); all segments run batched in mujoco.rollout
-  suite     instead of spec, for datasets written by `bench run ... record=DIR` (they carry the
-            MuJoCo state before each step): replayed in the suite's nominal env
-  commands  suite logs only: ctrl = the logged inputs of every physics step (actuator commands;
-            Meta-World: and the mocap pose), batched in mujoco.rollout (the physics alone; default
-            when the log has action.ctrl, as robosuite and Meta-World recordings do); action = the
-            logged policy actions through the env's controller in a Python step loop (physics and
-            controller)
-  k         frames per k-step horizon (default 10)
-  episodes  dataset episode indices to replay, e.g. [0,3] (default: all)
-  out       folder for replay.json (schema bench.replay/1) and replay.png (logged vs replayed); never the
-            logs or inside them
-  overwrite replace an existing out= folder that bench wrote (default false)
-  plot      episodes drawn in replay.png (default 2; 0 = none)
-  threads   mujoco.rollout threads (default 1; results do not depend on it)
-
-examples:
-  bench calibrate generate effect=payload_mass out=/tmp/case
-  bench replay logs=/tmp/case/logs spec=/tmp/case/spec.yaml k=20 out=/tmp/case/replay
-  bench run robots=[Panda] episodes=2 record=/tmp/rec && bench replay logs=/tmp/rec suite=held_out_robots
-"""
+def help_text() -> str:
+    """`bench replay --help`: the horizons, the keys (from ReplayConfig), the two backends."""
+    return config_mod.command_help(
+        "usage: bench replay logs=DIR spec=SPEC [k=10] [episodes=[0,3]] [out=DIR] [plot=2] [threads=1]\n"
+        "       bench replay logs=DIR suite=held_out_robots [commands=ctrl|action] [k=10] [episodes=[..]] [out=DIR] "
+        "[threads=1]",
+        "Open-loop replay: each logged episode is replayed from its logged states under its logged\n"
+        "commands, and the simulated joint positions are compared with the logged ones, per joint:\n"
+        "RMSE and NRMSE (RMSE / std of the logged position) at three horizons:\n"
+        "  one-step   re-initialised from the logged state every frame, one frame ahead\n"
+        "  k-step     re-initialised every k frames, k frames ahead\n"
+        "  free run   initialised once at the episode start, to its end\n"
+        "The model is replayed as given (no fitting: `bench calibrate` fits it). docs/replay.md.",
+        ReplayConfig,
+        notes="logs=: a LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS).\n"
+        "spec=: a signal map (YAML/JSON, docs/replay.md): the MJCF model, substeps per frame and the log\n"
+        "columns of qpos, qvel (optional) and ctrl; a calibration spec works too (its own fields are\n"
+        "ignored); all segments run batched in mujoco.rollout.\n"
+        "suite=: for datasets written by `bench run ... record=DIR` (they carry the MuJoCo state before\n"
+        "each step), replayed in the suite's nominal env. commands=ctrl replays the logged inputs of every\n"
+        "physics step (actuator commands; Meta-World: and the mocap pose), batched in mujoco.rollout (the\n"
+        "physics alone; default when the log has action.ctrl, as robosuite and Meta-World recordings do);\n"
+        "commands=action feeds the logged policy actions through the env's controller in a Python step loop\n"
+        "(physics and controller).\n"
+        "out=: replay.json (schema bench.replay/1) and replay.png (logged vs replayed); never the logs or\n"
+        "inside them.",
+        examples=[
+            "bench calibrate generate effect=payload_mass out=/tmp/case",
+            "bench replay logs=/tmp/case/logs spec=/tmp/case/spec.yaml k=20 out=/tmp/case/replay",
+            "bench run robots=[Panda] episodes=2 record=/tmp/rec && bench replay logs=/tmp/rec suite=held_out_robots",
+        ],
+    )
 
 
 def run(cfg: ReplayConfig) -> Replay:
@@ -155,8 +151,8 @@ def run(cfg: ReplayConfig) -> Replay:
 
 def main(argv: list[str]) -> int:
     """Entry point of `bench replay`."""
-    if argv and argv[0] in ("-h", "--help", "help"):
-        print(HELP)
+    if argv and (argv[0] == "help" or any(a in ("-h", "--help") for a in argv)):
+        print(help_text(), end="")
         return 0
     cfg: ReplayConfig = config_mod.build_from_argv(ReplayConfig, argv, "bench replay")
     out = None

@@ -1,0 +1,84 @@
+"""Every command's `--help` lists every key its config dataclass accepts (help built by `config.command_help`).
+
+The table below names the dataclasses of each command and subcommand; it must cover the CLI's command
+table and the subcommand tables of `bench logs`, `bench leaderboard` and `bench calibrate`, so a new
+command or subcommand fails here until its help is checked too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import pytest
+
+from bench.cli import COMMANDS, main
+
+
+def _keys(*schemas: type) -> list[str]:
+    return [f.name for schema in schemas for f in dataclasses.fields(schema)]
+
+
+def _table() -> dict[tuple[str, ...], list[str]]:
+    from bench import api
+    from bench.agreement import CorrelateConfig
+    from bench.calibrate.cli import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
+    from bench.check import CheckConfig
+    from bench.coverage import CoverageConfig
+    from bench.leaderboard import MergeConfig
+    from bench.logs.cli import FORMATS, CardConfig, ImportConfig, RankConfig
+    from bench.perf import PerfConfig
+    from bench.policy_on_logs import ActionsConfig
+    from bench.regress import RegressConfig
+    from bench.remote.server import ServeConfig
+    from bench.replay.common import ReplayConfig
+    from bench.report import ReportConfig
+
+    return {
+        ("run",): list(api.RUNNER_KEYS),  # suite_options / policy_options are filled by the suite's and policy's keys
+        ("list",): [],
+        ("check",): _keys(CheckConfig),
+        ("score",): [],
+        ("leaderboard",): _keys(MergeConfig),
+        ("leaderboard", "validate"): [],
+        ("leaderboard", "merge"): _keys(MergeConfig),
+        ("leaderboard", "show"): [],
+        ("perf",): _keys(PerfConfig),
+        ("logs",): [],
+        ("logs", "info"): [],
+        ("logs", "import"): _keys(ImportConfig, *FORMATS.values()),
+        ("logs", "card"): _keys(CardConfig),
+        ("logs", "rank"): _keys(RankConfig),
+        ("replay",): _keys(ReplayConfig),
+        ("serve",): _keys(ServeConfig),
+        ("actions",): _keys(ActionsConfig),
+        ("correlate",): _keys(CorrelateConfig),
+        ("calibrate",): _keys(CalibrateConfig, SuiteCalibrateConfig, GenerateConfig),
+        ("calibrate", "generate"): _keys(GenerateConfig),
+        ("calibrate", "effects"): [],
+        ("regress",): _keys(RegressConfig),
+        ("report",): _keys(ReportConfig),
+        ("coverage",): _keys(CoverageConfig),
+    }
+
+
+TABLE = _table()
+
+
+def test_the_table_covers_every_command_and_subcommand():
+    from bench.calibrate.cli import SUBCOMMANDS as CALIBRATE
+    from bench.leaderboard import SUBCOMMANDS as BOARD
+    from bench.logs.cli import SUBCOMMANDS as LOGS
+
+    assert {argv[0] for argv in TABLE} == set(COMMANDS)
+    for command, subs in (("logs", LOGS), ("leaderboard", BOARD), ("calibrate", CALIBRATE)):
+        assert {argv[1] for argv in TABLE if argv[0] == command and len(argv) > 1} == set(subs), command
+
+
+@pytest.mark.parametrize("argv", sorted(TABLE), ids=" ".join)
+def test_help_lists_every_key_and_exits_0(argv, capsys):
+    assert main([*argv, "--help"]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("usage: bench " + argv[0]) and not err, err
+    missing = [key for key in TABLE[argv] if not re.search(rf"^  {re.escape(key)}\b", out, re.M)]
+    assert not missing, f"bench {' '.join(argv)} --help lacks the keys {missing}"
