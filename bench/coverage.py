@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-from bench.config import MAX_HORIZON, MAX_SEED, ranged
+from bench.config import MAX_HORIZON, MAX_SEED, one_or_more, ranged
 from bench.coverage_metrics import (
     coverage_report,
     initial_states_from_dataset,
@@ -26,7 +26,7 @@ from bench.suite import SPLIT_AXES
 class CoverageConfig:
     """Keys of `bench coverage` (see `bench coverage --help`)."""
 
-    data: list[str] = field(default_factory=list)  # training dataset folder(s) (LeRobot v3), e.g. data=demos/seen
+    data: Optional[list[str]] = one_or_more()  # training dataset folder(s) (LeRobot v3), e.g. data=demos/seen
     suite: str = "held_out_robots"  # the suite whose evaluation the data is compared with
     robots: Optional[list[str]] = None  # evaluated robots (default: every robot of the suite)
     tasks: Optional[list[str]] = None  # evaluated tasks
@@ -42,16 +42,6 @@ class CoverageConfig:
     )  # reference radius quantile (training initial states, leave-one-episode-out)
     out: Optional[str] = None  # write the JSON report here
     overwrite: bool = False  # replace an existing out= file that bench wrote
-
-
-def _list_arg(argv: list[str], key: str) -> list[str]:
-    """Accept `key=DIR` as well as `key=[A,B]` for a list-valued key (wraps a bare value)."""
-    out = []
-    for a in argv:
-        if a.startswith(f"{key}=") and not a[len(key) + 1 :].lstrip().startswith("["):
-            a = f"{key}=[{a[len(key) + 1 :]}]"
-        out.append(a)
-    return out
 
 
 def help_text() -> str:
@@ -107,7 +97,7 @@ def main(argv: list[str]) -> int:
     from bench import axes
     from bench import config as config_mod
 
-    positional, overrides = config_mod.split_args(_list_arg(argv, "data"))
+    positional, overrides = config_mod.split_args(argv)
     if positional:
         raise ConfigError(
             f"unexpected argument {positional[0]!r}; bench coverage takes key=value only "

@@ -20,7 +20,7 @@ def _keys(*schemas: type) -> list[str]:
 
 
 def _table() -> dict[tuple[str, ...], list[str]]:
-    from bench import api
+    from bench import run_config
     from bench.agreement import CorrelateConfig
     from bench.calibrate.cli import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.check import CheckConfig
@@ -29,13 +29,13 @@ def _table() -> dict[tuple[str, ...], list[str]]:
     from bench.logs.cli import FORMATS, CardConfig, ImportConfig, RankConfig
     from bench.perf import PerfConfig
     from bench.policy_on_logs import ActionsConfig
-    from bench.regress import RegressConfig
+    from bench.regress_args import RegressConfig
     from bench.remote.server import ServeConfig
     from bench.replay.common import ReplayConfig
     from bench.report import ReportConfig
 
     return {
-        ("run",): list(api.RUNNER_KEYS),  # suite_options / policy_options are filled by the suite's and policy's keys
+        ("run",): list(run_config.RUNNER_KEYS),  # suite_options / policy_options are filled by the suite's and policy's keys
         ("list",): [],
         ("check",): _keys(CheckConfig),
         ("score",): [],
