@@ -269,14 +269,7 @@ def cmd_generate(cfg: GenerateConfig) -> int:
             f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
             "(lower episodes=, duration= or fps=)"
         )
-    params = dict(
-        episodes=cfg.episodes,
-        duration=cfg.duration,
-        fps=cfg.fps,
-        seed=cfg.seed,
-        target=cfg.target,
-        disturbance=cfg.disturbance,
-    )
+    params = {k: getattr(cfg, k) for k in ("episodes", "duration", "fps", "seed", "target", "disturbance")}
     outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
     print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
     return 0

@@ -211,6 +211,7 @@ def cmd_import(argv: list[str]) -> int:
     if not cfg.out:
         raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
     task = cfg.task or "default"
+    meta: dict[str, Any] = {"task": task, "fps": cfg.fps, "robot_type": cfg.robot_type}  # what every format takes
     if fmt == "csv":
         if len(keys.delimiter) != 1:
             raise ConfigError(f"delimiter is {keys.delimiter!r}; expected one character (e.g. , or ; or a tab)")
@@ -220,27 +221,16 @@ def cmd_import(argv: list[str]) -> int:
             action=keys.action,
             time=keys.time,
             episode=keys.episode,
-            task=task,
             delimiter=keys.delimiter,
-            fps=cfg.fps,
-            robot_type=cfg.robot_type,
+            **meta,
         )
     elif fmt == "mat":
         pairs = (("observation.state", keys.state), ("action", keys.action))
         mapping: dict[str, str | Sequence[str]] = {feature: names for feature, names in pairs if names}
-        ds = import_mat(
-            src, mapping or None, cfg.fps, time=keys.time, velocity=keys.velocity, task=task, robot_type=cfg.robot_type
-        )
+        ds = import_mat(src, mapping or None, time=keys.time, velocity=keys.velocity, **meta)
     else:
         ds = import_rlds(
-            src,
-            split=keys.split,
-            state=keys.state,
-            action=keys.action,
-            instruction=keys.instruction,
-            task=task,
-            fps=cfg.fps,
-            robot_type=cfg.robot_type,
+            src, split=keys.split, state=keys.state, action=keys.action, instruction=keys.instruction, **meta
         )
     out = write_dataset(Path(cfg.out).expanduser(), ds, overwrite=cfg.overwrite, inputs={"SRC": src})
     print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
