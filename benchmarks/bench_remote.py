@@ -1,9 +1,6 @@
 """Remote policies: round-trip latency over localhost and harness throughput, remote vs in process, in one run.
 
-    python benchmarks/bench_remote.py [requests=2000] [robots=[Panda,UR5e]] [episodes=6] [horizon=150] [pin=false]
-
-pin=true runs the harness on the first core and `bench serve` on the last one, as when the policy
-server has a core (or a machine) of its own; by default the OS places both.
+    python benchmarks/bench_remote.py [requests=2000] [robots=[Panda,UR5e]] [episodes=6] [horizon=150]
 
 1. Round trip: `bench serve policy=scripted` (held_out_robots, Panda) runs in its own process on 127.0.0.1;
    the `policy=remote` client (the same `RemotePolicy.act` a run calls: obs_map, msgpack-numpy, the
@@ -36,10 +33,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-IMAGES = {"obs": "state+rgb", "image_size": 224}
-SERVER_CPUS: set[int] = (
-    set()
-)  # pin=true: the server on its own core  # two cameras: the suite's default agentview + wrist view
+IMAGES = {"obs": "state+rgb", "image_size": 224}  # two cameras: the suite's default agentview + wrist view
 
 
 @contextlib.contextmanager
@@ -51,7 +45,6 @@ def serve(*keys: str):
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
-        preexec_fn=(lambda: os.sched_setaffinity(0, SERVER_CPUS)) if SERVER_CPUS else None,
     )
     try:
         line = proc.stdout.readline()
@@ -172,13 +165,6 @@ def main(argv: list[str]) -> int:
     requests = int(kv.get("requests", 2000))
     robots = kv.get("robots", "[Panda,UR5e]").strip("[]").split(",")
     episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 150))
-    if kv.get("pin", "false") == "true":  # the harness on the first core, bench serve on the last one
-        cpus = sorted(os.sched_getaffinity(0))
-        if len(cpus) < 2:
-            raise SystemExit("pin=true needs two cores")
-        os.sched_setaffinity(0, {cpus[0]})
-        SERVER_CPUS.add(cpus[-1])
-        print(f"pinned: harness on core {cpus[0]}, bench serve on core {cpus[-1]}")
     os.environ.setdefault("MUJOCO_GL", "egl")  # the cameras render offscreen (software EGL on CPU machines)
     print(f"round trip over 127.0.0.1, bench serve in its own process, {requests} requests each (median, p90):")
     for images, label, target in ((False, "state", 1.0), (True, "state + two 224x224 images", 5.0)):
