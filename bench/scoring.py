@@ -116,14 +116,17 @@ def _covering(point: float, boot: np.ndarray, confidence: float) -> Estimate:
     return Estimate(point, min(lo, point), max(hi, point))
 
 
-def aggregate(
-    cells: Sequence[np.ndarray],
-    rng: np.random.Generator,
-    statistic: str = "mean",
-    n_boot: int = 2000,
-    confidence: float = 0.95,
-    binary: bool = True,
-) -> Estimate:
+@dataclass(frozen=True)
+class Boot:
+    """How `aggregate` and `gap` estimate: the statistic over cells, its stratified bootstrap, the outcomes."""
+
+    statistic: str = "mean"  # mean | iqm of the per-cell means
+    n_boot: int = 2000  # bootstrap replicates
+    confidence: float = 0.95  # interval coverage
+    binary: bool = True  # 0/1 outcomes (success); False: returns
+
+
+def aggregate(cells: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot = Boot()) -> Estimate:
     """Mean or IQM of per-cell success rates (or mean returns), with a stratified bootstrap interval.
 
     Args:
@@ -132,28 +135,24 @@ def aggregate(
     cells = _with_episodes(cells)
     if not cells:
         return Estimate(None, reason="no cell has completed episodes")
-    stat = STATISTICS[statistic]
-    return _covering(_of_means(stat, cells), stat(_resampled_means(cells, rng, n_boot, binary)), confidence)
+    stat = STATISTICS[boot.statistic]
+    boots = stat(_resampled_means(cells, rng, boot.n_boot, boot.binary))
+    return _covering(_of_means(stat, cells), boots, boot.confidence)
 
 
 def gap(
-    reference: Sequence[np.ndarray],
-    target: Sequence[np.ndarray],
-    rng: np.random.Generator,
-    statistic: str = "mean",
-    n_boot: int = 2000,
-    confidence: float = 0.95,
-    binary: bool = True,
+    reference: Sequence[np.ndarray], target: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot = Boot()
 ) -> Estimate:
     """Transfer gap = stat(reference cells) - stat(target cells), independent stratified bootstrap."""
     reference, target = _with_episodes(reference), _with_episodes(target)
     if not reference or not target:
         side = "reference" if not reference else "target"
         return Estimate(None, reason=f"the {side} group has no completed episodes")
-    stat = STATISTICS[statistic]
+    stat = STATISTICS[boot.statistic]
     point = _of_means(stat, reference) - _of_means(stat, target)
-    boot = stat(_resampled_means(reference, rng, n_boot, binary)) - stat(_resampled_means(target, rng, n_boot, binary))
-    return _covering(point, boot, confidence)
+    n, binary = boot.n_boot, boot.binary
+    diffs = stat(_resampled_means(reference, rng, n, binary)) - stat(_resampled_means(target, rng, n, binary))
+    return _covering(point, diffs, boot.confidence)
 
 
 def paired_gap(

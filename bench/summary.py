@@ -77,9 +77,10 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
             if not any(len(c) for c in cells):
                 continue
             splits_out.setdefault(s, {})[m] = {
-                stat: scoring.aggregate(cells, rng, stat, n_boot, conf).to_dict() for stat in ("mean", "iqm")
+                stat: scoring.aggregate(cells, rng, scoring.Boot(stat, n_boot, conf)).to_dict()
+                for stat in ("mean", "iqm")
             }
-        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, "mean", n_boot, conf)
+        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, scoring.Boot("mean", n_boot, conf))
         if not any(len(c) for c in by_split["seen"]) and not any(len(c) for c in by_split["unseen"]):
             continue
         gaps_out.append(
@@ -146,7 +147,7 @@ def _score_returns(
     for entry, recs in zip(cells_out, groups.values()):
         values = _outcomes(recs, "return")
         est = (
-            scoring.aggregate([values], rng, "mean", n_boot, conf, binary=False)
+            scoring.aggregate([values], rng, scoring.Boot("mean", n_boot, conf, binary=False))
             if len(values)
             else scoring.Estimate(None, reason="no completed episodes")
         )
@@ -155,11 +156,11 @@ def _score_returns(
     for split, cells in by_split.items():
         if any(len(c) for c in cells):
             splits_out.setdefault(split, {})["return"] = {
-                stat: scoring.aggregate(cells, rng, stat, n_boot, conf, binary=False).to_dict()
+                stat: scoring.aggregate(cells, rng, scoring.Boot(stat, n_boot, conf, binary=False)).to_dict()
                 for stat in ("mean", "iqm")
             }
     if any(len(c) for c in by_split["seen"]) and any(len(c) for c in by_split["unseen"]):
-        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, "mean", n_boot, conf, binary=False)
+        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, scoring.Boot("mean", n_boot, conf, binary=False))
         gaps_out.append(
             {
                 "kind": "seen-unseen",

@@ -35,7 +35,9 @@ def _table() -> dict[tuple[str, ...], list[str]]:
     from bench.report import ReportConfig
 
     return {
-        ("run",): list(run_config.RUNNER_KEYS),  # suite_options / policy_options are filled by the suite's and policy's keys
+        ("run",): list(
+            run_config.RUNNER_KEYS
+        ),  # suite_options / policy_options are filled by the suite's and policy's keys
         ("list",): [],
         ("check",): _keys(CheckConfig),
         ("score",): [],

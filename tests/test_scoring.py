@@ -71,7 +71,7 @@ def test_bootstrap_interval_covers_truth_about_95_percent():
     reps = 200
     for _ in range(reps):
         cells = [rng.binomial(1, 0.5, size=40) for _ in range(4)]
-        est = scoring.aggregate(cells, rng, n_boot=500)
+        est = scoring.aggregate(cells, rng, scoring.Boot(n_boot=500))
         hits += est.lo <= 0.5 <= est.hi
     assert 0.88 <= hits / reps <= 0.995
 

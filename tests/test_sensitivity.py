@@ -92,9 +92,9 @@ def test_paired_interval_is_tighter_than_unpaired_when_outcomes_share_the_initia
     perturbed[np.flatnonzero(nominal)[:4]] = 0  # the perturbation breaks 4 of the easy ones
     d = entries_for(run_records(nominal, perturbed))[1]["drop_vs_nominal"]["success_once"]
     paired_width = d["ci"][1] - d["ci"][0]
-    from bench.scoring import gap
+    from bench.scoring import Boot, gap
 
-    unpaired = gap([nominal.astype(float)], [perturbed.astype(float)], np.random.default_rng(0), n_boot=1000)
+    unpaired = gap([nominal.astype(float)], [perturbed.astype(float)], np.random.default_rng(0), Boot(n_boot=1000))
     assert paired_width < 0.6 * (unpaired.hi - unpaired.lo)
     assert d["value"] == pytest.approx(0.1)
 
