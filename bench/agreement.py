@@ -333,7 +333,7 @@ def main(argv: list[str]) -> int:
     from bench.io import write_atomic
 
     if not argv or any(a in ("-h", "--help", "help") for a in argv):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     cfg: CorrelateConfig = build_from_argv(CorrelateConfig, argv, "bench correlate")
     for key in ("sim", "real"):

@@ -317,7 +317,7 @@ def _required(options_type: type) -> list[str]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     from bench import registry
 

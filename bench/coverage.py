@@ -92,7 +92,7 @@ def main(argv: list[str]) -> int:
             "(same keys; --help lists them)"
         )
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     from bench import axes
     from bench import config as config_mod

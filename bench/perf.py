@@ -225,7 +225,7 @@ def help_text() -> str:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     from bench.errors import ConfigError
 

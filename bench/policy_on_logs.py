@@ -197,7 +197,7 @@ def parse_args(argv: list[str]) -> tuple[ActionsConfig, Any]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     cfg, policy_options = parse_args(argv)
     if not cfg.logs:

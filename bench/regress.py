@@ -188,7 +188,7 @@ def _describe(side: _Side, provenance: dict[str, Any] | None) -> dict[str, Any]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     from rich.console import Console
 
@@ -196,7 +196,7 @@ def main(argv: list[str]) -> int:
     from bench.api import finish, start
 
     if not argv:
-        print(help_text())
+        print(help_text(), end="")
         return 2
     cfg, forwarded, user_keys = parse_args(argv)
     if cfg.plan:

@@ -363,7 +363,7 @@ def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
-        print(help_text())
+        print(help_text(), end="")
         return 0
     cfg, suite_options, policy_options = parse_args(argv)
 
