@@ -95,6 +95,19 @@ def _scene_env_name(task: str) -> str:
     return name
 
 
+# how every env is made: no window and no robosuite cameras (bench.camera renders frames itself), no reset or
+# done of its own (bench runs the horizon); benchmarks/bench_robosuite_raw.py makes its bare env the same way
+MAKE_OPTIONS: dict[str, Any] = dict(
+    has_renderer=False,
+    has_offscreen_renderer=False,
+    use_camera_obs=False,
+    hard_reset=False,
+    ignore_done=True,
+    reward_shaping=True,
+    seed=0,
+)
+
+
 class Observer(Protocol):
     """The task's view of a robosuite env (owned by a suite): spec, one-time binding, observation."""
 
@@ -141,14 +154,8 @@ class RobosuiteEnv:
             _scene_env_name(task) if scene else task,
             **scene,
             robots=robot,
-            has_renderer=False,
-            has_offscreen_renderer=False,
-            use_camera_obs=False,
-            hard_reset=False,
-            ignore_done=True,
-            reward_shaping=True,
             horizon=self.horizon,
-            seed=0,
+            **MAKE_OPTIONS,
             **env_kwargs,
         )
         model, data = self.raw.sim.model._model, self.raw.sim.data._data

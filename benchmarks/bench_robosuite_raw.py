@@ -49,18 +49,9 @@ def main(argv: list[str]) -> int:
     _quiet_robosuite()
     import robosuite
 
-    raw = robosuite.make(
-        "Lift",
-        robots=robot,
-        has_renderer=False,
-        has_offscreen_renderer=False,
-        use_camera_obs=False,
-        hard_reset=False,
-        ignore_done=True,
-        reward_shaping=True,
-        horizon=horizon,
-        seed=0,
-    )
+    from bench.sim_robosuite import MAKE_OPTIONS
+
+    raw = robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS)
     worker.run(plan.jobs[0])
     raw.reset()
     for a in actions[0][:20]:

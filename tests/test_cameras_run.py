@@ -219,39 +219,12 @@ def test_video_needs_a_camera(tmp_path):
 
 
 def test_robustness_table_pools_levels_and_pairs_by_seed():
-    from bench.records import EpisodeRecord
     from bench.robustness import table
+    from tests.fixtures import record
 
     def rec(cond, axis, ep, ok):
-        return EpisodeRecord(
-            run_id="x",
-            job_id=f"T/R/E|{cond}|{ep}",
-            suite="s",
-            suite_version="1",
-            task="T",
-            robot="R",
-            env="E",
-            split="seen",
-            condition=cond,
-            axis=axis,
-            level=None,
-            params={},
-            episode=ep,
-            seed=ep,
-            init_state_hash="h",
-            success_once=ok,
-            success_at_end=ok,
-            return_=0.0,
-            length=1,
-            steps_to_success=None,
-            error=None,
-            policy="p",
-            checkpoint_sha256=None,
-            backend="b",
-            wall_s=0.0,
-            finished_at=0.0,
-            worker_pid=0,
-            versions={},
+        return record(
+            ok, run_id="x", task="T", robot="R", env="E", condition=cond, axis=axis, episode=ep, seed=ep, length=1
         )
 
     recs = [rec("nominal", None, e, True) for e in range(4)]

@@ -184,21 +184,16 @@ def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bench", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
 
 
+def _run_checkpoint(ckpt: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    """`bench run policy=checkpoint` on one Panda episode, run r under tmp_path/runs."""
+    keys = ["policy=checkpoint", f"checkpoint={ckpt}", "robots=[Panda]", "episodes=1", "workers=1", "run_id=r"]
+    return _bench("run", *keys, *extra, f"out={tmp_path / 'runs'}", cwd=tmp_path)
+
+
 def test_bench_run_records_checkpoint_sha(ckpt: Path, tmp_path: Path):
     from bench.io import sha256_file
 
-    res = _bench(
-        "run",
-        "policy=checkpoint",
-        f"checkpoint={ckpt}",
-        "robots=[Panda]",
-        "episodes=1",
-        "workers=1",
-        "horizon=20",
-        "run_id=r",
-        f"out={tmp_path / 'runs'}",
-        cwd=tmp_path,
-    )
+    res = _run_checkpoint(ckpt, tmp_path, "horizon=20")
     assert res.returncode == 0, res.stderr[-2000:]
     recs = [json.loads(line) for line in (tmp_path / "runs" / "r" / "episodes.jsonl").read_text().splitlines()]
     assert len(recs) == 1 and recs[0]["error"] is None and recs[0]["length"] == 20
@@ -212,17 +207,7 @@ def test_bench_run_bad_spec_exits_2_and_writes_nothing(ckpt: Path, tmp_path: Pat
 
     save_file(load_file(str(ckpt)), str(ckpt))  # no embedded copy
     spec_path(ckpt).write_text(json.dumps(spec))
-    res = _bench(
-        "run",
-        "policy=checkpoint",
-        f"checkpoint={ckpt}",
-        "robots=[Panda]",
-        "episodes=1",
-        "workers=1",
-        "run_id=r",
-        f"out={tmp_path / 'runs'}",
-        cwd=tmp_path,
-    )
+    res = _run_checkpoint(ckpt, tmp_path)
     assert res.returncode == 2
     assert res.stderr.strip().startswith("error:") and len(res.stderr.strip().splitlines()) == 1
     assert "weights do not fit" in res.stderr

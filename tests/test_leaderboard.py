@@ -15,6 +15,7 @@ from bench.leaderboard import merge, read_input
 from bench.records import EpisodeRecord
 from bench.schema import validate
 from bench.summary import build
+from tests.fixtures import record
 
 MANIFEST = {"robots": {"seen": ["A", "B"], "unseen": ["C", "D"]}}
 
@@ -25,37 +26,7 @@ def _records(run_id: str, rates: dict[str, float], episodes: int = 10) -> list[E
         split = "seen" if robot in MANIFEST["robots"]["seen"] else "unseen"
         for e in range(episodes):
             ok = e < round(p * episodes)
-            out.append(
-                EpisodeRecord(
-                    run_id=run_id,
-                    job_id=f"Lift/{robot}/default|nominal|{e}",
-                    suite="toy",
-                    suite_version="1",
-                    task="Lift",
-                    robot=robot,
-                    env="default",
-                    split=split,
-                    condition="nominal",
-                    axis=None,
-                    level=None,
-                    params={},
-                    episode=e,
-                    seed=e,
-                    init_state_hash="h",
-                    success_once=ok,
-                    success_at_end=ok,
-                    return_=0.0,
-                    length=5,
-                    steps_to_success=None,
-                    error=None,
-                    policy="p",
-                    checkpoint_sha256=None,
-                    backend="b",
-                    wall_s=0.0,
-                    finished_at=0.0,
-                    worker_pid=0,
-                )
-            )
+            out.append(record(ok, run_id=run_id, suite="toy", robot=robot, split=split, episode=e, seed=e, length=5))
     return out
 
 

@@ -5,41 +5,14 @@ import json
 import pytest
 
 from bench.errors import DataError
-from bench.records import EpisodeRecord, RecordWriter, comparable, dedupe, read_records
+from bench.records import RecordWriter, comparable, dedupe, read_records
+from tests.fixtures import record
 
 
 def _rec(i, **kw):
-    base = dict(
-        run_id="r",
-        job_id=f"Lift/Panda/default|nominal|{i}",
-        suite="s",
-        suite_version="1",
-        task="Lift",
-        robot="Panda",
-        env="default",
-        split="seen",
-        condition="nominal",
-        axis=None,
-        level=None,
-        params={},
-        episode=i,
-        seed=100 + i,
-        init_state_hash="abc",
-        success_once=True,
-        success_at_end=False,
-        return_=1.5,
-        length=10,
-        steps_to_success=3,
-        error=None,
-        policy="scripted",
-        checkpoint_sha256=None,
-        backend="x",
-        wall_s=0.1,
-        finished_at=1.0,
-        worker_pid=1,
-    )
-    base.update(kw)
-    return EpisodeRecord(**base)
+    base = dict(seed=100 + i, init_state_hash="abc", success_once=True, return_=1.5, steps_to_success=3)
+    base.update(policy="scripted", backend="x", wall_s=0.1, finished_at=1.0, worker_pid=1)
+    return record(episode=i, **{**base, **kw})
 
 
 def test_roundtrip_and_torn_tail(tmp_path):

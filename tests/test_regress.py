@@ -15,6 +15,7 @@ from bench.errors import DataError
 from bench.gate_pairs import cell_counts, pair_records
 from bench.records import EpisodeRecord
 from bench.suite import episode_seed
+from tests.fixtures import record
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -30,34 +31,15 @@ def rec(
     policy: str = "p",
     split: str = "seen",
 ) -> EpisodeRecord:
-    return EpisodeRecord(
-        run_id="r",
-        job_id=f"Lift/{robot}/default|nominal|{episode}",
-        suite="s",
-        suite_version="1",
-        task="Lift",
+    return record(
+        success,
         robot=robot,
-        env="default",
-        split=split,
-        condition="nominal",
-        axis=None,
-        level=None,
-        params={},
         episode=episode,
+        split=split,
         seed=episode_seed(0, episode) if seed is None else seed,
         init_state_hash=f"{init}{robot}{episode}" if init else None,
-        success_once=success,
-        success_at_end=success,
-        return_=0.0,
-        length=10,
-        steps_to_success=None,
         error=error,
         policy=policy,
-        checkpoint_sha256=None,
-        backend="b",
-        wall_s=0.0,
-        finished_at=0.0,
-        worker_pid=0,
     )
 
 

@@ -11,8 +11,8 @@ from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ 
 
 from bench import cli
 from bench.leaderboard import merge
-from bench.records import EpisodeRecord
 from bench.summary import build
+from tests.fixtures import record
 
 
 def _perturbed_summary() -> dict:
@@ -27,14 +27,11 @@ def _perturbed_summary() -> dict:
             for e in range(10):
                 ok = e < round(p * 10)
                 recs.append(
-                    EpisodeRecord(
+                    record(
+                        ok,
                         run_id="pert",
-                        job_id=f"Lift/{robot}/default|{cond}|{e}",
                         suite="toy",
-                        suite_version="1",
-                        task="Lift",
                         robot=robot,
-                        env="default",
                         split=split,
                         condition=cond,
                         axis=axis,
@@ -42,19 +39,8 @@ def _perturbed_summary() -> dict:
                         params={axis: 1.0} if axis else {},
                         episode=e,
                         seed=e,
-                        init_state_hash="h",
-                        success_once=ok,
-                        success_at_end=ok,
                         return_=float(ok),
                         length=5,
-                        steps_to_success=None,
-                        error=None,
-                        policy="p",
-                        checkpoint_sha256=None,
-                        backend="b",
-                        wall_s=0.0,
-                        finished_at=0.0,
-                        worker_pid=0,
                     )
                 )
     base = summary("tmp", "p", ALL)

@@ -158,30 +158,19 @@ def test_entry_point_name_must_equal_suite_name(monkeypatch):
 
 
 def test_typed_api(tmp_path):
-    result = api.run(
-        api.RunConfig(
-            suite="tests.toy_suite:ToySuite",
-            policy="scripted",
-            episodes=3,
-            workers=1,
-            out=str(tmp_path),
-            run_id="api",
-            suite_options={"goal": 0.2},
-        )
+    cfg = api.RunConfig(
+        suite="tests.toy_suite:ToySuite",
+        policy="scripted",
+        episodes=3,
+        workers=1,
+        out=str(tmp_path),
+        run_id="api",
+        suite_options={"goal": 0.2},
     )
+    result = api.run(cfg)
     assert result.ran == 9 and result.resumed == 0 and len(result.records) == 9
     assert result.summary["splits"]["seen"]["success_once"]["mean"]["value"] == 1.0
-    again = api.run(
-        api.RunConfig(
-            suite="tests.toy_suite:ToySuite",
-            policy="scripted",
-            episodes=3,
-            workers=1,
-            out=str(tmp_path),
-            run_id="api",
-            suite_options={"goal": 0.2},
-        )
-    )
+    again = api.run(cfg)  # the same config again: everything resumes
     assert again.ran == 0 and again.resumed == 9
     assert api.score(tmp_path / "api") == again.summary
     with pytest.raises(ConfigError, match="unknown key 'goals' for suite tests.toy_suite:ToySuite; valid: goal"):

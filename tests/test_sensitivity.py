@@ -7,39 +7,25 @@ import pytest
 from scipy.stats import binomtest
 
 from bench import sensitivity as sens
-from bench.records import EpisodeRecord
+from tests.fixtures import record
 
 
 def rec(
     condition, episode, success, robot="Panda", axis=None, level=None, params=None, error=None, at_end=None, ret=0.0
 ):
-    return EpisodeRecord(
-        run_id="r",
-        job_id=f"Lift/{robot}/default|{condition}|{episode}",
-        suite="s",
-        suite_version="1",
-        task="Lift",
-        robot=robot,
-        env="default",
-        split="seen",
+    return record(
         condition=condition,
+        episode=episode,
+        robot=robot,
         axis=axis,
         level=level,
         params=params or {},
-        episode=episode,
         seed=1000 + episode,
-        init_state_hash="h",
         success_once=bool(success),
         success_at_end=bool(success if at_end is None else at_end),
         return_=float(ret),
-        length=10,
-        steps_to_success=None,
         error=error,
-        policy="p",
-        checkpoint_sha256=None,
-        backend="b",
         wall_s=0.1,
-        finished_at=0.0,
         worker_pid=1,
     )
 
