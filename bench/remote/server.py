@@ -116,7 +116,6 @@ class PolicyServer:
             }
         }
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
-        self._classes: dict[tuple[str, str], type] = {}  # (name, class path) a client named -> the suite class
         self._lock = threading.Lock()
 
     # -- suites and cells, resolved from what a client names ------------------------------
@@ -126,15 +125,10 @@ class PolicyServer:
 
         if not isinstance(name, str) or not isinstance(path, str):
             raise RequestError("suite and suite_class must be strings")
-        cls: Any = self._classes.get((name, path))
-        if cls is None:  # resolved once per (name, path): reading entry points costs ~2 ms, every episode
-            candidates = [self.suite_cls]
-            if ":" not in name and name in registry.names(registry.SUITES):
-                candidates.append(registry.suite_class(name))
-            cls = next((c for c in candidates if class_path(c) == path), None)
-            if cls is not None:
-                with self._lock:
-                    self._classes[(name, path)] = cls
+        candidates = [self.suite_cls]
+        if ":" not in name and name in registry.names(registry.SUITES):
+            candidates.append(registry.suite_class(name))
+        cls: Any = next((c for c in candidates if class_path(c) == path), None)
         if cls is None:
             raise RequestError(
                 f"suite {name!r} ({path}) is not served here: this server serves registered suites "
