@@ -126,11 +126,11 @@ def effects_help() -> str:
     )
 
 
-def _require(cfg: Any, *keys: str) -> list[str]:
+def _require(cfg: Any, *keys: str, command: str = "bench calibrate") -> list[str]:
     """The values of the required `keys` of `cfg` (ConfigError naming the first one not given)."""
     for key in keys:
         if getattr(cfg, key) is None:
-            raise ConfigError(f"missing key {key!r}; usage: bench calibrate {' '.join(k + '=...' for k in keys)}")
+            raise ConfigError(f"missing key {key!r}; usage: {command} {' '.join(k + '=...' for k in keys)}")
     return [getattr(cfg, key) for key in keys]
 
 
@@ -260,7 +260,7 @@ def cmd_generate(cfg: GenerateConfig) -> int:
     from bench import outputs
     from bench.calibrate.generate import write_case
 
-    name, out_dir = _require(cfg, "effect", "out")
+    name, out_dir = _require(cfg, "effect", "out", command="bench calibrate generate")
     effect = None if name in ("none", "null") else name
     out = _out(out_dir, cfg.overwrite, {})
     frames = cfg.episodes * cfg.duration * cfg.fps
