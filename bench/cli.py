@@ -39,7 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("bench.calibrate.cli:main", "Real2Sim: fit a model to logs, trace the residual to missing effects"),
     "regress": ("bench.regress:main", "CI regression gate: candidate vs baseline checkpoint, paired by seed"),
     "report": ("bench.report:main", "static HTML report of a run or leaderboard"),
-    "coverage": ("bench.coverage:main", "data-coverage metrics of a training set against a suite; sweeps"),
+    "coverage": ("bench.coverage:main", "data-coverage metrics of a training set against a suite"),
 }
 
 USAGE = """usage: bench COMMAND [key=value ...]
@@ -51,7 +51,7 @@ commands:
 {commands}
 
 examples:
-  bench run suite=held_out_robots                     # the suite's reference expert, default settings
+  bench run suite=held_out_robots                     # its default policy (the committed BC checkpoint)
   bench run suite=held_out_robots policy=random episodes=10 workers=2
   bench run suite=held_out_robots robots=[UR5e,IIWA] episodes=5 seed=1 run_id=my_run
   bench list
