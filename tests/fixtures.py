@@ -1,4 +1,4 @@
-"""Shared test data: an episode record with plain defaults, for tests of what reads records."""
+"""Shared test data: an episode record and a run's provenance with plain defaults, for tests of what reads them."""
 
 from __future__ import annotations
 
@@ -50,3 +50,23 @@ def record(success: bool | None = None, **fields: Any) -> EpisodeRecord:
         "job_id", f"{values['task']}/{values['robot']}/{values['env']}|{values['condition']}|{values['episode']}"
     )
     return EpisodeRecord(**values)
+
+
+def provenance(**fields: Any) -> dict[str, Any]:
+    """A summary's `provenance` block (schema bench.summary): plain values, then `fields`."""
+    values: dict[str, Any] = {
+        "bench_version": "0",
+        "git_sha": None,
+        "packages": {},
+        "python": "3",
+        "platform": "x",
+        "cores": 2,
+        "workers": 1,
+        "backend": [],
+        "seed": 0,
+        "episode_seeds": [],
+        "started_at": "s",
+        "finished_at": None,
+    }
+    values.update(fields)
+    return values

@@ -15,7 +15,7 @@ from bench.leaderboard import merge, read_input
 from bench.records import EpisodeRecord
 from bench.schema import validate
 from bench.summary import build
-from tests.fixtures import record
+from tests.fixtures import provenance, record
 
 MANIFEST = {"robots": {"seen": ["A", "B"], "unseen": ["C", "D"]}}
 
@@ -46,20 +46,7 @@ def summary(
         "policy": {"name": policy, "checkpoint": "c.safetensors" if sha else None, "checkpoint_sha256": sha},
         "config": {"seed": 0, "n_boot": 500, "confidence": 0.95, "metric": "success_once"},
         "expected_episodes": 10 * len(rates),
-        "provenance": {
-            "bench_version": "0",
-            "git_sha": None,
-            "packages": {},
-            "python": "3",
-            "platform": "x",
-            "cores": 2,
-            "workers": 1,
-            "backend": ["b"],
-            "seed": 0,
-            "episode_seeds": list(range(10)),
-            "started_at": "s",
-            "finished_at": finished,
-        },
+        "provenance": provenance(backend=["b"], episode_seeds=list(range(10)), finished_at=finished),
     }
     s = build(_records(run_id, rates), run_meta=meta)
     validate(s)

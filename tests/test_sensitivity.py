@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import binomtest
 
 from bench import sensitivity as sens
-from tests.fixtures import record
+from tests.fixtures import provenance, record
 
 
 def rec(
@@ -149,20 +149,7 @@ def test_summary_with_sensitivity_validates_against_the_schema():
         "policy": {"name": "p", "checkpoint": None, "checkpoint_sha256": None},
         "config": {"seed": 0, "n_boot": 200, "confidence": 0.9},
         "expected_episodes": 12,
-        "provenance": {
-            "bench_version": "0",
-            "git_sha": None,
-            "packages": {},
-            "python": "3",
-            "platform": "x",
-            "cores": 2,
-            "workers": 1,
-            "backend": [],
-            "seed": 0,
-            "episode_seeds": [1],
-            "started_at": "t",
-            "finished_at": None,
-        },
+        "provenance": provenance(episode_seeds=[1], started_at="t"),
     }
     summary = build(recs, run_meta=meta)
     assert validate(summary) == "bench.summary/1"
