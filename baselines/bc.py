@@ -44,15 +44,21 @@ from bench.errors import ConfigError, DataError
 
 
 @dataclass(frozen=True)
-class Args:
+class TrainIO:
+    """What every trainer in `baselines/` reads and writes (`bc.py`, `bc_image.py`): data in, one checkpoint out."""
+
     data: list[str] = field(default_factory=list)
     """LeRobot v3 dataset folder(s) to train on, e.g. [demos/seen] (`bench run ... record=DIR`)"""
     out: Optional[str] = None
-    """checkpoint to write (.safetensors; the .json spec goes beside it); default runs/bc/RUN_NAME/policy.safetensors"""
+    """checkpoint to write (.safetensors; the .json spec goes beside it); default runs/TRAINER/RUN_NAME/policy.safetensors"""
     overwrite: bool = False
     """replace an existing checkpoint at `out` (only one bench wrote; never an input)"""
     seed: int = 0
-    """seeds random, numpy and torch: initial weights, minibatch order, input noise"""
+    """seeds random, numpy and torch: initial weights, minibatch order, input noise or augmentation"""
+
+
+@dataclass(frozen=True)
+class Args(TrainIO):
     robots: Optional[list[str]] = None
     """keep only episodes whose meta `robot` is listed (None = every robot)"""
     conditions: Optional[list[str]] = None
@@ -386,25 +392,32 @@ def train(args: Args, demos: Demos | None = None) -> tuple[Path, dict[str, Any]]
 
 
 # -- command line ----------------------------------------------------------------------------
-def _field_docs() -> dict[str, str]:
-    """Field name -> the docstring under it in `Args` (CleanRL's one-line-per-field style)."""
-    tree = ast.parse(inspect.getsource(Args))
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    docs = {}
-    for a, b in zip(body, body[1:]):
-        if (
-            isinstance(a, ast.AnnAssign)
-            and isinstance(b, ast.Expr)
-            and isinstance(getattr(b, "value", None), ast.Constant)
-        ):
-            docs[a.target.id] = str(b.value.value)  # type: ignore[union-attr]
+def field_docs(args_class: type) -> dict[str, str]:
+    """Field name -> the docstring under it in `args_class` and its dataclass bases (CleanRL's one-line-per-field style)."""
+    docs: dict[str, str] = {}
+    for cls in reversed(args_class.__mro__):
+        if cls is object or "__dataclass_fields__" not in vars(cls):
+            continue
+        body = ast.parse(inspect.getsource(cls)).body[0].body  # type: ignore[attr-defined]
+        for a, b in zip(body, body[1:]):
+            if (
+                isinstance(a, ast.AnnAssign)
+                and isinstance(b, ast.Expr)
+                and isinstance(getattr(b, "value", None), ast.Constant)
+            ):
+                docs[a.target.id] = str(b.value.value)  # type: ignore[union-attr]
     return docs
 
 
+def key_rows(args_class: type) -> str:
+    """The `keys:` block of a trainer's --help: one line per field, its docstring and its default."""
+    docs = field_docs(args_class)
+    defaults = asdict(args_class())
+    return "\n".join(f"  {k:<18} {docs.get(k, '')} (default: {defaults[k]})" for k in defaults)
+
+
 def help_text() -> str:
-    docs = _field_docs()
-    defaults = asdict(Args())
-    rows = "\n".join(f"  {k:<18} {docs.get(k, '')} (default: {defaults[k]})" for k in defaults)
+    rows = key_rows(Args)
     return (
         "usage: python -m baselines.bc data=[DIR,...] [key=value ...]\n\n"
         "Behaviour cloning: trains an MLP (obs -> action, normalised) on LeRobot v3 demonstrations\n"

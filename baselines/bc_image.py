@@ -37,6 +37,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from baselines.bc import TrainIO, obs_layout
+from bench.env import obs_slices
 from bench.errors import BenchError, ConfigError, DataError
 from bench.protocols import RGB, STATE, PolicyContext, PolicyIdentity, PolicyPlugin
 
@@ -44,15 +46,9 @@ CAMERA_PREFIX = "observation.images."
 
 
 @dataclass(frozen=True)
-class Args:
-    data: list[str] = field(default_factory=list)
-    """LeRobot v3 dataset folder(s) with camera features (`bench run obs=state+rgb record=DIR`)"""
-    out: Optional[str] = None
-    """checkpoint to write (.safetensors; the .json spec goes beside it); default runs/bc_image/RUN_NAME/policy.safetensors"""
-    overwrite: bool = False
-    """replace an existing checkpoint at `out` (only one bench wrote; never an input)"""
-    seed: int = 0
-    """seeds random, numpy and torch: initial weights, minibatch order, augmentation"""
+class Args(TrainIO):
+    """`TrainIO` (data: datasets with camera features, from `bench run obs=state+rgb record=DIR`) and:"""
+
     cameras: Optional[list[str]] = None
     """cameras to use (names after observation.images.); None = every camera of the dataset"""
     proprio: list[str] = field(default_factory=lambda: ["eef_pos", "eef_quat_rel", "gripper_opening"])
@@ -80,17 +76,6 @@ class Args:
 
 
 # -- data ------------------------------------------------------------------------------------
-def _field_slices(names: Sequence[str]) -> dict[str, slice]:
-    """Field name -> slice of the flat state from `f_0 .. f_{w-1}` / `f` element names (bench.recording)."""
-    from baselines.bc import obs_layout
-
-    out, start = {}, 0
-    for name, width in obs_layout(names):
-        out[str(name)] = slice(start, start + int(width))
-        start += int(width)
-    return out
-
-
 def load(args: Args) -> dict[str, Any]:
     """Frames of the selected episodes: images per camera (N, H, W, 3) uint8, proprio (N, P), action (N, A)."""
     from bench.logs import read_dataset
@@ -115,7 +100,9 @@ def load(args: Args) -> dict[str, Any]:
         for feat in ("observation.state", "action"):
             if feat not in ds.features:
                 raise DataError(f"{path}: feature {feat!r} is missing")
-        slices = _field_slices(ds.features["observation.state"].get("names") or [])
+        slices = obs_slices(
+            [(str(n), int(w)) for n, w in obs_layout(ds.features["observation.state"].get("names") or [])]
+        )
         unknown = [f for f in args.proprio if f not in slices]
         if unknown:
             raise ConfigError(
@@ -408,7 +395,11 @@ def main(argv: list[str]) -> int:
     from bench import config as config_mod
 
     if any(a in ("-h", "--help") for a in argv):
-        print(__doc__)
+        from baselines.bc import key_rows
+
+        print(
+            f"usage: python -m baselines.bc_image data=[DIR,...] [key=value ...]\n\n{__doc__}\nkeys:\n{key_rows(Args)}"
+        )
         return 0
     try:
         args: Args = config_mod.build_from_argv(Args, argv, "python -m baselines.bc_image")

@@ -29,6 +29,7 @@ import dataclasses
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -79,14 +80,22 @@ def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | No
     return dataclasses.replace(p, cells=[first], jobs=[j for j in p.jobs if j.cell == first])
 
 
-def harness_vs_bare(p: Any, ctx: Any = None) -> dict[str, float]:
-    """Steps/s of the harness's per-episode path and of a bare loop over the same env and actions."""
+def harness_vs_bare(p: Any, ctx: Any = None, bare: Callable[[], Any] | None = None) -> dict[str, float]:
+    """Steps/s of the harness's per-episode path and of a bare loop over the same seeds and actions.
+
+    The bare loop drives the suite's own env adapter (`bench perf`), or, given `bare`, what that
+    factory returns (the simulator alone, benchmarks/bench_*_raw.py): anything with `reset(seed)`,
+    `step(action)` and `close()`, made after the harness's env (which may prepare the process, e.g.
+    ManiSkill's stand-ins for a missing renderer) and closed at the end.
+    """
     from bench import api
     from bench.records import RecordWriter
 
     worker = api.worker(p, ctx)
     jobs = p.jobs
     env, policy = worker.built(jobs[0])
+    own = bare() if bare is not None else None
+    env = env if own is None else own
     actions = []
     for job in jobs:  # the random policy's actions depend only on the episode seed
         policy.reset(job.seed)
@@ -116,12 +125,28 @@ def harness_vs_bare(p: Any, ctx: Any = None) -> dict[str, float]:
                         bare_steps += len(acts)
     finally:
         worker.close()
+        if own is not None:
+            own.close()
     return {
         "harness_steps_per_s": steps / harness_s,
         "bare_steps_per_s": bare_steps / bare_s,
         "ratio": (steps / harness_s) / (bare_steps / bare_s),
         "steps": steps,
     }
+
+
+def per_worker(records: list) -> dict[int, tuple[int, float]]:
+    """Per worker process: the env steps its episodes took and the seconds they ran (`wall_s`)."""
+    out: dict[int, tuple[int, float]] = {}
+    for r in records:
+        steps, secs = out.get(r.worker_pid, (0, 0.0))
+        out[r.worker_pid] = (steps + r.length, secs + r.wall_s)
+    return out
+
+
+def steady_rate(per_pid: dict[int, tuple[int, float]]) -> float:
+    """Steady-state throughput: the sum over workers of their own steps per second while running episodes."""
+    return sum(steps / secs for steps, secs in per_pid.values() if secs > 0)
 
 
 def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
@@ -141,14 +166,10 @@ def workers_scaling(p: Any, workers: int) -> dict[str, Any]:
         t0 = time.perf_counter()
         LocalExecutor(w).execute(p.jobs, spec, records.append)
         wall = time.perf_counter() - t0
-        per_pid: dict[int, list[float]] = {}
-        for r in records:
-            acc = per_pid.setdefault(r.worker_pid, [0.0, 0.0])
-            acc[0] += r.length
-            acc[1] += r.wall_s
+        per_pid = per_worker(records)
         out[w] = {
             "end_to_end": sum(r.length for r in records) / wall,
-            "steady": sum(steps / secs for steps, secs in per_pid.values()),
+            "steady": steady_rate(per_pid),
             "busy": sum(secs for _, secs in per_pid.values()) / (w * wall),
             "wall": wall,
         }

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -195,15 +195,25 @@ def comparable(record: EpisodeRecord) -> dict[str, Any]:
     return d
 
 
-def completed_counts(records: Sequence[EpisodeRecord]) -> tuple[list[EpisodeRecord], dict[str, Any]]:
-    """The records that completed (no error), and the counts a summary row opens with: completed
-    episodes `n`, `errors`, and the completed episodes' `mean_return` (None when there are none)."""
+def cell_row(
+    head: dict[str, Any],
+    records: Sequence[EpisodeRecord],
+    confidence: float,
+    extra: Callable[[list[EpisodeRecord]], dict[str, Any]] = lambda completed: {},
+) -> dict[str, Any]:
+    """One cell's summary row, in the order summaries hold it: `head` (what names the cell), the
+    counts (completed episodes `n`, `errors`, the completed episodes' `mean_return`, None when there
+    are none), `extra(completed)`, then per success metric its successes and Wilson interval."""
     ok = [r for r in records if r.error is None]
-    return ok, {
+    row = {
+        **head,
         "n": len(ok),
         "errors": len(records) - len(ok),
         "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
+        **extra(ok),
     }
+    row.update(success_rates(ok, confidence))
+    return row
 
 
 def success_rates(completed: Sequence[EpisodeRecord], confidence: float) -> dict[str, dict[str, Any]]:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from bench import scoring
-from bench.records import SUCCESS_METRICS, EpisodeRecord, completed_counts, dedupe, success_rates
+from bench.records import SUCCESS_METRICS, EpisodeRecord, cell_row, dedupe
 
 
 def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> dict[str, Any]:
@@ -97,35 +97,20 @@ def _entry(
     n_boot: int,
     confidence: float,
 ) -> dict[str, Any]:
-    ok, counts = completed_counts(recs)
-    entry: dict[str, Any] = {
-        "condition": cond,
-        "axis": axis,
-        "level": level,
-        "kind": kind,
-        **scope,
-        **counts,
-        "params": _param_summary(ok),
-    }
-    entry.update(success_rates(ok, confidence))
+    head = {"condition": cond, "axis": axis, "level": level, "kind": kind, **scope}
+    entry = cell_row(head, recs, confidence, lambda ok: {"params": _param_summary(ok)})
     gap: dict[str, Any] = {}
-    for m in SUCCESS_METRICS:
+    for m in (*SUCCESS_METRICS, "return"):
         if axis is None:
             gap[m] = {"value": None, "ci": None, "reason": "nominal is the reference", "n_pairs": 0}
             continue
-        ref, tgt = _paired(nominal, target, m)
+        ref, tgt = _paired(nominal, target, "return_" if m == "return" else m)
         est = scoring.paired_gap(ref, tgt, rng, n_boot=n_boot, confidence=confidence).to_dict()
         if est.get("value") is None:
             est["reason"] = "no episode completed under both nominal and this condition"
-        gap[m] = {**est, "n_pairs": int(ref.size), **mcnemar_exact(ref.ravel(), tgt.ravel())}
-    if axis is None:
-        gap["return"] = {"value": None, "ci": None, "reason": "nominal is the reference", "n_pairs": 0}
-    else:
-        ref, tgt = _paired(nominal, target, "return_")
-        est = scoring.paired_gap(ref, tgt, rng, n_boot=n_boot, confidence=confidence).to_dict()
-        if est.get("value") is None:
-            est["reason"] = "no episode completed under both nominal and this condition"
-        gap["return"] = {**est, "n_pairs": int(ref.size)}
+        gap[m] = {**est, "n_pairs": int(ref.size)}
+        if m != "return":  # success is paired binary: McNemar's exact test beside the interval
+            gap[m].update(mcnemar_exact(ref.ravel(), tgt.ravel()))
     entry["drop_vs_nominal"] = gap
     return entry
 

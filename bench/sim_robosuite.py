@@ -97,15 +97,15 @@ def _scene_env_name(task: str) -> str:
 
 # how every env is made: no window and no robosuite cameras (bench.camera renders frames itself), no reset or
 # done of its own (bench runs the horizon); benchmarks/bench_robosuite_raw.py makes its bare env the same way
-MAKE_OPTIONS: dict[str, Any] = dict(
-    has_renderer=False,
-    has_offscreen_renderer=False,
-    use_camera_obs=False,
-    hard_reset=False,
-    ignore_done=True,
-    reward_shaping=True,
-    seed=0,
-)
+MAKE_OPTIONS: dict[str, Any] = {
+    "has_renderer": False,
+    "has_offscreen_renderer": False,
+    "use_camera_obs": False,
+    "hard_reset": False,
+    "ignore_done": True,
+    "reward_shaping": True,
+    "seed": 0,
+}
 
 
 class Observer(Protocol):

@@ -21,10 +21,9 @@ from bench.records import (
     EPISODES,
     SUCCESS_METRICS,
     EpisodeRecord,
-    completed_counts,
+    cell_row,
     dedupe,
     read_records,
-    success_rates,
 )
 
 SCHEMA_ID = "bench.summary/1"
@@ -54,17 +53,12 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
     groups = _cells(records)
     cells_out = []
     for (task, robot, env, split, cond), recs in groups.items():
-        ok, counts = completed_counts(recs)
-        entry: dict[str, Any] = {
-            "task": task,
-            "robot": robot,
-            "env": env,
-            "split": split,
-            "condition": cond,
-            **counts,
-            "mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None,
-        }
-        entry.update(success_rates(ok, conf))
+        entry = cell_row(
+            {"task": task, "robot": robot, "env": env, "split": split, "condition": cond},
+            recs,
+            conf,
+            lambda ok: {"mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None},
+        )
         cells_out.append(entry)
 
     rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919])  # scoring draws, seeded from the run seed

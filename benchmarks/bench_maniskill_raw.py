@@ -19,11 +19,6 @@ Prints env-steps/s of both and their ratio (target >= 0.95).
 from __future__ import annotations
 
 import sys
-import tempfile
-import time
-from pathlib import Path
-
-import numpy as np
 
 
 def main(argv: list[str]) -> int:
@@ -40,12 +35,26 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+class Bare:
+    """The bare loop as a ManiSkill user writes it: `env.reset(seed=s)`, `env.step(action)`."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self, seed: int) -> None:
+        self.env.reset(seed=seed)
+
+    def step(self, action) -> None:
+        self.env.step(action)
+
+    def close(self) -> None:
+        self.env.close()
+
+
 def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> None:
     import gymnasium as gym
 
-    from bench import api
-    from bench.perf import PerfConfig, make_plan
-    from bench.records import RecordWriter
+    from bench.perf import PerfConfig, harness_vs_bare, make_plan
     from bench.sim_maniskill import reward_mode
     from suites.maniskill_common import TASKS
 
@@ -54,49 +63,26 @@ def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> Non
         episodes,
         {"reset": mode},
     )
-    worker = api.worker(p)
-    env, policy = worker.built(p.jobs[0])  # the adapter (and, in this process, the SAPIEN stand-ins if needed)
     env_id = TASKS[task].env_id
-    raw = gym.make(
-        env_id,
-        robot_uids=p.cells[0].robot,
-        obs_mode="state",
-        control_mode="pd_joint_pos",
-        sim_backend="physx_cpu",
-        render_backend="none",
-        reward_mode=reward_mode(env_id),
-    )
-    actions = []
-    for job in p.jobs:
-        policy.reset(job.seed)
-        actions.append(np.stack([policy.act({}) for _ in range(p.horizon)]))  # random: ignores the observation
-    worker.run(p.jobs[0])  # warm-up both
-    raw.reset(seed=p.jobs[0].seed)
-    for a in actions[0][:20]:
-        raw.step(a)
-    harness_s = bare_s = 0.0
-    steps = bare_steps = 0
-    try:
-        with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
-            for job, acts in zip(p.jobs, actions):
-                t0 = time.perf_counter()
-                rec = worker.run(job)
-                writer.write(rec)
-                harness_s += time.perf_counter() - t0
-                steps += rec.length
-                t0 = time.perf_counter()
-                raw.reset(seed=job.seed)
-                for a in acts[: rec.length]:
-                    raw.step(a)
-                bare_s += time.perf_counter() - t0
-                bare_steps += rec.length
-    finally:
-        worker.close()
-        raw.close()
-    h, b = steps / harness_s, bare_steps / bare_s
+
+    def bare() -> Bare:
+        return Bare(
+            gym.make(
+                env_id,
+                robot_uids=p.cells[0].robot,
+                obs_mode="state",
+                control_mode="pd_joint_pos",
+                sim_backend="physx_cpu",
+                render_backend="none",
+                reward_mode=reward_mode(env_id),
+            )
+        )
+
+    r = harness_vs_bare(p, bare=bare)
+    h, b = r["harness_steps_per_s"], r["bare_steps_per_s"]
     print(
         f"{env_id} on physx_cpu, {episodes} episodes x {p.horizon} steps, random actions (pd_joint_pos), "
-        f"renderer: {getattr(env, 'render', '?')}, suite reset={mode}"
+        f"renderer: none, suite reset={mode}"
     )
     print(f"  harness {h:.0f} env-steps/s, bare ManiSkill loop {b:.0f} env-steps/s: harness / bare = {h / b:.3f}")
 

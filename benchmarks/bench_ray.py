@@ -37,6 +37,8 @@ INSIDE = "BENCH_RAY_SANDBOXED"
 
 
 def timed(executor, jobs, spec) -> dict:
+    from bench.perf import per_worker, steady_rate
+
     records: list = []
     arrivals: list[float] = []
 
@@ -47,18 +49,13 @@ def timed(executor, jobs, spec) -> dict:
     t0 = time.perf_counter()
     executor.execute(jobs, spec, on_record)
     wall = time.perf_counter() - t0
-    per_pid: dict[int, list[float]] = {}
-    for r in records:
-        acc = per_pid.setdefault(r.worker_pid, [0.0, 0.0])
-        acc[0] += r.length
-        acc[1] += r.wall_s
     steps = sum(r.length for r in records)
     return {
         "wall": wall,
         "steps": steps,
         "end_to_end": steps / wall,
         "first": arrivals[0] - t0,
-        "steady": sum(s / w for s, w in per_pid.values() if w > 0),
+        "steady": steady_rate(per_worker(records)),
         "records": records,
         "arrivals": arrivals,
         "episode_s": statistics.mean(r.wall_s for r in records),

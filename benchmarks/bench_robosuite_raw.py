@@ -14,15 +14,31 @@ from __future__ import annotations
 
 import sys
 import tempfile
-import time
-from pathlib import Path
 
 import numpy as np
 
 
+class Bare:
+    """Bare robosuite: the env's placement generator re-seeded per episode, its own soft reset, `env.step`."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self, seed: int) -> None:
+        self.env.rng = np.random.default_rng(seed)
+        self.env.placement_initializer.rng = self.env.rng
+        self.env.reset()
+
+    def step(self, action) -> None:
+        self.env.step(action)
+
+    def close(self) -> None:
+        self.env.close()
+
+
 def main(argv: list[str]) -> int:
     from bench import api
-    from bench.records import RecordWriter
+    from bench.perf import harness_vs_bare
     from bench.sim_robosuite import _quiet_robosuite
 
     kv = dict(a.split("=", 1) for a in argv)
@@ -40,42 +56,17 @@ def main(argv: list[str]) -> int:
             run_id="raw-bench",
         )
     )
-    worker = api.worker(plan)
-    env, policy = worker.built(plan.jobs[0])
-    actions = []
-    for job in plan.jobs:
-        policy.reset(job.seed)
-        actions.append(np.stack([policy.act(None) for _ in range(horizon)]).astype(np.float64))
-    _quiet_robosuite()
-    import robosuite
 
-    from bench.sim_robosuite import MAKE_OPTIONS
+    def bare() -> Bare:
+        _quiet_robosuite()
+        import robosuite
 
-    raw = robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS)
-    worker.run(plan.jobs[0])
-    raw.reset()
-    for a in actions[0][:20]:
-        raw.step(a)
-    harness_s = raw_s = 0.0
-    steps = raw_steps = 0
-    with tempfile.TemporaryDirectory() as tmp, RecordWriter(Path(tmp) / "e.jsonl") as writer:
-        for job, acts in zip(plan.jobs, actions):
-            t0 = time.perf_counter()
-            rec = worker.run(job)
-            writer.write(rec)
-            harness_s += time.perf_counter() - t0
-            steps += rec.length
-            t0 = time.perf_counter()
-            raw.rng = np.random.default_rng(job.seed)
-            raw.placement_initializer.rng = raw.rng
-            raw.reset()
-            for a in acts:
-                raw.step(a)
-            raw_s += time.perf_counter() - t0
-            raw_steps += len(acts)
-    worker.close()
-    raw.close()
-    h, r = steps / harness_s, raw_steps / raw_s
+        from bench.sim_robosuite import MAKE_OPTIONS
+
+        return Bare(robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS))
+
+    res = harness_vs_bare(plan, bare=bare)
+    h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
     print(f"robosuite Lift/{robot}, {episodes} episodes x {horizon} steps, random policy")
     print(f"harness {h:.1f} env-steps/s, raw robosuite {r:.1f} env-steps/s: harness / raw = {h / r:.3f}")
     return 0

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -305,27 +306,18 @@ def _rejected(scores: list[Score], tried: dict[str, dict], added: list[dict], mi
 
 
 def run(
-    spec: CalibrationSpec,
-    episodes: list[dict[str, np.ndarray]],
-    fps: float,
-    *,
-    seed: int = 0,
-    effects: tuple[EffectRequest, ...] | None | str = "spec",
-    threads: int | None = None,
-    log: Callable[[str], None] = lambda msg: None,
-    residual: bool = False,
+    spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float, *, seed: int = 0, **loop: Any
 ) -> Calibration:
     """Run the whole loop on logged episodes (arrays keyed by column) and return what it found.
 
-    `effects`: "spec" (the spec's list), None (all), () (none) or explicit requests. With `residual`,
-    a learned residual is fitted after the loop and reported apart from the physics (`Calibration.learned`).
+    `loop` takes `calibrate`'s keywords: `effects` ("spec": the spec's list, None: all, (): none, or
+    explicit requests), `threads`, `log`, and `residual` (a learned residual fitted after the loop and
+    reported apart from the physics, `Calibration.learned`).
     """
     t0 = time.perf_counter()
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
-    return calibrate(
-        Plant(spec, model, rec), seed=seed, effects=effects, threads=threads, log=log, residual=residual, t0=t0
-    )
+    return calibrate(Plant(spec, model, rec), seed=seed, t0=t0, **loop)
 
 
 def calibrate(
@@ -339,7 +331,9 @@ def calibrate(
     t0: float | None = None,
 ) -> Calibration:
     """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
-    suite's robot in its scene); arguments as `run`."""
+    suite's robot in its scene). `effects`: "spec" (the spec's list), None (all), () (none) or explicit
+    requests; with `residual`, a learned residual is fitted after the loop and reported apart from the
+    physics (`Calibration.learned`)."""
     t0 = time.perf_counter() if t0 is None else t0
     spec = plant.spec
     sim = plant.simulator(threads or spec.threads)
