@@ -1,4 +1,5 @@
-"""The progress bar of `bench.api.run` on stderr (rich): done/total, successes, errors, elapsed, ETA."""
+"""The progress bar of `bench.api.run` on stderr (rich): done/total, successes (or the mean return, for a run
+scored by return), errors, elapsed, ETA."""
 
 from __future__ import annotations
 
@@ -10,12 +11,14 @@ from bench.run_config import RunConfig
 
 
 class RunProgress:
-    """A rich progress bar on stderr (done/total, successes, errors, elapsed, ETA), or nothing."""
+    """A rich progress bar on stderr (done/total, successes or mean return, errors, elapsed, ETA), or nothing."""
 
     def __init__(self, show: bool, cfg: RunConfig, todo: int, done: int, total: int, run_dir: Path, workers: int):
         self.show = show
-        self.metric = "success_once" if cfg.metric == "return" else str(cfg.metric)
+        self.by_return = cfg.metric == "return"  # no success signal (e.g. HalfCheetah): show the mean return
+        self.metric = "return_" if self.by_return else str(cfg.metric)
         self.counts = {"succ": 0, "err": 0}
+        self.total_return, self.completed = 0.0, 0
         self.console = self.progress = None
         if not show:
             return
@@ -38,14 +41,14 @@ class RunProgress:
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
-            TextColumn("successes {task.fields[succ]}"),
+            TextColumn("mean return {task.fields[succ]}" if self.by_return else "successes {task.fields[succ]}"),
             TextColumn("errors {task.fields[err]}"),
             TimeElapsedColumn(),
             TextColumn("eta"),
             TimeRemainingColumn(),
         ]
         self.progress = Progress(*columns, console=self.console, transient=False)
-        self.task = self.progress.add_task(cfg.suite, total=todo, succ=0, err=0)
+        self.task = self.progress.add_task(cfg.suite, total=todo, succ="-" if self.by_return else 0, err=0)
 
     def __enter__(self) -> RunProgress:
         if self.progress is not None:
@@ -59,9 +62,16 @@ class RunProgress:
     def advance(self, record: EpisodeRecord) -> None:
         if self.progress is None:
             return
-        self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
         self.counts["err"] += int(record.error is not None)
-        self.progress.update(self.task, advance=1, succ=self.counts["succ"], err=self.counts["err"])
+        if self.by_return:
+            if record.error is None:
+                self.total_return += record.return_
+                self.completed += 1
+            shown: Any = f"{self.total_return / self.completed:.2f}" if self.completed else "-"
+        else:
+            self.counts["succ"] += int(bool(getattr(record, self.metric, False)))
+            shown = self.counts["succ"]
+        self.progress.update(self.task, advance=1, succ=shown, err=self.counts["err"])
 
     def note(self, text: str) -> None:
         if self.console is not None:

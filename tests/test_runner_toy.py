@@ -175,3 +175,14 @@ def test_typed_api(tmp_path):
     assert api.score(tmp_path / "api") == again.summary
     with pytest.raises(ConfigError, match="unknown key 'goals' for suite tests.toy_suite:ToySuite; valid: goal"):
         api.plan(api.RunConfig(suite="tests.toy_suite:ToySuite", suite_options={"goals": 1}))
+
+
+def test_progress_bar_counts_successes_or_shows_the_mean_return(tmp_path, capsys, monkeypatch):
+    """The bar shows what the run is scored by: successes, or the mean return of completed episodes."""
+    monkeypatch.setenv("COLUMNS", "200")  # a captured stream is not a terminal: rich would crop the bar at 80
+    assert run(tmp_path, "s", "episodes=1") == 0
+    assert f"successes {sum(r.success_once for r in records(tmp_path, 's'))} " in capsys.readouterr().err
+    assert run(tmp_path, "r", "episodes=1", "metric=return") == 0
+    returns = [r.return_ for r in records(tmp_path, "r")]
+    err = capsys.readouterr().err
+    assert f"mean return {sum(returns) / len(returns):.2f}" in err and "successes" not in err
