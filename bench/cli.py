@@ -15,7 +15,7 @@ import importlib
 import sys
 from collections.abc import Callable
 
-from bench.errors import BenchError, ConfigError, did_you_mean
+from bench.errors import BenchError, ConfigError, valid_choices
 
 # name -> (handler "module:function", one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -150,7 +150,7 @@ def _dispatch(argv: list[str]) -> int:
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
-        raise ConfigError(f"unknown command {name!r}; valid: {', '.join(COMMANDS)}.{did_you_mean(name, COMMANDS)}")
+        raise ConfigError(f"unknown command {name!r}; {valid_choices(name, COMMANDS)}")
     module_name, func_name = COMMANDS[name][0].split(":")
     handler = getattr(importlib.import_module(module_name), func_name)
     return int(handler(rest) or 0)

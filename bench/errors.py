@@ -6,7 +6,7 @@ Messages are one line: they name the field, the bad value and what would be vali
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 
 
 class BenchError(Exception):
@@ -41,9 +41,10 @@ def did_you_mean(value: str, valid: Iterable[str]) -> str:
     return f" Did you mean {match[0]!r}?" if match else ""
 
 
-def valid_choices(value: str, valid: Sequence[str]) -> str:
+def valid_choices(value: str, valid: Iterable[str]) -> str:
     """Return 'valid: A, B, C.' and, when one is close to `value`, ' Did you mean X?' (the end of an error line)."""
-    return f"valid: {', '.join(valid)}.{did_you_mean(value, valid)}"
+    names = list(valid)  # a dict gives its keys
+    return f"valid: {', '.join(names)}.{did_you_mean(value, names)}"
 
 
 class ExecutorError(BenchError):

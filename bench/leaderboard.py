@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from bench import config, outputs
-from bench.errors import ConfigError, DataError, did_you_mean
+from bench.errors import ConfigError, DataError, valid_choices
 from bench.schema import load_json, validate
 
 # -- merging ------------------------------------------------------------------------------------
@@ -348,9 +348,7 @@ def main(argv: list[str]) -> int:
         return 0 if argv else 2
     cmd, rest = argv[0], argv[1:]
     if cmd not in SUBCOMMANDS:
-        raise ConfigError(
-            f"leaderboard: unknown subcommand {cmd!r}; valid: {', '.join(SUBCOMMANDS)}.{did_you_mean(cmd, SUBCOMMANDS)}"
-        )
+        raise ConfigError(f"leaderboard: unknown subcommand {cmd!r}; {valid_choices(cmd, SUBCOMMANDS)}")
     handler, help_of = SUBCOMMANDS[cmd]
     if any(a in ("-h", "--help") for a in rest):
         print(help_of(), end="")

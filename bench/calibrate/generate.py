@@ -21,7 +21,7 @@ import numpy as np
 from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, stribeck_force
 from bench.calibrate.model import Edits
 from bench.calibrate.play import build
-from bench.errors import ConfigError, did_you_mean
+from bench.errors import ConfigError, did_you_mean, valid_choices
 
 MODELS = Path(__file__).resolve().parent / "models"
 ARM = MODELS / "arm3.xml"
@@ -47,9 +47,7 @@ def _disturbance(name: str | None, model: mujoco.MjModel) -> np.ndarray | None:
     if name is None:
         return None
     if name not in DISTURBANCES:
-        raise ConfigError(
-            f"unknown disturbance {name!r}; valid: {', '.join(DISTURBANCES)}.{did_you_mean(name, DISTURBANCES)}"
-        )
+        raise ConfigError(f"unknown disturbance {name!r}; {valid_choices(name, DISTURBANCES)}")
     dof = int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, DISTURBANCES[name][0])])
     return np.array([dof, 0.8, 6.0])
 

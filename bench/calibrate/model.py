@@ -17,7 +17,7 @@ import numpy as np
 from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate, stribeck_force
 from bench.calibrate.play import Play, PlayModel, build, coordinates, set_play
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
-from bench.errors import SpecError, did_you_mean
+from bench.errors import SpecError, did_you_mean, valid_choices
 from bench.replay.data import Recording
 from bench.replay.simulate import Coordinates, Simulator, StateForce, Variant, hold, prepare_model
 
@@ -108,7 +108,7 @@ def resolve_params(params: tuple[ParamSpec, ...], model: mujoco.MjModel, model_n
             if idx < 0:
                 raise SpecError(
                     f"spec field '{where}.elements': {name!r} is not a {word} of {model_name}; "
-                    f"valid: {', '.join(valid)}.{did_you_mean(name, valid)}"
+                    f"{valid_choices(name, valid)}"
                 )
             row = int(model.jnt_dofadr[idx]) if prefix == "dof_" else idx
             nominal = float(arr[row] if col is None else arr[row, col])
