@@ -78,12 +78,17 @@ class EpisodeRecord:
 
 
 _NUM = (int, float)
-_FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, may be null)
+_FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, may be null); `level` is any value
+    "run_id": ((str,), False),
+    "job_id": ((str,), False),
+    "suite": ((str,), False),
+    "suite_version": ((str,), False),
     "task": ((str,), False),
     "robot": ((str,), False),
     "env": ((str,), False),
     "split": ((str,), False),
     "condition": ((str,), False),
+    "axis": ((str,), True),
     "episode": ((int,), False),
     "seed": ((int,), False),
     "success_once": ((bool,), False),
@@ -93,6 +98,14 @@ _FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, m
     "steps_to_success": ((int,), True),
     "error": ((str,), True),
     "params": ((dict,), False),
+    "init_state_hash": ((str,), True),
+    "policy": ((str,), False),
+    "checkpoint_sha256": ((str,), True),
+    "backend": ((str,), True),
+    "wall_s": (_NUM, False),
+    "finished_at": (_NUM, False),
+    "worker_pid": ((int,), False),
+    "versions": ((dict,), False),
     "extras": ((dict,), False),
 }
 

@@ -25,6 +25,7 @@ from bench.logs.lerobot_info import check_info
 from bench.records import EpisodeRecord, read_records
 from bench.schema import load_json, validate
 from bench.summary import check_run_meta
+from tests.fixtures import record
 
 SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 EXAMPLES = {
@@ -37,34 +38,20 @@ EXAMPLES = {
     "spec_bytes": 100,
 }
 
-RECORD = dict(
-    run_id="r",
-    job_id="Lift/Panda/default|nominal|0",
-    suite="s",
-    suite_version="1",
-    task="Lift",
-    robot="Panda",
-    env="default",
-    split="seen",
-    condition="nominal",
-    axis=None,
-    level=None,
-    params={},
-    episode=0,
-    seed=100,
-    init_state_hash="abc",
-    success_once=True,
-    success_at_end=False,
-    length=10,
-    steps_to_success=3,
-    error=None,
-    policy="scripted",
-    checkpoint_sha256=None,
-    backend="x",
-    wall_s=0.1,
-    finished_at=1.0,
-    worker_pid=1,
-    **{"return": 1.5},
+# one valid record as episodes.jsonl holds it (tests.fixtures.record, then the writer's own JSON)
+RECORD = json.loads(
+    record(
+        seed=100,
+        init_state_hash="abc",
+        success_once=True,
+        steps_to_success=3,
+        return_=1.5,
+        policy="scripted",
+        backend="x",
+        wall_s=0.1,
+        finished_at=1.0,
+        worker_pid=1,
+    ).to_json()
 )
 RUN_META = {
     "run_id": "r",
