@@ -37,7 +37,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from baselines.bc import TrainIO, obs_layout
+from baselines.bc import TrainIO, key_rows, obs_layout
 from bench.env import obs_slices
 from bench.errors import BenchError, ConfigError, DataError
 from bench.protocols import RGB, STATE, PolicyContext, PolicyIdentity, PolicyPlugin
@@ -395,8 +395,6 @@ def main(argv: list[str]) -> int:
     from bench import config as config_mod
 
     if any(a in ("-h", "--help") for a in argv):
-        from baselines.bc import key_rows
-
         print(
             f"usage: python -m baselines.bc_image data=[DIR,...] [key=value ...]\n\n{__doc__}\nkeys:\n{key_rows(Args)}"
         )

@@ -16,7 +16,7 @@ class RunProgress:
     def __init__(self, show: bool, cfg: RunConfig, todo: int, done: int, total: int, run_dir: Path, workers: int):
         self.show = show
         self.by_return = cfg.metric == "return"  # no success signal (e.g. HalfCheetah): show the mean return
-        self.metric = "return_" if self.by_return else str(cfg.metric)
+        self.metric = str(cfg.metric)  # the success flag counted when not by return
         self.counts = {"succ": 0, "err": 0}
         self.total_return, self.completed = 0.0, 0
         self.console = self.progress = None
