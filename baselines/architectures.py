@@ -18,7 +18,7 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
-from bench.errors import SpecError, did_you_mean
+from bench.api import SpecError, did_you_mean
 
 ACTIVATIONS = ("relu", "tanh", "gelu", "elu")
 OUT_ACTIVATIONS = ("none", "tanh")

@@ -40,7 +40,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from bench.errors import ConfigError, DataError
+from bench.api import ConfigError, DataError
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,7 @@ def seed_everything(seed: int, threads: int = 1) -> None:
 
 # -- data ------------------------------------------------------------------------------------
 def obs_layout(names: Sequence[str]) -> list[list[Any]]:
-    """[name, width] pairs from a dataset's flat element names (inverse of `bench.recording`).
+    """[name, width] pairs from a dataset's flat element names (inverse of `bench.execution.recording`).
 
     The recorder writes a width-w field `f` as `f_0 .. f_{w-1}` and a width-1 field as `f`,
     so a run `f_0, f_1, ...` of length >= 2 is one field; anything else is a width-1 field.
@@ -177,7 +177,7 @@ def load_demos(
     Raises:
         DataError: a dataset without the two features, layouts that differ, or nothing selected.
     """
-    from bench.logs import read_dataset
+    from bench.api.datasets import read_dataset
 
     if not paths:
         raise ConfigError("data: give at least one dataset folder, e.g. data=[demos/seen]")
@@ -376,7 +376,7 @@ def fit(demos: Demos, args: Args) -> tuple[Any, dict[str, Any], dict[str, Any]]:
 def train(args: Args, demos: Demos | None = None) -> tuple[Path, dict[str, Any]]:
     """Load the demonstrations (unless given), fit, save the checkpoint; return (path, info)."""
     from baselines.checkpoint import save_checkpoint
-    from bench import outputs
+    from bench.api.data import outputs
 
     _check(args)
     out = Path(args.out) if args.out else Path("runs") / "bc" / run_name(args) / "policy.safetensors"
@@ -432,12 +432,12 @@ def help_text() -> str:
 
 def main(argv: list[str]) -> int:
     """CLI: parse key=value into `Args`, train, print where the checkpoint went."""
-    from bench import config as config_mod
+    from bench.api.scripts import build_from_argv
 
     if argv and argv[0] in ("-h", "--help"):
         print(help_text())
         return 0
-    args: Args = config_mod.build_from_argv(Args, argv, "python -m baselines.bc")
+    args: Args = build_from_argv(Args, argv, "python -m baselines.bc")
     path, info = train(args)
     print(
         f"{info['run_name']}: {info['episodes']} episodes, {info['frames']} frames, robots {info['robots']}; "
@@ -448,6 +448,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
+    from bench.api.scripts import guarded  # bad input: one line, exit 2; never a traceback
 
     raise SystemExit(guarded(lambda: main(sys.argv[1:])))

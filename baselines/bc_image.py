@@ -38,9 +38,9 @@ from typing import Any, Optional
 import numpy as np
 
 from baselines.bc import TrainIO, key_rows, obs_layout
-from bench.env import obs_slices
-from bench.errors import BenchError, ConfigError, DataError
+from bench.api import BenchError, ConfigError, DataError
 from bench.protocols import RGB, STATE, PolicyContext, PolicyIdentity, PolicyPlugin
+from bench.protocols.env import obs_slices
 
 CAMERA_PREFIX = "observation.images."
 
@@ -78,7 +78,7 @@ class Args(TrainIO):
 # -- data ------------------------------------------------------------------------------------
 def load(args: Args) -> dict[str, Any]:
     """Frames of the selected episodes: images per camera (N, H, W, 3) uint8, proprio (N, P), action (N, A)."""
-    from bench.logs import read_dataset
+    from bench.api.datasets import read_dataset
 
     if not args.data:
         raise ConfigError("data: give at least one dataset folder with camera features, e.g. data=[demos_img]")
@@ -208,7 +208,7 @@ def train(args: Args) -> dict[str, Any]:
     import torch.nn.functional as F
     from safetensors.torch import save_file
 
-    from bench import outputs
+    from bench.api.data import outputs
 
     out_path = Path(
         args.out
@@ -356,7 +356,7 @@ class ImageBCPlugin(PolicyPlugin):
         return (STATE, *(f"{RGB}{c}" for c in spec["cameras"]))
 
     def identity(self, options: Any) -> PolicyIdentity:
-        from bench.io import sha256_file
+        from bench.api.data import sha256_file
 
         return PolicyIdentity(str(options.checkpoint), sha256_file(Path(options.checkpoint)))
 
@@ -392,7 +392,7 @@ class ImageBCPlugin(PolicyPlugin):
 
 
 def main(argv: list[str]) -> int:
-    from bench import config as config_mod
+    from bench.api.scripts import build_from_argv
 
     if any(a in ("-h", "--help") for a in argv):
         print(
@@ -400,7 +400,7 @@ def main(argv: list[str]) -> int:
         )
         return 0
     try:
-        args: Args = config_mod.build_from_argv(Args, argv, "python -m baselines.bc_image")
+        args: Args = build_from_argv(Args, argv, "python -m baselines.bc_image")
         result = train(args)
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)

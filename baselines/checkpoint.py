@@ -49,8 +49,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError, SpecError, valid_choices
-from bench.io import sha256_file, write_bytes_atomic, write_text_atomic
+from bench.api import ConfigError, SpecError, valid_choices
+from bench.api.data import sha256_file, write_bytes_atomic, write_text_atomic
 from bench.protocols import STATE, Obs, PolicyContext, PolicyIdentity, PolicyPlugin
 
 SPEC_SCHEMA = "bench.policy/1"

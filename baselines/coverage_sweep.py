@@ -5,8 +5,8 @@ baseline (`baselines.bc`) on nested training sets of increasing coverage — 1, 
 fixed demonstration budget; domain-randomisation widths on one perturbation axis — evaluates every
 checkpoint on the suite's cells with the same seeds, and reports held-out success and the transfer
 gap against coverage with intervals, the fitted slope with a paired bootstrap interval
-(`bench.trend`), a plot, and the surrogate-data question (adding mismatched data to a fixed
-in-domain set). Coverage metrics are `bench.coverage`'s; rollouts, records and intervals are the
+(`bench.scoring.trend`), a plot, and the surrogate-data question (adding mismatched data to a fixed
+in-domain set). Coverage metrics are `bench.cli.coverage`'s; rollouts, records and intervals are the
 harness's. Everything under `workdir` is reused on a rerun.
 
     python -m baselines.coverage_sweep out=results/coverage workdir=/tmp/coverage-sweep
@@ -35,10 +35,8 @@ from baselines.coverage_sweep_stats import (  # noqa: F401  (render_sweep, plot_
     plot_sweep,
     render_sweep,
 )
-from bench.api import RunConfig
-from bench.coverage_metrics import initial_states_from_suite
-from bench.errors import ConfigError, DataError, did_you_mean
-from bench.trend import SeriesBootstrap
+from bench.api import ConfigError, DataError, RunConfig, did_you_mean
+from bench.api.stats import SeriesBootstrap, initial_states_from_suite
 
 
 @dataclass(frozen=True)
@@ -77,7 +75,7 @@ BUDGETS = ("fixed", "per_robot")
 
 
 def sweep_help() -> str:
-    from bench.config import command_help
+    from bench.api.scripts import command_help
 
     return command_help(
         "usage: python -m baselines.coverage_sweep [key=value ...]",
@@ -135,7 +133,7 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
     if cfg.budget == "fixed" and cfg.total_episodes < len(cfg.order):
         raise ConfigError(f"total_episodes={cfg.total_episodes}: must be >= len(order)={len(cfg.order)} (budget=fixed)")
     if "dr" in cfg.parts and cfg.dr_axis:
-        from bench.axes import AXES
+        from bench.api.sims import AXES
 
         if cfg.dr_axis not in AXES:
             raise ConfigError(f"dr_axis={cfg.dr_axis!r}: valid: {', '.join(AXES)}.{did_you_mean(cfg.dr_axis, AXES)}")
@@ -166,8 +164,8 @@ def _check_sweep(cfg: SweepConfig, suite) -> None:
 
 
 def _surrogate_condition(text: str):
-    """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.perturb's grammar."""
-    from bench.axes import conditions_from_config
+    """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.sims.perturb's grammar."""
+    from bench.api.sims import conditions_from_config
 
     if "=" not in text:
         raise ConfigError(f"surrogate_perturb={text!r}: write AXIS=LEVEL, e.g. latency=4 or gain=0.6")
@@ -183,8 +181,8 @@ def _surrogate_condition(text: str):
 
 
 def _dr_condition_names(cfg: SweepConfig) -> list[tuple[float, str, str]]:
-    """(width, condition name, perturb grammar) per DR width, names as bench.perturb forms them."""
-    from bench.axes import conditions_from_config
+    """(width, condition name, perturb grammar) per DR width, names as bench.sims.perturb forms them."""
+    from bench.api.sims import conditions_from_config
 
     out = []
     for w in cfg.dr_widths:
@@ -296,7 +294,7 @@ def _select(sources: Sequence[Path], want: Sequence[tuple[str, str, int]], succe
 
 def _demo_stats(sources: Sequence[Path]) -> dict[str, Any]:
     """Expert success per robot and condition in the recorded demonstrations (from the episode meta)."""
-    from bench.logs import read_dataset
+    from bench.api.datasets import read_dataset
 
     counts: dict[str, list[int]] = {}
     for src in sources:
@@ -353,7 +351,7 @@ def _evaluate(
     name: str, ckpt: Path, cfg: SweepConfig, work: Path, episodes: int, robots: Sequence[str] | None, log
 ) -> dict[str, np.ndarray]:
     """The checkpoint on the suite's cells (or `robots`); cell key -> 0/1 outcomes by episode."""
-    from bench.records import EPISODES, dedupe, read_records
+    from bench.api.data import EPISODES, dedupe, read_records
 
     run_id = f"eval-{name}" + (f"-{'-'.join(robots)}-n{episodes}" if robots else "")
     run = RunConfig(
@@ -385,7 +383,7 @@ def _evaluate(
 
 
 def _sha256(path: Path) -> str:
-    from bench.io import sha256_file
+    from bench.api.data import sha256_file
 
     return sha256_file(Path(path))
 
@@ -397,10 +395,10 @@ def main(argv: list[str]) -> int:
         return 0
     from rich.console import Console
 
-    from bench import config as config_mod
-    from bench import registry
+    from bench.api.scripts import build_from_argv
+    from bench.protocols import registry
 
-    cfg: SweepConfig = config_mod.build_from_argv(SweepConfig, argv, "python -m baselines.coverage_sweep")
+    cfg: SweepConfig = build_from_argv(SweepConfig, argv, "python -m baselines.coverage_sweep")
     suite = registry.make_suite(cfg.suite)
     _check_sweep(cfg, suite)
     console = Console(stderr=True)
@@ -409,7 +407,7 @@ def main(argv: list[str]) -> int:
     t_start = time.perf_counter()
     doc = run_sweep(cfg, suite, work, log)
     doc["invocation_wall_s"] = round(time.perf_counter() - t_start, 1)  # reused artifacts cost nothing here
-    from bench.io import write_atomic
+    from bench.api.data import write_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "sweep.json", doc)
@@ -421,8 +419,8 @@ def main(argv: list[str]) -> int:
 
 def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
     """Record, train, evaluate and score every part of the sweep; returns the sweep document."""
-    from bench.axes import conditions_from_config
-    from bench.suite import NOMINAL
+    from bench.api.sims import conditions_from_config
+    from bench.protocols.suite import NOMINAL
 
     rng = np.random.default_rng([cfg.eval_seed, 4242])
     parts = set(cfg.parts)
@@ -570,6 +568,6 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
 
 
 if __name__ == "__main__":
-    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
+    from bench.api.scripts import guarded  # bad input: one line, exit 2; never a traceback
 
     raise SystemExit(guarded(lambda: main(sys.argv[1:])))

@@ -11,10 +11,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from bench import scoring
-from bench.coverage import fmt_pct
-from bench.coverage_metrics import TrainingData, coverage_report
-from bench.trend import SeriesBootstrap, slope_with_interval
+from bench.api.stats import SeriesBootstrap, TrainingData, coverage_report, fmt_pct, slope_with_interval, wilson
 
 
 class SweepConfig(Protocol):
@@ -47,7 +44,7 @@ def _per_seed_cells(outcomes: Sequence[dict[str, np.ndarray]], cfg: SweepConfig)
             "n": n,
             "successes": k,
             "per_seed": [int(o[key].sum()) if key in o else None for o in outcomes],
-            **scoring.wilson(k, n, cfg.confidence).to_dict(),
+            **wilson(k, n, cfg.confidence).to_dict(),
         }
     return out
 
@@ -131,7 +128,7 @@ def render_sweep(doc: dict[str, Any], console=None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from bench.summary import fmt_estimate
+    from bench.api.stats import fmt_estimate
 
     console = console or Console(width=None if Console().is_terminal else 140)
     conf = int(round(100 * doc.get("confidence", 0.95)))

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.errors import ConfigError
+from bench.api import ConfigError
 from bench.protocols import PolicyPlugin
 
 

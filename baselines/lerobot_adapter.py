@@ -44,8 +44,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench's wire cod
 
 import numpy as np  # noqa: E402
 
-from bench.remote import wire  # noqa: E402
-from bench.remote.serving import RequestError, WebsocketServer  # noqa: E402
+from bench.api.serving import (  # noqa: E402
+    RequestError,
+    WebsocketServer,
+    wire,  # noqa: E402
+)
 
 DEFAULT_ENV_FIELDS = ("object_pos", "object_quat", "gripper_to_object")
 BENCH_ONLY = ("observation.sim_state", "action.ctrl")

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError
+from bench.api import ConfigError
 
 CONTROL_MODE = "pd_joint_pos"
 _STEPPED, _ABORT = "stepped", "abort"

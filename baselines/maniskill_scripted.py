@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.env import obs_slices
 from bench.protocols import STATE
+from bench.protocols.env import obs_slices
 
 
 class _Expert:

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.api.sims import TOO_HIGH, MetaWorldEnv
 from bench.protocols import STATE, Obs
-from bench.sim_metaworld import TOO_HIGH, MetaWorldEnv
 
 
 class GoalFedExpert:

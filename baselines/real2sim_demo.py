@@ -16,7 +16,7 @@
    `episodes` times on the real robot, the nominal simulator and the calibrated simulator (seed
    `seed`: the same initial states everywhere).
 5. Sim-real agreement of the nominal and the calibrated simulator with the real robot: MMRV and
-   Pearson with bootstrap intervals (`bench.agreement`), and the paired change (same real resample).
+   Pearson with bootstrap intervals (`bench.scoring.agreement`), and the paired change (same real resample).
 
 Everything is resumable (runs are resumed by run_id); the committed outputs are in `out`.
 """
@@ -60,9 +60,8 @@ SIMS = ("real", "nominal", "calibrated")
 def real_robot(path: Path) -> Path:
     """Write the real robot's model edits (the apply section of a calibration file) for the nominal Panda."""
     from bench import api
-    from bench.calibrate.apply import model_hash
-    from bench.calibrate.suite import torque_joints
-    from bench.io import write_atomic
+    from bench.api.calibration import model_hash, torque_joints
+    from bench.api.data import write_atomic
 
     suite = api.load_suite(SUITE)
     env = suite.make_env(next(c for c in suite.all_cells() if c.robot == ROBOT), suite.default_horizon)
@@ -153,7 +152,7 @@ def run(
 def paired(nominal: dict, calibrated: dict, real: dict, n_boot: int = 2000, seed: int = 0) -> dict:
     """Bootstrap of the change in MMRV and Pearson from the nominal to the calibrated simulator: each
     replicate redraws every policy's trials in all three tables, so the real side is shared."""
-    from bench.agreement import mmrv
+    from bench.api.stats import mmrv
 
     names = list(real)
     rng = np.random.default_rng(seed)
@@ -195,11 +194,10 @@ class DemoConfig:
 
 
 def main(argv: list[str]) -> int:
-    from bench.agreement import Outcome, agreement
-    from bench.calibrate.report import write_report
-    from bench.calibrate.suite import calibrate_suite
-    from bench.config import build_from_argv
-    from bench.io import write_atomic
+    from bench.api.calibration import calibrate_suite, write_report
+    from bench.api.data import write_atomic
+    from bench.api.scripts import build_from_argv
+    from bench.api.stats import Outcome, agreement
 
     cfg: DemoConfig = build_from_argv(DemoConfig, argv, "python -m baselines.real2sim_demo")
     out, work = Path(cfg.out), Path(cfg.work)
@@ -257,6 +255,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    from bench.cli import guarded  # bad input: one line, exit 2; never a traceback
+    from bench.api.scripts import guarded  # bad input: one line, exit 2; never a traceback
 
     raise SystemExit(guarded(lambda: main(sys.argv[1:])))

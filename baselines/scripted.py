@@ -7,7 +7,7 @@ for the robosuite suites and Meta-World's own policies for the Meta-World suites
 
 from __future__ import annotations
 
-from bench.errors import RegistryError
+from bench.api import RegistryError
 
 
 def make(cell, env, ctx):

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.env import obs_slices
 from bench.protocols import STATE, Obs
+from bench.protocols.env import obs_slices
 
 
 class LiftExpert:

@@ -9,15 +9,14 @@ recomputed from these records, so a resumed run scores like an uninterrupted one
 from __future__ import annotations
 
 import json
+import math
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from bench.errors import DataError
+from bench.core.errors import DataError
 
 EPISODES = "episodes.jsonl"
 TIMING_FIELDS = ("wall_s", "finished_at", "worker_pid")
@@ -112,8 +111,6 @@ _FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, m
 
 def check_fields(d: dict[str, Any]) -> str | None:
     """What is wrong with a record's fields (type, sign, finiteness), or None."""
-    import math
-
     for name, (types, nullable) in _FIELD_TYPES.items():
         if name not in d:
             continue
@@ -206,36 +203,3 @@ def comparable(record: EpisodeRecord) -> dict[str, Any]:
     for k in (*TIMING_FIELDS, "run_id"):
         d.pop(k, None)
     return d
-
-
-def cell_row(
-    head: dict[str, Any],
-    records: Sequence[EpisodeRecord],
-    confidence: float,
-    extra: Callable[[list[EpisodeRecord]], dict[str, Any]] = lambda completed: {},
-) -> dict[str, Any]:
-    """One cell's summary row, in the order summaries hold it: `head` (what names the cell), the
-    counts (completed episodes `n`, `errors`, the completed episodes' `mean_return`, None when there
-    are none), `extra(completed)`, then per success metric its successes and Wilson interval."""
-    ok = [r for r in records if r.error is None]
-    row = {
-        **head,
-        "n": len(ok),
-        "errors": len(records) - len(ok),
-        "mean_return": round(float(np.mean([r.return_ for r in ok])), 6) if ok else None,
-        **extra(ok),
-    }
-    row.update(success_rates(ok, confidence))
-    return row
-
-
-def success_rates(completed: Sequence[EpisodeRecord], confidence: float) -> dict[str, dict[str, Any]]:
-    """Per success metric (`SUCCESS_METRICS`): the successes among `completed` records and the rate's
-    Wilson interval, as summary rows hold them."""
-    from bench import scoring
-
-    out: dict[str, dict[str, Any]] = {}
-    for m in SUCCESS_METRICS:
-        k = int(sum(getattr(r, m) for r in completed))
-        out[m] = {"successes": k, **scoring.wilson(k, len(completed), confidence).to_dict()}
-    return out

@@ -1,4 +1,4 @@
-"""Error rates of the regression gate's decision rule (`bench.gate`), and one real gate on a one-robot collapse.
+"""Error rates of the regression gate's decision rule (`bench.board.gate`), and one real gate on a one-robot collapse.
 
     python benchmarks/bench_gate.py                      # 1000 synthetic gates per scenario, default budget
     python benchmarks/bench_gate.py --gates 300 --budget 7x10/5
@@ -15,7 +15,7 @@ share naming the collapsed cell, the share naming a cell whose true drop is with
 (a false cell claim), episodes per cell used, and a 95% Wilson interval on the failure rate.
 Null scenarios (no cell drops by more than the margin) measure the false-alarm rate, which must
 stay at most alpha; the others measure power. The one-cell collapse is also computed exactly by
-`bench.gate_power` (the `plan=true` calculation) to check it against the simulation.
+`bench.board.gate_power` (the `plan=true` calculation) to check it against the simulation.
 
 --real: one gate on real rollouts. The baseline is the committed behaviour-cloning run
 results/runs/held_out_robots-bc-s0 (7 robots x 10 episodes, seed 0). The candidate is the same
@@ -44,8 +44,8 @@ ROBOTS = ["Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7"]
 
 
 def one_gate(rng: np.random.Generator, pb: np.ndarray, pc: np.ndarray, rho: float, design, n_boot: int):
-    """One synthetic gate through bench.gate: (verdict, rejected test ids at the last look, episodes per cell used)."""
-    from bench import gate
+    """One synthetic gate through bench.board.gate: (verdict, rejected test ids at the last look, episodes per cell used)."""
+    from bench.board import gate
 
     k, e = len(pb), design.schedule[-1]
     u = rng.random((k, e))
@@ -61,14 +61,14 @@ def one_gate(rng: np.random.Generator, pb: np.ndarray, pc: np.ndarray, rho: floa
 
 
 def wilson(k: int, n: int) -> tuple[float, float]:
-    from bench.scoring import wilson as w
+    from bench.scoring.stats import wilson as w
 
     est = w(k, n)
     return float(est.lo), float(est.hi)
 
 
 def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> dict[str, float]:
-    from bench import gate
+    from bench.board import gate
 
     keys = tuple(("Lift", ROBOTS[j], "default", "nominal", SPLITS[j]) for j in range(cells))
     design = gate.Design(0.05, 0.05, 0.5, tuple(gate.looks_schedule(episodes, batch)), keys)
@@ -124,7 +124,7 @@ def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> d
 
 def plan_check(cells: int, episodes: int, batch: int, simulated: dict[str, float]) -> None:
     """The exact power of `bench regress plan=true` against the simulated gates (rho 0 = its assumption)."""
-    from bench import gate, gate_power
+    from bench.board import gate, gate_power
 
     d = gate.Design(0.05, 0.05, 0.5)
     budget = gate_power.Budget(power=0.8, rate=0.9, drop=0.6, n_cells=cells, batch=batch, design=d, episodes=episodes)
@@ -140,9 +140,10 @@ def plan_check(cells: int, episodes: int, batch: int, simulated: dict[str, float
 
 def real(work: Path, robot: str) -> None:
     """One gate on recorded rollouts: the committed BC run vs the same run with `robot` played by the random policy."""
-    from bench import api, regress
+    from bench import api
+    from bench.cli import regress
     from bench.records import RecordWriter, read_records
-    from bench.summary import load_run
+    from bench.scoring.summary import load_run
 
     base_dir = REPO / "results" / "runs" / "held_out_robots-bc-s0"
     records, meta = load_run(base_dir)

@@ -4,7 +4,7 @@
 
 Raw: `gym.make("<task>-v1", num_envs=N, sim_backend="physx_cuda", obs_mode="state",
 control_mode="pd_joint_delta_pos", render_backend="none")` stepped with random actions drawn on the
-device (ManiSkill's own benchmark style). Harness: `bench.maniskill_vec.ManiSkillVecEnv` with the
+device (ManiSkill's own benchmark style). Harness: `bench.sims.maniskill_vec.ManiSkillVecEnv` with the
 same N, actions from numpy and observations/rewards/success back to numpy every step (what a
 per-episode record needs). Both reset first; steps/s = N x steps / wall time. Needs a CUDA GPU;
 without one it says so and exits 2. Compare with ManiSkill's own published GPU throughput figures
@@ -36,8 +36,8 @@ def main(argv: list[str]) -> int:
     import mani_skill.envs  # noqa: F401
     import numpy as np
 
-    from bench.maniskill_vec import ManiSkillVecEnv
-    from bench.sim_maniskill import NativeInterface
+    from bench.sims.maniskill import NativeInterface
+    from bench.sims.maniskill_vec import ManiSkillVecEnv
 
     env_id = f"{task}-v1"
     print(f"{env_id}, state observations, pd_joint_delta_pos, {steps} steps per size, {torch.cuda.get_device_name()}")

@@ -37,7 +37,7 @@ INSIDE = "BENCH_RAY_SANDBOXED"
 
 
 def timed(executor, jobs, spec) -> dict:
-    from bench.perf import per_worker, steady_rate
+    from bench.cli.perf import per_worker, steady_rate
 
     records: list = []
     arrivals: list[float] = []
@@ -77,10 +77,11 @@ def overhead(run: dict, workers: int) -> float:
 
 
 def main(argv: list[str]) -> int:
-    from bench import api, perf
-    from bench.ray_executor import RayExecutor
+    from bench import api
+    from bench.cli import perf
+    from bench.execution.ray_executor import RayExecutor
+    from bench.execution.runner import LocalExecutor
     from bench.records import RecordWriter, comparable
-    from bench.runner import LocalExecutor
 
     kv = dict(a.split("=", 1) for a in argv)
     episodes, workers = int(kv.get("episodes", 40)), int(kv.get("workers", 2))

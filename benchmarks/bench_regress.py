@@ -41,7 +41,7 @@ REPO = Path(__file__).resolve().parents[1]
 def train_tiny_bc(work: Path, robots: list[str], episodes: int, horizon: int) -> Path:
     """Record scripted-expert demos on `robots` and fit a BC MLP on them (baselines.bc defaults)."""
     from baselines import bc
-    from bench import run
+    from bench.cli import run
 
     demos = work / "demos"
     if not (demos / "meta").exists():
@@ -110,8 +110,8 @@ def _quiet():
 
 def gate(candidate: str, baseline: str, seed: int, a, work: Path, name: str) -> dict:
     """One `bench regress` in-process; returns the verdict document (exit code included)."""
-    from bench import regress
-    from bench.errors import BenchError
+    from bench.cli import regress
+    from bench.core.errors import BenchError
 
     out = work / "gates" / f"{name}.json"
     argv = [

@@ -225,8 +225,8 @@ class Args:
 
 
 def main(argv: list[str]) -> int:
-    from bench.config import build_from_argv
-    from bench.errors import BenchError
+    from bench.core.config import build_from_argv
+    from bench.core.errors import BenchError
 
     try:
         args: Args = build_from_argv(Args, argv, "python benchmarks/bench_replay.py")

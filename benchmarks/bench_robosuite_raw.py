@@ -38,8 +38,8 @@ class Bare:
 
 def main(argv: list[str]) -> int:
     from bench import api
-    from bench.perf import harness_vs_bare
-    from bench.sim_robosuite import _quiet_robosuite
+    from bench.cli.perf import harness_vs_bare
+    from bench.sims.robosuite import _quiet_robosuite
 
     kv = dict(a.split("=", 1) for a in argv)
     robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
@@ -61,7 +61,7 @@ def main(argv: list[str]) -> int:
         _quiet_robosuite()
         import robosuite
 
-        from bench.sim_robosuite import MAKE_OPTIONS
+        from bench.sims.robosuite import MAKE_OPTIONS
 
         return Bare(robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS))
 

@@ -2,7 +2,7 @@
 
 Task:
     the Gymnasium env named by `env_id` (any registered id, e.g. HalfCheetah-v5,
-    InvertedPendulum-v5, CartPole-v1), through `bench.sim_gym.GymEnv`.
+    InvertedPendulum-v5, CartPole-v1), through `bench.sims.gym.GymEnv`.
 Split:
     one cell, split `seen`; the suite declares no held-out axis (its manifest is empty).
     Use it to measure sensitivity to physics and interface perturbations.
@@ -27,15 +27,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from bench.camera_env import CameraOptions, check_options
-from bench.errors import ConfigError, did_you_mean
+from bench.api import ConfigError, did_you_mean
+from bench.api.sims import CameraOptions, check_options
 from bench.protocols import ObsSpec
-from bench.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase
 
 
 @dataclass(frozen=True)
 class GymOptions:
-    """Keys of suite=gym (the camera keys as `bench.camera_env.CameraOptions`, after env_id so that
+    """Keys of suite=gym (the camera keys as `bench.sims.camera_env.CameraOptions`, after env_id so that
     `GymOptions("HalfCheetah-v5")` keeps working; default camera: the model's first)."""
 
     env_id: str  # Gymnasium env id, e.g. HalfCheetah-v5, or module:Env-v0 to import the module that registers it
@@ -77,9 +77,7 @@ class GymSuite(SuiteBase):
         return self._obs_spec
 
     def make_env(self, cell: Cell, horizon: int):
-        from bench.camera import camera_names
-        from bench.camera_env import with_cameras
-        from bench.sim_gym import GymEnv
+        from bench.api.sims import GymEnv, camera_names, with_cameras
 
         env = GymEnv(cell.task, horizon)  # the cell's task is the env id
         defaults = camera_names(env.mujoco.model)[:1] if env.mujoco is not None else []
@@ -90,7 +88,7 @@ def _spec(env_id: str):
     """Gymnasium's spec of `env_id`; `module:Env-v0` imports `module` first (as `gymnasium.make` does)."""
     import gymnasium as gym
 
-    from bench.registry import import_module
+    from bench.protocols.registry import import_module
 
     module, _, name = env_id.rpartition(":")
     if module:

@@ -10,8 +10,8 @@ Select a subset with `tasks=[drawer-open-v3,...]` or `splits=[unseen]`.
 Task:
     Meta-World v3 (3.1.1) single-task envs on the Sawyer arm, e.g. "drawer-open-v3".
     Each episode draws the object and goal positions from the task's own reset
-    distribution, pinned by the episode seed (see `bench.sim_metaworld`).
-Split (Meta-World's own definitions; `bench.sim_metaworld.metaworld_manifest` reads them):
+    distribution, pinned by the episode seed (see `bench.sims.metaworld`).
+Split (Meta-World's own definitions; `bench.sims.metaworld.metaworld_manifest` reads them):
     ML10  seen   = reach, push, pick-place, door-open, drawer-close,
                    button-press-topdown, peg-insert-side, window-open, sweep, basketball
           unseen = drawer-open, door-close, shelf-place, sweep-into, lever-pull
@@ -43,11 +43,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
+from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import STATE, Feature, ObsSpec
-from bench.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase
 
-MAX_PATH_LENGTH = 500  # = bench.sim_metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
+MAX_PATH_LENGTH = 500  # = bench.sims.metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
 # Meta-World 3.1.1's cameras (its Sawyer XML, the same on every task); defaults: a front corner view and the
 # camera in the gripper
 CAMERAS = ("topview", "corner", "corner2", "corner3", "corner4", "behindGripper", "gripperPOV")
@@ -142,13 +142,12 @@ class _MetaWorldSplit(SuiteBase):
         return [Cell(self.name, t, "Sawyer", self.benchmark, side) for side in ("seen", "unseen") for t in split[side]]
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
-        from bench.sim_metaworld import OBS_NAMES
+        from bench.api.sims import OBS_NAMES
 
         return camera_spec({STATE: Feature.state(OBS_NAMES)}, self.options, DEFAULT_CAMERAS)
 
     def make_env(self, cell: Cell, horizon: int):
-        from bench.camera_env import with_cameras
-        from bench.sim_metaworld import MetaWorldEnv
+        from bench.api.sims import MetaWorldEnv, with_cameras
 
         env = MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
         return with_cameras(env, self.options, DEFAULT_CAMERAS, cell.key)

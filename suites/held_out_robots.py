@@ -41,9 +41,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
+from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
-from bench.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase
 
 SEEN = ["Panda", "Sawyer", "IIWA"]
 UNSEEN = ["UR5e", "Kinova3", "Jaco", "XArm7"]

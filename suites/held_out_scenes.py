@@ -45,9 +45,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.camera_env import CameraOptions, camera_spec, check_options, unwrap
+from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
-from bench.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase
 
 NOMINAL: dict[str, Any] = {
     "table_height": 0.80,
@@ -121,7 +121,7 @@ def region_relation(params: dict[str, Any]) -> str:
 
 
 def env_kwargs(params: dict[str, Any]) -> dict[str, Any]:
-    """robosuite Lift kwargs (plus `bench.sim_robosuite.SCENE_KEYS`) that build a scene."""
+    """robosuite Lift kwargs (plus `bench.sims.robosuite.SCENE_KEYS`) that build a scene."""
     sx, sy = params["table_size"]
     return {
         "table_full_size": (float(sx), float(sy), TABLE_THICKNESS),

@@ -17,7 +17,7 @@ import numpy as np
 from bench.protocols import STATE, Feature, Obs, Policy
 
 if TYPE_CHECKING:
-    from bench.sim_robosuite import RobosuiteEnv
+    from bench.api.sims import RobosuiteEnv
 
 OBS_FIELDS: list[tuple[str, int]] = [
     ("eef_pos", 3),
@@ -52,7 +52,7 @@ def _quat_conj(q: np.ndarray) -> np.ndarray:
 
 
 class LiftObserver:
-    """The 18-number agnostic observation (a `bench.sim_robosuite.Observer`)."""
+    """The 18-number agnostic observation (a `bench.sims.robosuite.Observer`)."""
 
     obs_spec = {STATE: Feature.state(OBS_FIELDS)}
 
@@ -123,8 +123,7 @@ def make_env(
     task: str, robot: str, horizon: int, env_kwargs: dict | None = None, options: Any = None, where: str = ""
 ) -> Any:
     """A robosuite env of `task` on `robot` with the agnostic observation (and cameras per `options`)."""
-    from bench.camera_env import with_cameras
-    from bench.sim_robosuite import RobosuiteEnv
+    from bench.api.sims import RobosuiteEnv, with_cameras
 
     env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
     if options is None:

@@ -11,11 +11,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from bench import sim_maniskill
-from bench.errors import ConfigError, did_you_mean
+from bench.api import ConfigError, did_you_mean
+from bench.api.sims import OBS_MODES, RESETS, cameras_of, check_backend
+from bench.api.sims import maniskill as sim_maniskill
 from bench.protocols import RGB, STATE, TASK, Feature, ObsSpec
-from bench.sim_maniskill import OBS_MODES, RESETS, cameras_of, check_backend
-from bench.suite import SuiteBase
+from bench.protocols.suite import SuiteBase
 
 IMAGE_SIZES = (16, 1024)
 COMMON_KEYS = ("obs", "cameras", "image_size", "sim_backend", "reset")  # every ManiSkill suite's camera/backend keys

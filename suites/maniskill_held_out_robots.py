@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from bench.protocols import EnvAdapter, ObsSpec, Policy
-from bench.suite import Cell
+from bench.protocols.suite import Cell
 from suites.maniskill_common import ManiSkillSuite, obs_spec
 
 SEEN = ["panda", "panda_wristcam"]

@@ -22,7 +22,7 @@ Action:
     gripper, +1 open / -1 closed, ManiSkill's convention).
 Conditions:
     nominal; `perturb.*`: friction, mass, link_mass, damping, gain, gravity through PhysX
-    (`bench.physx_axes`), and the interface axes (latency, action/obs noise, action_hold).
+    (`bench.sims.physx_axes`), and the interface axes (latency, action/obs noise, action_hold).
 Success:
     ManiSkill's `info["success"]` (task-specific, most require the robot to be static);
     success_once = at any step, success_at_end = at the last step (horizon 250 steps, 20 Hz).
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from bench.protocols import EnvAdapter, ObsSpec, Policy
-from bench.suite import Cell
+from bench.protocols.suite import Cell
 from suites.maniskill_common import TASKS, ManiSkillSuite, check_control_mode, obs_spec
 
 SEEN = ["PickCube", "PushCube", "PullCube", "StackCube", "LiftPegUpright", "PlaceSphere"]
@@ -159,7 +159,7 @@ class ManiSkillTasks(ManiSkillSuite):
         return obs_spec(state_fields(cell.task, o.control_mode), cell.robot, o.obs, o.cameras, o.image_size)
 
     def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
-        from bench.sim_maniskill import NativeInterface
+        from bench.api.sims import NativeInterface
 
         return self._env(cell, horizon, NativeInterface(self.options.control_mode))
 

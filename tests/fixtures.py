@@ -53,7 +53,7 @@ def record(success: bool | None = None, **fields: Any) -> EpisodeRecord:
 
 
 def provenance(**fields: Any) -> dict[str, Any]:
-    """A summary's `provenance` block (schema bench.summary): plain values, then `fields`."""
+    """A summary's `provenance` block (schema bench.scoring.summary): plain values, then `fields`."""
     values: dict[str, Any] = {
         "bench_version": "0",
         "git_sha": None,

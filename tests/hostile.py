@@ -122,8 +122,8 @@ def _checkpoint(path: Path) -> None:
 def build_workspace(root: Path) -> Path:
     """The valid inputs every case starts from, under `root` (created)."""
     from bench import api
-    from bench.io import write_atomic
-    from bench.leaderboard import merge, read_input
+    from bench.board.leaderboard import merge, read_input
+    from bench.core.io import write_atomic
 
     root.mkdir(parents=True, exist_ok=True)
     cwd = os.getcwd()

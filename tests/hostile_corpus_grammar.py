@@ -1,4 +1,4 @@
-"""Hostile key=value inputs owned by the grammar (bench.config, bench.api limits, perturb.*).
+"""Hostile key=value inputs owned by the grammar (bench.core.config, bench.api limits, perturb.*).
 
 Registered into `hostile_corpus.CASES` through `add`; run with tests/hostile.py.
 """

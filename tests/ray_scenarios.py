@@ -123,8 +123,8 @@ def basics(out: Path) -> dict[str, Any]:
 def mismatch(out: Path, address: str) -> dict[str, Any]:
     """A cluster whose workers see another mujoco: a dist-info reporting 0.0.1 first on their path."""
     from bench import api
-    from bench.errors import BenchError
-    from bench.ray_executor import RayExecutor
+    from bench.core.errors import BenchError
+    from bench.execution.ray_executor import RayExecutor
 
     fake = out / "fake_site" / "mujoco-0.0.1.dist-info"
     fake.mkdir(parents=True)

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bench.agreement import Outcome, _batch, agreement, load_outcomes, main, mmrv, point_estimates
 from bench.cli import main as bench_main
-from bench.errors import DataError
+from bench.cli.correlate import main
+from bench.core.errors import DataError
+from bench.scoring.agreement import Outcome, _batch, agreement, load_outcomes, mmrv, point_estimates
 
 # Four policies, 10 trials each.
 #            sim          real

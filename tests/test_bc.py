@@ -14,11 +14,11 @@ import pytest
 
 from baselines import bc
 from baselines.checkpoint import load_policy, spec_path
-from bench.errors import ConfigError, DataError
+from bench.core.errors import ConfigError, DataError
+from bench.execution.recording import _expand
 from bench.logs import from_arrays, write_dataset
 from bench.protocols import STATE, ActionSpec, Feature
-from bench.recording import _expand
-from bench.sim_robosuite import ACTION_NAMES
+from bench.sims.robosuite import ACTION_NAMES
 from suites.lift import OBS_FIELDS as OBS_NAMES
 
 OBS_FLAT = _expand([f"{n}:{w}" for n, w in OBS_NAMES])

@@ -12,7 +12,7 @@ from video_frames import frames
 
 from baselines import bc_image
 from bench import api
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
 from bench.logs import from_arrays, write_dataset
 from bench.protocols import PolicyContext
 

@@ -11,7 +11,7 @@ from bench.calibrate.data import extract
 from bench.calibrate.generate import declared_files, simulate_arm, spec_dict
 from bench.calibrate.model import Plant
 from bench.calibrate.spec import load_spec, parse_spec
-from bench.errors import SpecError
+from bench.core.errors import SpecError
 from bench.replay.spec import load_model
 
 

@@ -82,7 +82,7 @@ def test_suite_calibration_recovers_the_real_robot(calibrated):
 
 def test_run_with_the_calibration_uses_the_calibrated_model(calibrated, tmp_path):
     from bench import api
-    from bench.leaderboard import entry_from_summary
+    from bench.board.leaderboard import entry_from_summary
 
     cfg = api.RunConfig(
         robots=["Panda"],

@@ -1,4 +1,4 @@
-"""Offscreen cameras (bench.camera) and visual perturbation axes (bench.perturb_visual, bench.visual_scene) on a
+"""Offscreen cameras (bench.sims.camera) and visual perturbation axes (bench.sims.perturb_visual, bench.sims.visual_scene) on a
 real MuJoCo scene rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a
 floor, a wall, a light, a fixed front camera and a camera on a moving body."""
 
@@ -11,10 +11,10 @@ import sys
 import numpy as np
 import pytest
 
-from bench.camera import CameraRig, check_cameras, parse_image_size
-from bench.errors import ConfigError
-from bench.perturb_visual import AXES, check
-from bench.visual_scene import VisualScene
+from bench.core.errors import ConfigError
+from bench.sims.camera import CameraRig, check_cameras, parse_image_size
+from bench.sims.perturb_visual import AXES, check
+from bench.sims.visual_scene import VisualScene
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -117,7 +117,7 @@ def test_large_image_grows_the_offscreen_buffer():
 def test_no_renderer_is_one_line_naming_mujoco_gl():
     """With a backend that cannot start here (GLFW needs a display), the error says how to enable EGL."""
     code = (
-        "import mujoco\nfrom bench.camera import CameraRig, RendererError\n"
+        "import mujoco\nfrom bench.sims.camera import CameraRig, RendererError\n"
         "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><camera name='c'/></worldbody></mujoco>\")\n"
         "try:\n    CameraRig(m, mujoco.MjData(m), ['c'], (32, 32)).start()\nexcept RendererError as e:\n    print('ERR', e)\n"
     )

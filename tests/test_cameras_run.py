@@ -14,9 +14,9 @@ import pytest
 
 from bench import api
 from bench.cli import main
-from bench.errors import BenchError, ConfigError
+from bench.core.errors import BenchError, ConfigError
+from bench.core.video import decode_frames, probe
 from bench.records import comparable
-from bench.video import decode_frames, probe
 
 pytest.importorskip("robosuite")
 
@@ -219,7 +219,7 @@ def test_video_needs_a_camera(tmp_path):
 
 
 def test_robustness_table_pools_levels_and_pairs_by_seed():
-    from bench.robustness import table
+    from bench.scoring.robustness import table
     from tests.fixtures import record
 
     def rec(cond, axis, ep, ok):

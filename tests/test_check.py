@@ -2,9 +2,9 @@
 
 import pytest
 
-from bench.check import check_cells, check_manifest, check_seeds
 from bench.cli import main
-from bench.suite import NOMINAL, Cell, Job
+from bench.execution.check import check_cells, check_manifest, check_seeds
+from bench.protocols.suite import NOMINAL, Cell, Job
 
 
 def test_manifest_overlap_and_duplicates():

@@ -15,9 +15,9 @@ import torch
 
 from baselines.architectures import build
 from baselines.checkpoint import load_policy, load_spec, save_checkpoint, spec_path
-from bench.errors import ConfigError, SpecError
+from bench.core.errors import ConfigError, SpecError
 from bench.protocols import STATE, ActionSpec, Feature
-from bench.sim_robosuite import ACTION_NAMES
+from bench.sims.robosuite import ACTION_NAMES
 from suites.lift import OBS_FIELDS as OBS_NAMES
 
 
@@ -191,7 +191,7 @@ def _run_checkpoint(ckpt: Path, tmp_path: Path, *extra: str) -> subprocess.Compl
 
 
 def test_bench_run_records_checkpoint_sha(ckpt: Path, tmp_path: Path):
-    from bench.io import sha256_file
+    from bench.core.io import sha256_file
 
     res = _run_checkpoint(ckpt, tmp_path, "horizon=20")
     assert res.returncode == 0, res.stderr[-2000:]

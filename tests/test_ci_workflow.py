@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench import api, regress_args
-from bench.errors import ConfigError
+from bench import api
+from bench.cli import regress_args
+from bench.core.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
 WORKFLOW = REPO / "docs" / "transfer-gate.yml"

@@ -66,7 +66,7 @@ def test_console_script_help_is_fast_and_lists_commands():
 
 def test_run_help_documents_every_key(capsys):
 
-    from bench.run_config import RUNNER_KEYS
+    from bench.execution.run_config import RUNNER_KEYS
 
     assert main(["run", "--help"]) == 0
     text = capsys.readouterr().out

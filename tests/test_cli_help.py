@@ -20,19 +20,19 @@ def _keys(*schemas: type) -> list[str]:
 
 
 def _table() -> dict[tuple[str, ...], list[str]]:
-    from bench import run_config
-    from bench.agreement import CorrelateConfig
-    from bench.calibrate.cli import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
-    from bench.check import CheckConfig
-    from bench.coverage import CoverageConfig
-    from bench.leaderboard import MergeConfig
-    from bench.logs.cli import FORMATS, CardConfig, ImportConfig, RankConfig
-    from bench.perf import PerfConfig
-    from bench.policy_on_logs import ActionsConfig
-    from bench.regress_args import RegressConfig
+    from bench.cli.actions import ActionsConfig
+    from bench.cli.calibrate import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
+    from bench.cli.check import CheckConfig
+    from bench.cli.correlate import CorrelateConfig
+    from bench.cli.coverage import CoverageConfig
+    from bench.cli.leaderboard import MergeConfig
+    from bench.cli.logs import FORMATS, CardConfig, ImportConfig, RankConfig
+    from bench.cli.perf import PerfConfig
+    from bench.cli.regress_args import RegressConfig
+    from bench.cli.report import ReportConfig
+    from bench.execution import run_config
     from bench.remote.server import ServeConfig
     from bench.replay.common import ReplayConfig
-    from bench.report import ReportConfig
 
     return {
         ("run",): list(
@@ -68,9 +68,9 @@ TABLE = _table()
 
 
 def test_the_table_covers_every_command_and_subcommand():
-    from bench.calibrate.cli import SUBCOMMANDS as CALIBRATE
-    from bench.leaderboard import SUBCOMMANDS as BOARD
-    from bench.logs.cli import SUBCOMMANDS as LOGS
+    from bench.cli.calibrate import SUBCOMMANDS as CALIBRATE
+    from bench.cli.leaderboard import SUBCOMMANDS as BOARD
+    from bench.cli.logs import SUBCOMMANDS as LOGS
 
     assert {argv[0] for argv in TABLE} == set(COMMANDS)
     for command, subs in (("logs", LOGS), ("leaderboard", BOARD), ("calibrate", CALIBRATE)):

@@ -7,8 +7,8 @@ import pytest
 
 from bench.api import RunConfig
 from bench.cli import main
-from bench.config import build, one_or_more, split_args
-from bench.errors import ConfigError
+from bench.core.config import build, one_or_more, split_args
+from bench.core.errors import ConfigError
 
 
 def test_overrides_nested_and_lists():

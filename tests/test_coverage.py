@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from baselines import coverage_sweep as sweep
-from bench import coverage as cov
-from bench import coverage_metrics as covm
-from bench import trend
-from bench.axes import conditions_from_config
-from bench.errors import ConfigError
+from bench.cli import coverage as cov
+from bench.core.errors import ConfigError
 from bench.logs import from_arrays, write_dataset
-from bench.suite import Cell
+from bench.protocols.suite import Cell
+from bench.scoring import coverage as covm
+from bench.scoring import trend
+from bench.sims.axes import conditions_from_config
 
 CELLS = [
     Cell("s", "Lift", "Panda", "default", "seen"),
@@ -282,7 +282,7 @@ def test_plot_and_table_render_a_sweep_document(tmp_path: Path):
 
 
 def test_initial_states_use_the_runs_episode_seeds():
-    from bench.suite import episode_seed
+    from bench.protocols.suite import episode_seed
 
     class Env:
         def reset(self, seed):

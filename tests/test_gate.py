@@ -1,11 +1,12 @@
-"""The gate's statistics (bench.gate): alpha spending, weighted Holm, per-cell tests, bounds; the power calculation."""
+"""The gate's statistics (bench.board.gate): alpha spending, weighted Holm, per-cell tests, bounds; the power calculation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench import gate, gate_power, scoring
+from bench.board import gate, gate_power
+from bench.scoring import stats as scoring
 
 SEVEN = tuple(
     ("Lift", r, "default", "nominal", s)

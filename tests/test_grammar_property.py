@@ -17,9 +17,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench import api, run_config
-from bench import config as config_mod
-from bench.errors import BenchError
+from bench import api
+from bench.core import config as config_mod
+from bench.core.errors import BenchError
+from bench.execution import run_config
 
 SETTINGS = dict(
     deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
@@ -27,16 +28,16 @@ SETTINGS = dict(
 
 
 def _schemas() -> list[type]:
-    from bench.agreement import CorrelateConfig
-    from bench.calibrate.cli import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
-    from bench.check import CheckConfig
-    from bench.coverage import CoverageConfig
-    from bench.leaderboard import MergeConfig
-    from bench.logs.cli import FORMATS, CardConfig, ImportConfig, RankConfig
-    from bench.perf import PerfConfig
-    from bench.regress_args import RegressConfig
+    from bench.cli.calibrate import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
+    from bench.cli.check import CheckConfig
+    from bench.cli.correlate import CorrelateConfig
+    from bench.cli.coverage import CoverageConfig
+    from bench.cli.leaderboard import MergeConfig
+    from bench.cli.logs import FORMATS, CardConfig, ImportConfig, RankConfig
+    from bench.cli.perf import PerfConfig
+    from bench.cli.regress_args import RegressConfig
+    from bench.cli.report import ReportConfig
     from bench.replay.common import ReplayConfig
-    from bench.report import ReportConfig
 
     return [
         api.RunConfig,

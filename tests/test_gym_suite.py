@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
+from bench.core.schema import validate
 from bench.records import comparable, read_records
-from bench.schema import validate
 
 pytest.importorskip("gymnasium")
 
@@ -64,7 +64,7 @@ def test_env_id_module_prefix_imports_the_registering_module(tmp_path, monkeypat
 
 
 def test_box_env_contract_and_seeded_reset():
-    from bench.sim_gym import GymEnv
+    from bench.sims.gym import GymEnv
 
     env = GymEnv("HalfCheetah-v5", 20)
     assert env.obs_spec["state"].fields == (("obs", 17),) and env.action_spec.dim == 6 and env.mujoco is not None
@@ -90,7 +90,7 @@ def test_box_env_contract_and_seeded_reset():
 
 def test_discrete_actions_are_rounded_within_bounds():
     from baselines.random_policy import RandomPolicy
-    from bench.sim_gym import GymEnv
+    from bench.sims.gym import GymEnv
 
     env = GymEnv("CartPole-v1", 50)
     assert env.mujoco is None and env.action_spec.names == ("action",)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from bench.api import RunConfig
-from bench.env import state_hash
-from bench.errors import ConfigError
-from bench.suite import select_cells
+from bench.core.errors import ConfigError
+from bench.protocols.env import state_hash
+from bench.protocols.suite import select_cells
 from suites.held_out_envs import ML10, ML45, HeldOutEnvs, HeldOutEnvsML45
 
 pytest.importorskip("metaworld")
 
-from bench.sim_metaworld import OBS_NAMES, MetaWorldEnv, metaworld_manifest  # noqa: E402
+from bench.sims.metaworld import OBS_NAMES, MetaWorldEnv, metaworld_manifest  # noqa: E402
 
 SUITES = [HeldOutEnvs, HeldOutEnvsML45]
 
@@ -48,7 +48,7 @@ def test_manifest_parsed_from_source_equals_imported_definition(benchmark):
 
 def test_metaworld_manifest_is_fast_and_imports_no_metaworld():
     code = (
-        "import sys, time; from bench.sim_metaworld import metaworld_manifest; t = time.perf_counter(); "
+        "import sys, time; from bench.sims.metaworld import metaworld_manifest; t = time.perf_counter(); "
         "metaworld_manifest('ML45'); print('metaworld' in sys.modules, time.perf_counter() - t < 0.5)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -84,7 +84,7 @@ def test_horizon_over_500_rejected():
 
 
 def test_listing_does_not_import_metaworld():
-    code = "import sys, bench.registry as r; r.make_suite('held_out_envs'); print('metaworld' in sys.modules)"
+    code = "import sys, bench.protocols.registry as r; r.make_suite('held_out_envs'); print('metaworld' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 

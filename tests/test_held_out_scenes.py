@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from bench.api import RunConfig
-from bench.env import state_hash
-from bench.errors import ConfigError
-from bench.suite import select_cells
+from bench.core.errors import ConfigError
+from bench.protocols.env import state_hash
+from bench.protocols.suite import select_cells
 from suites.held_out_scenes import (
     NOMINAL,
     SEEN_SCENES,

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 
 from bench import cli
-from bench.errors import DataError
-from bench.leaderboard import merge, read_input
+from bench.board.leaderboard import merge, read_input
+from bench.core.errors import DataError
+from bench.core.schema import validate
 from bench.records import EpisodeRecord
-from bench.schema import validate
-from bench.summary import build
+from bench.scoring.summary import build
 from tests.fixtures import provenance, record
 
 MANIFEST = {"robots": {"seen": ["A", "B"], "unseen": ["C", "D"]}}

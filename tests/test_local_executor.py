@@ -9,11 +9,12 @@ import signal
 
 import pytest
 
-from bench import api, run_config
-from bench.errors import ConfigError
+from bench import api
+from bench.core.errors import ConfigError
+from bench.execution import run_config
+from bench.execution.scheduling import JobQueue, given_up_message
+from bench.protocols.suite import Cell, Condition, expand_jobs
 from bench.records import comparable
-from bench.scheduling import JobQueue, given_up_message
-from bench.suite import Cell, Condition, expand_jobs
 
 TOY = "tests.toy_suite:ToySuite"
 

@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from bench.cli import main as bench_main
-from bench.errors import DataError
+from bench.core.errors import DataError
 from bench.logs import from_arrays, read_dataset, read_episode, write_dataset
 
 DATA = "data/chunk-000/file-000.parquet"

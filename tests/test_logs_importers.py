@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 from bench.logs import import_csv, import_mat, import_rlds, read_dataset, tfrecord, write_dataset
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from video_frames import assert_close_frames, frames
 
-from bench.errors import BenchError, DataError
+from bench.core.errors import BenchError, DataError
 from bench.logs import (
     Episode,
     LogDataset,
@@ -289,7 +289,7 @@ def test_no_pandas_needed():
         "            raise ImportError('pandas is blocked in this test')\n"
         "sys.meta_path.insert(0, NoPandas())\n"
         "from bench.logs import from_arrays, write_dataset, read_dataset, read_episode\n"
-        "import bench.agreement\n"
+        "import bench.scoring.agreement\n"
         "d = tempfile.mkdtemp()\n"
         "write_dataset(d + '/x', from_arrays([{'action': np.zeros((3, 2))}], fps=10))\n"
         "read_dataset(d + '/x'); read_episode(d + '/x', 0)\n"

@@ -1,7 +1,7 @@
 """ManiSkill3 on CPU: the adapter, the no-Vulkan stand-ins, PhysX perturbation axes, bad input.
 
 Runs real ManiSkill/SAPIEN/PhysX (the `maniskill` extra); skipped as a whole when it is absent.
-Without a Vulkan device (these machines) the stand-ins of `bench.sapien_novulkan` are installed
+Without a Vulkan device (these machines) the stand-ins of `bench.sims.sapien_novulkan` are installed
 in this process by the first env built; tests that need real Vulkan materials run in a
 subprocess with `VK_ICD_FILENAMES` (marked `vulkan`, skipped when no device is set up).
 """
@@ -19,14 +19,14 @@ import pytest
 
 pytest.importorskip("mani_skill", reason="the maniskill extra is not installed (pip install -e '.[maniskill]')")
 
-from bench.errors import ConfigError  # noqa: E402
+from bench.core.errors import ConfigError  # noqa: E402
 from bench.protocols import STATE, TASK, check_obs  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def make(task="PickCube-v1", robot="panda", horizon=60, **kw):
-    from bench.sim_maniskill import ManiSkillEnv, NativeInterface
+    from bench.sims.maniskill import ManiSkillEnv, NativeInterface
 
     mode = kw.pop("control_mode", "pd_joint_pos")
     return ManiSkillEnv(task, robot, horizon, interface=NativeInterface(mode), object_names=("cube",), **kw)
@@ -120,7 +120,7 @@ def test_task_instruction_in_obs():
 
 # -- the stand-ins -----------------------------------------------------------------------------
 def test_stand_ins_installed_without_vulkan(pick):
-    from bench import sapien_novulkan as nv
+    from bench.sims import sapien_novulkan as nv
 
     if nv._state["mode"] == "vulkan":
         pytest.skip("this process has a Vulkan device: the stand-ins are not needed")
@@ -134,7 +134,7 @@ def test_stand_ins_installed_without_vulkan(pick):
 
 
 def test_stand_ins_refuse_unchecked_versions(monkeypatch):
-    from bench import sapien_novulkan as nv
+    from bench.sims import sapien_novulkan as nv
 
     monkeypatch.setattr(nv, "_state", {"mode": None})
     monkeypatch.setattr(nv, "installed_versions", lambda: {"mani-skill": "3.0.2", "sapien": "3.0.3"})
@@ -147,7 +147,7 @@ def test_stand_ins_refuse_unchecked_versions(monkeypatch):
 
 
 def test_cameras_without_vulkan_one_line(pick):
-    from bench import sapien_novulkan as nv
+    from bench.sims import sapien_novulkan as nv
 
     if nv._state["mode"] == "vulkan":
         pytest.skip("this process has a Vulkan device")
@@ -157,10 +157,10 @@ def test_cameras_without_vulkan_one_line(pick):
 
 _PROBE = r"""
 import json, sys, numpy as np
-import bench.sapien_novulkan as nv
+import bench.sims.sapien_novulkan as nv
 if sys.argv[1] == "stand-ins":
     nv.install()
-from bench.sim_maniskill import ManiSkillEnv, NativeInterface
+from bench.sims.maniskill import ManiSkillEnv, NativeInterface
 env = ManiSkillEnv("PickCube-v1", "panda", 60, interface=NativeInterface("pd_joint_pos"))
 acts = np.random.default_rng(0).uniform(env.action_spec.low, env.action_spec.high, size=(60, 8)).astype(np.float32)
 env.reset(11)
@@ -201,7 +201,7 @@ def test_stand_ins_never_change_physics(vulkan_icd):
 
 # -- bad input -----------------------------------------------------------------------------------
 def test_robot_needing_download_is_one_line_and_never_prompts(monkeypatch, tmp_path):
-    from bench.sim_maniskill import ManiSkillEnv
+    from bench.sims.maniskill import ManiSkillEnv
 
     with pytest.raises(ConfigError, match=r"PickCube-v1 with robot xarm6_robotiq: needs an asset download \(xarm6\)"):
         ManiSkillEnv("PickCube-v1", "xarm6_robotiq", 10)
@@ -217,7 +217,7 @@ def test_robot_needing_download_is_one_line_and_never_prompts(monkeypatch, tmp_p
 def test_empty_folder_of_a_failed_download_counts_as_missing(monkeypatch, tmp_path):
     from mani_skill.utils import assets
 
-    from bench.sim_maniskill import missing_assets
+    from bench.sims.maniskill import missing_assets
 
     src = assets.DATA_SOURCES["ycb"]
     monkeypatch.setattr(src, "output_dir", tmp_path)
@@ -227,7 +227,7 @@ def test_empty_folder_of_a_failed_download_counts_as_missing(monkeypatch, tmp_pa
 
 
 def test_unknown_task_robot_and_control_mode():
-    from bench.sim_maniskill import ManiSkillEnv
+    from bench.sims.maniskill import ManiSkillEnv
 
     with pytest.raises(ConfigError, match=r"task 'PickCube' is not a ManiSkill task\. Did you mean 'PickCube-v1'\?"):
         ManiSkillEnv("PickCube", "panda", 10)
@@ -349,8 +349,8 @@ def test_friction_on_named_bodies_leaves_shared_materials_of_others_alone():
 
 
 def test_perturb_module_dispatches_to_model_axes():
-    """bench.perturb.apply (the runner's entry) reaches the PhysX axes and records the value."""
-    from bench import axes, perturb
+    """bench.sims.perturb.apply (the runner's entry) reaches the PhysX axes and records the value."""
+    from bench.sims import axes, perturb
 
     env = make()
     conds = axes.conditions_from_config({"mass": [2.0], "latency": [2]})
@@ -368,8 +368,8 @@ def test_perturb_module_dispatches_to_model_axes():
 # -- the GPU path's batched env, on the CPU backend (one env) -------------------------------------
 def test_vec_env_per_env_seed_matches_the_one_env_adapter():
     """ManiSkillVecEnv resets env i alone with its own seed: the start is the one-env adapter's for that seed."""
-    from bench.maniskill_vec import ManiSkillVecEnv
-    from bench.sim_maniskill import NativeInterface
+    from bench.sims.maniskill import NativeInterface
+    from bench.sims.maniskill_vec import ManiSkillVecEnv
 
     vec = ManiSkillVecEnv("PickCube-v1", "panda", 1, interface=NativeInterface("pd_joint_pos"), sim_backend="physx_cpu")
     one = make(reset="soft")

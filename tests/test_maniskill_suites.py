@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
 HAS_MS = True
@@ -35,13 +35,15 @@ def suite(name: str, **options):
 
 # -- without the extra -------------------------------------------------------------------------
 def test_without_the_extra_list_says_what_is_missing_and_check_skips(monkeypatch, capsys):
-    from bench import registry, sim_maniskill
-    from bench.check import main as check_main
+    from bench.cli import listing
+    from bench.cli.check import main as check_main
+    from bench.protocols import registry
+    from bench.sims import maniskill as sim_maniskill
 
     monkeypatch.setattr(
         sim_maniskill, "missing_extra", lambda: "needs mani-skill and sapien: pip install -e '.[maniskill]'"
     )
-    assert registry.main_list([]) == 0
+    assert listing.main_list([]) == 0
     out = capsys.readouterr().out
     assert "maniskill_tasks (v1" in out and "tasks   unseen PegInsertionSide" in out
     assert out.count("unavailable: needs mani-skill and sapien: pip install -e '.[maniskill]'") == 2
@@ -73,7 +75,7 @@ def test_declared_obs_spec_equals_the_built_env_for_every_cell(name):
 
 @needs_ms
 def test_control_mode_and_camera_tables_match_maniskill():
-    from bench.sim_maniskill import ManiSkillEnv, cameras_of
+    from bench.sims.maniskill import ManiSkillEnv, cameras_of
     from suites.maniskill_common import CONTROL_MODES
 
     for robot, modes in CONTROL_MODES.items():
@@ -100,7 +102,7 @@ def _as_list(x):
     "name,task,robot", [("maniskill_tasks", "PushCube", "panda"), ("maniskill_held_out_robots", "PickCube", "so100")]
 )
 def test_bench_check_contract(name, task, robot):
-    from bench.check import check_contract, check_suite
+    from bench.execution.check import check_contract, check_suite
 
     s = suite(name)
     assert check_suite(s) == []

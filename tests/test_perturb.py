@@ -6,10 +6,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from bench import axes, perturb
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle
-from bench.suite import NOMINAL, Condition, condition_rng
+from bench.protocols.suite import NOMINAL, Condition, condition_rng
+from bench.sims import axes, perturb
 
 pytest.importorskip("gymnasium")
 
@@ -116,8 +116,8 @@ def test_grid_and_range_conditions_are_named_and_nominal_first():
 
 
 def test_cli_grammar_through_the_run_config():
-    from bench import config
     from bench.api import RunConfig
+    from bench.core import config
 
     cfg = config.build(
         RunConfig,
@@ -310,7 +310,7 @@ def test_range_draws_from_the_episode_rng_and_records_the_value():
 # -- interface axes on a real Gymnasium MuJoCo env --------------------------------------------------
 @pytest.fixture(scope="module")
 def cheetah():
-    from bench.sim_gym import GymEnv
+    from bench.sims.gym import GymEnv
 
     env = GymEnv("HalfCheetah-v5", 50)
     yield env
@@ -358,7 +358,7 @@ def test_action_and_observation_noise(cheetah):
 
 
 def test_model_axis_needs_a_mujoco_model():
-    from bench.sim_gym import GymEnv
+    from bench.sims.gym import GymEnv
 
     env = GymEnv("CartPole-v1", 20)
     with pytest.raises(

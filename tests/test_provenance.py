@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import DataError
-from bench.provenance import POLICY_SPEC_KEY, checkpoint_provenance, safetensors_metadata
+from bench.core.errors import DataError
+from bench.core.provenance import POLICY_SPEC_KEY, checkpoint_provenance, safetensors_metadata
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from bench import provenance, ray_env
-from bench.errors import ConfigError
+from bench.core import provenance
+from bench.core.errors import ConfigError
+from bench.execution import ray_env
 
 REPO = Path(__file__).resolve().parents[1]
 

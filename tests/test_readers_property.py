@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.errors import BenchError
-from bench.schema import load_json, validate
+from bench.core.errors import BenchError
+from bench.core.schema import load_json, validate
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = REPO / "results" / "bc_image" / "bc_image-visual" / "summary.json"
@@ -102,7 +102,7 @@ def test_summary_bytes_mutations(summary_text, tmp_path_factory, data, junk):
 )
 @given(data=st.data(), value=SWAPS, delete=st.booleans())
 def test_leaderboard_read_input_mutations(summary_text, tmp_path_factory, data, value, delete):
-    from bench.leaderboard import entry_from_summary, read_input
+    from bench.board.leaderboard import entry_from_summary, read_input
 
     doc = json.loads(summary_text)
     path = data.draw(st.sampled_from(list(_paths(doc))))

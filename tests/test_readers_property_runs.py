@@ -20,11 +20,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.errors import BenchError
+from bench.core.errors import BenchError
+from bench.core.schema import load_json, validate
 from bench.logs.lerobot_info import check_info
 from bench.records import EpisodeRecord, read_records
-from bench.schema import load_json, validate
-from bench.summary import check_run_meta
+from bench.scoring.summary import check_run_meta
 from tests.fixtures import record
 
 SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])

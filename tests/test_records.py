@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 from bench.records import RecordWriter, comparable, dedupe, read_records
 from tests.fixtures import record
 
@@ -48,7 +48,7 @@ def test_atomic_writes_get_the_usual_permissions(tmp_path):
     """mkstemp creates 0600 files; results written atomically are as readable as open() would make them."""
     import os
 
-    from bench.io import write_atomic
+    from bench.core.io import write_atomic
 
     umask = os.umask(0o022)
     os.umask(umask)

@@ -5,8 +5,8 @@ import sys
 
 import pytest
 
-from bench import registry
-from bench.errors import RegistryError
+from bench.core.errors import RegistryError
+from bench.protocols import registry
 
 
 def test_builtins_registered_through_entry_points():

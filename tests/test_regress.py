@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from bench.errors import DataError
-from bench.gate_pairs import cell_counts, pair_records
+from bench.board.gate_pairs import cell_counts, pair_records
+from bench.core.errors import DataError
+from bench.protocols.suite import episode_seed
 from bench.records import EpisodeRecord
-from bench.suite import episode_seed
 from tests.fixtures import record
 
 REPO = Path(__file__).resolve().parents[1]

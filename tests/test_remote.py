@@ -34,7 +34,8 @@ TOY = "tests.toy_suite:ToySuite"
 @contextlib.contextmanager
 def bench_server(policy: str = "scripted", log: list | None = None, **keys):
     """`bench serve` in a thread of this process (the same code the command runs); yields the port."""
-    from bench import config, registry
+    from bench.core import config
+    from bench.protocols import registry
 
     own = {k: v for k, v in keys.items() if k in ServeConfig.__annotations__}
     cfg = ServeConfig(policy=policy, suite=TOY, port=0, **own)
@@ -444,7 +445,7 @@ def test_serve_listens_on_loopback_by_default():
 # -- policy on logs -----------------------------------------------------------------------------------
 def test_bench_actions_accepts_a_remote_policy(tmp_path):
     """`bench actions` with policy=remote gives the in-process scripted policy's numbers, plus latency."""
-    from bench.policy_on_logs import ActionsConfig, evaluate
+    from bench.cli.actions import ActionsConfig, evaluate
     from bench.remote.client import RemoteOptions
 
     api.run(

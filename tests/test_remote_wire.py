@@ -9,7 +9,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
 from bench.protocols import STATE, Feature
 from bench.remote import latency, obs_map, wire
 

@@ -315,8 +315,8 @@ def test_ctrl_is_the_default_and_threads_do_not_change_it(robosuite_rec):
 
 def test_recording_logs_ctrl_that_reproduce_the_physics(robosuite_rec):
     """`action.ctrl` holds every physics step's ctrl: mj_step with them from a logged state reaches the next one."""
-    from bench import registry
     from bench.logs import read_dataset
+    from bench.protocols import registry
 
     ds = read_dataset(robosuite_rec)
     feature = ds.features["action.ctrl"]

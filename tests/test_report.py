@@ -10,8 +10,8 @@ from PIL import Image
 from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ is on sys.path)
 
 from bench import cli
-from bench.leaderboard import merge
-from bench.summary import build
+from bench.board.leaderboard import merge
+from bench.scoring.summary import build
 from tests.fixtures import record
 
 

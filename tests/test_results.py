@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from bench.leaderboard import merge, read_input
+from bench.board.leaderboard import merge, read_input
+from bench.core.schema import load_json, validate
 from bench.records import EPISODES, read_records
-from bench.schema import load_json, validate
-from bench.summary import build
+from bench.scoring.summary import build
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "results"

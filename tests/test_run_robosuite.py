@@ -10,8 +10,8 @@ import time
 import pytest
 
 from bench.cli import main
+from bench.core.schema import validate
 from bench.records import comparable, read_records
-from bench.schema import validate
 
 pytest.importorskip("robosuite")
 
@@ -115,7 +115,7 @@ def test_record_writes_lerobot_dataset(tmp_path):
     assert _run(tmp_path, "rec2", f"record={out}") == 2
 
     # policy on logs: the expert that produced the log reproduces its actions; random does not
-    from bench.policy_on_logs import ActionsConfig, evaluate
+    from bench.cli.actions import ActionsConfig, evaluate
 
     same = evaluate(ActionsConfig(logs=str(out), policy="scripted"))
     assert same["episodes"] == 2 and same["frames"] == 500

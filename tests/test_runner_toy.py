@@ -13,11 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from bench import api, registry
+from bench import api
 from bench.cli import main
-from bench.errors import ConfigError, RegistryError
+from bench.core.errors import ConfigError, RegistryError
+from bench.core.schema import validate
+from bench.protocols import registry
 from bench.records import comparable, read_records
-from bench.schema import validate
 
 REPO = Path(__file__).resolve().parents[1]
 TOY = "suite=tests.toy_suite:ToySuite"

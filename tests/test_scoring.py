@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from bench import scoring
+from bench.scoring import stats as scoring
 
 
 def test_wilson_matches_hand_computation():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
-from bench import sensitivity as sens
+from bench.scoring import sensitivity as sens
 from tests.fixtures import provenance, record
 
 
@@ -78,7 +78,7 @@ def test_paired_interval_is_tighter_than_unpaired_when_outcomes_share_the_initia
     perturbed[np.flatnonzero(nominal)[:4]] = 0  # the perturbation breaks 4 of the easy ones
     d = entries_for(run_records(nominal, perturbed))[1]["drop_vs_nominal"]["success_once"]
     paired_width = d["ci"][1] - d["ci"][0]
-    from bench.scoring import Boot, gap
+    from bench.scoring.stats import Boot, gap
 
     unpaired = gap([nominal.astype(float)], [perturbed.astype(float)], np.random.default_rng(0), Boot(n_boot=1000))
     assert paired_width < 0.6 * (unpaired.hi - unpaired.lo)
@@ -138,8 +138,8 @@ def test_return_drop_for_tasks_without_success():
 
 
 def test_summary_with_sensitivity_validates_against_the_schema():
-    from bench.schema import validate
-    from bench.summary import build
+    from bench.core.schema import validate
+    from bench.scoring.summary import build
 
     recs = run_records([1, 1, 0, 1], [0, 1, 0, 0])
     recs += [rec("latency~U(0,4)", i, 1, axis="latency", level=[0, 4], params={"latency": i}) for i in range(4)]
@@ -156,7 +156,7 @@ def test_summary_with_sensitivity_validates_against_the_schema():
     assert [e["condition"] for e in summary["sensitivity"]] == ["nominal", "friction=0.1", "latency~U(0,4)"]
     broken = json.loads(json.dumps(summary))
     broken["sensitivity"][1]["drop_vs_nominal"]["success_once"].pop("n_pairs")
-    from bench.errors import DataError
+    from bench.core.errors import DataError
 
     with pytest.raises(DataError, match=r"sensitivity\[1\]\.drop_vs_nominal\.success_once"):
         validate(broken)

@@ -1,4 +1,4 @@
-"""bench.video: MP4 encoding (in the caller's thread and behind a bounded queue on a background thread) and
+"""bench.core.video: MP4 encoding (in the caller's thread and behind a bounded queue on a background thread) and
 frame-accurate decoding, with real PyAV encoders; codec tolerance as stated in tests/video_frames.py."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from video_frames import assert_close_frames, frames
 
-from bench.video import BackgroundMp4Writer, Mp4Writer, VideoError, decode_frames, probe
+from bench.core.video import BackgroundMp4Writer, Mp4Writer, VideoError, decode_frames, probe
 
 
 @pytest.mark.parametrize("codec,size", [("h264", (48, 64)), ("h264", (45, 61)), ("av1", (64, 64))])

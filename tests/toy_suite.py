@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.protocols import STATE, ActionSpec, Feature, PolicyPlugin
-from bench.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase
 
 FAULTS = ("none", "raise", "nan_reward", "nan_obs", "hang")
 GAINS = {"a": 0.1, "b": 0.08, "c": 0.04}  # robot c is slow: a short horizon leaves it short of the goal
@@ -110,7 +110,7 @@ class ToySuite(SuiteBase):
     def __init__(self, options: ToyOptions | None = None) -> None:
         super().__init__(options)
         if self.options.fault not in FAULTS:
-            from bench.errors import ConfigError
+            from bench.core.errors import ConfigError
 
             raise ConfigError(f"fault={self.options.fault!r}: valid: {', '.join(FAULTS)}")
 

@@ -18,7 +18,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bench.errors import ConfigError, DataError
+from bench.core.errors import ConfigError, DataError
+from bench.sims.perturb import write_fields
 
 # the MjModel fields a suite calibration may edit: every one is realised by MuJoCo itself, so an env
 # carries it without any change to its controller or step loop
@@ -165,7 +166,5 @@ def verify(suite: Any, cells: list, horizon: int, cal: dict[str, Any]) -> None:
 
 def apply(mj: Any, cal: dict[str, Any]) -> None:
     """Check a loaded calibration against an env's MuJoCo model and write its edits into it."""
-    from bench.perturb import write_fields
-
     check(mj, cal)
     write_fields(mj, cal["edits"])

@@ -17,11 +17,13 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import yaml
 
 from bench.calibrate.effects import EFFECTS, Target, deadband, saturate, stribeck_force
 from bench.calibrate.model import Edits
 from bench.calibrate.play import build
-from bench.errors import ConfigError, did_you_mean, valid_choices
+from bench.core.errors import ConfigError, did_you_mean, valid_choices
+from bench.logs import from_arrays, write_dataset
 
 MODELS = Path(__file__).resolve().parent / "models"
 ARM = MODELS / "arm3.xml"
@@ -290,8 +292,6 @@ def spec_dict(effect: str | None, target: str | None = None, model_file: str = "
 
 def declared_files(out: str | Path, effect: str | None, target: str | None = None) -> Path:
     """Write the declared model and its spec into `out`; returns the spec path."""
-    import yaml
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     xml = declared_xml(text=arm_xml(effect, target))
@@ -309,8 +309,6 @@ def declared_files(out: str | Path, effect: str | None, target: str | None = Non
 
 def write_case(out: str | Path, effect: str | None, **kw) -> Path:
     """Write logs (LeRobot v3), declared model, spec and truth for one hidden effect into `out`."""
-    from bench.logs import from_arrays, write_dataset
-
     out = Path(out)
     fps = kw.get("fps", 100.0)
     episodes, truth = simulate_arm(effect, **kw)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.calibrate.model import Layout
-from bench.io import finite_or_none as finite
+from bench.core.io import finite_or_none as finite
 from bench.replay.data import Recording, Window
 from bench.replay.metrics import horizon_errors
 from bench.replay.simulate import Segments, Simulator, logged

@@ -17,7 +17,7 @@ import numpy as np
 from bench.calibrate.effects import EFFECTS, Bounds, Effect, Scales, Target, deadband, saturate, stribeck_force
 from bench.calibrate.play import Play, PlayModel, build, coordinates, set_play
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec
-from bench.errors import SpecError, did_you_mean, valid_choices
+from bench.core.errors import SpecError, did_you_mean, valid_choices
 from bench.replay.data import Recording
 from bench.replay.simulate import Coordinates, Simulator, StateForce, Variant, hold, prepare_model
 

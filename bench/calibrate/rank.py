@@ -19,9 +19,14 @@ from typing import Any
 import numpy as np
 
 from bench.calibrate.apply import read_calibration
+from bench.calibrate.data import extract
 from bench.calibrate.model import Candidate, Layout, Plant
-from bench.errors import DataError
+from bench.calibrate.spec import parse_spec
+from bench.calibrate.suite import suite_plant
+from bench.core.errors import DataError
+from bench.logs import read_dataset
 from bench.replay.simulate import free_runs, horizons, logged
+from bench.replay.spec import load_model
 
 HORIZONS = ("free_run", "k_step")
 
@@ -29,8 +34,6 @@ HORIZONS = ("free_run", "k_step")
 def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
     """The plant of a calibration's model on the logs of DIR, and the dataset index of each episode in it."""
     if doc.get("apply"):  # a suite calibration: its robot in the suite's scene
-        from bench.calibrate.suite import suite_plant
-
         plant, info = suite_plant(doc["suite"]["name"], doc["apply"]["robot"], logs)
         if info["model_hash"] != doc["apply"]["model_hash"]:
             raise DataError(
@@ -39,10 +42,6 @@ def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
                 f"{info['model_hash'][:12]})"
             )
         return plant, info["suite"]["episodes"]
-    from bench.calibrate.data import extract
-    from bench.calibrate.spec import parse_spec
-    from bench.logs import read_dataset
-    from bench.replay.spec import load_model
 
     spec = parse_spec({k: v for k, v in doc["spec"].items() if k != "source"}, base_dir="/")
     model = load_model(spec.model)

@@ -10,25 +10,22 @@ from typing import Any
 
 import numpy as np
 
+from bench import __version__
 from bench.calibrate.trace import Calibration
-from bench.io import write_atomic, write_text_atomic
+from bench.core.io import json_safe, write_atomic, write_text_atomic
 
 SCHEMA = "bench.calibration/1"
 ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse", "r2")
 
 
 def clean(value: Any) -> Any:
-    """JSON-safe copy (NaN / inf to None): `bench.io.json_safe`, the one owner of that rule."""
-    from bench.io import json_safe
-
+    """JSON-safe copy (NaN / inf to None): `bench.core.io.json_safe`, the one owner of that rule."""
     return json_safe(value)
 
 
 def _versions() -> dict[str, str]:
-    import mujoco
-    import scipy
-
-    from bench import __version__
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+    import scipy  # scipy: loaded only when this estimate is computed
 
     return {"bench": __version__, "mujoco": mujoco.__version__, "numpy": np.__version__, "scipy": scipy.__version__}
 
@@ -103,10 +100,10 @@ def to_json(cal: Calibration) -> dict:
 
 def plots(cal: Calibration, out: Path) -> dict[str, str]:
     """Logged vs simulated (free run, before / after), the k-step residual, the candidates' scores."""
-    import matplotlib
+    import matplotlib  # matplotlib: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
 
     rec, fps = cal.rec, cal.rec.fps
     names = cal.plant.joint_names

@@ -24,7 +24,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bench.io import finite_or_none as finite
+from bench.core.io import finite_or_none as finite
 from bench.replay.metrics import horizon_errors
 from bench.replay.simulate import Simulator, StateForce, Variant, horizons
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.errors import SpecError, did_you_mean
+from bench.calibrate.effects import EFFECTS
+from bench.core.errors import SpecError, did_you_mean
 from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
 SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads")
@@ -126,8 +127,6 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
 
 
 def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
-    from bench.calibrate.effects import EFFECTS
-
     if raw is None or raw == "all":
         return None
     if raw == "none":

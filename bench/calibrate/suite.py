@@ -30,10 +30,14 @@ from bench.calibrate.apply import edits, model_hash
 from bench.calibrate.model import Plant, Scene
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec, TraceSpec
 from bench.calibrate.trace import Calibration, calibrate
-from bench.errors import ConfigError, DataError, did_you_mean
+from bench.core.errors import ConfigError, DataError, did_you_mean
+from bench.logs import read_dataset
+from bench.protocols import registry
+from bench.replay.common import CTRL, ReplayConfig
 from bench.replay.data import Recording, split
 from bench.replay.simulate import Coordinates
 from bench.replay.spec import SignalSpec
+from bench.replay.suite import load_suite_logs
 
 # effects realised in MjModel fields (a run's env carries them without any change to its step loop)
 EFFECTS = ("coulomb_friction", "payload_mass", "actuator_gain")
@@ -81,11 +85,6 @@ def suite_plant(
     suite: str, robot: str, logs: str | Path, seed: int = 0, threads: int = 1, condition: str | None = None
 ) -> tuple[Plant, dict[str, Any]]:
     """The plant of a suite's robot in its nominal scene, with the logs of that robot; and what identifies it."""
-    from bench import registry
-    from bench.logs import read_dataset
-    from bench.replay.common import CTRL, ReplayConfig
-    from bench.replay.suite import load_suite_logs
-
     path = Path(logs).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")

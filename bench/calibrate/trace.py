@@ -28,6 +28,7 @@ from bench.calibrate.effects import EFFECTS, MERGES
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
 from bench.calibrate.metrics import evaluate, heldout_errors
 from bench.calibrate.model import Candidate, Layout, Plant
+from bench.calibrate.residual import learn
 from bench.calibrate.signature import Score, scan, score_candidates, trial_starts
 from bench.calibrate.spec import CalibrationSpec, EffectRequest
 from bench.replay.data import Recording
@@ -340,8 +341,6 @@ def calibrate(
     try:
         cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
         if residual:
-            from bench.calibrate.residual import learn
-
             t1 = time.perf_counter()
             cal.learned = learn(sim, cal.layout.realise(cal.final_fit.x), cal.k, seed)
             cal.wall["residual"] = time.perf_counter() - t1

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 
 POINTS = 32
 STATE = "observation.state"

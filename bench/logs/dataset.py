@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 
 # Columns every LeRobot v3.0 data file carries, in the order lerobot declares them.
 DEFAULT_FEATURES: dict[str, dict] = {

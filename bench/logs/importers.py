@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.errors import DataError, did_you_mean
+from bench.core.errors import DataError, did_you_mean
 from bench.logs.dataset import LogDataset, first_bad_row, from_arrays
 
 TIME_NAMES = ("t", "time", "Time", "timestamp")
@@ -84,8 +84,8 @@ def import_csv(
         robot_type: stored in info.json.
         delimiter: field separator.
     """
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
+    import pyarrow as pa  # pyarrow: loaded only when a dataset is read or written
+    import pyarrow.csv as pacsv  # pyarrow: loaded only when a dataset is read or written
 
     path = Path(path)
     if not path.is_file():
@@ -222,7 +222,7 @@ def import_mat(
 
     Scalar variables (e.g. gains) go to the episode's `meta["mat"]`.
     """
-    import scipy.io
+    import scipy.io  # scipy: loaded only when this estimate is computed
 
     path = Path(path)
     if not path.is_file():

@@ -14,7 +14,7 @@ videos: one MP4 stream per feature and file, episodes concatenated, frame k of a
 at `from_timestamp + timestamp[k]` (the episodes table holds `videos/<key>/chunk_index`,
 `file_index`, `from_timestamp`, `to_timestamp`; info.json the codec in the feature's `info`).
 Video features have no parquet column. Both are decoded to (T, H, W, C) uint8 with PyAV
-(`bench.video`): no torchvision, no torchcodec. The writer encodes H.264 by default (AV1 on
+(`bench.core.video`): no torchvision, no torchcodec. The writer encodes H.264 by default (AV1 on
 request, lerobot's own default). Per-episode metadata of ours (`Episode.meta`) travels as a JSON
 string column `bench/meta` in the episodes file, which lerobot ignores.
 """

@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 from bench.logs.dataset import DEFAULT_FEATURES, first_bad_row
 from bench.logs.lerobot_info import check_info
 

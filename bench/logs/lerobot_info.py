@@ -13,7 +13,7 @@ import string
 from pathlib import Path
 from typing import Any
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 
 MAX_FPS = 10_000.0  # frames per second; beyond this a value is a unit mistake, not a camera
 MAX_DIM = 1 << 16  # one axis of a feature's shape

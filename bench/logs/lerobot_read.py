@@ -2,7 +2,7 @@
 
 Every row read is checked against the index (`bench.logs.lerobot_index`): declared columns and
 shapes, episode and task indices, finite values, increasing timestamps. Video features are
-decoded with PyAV (`bench.video`).
+decoded with PyAV (`bench.core.video`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bench.errors import DataError
+from bench.core.errors import DataError
+from bench.core.video import VideoError, decode_frames
 from bench.logs.dataset import DEFAULT_FEATURES, FRAME_COLUMNS, Episode, LogDataset, first_bad_row
 from bench.logs.lerobot_index import (
     INFO_PATH,
@@ -102,7 +103,7 @@ def _column_to_numpy(arr: pa.Array, name: str, feature: dict, root: Path, rel: s
 
 
 def _decode_images(arr: pa.Array, name: str, feature: dict, root: Path, rel: str) -> np.ndarray:
-    from PIL import Image
+    from PIL import Image  # Pillow: loaded only when PNG images are read or written
 
     where = location(root, rel)
     if not pa.types.is_struct(arr.type) or arr.type.get_field_index("bytes") < 0:
@@ -196,11 +197,9 @@ def _read_videos(idx: Index, eps: np.ndarray, offsets: np.ndarray, timestamps: n
     """Frames of every video feature for episodes `eps` (rows offsets[k]:offsets[k+1] of `timestamps`).
 
     Frame j of episode e is the one shown at `from_timestamp[e] + timestamp[j]` in its MP4 file
-    (within `bench.video.TOLERANCE_S`, lerobot's default tolerance). Each file is decoded once,
+    (within `bench.core.video.TOLERANCE_S`, lerobot's default tolerance). Each file is decoded once,
     forward from the keyframe before the first frame wanted.
     """
-    from bench.video import VideoError, decode_frames
-
     out: dict[str, np.ndarray] = {}
     for key, feat in idx.videos.items():
         shape = tuple(feat["shape"])

@@ -19,7 +19,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bench.errors import DataError
+from bench.core import outputs
+from bench.core.errors import DataError
+from bench.core.video import CODECS, TOLERANCE_S, Mp4Writer, VideoError, check_codec, check_size, probe
 from bench.logs.dataset import FRAME_COLUMNS, Episode, LogDataset, first_bad_row, validate
 from bench.logs.lerobot_index import (
     CHUNKS_SIZE,
@@ -104,7 +106,7 @@ def _schema(features: dict[str, dict]) -> pa.Schema:
 
 
 def _encode_png(frames: np.ndarray) -> list[bytes]:
-    from PIL import Image
+    from PIL import Image  # Pillow: loaded only when PNG images are read or written
 
     out = []
     for frame in frames:
@@ -161,13 +163,11 @@ class _VideoFiles:
         self.tmp, self.key, self.fps, self.codec, self.crf = tmp, key, fps, codec, crf
         self.file_no = 0
         self.frames = 0  # frames in the current file
-        self.writer: Any = None  # the current file's bench.video.Mp4Writer
+        self.writer: Any = None  # the current file's bench.core.video.Mp4Writer
         self.first: Path | None = None
 
     def add(self, frames: np.ndarray) -> tuple[int, int, float, float]:
         """Encode one episode's frames; returns (chunk_index, file_index, from_timestamp, to_timestamp)."""
-        from bench.video import Mp4Writer
-
         if self.writer is not None and self.writer.bytes_written >= VIDEO_FILES_SIZE_IN_MB * 1024 * 1024:
             self.writer.close()
             self.writer, self.frames, self.file_no = None, 0, self.file_no + 1
@@ -194,8 +194,6 @@ class _VideoFiles:
 
 def _check_video_timestamps(ds: LogDataset, where: str) -> None:
     """Video frames are shown at frame_index / fps: a dataset with video needs timestamps that say so."""
-    from bench.video import TOLERANCE_S
-
     for ep in ds.episodes:
         ts = np.asarray(ep.data["timestamp"], dtype=np.float32).reshape(-1)
         want = (np.arange(len(ts), dtype=np.float64) / ds.fps).astype(np.float32)
@@ -296,8 +294,6 @@ def _write_into(tmp: Path, ds: LogDataset, video_codec: str, crf: int | None) ->
     stats = {name: aggregate_stats(stat_rows, name, feat) for name, feat in ds.features.items()}
     (tmp / STATS_PATH).write_text(json.dumps(stats, indent=4, allow_nan=False))
 
-    from bench.video import probe
-
     fps = int(ds.fps) if float(ds.fps).is_integer() else float(ds.fps)
     features = {
         k: {"dtype": v["dtype"], "shape": list(v["shape"]), "names": v.get("names")} for k, v in ds.features.items()
@@ -353,7 +349,7 @@ def write_dataset(
     `frame_index` and `index` are derived on write (position in episode / in dataset). The files
     are written to a temporary sibling folder and moved into place at the end, so a failure leaves
     nothing half-written and an existing dataset is replaced only by a complete one. Video
-    features are encoded to MP4 (see `bench.video`): lossy, so frames read back differ from the
+    features are encoded to MP4 (see `bench.core.video`): lossy, so frames read back differ from the
     written ones by a few levels (H.264 at the default quality: mean absolute error about 1-3 of
     255 on rendered scenes); their timestamps must be frame_index / fps.
 
@@ -363,15 +359,13 @@ def write_dataset(
         overwrite: replace an existing folder bench wrote (never one holding anything else).
         key: the output's key, for messages (`out`, `record`).
         inputs: what the command read (key -> path): the output may not equal, contain or lie inside them
-            (`bench.outputs`).
+            (`bench.core.outputs`).
         video_codec: "h264" (default) or "av1" for video features.
         crf: video quality (lower is better; default 20 for H.264, 30 for AV1).
 
     Returns:
         The resolved path of the written folder.
     """
-    from bench.video import CODECS, VideoError, check_codec, check_size
-
     root = Path(root).resolve()
     where = f"write_dataset({root})"
     check_fps(ds.fps, where)  # the same bound the reader applies: never write what cannot be read back
@@ -394,7 +388,6 @@ def write_dataset(
                 f"{where}: field 'fps' is {ds.fps!r}; video features need a whole number of frames per second"
             )
         _check_video_timestamps(ds, where)
-    from bench import outputs
 
     root = outputs.check(key, root, inputs or {}, overwrite=overwrite)
     root.parent.mkdir(parents=True, exist_ok=True)

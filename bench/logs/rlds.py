@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 import bench.logs.tfrecord as tfrecord
-from bench.errors import DataError, did_you_mean
+from bench.core.errors import DataError, did_you_mean
 from bench.logs.dataset import LogDataset, from_arrays
 
 
@@ -101,7 +101,7 @@ def _decode_tensor(value: Any, spec: dict, key: str, where: str) -> np.ndarray:
 
 
 def _decode_image(blob: bytes, spec: dict, key: str, where: str) -> np.ndarray:
-    from PIL import Image
+    from PIL import Image  # Pillow: loaded only when PNG images are read or written
 
     try:
         img: Image.Image = Image.open(io.BytesIO(blob))

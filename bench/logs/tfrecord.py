@@ -29,7 +29,7 @@ from typing import Any, Union
 
 import numpy as np
 
-from bench.errors import DataError
+from bench.core.errors import DataError
 
 # A decoded Feature: list[bytes] for bytes_list, float32 array for float_list, int64 array for int64_list.
 Value = Union[list, np.ndarray]

@@ -29,7 +29,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from bench.errors import BenchError, ConfigError
+from bench.core.errors import BenchError, ConfigError
+from bench.core.io import jsonable
 from bench.protocols import Obs, PolicyContext, PolicyIdentity, PolicyPlugin
 from bench.remote import latency, link, wire
 from bench.remote import obs_map as obs_map_mod
@@ -262,8 +263,6 @@ def suite_ref(suite: Any) -> dict[str, Any]:
 
 
 def _jsonable(x: Any) -> Any:
-    from bench.io import jsonable
-
     return jsonable(x)
 
 

@@ -91,7 +91,10 @@ class Link:
 
     def _take(self, events: list[Any]) -> None:
         """Queue the complete data messages among `events` (fragments joined; control frames are the protocol's)."""
-        from websockets.frames import Frame, Opcode
+        from websockets.frames import (  # websockets: loaded only when a remote policy connects or is served
+            Frame,
+            Opcode,
+        )
 
         for event in events:
             if not isinstance(event, Frame):
@@ -110,7 +113,9 @@ class Link:
     # -- the API --------------------------------------------------------------------------------
     def send(self, message: bytes | str) -> None:
         """Send one message: bytes as a binary frame, str as a text frame."""
-        from websockets.exceptions import InvalidState
+        from websockets.exceptions import (
+            InvalidState,  # websockets: loaded only when a remote policy connects or is served
+        )
 
         try:
             if isinstance(message, str):
@@ -123,7 +128,7 @@ class Link:
 
     def recv(self, timeout: float | None = None) -> bytes | str:
         """The next message (bytes or str); TimeoutError after `timeout` seconds, Closed when the peer is gone."""
-        from websockets.protocol import State
+        from websockets.protocol import State  # websockets: loaded only when a remote policy connects or is served
 
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self._messages:
@@ -133,7 +138,7 @@ class Link:
         return self._messages.popleft()
 
     def _reason(self) -> str:
-        from websockets.protocol import State
+        from websockets.protocol import State  # websockets: loaded only when a remote policy connects or is served
 
         p = self.protocol
         if p.state is State.CLOSED:
@@ -143,7 +148,7 @@ class Link:
 
     def close(self) -> None:
         """Start the closing handshake (when still open) and close the socket; never raises."""
-        from websockets.protocol import State
+        from websockets.protocol import State  # websockets: loaded only when a remote policy connects or is served
 
         try:
             if self.protocol.state is State.OPEN:
@@ -175,10 +180,10 @@ def connect(uri: str, timeout: float, max_size: int | None) -> Link:
     Raises ValueError (not a ws:// address), OSError (nothing listening, unreachable host),
     TimeoutError, or HandshakeFailed.
     """
-    from websockets.client import ClientProtocol
-    from websockets.exceptions import InvalidURI
-    from websockets.http11 import Response
-    from websockets.uri import parse_uri
+    from websockets.client import ClientProtocol  # websockets: loaded only when a remote policy connects or is served
+    from websockets.exceptions import InvalidURI  # websockets: loaded only when a remote policy connects or is served
+    from websockets.http11 import Response  # websockets: loaded only when a remote policy connects or is served
+    from websockets.uri import parse_uri  # websockets: loaded only when a remote policy connects or is served
 
     try:
         wsuri = parse_uri(uri)
@@ -200,7 +205,7 @@ def connect(uri: str, timeout: float, max_size: int | None) -> Link:
             if response is not None:
                 link._take(events)
                 return link
-            from websockets.protocol import State
+            from websockets.protocol import State  # websockets: loaded only when a remote policy connects or is served
 
             if protocol.state is State.CLOSED:
                 raise HandshakeFailed("the server closed the connection during the handshake")
@@ -221,9 +226,9 @@ def accept(
     by returning `protocol.reject(status, text)`; None goes on to the websocket upgrade.
     Returns the open link, or None when the handshake failed or was answered (the socket is closed).
     """
-    from websockets.http11 import Request
-    from websockets.protocol import State
-    from websockets.server import ServerProtocol
+    from websockets.http11 import Request  # websockets: loaded only when a remote policy connects or is served
+    from websockets.protocol import State  # websockets: loaded only when a remote policy connects or is served
+    from websockets.server import ServerProtocol  # websockets: loaded only when a remote policy connects or is served
 
     _nodelay(sock)
     protocol = ServerProtocol(max_size=max_size)

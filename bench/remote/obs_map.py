@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError, did_you_mean
+from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import DEPTH, RGB, STATE, TASK, Feature, ObsSpec
 
 FIELD_PREFIX = STATE + "."

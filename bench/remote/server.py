@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -33,12 +31,14 @@ from typing import Any, Optional
 
 import numpy as np
 
-from bench import config as config_mod
-from bench.errors import BenchError, ConfigError
-from bench.protocols import TASK, Feature, PolicyContext
+from bench import __version__
+from bench.core import config as config_mod
+from bench.core.errors import BenchError, ConfigError, did_you_mean
+from bench.core.io import jsonable
+from bench.protocols import TASK, Feature, PolicyContext, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
-from bench.remote.serving import AddressInUse, RequestError, WebsocketServer
+from bench.remote.serving import RequestError, WebsocketServer
 
 MAX_HORIZON = 100_000
 
@@ -77,8 +77,6 @@ class PolicyServer:
     def __init__(
         self, cfg: ServeConfig, suite_options: Any, policy_options: Any, log: Callable[[str], None] | None = None
     ):
-        from bench import registry
-
         self.cfg = cfg
         self.log = log or (lambda text: None)
         self.plugin = registry.load_policy(cfg.policy)
@@ -92,8 +90,6 @@ class PolicyServer:
         suite = self.suite_cls(suite_options)
         cells = {c.key: c for c in suite.all_cells()}
         if cfg.cell is not None and cfg.cell not in cells:
-            from bench.errors import did_you_mean
-
             raise ConfigError(
                 f"cell={cfg.cell!r} is not a cell of suite {cfg.suite!r}; valid: {', '.join(cells)}."
                 f"{did_you_mean(cfg.cell, cells)}"
@@ -112,7 +108,7 @@ class PolicyServer:
                 "cell": self.default_cell,
                 "obs_keys": list(self.needs),
                 "obs_map": list(cfg.obs_map) if cfg.obs_map else None,
-                "bench_version": _version(),
+                "bench_version": str(__version__),
             }
         }
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
@@ -121,8 +117,6 @@ class PolicyServer:
     # -- suites and cells, resolved from what a client names ------------------------------
     def suite_for(self, name: Any, path: Any, options: Any) -> Any:
         """The suite a client names: registered on this server, or this server's own `suite=` (never imported)."""
-        from bench import registry
-
         if not isinstance(name, str) or not isinstance(path, str):
             raise RequestError("suite and suite_class must be strings")
         candidates = [self.suite_cls]
@@ -293,94 +287,6 @@ class Session:
 
 
 def _json(options: Any) -> Any:
-    from bench.io import jsonable
-
     if dataclasses.is_dataclass(options) and not isinstance(options, type):
         return jsonable(dataclasses.asdict(options))
     return {}
-
-
-def _version() -> str:
-    from bench import __version__
-
-    return str(__version__)
-
-
-# -- the command ------------------------------------------------------------------------------
-def help_text() -> str:
-    return config_mod.command_help(
-        "usage: bench serve [policy=scripted] [host=127.0.0.1] [port=8000] [suite=...] [policy keys ...]",
-        "Serves a bench policy over openpi's websocket protocol (msgpack-numpy, metadata on connect,\n"
-        'infer(obs) -> {"actions": (T, A)}), so `bench run policy=remote` or openpi\'s client can use it\n'
-        "from another process, venv or machine. Bench clients name their suite, cell and seeds (records\n"
-        "equal in-process ones); other clients get the policy of suite=/cell=. Malformed requests get a\n"
-        "one-line text answer and the server goes on. The served policy's own keys (checkpoint= ...) and\n"
-        "its suite's are accepted too. Ctrl-C or SIGTERM stops it. docs/remote-policies.md",
-        ServeConfig,
-        [
-            "bench serve policy=scripted",
-            "bench serve policy=checkpoint checkpoint=bc/policy.safetensors port=8001",
-            "bench serve policy=scripted suite=held_out_envs host=0.0.0.0   # reachable from other machines",
-        ],
-    )
-
-
-def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
-    """(serve config, the suite's options, the policy's options), each key routed to its owner."""
-    from bench import registry
-    from bench.protocols import option_keys
-
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(
-            f"unexpected argument {positional[0]!r}; bench serve takes key=value only (bench serve --help)"
-        )
-    head = config_mod.build(ServeConfig, [o for o in overrides if config_mod.top_key(o) in ("policy", "suite")])
-    plugin = registry.load_policy(head.policy)
-    suite_cls: Any = registry.suite_class(head.suite)
-    owners = {
-        "serve": [f.name for f in dataclasses.fields(ServeConfig)],
-        f"suite {head.suite}": option_keys(suite_cls.Options),
-        f"policy {head.policy}": option_keys(plugin.Options),
-    }
-    context = f"bench serve policy={head.policy} suite={head.suite}"
-    parts = list(config_mod.partition(overrides, owners, context).values())
-    cfg = config_mod.build(ServeConfig, parts[0])
-    if not 0 <= cfg.port <= 65535:
-        raise ConfigError(f"port={cfg.port}: must be in [0, 65535] (0 = any free port)")
-    if not (math.isfinite(cfg.max_message_mb) and 0 < cfg.max_message_mb <= 4096):
-        raise ConfigError(f"max_message_mb={cfg.max_message_mb}: must be in (0, 4096]")
-    if not 0 <= cfg.horizon <= MAX_HORIZON or cfg.seed < 0:
-        raise ConfigError(f"horizon={cfg.horizon} seed={cfg.seed}: horizon in [0, {MAX_HORIZON}], seed >= 0")
-    return cfg, config_mod.build(suite_cls.Options, parts[1]), config_mod.build(plugin.Options, parts[2])
-
-
-def main(argv: list[str]) -> int:
-    if argv and argv[0] in ("-h", "--help"):
-        print(help_text(), end="")
-        return 0
-    cfg, suite_options, policy_options = parse_args(argv)
-
-    def log(text: str) -> None:
-        print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
-
-    server = PolicyServer(cfg, suite_options, policy_options, log)
-    suite = server.suite_cls(suite_options)
-    cell = next(c for c in suite.all_cells() if c.key == server.default_cell)
-    server.plugin.preflight(policy_options, suite, [cell], server.default_horizon)  # e.g. checkpoint names
-    ws = server.websocket()
-    try:
-        port = ws.bind()
-    except AddressInUse as exc:
-        raise ConfigError(
-            f"host={cfg.host} port={cfg.port}: cannot listen there ({exc.strerror}); pick another "
-            "port (port=0 = any free one)"
-        ) from None
-    where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
-
-    ws.serve_until_stopped(
-        f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
-        f"default cell {server.default_cell}); Ctrl-C stops",
-        "bench serve",
-    )
-    return 0

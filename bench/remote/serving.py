@@ -14,10 +14,13 @@ venv (e.g. `baselines/lerobot_server.py` in lerobot's) serves with the same code
 
 from __future__ import annotations
 
+import selectors
+import signal
 import socket
 import threading
 import time
 from collections.abc import Callable
+from http import HTTPStatus
 from typing import Any, Protocol
 
 from bench.remote import link, wire
@@ -75,8 +78,6 @@ class WebsocketServer:
 
     def serve_forever(self) -> None:
         """Accept connections until `shutdown()` (each served by its own thread)."""
-        import selectors
-
         listener = self._listener
         if listener is None:
             raise RuntimeError("bind() first")
@@ -100,7 +101,6 @@ class WebsocketServer:
 
     def serve_until_stopped(self, banner: str, label: str) -> None:
         """Print `banner`, serve until Ctrl-C or SIGTERM, shut down, and say so (`label: stopped`)."""
-        import signal
 
         def stop(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
@@ -194,7 +194,5 @@ def _peer(sock: socket.socket) -> str:
 def _health(protocol: Any, request: Any) -> Any:
     """`GET /healthz` -> 200 OK (as openpi's server); anything else goes on to the websocket handshake."""
     if request.path == "/healthz":
-        from http import HTTPStatus
-
         return protocol.reject(HTTPStatus.OK, "OK\n")
     return None

@@ -35,8 +35,7 @@ per horizon) are what `bench.calibrate` builds on; nothing here imports `bench.c
 
 from __future__ import annotations
 
-from bench.replay.cli import help_text, main, plot, render, run, write
-from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, summarise
+from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, _check_cfg, summarise
 from bench.replay.mjcf import replay_mjcf
 from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
@@ -47,11 +46,7 @@ __all__ = [
     "Replay",
     "ReplayConfig",
     "SuiteLogs",
-    "help_text",
     "load_suite_logs",
-    "main",
-    "plot",
-    "render",
     "replay_actions",
     "replay_ctrl",
     "replay_mjcf",
@@ -59,5 +54,12 @@ __all__ = [
     "run",
     "suite_segments",
     "summarise",
-    "write",
 ]
+
+
+def run(cfg: ReplayConfig) -> Replay:
+    """Validate the config and replay with the backend it names (`suite=` or `spec=`)."""
+    _check_cfg(cfg)
+    if cfg.suite:
+        return replay_suite(cfg)
+    return replay_mjcf(cfg)

@@ -10,9 +10,10 @@ from typing import Any, Optional
 
 import numpy as np
 
-from bench.config import ranged
-from bench.errors import ConfigError, DataError
-from bench.io import finite_or_none as finite
+from bench.core.config import ranged
+from bench.core.errors import ConfigError, DataError
+from bench.core.io import finite_or_none as finite
+from bench.logs import read_dataset
 
 SCHEMA = "bench.replay/1"
 HORIZON_LABELS = {"one_step": "one-step", "k_step": "k-step", "free_run": "free run"}
@@ -53,8 +54,6 @@ class Replay:
 
 # --- shared: reading, selecting, summarising ---------------------------------------------------------
 def _read_logs(cfg: ReplayConfig):
-    from bench.logs import read_dataset
-
     path = Path(str(cfg.logs)).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")

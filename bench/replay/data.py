@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.errors import DataError, SpecError
+from bench.core.errors import DataError, SpecError
 from bench.replay.spec import SignalMap, SignalSpec
 
 
@@ -82,7 +82,7 @@ def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> n
 
 def estimate_velocity(qpos: np.ndarray, fps: float) -> np.ndarray:
     """Velocity from positions by a Savitzky-Golay derivative over about 20 ms (quantised encoders)."""
-    from scipy.signal import savgol_filter
+    from scipy.signal import savgol_filter  # scipy: loaded only when this estimate is computed
 
     n = qpos.shape[0]
     win = max(5, int(round(0.02 * fps)) | 1)

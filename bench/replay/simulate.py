@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from bench.errors import SpecError
+from bench.core.errors import SpecError
 from bench.replay.data import Recording, Window
 
 CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_CTRL) | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)

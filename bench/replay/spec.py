@@ -15,7 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.errors import SpecError, did_you_mean, valid_choices
+import yaml
+
+from bench.core.errors import SpecError, did_you_mean, valid_choices
 
 MAP_KEYS = ("model", "substeps", "signals")
 MAX_SUBSTEPS = 10_000  # simulator steps per log frame: more is a typo, and multiplies every rollout
@@ -52,8 +54,6 @@ class SignalMap:
 
 def read_spec_file(path: str | Path) -> tuple[Any, Path]:
     """The raw mapping of a YAML or JSON spec file, and its path."""
-    import yaml
-
     path = Path(path)
     if not path.is_file():
         raise SpecError(f"spec file {str(path)!r} does not exist")
@@ -145,7 +145,7 @@ def load_signal_map(path: str | Path) -> tuple[SignalMap, dict[str, Any]]:
 
 def load_model(path: Path):
     """Compile an MJCF file; compile errors become a one-line SpecError."""
-    import mujoco
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     try:
         return mujoco.MjModel.from_xml_path(str(path))

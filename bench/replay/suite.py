@@ -12,13 +12,19 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import DataError
+from bench.core.errors import DataError
+from bench.execution.recording import episode_cell
+from bench.protocols import registry
+from bench.protocols.env import mj_input_names
 from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, _read_logs, measured
+from bench.replay.data import Recording, Window
+from bench.replay.metrics import horizon_segments, segment_errors
+from bench.replay.simulate import Segments
 
 
 def _coordinates(model) -> tuple[list[str], np.ndarray]:
     """Compared position coordinates: each hinge / slide joint, and the x, y, z of each free joint."""
-    import mujoco
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     names, idx = [], []
     for j in range(model.njnt):
@@ -44,9 +50,6 @@ def _set_state(env, state: np.ndarray) -> None:
 
 def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray]:
     """One nominal env per cell the episodes name; the compared coordinates (the same for all)."""
-    from bench import registry
-    from bench.recording import episode_cell
-
     assert cfg.suite is not None and cfg.logs is not None, "a suite replay names its suite and logs (_check_cfg)"
     suite = registry.make_suite(cfg.suite)
     cells = {c.key: c for c in suite.all_cells()}
@@ -91,8 +94,6 @@ def _back_to_back(rec, windows, k: int):
     The env carries state that the log does not (robosuite's gripper integrates its command), so a
     segment must start where the previous one ended: stepping them in order keeps that state right.
     """
-    from bench.replay.simulate import Segments
-
     starts, masks = [], []
     for w in windows:
         first, last = int(rec.offsets[w.episode]) + w.start, int(rec.offsets[w.episode]) + w.stop - 1
@@ -109,9 +110,7 @@ def _distinct(envs: list) -> list:
 
 def _ctrl_layout(cfg: ReplayConfig, ds, eps, envs) -> tuple[int, int]:
     """(mjtState mask, physics steps per frame) of the logged `action.ctrl`; its names must match the models."""
-    import mujoco
-
-    from bench.env import mj_input_names
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     specs = {
         int(ep.meta.get("ctrl_spec", mujoco.mjtState.mjSTATE_CTRL))
@@ -189,8 +188,8 @@ def replay_ctrl(
     and applies the logged inputs of each physics step (`ctrl_spec`, an mjtState mask; default CTRL). Segments of one model
     run in one call (chunked to bound memory); `threads` rollout threads share them.
     """
-    import mujoco
-    from mujoco import rollout
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+    from mujoco import rollout  # MuJoCo's native library: loaded only when a model is simulated
 
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     inputs = int(mujoco.mjtState.mjSTATE_CTRL) if ctrl_spec is None else int(ctrl_spec)
@@ -262,8 +261,6 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
     At each episode's start the env is reset with the episode's seed; when that state equals the
     logged one to float32 precision (the log stores float32), the exact reset state is used instead.
     """
-    from bench.replay.data import Recording, Window
-
     for feat in ("observation.sim_state", "action", *((CTRL,) if need_ctrl else ())):
         if feat not in ds.features:
             hint = (
@@ -316,8 +313,6 @@ def load_suite_logs(cfg: ReplayConfig, ds, eps, need_ctrl: bool) -> SuiteLogs:
 
 def suite_segments(logs: SuiteLogs, k: int, commands: str) -> dict:
     """The segments each horizon replays (the action loop steps k-step segments back to back)."""
-    from bench.replay.metrics import horizon_segments
-
     segments = horizon_segments(logs.rec, logs.windows, k)
     if commands == "action":
         segments["k_step"] = _back_to_back(logs.rec, logs.windows, k)
@@ -330,8 +325,6 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     Each segment sets the MuJoCo state from `observation.sim_state` and applies the logged
     commands; positions after each frame are compared with the next logged state.
     """
-    from bench.replay.metrics import segment_errors
-
     t0 = time.perf_counter()
     ds, eps = _read_logs(cfg)
     commands = cfg.commands or ("ctrl" if CTRL in ds.features else "action")

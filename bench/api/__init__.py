@@ -1,0 +1,392 @@
+"""The typed Python API: plan and run a suite, score a run, load plugins (docs/api.md).
+
+    from bench import api
+
+    result = api.run(api.RunConfig(suite="held_out_robots", policy="scripted", robots=["Panda"], episodes=2))
+    print(result.summary["splits"]["seen"]["success_once"]["mean"])
+
+`plan` checks everything a run needs (the key checks are `bench.execution.run_config`'s) and writes
+nothing; `run` executes a plan (or a config) into OUT/RUN_ID (episodes.jsonl, run.json,
+summary.json), resuming recorded episodes. The CLI (`bench run`), the regression gate, benchmarks and experiments all go
+through these functions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from bench import __version__
+from bench.core import config as config_mod
+from bench.core import provenance
+from bench.core.errors import (
+    BenchError,
+    ConfigError,
+    DataError,
+    RegistryError,
+    SpecError,
+    SplitError,
+    did_you_mean,
+    valid_choices,
+)
+from bench.core.io import write_atomic
+from bench.core.schema import load_json, validate
+from bench.execution.check import fast_check
+from bench.execution.episode_video import check_run
+from bench.execution.progress import RunProgress
+from bench.execution.ray_executor import RayExecutor
+from bench.execution.rollout import RunContext
+from bench.execution.run_config import (
+    RESUMABLE_KEYS,
+    RUNNER_KEYS,
+    RunConfig,
+    build_options,
+    check_outputs,
+    check_runner,
+    check_work,
+    config_from_argv,
+    observation_bytes,
+)
+from bench.execution.runner import LocalExecutor, Worker, WorkerSpec
+from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
+from bench.protocols.suite import Cell, Condition, Job, expand_jobs, select_cells
+from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
+from bench.scoring.summary import build, load_run
+from bench.sims import axes, perturb
+
+# the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
+__all__ = [
+    "BenchError",
+    "ConfigError",
+    "DataError",
+    "RegistryError",
+    "SpecError",
+    "SplitError",
+    "did_you_mean",
+    "valid_choices",
+    "Plan",
+    "RunConfig",
+    "RunResult",
+    "config_from_argv",
+    "context",
+    "finish",
+    "load_policy",
+    "load_suite",
+    "make_executor",
+    "plan",
+    "run",
+    "score",
+    "start",
+    "worker",
+]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A checked run: everything `run` needs, resolved; nothing has been written yet."""
+
+    config: RunConfig  # with run_id, policy and metric resolved
+    suite: Any  # the Suite, built with `suite_options`
+    plugin: PolicyPlugin
+    suite_options: Any  # an instance of the suite's Options
+    policy_options: Any  # an instance of the policy plugin's Options
+    identity: PolicyIdentity
+    calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load), or None
+    cells: list[Cell]
+    conditions: list[Condition]
+    jobs: list[Job]
+    horizon: int
+    run_dir: Path
+
+    def config_dict(self) -> dict[str, Any]:
+        """The flat config stored in run.json and the summary: runner keys, then the suite's and policy's."""
+        cfg = {k: getattr(self.config, k) for k in RUNNER_KEYS}
+        for opts in (self.suite_options, self.policy_options):
+            if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
+                cfg.update(dataclasses.asdict(opts))
+        return json.loads(json.dumps(cfg))
+
+    def worker_spec(self, ctx: Any) -> WorkerSpec:
+        return WorkerSpec(
+            self.config.suite,
+            self.suite_options,
+            str(self.config.policy),
+            self.policy_options,
+            self.config.seed,
+            ctx,
+            self.calibration,
+        )
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What `run` produced: the run directory, its summary and all its records."""
+
+    run_dir: Path
+    summary: dict[str, Any] | None
+    records: list[EpisodeRecord]
+    ran: int  # episodes run by this call
+    resumed: int  # episodes found already recorded
+
+
+def load_suite(ref: str, **options: Any) -> Any:
+    """The suite `ref` (registered name or package.module:Class) built with typed `options`."""
+    cls = registry.suite_class(ref)
+    return cls(build_options(cls.Options, options, f"suite {ref}"))
+
+
+def load_policy(ref: str) -> PolicyPlugin:
+    """The policy plugin `ref` (registered name or package.module:attr)."""
+    return registry.load_policy(ref)
+
+
+def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Any:
+    """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
+    if cfg.executor == "ray":
+        return RayExecutor(cfg.ray_address, cfg.actors, cfg.actor_cpus, cfg.actor_gpus, cfg.ray_env, note=note)
+    return LocalExecutor(workers)
+
+
+def plan(cfg: RunConfig) -> Plan:
+    """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing."""
+    check_runner(cfg)
+    suite_cls = registry.suite_class(cfg.suite)
+    suite_options = build_options(suite_cls.Options, cfg.suite_options, f"suite {cfg.suite}")
+    suite = suite_cls(suite_options)
+    policy_ref = cfg.policy or suite.default_policy
+    plugin = registry.load_policy(policy_ref)
+    policy_options = build_options(plugin.Options, cfg.policy_options, f"policy {policy_ref}")
+    horizon = cfg.horizon or suite.default_horizon
+    if suite.max_horizon is not None and horizon > suite.max_horizon:
+        raise ConfigError(
+            f"horizon={horizon}: suite {suite.name!r} episodes last at most {suite.max_horizon} steps "
+            f"(0 = the suite default, {suite.default_horizon})"
+        )
+    cells = select_cells(suite, cfg)
+    if not cells:
+        raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
+    needs = tuple(plugin.obs_keys(policy_options))
+    step_bytes = 0
+    for cell in cells:
+        spec = suite.obs_spec(cell)
+        step_bytes = max(step_bytes, observation_bytes(spec))
+        missing = [k for k in needs if k not in spec]
+        if missing:
+            raise ConfigError(
+                f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
+                f"{cell.key} provides {describe_spec(spec)}"
+            )
+    identity = plugin.identity(policy_options)
+    plugin.preflight(policy_options, suite, cells, horizon)
+    calibration = None
+    if cfg.calibration:
+        from bench.calibrate.apply import load, verify  # mujoco and pyarrow: only calibration= runs need them
+
+        calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
+        verify(suite, cells, horizon, calibration)
+    conditions = axes.conditions_from_config(cfg.perturb)
+    axes.check_horizon(conditions, horizon)
+    check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
+    perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    if cfg.video:
+        check_run(suite, cells, horizon)
+    jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
+    problems = fast_check(suite, cells, jobs)
+    if problems and not cfg.allow_split_violation:
+        raise SplitError(
+            f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
+            "lists them; allow_split_violation=true runs anyway)"
+        )
+    run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
+    run_dir = check_outputs(cfg, run_id, identity.checkpoint)
+    return Plan(
+        resolved,
+        suite,
+        plugin,
+        suite_options,
+        policy_options,
+        identity,
+        calibration,
+        cells,
+        conditions,
+        jobs,
+        horizon,
+        run_dir,
+    )
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
+    """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
+    cfg = p.config
+    meta = {
+        "run_id": cfg.run_id,
+        "suite": p.suite.describe(),
+        "policy": {
+            "name": cfg.policy,
+            "checkpoint": p.identity.checkpoint,
+            "checkpoint_sha256": p.identity.checkpoint_sha256,
+        },
+        "config": p.config_dict(),
+        "expected_episodes": len(p.jobs),
+        "provenance": {
+            "bench_version": __version__,
+            "git_sha": provenance.git_sha(),
+            "packages": provenance.package_versions(),
+            **provenance.machine(),
+            "workers": workers,
+            "backend": [],
+            "seed": cfg.seed,
+            "episode_seeds": sorted({j.seed for j in p.jobs}),
+            "started_at": _now(),
+            "finished_at": None,
+            **(
+                {"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
+                if p.calibration
+                else {}
+            ),
+        },
+    }
+    meta_path = p.run_dir / "run.json"
+    if meta_path.exists():
+        old = load_json(meta_path)
+        new_cfg = meta["config"]
+        diffs = [
+            k
+            for k in sorted(set(old.get("config", {})) | set(new_cfg))
+            if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)
+        ]
+        if diffs:
+            k = diffs[0]
+            raise ConfigError(
+                f"run_id={cfg.run_id!r} exists with {k}={old.get('config', {}).get(k)!r} (now "
+                f"{new_cfg.get(k)!r}); use the same settings to resume it, or a new run_id"
+            )
+        meta = old
+    else:
+        write_atomic(meta_path, meta)
+    ctx = dataclasses.replace(
+        context(p),
+        timeout_s=cfg.timeout,
+        trajectory_dir=str(p.run_dir / "trajectories") if cfg.record else None,
+        video_dir=str(p.run_dir) if cfg.video else None,
+        video_episodes=cfg.video,
+    )
+    return meta, ctx
+
+
+def finish(p: Plan, meta: dict[str, Any], workers: int) -> dict[str, Any]:
+    """Stamp run.json (finish time, workers, backends), write and return the validated summary.json."""
+    records = read_records(p.run_dir / EPISODES)
+    meta["provenance"]["finished_at"] = _now()
+    meta["provenance"]["workers"] = workers
+    meta["provenance"]["backend"] = sorted({r.backend for r in records if r.backend})
+    write_atomic(p.run_dir / "run.json", meta)
+    summary = build(records, run_meta=meta)
+    validate(summary, "summary")
+    write_atomic(p.run_dir / "summary.json", summary)
+    return summary
+
+
+def run(
+    cfg: RunConfig | Plan,
+    *,
+    only: Callable[[Job], bool] | None = None,
+    progress: bool = False,
+    summarize: bool = True,
+    executor: Any = None,
+    on_record: Callable[[EpisodeRecord], None] | None = None,
+) -> RunResult:
+    """Run a config or a plan into its run directory; recorded episodes are skipped (resume).
+
+    Args:
+        cfg: a RunConfig (planned here) or a Plan from `plan`.
+        only: run only the jobs it accepts (e.g. the first k episodes); the others stay to do.
+        progress: show a progress bar on stderr.
+        summarize: write summary.json when done (and assemble `record=` datasets).
+        executor: an object with `execute(jobs, worker_spec, on_record)`; default: local processes.
+        on_record: called with each new record after it is written.
+    """
+    p = cfg if isinstance(cfg, Plan) else plan(cfg)
+    c = p.config
+    episodes_path = p.run_dir / EPISODES
+    done_ids = {r.job_id for r in read_records(episodes_path)}
+    todo = [j for j in p.jobs if j.job_id not in done_ids and (only is None or only(j))]
+    workers = min(c.workers or os.cpu_count() or 1, max(1, len(todo)))
+    executor = executor or make_executor(c, workers)
+    try:
+        if todo and hasattr(executor, "connect"):  # a cluster: reached and sized before anything is written
+            workers = executor.connect(len(todo), p.config.suite, str(p.config.policy))
+        meta, ctx = start(p, workers)
+        t0 = time.time()
+        with (
+            RecordWriter(episodes_path) as writer,
+            RunProgress(progress, c, len(todo), len(done_ids), len(p.jobs), p.run_dir, workers) as bar,
+        ):
+
+            def write(record: EpisodeRecord) -> None:
+                writer.write(record)
+                bar.advance(record)
+                if on_record is not None:
+                    on_record(record)
+
+            if progress and hasattr(executor, "note"):
+                executor.note = bar.note
+            executor.execute(todo, p.worker_spec(ctx), write)
+    finally:
+        if hasattr(executor, "close"):
+            executor.close()
+    meta["provenance"]["executor"] = (
+        c.executor if not hasattr(executor, "cluster") else {"kind": c.executor, **executor.cluster}
+    )
+    summary = finish(p, meta, workers) if summarize else None
+    records = read_records(episodes_path)
+    if summarize and c.record:
+        from bench.execution.recording import assemble  # pyarrow (LeRobot writer): only record= runs need it
+
+        path = assemble(records, p.run_dir / "trajectories", Path(c.record))
+        bar.note(f"recorded {sum(r.error is None for r in records)} episodes as a LeRobot v3 dataset: {path}")
+    bar.note(f"{len(todo)} episodes in {time.time() - t0:.1f} s; records: {episodes_path}")
+    return RunResult(p.run_dir, summary, records, len(todo), len(done_ids))
+
+
+def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
+    """Recompute, validate and write RUN_DIR/summary.json from its episodes.jsonl (the source of truth)."""
+    records, meta = load_run(Path(run_dir))
+    config_mod.check_stored(
+        RunConfig, meta.get("config") if isinstance(meta, dict) else None, str(Path(run_dir) / "run.json")
+    )
+    summary = build(records, run_meta=meta)
+    validate(summary, "summary")
+    write_atomic(Path(run_dir) / "summary.json", summary)
+    return summary
+
+
+def context(p: Plan, run_id: str | None = None) -> Any:
+    """The RunContext workers of plan `p` share, for runs that write no run directory (benchmarks)."""
+    return RunContext(
+        run_id=run_id or str(p.config.run_id),
+        suite_version=p.suite.version,
+        policy_id=str(p.config.policy),
+        checkpoint_sha256=p.identity.checkpoint_sha256,
+        versions=provenance.package_versions(),
+        horizon=p.horizon,
+        timeout_s=0,
+        policy_stats=bool(p.plugin.reports_stats),
+    )
+
+
+def worker(p: Plan, ctx: Any = None) -> Worker:
+    """An in-process worker of a plan (benchmarks time episodes with it; nothing is written)."""
+    return Worker(p.worker_spec(ctx or context(p)))

@@ -1,0 +1,40 @@
+"""Building blocks for suites: simulator adapters, the camera wrapper and the perturbation axes.
+
+A suite (those in `suites/`, or one of yours) builds its env adapters from these and never reaches
+into `bench.sims` itself; the contract the adapters meet is `bench.protocols.EnvAdapter`. Each adapter
+imports its simulator only when an env is made, so importing this module stays cheap.
+"""
+
+from __future__ import annotations
+
+from bench.sims import maniskill  # the module: suites call `maniskill.missing_extra()` (tests replace it)
+from bench.sims.axes import AXES, conditions_from_config
+from bench.sims.camera import camera_names
+from bench.sims.camera_env import CameraOptions, camera_spec, check_options, unwrap, with_cameras
+from bench.sims.gym import GymEnv
+from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
+from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
+from bench.sims.robosuite import RobosuiteEnv
+
+__all__ = [
+    "AXES",
+    "OBS_MODES",
+    "OBS_NAMES",
+    "RESETS",
+    "TOO_HIGH",
+    "CameraOptions",
+    "GymEnv",
+    "ManiSkillEnv",
+    "MetaWorldEnv",
+    "NativeInterface",
+    "RobosuiteEnv",
+    "camera_names",
+    "camera_spec",
+    "cameras_of",
+    "check_backend",
+    "check_options",
+    "conditions_from_config",
+    "maniskill",
+    "unwrap",
+    "with_cameras",
+]

@@ -1,0 +1,366 @@
+"""`bench report RUN|LEADERBOARD out=DIR`: a static HTML page with matplotlib figures.
+
+For a run (a run directory or its summary.json): success per task and robot/env with
+Wilson intervals, seen and unseen cells side by side; split means and the transfer
+gaps with their intervals; per-axis sensitivity curves (success against the
+perturbation level, pooled and per cell) when the run has perturbed conditions; for a
+remote policy (`policy=remote`), the distribution of its round-trip latency per condition.
+For a leaderboard: each entry's score, seen and unseen success and gap, ranked.
+With `calibration=DIR|FILE` (a `bench calibrate` output with calibration.json,
+schema `bench.calibration/1`): held-out error before/after calibration (nominal,
+declared fit, final) as a table and bars. With `verdict=FILE` (a `bench regress`
+verdict): the per-cell paired comparison. Given a run directory, the page also embeds the
+run's episode videos (`bench run video=N`) in the cell table, next to their cell, and a
+per-axis robustness table (`bench.scoring.robustness`: each axis' levels pooled, drop from nominal).
+
+Everything is read and validated before anything is written; figures are PNGs
+next to index.html, so the folder can be published as it is (CI artifact, Pages).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from bench.board.report_figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
+from bench.board.report_html import CSS, _e, _img, _pct, _signed, _table
+from bench.board.report_remote import latency_section
+from bench.core.errors import DataError
+from bench.core.io import first_nonfinite
+from bench.core.schema import load_json, validate
+from bench.records import EPISODES, read_records
+from bench.scoring.robustness import table
+
+
+# -- inputs -------------------------------------------------------------------------------------
+def load_input(arg: str) -> tuple[str, dict, Path]:
+    """(kind, document, path) for a run dir, summary.json or leaderboard.json; validated."""
+    path = Path(arg)
+    if path.is_dir():
+        if not (path / "summary.json").is_file():
+            raise DataError(f"{path}: no summary.json (is it a run directory? `bench score {path}` rebuilds it)")
+        path = path / "summary.json"
+    doc = load_json(path)
+    sid = validate(doc, str(path))
+    kinds = {"bench.summary/1": "run", "bench.leaderboard/1": "leaderboard"}
+    if sid not in kinds:
+        raise DataError(f"{path}: schema {sid} cannot be the report's input; give a run or a leaderboard")
+    return kinds[sid], doc, path
+
+
+def load_calibration(arg: str) -> dict:
+    """A calibration result (calibration.json, schema bench.calibration/1) with errors.nominal/declared/final."""
+    path = Path(arg)
+    if path.is_dir():
+        path = path / "calibration.json"
+    doc = load_json(path)
+    if not isinstance(doc, dict) or doc.get("schema") != "bench.calibration/1":
+        raise DataError(
+            f"{path}: not a calibration result (schema {doc.get('schema') if isinstance(doc, dict) else None!r}; "
+            "expected bench.calibration/1)"
+        )
+
+    nan_at = first_nonfinite(doc)
+    if nan_at:
+        raise DataError(f"{path}: field {nan_at} is NaN/inf; a calibration result holds finite numbers or null")
+    errors = doc.get("errors")
+    if not isinstance(errors, dict) or not any(
+        isinstance(errors.get(s), dict) for s in ("nominal", "declared", "final")
+    ):
+        raise DataError(f"{path}: field errors must hold nominal/declared/final error summaries")
+    for stage, summary in errors.items():
+        for key, value in summary.items() if isinstance(summary, dict) else ():
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise DataError(f"{path}: field errors.{stage}.{key} is {value!r:.40}; valid: a number or null")
+    return doc
+
+
+def load_verdict(arg: str) -> dict:
+    doc = load_json(Path(arg))
+    sid = validate(doc, arg)
+    if sid not in ("bench.regress/1", "bench.regress/2"):
+        raise DataError(f"{arg}: schema {sid} is not a regress verdict (bench.regress/1 or /2)")
+    return doc
+
+
+def _records(run_dir: Path | None) -> list:
+    """The run's episode records when the report was given a run directory (else none)."""
+    if run_dir is None or not (run_dir / EPISODES).is_file():
+        return []
+    return read_records(run_dir / EPISODES)
+
+
+def _videos(records: list, run_dir: Path | None, tmp: Path) -> dict[tuple[str, str], list[str]]:
+    """Copy the run's episode videos into tmp/videos; per (cell key, condition), their <video> elements."""
+    out: dict[tuple[str, str], list[str]] = {}
+    for r in sorted(records, key=lambda r: (r.job_id.rsplit("|", 1)[0], r.episode)):
+        video = (r.extras or {}).get("video") or {}
+        src = run_dir / str(video["path"]) if run_dir is not None and video.get("path") else None
+        if src is None or not src.is_file():
+            continue
+        (tmp / "videos").mkdir(exist_ok=True)
+        shutil.copyfile(src, tmp / "videos" / src.name)
+        outcome = "error" if r.error else ("success" if r.success_once else "failure")
+        label = f"episode {r.episode}: {outcome}"
+        out.setdefault((f"{r.task}/{r.robot}/{r.env}", r.condition), []).append(
+            f"<figure><video controls preload='metadata' width='192' src='videos/{_e(src.name)}' title='{_e(label)}'>"
+            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>"
+        )
+    return out
+
+
+def robustness_section(summary: dict, records: list) -> str:
+    """Per-axis robustness table (levels pooled), in the style of robustness benchmarks."""
+    if not records or not any(r.axis for r in records):
+        return ""
+    metric = summary["metric"] if summary["metric"] != "return" else "success_once"
+    conf = float(summary.get("confidence", 0.95) or 0.95)
+    rows = []
+    for row in table(records, metric, np.random.default_rng(0), confidence=conf):
+        rel = row["relative_drop"]
+        rows.append(
+            [
+                _e(row["axis"]),
+                _e(row["kind"]),
+                _e(", ".join(row["levels"])),
+                str(row["pairs"]),
+                f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
+                f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
+                _signed(row["drop"]),
+                f"{rel * 100:+.0f}%" if rel is not None else "n/a",
+            ]
+        )
+    return (
+        "<h2>Robustness per axis</h2>"
+        + _table(
+            ["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]", "relative drop"],
+            rows,
+            {3, 4, 5, 7},
+        )
+        + "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
+        "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>"
+    )
+
+
+def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[str]:
+    metric = summary["metric"]
+    records = _records(run_dir)
+    videos = _videos(records, run_dir, tmp)
+    parts = []
+    if fig_cells(summary, tmp / "cells.png"):
+        parts.append(
+            "<h2>Success per cell</h2>"
+            + _img("cells.png", "success per cell")
+            + f"<p class='note'>Nominal cells; bars are {_e(metric)} with Wilson intervals, "
+            "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>"
+        )
+    if fig_splits_gaps(summary, tmp / "gaps.png"):
+        rows = [
+            [f"{_e(g['reference'])} → {_e(g['target'])}", _e(g["metric"]), _e(g.get("statistic", "mean")), _signed(g)]
+            for g in summary["gaps"]
+        ]
+        parts.append(
+            "<h2>Splits and transfer gaps</h2>"
+            + _img("gaps.png", "splits and gaps")
+            + _table(["gap", "metric", "statistic", "value [CI]"], rows)
+        )
+    axes = fig_sensitivity(summary, tmp / "sensitivity.png")
+    if axes:
+        rows = []
+        for e in summary["sensitivity"]:
+            if e.get("scope") != "all" or e.get("axis") is None:
+                continue
+            d = e["drop_vs_nominal"][metric]
+            rows.append(
+                [
+                    _e(e["axis"]),
+                    _e(e["level"]),
+                    str(e["n"]),
+                    _pct(e[metric]),
+                    _signed(d),
+                    f"{d.get('lost', '')}/{d.get('gained', '')}",
+                    _e(d.get("p_value", "")),
+                ]
+            )
+        parts.append(
+            "<h2>Sensitivity per perturbation axis</h2>"
+            + _img("sensitivity.png", "sensitivity")
+            + _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows, {2})
+        )
+    robust = robustness_section(summary, records)
+    if robust:
+        parts.append(robust)
+
+    section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
+    if section:
+        parts.append(section)
+    rows = [
+        [
+            _e(c["task"]),
+            _e(c["robot"]),
+            _e(c["env"]),
+            f"<span class='{c['split']}'>{_e(c['split'])}</span>",
+            _e(c["condition"]),
+            str(c["n"]),
+            _pct(c["success_once"]),
+            _pct(c["success_at_end"]),
+            str(c["errors"] or ""),
+        ]
+        + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]), []))] if videos else [])
+        for c in summary["cells"]
+    ]
+    parts.append(
+        "<h2>All cells</h2>"
+        + _table(
+            ["task", "robot", "env", "split", "condition", "n", "success once", "success at end", "errors"]
+            + (["episode videos"] if videos else []),
+            rows,
+            {5, 8},
+        )
+    )
+    return parts
+
+
+def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
+    parts = []
+    if fig_leaderboard(board, tmp / "leaderboard.png"):
+        parts.append("<h2>Entries</h2>" + _img("leaderboard.png", "leaderboard"))
+    groups: dict[str, list[dict]] = {}
+    for e in board["entries"]:
+        groups.setdefault(e["group"], []).append(e)
+    for g, es in groups.items():
+        rows = []
+        for e in es:
+            m = e["metric"]
+            gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
+            sha = e["policy"].get("checkpoint_sha256")
+            rows.append(
+                [
+                    str(e["rank"] or "–"),
+                    _e(e["policy"]["name"]),
+                    _e(sha[:12]) if sha else "–",
+                    f"{_e(e['score']['split'] or '')} {_pct(e['score'])}",
+                    _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
+                    _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
+                    _signed(gap),
+                    str(e["counts"]["episodes"]),
+                    _e(e["run_id"]),
+                ]
+            )
+        parts.append(
+            f"<h2>{_e(g)}</h2><p class='note'>Ranked by the lower bound of the score.</p>"
+            + _table(
+                ["#", "policy", "checkpoint", "score", "seen", "unseen", "gap seen−unseen", "episodes", "run"],
+                rows,
+                {0, 7},
+            )
+        )
+    return parts
+
+
+def calibration_section(cal: dict, tmp: Path) -> str:
+    fig_calibration(cal, tmp / "calibration.png")
+    keys = [
+        ("one_step_nrmse", "one-step NRMSE"),
+        ("k_step_nrmse", "k-step NRMSE"),
+        ("free_run_nrmse", "free-run NRMSE"),
+        ("free_run_rmse", "free-run RMSE"),
+        ("r2", "R²"),
+    ]
+    rows = []
+    for stage in ("nominal", "declared", "final"):
+        err = cal["errors"].get(stage)
+        if isinstance(err, dict):
+            rows.append([stage] + [f"{err[k]:.4g}" if isinstance(err.get(k), (int, float)) else "n/a" for k, _ in keys])
+    extra = ""
+    added = cal.get("added") or cal.get("accepted")
+    if isinstance(added, list) and added:
+        names = [a.get("name", a.get("effect", "?")) if isinstance(a, dict) else str(a) for a in added]
+        extra = f"<p>Accepted effects: {_e(', '.join(map(str, names)))}</p>"
+    return (
+        "<h2>Calibration (held-out error before → after)</h2>"
+        + _img("calibration.png", "calibration")
+        + _table(["model"] + [lbl for _, lbl in keys], rows, {1, 2, 3, 4, 5})
+        + extra
+    )
+
+
+def verdict_section(v: dict) -> str:
+    cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note"}[v["verdict"]]
+    rows = [
+        [
+            _e(c["task"]),
+            _e(c["robot"]),
+            _e(c["condition"]),
+            _e(c["split"]),
+            str(c["pairs"]),
+            f"{c['baseline'] * 100:.0f}%",
+            f"{c['candidate'] * 100:.0f}%",
+            f"{c['drop']:+.2f}",
+            "n/a" if c["drop_lcb"] is None else f"{c['drop_lcb']:+.2f}",
+            "yes" if c.get("regressed") else "",
+        ]
+        for c in v["cells"]
+    ]
+    last = v["looks"][-1] if v["looks"] else {}
+    m = last.get("mean")
+    bound = f" — drop {m['value']:+.3f}, one-sided bounds [{m['lcb']:+.3f}, {m['ucb']:+.3f}]" if m else ""
+    named = "".join(
+        f"<li>{_e(r['kind'])} <b>{_e(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]</li>"
+        for r in v.get("regressed", [])
+    )
+    return (
+        f"<h2>Regression gate</h2><p>candidate <b>{_e(v['candidate']['spec'])}</b> vs baseline "
+        f"<b>{_e(v['baseline']['spec'])}</b>: <span class='{cls}'>{_e(v['verdict'].replace('_', ' '))}</span>"
+        f"{bound} (margin {v['margin']}, {len(v['looks'])} of {len(v['schedule'])} looks)</p>"
+        + (f"<p>Regressed:</p><ul>{named}</ul>" if named else "")
+        + (f"<p class='note'>{_e(v['note'])}</p>" if v.get("note") else "")
+        + f"<p class='note'>{_e(v['rule'])}</p>"
+        + _table(
+            ["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB", "regressed"],
+            rows,
+            {4, 5, 6, 7, 8},
+        )
+    )
+
+
+def build_page(
+    kind: str,
+    doc: dict,
+    tmp: Path,
+    cal: dict | None,
+    verdict: dict | None,
+    title: str | None,
+    run_dir: Path | None = None,
+) -> str:
+    """Write the figures into `tmp` and return the HTML text."""
+    if kind == "run":
+        default = f"{doc['suite']['name']} · {doc['policy']['name']} · run {doc['run_id']}"
+        prov = doc["provenance"]
+        sha = doc["policy"].get("checkpoint_sha256")
+        meta = (
+            f"suite {_e(doc['suite']['name'])} v{_e(doc['suite']['version'])} · policy {_e(doc['policy']['name'])}"
+            + (f" (checkpoint {_e(sha[:12])})" if sha else "")
+            + f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
+            f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}"
+        )
+        parts = run_sections(doc, tmp, run_dir)
+    else:
+        default = "leaderboard"
+        meta = f"{len(doc['entries'])} entries · suites " + ", ".join(
+            f"{_e(s['name'])} v{_e(s['version'])}" for s in doc["suites"]
+        )
+        parts = leaderboard_sections(doc, tmp)
+    if verdict:
+        parts.append(verdict_section(verdict))
+    if cal:
+        parts.append(calibration_section(cal, tmp))
+    t = title or default
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{_e(t)}</title><style>{CSS}</style></head>"
+        f"<body><h1>{_e(t)}</h1><div class='meta'>{meta}</div>{''.join(parts)}"
+        "<p class='meta'>Generated by bench report; intervals are two-sided at the run's confidence level.</p>"
+        "</body></html>\n"
+    )

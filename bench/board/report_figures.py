@@ -1,0 +1,290 @@
+"""The figures of `bench report` (matplotlib, Agg): cells, split means and gaps, sensitivity curves,
+leaderboard, calibration errors. Each `fig_*` writes one PNG and says whether it drew anything.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+SEEN, UNSEEN = "#3b6fb6", "#e07b28"
+COLOURS = {"seen": SEEN, "unseen": UNSEEN}
+
+
+def _plt():
+    import matplotlib  # matplotlib: loaded only when a figure is drawn
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
+
+    plt.rcParams.update({"figure.dpi": 110, "font.size": 9, "axes.spines.top": False, "axes.spines.right": False})
+    return plt
+
+
+def _save(fig: Any, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+    """Lay out, write and close one figure (closed figures free their memory in long report runs)."""
+    import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
+
+    fig.tight_layout(rect=rect)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _err(est: dict | None) -> tuple[float, float, float] | None:
+    """(value, minus, plus) of an estimate with an interval, or None."""
+    if not est or est.get("value") is None:
+        return None
+    v = est["value"]
+    lo, hi = est["ci"] if est.get("ci") else (v, v)
+    return v, max(v - lo, 0.0), max(hi - v, 0.0)
+
+
+def fig_cells(summary: dict, path: Path) -> bool:
+    """Success per task, robot/env with Wilson intervals; seen then unseen, coloured by split."""
+    plt = _plt()
+    metric = summary["metric"]
+    other = "success_at_end" if metric == "success_once" else "success_once"
+    cells = [c for c in summary["cells"] if c["condition"] == "nominal"]
+    if not cells:
+        return False
+    tasks = sorted({c["task"] for c in cells})
+    envs = len({c["env"] for c in cells}) > 1
+    fig, axes = plt.subplots(
+        len(tasks),
+        1,
+        figsize=(max(6.0, 0.75 * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2), 2.8 * len(tasks)),
+        squeeze=False,
+    )
+    for ax, task in zip(axes[:, 0], tasks):
+        rows = sorted(
+            (c for c in cells if c["task"] == task), key=lambda c: (c["split"] != "seen", c["robot"], c["env"])
+        )
+        xs = range(len(rows))
+        for x, c in zip(xs, rows):
+            e = _err(c[metric])
+            if e:
+                ax.bar(x, e[0], color=COLOURS[c["split"]], alpha=0.85, width=0.65)
+                ax.errorbar(x, e[0], yerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
+                ax.text(x, e[0] + e[2] + 0.02, f"{e[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
+            o = _err(c[other])
+            if o:
+                ax.plot(x, o[0], marker="_", ms=16, mew=2, color="black", alpha=0.6)
+        ax.set_xticks(list(xs))
+        ax.set_xticklabels([f"{c['robot']}\n{c['env']}" if envs else c["robot"] for c in rows], fontsize=8)
+        n_seen = sum(c["split"] == "seen" for c in rows)
+        if 0 < n_seen < len(rows):
+            ax.axvline(n_seen - 0.5, color="grey", ls=":", lw=1)
+        ax.set_ylim(0, 1.15)
+        ax.set_ylabel(f"{metric}")
+        ax.set_title(
+            f"{task}: success per cell ({int(summary['confidence'] * 100)}% Wilson); bar = {metric}, tick = {other}",
+            fontsize=9,
+            loc="left",
+        )
+    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
+    fig.legend(handles, ["seen", "unseen"], loc="lower center", fontsize=8, frameon=False, ncols=2)
+    _save(fig, path, rect=(0, 0.07 / len(tasks), 1, 1))
+    return True
+
+
+def fig_splits_gaps(summary: dict, path: Path) -> bool:
+    """Split means/IQM (left) and transfer gaps (right), with bootstrap intervals."""
+    plt = _plt()
+    metric = summary["metric"]
+    splits = summary["splits"]
+    gaps = [g for g in summary["gaps"] if g.get("value") is not None]
+    if not splits and not gaps:
+        return False
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 2.8), gridspec_kw={"width_ratios": [1.3, 1]})
+    labels, i = [], 0
+    for split in ("seen", "unseen"):
+        for stat in ("mean", "iqm"):
+            e = _err(splits.get(split, {}).get(metric, {}).get(stat))
+            if e:
+                a1.barh(i, e[0], color=COLOURS[split], alpha=0.85 if stat == "mean" else 0.45, height=0.6)
+                a1.errorbar(e[0], i, xerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
+                labels.append(f"{split} {stat}")
+                i += 1
+    a1.set_yticks(range(len(labels)))
+    a1.set_yticklabels(labels)
+    a1.invert_yaxis()
+    a1.set_xlim(0, 1.02)
+    a1.set_title(f"{metric} over nominal cells", fontsize=9, loc="left")
+    for j, g in enumerate(gaps):
+        e = _err(g)
+        assert e is not None, "gaps keeps only estimates with a value"
+        a2.errorbar(e[0], j, xerr=[[e[1]], [e[2]]], fmt="o", color="black", capsize=3)
+    a2.axvline(0, color="grey", lw=1)
+    if not gaps:
+        reason = next((g.get("reason") for g in summary["gaps"] if g.get("reason")), "no seen/unseen pair of groups")
+        a2.text(
+            0.5,
+            0.5,
+            f"no gap computable:\n{reason}",
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="grey",
+            transform=a2.transAxes,
+            backgroundcolor="white",
+        )
+    a2.set_yticks(range(len(gaps)))
+    a2.set_yticklabels([f"{g['reference']}→{g['target']}\n{g['metric']}" for g in gaps], fontsize=8)
+    a2.invert_yaxis()
+    a2.set_xlim(-1.02, 1.02)
+    a2.set_title("transfer gap (reference − target)", fontsize=9, loc="left")
+    _save(fig, path)
+    return True
+
+
+def _level_x(level: Any) -> tuple[float, float] | None:
+    """(x, half-width) of a perturbation level: a scale, or the midpoint of a [low, high] range."""
+    if isinstance(level, bool):
+        return None
+    if isinstance(level, (int, float)):
+        return float(level), 0.0
+    if isinstance(level, list) and len(level) == 2 and all(isinstance(v, (int, float)) for v in level):
+        return (level[0] + level[1]) / 2.0, abs(level[1] - level[0]) / 2.0
+    return None
+
+
+def fig_sensitivity(summary: dict, path: Path) -> list[str]:
+    """One panel per axis: success vs level (pooled, with Wilson intervals; thin lines per cell)."""
+    entries = summary.get("sensitivity") or []
+    metric = summary["metric"]
+    axes_names = sorted({e["axis"] for e in entries if e.get("axis")})
+    if not axes_names:
+        return []
+    plt = _plt()
+    nominal = next((e for e in entries if e.get("axis") is None and e.get("scope") == "all"), None)
+    ncol = min(3, len(axes_names))
+    nrow = (len(axes_names) + ncol - 1) // ncol
+    fig, axs = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
+    for k, axis in enumerate(axes_names):
+        ax = axs[k // ncol, k % ncol]
+        pooled = sorted(
+            (
+                (lx, e)
+                for e in entries
+                if e.get("axis") == axis and e.get("scope") == "all" and (lx := _level_x(e["level"]))
+            ),
+            key=lambda t: t[0][0],
+        )
+        per_cell: dict[tuple, list] = {}
+        for e in entries:
+            if e.get("axis") == axis and e.get("scope") == "cell" and _level_x(e["level"]):
+                per_cell.setdefault((e.get("task"), e.get("robot"), e.get("env")), []).append(e)
+        for key, es in sorted(per_cell.items()):
+            pts = sorted(
+                (lx[0], e[metric]["value"])
+                for e in es
+                if e[metric].get("value") is not None and (lx := _level_x(e["level"]))
+            )
+            if pts:
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=0.8, alpha=0.35, color="grey")
+                ax.annotate(key[1], pts[-1], fontsize=6, color="grey", xytext=(2, 0), textcoords="offset points")
+        xs: list[float] = []
+        ys: list[float] = []
+        lo: list[float] = []
+        hi: list[float] = []
+        xerr: list[float] = []
+        for (x, half), e in pooled:
+            est = _err(e[metric])
+            if est:
+                xs.append(x)
+                ys.append(est[0])
+                lo.append(est[1])
+                hi.append(est[2])
+                xerr.append(half)
+        ax.errorbar(
+            xs,
+            ys,
+            yerr=[lo, hi],
+            xerr=xerr if any(xerr) else None,
+            fmt="o-",
+            color="#b23a48",
+            capsize=3,
+            label="all cells",
+        )
+        if nominal and nominal[metric].get("value") is not None:
+            ax.axhline(nominal[metric]["value"], color="black", ls="--", lw=1, label="nominal")
+        ax.set_ylim(-0.02, 1.05)
+        ax.set_xlabel(f"{axis} level")
+        ax.set_ylabel(metric)
+        if xs and min(xs) > 0 and max(xs) / min(xs) > 20:
+            ax.set_xscale("log")
+        ax.set_title(f"sensitivity: {axis}", fontsize=9, loc="left")
+        ax.legend(fontsize=7, frameon=False)
+    for k in range(len(axes_names), nrow * ncol):
+        axs[k // ncol, k % ncol].axis("off")
+    _save(fig, path)
+    return axes_names
+
+
+def fig_leaderboard(board: dict, path: Path) -> bool:
+    """Per entry: seen and unseen success side by side with intervals, in ranking order per group."""
+    plt = _plt()
+    entries = board["entries"]
+    if not entries:
+        return False
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(entries) + 2), 3.4))
+    width = 0.38
+    labels = []
+    for i, e in enumerate(entries):
+        m = e["metric"]
+        for j, split in enumerate(("seen", "unseen")):
+            est = _err(e["splits"].get(split, {}).get(m, {}).get("mean"))
+            if est:
+                x = i + (j - 0.5) * width
+                ax.bar(x, est[0], width=width, color=COLOURS[split], alpha=0.85)
+                ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
+                ax.text(x, est[0] + est[2] + 0.02, f"{est[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
+        sha = e["policy"].get("checkpoint_sha256")
+        labels.append(
+            f"#{e['rank'] or '–'} {e['policy']['name']}" + (f"\n{sha[:8]}" if sha else "") + f"\n{e['suite']['name']}"
+        )
+    ax.set_xticks(range(len(entries)))
+    ax.set_xticklabels(labels, fontsize=7)
+    groups = [e["group"] for e in entries]
+    for i in range(1, len(entries)):
+        if groups[i] != groups[i - 1]:
+            ax.axvline(i - 0.5, color="grey", ls=":", lw=1)
+    ax.set_ylim(0, 1.15)
+    ax.set_ylabel("mean success")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
+    fig.legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, ncols=2, loc="lower center")
+    ax.set_title("leaderboard: seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
+    _save(fig, path, rect=(0, 0.06, 1, 1))
+    return True
+
+
+NRMSE_KEYS = (("one_step_nrmse", "one-step"), ("k_step_nrmse", "k-step"), ("free_run_nrmse", "free-run"))
+
+
+def fig_calibration(cal: dict, path: Path) -> bool:
+    """Held-out NRMSE per horizon for the nominal model, the declared fit and the final model."""
+    plt = _plt()
+    stages = [s for s in ("nominal", "declared", "final") if isinstance(cal["errors"].get(s), dict)]
+    fig, ax = plt.subplots(figsize=(6.5, 2.8))
+    width = 0.8 / len(stages)
+    colours = {"nominal": "#9aa0a6", "declared": "#3b6fb6", "final": "#2e8b57"}
+    for j, stage in enumerate(stages):
+        vals = [cal["errors"][stage].get(k) for k, _ in NRMSE_KEYS]
+        xs = [i + (j - (len(stages) - 1) / 2) * width for i in range(len(NRMSE_KEYS))]
+        ax.bar(
+            [x for x, v in zip(xs, vals) if v is not None],
+            [v for v in vals if v is not None],
+            width=width,
+            color=colours[stage],
+            label=stage,
+        )
+    ax.set_xticks(range(len(NRMSE_KEYS)))
+    ax.set_xticklabels([lbl for _, lbl in NRMSE_KEYS])
+    ax.set_ylabel("held-out NRMSE")
+    ax.legend(fontsize=8, frameon=False)
+    ax.set_title("calibration: error before → after (held-out)", fontsize=9, loc="left")
+    _save(fig, path)
+    return True
+
+
+# -- HTML ---------------------------------------------------------------------------------------

@@ -1,0 +1,310 @@
+"""`bench calibrate`: fit a model to logs and trace the residual; generate test data; list the effects."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+from bench.calibrate.effects import EFFECTS
+from bench.calibrate.generate import write_case
+from bench.calibrate.report import write_report
+from bench.calibrate.spec import EffectRequest, load_spec
+from bench.calibrate.suite import calibrate_suite
+from bench.calibrate.trace import run
+from bench.core import config, outputs
+from bench.core.config import ranged
+from bench.core.errors import ConfigError, DataError, did_you_mean
+from bench.logs import read_dataset
+
+MAX_THREADS = 256  # rollout threads: far above any core count here, far below what hangs a machine
+MAX_EPISODES = 10_000  # generated episodes
+MAX_FRAMES = 5_000_000  # generated frames in all (a few hundred MB of logs)
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    """Keys of `bench calibrate spec=...`: a spec's model fitted to logs."""
+
+    spec: Optional[str] = None  # calibration spec, YAML or JSON (docs/calibration.md) (required)
+    logs: Optional[str] = None  # LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS) (required)
+    out: Optional[str] = None  # folder for calibration.json, report.md and plots (required)
+    seed: int = ranged(0, 0)  # which episodes are held out (time split when there is one episode)
+    effects: Any = None  # override the spec's effect list: all, none or [name,...]
+    threads: Optional[int] = ranged(None, 1, MAX_THREADS)  # rollout threads (default: the spec's, 1)
+    quiet: bool = False  # no progress lines on stderr
+    residual: bool = True  # also fit a learned residual (a model of the force the calibrated physics misses); held-out errors with and without it
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+
+
+@dataclass(frozen=True)
+class SuiteCalibrateConfig:
+    """Keys of `bench calibrate suite=...`: a suite's robot fitted in its scene to `bench run record=` logs."""
+
+    suite: Optional[str] = None  # suite whose robot is calibrated (required)
+    robot: Optional[str] = None  # the robot of the suite (required)
+    logs: Optional[str] = None  # `bench run suite=NAME ... record=DIR` logs of that robot (required)
+    out: Optional[str] = None  # folder for calibration.json (with its `apply` section), report.md and plots (required)
+    condition: Optional[str] = None  # keep only the episodes recorded under this condition (default: all)
+    seed: int = ranged(0, 0)  # which episodes are held out
+    threads: int = ranged(1, 1, MAX_THREADS)  # rollout threads
+    quiet: bool = False  # no progress lines on stderr
+    residual: bool = True  # also fit a learned residual (a model of the force the calibrated physics misses); held-out errors with and without it
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Keys of `bench calibrate generate`: a synthetic case with one hidden effect."""
+
+    effect: Optional[str] = None  # the hidden effect (`bench calibrate effects`), or none (required)
+    out: Optional[str] = None  # folder for logs/, arm3_declared.xml, spec.yaml and truth.json (required)
+    episodes: int = ranged(8, 2, MAX_EPISODES)  # episodes to simulate
+    duration: float = ranged(6.0, 0, 3600.0, lo_open=True)  # seconds per episode
+    fps: float = ranged(100.0, 0, 10_000.0, lo_open=True)  # frames per second
+    seed: int = ranged(0, 0)  # seed of the references and the hidden parameters
+    target: Optional[str] = None  # joint or body the effect acts on (default: the effect's own)
+    disturbance: Optional[str] = None  # cogging: a force no effect of the library describes (for the learned residual)
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+
+
+GENERATE_USAGE = (
+    "usage: bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
+    "                                [target=NAME] [disturbance=cogging]"
+)
+USAGE = (
+    "usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]\n"
+    "                       [residual=true]\n"
+    "       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]\n"
+    "                       [residual=true]\n"
+    f"       {GENERATE_USAGE.removeprefix('usage: ')}\n"
+    "       bench calibrate effects"
+)
+GENERATE_ABOUT = (
+    "generate writes a synthetic case: a 3-joint arm under PD tracking with ONE hidden effect\n"
+    "(or none), as LeRobot logs (OUT/logs) plus the declared model, its spec and truth.json;\n"
+    "disturbance=cogging adds a force no effect of the library describes (for the learned residual). Then:\n"
+    "  bench calibrate spec=OUT/spec.yaml logs=OUT/logs out=OUT/result"
+)
+
+
+def help_text() -> str:
+    """`bench calibrate --help`: the spec keys, the suite keys, generate and effects."""
+    return config.command_help(
+        USAGE,
+        "Real2Sim: fit the spec's declared parameters to the logs (bounded least squares on truncated\n"
+        "horizons re-initialised from logged states), trace what is still wrong to a missing effect of the\n"
+        "library, add it, refit, and report held-out errors before and after.",
+        CalibrateConfig,
+        notes="suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
+        "state before each frame, the command of every physics step): a damping and an armature scale over\n"
+        "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"
+        "calibration.json then carries an `apply` section: `bench run suite=NAME ... calibration=OUT` runs\n"
+        "that robot's cells with the calibrated model (a file for another suite, robot or model is refused).\n\n"
+        f"suite keys:\n{config.key_help(SuiteCalibrateConfig)}\n\n"
+        f"{GENERATE_ABOUT}\n\ngenerate keys (bench calibrate generate --help):\n{config.key_help(GenerateConfig)}\n\n"
+        "effects lists the effect library (bench calibrate effects).",
+        examples=[
+            "bench calibrate generate effect=coulomb_friction out=/tmp/case",
+            "bench calibrate spec=/tmp/case/spec.yaml logs=/tmp/case/logs out=/tmp/case/result",
+            "bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir]",
+            "bench calibrate spec=bench/calibrate/models/emps.yaml logs=logs/emps out=runs/emps",
+        ],
+    )
+
+
+def generate_help() -> str:
+    """`bench calibrate generate --help`."""
+    return config.command_help(
+        GENERATE_USAGE,
+        GENERATE_ABOUT,
+        GenerateConfig,
+        examples=["bench calibrate generate effect=coulomb_friction out=/tmp/case"],
+    )
+
+
+def effects_help() -> str:
+    """`bench calibrate effects --help`."""
+    return config.command_help(
+        "usage: bench calibrate effects",
+        "Lists the effect library: each effect's name, kind, parameters and what it models. It takes no keys.",
+    )
+
+
+def _require(cfg: Any, *keys: str, command: str = "bench calibrate") -> list[str]:
+    """The values of the required `keys` of `cfg` (ConfigError naming the first one not given)."""
+    for key in keys:
+        if getattr(cfg, key) is None:
+            raise ConfigError(f"missing key {key!r}; usage: {command} {' '.join(k + '=...' for k in keys)}")
+    return [getattr(cfg, key) for key in keys]
+
+
+def _effects(value: Any):
+    if value is None:
+        return "spec"
+    if value == "all":
+        return None
+    if value == "none":
+        return ()
+    names = value if isinstance(value, list) else [value]
+    for n in names:
+        if n not in EFFECTS:
+            raise ConfigError(
+                f"key 'effects': unknown effect {n!r}; valid: all, none, {', '.join(EFFECTS)}."
+                f"{did_you_mean(str(n), EFFECTS)}"
+            )
+    return tuple(EffectRequest(str(n)) for n in names)
+
+
+def _load_logs(path: Path) -> tuple[list[dict], float]:
+    if not path.exists():
+        raise DataError(f"logs folder {str(path)!r} does not exist")
+    ds = read_dataset(path)
+    return [ep.data for ep in ds.episodes], float(ds.fps)
+
+
+def cmd_run(cfg: CalibrateConfig) -> int:
+    """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
+    spec_file, logs, out_dir = _require(cfg, "spec", "logs", "out")
+    spec = load_spec(Path(spec_file).expanduser())
+    out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})
+    episodes, fps = _load_logs(Path(logs).expanduser())
+    cal = run(
+        spec,
+        episodes,
+        fps,
+        seed=cfg.seed,
+        effects=_effects(cfg.effects),
+        threads=spec.threads if cfg.threads is None else cfg.threads,
+        log=_log(cfg.quiet),
+        residual=cfg.residual,
+    )
+    for w in cal.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    path = _write(out, cal)
+    _summary(cal, path)
+    return 0
+
+
+def _log(quiet: bool):
+    """Progress lines on stderr (none when quiet)."""
+    return (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+
+
+def _out(value: str, overwrite: bool, inputs: dict[str, Any]) -> Path:
+    """OUT checked against `bench.core.outputs`' rule (never an input or inside one; overwrite=true for bench's own)."""
+    return outputs.check("out", value, inputs, overwrite=overwrite)
+
+
+def _write(out: Path, cal: Any, extra: dict | None = None) -> Path:
+    """The calibration report, built aside and swapped in whole (`bench.core.outputs.replace_dir`)."""
+    outputs.replace_dir(out, lambda tmp: write_report(cal, tmp, extra))
+    return out / "calibration.json"
+
+
+def _summary(cal, path: Path) -> None:
+    e = cal.errors
+    added = ", ".join(f"{a['name']}@{a['target']}" for a in cal.added) or "none"
+    print(f"effects added: {added}")
+    print(
+        f"held-out free-run NRMSE: nominal {e['nominal']['free_run_nrmse']:.4g} -> declared "
+        f"{e['declared']['free_run_nrmse']:.4g} -> final {e['final']['free_run_nrmse']:.4g} "
+        f"(RMSE {e['declared']['free_run_rmse']:.4g} -> {e['final']['free_run_rmse']:.4g})"
+    )
+    if cal.learned:
+        h = cal.learned["heldout"]
+        print(
+            "learned residual, apart from the physics (held-out k-step NRMSE): "
+            f"{h['physics']['k_step_nrmse']:.4g} -> {h['physics_plus_residual']['k_step_nrmse']:.4g}"
+        )
+    print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s)")
+
+
+def cmd_suite(cfg: SuiteCalibrateConfig) -> int:
+    """Calibrate a suite's robot in its scene: logs of `bench run record=` -> OUT/calibration.json with `apply`."""
+    suite, robot, logs, out_dir = _require(cfg, "suite", "robot", "logs", "out")
+    out = _out(out_dir, cfg.overwrite, {"logs": logs})
+    cal, extra = calibrate_suite(
+        suite,
+        robot,
+        Path(logs),
+        seed=cfg.seed,
+        threads=cfg.threads,
+        log=_log(cfg.quiet),
+        residual=cfg.residual,
+        condition=cfg.condition,
+    )
+    for w in cal.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    path = _write(out, cal, extra)
+    _summary(cal, path)
+    print(
+        f"{len(extra['apply']['edits'])} model edit(s) for {robot}; run with them: bench run "
+        f"suite={suite} robots=[{robot}] calibration={path}"
+    )
+    return 0
+
+
+def cmd_generate(cfg: GenerateConfig) -> int:
+    """Write a synthetic case with one hidden effect."""
+    name, out_dir = _require(cfg, "effect", "out", command="bench calibrate generate")
+    effect = None if name in ("none", "null") else name
+    out = _out(out_dir, cfg.overwrite, {})
+    frames = cfg.episodes * cfg.duration * cfg.fps
+    if frames > MAX_FRAMES:
+        raise ConfigError(
+            f"episodes x duration x fps = {frames:.3g} frames; at most {MAX_FRAMES:,} are generated "
+            "(lower episodes=, duration= or fps=)"
+        )
+    params = {k: getattr(cfg, k) for k in ("episodes", "duration", "fps", "seed", "target", "disturbance")}
+    outputs.replace_dir(out, lambda tmp: write_case(tmp, effect, **params))
+    print(f"wrote {out}: logs/, arm3_declared.xml, spec.yaml, truth.json (hidden: {effect or 'nothing'})")
+    return 0
+
+
+def cmd_effects(argv: list[str]) -> int:
+    """List the effect library (`bench calibrate effects`, no arguments)."""
+    if argv:
+        raise ConfigError(f"unexpected argument {argv[0]!r}; bench calibrate effects takes none")
+    width = max(len(n) for n in EFFECTS)
+    for name, eff in EFFECTS.items():
+        print(f"{name.ljust(width)}  {eff.kind:8s}  {', '.join(eff.params)}: {eff.doc}")
+    return 0
+
+
+# subcommand -> (handler of the arguments after it, its --help); other arguments calibrate (spec= or suite=)
+SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
+    "generate": (
+        lambda argv: cmd_generate(config.build_from_argv(GenerateConfig, argv, "bench calibrate generate")),
+        generate_help,
+    ),
+    "effects": (cmd_effects, effects_help),
+}
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of `bench calibrate ...`: spec=... or suite=... calibrates; generate and effects are subcommands."""
+    positional, overrides = config.split_args(argv)
+    wants_help = any(a in ("-h", "--help") for a in positional)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(help_text(), end="")
+        return 0
+    if positional and positional[0] in SUBCOMMANDS:
+        handler, help_of = SUBCOMMANDS[positional[0]]
+        if wants_help:
+            print(help_of(), end="")
+            return 0
+        return handler(positional[1:] + overrides)
+    if wants_help:
+        print(help_text(), end="")
+        return 0
+    if positional:
+        raise ConfigError(
+            f"unexpected argument {positional[0]!r}; subcommands: {', '.join(SUBCOMMANDS)} "
+            f"(or spec=... logs=... out=..., or suite=... robot=... logs=... out=...)"
+        )
+    if any(config.top_key(o) == "suite" for o in overrides):
+        return cmd_suite(config.build(SuiteCalibrateConfig, overrides))
+    return cmd_run(config.build(CalibrateConfig, overrides))

@@ -1,0 +1,398 @@
+"""`bench logs`: inspect LeRobot v3.0 datasets and import CSV / MAT / RLDS logs into one."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional, TypeVar
+
+import numpy as np
+
+from bench import api
+from bench.core import config, outputs
+from bench.core.config import MAX_SEED, one_or_more, ranged
+from bench.core.errors import ConfigError, DataError, did_you_mean
+from bench.core.io import write_atomic
+from bench.logs import import_csv, import_mat, import_rlds, info, read_dataset, write_dataset
+from bench.logs.card import card, format_card
+from bench.logs.lerobot_info import MAX_FPS
+from bench.protocols import STATE
+from bench.protocols.suite import episode_seed
+
+T = TypeVar("T")
+MAX_CARD_EPISODES = 10_000  # evaluation initial states per cell a card compares the log with
+
+
+@dataclass(frozen=True)
+class ImportConfig:
+    """Keys of `bench logs import` for every format (SRC is positional)."""
+
+    out: Optional[str] = None  # target folder (required; must be new or empty unless overwrite=true)
+    format: Optional[str] = None  # csv | mat | rlds (default: from SRC: .csv, .mat, a folder or .tfrecord file)
+    fps: Optional[float] = ranged(
+        None, 0, MAX_FPS, lo_open=True
+    )  # frame rate in Hz (csv/mat: default 1/median time step; rlds: required)
+    task: Optional[str] = None  # task string of the episodes (rlds: where an episode has no instruction)
+    robot_type: Optional[str] = None  # robot type written to info.json
+    overwrite: bool = False  # replace a non-empty out folder
+
+
+@dataclass(frozen=True)
+class CsvKeys:
+    """Keys of `bench logs import` for a CSV file."""
+
+    state: Optional[list[str]] = one_or_more()  # columns of observation.state (default: every numeric column not used)
+    action: Optional[list[str]] = one_or_more()  # columns of action (default: none)
+    time: Optional[str] = None  # time column in seconds (without it, fps is required)
+    episode: Optional[str] = None  # column whose values split the rows into episodes
+    delimiter: str = ","  # field separator, one character
+
+
+@dataclass(frozen=True)
+class MatKeys:
+    """Keys of `bench logs import` for a MATLAB .mat file (one episode)."""
+
+    state: Optional[list[str]] = one_or_more()  # variables of observation.state (default: every vector but time)
+    action: Optional[list[str]] = one_or_more()  # variables of action
+    time: Optional[str] = None  # time variable in seconds (default: t or time)
+    velocity: bool = False  # append d/dt of each state variable as <var>_dot
+
+
+@dataclass(frozen=True)
+class RldsKeys:
+    """Keys of `bench logs import` for RLDS tfrecord shards."""
+
+    split: str = "train"  # shards to read
+    state: str = "observation/state"  # step field of observation.state
+    action: str = "action"  # step field of action
+    instruction: str = "language_instruction"  # step field with the task text
+
+
+FORMATS: dict[str, type] = {"csv": CsvKeys, "mat": MatKeys, "rlds": RldsKeys}
+
+
+@dataclass(frozen=True)
+class CardConfig:
+    """Keys of `bench logs card` (DIR is positional)."""
+
+    suite: Optional[str] = None  # suite whose evaluation the log must not overlap (builds its envs once per cell)
+    episodes: int = ranged(10, 0, MAX_CARD_EPISODES)  # evaluation episodes per cell (at least 1 with suite=)
+    seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed
+    dup_tol: float = ranged(0.05, 0)  # near-duplicate threshold, RMS in standardised units
+    overlap_tol: float = ranged(0.01, 0)  # overlap threshold, RMS in standardised units
+    out: Optional[str] = None  # also write the card as JSON (bench.logs_card/1) to this new file
+
+
+@dataclass(frozen=True)
+class RankConfig:
+    """Keys of `bench logs rank` (DIR is positional)."""
+
+    calibration: Optional[str] = None  # calibration.json of `bench calibrate`, or its folder (required)
+    horizon: str = "free_run"  # free_run | k_step (see below)
+    top: int = ranged(10, 0)  # rows printed (out= holds all)
+    out: Optional[str] = None  # also write the ranking as JSON (bench.logs_rank/1) to this new file
+
+
+INFO_USAGE = "usage: bench logs info DIR"
+IMPORT_USAGE = "usage: bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]"
+CARD_USAGE = (
+    "usage: bench logs card DIR [suite=NAME] [episodes=10] [seed=0] [dup_tol=0.05] [overlap_tol=0.01]\n"
+    "                      [out=FILE]"
+)
+RANK_USAGE = "usage: bench logs rank DIR calibration=FILE [horizon=free_run|k_step] [top=10] [out=FILE]"
+
+
+def help_text() -> str:
+    """`bench logs --help`: the subcommands (each has its own --help with its keys)."""
+    usages = [INFO_USAGE, IMPORT_USAGE, CARD_USAGE.split("\n")[0], RANK_USAGE]
+    return config.command_help(
+        "\n".join([usages[0]] + ["      " + u.removeprefix("usage:") for u in usages[1:]]),
+        "Real-robot logs as LeRobot v3.0 datasets (parquet, read and written without pandas).",
+        notes="subcommands:\n"
+        "  info    episodes, frames, fps, features with shapes and tasks of a dataset folder\n"
+        "  import  convert a CSV file, a MATLAB .mat file or RLDS tfrecord shards to a dataset\n"
+        "  card    how many episodes are worth having: N_eff = N (1 - d) (1 - n) (1 - c)\n"
+        "  rank    episodes ordered by sim-real surprise under a calibrated model\n\n"
+        "`bench logs SUBCOMMAND --help` describes each and lists its keys.",
+    )
+
+
+def info_help() -> str:
+    """`bench logs info --help`."""
+    return config.command_help(
+        INFO_USAGE,
+        "Print a LeRobot v3.0 dataset's summary from its metadata (no frames are read): episodes,\n"
+        "frames, episode lengths, fps, robot type, every feature with dtype and shape, the tasks.\n"
+        "Camera features are dtype `image` (PNG inside the parquet) or `video` (MP4 files; shown with\n"
+        "codec, pixel format, fps and number of files). It takes no keys.",
+        examples=["bench logs info logs/pendulum"],
+    )
+
+
+def import_help() -> str:
+    """`bench logs import --help`: the keys of every format, then each format's own."""
+    sections = {
+        "csv": "csv keys",
+        "mat": "mat keys (one episode; scalar variables go to the episode metadata)",
+        "rlds": "rlds keys (TFDS shards; features.json gives shapes and dtypes; no TensorFlow needed)",
+    }
+    return config.command_help(
+        IMPORT_USAGE,
+        "Convert a log to a LeRobot v3.0 dataset folder. observation.state and action become\n"
+        "float32 vectors; a time column gives `timestamp` (s from the episode start) and `time_ns`\n"
+        "(absolute, int64 ns). The keys below the first list belong to one format each.",
+        ImportConfig,
+        examples=[
+            "bench logs import data_measured.csv out=logs/pendulum time=time state=[position,velocity] action=[torque]",
+            "bench logs import DATA_EMPS.mat out=logs/emps state=[qm] action=[vir] velocity=true",
+            "bench logs import ~/tensorflow_datasets/bridge/1.0.0 out=logs/bridge format=rlds fps=5",
+        ],
+        notes="\n\n".join(f"{title}:\n{config.key_help(FORMATS[fmt])}" for fmt, title in sections.items()),
+    )
+
+
+def card_help() -> str:
+    """`bench logs card --help`."""
+    return config.command_help(
+        CARD_USAGE,
+        "A data card of a log: N episodes, and how many of them count, N_eff = N (1 - d) (1 - n) (1 - c):\n"
+        "  d  near-duplicate share: episodes whose observation.state trajectory (resampled to 32 instants,\n"
+        "     standardised by the log's spread) is within dup_tol RMS of an earlier episode's\n"
+        "  n  noise share: white-noise variance (var of second differences / 6) over variance, mean of channels\n"
+        "  c  overlap with an evaluation: episodes whose first observation is within overlap_tol (RMS,\n"
+        "     standardised) of an initial observation of `bench run suite=NAME episodes=K seed=S` (the\n"
+        "     cells the episodes' task strings name; measured only with suite=)",
+        CardConfig,
+        examples=["bench logs card logs/pendulum", "bench logs card runs/rec suite=held_out_robots out=card.json"],
+    )
+
+
+def rank_help() -> str:
+    """`bench logs rank --help`."""
+    return config.command_help(
+        RANK_USAGE,
+        "Episodes of DIR ordered by sim-real surprise: the position NRMSE of each episode replayed in the\n"
+        "calibrated model (a `bench calibrate` output: spec calibrations rebuild the spec's model, suite\n"
+        "calibrations the suite's robot in its scene), highest first — what to replay, inspect or collect next.",
+        RankConfig,
+        notes="horizon:\n"
+        "  free_run  open loop from the episode's first state to its end (default)\n"
+        "  k_step    re-initialised from the log every k frames (the calibration's k)",
+        examples=["bench logs rank logs/emps calibration=runs/emps top=5"],
+    )
+
+
+def _format_for(src: Path, given: Optional[str]) -> str:
+    if given is not None:
+        fmt = given.lower()
+        if fmt not in FORMATS:
+            raise ConfigError(f"format is {given!r}; valid: {', '.join(FORMATS)}.{did_you_mean(fmt, FORMATS)}")
+        return fmt
+    if src.suffix.lower() == ".csv":
+        return "csv"
+    if src.suffix.lower() == ".mat":
+        return "mat"
+    if src.is_dir() or ".tfrecord" in src.name:
+        return "rlds"
+    raise ConfigError(f"cannot tell the format of {str(src)!r}; pass format=csv|mat|rlds")
+
+
+def _names(schema: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(schema)]
+
+
+def cmd_import(argv: list[str]) -> int:
+    """`bench logs import SRC out=DIR [format=...] [key=value ...]`."""
+    positional, overrides = config.split_args(argv)
+    if len(positional) != 1:
+        raise ConfigError(f"expected one source path, got {len(positional)}: bench logs import SRC out=DIR")
+    src = Path(positional[0]).expanduser()
+    common = _names(ImportConfig)
+    cfg: ImportConfig = config.build(ImportConfig, [o for o in overrides if config.top_key(o) in common])
+    fmt = _format_for(src, cfg.format)
+    parts = config.partition(overrides, {"all formats": common, fmt: _names(FORMATS[fmt])}, f"for format={fmt}")
+    keys: Any = config.build(FORMATS[fmt], parts[fmt])
+    if not cfg.out:
+        raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
+    task = cfg.task or "default"
+    meta: dict[str, Any] = {"task": task, "fps": cfg.fps, "robot_type": cfg.robot_type}  # what every format takes
+    if fmt == "csv":
+        if len(keys.delimiter) != 1:
+            raise ConfigError(f"delimiter is {keys.delimiter!r}; expected one character (e.g. , or ; or a tab)")
+        ds = import_csv(
+            src,
+            state=keys.state,
+            action=keys.action,
+            time=keys.time,
+            episode=keys.episode,
+            delimiter=keys.delimiter,
+            **meta,
+        )
+    elif fmt == "mat":
+        pairs = (("observation.state", keys.state), ("action", keys.action))
+        mapping: dict[str, str | Sequence[str]] = {feature: names for feature, names in pairs if names}
+        ds = import_mat(src, mapping or None, time=keys.time, velocity=keys.velocity, **meta)
+    else:
+        ds = import_rlds(
+            src, split=keys.split, state=keys.state, action=keys.action, instruction=keys.instruction, **meta
+        )
+    out = write_dataset(Path(cfg.out).expanduser(), ds, overwrite=cfg.overwrite, inputs={"SRC": src})
+    print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
+    print(format_info(_info(out)))
+    return 0
+
+
+def _info(root: Path | str) -> dict:
+    return info(root)
+
+
+def format_info(summary: dict) -> str:
+    """Plain aligned text for `bench logs info`."""
+    lengths = summary["lengths"]
+    lines = [
+        f"dataset   {summary['root']}",
+        f"format    LeRobot {summary['codebase_version']}, robot_type {summary['robot_type']}",
+        f"episodes  {summary['episodes']}  (frames {summary['frames']}; length {lengths['min']}..{lengths['max']}, "
+        f"mean {lengths['mean']:.1f})",
+        f"fps       {summary['fps']}",
+        "features",
+    ]
+    width = max(len(n) for n in summary["features"])
+    for name, feat in summary["features"].items():
+        names = feat.get("names")
+        shown = ""
+        if isinstance(names, list) and names:
+            shown = ", ".join(map(str, names[:8])) + (", ..." if len(names) > 8 else "")
+        elif isinstance(names, dict):
+            shown = ", ".join(f"{k}: {v}" for k, v in names.items())
+        video = feat.get("video")
+        if video:  # frames in MP4 files beside the parquet data
+            files = video["files"]
+            shown = (
+                f"{video.get('codec') or '?'} {video.get('pix_fmt') or '?'}, {video.get('fps') or '?'} fps, "
+                f"{files} mp4 file{'s' if files != 1 else ''}"
+            )
+        lines.append(f"  {name.ljust(width)}  {feat['dtype']:<8} {str(feat['shape']):<14} {shown}".rstrip())
+    lines.append(f"tasks     {len(summary['tasks'])}")
+    for i, task in enumerate(summary["tasks"][:20]):
+        lines.append(f"  {i:>3}  {task}")
+    if len(summary["tasks"]) > 20:
+        lines.append(f"  ... {len(summary['tasks']) - 20} more")
+    return "\n".join(lines)
+
+
+def cmd_info(argv: list[str]) -> int:
+    """`bench logs info DIR` (no keys)."""
+    if len(argv) != 1 or "=" in argv[0]:
+        raise ConfigError(f"expected one dataset folder: {INFO_USAGE.removeprefix('usage: ')}")
+    print(format_info(_info(Path(argv[0]).expanduser())))
+    return 0
+
+
+def _eval_starts(suite_name: str, ds: Any, episodes: int, seed: int) -> dict:
+    """Initial observations of a suite's evaluation for the cells the log's episodes name (task strings)."""
+    suite = api.load_suite(suite_name)
+    cells = {c.key: c for c in suite.all_cells()}
+    named = sorted({ep.tasks[0] for ep in ds.episodes if ep.tasks} & set(cells))
+    if not named:
+        raise DataError(
+            f"no episode of the log names a cell of suite {suite_name!r} in its task string (cells: "
+            f"{', '.join(sorted(cells)[:5])}...); was it recorded with `bench run suite={suite_name} "
+            "record=`?"
+        )
+    out = {}
+    for key in named:
+        env = suite.make_env(cells[key], suite.default_horizon)
+        try:
+            out[key] = np.stack(
+                [np.asarray(env.reset(episode_seed(seed, e))[STATE], dtype=np.float64).ravel() for e in range(episodes)]
+            )
+        finally:
+            env.close()
+    return out
+
+
+def _new_file(value: Any, key: str, inputs: dict[str, Any]) -> Path | None:
+    """A new output file (`bench.core.outputs`' rule: never an input or inside one; never over an existing file)."""
+    if value is None:
+        return None
+    return outputs.check(key, str(value), inputs, kind="file", can_overwrite=False)
+
+
+def _dir_and_config(argv: list[str], schema: type[T], usage: str) -> tuple[Path, T]:
+    """`DIR key=value ...` -> the dataset folder and the subcommand's frozen config."""
+    positional, overrides = config.split_args(argv)
+    if len(positional) != 1:
+        raise ConfigError(f"expected one dataset folder; {usage.splitlines()[0]}")
+    return Path(positional[0]).expanduser(), config.build(schema, overrides)
+
+
+def cmd_card(argv: list[str]) -> int:
+    """`bench logs card DIR ...`."""
+    root, cfg = _dir_and_config(argv, CardConfig, CARD_USAGE)
+    out = _new_file(cfg.out, "out", {"DIR": root})
+    if not root.exists():
+        raise ConfigError(f"logs folder {str(root)!r} does not exist")
+    ds = read_dataset(root)
+    starts, where = None, ""
+    if cfg.suite is not None:
+        if cfg.episodes < 1:
+            raise ConfigError("key 'episodes' must be at least 1 with suite=")
+        starts = _eval_starts(cfg.suite, ds, cfg.episodes, cfg.seed)
+        where = (
+            f"suite {cfg.suite}: {cfg.episodes} evaluation episode(s) of run seed {cfg.seed} in {len(starts)} cell(s)"
+        )
+    doc = card(ds, starts=starts, where=where, dup_tol=cfg.dup_tol, overlap_tol=cfg.overlap_tol)
+    print(format_card(doc))
+    if out is not None:
+        write_atomic(out, doc)
+        print(f"wrote {out}")
+    return 0
+
+
+def cmd_rank(argv: list[str]) -> int:
+    """`bench logs rank DIR calibration=FILE ...`."""
+    from bench.calibrate.rank import rank  # mujoco and scipy: only `bench logs rank` needs them
+
+    root, cfg = _dir_and_config(argv, RankConfig, RANK_USAGE)
+    if cfg.calibration is None:
+        raise ConfigError("missing key 'calibration' (a `bench calibrate` output folder or its calibration.json)")
+    out = _new_file(cfg.out, "out", {"DIR": root, "calibration": cfg.calibration})
+    doc = rank(cfg.calibration, root, cfg.horizon)
+    print(f"surprise = {doc['statistic']}; {len(doc['episodes'])} episodes, most first")
+    print(f"{'rank':>4}  {'episode':>7}  {'frames':>6}  {'surprise':>9}  worst joint")
+    for i, row in enumerate(doc["episodes"][: cfg.top]):
+        joint, value = max(row["per_joint"].items(), key=lambda kv_: kv_[1])
+        print(f"{i + 1:>4}  {row['episode']:>7}  {row['frames']:>6}  {row['surprise']:>9.4g}  {joint} ({value:.3g})")
+    if out is not None:
+        write_atomic(out, doc)
+        print(f"wrote {out}")
+    return 0
+
+
+# subcommand -> (handler, its --help)
+SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
+    "info": (cmd_info, info_help),
+    "import": (cmd_import, import_help),
+    "card": (cmd_card, card_help),
+    "rank": (cmd_rank, rank_help),
+}
+
+
+def main(argv: list[str]) -> int:
+    """Dispatch `bench logs info|import|card|rank`."""
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(help_text(), end="")
+        return 0
+    sub, rest = argv[0], argv[1:]
+    if sub not in SUBCOMMANDS:
+        raise ConfigError(
+            f"unknown logs subcommand {sub!r}; valid: {', '.join(SUBCOMMANDS)}.{did_you_mean(sub, SUBCOMMANDS)}"
+        )
+    handler, help_of = SUBCOMMANDS[sub]
+    if not rest or any(a in ("-h", "--help") for a in rest):
+        print(help_of(), end="")
+        return 0
+    return handler(rest)

@@ -1,0 +1,159 @@
+"""`bench replay`: the table, the plot, replay.json and the command."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.core import config as config_mod
+from bench.core import outputs
+from bench.core.io import write_atomic
+from bench.replay import run
+from bench.replay.common import HORIZON_LABELS, Replay, ReplayConfig, _episode_of
+
+
+def render(doc: dict, console=None) -> None:
+    """Per-joint RMSE / NRMSE table, one column pair per horizon."""
+    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
+    from rich.table import Table  # rich: loaded only when something is drawn on the terminal
+
+    console = console or Console()
+    hz = doc["horizons"]
+    t = Table(
+        title=f"replay of {len(doc['episodes'])} episode(s), {doc['frames']} frames at {doc['fps']:g} Hz "
+        f"({doc['backend']}; k = {doc['k']} frames)",
+        title_justify="left",
+    )
+    t.add_column("joint", overflow="fold")
+    for label in hz:
+        t.add_column(f"{HORIZON_LABELS[label]} RMSE", justify="right")
+        t.add_column(f"{HORIZON_LABELS[label]} NRMSE", justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.3g}"  # noqa: E731
+    for name in doc["joints"]:
+        t.add_row(name, *[fmt(hz[h]["per_joint"][name][m]) for h in hz for m in ("rmse", "nrmse")])
+    t.add_section()
+    t.add_row("mean", *[fmt(hz[h][m]) for h in hz for m in ("rmse", "nrmse")], style="bold")
+    console.print(t)
+    for note in doc.get("notes", []):
+        console.print(f"note: {note}")
+
+
+def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
+    """Logged vs replayed (free run and k-step) positions per joint for the first `n_episodes` episodes."""
+    import matplotlib  # matplotlib: loaded only when a figure is drawn
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
+
+    n_ep = min(n_episodes, len(rep.episodes))
+    if n_ep == 0:
+        return None
+    nj = len(rep.joints)
+    fig, axes = plt.subplots(
+        nj, n_ep, figsize=(6.0 * n_ep, 1.9 * nj + 0.8), sharex="col", squeeze=False, layout="constrained"
+    )
+    free, kst = rep.errors["free_run"], rep.errors["k_step"]
+    for c in range(n_ep):
+        a, b = int(rep.offsets[c]), int(rep.offsets[c + 1])
+        t = np.arange(b - a) / rep.fps
+        fsel = np.flatnonzero(_episode_of(rep.offsets, free.start) == c)
+        ksel = np.flatnonzero(_episode_of(rep.offsets, kst.start) == c)
+        for j in range(nj):
+            ax = axes[j, c]
+            ax.plot(t, rep.qpos[a:b, j], color="black", lw=1.4, label="logged")
+            for s in ksel:  # each k-step segment starts from the logged state
+                f0 = int(kst.start[s]) - a
+                m = kst.mask[s]
+                ax.plot(
+                    t[f0 : f0 + 1 + int(m.sum())],
+                    np.r_[rep.qpos[a + f0, j], kst.pred[s, m, j]],
+                    color="tab:orange",
+                    lw=1.0,
+                    label="k-step" if s == ksel[0] else None,
+                )
+                ax.plot(t[f0], rep.qpos[a + f0, j], ".", color="tab:orange", ms=3)
+            for s in fsel:
+                m = free.mask[s]
+                ax.plot(
+                    t[: 1 + int(m.sum())],
+                    np.r_[rep.qpos[a, j], free.pred[s, m, j]],
+                    color="tab:blue",
+                    lw=1.2,
+                    ls="--",
+                    label="free run",
+                )
+            if c == 0:
+                ax.set_ylabel(rep.joints[j])
+            if j == 0:
+                ax.set_title(f"episode {rep.episodes[c]}")
+        axes[-1, c].set_xlabel("time [s]")
+    axes[0, 0].legend(loc="best", fontsize=8)
+    fig.suptitle(f"logged vs replayed joint positions (k = {rep.doc['k']} frames)")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def write(rep: Replay, out: Path, n_plot: int) -> Path:
+    """OUT/replay.json (atomically, no NaN) and OUT/replay.png."""
+    out.mkdir(parents=True, exist_ok=True)
+    png = plot(rep, out / "replay.png", n_plot)
+    rep.doc["plot"] = png.name if png else None
+    path = out / "replay.json"
+    write_atomic(path, rep.doc)
+    return path
+
+
+def help_text() -> str:
+    """`bench replay --help`: the horizons, the keys (from ReplayConfig), the two backends."""
+    return config_mod.command_help(
+        "usage: bench replay logs=DIR spec=SPEC [k=10] [episodes=[0,3]] [out=DIR] [plot=2] [threads=1]\n"
+        "       bench replay logs=DIR suite=held_out_robots [commands=ctrl|action] [k=10] [episodes=[..]] [out=DIR] "
+        "[threads=1]",
+        "Open-loop replay: each logged episode is replayed from its logged states under its logged\n"
+        "commands, and the simulated joint positions are compared with the logged ones, per joint:\n"
+        "RMSE and NRMSE (RMSE / std of the logged position) at three horizons:\n"
+        "  one-step   re-initialised from the logged state every frame, one frame ahead\n"
+        "  k-step     re-initialised every k frames, k frames ahead\n"
+        "  free run   initialised once at the episode start, to its end\n"
+        "The model is replayed as given (no fitting: `bench calibrate` fits it). docs/replay.md.",
+        ReplayConfig,
+        notes="logs=: a LeRobot v3 dataset folder (`bench logs import` converts CSV / MAT / RLDS).\n"
+        "spec=: a signal map (YAML/JSON, docs/replay.md): the MJCF model, substeps per frame and the log\n"
+        "columns of qpos, qvel (optional) and ctrl; a calibration spec works too (its own fields are\n"
+        "ignored); all segments run batched in mujoco.rollout.\n"
+        "suite=: for datasets written by `bench run ... record=DIR` (they carry the MuJoCo state before\n"
+        "each step), replayed in the suite's nominal env. commands=ctrl replays the logged inputs of every\n"
+        "physics step (actuator commands; Meta-World: and the mocap pose), batched in mujoco.rollout (the\n"
+        "physics alone; default when the log has action.ctrl, as robosuite and Meta-World recordings do);\n"
+        "commands=action feeds the logged policy actions through the env's controller in a Python step loop\n"
+        "(physics and controller).\n"
+        "out=: replay.json (schema bench.replay/1) and replay.png (logged vs replayed); never the logs or\n"
+        "inside them.",
+        examples=[
+            "bench calibrate generate effect=payload_mass out=/tmp/case",
+            "bench replay logs=/tmp/case/logs spec=/tmp/case/spec.yaml k=20 out=/tmp/case/replay",
+            "bench run robots=[Panda] episodes=2 record=/tmp/rec && bench replay logs=/tmp/rec suite=held_out_robots",
+        ],
+    )
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of `bench replay`."""
+    if argv and (argv[0] == "help" or any(a in ("-h", "--help") for a in argv)):
+        print(help_text(), end="")
+        return 0
+    cfg: ReplayConfig = config_mod.build_from_argv(ReplayConfig, argv, "bench replay")
+    out = None
+    if cfg.out:
+        out = outputs.check("out", cfg.out, {"logs": cfg.logs, "spec": cfg.spec}, overwrite=cfg.overwrite)
+    rep = run(cfg)
+    render(rep.doc)
+    if out is not None:
+        outputs.replace_dir(out, lambda tmp: write(rep, tmp, cfg.plot))
+        path = out / "replay.json"
+        extra = f" and {path.parent / rep.doc['plot']}" if rep.doc.get("plot") else ""
+        print(f"wrote {path}{extra} ({rep.doc['wall_s']:.2f} s)", file=sys.stderr)
+    return 0

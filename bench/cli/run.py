@@ -1,0 +1,96 @@
+"""`bench run`: the command line over `bench.api` (config -> plan -> run -> records -> summary)."""
+
+from __future__ import annotations
+
+from bench import api
+from bench.api import RunConfig, score
+from bench.core import config as config_mod
+from bench.core.config import command_help
+from bench.core.errors import BenchError, ConfigError
+from bench.protocols import Suite, option_keys, registry
+from bench.scoring.summary import render
+from bench.sims.axes import axes_help
+
+
+def help_text(argv: list[str] | None = None) -> str:
+    """`bench run --help`: the runner's keys, then the keys of the suite and policy given in `argv` (or defaults)."""
+    suite, policy = "held_out_robots", None
+    for arg in argv or []:
+        key, _, value = arg.partition("=")
+        if key == "suite":
+            suite = value
+        elif key == "policy":
+            policy = value
+    plugin_keys = ""
+    try:
+        suite_cls: type[Suite] = registry.suite_class(suite)
+        policy = policy or suite_cls.default_policy or suite_cls.reference_policy
+        plugin = registry.load_policy(policy)
+        for owner, schema in ((f"suite {suite}", suite_cls.Options), (f"policy {policy}", plugin.Options)):
+            keys = config_mod.key_help(schema) if option_keys(schema) else "  (none)"
+            plugin_keys += f"\nkeys of {owner}:\n{keys}\n"
+    except BenchError as exc:
+        plugin_keys = f"\n(keys of suite {suite} / policy {policy}: {exc})\n"
+    return (
+        "usage: bench run [key=value ...]\n\n"
+        "Runs a policy on every cell (task x robot x env) and condition of a suite, appends one\n"
+        "record per episode to OUT/RUN_ID/episodes.jsonl as it finishes, then writes\n"
+        "OUT/RUN_ID/summary.json (success per cell with Wilson intervals, seen/unseen means with\n"
+        "bootstrap intervals, the seen-unseen transfer gap) and prints the table.\n"
+        "Rerunning with the same run_id resumes: recorded episodes are skipped.\n"
+        "Each key belongs to the runner, to the suite or to the policy; `bench run suite=NAME\n"
+        "policy=NAME --help` lists the keys of that suite and policy.\n\n"
+        f"runner keys:\n{config_mod.key_help(RunConfig)}\n{plugin_keys}\n"
+        "examples:\n"
+        "  bench run suite=held_out_robots\n"
+        "  bench run suite=held_out_robots policy=random episodes=10 workers=2\n"
+        "  bench run suite=held_out_robots robots=[UR5e,IIWA] episodes=3 run_id=try1\n"
+        "  bench run suite=held_out_robots policy=checkpoint checkpoint=bc/policy.safetensors\n"
+        "  bench run robots=[Panda] perturb.friction=[0.01,0.1] perturb.latency=uniform(0,4)\n"
+        "  bench run suite=gym env_id=HalfCheetah-v5 perturb.gravity=[0.5,1.5] perturb.mass.bodies=[torso] "
+        "perturb.mass.levels=[2]\n"
+        "  bench run robots=[Panda] obs=rgb cameras=[agentview] image_size=96 policy=random perturb.light=[0.3] "
+        "video=1   # cameras: docs/cameras.md\n"
+        "  bench run suite=my_pkg.suites:MySuite policy=my_pkg.policies:make   # out-of-tree plugins\n"
+        "  bench run executor=ray ray_address=10.0.0.5:6379 actors=64      # a Ray cluster (docs/ray.md)\n"
+        + _perturb_help()
+    )
+
+
+def _perturb_help() -> str:
+    return (
+        "\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
+        "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n"
+    )
+
+
+def main(argv: list[str]) -> int:
+    if any(a in ("-h", "--help") for a in argv):
+        print(help_text([a for a in argv if a not in ("-h", "--help")]))
+        return 0
+
+    p = api.plan(api.config_from_argv(argv))
+    result = api.run(p, progress=True)
+    if result.summary is not None:
+        render(result.summary)
+    return 0
+
+
+def main_score(argv: list[str]) -> int:
+    """`bench score RUN_DIR`: recompute summary.json from episodes.jsonl and print the table."""
+    if not argv or argv[0] in ("-h", "--help"):
+        print(
+            command_help(
+                "usage: bench score RUN_DIR",
+                "Recomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are the source of\n"
+                "truth) and prints the table.",
+                examples=["bench score runs/my_run"],
+            ),
+            end="",
+        )
+        return 0 if argv else 2
+
+    if len(argv) != 1:
+        raise ConfigError(f"score takes one RUN_DIR, got {argv}")
+    render(score(argv[0]))
+    return 0

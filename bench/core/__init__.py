@@ -1,0 +1,1 @@
+"""Foundations every layer uses: errors, the key=value config grammar, safe writes, JSON schemas, provenance, video."""

@@ -1,0 +1,281 @@
+"""One episode: reset with the episode's seed, apply its condition, step the policy, record.
+
+The rollout is the boundary between plugins and the records: an exception, a timeout, or a
+non-finite number coming out of the env (reward, observation) or the policy (action) ends
+the episode with its reason in `error` (the run goes on), and never reaches a summary.
+A policy may return an action chunk (T, A): its rows are executed open loop, one per step.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+import traceback
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.core.io import first_nonfinite, jsonable
+from bench.execution import episode_video
+from bench.protocols import RGB, STATE, EnvAdapter, Obs, Policy
+from bench.protocols.env import mj_input_names, state_hash
+from bench.protocols.suite import Job, condition_rng
+from bench.records import EpisodeRecord
+from bench.sims import perturb
+
+
+class EpisodeTimeout(Exception):
+    """The episode ran past its wall-clock limit."""
+
+
+class NonFinite(Exception):
+    """The env or the policy produced a NaN or infinite number."""
+
+
+@contextmanager
+def time_limit(seconds: float | None):
+    """Raise EpisodeTimeout in the main thread after `seconds` (no-op when None/0 or off-main-thread)."""
+    if not seconds or seconds <= 0 or not hasattr(signal, "setitimer"):
+        yield
+        return
+    try:
+        old = signal.signal(signal.SIGALRM, _on_alarm)
+    except ValueError:  # not the main thread
+        yield
+        return
+    signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _on_alarm(signum, frame):
+    raise EpisodeTimeout("episode timed out")
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """What every episode of a run shares (passed once to each worker)."""
+
+    run_id: str
+    suite_version: str
+    policy_id: str
+    checkpoint_sha256: str | None
+    versions: dict[str, str]
+    horizon: int
+    timeout_s: float
+    trajectory_dir: str | None = None  # set when `record=` asks for the rollouts
+    video_dir: str | None = None  # the run directory, when `video=N` asks for episode videos
+    video_episodes: int = 0  # N: videos of episodes 0..N-1 of every cell and condition
+    policy_stats: bool = False  # the policy reports `episode_stats()` (PolicyPlugin.reports_stats)
+
+
+def trajectory_path(directory: str | Path, job_id: str) -> Path:
+    """Where a job's trajectory (.npz) is kept until the run assembles the dataset."""
+    safe = job_id.replace("/", "__").replace("|", "--").replace("=", "-").replace("~", "_")
+    return Path(directory) / f"{safe}.npz"
+
+
+def _save_trajectory(path: Path, traj: dict[str, Any]) -> None:
+    """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists.
+
+    Camera frames (`rgb.*`) are compressed (rendered scenes shrink several times; numbers barely do)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    save = np.savez_compressed if any(k.startswith(RGB) for k in traj) else np.savez
+    save(tmp, **{k: np.asarray(v) for k, v in traj.items()})
+    os.replace(tmp, path)
+
+
+def _check_obs(obs: Obs, t: int) -> None:
+    for key, value in obs.items():
+        if isinstance(value, np.ndarray) and value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+            raise NonFinite(f"non-finite observation {key!r} at step {t}")
+
+
+class _Actions:
+    """The policy's commands one step at a time: a chunk (T, A) is executed open loop, row by row."""
+
+    def __init__(self, policy: Policy, dim: int):
+        self.policy, self.dim = policy, dim
+        self.queue: list[np.ndarray] = []
+
+    def next(self, obs: Obs, t: int) -> np.ndarray:
+        if not self.queue:
+            out = np.asarray(self.policy.act(obs))
+            if out.ndim == 1 and out.shape[0] == self.dim:
+                self.queue = [out]
+            elif out.ndim == 2 and out.shape[1] == self.dim and out.shape[0] >= 1:
+                self.queue = list(out)
+            else:
+                raise ValueError(
+                    f"policy returned an action of shape {out.shape}; expected ({self.dim},) or a chunk (T, {self.dim})"
+                )
+            if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
+                raise NonFinite(f"policy returned a non-finite action at step {t}")
+        return self.queue.pop(0)
+
+
+def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
+    """Run `job` on an already-built env; return its record and whether the env is still usable.
+
+    An exception, a timeout or a non-finite number is recorded in `error` (the run goes on);
+    the env is then reported unusable so the caller rebuilds it.
+    """
+    t0 = time.perf_counter()
+    success_once = success_at_end = False
+    ret, length, first_success = 0.0, 0, None
+    params: dict[str, Any] = {}
+    init_hash, error, stats = None, None, {}
+    traj: dict[str, Any] | None = (
+        {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [], "ctrl": []}
+        if ctx.trajectory_dir
+        else None
+    )
+    log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
+    video = None
+    try:
+        with time_limit(ctx.timeout_s):
+            rng = condition_rng(job.seed, job.condition)
+            stepper, params = perturb.apply(env, job.condition, rng)
+            obs = stepper.reset(job.seed)
+            _check_obs(obs, 0)
+            video = episode_video.start(ctx.video_dir, ctx.video_episodes, job, env)
+            if video is not None:
+                video.frame(obs)
+            init_hash = state_hash(env.init_state())
+            policy.reset(job.seed)
+            actions = _Actions(policy, env.action_spec.dim)
+            if log is not None:
+                log.start()
+            for t in range(ctx.horizon):
+                action = actions.next(obs, t)
+                if traj is not None:
+                    _append_frame(traj, env, obs, action)
+                obs, reward, terminated, truncated, _ = stepper.step(action)
+                if log is not None and traj is not None:
+                    traj["ctrl"].append(log.take().astype(np.float32).ravel())
+                if not np.isfinite(reward):
+                    raise NonFinite(f"non-finite reward ({reward}) at step {t}")
+                _check_obs(obs, t + 1)
+                if video is not None:
+                    video.frame(obs)
+                ret += reward
+                length = t + 1
+                success_at_end = bool(env.success())
+                if traj is not None:
+                    traj["reward"].append(float(reward))
+                    traj["success"].append(success_at_end)
+                if success_at_end and first_success is None:
+                    first_success = length
+                    success_once = True
+                if terminated or truncated:
+                    break
+    except EpisodeTimeout:
+        error = f"timeout after {ctx.timeout_s:g} s at step {length}"
+    except NonFinite as exc:
+        error = str(exc)
+    except Exception as exc:  # recorded, the run goes on
+        if ctx.timeout_s and time.perf_counter() - t0 >= ctx.timeout_s:
+            # the alarm fired inside a library that re-raised it as its own exception type
+            error = f"timeout after {ctx.timeout_s:g} s at step {length} (surfaced as {type(exc).__name__})"
+        else:
+            tb = traceback.extract_tb(exc.__traceback__)[-1]
+            error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
+    finally:
+        if log is not None:
+            log.stop()
+    extras: dict[str, Any] = {}
+    if video is not None:
+        extras["video"] = video.close(str(ctx.video_dir))
+    if ctx.policy_stats:
+        stats = _policy_stats(policy)
+    if error:
+        success_once = success_at_end = False
+        ret = 0.0 if not np.isfinite(ret) else ret
+    elif traj is not None and length:
+        if STATE in env.obs_spec:
+            traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
+        traj["action_names"] = list(env.action_spec.names)
+        traj["fps"] = [float(env.fps)]
+        if log is not None and env.mujoco is not None:
+            traj["ctrl_names"] = mj_input_names(env.mujoco.model, log.spec)
+            traj["ctrl_spec"] = [int(log.spec)]
+        _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
+    record = job_record(
+        job,
+        ctx,
+        level=jsonable(job.condition.level, 10),
+        params=jsonable(params, 10),
+        init_state_hash=init_hash,
+        success_once=success_once,
+        success_at_end=success_at_end,
+        return_=float(ret),
+        length=length,
+        steps_to_success=first_success,
+        error=error,
+        backend=env.backend,
+        wall_s=round(time.perf_counter() - t0, 4),
+        extras={**({"policy": stats} if stats else {}), **extras},
+    )
+    return record, error is None
+
+
+def job_record(job: Job, ctx: RunContext, **outcome: Any) -> EpisodeRecord:
+    """The record of `job`: which run, cell, condition, episode and policy it is, plus its `outcome` fields.
+
+    The one place a job's identity is written into a record, for episodes that ran and for
+    those that could not start (`bench.execution.runner.error_record`)."""
+    cell = job.cell
+    return EpisodeRecord(
+        run_id=ctx.run_id,
+        job_id=job.job_id,
+        suite=cell.suite,
+        suite_version=ctx.suite_version,
+        task=cell.task,
+        robot=cell.robot,
+        env=cell.env,
+        split=cell.split,
+        condition=job.condition.name,
+        axis=job.condition.axis,
+        episode=job.episode,
+        seed=job.seed,
+        policy=ctx.policy_id,
+        checkpoint_sha256=ctx.checkpoint_sha256,
+        finished_at=round(time.time(), 3),
+        worker_pid=os.getpid(),
+        versions=ctx.versions,
+        **outcome,
+    )
+
+
+def _policy_stats(policy: Any) -> dict[str, Any]:
+    """The policy's `episode_stats()`, made JSON-safe; a failure is reported in place of the stats."""
+    try:
+        stats = jsonable(policy.episode_stats(), 10)
+    except Exception as exc:
+        return {"error": f"episode_stats failed: {type(exc).__name__}: {exc}"}
+    bad = first_nonfinite(stats)
+    if bad is not None or not isinstance(stats, dict):
+        return {
+            "error": f"episode_stats returned a non-finite number at {bad}" if bad else "episode_stats is not a dict"
+        }
+    return stats
+
+
+def _append_frame(traj: dict[str, Any], env: EnvAdapter, obs: Obs, action: np.ndarray) -> None:
+    if STATE in obs:
+        traj["obs"].append(np.asarray(obs[STATE], np.float32))
+    for key, value in obs.items():  # camera images: `record=` stores them as LeRobot video features
+        if key.startswith(RGB):
+            traj.setdefault(key, []).append(np.asarray(value, np.uint8))
+    traj["action"].append(np.asarray(action, np.float32))
+    if env.mujoco is not None:  # MuJoCo state, so logs can be replayed in simulation
+        data = env.mujoco.data
+        traj["sim_state"].append(np.concatenate([data.qpos, data.qvel]).astype(np.float32))

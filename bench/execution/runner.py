@@ -1,0 +1,360 @@
+"""Execute jobs on an executor (in process plus local child processes), envs built once per worker.
+
+A `Worker` keeps a cache cell -> (env, policy); jobs arrive cell-major (bench.execution.scheduling),
+so a worker builds each cell's simulator once and soft-resets it for every episode.
+Finished records stream back to the parent, which appends them to episodes.jsonl as they
+land. Everything a worker needs travels in one picklable `WorkerSpec`, so any executor
+(`LocalExecutor` here, `bench.execution.ray_executor.RayExecutor`) builds the same workers and
+produces the same records. An executor is any object with
+`execute(jobs, worker_spec, on_record)`.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import threading
+import time
+import warnings
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from typing import Any
+
+from bench.core.errors import BenchError, ExecutorError
+from bench.execution.rollout import RunContext, job_record, run_episode
+from bench.execution.scheduling import MAX_RETRIES, JobQueue, depth, given_up_message
+from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
+from bench.protocols.suite import Job
+from bench.records import EpisodeRecord
+from bench.sims.perturb import write_fields
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """Everything a worker process needs to rebuild the run's suite and policy (picklable)."""
+
+    suite_ref: str  # registry name or package.module:Class
+    suite_options: Any  # an instance of the suite's Options
+    policy_ref: str  # registry name or package.module:attr
+    policy_options: Any  # an instance of the policy plugin's Options
+    seed: int  # the run seed
+    ctx: RunContext
+    calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
+
+
+class Worker:
+    """Runs jobs in this process: builds each cell's env and policy once, then one episode per job."""
+
+    def __init__(self, spec: WorkerSpec):
+        warnings.filterwarnings("ignore")
+
+        self.spec = spec
+        self.suite = registry.make_suite(spec.suite_ref, spec.suite_options)
+        self.plugin = registry.load_policy(spec.policy_ref)
+        self.policy_ctx = PolicyContext(spec.policy_options, self.suite, spec.seed, spec.ctx.horizon)
+        self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
+        self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
+
+    def built(self, job: Job) -> tuple[EnvAdapter, Policy]:
+        """The (env, policy) of the job's cell, built on first use."""
+        key = job.cell.key
+        if key not in self.cache:
+            env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
+            try:
+                cal = self.spec.calibration
+                if cal is not None and job.cell.robot == cal["robot"]:  # checked against this model by `plan`
+                    write_fields(env.mujoco, cal["edits"])
+                missing = [k for k in self.needs if k not in env.obs_spec]
+                if missing:  # the suite declared them (checked before the run), but its env does not give them
+                    raise RuntimeError(
+                        f"the policy needs observation keys {missing}; the env gives {sorted(env.obs_spec)}"
+                    )
+                policy = self.plugin.make(job.cell, env, self.policy_ctx)
+            except BaseException:
+                env.close()
+                raise
+            self.cache[key] = (env, policy)
+        return self.cache[key]
+
+    def run(self, job: Job) -> EpisodeRecord:
+        """One episode; a cell whose env or policy cannot be built is recorded as an error."""
+        try:
+            env, policy = self.built(job)
+        except Exception as exc:  # a cell whose env cannot be built: record, go on
+            return error_record(job, self.spec.ctx, f"building env/policy failed: {type(exc).__name__}: {exc}")
+        record, usable = run_episode(job, env, policy, self.spec.ctx)
+        if not usable:  # the env may be in a bad state after an error: rebuild next time
+            self.drop(job.cell.key)
+        return record
+
+    def drop(self, key: str) -> None:
+        env, _ = self.cache.pop(key, (None, None))
+        if env is not None:
+            try:
+                env.close()
+            except Exception:
+                pass
+
+    def close(self) -> None:
+        for key in list(self.cache):
+            self.drop(key)
+
+
+def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
+    """The record of an episode that could not start (its env or policy failed to build)."""
+    return job_record(
+        job,
+        ctx,
+        level=job.condition.level,
+        params={},
+        init_state_hash=None,
+        success_once=False,
+        success_at_end=False,
+        return_=0.0,
+        length=0,
+        steps_to_success=None,
+        error=error,
+        backend=None,
+        wall_s=0.0,
+    )
+
+
+def with_retries(record: EpisodeRecord, reasons: list[str]) -> EpisodeRecord:
+    """`record`, noting in `extras["retries"]` why earlier attempts at its job were lost (if any were)."""
+    if reasons:
+        record.extras = {**record.extras, "retries": list(reasons)}
+    return record
+
+
+def given_up_record(job: Job, ctx: RunContext, reasons: list[str]) -> EpisodeRecord:
+    """The error record of a job whose worker was lost on every allowed attempt."""
+    return with_retries(error_record(job, ctx, given_up_message(reasons)), reasons)
+
+
+# -- the local executor ----------------------------------------------------------------------
+
+
+def _child_main(conn: Connection, spec: WorkerSpec) -> None:
+    """A child process: build a Worker, report ready, then run the jobs the parent sends until None."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it stops the children
+    try:
+        worker = Worker(spec)
+    except BaseException as exc:
+        conn.send(("init_error", str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"))
+        return
+    conn.send(("ready", os.getpid()))
+    try:
+        while True:
+            job = conn.recv()
+            if job is None:
+                break
+            conn.send(("record", worker.run(job)))
+    except (EOFError, OSError):  # the parent is gone: nothing to report to
+        pass
+    finally:
+        worker.close()
+
+
+class _Child:
+    """A child process, the jobs sent to it and not yet answered, and the cells it has built."""
+
+    def __init__(self, ctx: Any, spec: WorkerSpec):
+        self.conn, theirs = ctx.Pipe()
+        self.proc = ctx.Process(target=_child_main, args=(theirs, spec), daemon=True)
+        self.proc.start()
+        theirs.close()
+        self.ready = False
+        self.inflight: deque[Job] = deque()
+        self.warm: set[str] = set()
+
+    def exit_reason(self) -> str:
+        self.proc.join(5)
+        code = self.proc.exitcode
+        how = f"was killed by signal {-code}" if code is not None and code < 0 else f"exited with code {code}"
+        return f"worker process {self.proc.pid} {how}"
+
+
+class _Children:
+    """Child processes fed by a dispatcher thread: each gets jobs as soon as it is ready (`scheduling.depth`).
+
+    A child that dies has its unanswered jobs put back in the queue (bounded retries) and is
+    replaced while jobs remain. Records go to `emit` as they arrive.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        spec: WorkerSpec,
+        queue: JobQueue,
+        cond: threading.Condition,
+        emit: Callable[[EpisodeRecord], None],
+    ):
+        self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
+        self.ctx = mp.get_context("spawn")
+        self.children = [_Child(self.ctx, spec) for _ in range(n)]
+        self.respawns = n * (MAX_RETRIES + 1)
+        self.retired: list[_Child] = []  # told to stop (or killed); joined by close()
+        self.wake_r, self.wake_w = mp.Pipe(duplex=False)  # close() wakes the dispatcher out of its wait
+        self.error: BaseException | None = None
+        self.stopping = False
+        self.thread = threading.Thread(target=self._serve, name="bench-dispatch", daemon=True)
+        self.thread.start()
+
+    def busy(self) -> bool:
+        """Some child still has jobs in flight (call with `cond` held)."""
+        return any(c.inflight for c in self.children)
+
+    def _serve(self) -> None:
+        try:
+            while not self.stopping:
+                ready = wait([self.wake_r, *(c.conn for c in self.children)], timeout=1.0)
+                for conn in ready:
+                    child = next((c for c in self.children if c.conn is conn), None)
+                    if child is not None:
+                        self._receive(child)
+                self._feed()
+        except BaseException as exc:  # surfaced in the main thread
+            with self.cond:
+                self.error = exc
+                self.cond.notify_all()
+
+    def _receive(self, child: _Child) -> None:
+        try:
+            kind, payload = child.conn.recv()
+        except (EOFError, OSError):
+            self._lost(child, child.exit_reason())
+            return
+        if kind == "ready":
+            child.ready = True
+        elif kind == "init_error":
+            raise ExecutorError(f"a worker process could not start: {payload}")
+        else:
+            with self.cond:
+                job = child.inflight.popleft()
+                assert job.job_id == payload.job_id, (job.job_id, payload.job_id)
+                reasons = self.queue.attempts(job)
+                self.cond.notify_all()
+            self.emit(with_retries(payload, reasons))
+
+    def _lost(self, child: _Child, reason: str) -> None:
+        """A child died: its unanswered jobs go back to the queue (or are given up); replace it."""
+        child.conn.close()
+        with self.cond:
+            self.children.remove(child)
+            given_up = [job for job in child.inflight if not self.queue.lost(job, reason)]
+            child.inflight.clear()
+            if self.queue and self.respawns > 0:
+                self.respawns -= 1
+                self.children.append(_Child(self.ctx, self.spec))
+            self.cond.notify_all()
+        for job in given_up:
+            self.emit(given_up_record(job, self.spec.ctx, self.queue.attempts(job)))
+
+    def _feed(self) -> None:
+        for child in self.children:
+            while child.ready:
+                with self.cond:
+                    if len(child.inflight) >= depth(len(self.queue), len(self.children) + 1):  # + the parent
+                        break
+                    job = self.queue.take(child.warm)
+                    if job is None:
+                        break
+                    child.inflight.append(job)
+                child.warm.add(job.cell.key)
+                child.conn.send(job)
+        with self.cond:
+            idle = [] if self.queue else [c for c in self.children if not c.inflight]
+            for child in idle:  # nothing left for it: let it close its envs while the others finish
+                self.children.remove(child)
+        for child in idle:
+            self._retire(child)
+
+    def _retire(self, child: _Child) -> None:
+        if child.ready:
+            try:
+                child.conn.send(None)
+            except OSError:
+                pass
+        else:  # still starting: it would only build a Worker to be told to stop
+            child.proc.kill()
+        self.retired.append(child)
+
+    def close(self) -> None:
+        """Stop the thread and the children (those still running an episode are killed)."""
+        self.stopping = True
+        self.wake_w.send(None)
+        self.thread.join(5)
+        self.wake_r.close()
+        self.wake_w.close()
+        for child in list(self.children):
+            if child.inflight:
+                child.proc.kill()
+            self._retire(child)
+        deadline = time.time() + 10
+        for child in self.retired:
+            child.proc.join(max(0.0, deadline - time.time()))
+            if child.proc.is_alive():
+                child.proc.kill()
+                child.proc.join(5)
+            child.conn.close()
+
+
+class LocalExecutor:
+    """Episodes in this process and, for `workers > 1`, in `workers - 1` spawned child processes.
+
+    The parent runs episodes from the first second while the children start (spawn, imports
+    and env builds take seconds each), so start-up overlaps with work; children get jobs as
+    soon as they are ready. Jobs go cell-major, a worker preferring a cell whose env it has
+    built. A child that dies (killed, segfault) has its episodes retried elsewhere, at most
+    `MAX_RETRIES` times each, the reasons kept in the record's `extras["retries"]`.
+    """
+
+    def __init__(self, workers: int):
+        self.workers = max(1, int(workers))
+
+    def execute(self, jobs: list[Job], spec: WorkerSpec, on_record: Callable[[EpisodeRecord], None]) -> None:
+        """Run `jobs`, calling `on_record` for each finished episode (in finish order, one call at a time)."""
+        if not jobs:
+            return
+        queue = JobQueue(jobs)
+        cond = threading.Condition()
+        emit_lock = threading.Lock()
+
+        def emit(record: EpisodeRecord) -> None:
+            with emit_lock:
+                on_record(record)
+
+        children = _Children(self.workers - 1, spec, queue, cond, emit) if self.workers > 1 else None
+        worker = None
+        try:
+            worker = Worker(spec)
+            while True:
+                with cond:
+                    job = None
+                    while job is None:
+                        if children is not None and children.error is not None:
+                            raise children.error
+                        job = queue.take(worker.cache.keys())
+                        if job is None:
+                            if children is None or not children.busy():
+                                break
+                            cond.wait(0.5)
+                    if job is None:
+                        break
+                    reasons = queue.attempts(job)
+                emit(with_retries(worker.run(job), reasons))
+            if children is not None and children.error is not None:
+                raise children.error
+        finally:
+            if children is not None:
+                children.close()
+            if worker is not None:
+                worker.close()
+
+
+def execute(jobs: list[Job], spec: WorkerSpec, workers: int, on_record: Callable[[EpisodeRecord], None]) -> None:
+    """Run `jobs` on the local executor with `workers` processes (1 = in process)."""
+    LocalExecutor(workers).execute(jobs, spec, on_record)

@@ -1,0 +1,172 @@
+"""Suites, cells and jobs: what a run is made of.
+
+A suite (the `bench.protocols.Suite` contract) is a named set of cells (task x robot x
+environment) with a declared split manifest: for each axis (robots, envs, tasks) which
+values are `seen` (allowed in training data) and which are `unseen` (held out). A run
+selects cells (`select_cells`) and expands them into jobs (cell, condition, episode index;
+`expand_jobs`); the episode seed depends only on the run seed and the episode index, so
+the same episode index starts from the same initial state in every condition (pairing by
+seed). `SuiteBase` gives a suite the contract's defaults; subclassing it is optional.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from bench.core.errors import ConfigError, valid_choices
+from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
+
+__all__ = [
+    "Cell",
+    "Condition",
+    "Job",
+    "NOMINAL",
+    "SPLITS",
+    "SPLIT_AXES",
+    "METRICS",
+    "SuiteBase",
+    "episode_seed",
+    "condition_rng",
+    "select_cells",
+    "expand_jobs",
+    "summary_line",
+    "cell_to_dict",
+]
+
+SPLITS = ("seen", "unseen")
+# selection key (`robots=[...]`) -> the Cell attribute it selects on; also the manifest's axes
+SPLIT_AXES: dict[str, str] = {"robots": "robot", "tasks": "task", "envs": "env"}
+METRICS = ("success_once", "success_at_end", "return")
+
+
+@dataclass(frozen=True)
+class Condition:
+    """A physics/interface condition: `nominal`, or one perturbation setting (see bench.sims.perturb)."""
+
+    name: str = "nominal"
+    axis: str | None = None  # e.g. "friction"; None for nominal
+    level: Any = None  # a scale/value, or a [low, high] range for randomisation
+    spec: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+
+
+NOMINAL = Condition()
+
+
+@dataclass(frozen=True)
+class Job:
+    """One episode to run: a cell under a condition with its own seed."""
+
+    cell: Cell
+    condition: Condition
+    episode: int
+    seed: int
+
+    @property
+    def job_id(self) -> str:
+        return f"{self.cell.key}|{self.condition.name}|{self.episode}"
+
+
+def episode_seed(run_seed: int, episode: int) -> int:
+    """Seed of episode `episode` of a run: independent of cell and condition (paired by seed)."""
+    return int(np.random.SeedSequence([int(run_seed), int(episode)]).generate_state(1)[0])
+
+
+def condition_rng(seed: int, condition: Condition) -> np.random.Generator:
+    """Generator for a condition's random draws in one episode (stable across processes)."""
+    return np.random.default_rng([int(seed), zlib.crc32(condition.name.encode())])
+
+
+class SuiteBase:
+    """Defaults of the `Suite` contract; a suite sets the class attributes and implements
+    `all_cells`, `obs_spec` and `make_env` (and `make_expert` with the "expert" capability)."""
+
+    name: ClassVar[str] = ""
+    version: ClassVar[str] = "1"
+    Options: ClassVar[type] = NoOptions
+    reference_policy: str = "scripted"
+    default_policy: str = ""  # "" = the reference policy
+    default_horizon: int = 200
+    max_horizon: int | None = None
+    default_metric: str = "success_once"
+    manifest: Mapping[str, Mapping[str, Sequence[str]]] = {}
+    capabilities: frozenset[str] = frozenset()
+
+    def __init__(self, options: Any = None) -> None:
+        self.options = self.Options() if options is None else options
+        if not self.default_policy:
+            self.default_policy = self.reference_policy
+
+    @classmethod
+    def unavailable(cls) -> str | None:
+        """Why the suite cannot run in this environment (one line, e.g. a missing optional extra), or None.
+
+        `bench list` shows it and `bench check` (every suite) skips the suite; the suite itself
+        refuses to be built with the same message.
+        """
+        return None
+
+    def all_cells(self) -> list[Cell]:
+        raise NotImplementedError
+
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        raise NotImplementedError
+
+    def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
+        raise NotImplementedError
+
+    def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
+        raise ConfigError(f"suite {self.name!r} declares no scripted expert")
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-able identity of the suite: name, version, split manifest and its non-default options."""
+        out: dict[str, Any] = {
+            "name": self.name,
+            "version": self.version,
+            "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()},
+        }
+        if dataclasses.is_dataclass(self.options) and not isinstance(self.options, type):
+            out.update({k: v for k, v in dataclasses.asdict(self.options).items()})
+        return out
+
+
+def summary_line(suite: Any) -> str:
+    """The first line of a suite's (class or instance) docstring (what `bench list` prints)."""
+    doc = (suite.__doc__ or "").strip().splitlines()
+    return doc[0] if doc else ""
+
+
+def select_cells(suite: Any, selection: Any) -> list[Cell]:
+    """The suite's cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset).
+
+    An empty list selects nothing and is refused, as is a value the suite does not have.
+    """
+    cells = suite.all_cells()
+    for key, attr in (*SPLIT_AXES.items(), ("splits", "split")):
+        wanted = getattr(selection, key, None)
+        if wanted is None:
+            continue
+        valid = sorted({getattr(c, attr) for c in cells})
+        if not wanted:
+            raise ConfigError(f"{key}=[] selects nothing; list some of: {', '.join(valid)} (or leave {key} out)")
+        for w in wanted:
+            if w not in valid:
+                raise ConfigError(f"{key}: {w!r} is not in suite {suite.name!r}; {valid_choices(w, valid)}")
+        cells = [c for c in cells if getattr(c, attr) in wanted]
+    return cells
+
+
+def expand_jobs(cells: Sequence[Cell], conditions: Sequence[Condition], episodes: int, seed: int) -> list[Job]:
+    """Jobs in cell-major order, so each worker reuses its env across consecutive episodes."""
+    return [
+        Job(cell, cond, ep, episode_seed(seed, ep)) for cell in cells for cond in conditions for ep in range(episodes)
+    ]
+
+
+def cell_to_dict(cell: Cell) -> dict[str, Any]:
+    return dataclasses.asdict(cell)

@@ -1,0 +1,355 @@
+"""Records -> summary: per-cell rates, split aggregates, transfer gaps; the terminal table.
+
+The summary is a leaderboard entry: it validates against the shipped JSON Schema
+(`bench/core/schemas/summary-1.json`) and is written atomically (temp file + rename).
+It is a pure function of the records plus the run's config, so `bench score RUN`
+recomputes exactly what `bench run` wrote.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.core.config import MAX_N_BOOT
+from bench.core.errors import DataError
+from bench.protocols.suite import METRICS as ALL_METRICS
+from bench.records import (
+    EPISODES,
+    SUCCESS_METRICS,
+    EpisodeRecord,
+    dedupe,
+    read_records,
+)
+from bench.remote.latency import run_latency
+from bench.scoring import stats as scoring
+from bench.scoring.rows import cell_row
+from bench.scoring.sensitivity import render as render_sensitivity
+from bench.scoring.sensitivity import sensitivity
+
+SCHEMA_ID = "bench.summary/1"
+
+
+def _cells(records: list[EpisodeRecord]) -> dict[tuple, list[EpisodeRecord]]:
+    groups: dict[tuple, list[EpisodeRecord]] = defaultdict(list)
+    for r in records:
+        groups[(r.task, r.robot, r.env, r.split, r.condition)].append(r)
+    for key in groups:
+        groups[key].sort(key=lambda r: r.episode)
+    return dict(
+        sorted(groups.items(), key=lambda kv: (kv[0][4] != "nominal", kv[0][4], kv[0][3], kv[0][0], kv[0][1], kv[0][2]))
+    )
+
+
+def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
+    attr = "return_" if metric == "return" else metric
+    return np.array([getattr(r, attr) for r in recs if r.error is None], dtype=float)
+
+
+def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str, Any]:
+    """The summary dict for `records`; `run_meta` carries run_id, suite, policy, config, provenance."""
+    cfg = run_meta["config"]
+    n_boot, conf = int(cfg.get("n_boot", 2000)), float(cfg.get("confidence", 0.95))
+    records = dedupe(records)
+    groups = _cells(records)
+    cells_out = []
+    for (task, robot, env, split, cond), recs in groups.items():
+        entry = cell_row(
+            {"task": task, "robot": robot, "env": env, "split": split, "condition": cond},
+            recs,
+            conf,
+            lambda ok: {"mean_length": round(float(np.mean([r.length for r in ok])), 3) if ok else None},
+        )
+        cells_out.append(entry)
+
+    rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919])  # scoring draws, seeded from the run seed
+    splits_out: dict[str, Any] = {}
+    gaps_out: list[dict[str, Any]] = []
+    nominal = {k: v for k, v in groups.items() if k[4] == "nominal"}
+    for m in SUCCESS_METRICS:
+        by_split = {s: [_outcomes(v, m) for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
+        for s, cells in by_split.items():
+            if not any(len(c) for c in cells):
+                continue
+            splits_out.setdefault(s, {})[m] = {
+                stat: scoring.aggregate(cells, rng, scoring.Boot(stat, n_boot, conf)).to_dict()
+                for stat in ("mean", "iqm")
+            }
+        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, scoring.Boot("mean", n_boot, conf))
+        if not any(len(c) for c in by_split["seen"]) and not any(len(c) for c in by_split["unseen"]):
+            continue
+        gaps_out.append(
+            {
+                "kind": "seen-unseen",
+                "metric": m,
+                "statistic": "mean",
+                "reference": "seen",
+                "target": "unseen",
+                **g.to_dict(),
+            }
+        )
+    if cfg.get("metric") == "return":  # envs without a success signal are scored by their return
+        _score_returns(groups, nominal, cells_out, splits_out, gaps_out, cfg, n_boot, conf)
+
+    expected = run_meta.get("expected_episodes")
+    n_err = sum(1 for r in records if r.error is not None)
+    summary = {
+        "schema": SCHEMA_ID,
+        "run_id": run_meta["run_id"],
+        "suite": run_meta["suite"],
+        "policy": run_meta["policy"],
+        "metric": cfg.get("metric", "success_once"),
+        "confidence": conf,
+        "counts": {
+            "episodes": len(records),
+            "errors": n_err,
+            "expected": expected,
+            "complete": expected is not None and len(records) >= expected,
+        },
+        "cells": cells_out,
+        "splits": splits_out,
+        "gaps": gaps_out,
+        "config": cfg,
+        "provenance": run_meta["provenance"],
+    }
+
+    latency = run_latency(records)
+    if latency is not None:
+        summary["policy_latency"] = latency
+    if any(r.condition != "nominal" for r in records):
+        summary["sensitivity"] = sensitivity(records, rng, n_boot=n_boot, confidence=conf)
+    return summary
+
+
+def _score_returns(
+    groups: dict,
+    nominal: dict,
+    cells_out: list,
+    splits_out: dict,
+    gaps_out: list,
+    cfg: dict[str, Any],
+    n_boot: int,
+    conf: float,
+) -> None:
+    """Mean return per cell (bootstrap over episodes), per split and the seen-unseen gap (stratified bootstrap).
+
+    Draws from a generator of their own, so the success scores of a run are the same whatever its metric.
+    """
+    rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 1])
+    for entry, recs in zip(cells_out, groups.values()):
+        values = _outcomes(recs, "return")
+        est = (
+            scoring.aggregate([values], rng, scoring.Boot("mean", n_boot, conf, binary=False))
+            if len(values)
+            else scoring.Estimate(None, reason="no completed episodes")
+        )
+        entry["return"] = est.to_dict()
+    by_split = {s: [_outcomes(v, "return") for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
+    for split, cells in by_split.items():
+        if any(len(c) for c in cells):
+            splits_out.setdefault(split, {})["return"] = {
+                stat: scoring.aggregate(cells, rng, scoring.Boot(stat, n_boot, conf, binary=False)).to_dict()
+                for stat in ("mean", "iqm")
+            }
+    if any(len(c) for c in by_split["seen"]) and any(len(c) for c in by_split["unseen"]):
+        g = scoring.gap(by_split["seen"], by_split["unseen"], rng, scoring.Boot("mean", n_boot, conf, binary=False))
+        gaps_out.append(
+            {
+                "kind": "seen-unseen",
+                "metric": "return",
+                "statistic": "mean",
+                "reference": "seen",
+                "target": "unseen",
+                **g.to_dict(),
+            }
+        )
+
+
+def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str:
+    """An estimate {"value", "ci"} as text: `82% [70, 91]`, or `+0.120 [+0.010, +0.230]` with pct=False
+    (`-1.2e+03 [...]`-style three significant digits for unsigned values such as returns)."""
+    if not est or est.get("value") is None:
+        return "n/a"
+    v, ci = est["value"], est.get("ci")
+    if pct:
+        return f"{v * 100:.0f}% [{ci[0] * 100:.0f}, {ci[1] * 100:.0f}]" if ci else f"{v * 100:.0f}%"
+    if not signed:
+        return f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"{v:.4g}"
+    return f"{v:+.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else f"{v:+.3f}"
+
+
+def render(summary: dict[str, Any], console=None) -> None:
+    """Print the per-cell table, the split aggregates, the gaps and one sentence on how to read the gap."""
+    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
+    from rich.table import Table  # rich: loaded only when something is drawn on the terminal
+
+    console = console or Console(width=None if Console().is_terminal else 120)
+    conf = int(round(summary.get("confidence", 0.95) * 100))
+    by_return = summary.get("metric") == "return"
+    t = Table(
+        title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
+        title_justify="left",
+    )
+    show_env = len({c.get("env") for c in summary["cells"]}) > 1  # e.g. scenes: rows differ only by env
+    scores = (
+        (f"return [{conf}% bootstrap]",)
+        if by_return
+        else (f"success once [{conf}% Wilson]", f"success at end [{conf}% Wilson]")
+    )
+    for col in ("task", "robot", *(("env",) if show_env else ()), "split", "condition", "n", *scores, "err"):
+        t.add_column(col, justify="right" if col in ("n", "err") else "left")
+    for c in summary["cells"]:
+        values = (
+            (fmt_estimate(c.get("return"), pct=False, signed=False),)
+            if by_return
+            else (fmt_estimate(c["success_once"]), fmt_estimate(c["success_at_end"]))
+        )
+        t.add_row(
+            c["task"],
+            c["robot"],
+            *((str(c.get("env")),) if show_env else ()),
+            c["split"],
+            c["condition"],
+            str(c["n"]),
+            *values,
+            str(c["errors"]) if c["errors"] else "",
+        )
+    console.print(t)
+    if summary["splits"]:
+        what = "mean return of cells" if by_return else "mean of cell rates"
+        a = Table(title=f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)", title_justify="left")
+        cols = (
+            (("return", "return", "mean"), ("IQM return", "return", "iqm"))
+            if by_return
+            else (
+                ("success once", "success_once", "mean"),
+                ("success at end", "success_at_end", "mean"),
+                ("IQM once", "success_once", "iqm"),
+            )
+        )
+        a.add_column("split")
+        for name, _, _ in cols:
+            a.add_column(name)
+        for s, v in summary["splits"].items():
+            a.add_row(
+                s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols]
+            )
+        console.print(a)
+    gaps = [g for g in summary["gaps"] if (g["metric"] == "return") == by_return]
+    if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
+        console.print("no held-out (unseen) cell was scored in this run: no seen → unseen transfer gap")
+    elif gaps:
+        g_t = Table(title=f"transfer gaps (reference − target, {conf}% bootstrap)", title_justify="left")
+        for col in ("gap", "metric", "value [CI]"):
+            g_t.add_column(col)
+        for g in gaps:
+            g_t.add_row(
+                f"{g['reference']} → {g['target']}",
+                g["metric"],
+                fmt_estimate(g, pct=False) if g.get("value") is not None else f"n/a ({g.get('reason')})",
+            )
+        console.print(g_t)
+        sentence = gap_sentence(summary)
+        if sentence:
+            console.print(sentence)
+    if summary.get("sensitivity"):
+        render_sensitivity(summary["sensitivity"], console)
+    counts = summary["counts"]
+    if counts["errors"]:
+        console.print(f"[yellow]{counts['errors']} episode(s) errored or timed out; see 'error' in episodes.jsonl[/]")
+
+
+_HELD_OUT_WORDS = {"robots": "robots", "envs": "environments", "tasks": "tasks"}
+
+
+def gap_sentence(summary: dict[str, Any]) -> str | None:
+    """How to read the headline seen -> unseen gap, in one sentence built from its numbers."""
+    metric = summary.get("metric", "success_once")
+    g = next((g for g in summary["gaps"] if g["metric"] == metric and g["kind"] == "seen-unseen"), None)
+    if g is None or g.get("value") is None or not g.get("ci"):
+        return None
+    axes = [a for a, split in summary["suite"].get("manifest", {}).items() if split.get("unseen")]
+    held = _HELD_OUT_WORDS.get(axes[0], axes[0]) if axes else "cells"
+    conf = int(round(summary.get("confidence", 0.95) * 100))
+    v, (lo, hi) = g["value"], g["ci"]
+    if metric == "return":
+        size = f"mean return is {abs(v):.3g} {'lower' if v > 0 else 'higher'}"
+    else:
+        size = f"success rate is {abs(v) * 100:.0f} points {'lower' if v > 0 else 'higher'}"
+    where = f"on {held} it never saw, the policy's {size} than on the seen ones (gap {fmt_estimate(g, pct=False)})"
+    if lo > 0:
+        return f"How to read this: {where}; the {conf}% interval excludes 0, so it transfers worse to unseen {held}."
+    if hi < 0:
+        return f"How to read this: {where}; the {conf}% interval excludes 0, so it does better on unseen {held}."
+    return (
+        f"How to read this: {where}; the {conf}% interval includes 0, so no transfer gap is detectable at this "
+        "many episodes (more episodes narrow it)."
+    )
+
+
+def load_run(run_dir: Path) -> tuple[list[EpisodeRecord], dict[str, Any]]:
+    """Records and stored run metadata of a run directory."""
+    run_dir = Path(run_dir)
+    meta_path = run_dir / "run.json"
+    if not meta_path.exists():
+        raise DataError(f"{meta_path}: missing; is {run_dir} a run directory written by `bench run`?")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError, ValueError) as exc:
+        raise DataError(f"{meta_path}: not valid JSON ({str(exc).splitlines()[0][:160]})") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{meta_path}: expected a JSON object (the run's metadata), found {type(meta).__name__}")
+    check_run_meta(meta, str(meta_path))
+    return read_records(run_dir / EPISODES), meta
+
+
+def check_run_meta(meta: dict[str, Any], source: str) -> None:
+    """Validate the parts of run.json that scoring reads (types and the runner's own ranges).
+
+    Raises:
+        DataError: one line naming run.json, the field, what was found and what is valid.
+    """
+    for key, typ, valid in (
+        ("run_id", str, "a string"),
+        ("suite", dict, "an object"),
+        ("policy", dict, "an object"),
+        ("config", dict, "an object"),
+        ("provenance", dict, "an object"),
+    ):
+        if key not in meta:
+            raise DataError(f"{source}: not a bench run.json: field {key!r} missing")
+        if not isinstance(meta[key], typ):
+            raise DataError(f"{source}: field {key!r} is {meta[key]!r:.60}; valid: {valid}")
+    cfg = meta["config"]
+
+    def number(
+        key: str, lo: float, hi: float, integer: bool, default: Any, lo_open: bool = False, hi_open: bool = False
+    ) -> None:
+        v = cfg.get(key, default)
+        if v is None and default is None:
+            return
+        kind = "an integer" if integer else "a number"
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, int if integer else (int, float))
+            or (isinstance(v, float) and not math.isfinite(v))
+        ):
+            raise DataError(f"{source}: field config.{key} is {v!r:.60}; valid: {kind}")
+        if v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
+            rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+            raise DataError(f"{source}: field config.{key} is {v!r}; valid: {kind} in {rng}")
+
+    number("n_boot", 1, MAX_N_BOOT, True, 2000)
+    number("confidence", 0, 1, False, 0.95, lo_open=True, hi_open=True)
+    number("seed", 0, 2**63 - 1, True, 0)
+    metric = cfg.get("metric")
+    if metric is not None and metric not in ALL_METRICS:
+        raise DataError(f"{source}: field config.metric is {metric!r:.60}; valid: {', '.join(ALL_METRICS)}")
+    exp = meta.get("expected_episodes")
+    if exp is not None and (isinstance(exp, bool) or not isinstance(exp, int) or exp < 0):
+        raise DataError(f"{source}: field expected_episodes is {exp!r:.60}; valid: an integer >= 0 or null")

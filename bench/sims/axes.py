@@ -1,0 +1,330 @@
+"""Perturbation axes and the `perturb.*` grammar: the one table of axes, and key=value -> conditions.
+
+Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
+    perturb.friction=[0.25,0.5,2]             level grid: one condition per level
+    perturb.friction=uniform(0.8,1.2)         domain randomisation: one condition, a draw per episode
+    perturb.mass=loguniform(0.5,2)            log-uniform draw
+    perturb.mass.levels=[0.5,2] perturb.mass.bodies=[cube_main]   dict form, with targets
+    perturb.mass.uniform=[0.8,1.2]            dict form of a range
+
+Applying a condition to an env is `bench.sims.perturb`'s (model and interface axes) and
+`bench.sims.perturb_visual`'s (visual axes).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from bench.core.errors import ConfigError, did_you_mean
+from bench.protocols.suite import NOMINAL, Condition
+from bench.sims import perturb_visual
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
+
+    name: str
+    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env) or "visual"
+    unit: str  # what a level means
+    short: str  # a few words for `bench run --help`
+    doc: str
+    minimum: float = 0.0  # smallest valid level
+    strict: bool = False  # level must be > minimum (not >=)
+    integer: bool = False  # levels are whole numbers
+    targets: tuple[str, ...] = ()  # optional name lists: "bodies", "joints", "geoms", "actuators"
+    field: str | None = None  # the MjModel field a model axis scales (gravity: model.opt.gravity)
+    setconst: bool = False  # derived constants depend on it: mj_setConst after editing
+    nominal: float = 1.0  # the level that means "unperturbed"
+    maximum: float = math.inf  # largest valid level
+
+
+MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
+# mass and link_mass scale body_mass (and inertia) of different bodies, the same way
+_BODY_MASS: dict[str, Any] = dict(strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE)
+MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
+
+
+AXES: dict[str, Axis] = {
+    a.name: a
+    for a in (
+        Axis(
+            "friction",
+            "model",
+            "scale of nominal",
+            "friction of every geom",
+            "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
+            "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
+            targets=("geoms", "bodies"),
+            field="geom_friction",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "mass",
+            "model",
+            "scale of nominal",
+            "mass + inertia of the manipulated object",
+            "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
+            **_BODY_MASS,
+        ),
+        Axis(
+            "link_mass",
+            "model",
+            "scale of nominal",
+            "mass + inertia of the robot's links",
+            "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
+            "or of the named bodies",
+            **_BODY_MASS,
+        ),
+        Axis(
+            "damping",
+            "model",
+            "scale of nominal",
+            "joint damping",
+            "joint damping of the robot's joints or of the named joints",
+            targets=("joints",),
+            field="dof_damping",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "armature",
+            "model",
+            "scale of nominal",
+            "joint armature",
+            "joint armature (rotor inertia) of the robot's joints or the named ones",
+            targets=("joints",),
+            field="dof_armature",
+            setconst=True,
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "frictionloss",
+            "model",
+            "scale of nominal",
+            "joint dry friction",
+            "joint dry friction (frictionloss) of the robot's joints or the named ones",
+            targets=("joints",),
+            field="dof_frictionloss",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "gain",
+            "model",
+            "scale of nominal",
+            "actuator gain (servo stiffness)",
+            "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
+            "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
+            targets=("actuators",),
+            field="actuator_gainprm",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "gravity",
+            "model",
+            "scale of nominal",
+            "gravity vector",
+            "the gravity vector (1 = nominal, 0 = weightless)",
+            maximum=MAX_SCALE,
+        ),
+        Axis(
+            "latency",
+            "interface",
+            "control steps",
+            "action delay",
+            "the env executes the action commanded this many control steps ago (neutral action at the start)",
+            integer=True,
+            nominal=0.0,
+            maximum=MAX_STEPS,
+        ),
+        Axis(
+            "action_noise",
+            "interface",
+            "std as a fraction of the action half-range",
+            "Gaussian action noise",
+            "Gaussian noise added to every executed action, then clipped to the bounds",
+            nominal=0.0,
+            maximum=10.0,
+        ),
+        Axis(
+            "obs_noise",
+            "interface",
+            "std in observation units",
+            "Gaussian observation noise",
+            "Gaussian noise added to every state observation the policy sees",
+            nominal=0.0,
+            maximum=1e6,
+        ),
+        Axis(
+            "action_hold",
+            "interface",
+            "control steps",
+            "command held k steps (control rate / k)",
+            "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
+            minimum=1.0,
+            integer=True,
+            maximum=MAX_STEPS,
+        ),
+    )
+}
+AXES.update(
+    {a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in perturb_visual.AXIS_TABLE}
+)  # bench.sims.perturb_visual
+MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
+INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
+VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
+DISTRIBUTIONS = ("uniform", "loguniform")
+_SHORT = {"uniform": "U", "loguniform": "logU"}
+_DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
+
+
+# -- command line -> conditions ------------------------------------------------------------
+def _num(axis: Axis, field: str, value: Any) -> float | int:
+    """A level as a number, checked against the axis' minimum and integrality."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        try:
+            value = float(str(value).strip())
+        except ValueError:
+            raise ConfigError(f"{field}: {value!r} is not a number; {axis.name} takes {axis.unit}") from None
+    value = float(value)
+    if not math.isfinite(value):
+        raise ConfigError(f"{field}: {value!r} is not finite")
+    bad = value <= axis.minimum if axis.strict else value < axis.minimum
+    if bad:
+        op = ">" if axis.strict else ">="
+        raise ConfigError(
+            f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be {op} {axis.minimum:g}"
+        )
+    if axis.integer and value != int(value):
+        raise ConfigError(f"{field}: {value:g} is not a whole number; {axis.name} is in {axis.unit}")
+    if value > axis.maximum:
+        raise ConfigError(
+            f"{field}: {value:g} is invalid; {axis.name} levels ({axis.unit}) must be <= {axis.maximum:g}"
+        )
+    return int(value) if axis.integer else value
+
+
+def _range(axis: Axis, field: str, dist: str, bounds: Any) -> tuple[float, float]:
+    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2:
+        raise ConfigError(f"{field}: {dist} needs [low, high], got {bounds!r}")
+    lo, hi = (_num(axis, field, b) for b in bounds)
+    if lo > hi:
+        raise ConfigError(f"{field}: {dist}({lo:g},{hi:g}) has low > high")
+    if dist == "loguniform" and lo <= 0:
+        raise ConfigError(f"{field}: loguniform needs low > 0, got {lo:g}")
+    return lo, hi
+
+
+def _parse_dist(text: str) -> tuple[str, list[str]] | None:
+    m = _DIST_RE.match(text)
+    if not m:
+        return None
+    name = {"u": "uniform", "logu": "loguniform"}.get(m.group(1).lower(), m.group(1).lower())
+    return name, [m.group(2), m.group(3)]
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def axis_named(name: str) -> Axis:
+    """The axis called `name`; a one-line ConfigError listing the axes otherwise."""
+    if name not in AXES:
+        raise ConfigError(
+            f"perturb.{name}: unknown perturbation axis; valid: {', '.join(AXES)}.{did_you_mean(name, AXES)}"
+        )
+    return AXES[name]
+
+
+def _conditions_for(name: str, value: Any) -> list[Condition]:
+    axis = axis_named(name)
+    field = f"perturb.{name}"
+    targets: dict[str, list[str]] = {}
+    levels: list[Any] = []
+    dists: list[tuple[str, Any, str]] = []
+    if isinstance(value, dict):
+        valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
+        for key, v in value.items():
+            if key not in valid_keys:
+                raise ConfigError(
+                    f"{field}.{key}: unknown key; valid: {', '.join(valid_keys)}.{did_you_mean(key, valid_keys)}"
+                )
+            if key == "levels":
+                levels.extend(v if isinstance(v, (list, tuple)) else [v])
+            elif key in DISTRIBUTIONS:
+                dists.append((key, v, f"{field}.{key}"))
+            else:
+                names = [v] if isinstance(v, str) else list(v or [])
+                if not names or not all(isinstance(n, str) and n for n in names):
+                    raise ConfigError(f"{field}.{key}: expected a list of names, got {v!r}")
+                targets[key] = names
+        if not levels and not dists:
+            raise ConfigError(f"{field}: give levels=[...] or a range ({'/'.join(DISTRIBUTIONS)}=[low,high])")
+    else:
+        levels = list(value) if isinstance(value, (list, tuple)) else [value]
+        if not levels:
+            raise ConfigError(f"{field}: empty list of levels")
+    grid: list[Any] = []
+    for lv in levels:
+        parsed = _parse_dist(lv) if isinstance(lv, str) else None
+        if parsed:
+            dists.append((parsed[0], parsed[1], field))
+        elif isinstance(lv, str) and "(" in lv:
+            raise ConfigError(f"{field}: cannot parse {lv!r}; write uniform(low,high) or loguniform(low,high)")
+        else:
+            grid.append(_num(axis, field, lv))
+    out: list[Condition] = []
+    for lv in dict.fromkeys(grid):  # unique, in the given order
+        spec = {"kind": "grid", "targets": targets}
+        out.append(Condition(name=f"{name}={_fmt(lv)}", axis=name, level=lv, spec=spec))
+    for dist, bounds, f in dists:
+        lo, hi = _range(axis, f, dist, bounds)
+        spec = {"kind": dist, "targets": targets}
+        out.append(
+            Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec)
+        )
+    return out
+
+
+def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:
+    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level.
+
+    A grid gives one condition per level ("friction=0.5"); a range gives one condition
+    whose value is drawn per episode ("friction~U(0.8,1.2)"). Raises ConfigError on an
+    unknown axis, a level out of range or a malformed range.
+    """
+    out = [NOMINAL]
+    seen: set[str] = set()
+    for name, value in (perturb or {}).items():
+        for cond in _conditions_for(str(name), value):
+            if cond.name not in seen:
+                seen.add(cond.name)
+                out.append(cond)
+    return out
+
+
+def check_horizon(conditions: list[Condition], horizon: int) -> None:
+    """Step-valued levels (latency, action_hold) longer than the episode are refused: the policy would
+    never act (ConfigError naming the axis, the level and the horizon)."""
+    for cond in conditions:
+        axis = AXES.get(cond.axis or "")
+        if axis is None or axis.unit != "control steps":
+            continue
+        levels = cond.level if isinstance(cond.level, (list, tuple)) else [cond.level]
+        worst = max(float(v) for v in levels)
+        if worst >= horizon:
+            raise ConfigError(
+                f"perturb.{axis.name}: {worst:g} control steps is not less than the horizon "
+                f"({horizon} steps); valid: < {horizon} (or a longer horizon=)"
+            )
+
+
+def axes_help() -> str:
+    """One line per axis (name, unit, what it changes, optional targets) for `bench run --help`."""
+    rows = []
+    for a in AXES.values():
+        tgt = f" [targets: {', '.join(a.targets)}]" if a.targets else ""
+        rows.append(f"  {a.name:<13} {a.short} ({a.unit}){tgt}")
+    return "\n".join(rows)

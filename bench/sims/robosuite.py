@@ -1,0 +1,224 @@
+"""robosuite adapter: one arm, one task, behind the `bench.protocols.EnvAdapter` contract.
+
+What the policy observes is task code and comes from the suite: an `Observer` turns
+robosuite's raw observation dict into the observation dict (e.g. the embodiment-agnostic
+Lift observation of `suites/lift.py`). The action is what robosuite's default controller
+takes on all 7 single arms: 6 OSC end-effector deltas (position in the world frame,
+rotation) and a gripper command (+1 closes, -1 opens).
+
+Envs are built once and soft-reset (`hard_reset=False`, ~2 ms instead of ~1 s);
+reseeding sets both `env.rng` and the placement sampler's generator, which is
+what fixes the object's initial pose (robosuite's own `seed` only works at make).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import types
+from typing import Any, Protocol
+
+import numpy as np
+
+from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
+
+ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
+ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
+# Scene keys `env_kwargs` may carry besides robosuite's own (table_full_size, table_friction):
+#   table_offset (x, y, z): table-top centre in metres (robosuite hard-codes (0, 0, 0.8));
+#   placement_x_range / placement_y_range (lo, hi): object spawn region, metres relative to
+#     the table-top centre (robosuite's default sampler uses (-0.03, 0.03) on both);
+#   table_contact_priority (int): MuJoCo contact priority of the table's collision geom; with 1
+#     the table's own friction governs object-table contacts instead of max(table, object).
+SCENE_KEYS = ("table_offset", "placement_x_range", "placement_y_range", "table_contact_priority")
+
+
+def _quiet_robosuite() -> None:
+    """Keep robosuite's import-time INFO/WARNING chatter out of the user's terminal.
+
+    robosuite reads overrides from `robosuite.macros_private` (its documented private
+    macro file); providing that module in-process before the first import sets its
+    console log level to ERROR without writing into site-packages.
+    """
+    os.environ.setdefault("MUJOCO_GL", "disable")
+    if "robosuite" not in sys.modules and "robosuite.macros_private" not in sys.modules:
+        private = types.ModuleType("robosuite.macros_private")
+        private.CONSOLE_LOGGING_LEVEL = "ERROR"  # type: ignore[attr-defined]  # a bare ModuleType has no attributes
+        sys.modules["robosuite.macros_private"] = private
+    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+
+
+def _scene_env_name(task: str) -> str:
+    """Register (once per process) a subclass of robosuite `task` that also takes `SCENE_KEYS`.
+
+    robosuite's table tasks fix the table height in `__init__` and build their placement
+    sampler in `_load_model`; the subclass sets both just around that call, so a hard
+    reset rebuilds the same scene. Registered by robosuite's own metaclass as "<task>Scene".
+    """
+    from robosuite.environments.base import REGISTERED_ENVS  # robosuite: loaded only when its env is made
+
+    name = f"{task}Scene"
+    if name in REGISTERED_ENVS:
+        return name
+    base = REGISTERED_ENVS[task]
+
+    def __init__(
+        self,
+        *args,
+        table_offset=None,
+        placement_x_range=None,
+        placement_y_range=None,
+        table_contact_priority=None,
+        **kwargs,
+    ):
+        self._scene = dict(
+            table_offset=table_offset,
+            x_range=placement_x_range,
+            y_range=placement_y_range,
+            priority=table_contact_priority,
+        )
+        base.__init__(self, *args, **kwargs)
+
+    def _load_model(self):
+        scene = self._scene
+        if scene["table_offset"] is not None:
+            self.table_offset = np.array(scene["table_offset"], dtype=np.float64)
+        base._load_model(self)
+        if scene["priority"] is not None:
+            self.model.mujoco_arena.table_collision.set("priority", str(int(scene["priority"])))
+        for key in ("x_range", "y_range"):
+            if scene[key] is not None:
+                setattr(self.placement_initializer, key, [float(v) for v in scene[key]])
+
+    type(base)(name, (base,), {"__init__": __init__, "_load_model": _load_model})
+    return name
+
+
+# how every env is made: no window and no robosuite cameras (bench.sims.camera renders frames itself), no reset or
+# done of its own (bench runs the horizon); benchmarks/bench_robosuite_raw.py makes its bare env the same way
+MAKE_OPTIONS: dict[str, Any] = {
+    "has_renderer": False,
+    "has_offscreen_renderer": False,
+    "use_camera_obs": False,
+    "hard_reset": False,
+    "ignore_done": True,
+    "reward_shaping": True,
+    "seed": 0,
+}
+
+
+class Observer(Protocol):
+    """The task's view of a robosuite env (owned by a suite): spec, one-time binding, observation."""
+
+    obs_spec: ObsSpec
+
+    def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
+        """Called once after the env is built (may step it to measure things); returns the
+        manipulated object's bodies (`perturb.mass` targets)."""
+        ...
+
+    def reset(self, raw: dict) -> None:
+        """Called after every reset with robosuite's raw observation."""
+        ...
+
+    def observe(self, raw: dict) -> Obs:
+        """The observation dict from robosuite's raw observation."""
+        ...
+
+
+class RobosuiteEnv:
+    """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
+
+    model_axes = None  # MuJoCo: bench.sims.perturb edits the model through `mujoco`
+
+    def __init__(
+        self, task: str, robot: str, horizon: int, observer: Observer, env_kwargs: dict[str, Any] | None = None
+    ):
+        _quiet_robosuite()
+        import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+        import robosuite  # robosuite: loaded only when its env is made
+
+        self.task, self.robot, self.horizon = task, robot, int(horizon)
+        self.observer = observer
+        env_kwargs = dict(env_kwargs or {})
+        scene = {k: env_kwargs.pop(k) for k in SCENE_KEYS if k in env_kwargs}
+        # the scene is part of the initial state: two scenes with the same joint state are not the same start
+        described = {**{k: v for k, v in env_kwargs.items() if k in ("table_full_size", "table_friction")}, **scene}
+        self._scene_vec = (
+            np.concatenate([np.ravel(np.asarray(described[k], dtype=np.float64)) for k in sorted(described)])
+            if described
+            else np.zeros(0)
+        )
+        self.raw = robosuite.make(
+            _scene_env_name(task) if scene else task,
+            **scene,
+            robots=robot,
+            horizon=self.horizon,
+            **MAKE_OPTIONS,
+            **env_kwargs,
+        )
+        model, data = self.raw.sim.model._model, self.raw.sim.data._data
+        self.backend = f"robosuite-{robosuite.__version__}/mujoco-{mujoco.__version__}"
+        self.fps = float(self.raw.control_freq)  # control steps per second
+        self.obs_spec = dict(observer.obs_spec)
+        low, high = self.raw.action_spec
+        if len(low) != len(ACTION_NAMES):
+            raise ValueError(f"{robot}: action size {len(low)}, expected {len(ACTION_NAMES)}")
+        self.action_spec = ActionSpec.box(ACTION_NAMES, low, high)
+        self.inputs = InputLog(model, int(mujoco.mjtState.mjSTATE_CTRL))  # robosuite drives actuators only
+        self._wrap_physics_steps(data)
+        self._success = False
+        self.mujoco = MujocoHandle(model, data, observer.bind(self))
+
+    # -- actuator commands at every physics step (for batched replay) -------------------------
+    def _wrap_physics_steps(self, data) -> None:
+        """Note `data.ctrl` just before each physics step, while the input log is active.
+
+        robosuite's controller writes ctrl between `sim.step1()` and `sim.step2()` (or before
+        `sim.step()`), once per physics step; `mj_step` with the noted ctrl from the same state
+        reproduces the step exactly (checked in tests/test_replay.py).
+        """
+        sim, log = self.raw.sim, self.inputs
+        for name in ("step", "step2"):
+            original = getattr(sim, name)
+
+            def stepped(*args, _original=original, **kwargs):
+                if log.rows is not None:
+                    log.rows.append(data.ctrl.copy())
+                return _original(*args, **kwargs)
+
+            setattr(sim, name, stepped)
+
+    # -- contract ----------------------------------------------------------------------------
+    def raw_reset(self, seed: int) -> dict:
+        """Soft reset with `seed` pinning the object placement; robosuite's raw observation."""
+        env = self.raw
+        env.rng = np.random.default_rng(seed)
+        if getattr(env, "placement_initializer", None) is not None:
+            env.placement_initializer.rng = env.rng
+            for sampler in getattr(env.placement_initializer, "samplers", {}).values():
+                sampler.rng = env.rng
+        return env.reset()
+
+    def reset(self, seed: int) -> Obs:
+        raw = self.raw_reset(int(seed))
+        self.observer.reset(raw)
+        data = self.mujoco.data
+        self._init_state = np.concatenate([data.qpos, data.qvel, self._scene_vec]).copy()
+        self._success = False
+        return self.observer.observe(raw)
+
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+        raw, reward, done, info = self.raw.step(np.asarray(action, dtype=np.float64))
+        self._success = bool(self.raw._check_success())
+        return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
+
+    def success(self) -> bool:
+        return self._success
+
+    def init_state(self) -> np.ndarray:
+        return self._init_state
+
+    def close(self) -> None:
+        self.raw.close()
