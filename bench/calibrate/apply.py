@@ -21,9 +21,9 @@ import numpy as np
 from bench.core.errors import ConfigError, DataError
 from bench.sims.perturb import write_fields
 
-# the MjModel fields a suite calibration may edit: every one is realised by MuJoCo itself, so an env
-# carries it without any change to its controller or step loop
-FIELDS = {
+# the MjModel fields whose values fingerprint a robot's nominal model (`model_hash`): fixed, so a
+# calibration written before more fields became editable still matches its model
+HASH_FIELDS = {
     "dof_damping": mujoco.mjtObj.mjOBJ_JOINT,
     "dof_armature": mujoco.mjtObj.mjOBJ_JOINT,
     "dof_frictionloss": mujoco.mjtObj.mjOBJ_JOINT,
@@ -31,6 +31,15 @@ FIELDS = {
     "body_mass": mujoco.mjtObj.mjOBJ_BODY,
     "actuator_gainprm": mujoco.mjtObj.mjOBJ_ACTUATOR,
 }
+# the MjModel fields a suite calibration may edit: every one is realised by MuJoCo itself, so an env
+# carries it without any change to its controller or step loop; 2-D fields edit every column listed
+FIELDS = {
+    **HASH_FIELDS,
+    "body_ipos": mujoco.mjtObj.mjOBJ_BODY,
+    "body_iquat": mujoco.mjtObj.mjOBJ_BODY,
+    "body_inertia": mujoco.mjtObj.mjOBJ_BODY,
+}
+COLUMNS = {"body_ipos": 3, "body_iquat": 4, "body_inertia": 3}  # other 2-D fields: column 0
 
 
 def _row(model: mujoco.MjModel, field: str, name: str) -> int:
@@ -56,7 +65,7 @@ def model_hash(model: mujoco.MjModel, joints: list[str]) -> str:
         )
     }
     values = {}
-    for field, obj in FIELDS.items():
+    for field, obj in HASH_FIELDS.items():
         kind = (
             "joint" if obj == mujoco.mjtObj.mjOBJ_JOINT else "body" if obj == mujoco.mjtObj.mjOBJ_BODY else "actuator"
         )
@@ -74,21 +83,26 @@ def model_hash(model: mujoco.MjModel, joints: list[str]) -> str:
 
 
 def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any]]:
-    """What the calibrated model changes in the editable fields: [{field, element, nominal, value}]."""
+    """What the calibrated model changes in the editable fields: [{field, element, nominal, value[, column]}]."""
     out = []
     for field, obj in FIELDS.items():
-        a, b = getattr(nominal, field), getattr(fitted, field)
-        a, b = (a[:, 0], b[:, 0]) if a.ndim == 2 else (a, b)
-        for row in np.flatnonzero(~np.isclose(a, b, rtol=1e-12, atol=0.0)):
-            idx = int(nominal.dof_jntid[row]) if field.startswith("dof_") else int(row)
-            out.append(
-                {
-                    "field": field,
-                    "element": mujoco.mj_id2name(nominal, obj, idx),
-                    "nominal": float(a[row]),
-                    "value": float(b[row]),
-                }
-            )
+        full_a, full_b = getattr(nominal, field), getattr(fitted, field)
+        for col in range(COLUMNS.get(field, 1)):
+            a, b = (full_a[:, col], full_b[:, col]) if full_a.ndim == 2 else (full_a, full_b)
+            changed = ~np.isclose(a, b, rtol=1e-12, atol=0.0)
+            if field in COLUMNS:  # a body's frame moves as a whole: every column of a changed row
+                changed = np.any(~np.isclose(full_a, full_b, rtol=1e-12, atol=0.0), axis=1)
+            for row in np.flatnonzero(changed):
+                idx = int(nominal.dof_jntid[row]) if field.startswith("dof_") else int(row)
+                out.append(
+                    {
+                        "field": field,
+                        "element": mujoco.mj_id2name(nominal, obj, idx),
+                        **({"column": col} if field in COLUMNS else {}),
+                        "nominal": float(a[row]),
+                        "value": float(b[row]),
+                    }
+                )
     return out
 
 

@@ -106,6 +106,11 @@ class CalibrationSpec(SignalMap):
 def load_spec(path: str | Path) -> CalibrationSpec:
     """Read a YAML or JSON spec file; the model path is taken relative to the spec's folder."""
     raw, path = read_spec_file(path)
+    if isinstance(raw, dict) and raw.get("method") == "idim":
+        raise SpecError(
+            f"spec {str(path)!r} asks for method: idim (a real arm's inverse dynamics); read it with "
+            "bench.calibrate.arm_spec.load_arm_spec (bench calibrate does)"
+        )
     return parse_spec(raw, base_dir=path.parent, source=path)
 
 
@@ -164,6 +169,22 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
     return tuple(out)
 
 
+def parse_trace(raw: Any) -> TraceSpec:
+    """The `trace` mapping of a spec (the loop's knobs; defaults for what it leaves out)."""
+    trace_raw = check_keys(raw or {}, TRACE_KEYS, "trace")
+    trace_kw: dict[str, Any] = {}
+    for key, value in trace_raw.items():
+        if key == "criterion":
+            if value not in ("bic", "aic"):
+                raise SpecError(f"spec field 'trace.criterion' must be 'bic' or 'aic'; got {value!r}")
+            trace_kw[key] = value
+        elif key in ("max_effects", "max_tries", "max_segments"):
+            trace_kw[key] = number(value, f"trace.{key}", lo=0 if key == "max_effects" else 1, integer=True)
+        else:
+            trace_kw[key] = number(value, f"trace.{key}", lo=0, hi=1)
+    return TraceSpec(**trace_kw)
+
+
 def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> CalibrationSpec:
     """Validate a spec mapping (as loaded from YAML/JSON) and return a `CalibrationSpec`."""
     raw = check_keys(raw, SPEC_KEYS, "")
@@ -200,24 +221,13 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
                 scale=scale,
             )
         )
-    trace_raw = check_keys(raw.get("trace") or {}, TRACE_KEYS, "trace")
-    trace_kw: dict[str, Any] = {}
-    for key, value in trace_raw.items():
-        if key == "criterion":
-            if value not in ("bic", "aic"):
-                raise SpecError(f"spec field 'trace.criterion' must be 'bic' or 'aic'; got {value!r}")
-            trace_kw[key] = value
-        elif key in ("max_effects", "max_tries", "max_segments"):
-            trace_kw[key] = number(value, f"trace.{key}", lo=0 if key == "max_effects" else 1, integer=True)
-        else:
-            trace_kw[key] = number(value, f"trace.{key}", lo=0, hi=1)
     return CalibrationSpec(
         **base,
         params=tuple(params),
         effects=_effects(raw.get("effects", "all")),
         holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
         horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6),
-        trace=TraceSpec(**trace_kw),
+        trace=parse_trace(raw.get("trace")),
         threads=number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),
         source=source,
     )

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+from bench.calibrate.arm import calibrate_arm, summary_line
+from bench.calibrate.arm_report import write_arm_report
+from bench.calibrate.arm_spec import ARM_EFFECTS, ArmSpec, is_arm_spec, parse_arm_spec
 from bench.calibrate.effects import EFFECTS
 from bench.calibrate.generate import write_case
 from bench.calibrate.report import write_report
@@ -18,6 +22,7 @@ from bench.core import config, outputs
 from bench.core.config import ranged
 from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.logs import read_dataset
+from bench.replay.spec import read_spec_file
 
 MAX_THREADS = 256  # rollout threads: far above any core count here, far below what hangs a machine
 MAX_EPISODES = 10_000  # generated episodes
@@ -165,10 +170,49 @@ def _load_logs(path: Path) -> tuple[list[dict], float]:
     return [ep.data for ep in ds.episodes], float(ds.fps)
 
 
+def cmd_arm(cfg: CalibrateConfig, spec: ArmSpec, spec_file: str, logs: str, out_dir: str) -> int:
+    """A real arm by inverse dynamics (`method: idim`): logs -> OUT/calibration.json, report.md, torque.png."""
+    inputs = {"spec": spec_file, "logs": logs, **({"model": str(spec.model)} if spec.model else {})}
+    out = _out(out_dir, cfg.overwrite, inputs)
+    if cfg.effects is not None:
+        chosen = _arm_effects(cfg.effects)
+        spec = dataclasses.replace(spec, effects=chosen)
+    episodes, fps = _load_logs(Path(logs).expanduser())
+    cal = calibrate_arm(spec, episodes, fps, seed=cfg.seed, threads=cfg.threads or 1, log=_log(cfg.quiet))
+    for w in cal.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    outputs.replace_dir(out, lambda tmp: write_arm_report(cal, tmp))
+    path = out / "calibration.json"
+    print(f"wrote {path} and {path.parent / 'report.md'}")
+    if cal.am.suite is not None:
+        s = cal.am.suite
+        print(f"run with it: bench run suite={s['name']} robots=[{s['robot']}] calibration={path}")
+    print(summary_line(cal))
+    return 0
+
+
+def _arm_effects(value: Any) -> tuple[str, ...]:
+    if value == "all":
+        return ARM_EFFECTS
+    if value == "none":
+        return ()
+    names = value if isinstance(value, list) else [value]
+    for n in names:
+        if n not in ARM_EFFECTS:
+            raise ConfigError(
+                f"key 'effects': unknown effect {n!r} for an arm spec; valid: all, none, {', '.join(ARM_EFFECTS)}."
+                f"{did_you_mean(str(n), ARM_EFFECTS)}"
+            )
+    return tuple(str(n) for n in names)
+
+
 def cmd_run(cfg: CalibrateConfig) -> int:
     """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
     spec_file, logs, out_dir = _require(cfg, "spec", "logs", "out")
-    spec = load_spec(Path(spec_file).expanduser())
+    raw, spec_path = read_spec_file(Path(spec_file).expanduser())
+    if is_arm_spec(raw):
+        return cmd_arm(cfg, parse_arm_spec(raw, spec_path.parent, spec_path), spec_file, logs, out_dir)
+    spec = load_spec(spec_path)
     out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})
     episodes, fps = _load_logs(Path(logs).expanduser())
     cal = run(

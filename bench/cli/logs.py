@@ -48,6 +48,11 @@ class CsvKeys:
     time: Optional[str] = None  # time column in seconds (without it, fps is required)
     episode: Optional[str] = None  # column whose values split the rows into episodes
     delimiter: str = ","  # field separator, one character
+    velocity: Optional[list[str]] = one_or_more()  # columns of observation.velocity (joint velocities as logged)
+    effort: Optional[list[str]] = one_or_more()  # columns of observation.effort (measured joint torques or currents)
+    resample: Optional[float] = ranged(
+        None, 0, MAX_FPS, lo_open=True
+    )  # put an irregular clock on a uniform grid at this rate (Hz; linear interpolation, needs time=)
 
 
 @dataclass(frozen=True)
@@ -228,6 +233,9 @@ def cmd_import(argv: list[str]) -> int:
             time=keys.time,
             episode=keys.episode,
             delimiter=keys.delimiter,
+            velocity=keys.velocity,
+            effort=keys.effort,
+            resample=keys.resample,
             **meta,
         )
     elif fmt == "mat":

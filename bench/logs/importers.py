@@ -16,6 +16,8 @@ import numpy as np
 
 from bench.core.errors import DataError, did_you_mean
 from bench.logs.dataset import LogDataset, first_bad_row, from_arrays
+from bench.logs.resample import check_times
+from bench.logs.resample import resample as resample_columns
 
 TIME_NAMES = ("t", "time", "Time", "timestamp")
 
@@ -34,15 +36,6 @@ def _fps_from_time(t: np.ndarray, where: str, column: str) -> float:
     # A nominal rate: sample clocks jitter (EMPS: 1000.016 Hz by median step), the true times
     # stay in `timestamp` / `time_ns`. Snap to an integer within 0.1 %, as lerobot expects ints.
     return float(round(fps)) if abs(fps - round(fps)) <= 1e-3 * fps else round(fps, 6)
-
-
-def _check_time(t: np.ndarray, where: str, column: str, offset: int = 0) -> None:
-    row = first_bad_row(~np.isfinite(t))
-    if row >= 0:
-        raise DataError(f"{where}: column {column!r} is not finite at row {row + offset}")
-    row = first_bad_row(np.diff(t) <= 0)
-    if row >= 0:
-        raise DataError(f"{where}: column {column!r} is not increasing at row {row + 1 + offset}")
 
 
 def _time_features(t: np.ndarray) -> dict[str, np.ndarray]:
@@ -68,6 +61,9 @@ def import_csv(
     episode: str | None = None,
     robot_type: str | None = None,
     delimiter: str = ",",
+    velocity: str | Sequence[str] | None = None,
+    effort: str | Sequence[str] | None = None,
+    resample: float | None = None,
 ) -> LogDataset:
     """Import a CSV file with a header row.
 
@@ -83,6 +79,11 @@ def import_csv(
         episode: column whose value splits the rows into episodes (default: one episode).
         robot_type: stored in info.json.
         delimiter: field separator.
+        velocity: columns for `observation.velocity` (joint velocities as the robot logged them).
+        effort: columns for `observation.effort` (measured joint torques or currents, LeRobot's name).
+        resample: put an irregular clock onto a uniform grid at this rate in Hz (needs `time`), by
+            linear interpolation (`bench.logs.resample`: the method, and gaps it refuses); the
+            episode's meta records what was done under "resampled".
     """
     import pyarrow as pa  # pyarrow: loaded only when a dataset is read or written
     import pyarrow.csv as pacsv  # pyarrow: loaded only when a dataset is read or written
@@ -118,7 +119,8 @@ def import_csv(
         return col.to_numpy() if numeric else np.asarray(col.to_pylist(), dtype=object)
 
     state_cols, action_cols = _as_list(state), _as_list(action) or []
-    used = {c for c in (time, episode) if c}
+    extra = {"observation.velocity": _as_list(velocity) or [], "observation.effort": _as_list(effort) or []}
+    used = {c for c in (time, episode) if c} | {c for cols in extra.values() for c in cols}
     if state_cols is None:
         numeric = [
             c
@@ -134,11 +136,13 @@ def import_csv(
             )
     if not state_cols and not action_cols:
         raise DataError(f"{path}: no state or action columns; pass state=[...] and/or action=[...]")
-    for c in state_cols + action_cols:
+    for c in state_cols + action_cols + [c for cols in extra.values() for c in cols]:
         column(c)
     t_all = column(time).astype(np.float64) if time else None
     if t_all is None and fps is None:
         raise DataError(f"{path}: field 'fps' is required when no time column is given (time=COLUMN)")
+    if resample is not None and t_all is None:
+        raise DataError(f"{path}: field 'resample' needs a time column (time=COLUMN) to resample from")
 
     if episode:
         ids = column(episode, numeric=False)
@@ -156,29 +160,36 @@ def import_csv(
             data["observation.state"] = np.stack([column(c)[rows] for c in state_cols], axis=1)
         if action_cols:
             data["action"] = np.stack([column(c)[rows] for c in action_cols], axis=1)
+        for feature, cols in extra.items():
+            if cols:
+                data[feature] = np.stack([column(c)[rows] for c in cols], axis=1)
+        names_of = {"observation.state": state_cols, "action": action_cols, **extra}
         for name, arr in data.items():
+            cols = names_of[name]
             bad = first_bad_row(~np.isfinite(arr.astype(np.float64)))
             if bad >= 0:
-                cols = state_cols if name == "observation.state" else action_cols
                 c = next(c for j, c in enumerate(cols) if not np.isfinite(float(arr[bad, j])))
                 raise DataError(f"{path}: column {c!r} is NaN or inf at row {int(rows[bad])}")
             big = first_bad_row(np.abs(arr.astype(np.float64)) > F32_MAX)
             if big >= 0:
-                cols = state_cols if name == "observation.state" else action_cols
                 c = next(c for j, c in enumerate(cols) if abs(float(arr[big, j])) > F32_MAX)
                 raise DataError(
                     f"{path}: column {c!r} is {float(arr[big, cols.index(c)]):g} at row {int(rows[big])}, "
                     "beyond what float32 holds (3.4e38)"
                 )
+        info: dict = {"source": path.name, **({"episode": key} if key is not None else {})}
         if t_all is not None:
             t = t_all[rows]
-            _check_time(t, str(path), time, offset=int(rows[0]))  # type: ignore[arg-type]
+            check_times(t, str(path), time, offset=int(rows[0]))  # type: ignore[arg-type]
+            if resample is not None:
+                t, data, info["resampled"] = resample_columns(t, data, resample, where=str(path), column=str(time))
+                rate = float(resample)
             data.update(_time_features(t))
             if rate is None:
                 rate = _fps_from_time(t, str(path), time)  # type: ignore[arg-type]
         episodes.append(data)
-        meta.append({"source": path.name, **({"episode": key} if key is not None else {})})
-    names = {k: v for k, v in (("observation.state", state_cols), ("action", action_cols)) if v}
+        meta.append(info)
+    names = {k: v for k, v in (("observation.state", state_cols), ("action", action_cols), *extra.items()) if v}
     assert rate is not None  # fps given, or measured from the time column above
     return from_arrays(
         episodes,
@@ -245,7 +256,7 @@ def import_mat(
     if t is None and fps is None:
         raise DataError(f"{path}: field 'fps' is required: no time variable ({', '.join(TIME_NAMES)}) found")
     if t is not None:
-        _check_time(t, str(path), time)  # type: ignore[arg-type]
+        check_times(t, str(path), time)  # type: ignore[arg-type]
         length = len(t)
     else:
         sizes = [max(v.shape) for v in numeric.values() if v.size > 1 and v.ndim <= 2]

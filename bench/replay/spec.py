@@ -93,7 +93,8 @@ def number(value: Any, where: str, *, lo: float = -math.inf, hi: float = math.in
     return int(value) if integer else float(value)
 
 
-def _signal(raw: Any, where: str) -> SignalSpec:
+def parse_signal(raw: Any, where: str) -> SignalSpec:
+    """One `{column, index}` signal entry of a spec."""
     raw = check_keys(raw, SIGNAL_KEYS, where)
     if not isinstance(raw.get("column"), str) or not raw["column"]:
         raise SpecError(f"spec field {where + '.column'!r} must be a log column name; got {raw.get('column')!r}")
@@ -117,7 +118,7 @@ def map_fields(raw: dict, base_dir: str | Path) -> dict[str, Any]:
     for required in ("qpos", "ctrl"):
         if required not in signals_raw:
             raise SpecError(f"spec field 'signals.{required}' is required (column and index of the logged {required})")
-    signals = {k: _signal(v, f"signals.{k}") for k, v in signals_raw.items()}
+    signals = {k: parse_signal(v, f"signals.{k}") for k, v in signals_raw.items()}
     substeps = raw.get("substeps")
     if substeps is not None:
         substeps = number(substeps, "substeps", lo=1, hi=MAX_SUBSTEPS, integer=True)

@@ -258,9 +258,9 @@ def _set_const(mj: MujocoHandle) -> None:
 
 
 def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
-    """Set model values by name ({field, element, value}: dof_* by joint, body_*, actuator_* [column 0]),
-    e.g. a suite calibration's (`bench.calibrate.apply`). Call before the first episode, so the nominal
-    values `apply` restores are these."""
+    """Set model values by name ({field, element, value[, column]}: dof_* by joint, body_*, actuator_*;
+    a 2-D field's column 0 unless `column` says), e.g. a suite calibration's (`bench.calibrate.apply`).
+    Call before the first episode, so the nominal values `apply` restores are these."""
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     m = mj.model
@@ -279,10 +279,10 @@ def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
         row = int(m.jnt_dofadr[idx]) if prefix == "dof_" else idx
         arr = getattr(m, e["field"])
         if arr.ndim == 2:
-            arr[row, 0] = e["value"]
+            arr[row, int(e.get("column", 0))] = e["value"]
         else:
             arr[row] = e["value"]
-        setconst |= e["field"] in ("body_mass", "body_inertia", "dof_armature")
+        setconst |= e["field"] in ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
     if setconst:
         _set_const(mj)
     mj.forward()

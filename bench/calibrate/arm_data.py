@@ -1,0 +1,180 @@
+"""A real arm's logs as inverse dynamics needs them: uniform clock, filtered, differentiated, split.
+
+The stated processing, per episode:
+1. the log's own clock (`time_ns`, else `timestamp`): if its periods are not uniform (within 5% of
+   the median), every column is resampled onto a uniform grid at the median rate by linear
+   interpolation (`bench.logs.resample`, which also refuses gaps longer than 50 ms);
+2. positions, velocities and torques are low-passed by a 4th-order zero-phase Butterworth filter at
+   `filter_hz` (the same filter on every signal, so their delays cancel: "parallel filtering");
+3. velocities not logged are the filtered positions' central difference; accelerations are always
+   the filtered velocities' central difference;
+4. everything is decimated to `rate` Hz (the filter is the anti-aliasing filter) and `margin`
+   samples at each end (filter edge effects) are dropped.
+Held out: the last `holdout` share of time when there is one episode, else a seeded share of episodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench.calibrate.arm_spec import ArmSpec
+from bench.core.errors import DataError, SpecError
+from bench.logs.resample import is_regular, resample
+from bench.replay.data import split
+from bench.replay.spec import SignalSpec
+
+EDGE_S = 0.1  # seconds dropped at each end of an episode after filtering
+
+
+@dataclass
+class ArmLog:
+    """Processed samples of all episodes, concatenated, at the identification rate."""
+
+    t: np.ndarray  # (N,) seconds from each episode's start
+    episode: np.ndarray  # (N,) episode number
+    q: np.ndarray  # (N, n)
+    dq: np.ndarray
+    ddq: np.ndarray
+    tau: np.ndarray  # (N, n) the torque signal (measured torque, command or current)
+    ref: np.ndarray | None  # (N, n) logged position reference (a declared controller)
+    train: np.ndarray  # (N,) bool
+    rate: float
+    source_fps: float  # the log's (uniform or resampled) rate before decimation
+    qvel_logged: bool
+    resampled: list[dict[str, Any]]  # per episode: what resampling did (empty when the clock was uniform)
+    dense: dict[str, np.ndarray]  # filtered q, dq, tau at the source rate, episodes concatenated
+    dense_offsets: np.ndarray  # (E + 1,) episode offsets of `dense`
+    dense_train: list[tuple[int, int, int]]  # (episode, start, stop) training windows of `dense`
+    dense_hold: list[tuple[int, int, int]]
+
+
+def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> np.ndarray:
+    if sig.column not in ep:
+        valid = sorted(k for k, v in ep.items() if np.asarray(v).ndim in (1, 2))
+        raise SpecError(
+            f"spec field '{where}.column': column {sig.column!r} is not in the log (episode {i}); "
+            f"valid: {', '.join(valid)}"
+        )
+    arr = np.asarray(ep[sig.column], dtype=np.float64)
+    arr = arr[:, None] if arr.ndim == 1 else arr
+    bad = [j for j in sig.index if j >= arr.shape[1]]
+    if bad:
+        raise SpecError(
+            f"spec field '{where}.index': index {bad[0]} is out of range for column {sig.column!r} "
+            f"of width {arr.shape[1]} (valid 0..{arr.shape[1] - 1})"
+        )
+    out = arr[:, list(sig.index)]
+    nan = ~np.isfinite(out)
+    if nan.any():
+        rows, cols = np.nonzero(nan)
+        j = int(cols[0])
+        stretch = np.flatnonzero(nan[:, j])
+        end = int(stretch[-1]) if np.all(np.diff(stretch) == 1) else int(stretch[np.argmax(np.diff(stretch) > 1)])
+        raise DataError(
+            f"log column {sig.column!r}[{sig.index[j]}] (episode {i}) is NaN or inf in rows {int(rows[0])}..{end}: "
+            "cut the episode there or fill the stretch before calibrating"
+        )
+    return out
+
+
+def _clock(ep: dict[str, np.ndarray], fps: float) -> np.ndarray:
+    if "time_ns" in ep:
+        ns = np.asarray(ep["time_ns"]).reshape(-1).astype(np.int64)
+        return (ns - ns[0]).astype(np.float64) * 1e-9
+    if "timestamp" in ep:
+        return np.asarray(ep["timestamp"], dtype=np.float64).reshape(-1)
+    return np.arange(len(next(iter(ep.values())))) / fps
+
+
+def _filter(x: np.ndarray, fs: float, cutoff: float) -> np.ndarray:
+    from scipy.signal import butter, sosfiltfilt  # scipy: loaded only when a log is processed
+
+    sos = butter(4, cutoff, fs=fs, output="sos")
+    return sosfiltfilt(sos, x, axis=0)
+
+
+def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: float, seed: int) -> ArmLog:
+    """Process the episodes as the module docstring states; one line naming the column on bad data."""
+    if not episodes:
+        raise DataError("the log holds no episode")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "ep", "q", "dq", "ddq", "tau", "ref")}
+    dense: dict[str, list[np.ndarray]] = {"q": [], "dq": [], "tau": []}
+    resampled, lengths, source_rates = [], [], []
+    for i, ep in enumerate(episodes):
+        cols = {k: _column(ep, s, f"signals.{k}", i) for k, s in spec.signals.items()}
+        if spec.controller is not None:
+            cols["ref"] = _column(ep, spec.controller.reference, "controller.reference", i)
+        t = _clock(ep, fps)
+        if not is_regular(t):
+            rate = float(1.0 / np.median(np.diff(t)))
+            rate = float(round(rate)) if abs(rate - round(rate)) <= 1e-3 * rate else rate
+            t, cols, report = resample(t, cols, rate, where=f"episode {i}", column="time_ns")
+            resampled.append({"episode": i, **report})
+            src = rate
+        else:
+            src = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else fps
+        source_rates.append(src)
+        margin = int(round(EDGE_S * src))
+        step = max(1, int(round(src / spec.rate)))
+        if len(t) < 2 * margin + 10 * step:
+            raise DataError(
+                f"episode {i} has {len(t)} samples at {src:g} Hz: too short to filter and decimate to {spec.rate:g} Hz"
+            )
+        if spec.filter_hz >= src / 2:
+            raise SpecError(
+                f"spec field 'filter_hz' ({spec.filter_hz:g}) must be below half the log's rate ({src:g} Hz)"
+            )
+        q = _filter(cols["qpos"], src, spec.filter_hz)
+        dq = _filter(cols["qvel"], src, spec.filter_hz) if "qvel" in cols else np.gradient(q, 1.0 / src, axis=0)
+        tau = _filter(cols["torque"], src, spec.filter_hz)
+        ddq = np.gradient(dq, 1.0 / src, axis=0)
+        keep = np.arange(margin, len(t) - margin, step)
+        parts["t"].append(t[keep] - t[keep[0]])
+        parts["ep"].append(np.full(len(keep), i))
+        for k, v in (("q", q), ("dq", dq), ("ddq", ddq), ("tau", tau)):
+            parts[k].append(v[keep])
+        if "ref" in cols:
+            parts["ref"].append(_filter(cols["ref"], src, spec.filter_hz)[keep])
+        for k, v in (("q", q), ("dq", dq), ("tau", tau)):
+            dense[k].append(v[margin : len(t) - margin])
+        lengths.append(len(keep))
+    if len(set(round(r, 6) for r in source_rates)) != 1:
+        raise DataError(f"episodes are logged at different rates ({sorted(set(source_rates))} Hz); import them apart")
+    t_all, ep_all = np.concatenate(parts["t"]), np.concatenate(parts["ep"])
+    train_w, hold_w = split(lengths, spec.holdout, seed)
+    train = np.zeros(len(t_all), bool)
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    for w in train_w:
+        train[offsets[w.episode] + w.start : offsets[w.episode] + w.stop] = True
+    dense_len = [len(x) for x in dense["q"]]
+    dense_off = np.concatenate([[0], np.cumsum(dense_len)])
+
+    def dense_windows(ws: list) -> list[tuple[int, int, int]]:
+        out = []
+        for w in ws:
+            n = dense_len[w.episode]
+            scale = n / lengths[w.episode]
+            out.append((w.episode, int(round(w.start * scale)), min(n, int(round(w.stop * scale)))))
+        return out
+
+    return ArmLog(
+        t=t_all,
+        episode=ep_all,
+        q=np.concatenate(parts["q"]),
+        dq=np.concatenate(parts["dq"]),
+        ddq=np.concatenate(parts["ddq"]),
+        tau=np.concatenate(parts["tau"]),
+        ref=np.concatenate(parts["ref"]) if parts["ref"] else None,
+        train=train,
+        rate=float(source_rates[0] / max(1, int(round(source_rates[0] / spec.rate)))),
+        source_fps=float(source_rates[0]),
+        qvel_logged="qvel" in spec.signals,
+        resampled=resampled,
+        dense={k: np.concatenate(v) for k, v in dense.items()},
+        dense_offsets=dense_off,
+        dense_train=dense_windows(train_w),
+        dense_hold=dense_windows(hold_w),
+    )

@@ -1,0 +1,240 @@
+"""Spec of a real arm's calibration by inverse dynamics (`method: idim`): model, joints, signals, what is fitted.
+
+    method: idim                                  # the measured joint torque is the signal
+    model: {suite: held_out_robots, robot: Panda} # the suite's own scene for that robot, or an MJCF path
+    joints: [joint1, ..., joint7]                 # model joints in the log's column order (a unique suffix will do)
+    signals:
+      qpos: {column: observation.state, index: [0, ..., 6]}
+      qvel: {column: observation.velocity, index: [0, ..., 6]}   # optional: derived from qpos when absent
+      torque: {column: observation.effort, index: [0, ..., 6]}
+    torque: measured      # measured (torque sensors) | command (desired torque) | current (motor current)
+
+The rest has defaults (docs/calibration.md, "Real arms"). Every problem is a one-line `SpecError`
+naming the field; names are checked against the model in `bench.calibrate.arm`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.calibrate.spec import TraceSpec, parse_trace
+from bench.core.errors import SpecError, valid_choices
+from bench.replay.spec import SignalSpec, check_keys, number, parse_signal, read_spec_file
+
+ARM_KEYS = (
+    "method",
+    "model",
+    "joints",
+    "signals",
+    "torque",
+    "rate",
+    "filter_hz",
+    "friction",
+    "armature",
+    "inertia",
+    "payload",
+    "effects",
+    "holdout",
+    "horizon",
+    "bootstrap",
+    "controller",
+    "trace",
+)
+SIGNALS = ("qpos", "qvel", "torque")
+TORQUE_KINDS = ("measured", "command", "current")
+FRICTION = ("coulomb", "viscous", "offset")
+ARM_EFFECTS = ("payload", "actuator_gain", "stribeck_friction", "asymmetric_friction", "joint_spring")
+CONTROLLER_KEYS = ("kp", "kd", "reference")
+
+
+@dataclass(frozen=True)
+class Controller:
+    """A joint-space PD loop the log was recorded under: tau = u_ff + kp (q_ref - q) - kd dq, per joint."""
+
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    reference: SignalSpec  # the logged position reference q_ref
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """A parsed arm spec (paths resolved against the spec file)."""
+
+    model: Path | None  # an MJCF file, or None with `suite`
+    suite: str | None
+    robot: str | None
+    joints: tuple[str, ...]
+    signals: dict[str, SignalSpec]
+    torque: str = "measured"
+    rate: float = 200.0  # Hz at which inverse dynamics is evaluated, after filtering
+    filter_hz: float = 20.0  # zero-phase Butterworth cut-off on positions, velocities and torques
+    friction: tuple[str, ...] = FRICTION
+    armature: bool = False  # default: true for command and current signals (the rotor is behind a link-side sensor)
+    inertia: tuple[str, ...] | None = None  # None: every link moved by the joints; () none
+    payload: str | None = None  # body or site of the flange / tool frame (default: the last link's last fixed body)
+    effects: tuple[str, ...] = ARM_EFFECTS
+    holdout: float = 0.3
+    horizon: float = 0.05  # seconds of the forward-simulation (k-step) check
+    bootstrap: int = 200
+    controller: Controller | None = None
+    trace: TraceSpec = field(default_factory=TraceSpec)
+    source: Path | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able form, embedded in calibration.json."""
+        return {
+            "method": "idim",
+            "model": str(self.model) if self.model else {"suite": self.suite, "robot": self.robot},
+            "joints": list(self.joints),
+            "signals": {k: {"column": s.column, "index": list(s.index)} for k, s in self.signals.items()},
+            "torque": self.torque,
+            "rate": self.rate,
+            "filter_hz": self.filter_hz,
+            "friction": list(self.friction),
+            "armature": self.armature,
+            "inertia": "all" if self.inertia is None else list(self.inertia),
+            "payload": self.payload,
+            "effects": list(self.effects),
+            "holdout": self.holdout,
+            "horizon": self.horizon,
+            "bootstrap": self.bootstrap,
+            "controller": None
+            if self.controller is None
+            else {
+                "kp": list(self.controller.kp),
+                "kd": list(self.controller.kd),
+                "reference": {
+                    "column": self.controller.reference.column,
+                    "index": list(self.controller.reference.index),
+                },
+            },
+            "trace": dict(self.trace.__dict__),
+            "source": str(self.source) if self.source else None,
+        }
+
+
+def is_arm_spec(raw: Any) -> bool:
+    """A spec mapping that asks for inverse-dynamics identification."""
+    return isinstance(raw, dict) and raw.get("method") == "idim"
+
+
+def load_arm_spec(path: str | Path) -> ArmSpec:
+    """Read and parse an arm spec file."""
+    raw, p = read_spec_file(path)
+    return parse_arm_spec(raw, base_dir=p.parent, source=p)
+
+
+def _names(value: Any, where: str, valid: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) and v for v in value):
+        raise SpecError(f"spec field {where!r} must be a list of names; got {value!r}")
+    if valid is not None:
+        for v in value:
+            if v not in valid:
+                raise SpecError(f"spec field {where!r}: unknown {v!r}; {valid_choices(v, valid)}")
+    if len(set(value)) != len(value):
+        raise SpecError(f"spec field {where!r} names {next(v for v in value if value.count(v) > 1)!r} twice")
+    return tuple(value)
+
+
+def _choice_list(raw: Any, where: str, valid: tuple[str, ...]) -> tuple[str, ...]:
+    if raw == "all":
+        return valid
+    if raw in ("none", None) or raw == []:
+        return ()
+    return _names(raw, where, valid)
+
+
+def _model(raw: Any, base_dir: Path) -> tuple[Path | None, str | None, str | None]:
+    if isinstance(raw, dict):
+        check_keys(raw, ("suite", "robot"), "model")
+        suite, robot = raw.get("suite"), raw.get("robot")
+        if not isinstance(suite, str) or not suite or not isinstance(robot, str) or not robot:
+            raise SpecError("spec field 'model' must be an MJCF path or {suite: NAME, robot: NAME}")
+        return None, suite, robot
+    if not isinstance(raw, str) or not raw:
+        raise SpecError(f"spec field 'model' must be an MJCF path or {{suite: NAME, robot: NAME}}; got {raw!r}")
+    path = (base_dir / raw).resolve()
+    if not path.is_file():
+        raise SpecError(f"spec field 'model': MJCF file {str(path)!r} does not exist")
+    return path, None, None
+
+
+def _controller(raw: Any, n: int) -> Controller | None:
+    if raw is None:
+        return None
+    raw = check_keys(raw, CONTROLLER_KEYS, "controller")
+    gains = {}
+    for key in ("kp", "kd"):
+        v = raw.get(key)
+        if not isinstance(v, (list, tuple)) or len(v) != n:
+            raise SpecError(f"spec field 'controller.{key}' must list one gain per joint ({n}); got {v!r}")
+        gains[key] = tuple(number(x, f"controller.{key}", lo=0.0) for x in v)
+    if "reference" not in raw:
+        raise SpecError("spec field 'controller.reference' is required (column and index of the logged q_ref)")
+    ref = parse_signal(raw["reference"], "controller.reference")
+    if len(ref.index) != n:
+        raise SpecError(f"spec field 'controller.reference.index' must name {n} columns (one per joint)")
+    return Controller(gains["kp"], gains["kd"], ref)
+
+
+def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> ArmSpec:
+    """Check a raw arm spec mapping and build an ArmSpec (one SpecError naming the field otherwise)."""
+    raw = check_keys(raw, ARM_KEYS, "")
+    if raw.get("method") != "idim":
+        raise SpecError(f"spec field 'method' must be idim for an arm spec; got {raw.get('method')!r}")
+    model, suite, robot = _model(raw.get("model"), Path(base_dir))
+    joints = _names(raw.get("joints"), "joints")
+    sig_raw = check_keys(raw.get("signals"), SIGNALS, "signals")
+    for required in ("qpos", "torque"):
+        if required not in sig_raw:
+            raise SpecError(f"spec field 'signals.{required}' is required (column and index of the logged {required})")
+    signals = {k: parse_signal(v, f"signals.{k}") for k, v in sig_raw.items()}
+    for k, s in signals.items():
+        if len(s.index) != len(joints):
+            raise SpecError(
+                f"spec field 'signals.{k}.index' names {len(s.index)} columns; 'joints' names {len(joints)} "
+                "(one column per joint, in the same order)"
+            )
+    kind = raw.get("torque", "measured")
+    if kind not in TORQUE_KINDS:
+        raise SpecError(f"spec field 'torque': {kind!r}; {valid_choices(str(kind), TORQUE_KINDS)}")
+    inertia_raw = raw.get("inertia", "all")
+    inertia = None if inertia_raw == "all" else () if inertia_raw in ("none", None) else _names(inertia_raw, "inertia")
+    armature = raw.get("armature", kind != "measured")
+    if not isinstance(armature, bool):
+        raise SpecError(f"spec field 'armature' must be true or false; got {armature!r}")
+    payload = raw.get("payload")
+    if payload is not None and (not isinstance(payload, str) or not payload):
+        raise SpecError(f"spec field 'payload' must name a body or site of the model; got {payload!r}")
+    rate = number(raw.get("rate", 200.0), "rate", lo=1.0, hi=10_000.0)
+    filter_hz = number(raw.get("filter_hz", 20.0), "filter_hz", lo=0.1, hi=5_000.0)
+    if filter_hz >= rate / 2:
+        raise SpecError(
+            f"spec field 'filter_hz' ({filter_hz:g}) must be below half of 'rate' ({rate:g} Hz): the signals are "
+            "decimated to 'rate' after filtering"
+        )
+    return ArmSpec(
+        model=model,
+        suite=suite,
+        robot=robot,
+        joints=joints,
+        signals=signals,
+        torque=kind,
+        rate=rate,
+        filter_hz=filter_hz,
+        friction=_choice_list(raw.get("friction", "all"), "friction", FRICTION),
+        armature=armature,
+        inertia=inertia,
+        payload=payload,
+        effects=_choice_list(raw.get("effects", "all"), "effects", ARM_EFFECTS),
+        holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
+        horizon=number(raw.get("horizon", 0.05), "horizon", lo=1e-3, hi=10.0),
+        bootstrap=number(raw.get("bootstrap", 200), "bootstrap", lo=0, hi=10_000, integer=True),
+        controller=_controller(raw.get("controller"), len(joints)),
+        trace=parse_trace(raw.get("trace")),
+        source=source,
+    )

@@ -1,0 +1,615 @@
+"""Inverse-dynamics identification (IDIM-LS) of an arm in a MuJoCo model: regressor, fit, intervals.
+
+The joint torque of a rigid arm is linear in each link's ten standard inertial parameters (mass,
+first moment m·c, inertia about the link frame's origin) and in the usual joint terms (Coulomb and
+viscous friction, a constant offset, rotor inertia): tau = Y(q, dq, ddq) theta. MuJoCo computes the
+torque (`mj_inverse`); the columns of Y for a link are the torque differences when one of that
+link's standard parameters changes (exact, since the torque is linear in them), so any model a
+user brings, with its own frames and fixed bodies, gives its own regressor.
+
+The fit is weighted least squares (each joint's equations divided by that joint's residual spread),
+with bounds where physics sets them (a mass, a friction, a rotor inertia are not negative) and a
+faint pull of the inertial corrections toward the declared model: directions the data do not excite
+stay at the declared values instead of wandering (`identifiability` says which parameters those
+are). Intervals come from a window bootstrap of the training data (the residuals of one trajectory
+are correlated in time, so whole windows are resampled), which also gives the draws that
+`perturb.AXIS=from(CALIBRATION)` samples from.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from bench.core.errors import DataError
+
+FRICTION_V = 0.02  # rad/s: the Coulomb sign is smoothed as tanh(dq / FRICTION_V)
+STD_NAMES = ("mass", "mx", "my", "mz", "ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+def prior_scale(p: np.ndarray) -> np.ndarray:
+    """How far a link's declared parameters may be off, per parameter: all of their own size (a declared
+    inertia may be a placeholder), at least 0.5 kg, m x 0.1 m and 0.01 kg m^2."""
+    mass = max(float(p[0]), 0.5)
+    first = max(float(np.max(np.abs(p[1:4]))), 0.1 * mass)
+    inertia = max(float(np.max(np.abs(p[4:]))), 0.01)
+    return np.array([mass, first, first, first, *([inertia] * 6)])
+STD_STEP = np.array([0.1, 0.01, 0.01, 0.01, 0.001, 0.001, 0.001, 0.001, 0.001, 0.001])
+NULL_TOL = 1e-6  # singular values below this share of the largest span the unexcited directions
+LAMBDA = 10.0  # the pull toward the declared values weighs as much as this many weighted residuals
+MIN_MASS = 0.05  # kg: a link lighter than this is not a link
+COM_RADIUS = 0.3  # m: a link's centre of mass lies within this distance of its frame (an arm's links are < 0.5 m)
+COM_TOL, FENCE_WEIGHT = 0.01, 100.0  # the fence's residual: FENCE_WEIGHT per COM_TOL beyond it
+
+
+def std_params(m: mujoco.MjModel, body: int) -> np.ndarray:
+    """A body's standard inertial parameters in its own frame: [m, m·c (3), I about the origin (6)]."""
+    mass = float(m.body_mass[body])
+    c = np.array(m.body_ipos[body], dtype=np.float64)
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, m.body_iquat[body])
+    rot = rot.reshape(3, 3)
+    ic = rot @ np.diag(m.body_inertia[body]) @ rot.T
+    io = ic + mass * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([mass, *(mass * c), io[0, 0], io[0, 1], io[0, 2], io[1, 1], io[1, 2], io[2, 2]])
+
+
+def inertia_at_com(p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(mass, centre of mass, 3x3 inertia about it) of standard parameters `p`."""
+    mass = float(p[0])
+    c = p[1:4] / mass if mass > 0 else np.zeros(3)
+    io = np.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
+    return mass, c, io - mass * (c @ c * np.eye(3) - np.outer(c, c))
+
+
+def set_std(m: mujoco.MjModel, body: int, p: np.ndarray) -> None:
+    """Write standard parameters into a body's mass, centre of mass and principal inertia (+ orientation)."""
+    mass, c, ic = inertia_at_com(p)
+    w, v = np.linalg.eigh(ic)
+    if np.linalg.det(v) < 0:
+        v[:, 0] *= -1.0
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, v.ravel())
+    m.body_mass[body] = mass
+    m.body_ipos[body] = c
+    m.body_inertia[body] = w
+    m.body_iquat[body] = quat
+
+
+def point_mass(mass: float, com: np.ndarray) -> np.ndarray:
+    """Standard parameters of a point mass at `com` (frame coordinates)."""
+    c = np.asarray(com, dtype=np.float64)
+    io = mass * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([mass, *(mass * c), io[0, 0], io[0, 1], io[0, 2], io[1, 1], io[1, 2], io[2, 2]])
+
+
+def feasible(p: np.ndarray) -> str | None:
+    """Why standard parameters are not a physical body (positive mass, inertia positive definite and
+    obeying the triangle inequality), or None."""
+    mass, _, ic = inertia_at_com(p)
+    if mass <= 0:
+        return f"mass {mass:.3g} kg is not positive"
+    w = np.linalg.eigvalsh(ic)
+    if w[0] <= 0:
+        return f"inertia about the centre of mass is not positive definite (eigenvalues {np.round(w, 6).tolist()})"
+    if w[2] > w[0] + w[1] + 1e-12:
+        return f"principal inertias {np.round(w, 6).tolist()} break the triangle inequality"
+    return None
+
+
+class Dynamics:
+    """Inverse dynamics of some joints of a MuJoCo model, with every other coordinate held still.
+
+    The model is copied and stripped of what is not rigid-body dynamics (contacts, passive forces,
+    friction loss; the joints' rotor inertia is zeroed): friction and rotor inertia are columns of
+    their own. `qpos0` places the coordinates that are not identified (a gripper, an object).
+    """
+
+    def __init__(self, model: mujoco.MjModel, qadr: np.ndarray, dadr: np.ndarray, qpos0: np.ndarray) -> None:
+        m = copy.copy(model)
+        m.opt.disableflags |= int(
+            mujoco.mjtDisableBit.mjDSBL_CONTACT
+            | mujoco.mjtDisableBit.mjDSBL_PASSIVE
+            | mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS
+            | mujoco.mjtDisableBit.mjDSBL_LIMIT
+            | mujoco.mjtDisableBit.mjDSBL_EQUALITY
+        )
+        m.dof_armature[dadr] = 0.0
+        self.m, self.d = m, mujoco.MjData(m)
+        self.qadr, self.dadr = np.asarray(qadr), np.asarray(dadr)
+        self.qpos0 = np.asarray(qpos0, dtype=np.float64).copy()
+        self.evaluations = 0
+
+    def torques(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """(N, n) joint torques of the current model at N samples."""
+        m, d = self.m, self.d
+        mujoco.mj_setConst(m, d)  # body edits reach the mass matrix (simple bodies cache it)
+        out = np.empty_like(q)
+        d.qvel[:] = 0.0
+        d.qacc[:] = 0.0
+        for i in range(len(q)):
+            d.qpos[:] = self.qpos0
+            d.qpos[self.qadr] = q[i]
+            d.qvel[self.dadr] = dq[i]
+            d.qacc[self.dadr] = ddq[i]
+            mujoco.mj_inverse(m, d)
+            out[i] = d.qfrc_inverse[self.dadr]
+        self.evaluations += len(q)
+        return out
+
+    def body_columns(self, body: int, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """(N, n, 10): the torque per unit of each standard parameter of `body` (exact by linearity)."""
+        p0 = std_params(self.m, body)
+        cols = np.empty((*q.shape, 10))
+        for k in range(10):
+            p = p0.copy()
+            p[k] += STD_STEP[k]
+            set_std(self.m, body, p)
+            cols[..., k] = (self.torques(q, dq, ddq) - base) / STD_STEP[k]
+            set_std(self.m, body, p0)
+        return cols
+
+
+@dataclass
+class Block:
+    """Columns of the regressor that belong to one parameter group (a link, a joint's friction, an effect)."""
+
+    name: str  # e.g. "link:robot0_link3", "coulomb:robot0_joint2", "payload"
+    labels: list[str]  # one per parameter
+    cols: np.ndarray  # (N, n, k)
+    lo: np.ndarray  # (k,) bounds of the parameter values
+    hi: np.ndarray
+    prior: np.ndarray  # (k,) declared values (what the parameters are pulled toward where unexcited)
+    scale: np.ndarray  # (k,) prior spread; np.inf = no pull
+    kind: str = "declared"  # declared | effect
+    pseudo: bool = False  # a link's standard parameters, kept physical (log-Cholesky of its pseudo-inertia)
+
+    @property
+    def size(self) -> int:
+        return len(self.labels)
+
+
+@dataclass
+class Fit:
+    """A weighted, bounded least-squares fit of the signal on some blocks."""
+
+    blocks: list[Block]
+    x: np.ndarray  # parameter values, block after block
+    weights: np.ndarray  # (n,) 1 / residual spread per joint (training data)
+    cov: np.ndarray  # covariance of x (inflated by the residuals' autocorrelation time)
+    tau: float  # integrated autocorrelation time of the weighted training residuals
+    ssr: float  # weighted training sum of squares
+    n: int  # training residuals
+    at_bound: list[str] = field(default_factory=list)
+
+    def values(self, name: str) -> np.ndarray:
+        off = 0
+        for b in self.blocks:
+            if b.name == name:
+                return self.x[off : off + b.size]
+            off += b.size
+        raise KeyError(name)
+
+    def offset(self, name: str) -> int:
+        off = 0
+        for b in self.blocks:
+            if b.name == name:
+                return off
+            off += b.size
+        raise KeyError(name)
+
+    @property
+    def labels(self) -> list[str]:
+        return [lab for b in self.blocks for lab in b.labels]
+
+    def sd(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+
+def design(blocks: list[Block], rows: np.ndarray) -> np.ndarray:
+    """(len(rows), n, K) regressor of the chosen sample rows."""
+    return np.concatenate([b.cols[rows] for b in blocks], axis=-1)
+
+
+def predict(blocks: list[Block], x: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """(N, n) modelled signal: the fixed part plus every block times its parameters."""
+    return fixed + np.einsum("njk,k->nj", np.concatenate([b.cols for b in blocks], axis=-1), x)
+
+
+def _bounds(blocks: list[Block]) -> tuple[np.ndarray, np.ndarray]:
+    return np.concatenate([b.lo for b in blocks]), np.concatenate([b.hi for b in blocks])
+
+
+# --- physically consistent links: the pseudo-inertia J = [[S, h], [h', m]], S = tr(I)/2 - I, J = U U' ---------
+_TRIU = np.triu_indices(4)
+
+
+def pseudo_inertia(p: np.ndarray) -> np.ndarray:
+    """The 4x4 pseudo-inertia of standard parameters: positive definite exactly for a physical body
+    (positive mass, inertia positive definite and obeying the triangle inequality; Wensing et al. 2017)."""
+    io = np.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
+    j = np.zeros((4, 4))
+    j[:3, :3] = 0.5 * np.trace(io) * np.eye(3) - io
+    j[:3, 3] = j[3, :3] = p[1:4]
+    j[3, 3] = p[0]
+    return j
+
+
+def _std_of_j(j: np.ndarray) -> np.ndarray:
+    """Standard parameters of pseudo-inertias (..., 4, 4) -> (..., 10)."""
+    sig = j[..., :3, :3]
+    tr = np.trace(sig, axis1=-2, axis2=-1)[..., None, None]
+    io = tr * np.eye(3) - sig
+    return np.stack(
+        [
+            j[..., 3, 3],
+            j[..., 0, 3],
+            j[..., 1, 3],
+            j[..., 2, 3],
+            io[..., 0, 0],
+            io[..., 0, 1],
+            io[..., 0, 2],
+            io[..., 1, 1],
+            io[..., 1, 2],
+            io[..., 2, 2],
+        ],
+        axis=-1,
+    )
+
+
+_DIAG = np.array([0, 4, 7, 9])  # positions of U's diagonal among its upper-triangular entries
+
+
+def factor_of(p: np.ndarray) -> np.ndarray:
+    """Log-Cholesky coordinates z (10,) of a body's parameters: J = U U', U upper triangular with diagonal
+    exp(z); parameters that are not a physical body are first nudged just inside."""
+    j = pseudo_inertia(p)
+    w, v = np.linalg.eigh(j)
+    j = (v * np.maximum(w, 1e-9 * max(float(w.max()), 1e-12))) @ v.T
+    perm = np.eye(4)[::-1]
+    low = np.linalg.cholesky(perm @ j @ perm)  # J = P L L' P, so U = P L P is upper triangular
+    u = perm @ low @ perm
+    z = u[_TRIU].copy()
+    z[_DIAG] = np.log(np.diag(u))
+    return z
+
+
+def std_of_factor(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard parameters (L, 10) of log-Cholesky coordinates (L, 10), and their Jacobians (L, 10, 10)."""
+    z = np.atleast_2d(z)
+    u = np.zeros((len(z), 4, 4))
+    u[:, _TRIU[0], _TRIU[1]] = z
+    idx = np.arange(4)
+    u[:, idx, idx] = np.exp(z[:, _DIAG])
+    std = _std_of_j(u @ np.swapaxes(u, 1, 2))
+    jac = np.empty((len(z), 10, 10))
+    for k, (r, c) in enumerate(zip(*_TRIU)):
+        col = u[:, :, c] * (u[:, r, c][:, None] if k in _DIAG else 1.0)  # d(U)/dz_k = e_r e_c' (x U_rc on the diagonal)
+        dj = np.zeros((len(z), 4, 4))
+        dj[:, r, :] += col
+        dj[:, :, r] += col
+        jac[:, :, k] = _std_of_j(dj)
+    return std, jac
+
+
+@dataclass
+class Problem:
+    """A fit compressed to its normal equations: ||b - R x||^2 is the weighted SSR up to a constant."""
+
+    r: np.ndarray  # (K, K)
+    b: np.ndarray  # (K,)
+    const: float  # the part of the SSR no parameter reaches
+    n: int  # weighted residuals behind it
+
+
+def compress(blocks: list[Block], signal: np.ndarray, fixed: np.ndarray, rows: np.ndarray, w: np.ndarray) -> Problem:
+    a = (design(blocks, rows) * w[None, :, None]).reshape(-1, sum(b.size for b in blocks))
+    y = ((signal - fixed)[rows] * w[None, :]).reshape(-1)
+    return from_gram(a.T @ a, a.T @ y, float(y @ y), y.size)
+
+
+def from_gram(g: np.ndarray, ay: np.ndarray, yy: float, n: int) -> Problem:
+    lam, vec = np.linalg.eigh(g)
+    lam = np.maximum(lam, 0.0)
+    root = (vec * np.sqrt(lam)) @ vec.T
+    b = np.linalg.lstsq(root, ay, rcond=1e-13)[0]
+    return Problem(root, b, yy - float(b @ b), n)
+
+
+def _trf(fun, jac, z0: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_it: int) -> np.ndarray:
+    """scipy's trust-region reflective least squares within the box (the problems are small: a compressed
+    regressor), at most `max_it` evaluations."""
+    from scipy.optimize import least_squares  # scipy: loaded only when a fit is computed
+
+    z0 = np.clip(z0, np.where(np.isfinite(lo), lo + 1e-12, lo), np.where(np.isfinite(hi), hi - 1e-12, hi))
+    res = least_squares(
+        fun,
+        z0,
+        jac=jac,
+        bounds=(lo, hi),
+        method="trf",
+        x_scale="jac",
+        xtol=1e-9,
+        ftol=1e-10,
+        gtol=1e-9,
+        max_nfev=max_it,
+    )
+    return res.x
+
+
+def _solve(
+    pb: Problem,
+    blocks: list[Block],
+    lam: float,
+    x0: np.ndarray | None = None,
+    max_it: int = 300,
+    hold_links: bool = False,
+    one_step: bool = False,
+) -> np.ndarray:
+    """Bounded least squares of the compressed problem; link blocks through their log-Cholesky factor
+    (always a physical body), every parameter with a prior scale pulled faintly toward its prior."""
+    sizes = [b.size for b in blocks]
+    offs = np.concatenate([[0], np.cumsum(sizes)])
+    prior = np.concatenate([b.prior for b in blocks])
+    scale = np.concatenate([b.scale for b in blocks])
+    lo, hi = _bounds(blocks)
+    pulled = np.flatnonzero(np.isfinite(scale))
+    links = [i for i, b in enumerate(blocks) if b.pseudo]
+    if hold_links and x0 is not None and links:  # links as they are: the rest is a convex problem
+        from scipy.optimize import lsq_linear  # scipy: loaded only when a fit is computed
+
+        held = np.zeros(len(prior), bool)
+        for i in links:
+            held[offs[i] : offs[i + 1]] = True
+        x = np.asarray(x0, dtype=np.float64).copy()
+        rest = ~held
+        a = pb.r[:, rest]
+        y = pb.b - pb.r[:, held] @ x[held]
+        pr = [k for k in pulled if rest[k]]
+        if pr:
+            pen = np.zeros((len(pr), len(prior)))
+            pen[np.arange(len(pr)), pr] = np.sqrt(lam) / scale[pr]
+            a, y = np.vstack([a, pen[:, rest]]), np.concatenate([y, pen[:, rest] @ prior[rest]])
+        norm = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+        x[rest] = lsq_linear(a / norm, y, bounds=(lo[rest] * norm, hi[rest] * norm), method="bvls").x / norm
+        return x
+    if x0 is None:  # the convex problem without the links' physics, then each link nudged inside it
+        from scipy.optimize import lsq_linear  # scipy: loaded only when a fit is computed
+
+        pen = np.zeros((len(pulled), len(prior)))
+        pen[np.arange(len(pulled)), pulled] = np.sqrt(lam) / scale[pulled]
+        a = np.vstack([pb.r, pen])
+        y = np.concatenate([pb.b, pen @ prior])
+        norm = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+        x0 = lsq_linear(a / norm, y, bounds=(lo * norm, hi * norm), method="bvls").x / norm
+    start = np.clip(x0, lo, hi)
+    z0, zlo, zhi = start.copy(), lo.copy(), hi.copy()
+    for i in links:
+        sl = slice(offs[i], offs[i + 1])
+        z0[sl], zlo[sl], zhi[sl] = factor_of(start[sl]), -np.inf, np.inf
+        zlo[offs[i] + _DIAG], zhi[offs[i] + _DIAG] = -25.0, 8.0  # exp(-25)..exp(8): a factor's scale, never inf
+    z0 = np.clip(z0, zlo, zhi)
+    sq = np.sqrt(lam)
+
+    link_idx = np.array([np.arange(offs[i], offs[i + 1]) for i in links], dtype=np.int64).reshape(len(links), 10)
+
+    def params(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, dx = z.copy(), np.eye(len(z))
+        if links:
+            std, jac = std_of_factor(z[link_idx])
+            x[link_idx] = std
+            for li, idx in enumerate(link_idx):
+                dx[np.ix_(idx, idx)] = jac[li]
+        return x, dx
+
+    def fence(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Plausibility of each link, as residuals that are zero inside: mass >= MIN_MASS, and the
+        centre of mass within COM_RADIUS of the link frame; and their gradients in x."""
+        rows, grads = [], []
+        for idx in link_idx:
+            m, h = x[idx[0]], x[idx[1:4]]
+            g_m = np.zeros(len(x))
+            g_m[idx[0]] = -FENCE_WEIGHT / MIN_MASS
+            rows.append(FENCE_WEIGHT * max(0.0, MIN_MASS - m) / MIN_MASS)
+            grads.append(g_m if m < MIN_MASS else np.zeros(len(x)))
+            mm = max(m, MIN_MASS)
+            dist = float(np.linalg.norm(h)) / mm
+            g_c = np.zeros(len(x))
+            if dist > COM_RADIUS:
+                g_c[idx[1:4]] = FENCE_WEIGHT / COM_TOL * h / (np.linalg.norm(h) * mm)
+                if m > MIN_MASS:
+                    g_c[idx[0]] = -FENCE_WEIGHT / COM_TOL * dist / mm
+            rows.append(FENCE_WEIGHT * max(0.0, dist - COM_RADIUS) / COM_TOL)
+            grads.append(g_c)
+        if not rows:
+            return np.zeros(0), np.zeros((0, len(x)))
+        return np.array(rows), np.array(grads)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        x, _ = params(z)
+        return np.concatenate([pb.b - pb.r @ x, sq * (x[pulled] - prior[pulled]) / scale[pulled], fence(x)[0]])
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        x, dx = params(z)
+        return np.vstack([-pb.r @ dx, (sq / scale[pulled])[:, None] * dx[pulled], fence(x)[1] @ dx])
+
+    if one_step:  # one Gauss-Newton step from x0 (a bootstrap replicate near the fit), box kept
+        from scipy.optimize import lsq_linear  # scipy: loaded only when a fit is computed
+
+        r0, j0 = fun(z0), jac(z0)
+        d = np.maximum(np.linalg.norm(j0, axis=0), 1e-300)
+        step = lsq_linear(j0 / d, -r0, bounds=((zlo - z0) * d, (zhi - z0) * d), method="bvls").x / d
+        return params(np.clip(z0 + step, zlo, zhi))[0]
+    return params(_trf(fun, jac, z0, zlo, zhi, max_it))[0]
+
+
+def fit(
+    blocks: list[Block],
+    signal: np.ndarray,
+    fixed: np.ndarray,
+    train: np.ndarray,
+    *,
+    weights: np.ndarray | None = None,
+    lam: float = LAMBDA,
+    x0: np.ndarray | None = None,
+    hold_links: bool = False,
+) -> Fit:
+    """Weighted bounded least squares of `signal - fixed` on `blocks` over the `train` rows.
+
+    Without `weights`, an unweighted fit gives each joint's residual spread, and the fit is repeated
+    with 1 / spread per joint (the usual two-step weighted IDIM). `lam` weighs the pull toward the
+    declared values (each parameter with a finite prior scale), in weighted residuals (LAMBDA).
+    """
+    from bench.calibrate.fit import autocorrelation_time  # scipy via fit: loaded only when a fit is computed
+
+    rows = np.flatnonzero(train)
+    n_j = signal.shape[1]
+    if weights is None:
+        x1 = _solve(compress(blocks, signal, fixed, rows, np.ones(n_j)), blocks, lam)
+        r1 = (signal - fixed)[rows] - np.einsum("njk,k->nj", design(blocks, rows), x1)
+        weights = 1.0 / np.maximum(r1.std(axis=0), 1e-9)
+    pb = compress(blocks, signal, fixed, rows, weights)
+    x = _solve(pb, blocks, lam, x0, hold_links=hold_links)
+    a3 = design(blocks, rows)
+    r = ((signal - fixed)[rows] - np.einsum("njk,k->nj", a3, x)) * weights[None, :]
+    tau = autocorrelation_time(r[None, :, :])
+    ssr = float(np.sum(r**2))
+    dof = max(r.size - len(x), 1)
+    gram = pb.r.T @ pb.r
+    lo, hi = _bounds(blocks)
+    free = ~(np.isclose(x, lo, rtol=0, atol=1e-12) | np.isclose(x, hi, rtol=0, atol=1e-12))
+    cov = np.zeros((len(x), len(x)))
+    if free.any():
+        cov[np.ix_(free, free)] = tau * ssr / dof * np.linalg.pinv(gram[np.ix_(free, free)], rcond=1e-12)
+    labels = [lab for b in blocks for lab in b.labels]
+    prior = np.concatenate([b.prior for b in blocks])
+    at_bound = [
+        labels[i]
+        for i in np.flatnonzero(~free)
+        if (np.isfinite(lo[i]) or np.isfinite(hi[i])) and not np.isclose(x[i], prior[i])
+    ]
+    return Fit(blocks, x, weights, cov, tau, ssr, int(r.size), at_bound)
+
+
+def heldout_rmse(f: Fit, signal: np.ndarray, fixed: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(n,) per-joint RMSE of the fitted model on `rows` (in the signal's units)."""
+    pred = predict(f.blocks, f.x, fixed)[rows]
+    return np.sqrt(np.mean((signal[rows] - pred) ** 2, axis=0))
+
+
+def identifiability(blocks: list[Block], train: np.ndarray, weights: np.ndarray) -> dict[str, dict]:
+    """Per parameter: identified alone, only in combination with others (named), or not at all.
+
+    From the SVD of the weighted, column-normalised training regressor: the share of a parameter's
+    unit vector in the unexcited subspace (singular values below NULL_TOL of the largest) is 0 for a
+    parameter the data pin down alone, 1 for one they say nothing about, in between for one they
+    only fix in combination.
+    """
+    rows = np.flatnonzero(train)
+    a = (design(blocks, rows) * weights[None, :, None]).reshape(-1, sum(b.size for b in blocks))
+    norm = np.linalg.norm(a, axis=0)
+    labels = [lab for b in blocks for lab in b.labels]
+    out: dict[str, dict] = {}
+    zero = norm <= 1e-12 * max(float(norm.max()), 1e-300)
+    an = a / np.where(zero, 1.0, norm)
+    _, s, vt = np.linalg.svd(an, full_matrices=False)
+    null = vt[s < NULL_TOL * s[0]]
+    for i, lab in enumerate(labels):
+        if zero[i]:
+            out[lab] = {"status": "not identifiable", "why": "the data do not move the torque with it"}
+            continue
+        share = float(np.sum(null[:, i] ** 2)) if len(null) else 0.0
+        if share < 0.01:
+            out[lab] = {"status": "identified"}
+        elif share > 0.99:
+            out[lab] = {"status": "not identifiable", "why": "no excitation: left at its declared value"}
+        else:
+            w = np.abs(null.T @ null[:, i])
+            w[i] = 0.0
+            partners = [labels[j] for j in np.argsort(-w)[:3] if w[j] > 0.05 * share]
+            out[lab] = {"status": "in combination", "with": partners, "unexcited_share": round(share, 3)}
+    return out
+
+
+def windows_of(t: np.ndarray, train: np.ndarray, length_s: float) -> np.ndarray:
+    """Window index of every training row (contiguous stretches of `length_s` seconds); -1 elsewhere."""
+    out = np.full(len(t), -1, dtype=np.int64)
+    rows = np.flatnonzero(train)
+    if rows.size == 0:
+        raise DataError("no training samples left for the fit (a shorter holdout or a longer log)")
+    out[rows] = np.floor((t[rows] - t[rows[0]]) / length_s).astype(np.int64)
+    return out
+
+
+def _linear(pb: Problem, blocks: list[Block], lam: float) -> np.ndarray:
+    """The convex problem: every parameter linear (links unconstrained), bounds kept, the faint pull."""
+    from scipy.optimize import lsq_linear  # scipy: loaded only when a fit is computed
+
+    prior = np.concatenate([b.prior for b in blocks])
+    scale = np.concatenate([b.scale for b in blocks])
+    lo, hi = _bounds(blocks)
+    pulled = np.flatnonzero(np.isfinite(scale))
+    pen = np.zeros((len(pulled), len(prior)))
+    pen[np.arange(len(pulled)), pulled] = np.sqrt(lam) / scale[pulled]
+    a = np.vstack([pb.r, pen])
+    y = np.concatenate([pb.b, pen @ prior])
+    norm = np.maximum(np.linalg.norm(a, axis=0), 1e-300)
+    return lsq_linear(a / norm, y, bounds=(lo * norm, hi * norm), method="bvls").x / norm
+
+
+def physical(p: np.ndarray) -> np.ndarray:
+    """The nearest physical body's parameters (the pseudo-inertia's negative eigenvalues lifted to zero+)."""
+    if feasible(p) is None:
+        return p
+    j = pseudo_inertia(p)
+    w, v = np.linalg.eigh(j)
+    j = (v * np.maximum(w, 1e-9 * max(float(w.max()), 1e-12))) @ v.T
+    return _std_of_j(j)
+
+
+def bootstrap(
+    blocks: list[Block],
+    signal: np.ndarray,
+    fixed: np.ndarray,
+    windows: np.ndarray,
+    weights: np.ndarray,
+    draws: int,
+    seed: int,
+    x0: np.ndarray,
+    lam: float = LAMBDA,
+) -> np.ndarray:
+    """(draws, K) parameter vectors for training windows drawn with replacement (seeded).
+
+    Each replicate moves the fit `x0` by what resampling moves the convex (all-linear) solution,
+    x0 + (x_b - x_all); bounds are kept and a link that leaves the physical set is put back on its
+    nearest physical point. Cheap (one small linear solve per replicate) and centred on the fit.
+    """
+    k = sum(b.size for b in blocks)
+    if draws <= 0:
+        return np.zeros((0, k))
+    ids = np.unique(windows[windows >= 0])
+    grams, ays, yys, ns = [], [], [], []
+    for w in ids:
+        rows = np.flatnonzero(windows == w)
+        a = (design(blocks, rows) * weights[None, :, None]).reshape(-1, k)
+        y = ((signal - fixed)[rows] * weights[None, :]).reshape(-1)
+        grams.append(a.T @ a)
+        ays.append(a.T @ y)
+        yys.append(float(y @ y))
+        ns.append(y.size)
+    g_all, ay_all, yy_all, n_all = np.stack(grams), np.stack(ays), np.array(yys), np.array(ns)
+    base = _linear(from_gram(g_all.sum(0), ay_all.sum(0), float(yy_all.sum()), int(n_all.sum())), blocks, lam)
+    lo, hi = _bounds(blocks)
+    offs = np.concatenate([[0], np.cumsum([b.size for b in blocks])])
+    rng = np.random.default_rng(seed)
+    out = np.empty((draws, k))
+    for i in range(draws):
+        pick = rng.integers(0, len(ids), len(ids))
+        pb = from_gram(g_all[pick].sum(0), ay_all[pick].sum(0), float(yy_all[pick].sum()), int(n_all[pick].sum()))
+        x = np.clip(x0 + (_linear(pb, blocks, lam) - base), lo, hi)
+        for bi, b in enumerate(blocks):
+            if b.pseudo:
+                x[offs[bi] : offs[bi + 1]] = physical(x[offs[bi] : offs[bi + 1]])
+        out[i] = x
+    return out
