@@ -82,6 +82,59 @@ def model_hash(model: mujoco.MjModel, joints: list[str]) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
+def _moved_by(model: mujoco.MjModel, body: int, link: int) -> bool:
+    while body > 0:
+        if body == link:
+            return True
+        if model.body_jntnum[body] > 0:
+            return False
+        body = int(model.body_parentid[body])
+    return False
+
+
+def robot_hash(model: mujoco.MjModel, joints: list[str]) -> str:
+    """Fingerprint of a robot alone, whatever scene holds it: its joints (kind, axis, range and the
+    calibrated fields), the bodies they move with what is fixed to them (names and inertial values)
+    and the motors that drive them. Two suites that put the same arm in different scenes share it."""
+    rows: list[Any] = []
+    for name in joints:
+        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j < 0:
+            return f"missing joint {name}"
+        d = int(model.jnt_dofadr[j])
+        link = int(model.jnt_bodyid[j])
+        group = [b for b in range(model.nbody) if _moved_by(model, b, link)]
+        rows.append(
+            [
+                name,
+                int(model.jnt_type[j]),
+                np.round(model.jnt_axis[j], 9).tolist(),
+                np.round(model.jnt_range[j], 9).tolist(),
+                [round(float(getattr(model, f)[d]), 9) for f in ("dof_damping", "dof_armature", "dof_frictionloss")],
+                round(float(model.jnt_stiffness[j]), 9),
+                [
+                    [
+                        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b),
+                        round(float(model.body_mass[b]), 9),
+                        np.round(model.body_ipos[b], 9).tolist(),
+                        np.round(model.body_inertia[b], 9).tolist(),
+                    ]
+                    for b in group
+                ],
+                [
+                    [
+                        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a),
+                        round(float(model.actuator_gainprm[a, 0]), 9),
+                    ]
+                    for a in range(model.nu)
+                    if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and model.actuator_trnid[a, 0] == j
+                ],
+            ]
+        )
+    doc = {"robot": rows, "timestep": model.opt.timestep, "gravity": np.round(model.opt.gravity, 9).tolist()}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
 def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any]]:
     """What the calibrated model changes in the editable fields: [{field, element, nominal, value[, column]}]."""
     out = []
@@ -132,7 +185,8 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
             "'apply' section, written by `bench calibrate suite=NAME robot=NAME logs=DIR`)"
         )
     where = doc.get("suite", {})
-    if where.get("name") != suite or str(where.get("version")) != str(suite_version):
+    portable = "robot_hash" in section  # a robot's calibration: any suite whose robot matches it
+    if not portable and (where.get("name") != suite or str(where.get("version")) != str(suite_version)):
         raise ConfigError(
             f"calibration={str(p)!r} was fitted for suite {where.get('name')!r} version "
             f"{where.get('version')!r}; this run is suite {suite!r} version {suite_version!r}"
@@ -147,6 +201,7 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
         "sha256": hashlib.sha256(raw).hexdigest(),
         "robot": section["robot"],
         "model_hash": section["model_hash"],
+        **({"robot_hash": section["robot_hash"]} if portable else {}),
         "joints": section["joints"],
         "edits": section["edits"],
     }
@@ -158,6 +213,20 @@ def check(mj: Any, cal: dict[str, Any]) -> None:
         raise ConfigError(
             f"calibration {cal['path']!r} edits a MuJoCo model; the env of robot {cal['robot']!r} has none"
         )
+    if "robot_hash" in cal:
+        missing = [j for j in cal["joints"] if mujoco.mj_name2id(mj.model, mujoco.mjtObj.mjOBJ_JOINT, j) < 0]
+        if missing:
+            raise ConfigError(
+                f"calibration {cal['path']!r} names joints this env's robot {cal['robot']!r} lacks: "
+                f"{', '.join(missing)}"
+            )
+        have = robot_hash(mj.model, cal["joints"])
+        if have != cal["robot_hash"]:
+            raise ConfigError(
+                f"calibration {cal['path']!r} was fitted on another model of robot {cal['robot']!r} "
+                f"(robot fingerprint {cal['robot_hash'][:12]}, this env's {have[:12]}); recalibrate against it"
+            )
+        return
     have = model_hash(mj.model, cal["joints"])
     if have != cal["model_hash"]:
         raise ConfigError(

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
-from bench.calibrate.apply import edits, model_hash
+from bench.calibrate.apply import edits, model_hash, robot_hash
 from bench.calibrate.arm import ArmCalibration, summary_line
 from bench.calibrate.arm_model import realise
 from bench.core.io import json_safe, write_atomic, write_text_atomic
@@ -95,6 +95,7 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
             "robot": am.suite["robot"],
             "joints": am.joints,
             "model_hash": model_hash(am.model, am.joints),
+            "robot_hash": robot_hash(am.model, am.joints),
             "edits": final_edits,
         }
     doc["draws"] = draws_section(cal, final_edits)

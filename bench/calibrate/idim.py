@@ -28,6 +28,8 @@ from bench.core.errors import DataError
 
 FRICTION_V = 0.02  # rad/s: the Coulomb sign is smoothed as tanh(dq / FRICTION_V)
 STD_NAMES = ("mass", "mx", "my", "mz", "ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
 def prior_scale(p: np.ndarray) -> np.ndarray:
     """How far a link's declared parameters may be off, per parameter: all of their own size (a declared
     inertia may be a placeholder), at least 0.5 kg, m x 0.1 m and 0.01 kg m^2."""
@@ -35,6 +37,8 @@ def prior_scale(p: np.ndarray) -> np.ndarray:
     first = max(float(np.max(np.abs(p[1:4]))), 0.1 * mass)
     inertia = max(float(np.max(np.abs(p[4:]))), 0.01)
     return np.array([mass, first, first, first, *([inertia] * 6)])
+
+
 STD_STEP = np.array([0.1, 0.01, 0.01, 0.01, 0.001, 0.001, 0.001, 0.001, 0.001, 0.001])
 NULL_TOL = 1e-6  # singular values below this share of the largest span the unexcited directions
 LAMBDA = 10.0  # the pull toward the declared values weighs as much as this many weighted residuals

@@ -6,6 +6,7 @@ Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
     perturb.mass=loguniform(0.5,2)            log-uniform draw
     perturb.mass.levels=[0.5,2] perturb.mass.bodies=[cube_main]   dict form, with targets
     perturb.mass.uniform=[0.8,1.2]            dict form of a range
+    perturb.damping=from(runs/panda_cal)      a calibration's bootstrap draws: one condition, a draw per episode
 
 Applying a condition to an env is `bench.sims.perturb`'s (model and interface axes) and
 `bench.sims.perturb_visual`'s (visual axes).
@@ -13,12 +14,15 @@ Applying a condition to an env is `bench.sims.perturb`'s (model and interface ax
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from bench.core.errors import ConfigError, did_you_mean
+from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.protocols.suite import NOMINAL, Condition
 from bench.sims import perturb_visual
 
@@ -177,6 +181,15 @@ INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
 DISTRIBUTIONS = ("uniform", "loguniform")
 _SHORT = {"uniform": "U", "loguniform": "logU"}
+# the model fields a calibration's draws (`bench calibrate`'s `draws` section) carry, per axis that samples them
+FROM_FIELDS = {
+    "damping": ("dof_damping",),
+    "armature": ("dof_armature",),
+    "frictionloss": ("dof_frictionloss",),
+    "link_mass": ("body_mass", "body_ipos", "body_inertia", "body_iquat"),
+    "gain": ("actuator_gainprm",),
+}
+_FROM_RE = re.compile(r"^\s*from\s*\(\s*(.+?)\s*\)\s*$", re.IGNORECASE)
 _DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
 
 
@@ -229,6 +242,59 @@ def _fmt(x: float) -> str:
     return f"{x:g}"
 
 
+def _from(axis: Axis, field: str, source: str) -> Condition:
+    """`from(CALIBRATION)`: one condition whose episodes each take one bootstrap draw of what the
+    calibration measured for this axis' fields (absolute values, written over the nominal ones)."""
+    if axis.name not in FROM_FIELDS:
+        raise ConfigError(
+            f"{field}: from(...) samples what a calibration measured; axes that take it: {', '.join(FROM_FIELDS)}"
+        )
+    path = Path(source).expanduser()
+    path = path / "calibration.json" if path.is_dir() else path
+    if not path.is_file():
+        raise ConfigError(
+            f"{field}: from({source}): no calibration there (a `bench calibrate` output folder or its calibration.json)"
+        )
+    raw = path.read_bytes()
+    try:
+        doc = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataError(f"{field}: from({source}): {path} is not JSON ({exc})") from None
+    draws = doc.get("draws") if isinstance(doc, dict) else None
+    if (
+        not isinstance(draws, dict)
+        or not isinstance(draws.get("keys"), list)
+        or not isinstance(draws.get("values"), list)
+    ):
+        raise ConfigError(
+            f"{field}: from({source}): {path} has no 'draws' section (a real-arm calibration, `method: idim`, writes one)"
+        )
+    keys, values = draws["keys"], draws["values"]
+    keep = [i for i, k in enumerate(keys) if isinstance(k, str) and k.split(":")[0] in FROM_FIELDS[axis.name]]
+    if not keep:
+        have = sorted({str(k).split(":")[0] for k in keys})
+        raise ConfigError(
+            f"{field}: from({source}): the calibration measured no {', '.join(FROM_FIELDS[axis.name])} "
+            f"(its draws carry {', '.join(have) or 'nothing'})"
+        )
+    rows = [[row[i] for i in keep] for row in values if isinstance(row, list) and len(row) == len(keys)]
+    if len(rows) < 2 or len(rows) != len(values):
+        raise ConfigError(f"{field}: from({source}): {path} holds {len(rows)} usable draws; at least 2 are needed")
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for row in rows for v in row):
+        raise DataError(f"{field}: from({source}): {path} has a draw that is not a finite number")
+    sha = hashlib.sha256(raw).hexdigest()
+    spec = {
+        "kind": "from",
+        "targets": {},
+        "source": str(path),
+        "sha256": sha,
+        "keys": [keys[i] for i in keep],
+        "values": rows,
+    }
+    label = f"{path.parent.name or path.name}@{sha[:8]}"
+    return Condition(name=f"{axis.name}~from({label})", axis=axis.name, level=[0, len(rows) - 1], spec=spec)
+
+
 def axis_named(name: str) -> Axis:
     """The axis called `name`; a one-line ConfigError listing the axes otherwise."""
     if name not in AXES:
@@ -267,12 +333,18 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
         if not levels:
             raise ConfigError(f"{field}: empty list of levels")
     grid: list[Any] = []
+    froms: list[Condition] = []
     for lv in levels:
         parsed = _parse_dist(lv) if isinstance(lv, str) else None
+        sampled = _FROM_RE.match(lv) if isinstance(lv, str) else None
         if parsed:
             dists.append((parsed[0], parsed[1], field))
+        elif sampled:
+            froms.append(_from(axis, field, sampled.group(1)))
         elif isinstance(lv, str) and "(" in lv:
-            raise ConfigError(f"{field}: cannot parse {lv!r}; write uniform(low,high) or loguniform(low,high)")
+            raise ConfigError(
+                f"{field}: cannot parse {lv!r}; write uniform(low,high), loguniform(low,high) or from(CALIBRATION)"
+            )
         else:
             grid.append(_num(axis, field, lv))
     out: list[Condition] = []
@@ -285,7 +357,7 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
         out.append(
             Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec)
         )
-    return out
+    return out + froms
 
 
 def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:

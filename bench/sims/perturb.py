@@ -32,7 +32,7 @@ from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
 from bench.protocols.suite import Condition
 from bench.sims import visual_scene
-from bench.sims.axes import AXES, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
+from bench.sims.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
 
 
 # -- names in the model --------------------------------------------------------------------
@@ -125,6 +125,21 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
     return np.arange(0)
 
 
+def _check_from(mj: MujocoHandle, cond: Condition, where: str) -> None:
+    """Every element a calibration's draws name exists in the env's model (else one line naming it)."""
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+
+    kinds = {"body_": mujoco.mjtObj.mjOBJ_BODY, "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR}
+    for key in (cond.spec or {}).get("keys", []):
+        field, element = key.split(":")[:2]
+        obj = next((v for p, v in kinds.items() if field.startswith(p)), mujoco.mjtObj.mjOBJ_JOINT)
+        if mujoco.mj_name2id(mj.model, obj, element) < 0:
+            raise ConfigError(
+                f"perturb.{cond.axis}: from({(cond.spec or {}).get('source')}) draws {field} of {element!r}, "
+                f"which {where} does not have (a calibration of another robot?)"
+            )
+
+
 def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the env") -> None:
     """Check `conditions` against a built env: a model for model axes, names that exist, and
     targets whose nominal value is not zero (a scale of zero changes nothing).
@@ -157,6 +172,9 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
                 f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
                 f"{', '.join(can) or 'none'}; interface axes work everywhere: {', '.join(INTERFACE_AXES)}"
             )
+        if (cond.spec or {}).get("kind") == "from":
+            _check_from(mj, cond, where)
+            continue
         idx = targets(mj, cond, where)
         nominal = nominal_of(mj)
         values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, str(AXES[cond.axis].field))[idx]
@@ -203,6 +221,8 @@ class _Nominal:
         "pair_friction",
         "body_mass",
         "body_inertia",
+        "body_ipos",
+        "body_iquat",
         "dof_damping",
         "dof_armature",
         "dof_frictionloss",
@@ -214,6 +234,8 @@ class _Nominal:
     pair_friction: np.ndarray
     body_mass: np.ndarray
     body_inertia: np.ndarray
+    body_ipos: np.ndarray
+    body_iquat: np.ndarray
     dof_damping: np.ndarray
     dof_armature: np.ndarray
     dof_frictionloss: np.ndarray
@@ -313,6 +335,40 @@ def _scale_model(mj: MujocoHandle, nom: _Nominal, axis: str, idx: np.ndarray, s:
         m.opt.gravity[:] = nom.gravity * s
 
 
+def _from_draw(mj: MujocoHandle, nom: _Nominal, axis: str, condition: Condition, rng: np.random.Generator) -> dict:
+    """One bootstrap draw of a calibration written into the model; the record gets the draw and the
+    mean ratio of the drawn values to the nominal ones of the axis' first field."""
+    spec = condition.spec or {}
+    k = int(rng.integers(len(spec["values"])))
+    edits = []
+    ratios = []
+    for key, value in zip(spec["keys"], spec["values"][k]):
+        field, element, *col = key.split(":")
+        edits.append({"field": field, "element": element, "value": value, **({"column": int(col[0])} if col else {})})
+        if field == FROM_FIELDS[axis][0]:
+            current = _value(mj, field, element, int(col[0]) if col else 0)
+            if current:
+                ratios.append(value / current)
+    write_fields(mj, edits)
+    nom.const_dirty = True
+    return {axis: round(float(np.mean(ratios)), 9) if ratios else 1.0, f"{axis}.draw": k}
+
+
+def _value(mj: MujocoHandle, field: str, element: str, column: int) -> float:
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+
+    m = mj.model
+    obj = (
+        mujoco.mjtObj.mjOBJ_BODY
+        if field.startswith("body_")
+        else (mujoco.mjtObj.mjOBJ_ACTUATOR if field.startswith("actuator_") else mujoco.mjtObj.mjOBJ_JOINT)
+    )
+    idx = mujoco.mj_name2id(m, obj, element)
+    row = int(m.jnt_dofadr[idx]) if field.startswith("dof_") else idx
+    arr = getattr(m, field)
+    return float(arr[row, column] if arr.ndim == 2 else arr[row])
+
+
 def _draw(condition: Condition, rng: np.random.Generator) -> float:
     kind = (condition.spec or {}).get("kind", "grid")
     if kind == "grid":
@@ -361,6 +417,10 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         kw: dict[str, Any] = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
         kw[axis.name] = value
         return Interface(env, rng, **kw), {axis.name: value}
+    if (condition.spec or {}).get("kind") == "from":
+        if mj is None or nom is None:
+            raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")
+        return env, _from_draw(mj, nom, axis.name, condition, rng)
     value = _draw(condition, rng)
     if mj is None or nom is None:
         if env.model_axes is None or axis.name not in env.model_axes.axes:
