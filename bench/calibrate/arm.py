@@ -430,6 +430,8 @@ def calibrate_arm(
         _values(am, Fit(final.blocks, x, final.weights, final.cov, final.tau, final.ssr, final.n)) for x in draws_x
     ]
     params = _params(final, f_decl, ident, draws_x, spec)
+    for entry in added:  # the physical quantities of what was added, with intervals
+        entry.update(_physical(entry, final, draws_x))
     links = _links(am, values, ident)
     err_final, rmse_final = fitter.error(final, fixed)
     nominal = _nominal_torque(am, data, base)
@@ -485,6 +487,40 @@ def _nominal_torque(am: ArmModel, data: ArmLog, base: np.ndarray) -> np.ndarray:
     )
 
 
+def _physical(entry: dict[str, Any], f: Fit, draws: np.ndarray) -> dict[str, Any]:
+    """A found effect in its own terms: a payload's mass and centre of mass (m, in the payload frame),
+    a drive's gain; 95% intervals from the draws (percentiles) or, without, the delta method."""
+    if entry["name"] == "payload":
+        off = f.offset("payload")
+        x, cov = f.x[off : off + 4], f.cov[off : off + 4, off : off + 4]
+        d = draws[:, off : off + 4] if len(draws) >= 20 else None
+        com = x[1:] / x[0]
+        jac = np.hstack([-com[:, None] / x[0], np.eye(3) / x[0]])
+        sd_com = np.sqrt(np.maximum(np.diag(jac @ cov @ jac.T), 0.0))
+        sd_m = float(np.sqrt(max(cov[0, 0], 0.0)))
+        out: dict[str, Any] = {"mass": float(x[0]), "com": com.tolist()}
+        if d is not None:
+            dc = d[:, 1:] / np.maximum(d[:, :1], 1e-12)
+            lo, hi = np.percentile(d[:, 0], [2.5, 97.5])
+            out["mass_interval"] = [float(min(lo, x[0] - 1.96 * sd_m)), float(max(hi, x[0] + 1.96 * sd_m))]
+            clo, chi = np.percentile(dc, [2.5, 97.5], axis=0)
+            out["com_interval"] = [
+                [float(min(a, c - 1.96 * s)), float(max(b, c + 1.96 * s))] for a, b, c, s in zip(clo, chi, com, sd_com)
+            ]
+        else:
+            out["mass_interval"] = [float(x[0] - 1.96 * sd_m), float(x[0] + 1.96 * sd_m)]
+            out["com_interval"] = [[float(c - 1.96 * s), float(c + 1.96 * s)] for c, s in zip(com, sd_com)]
+        return out
+    if entry["name"] == "actuator_gain":
+        off = f.offset(f"gain:{entry['target']}")
+        sd = float(np.sqrt(max(f.cov[off, off], 0.0)))
+        return {
+            "gain": float(1.0 + f.x[off]),
+            "gain_interval": [float(1 + f.x[off] - 1.96 * sd), float(1 + f.x[off] + 1.96 * sd)],
+        }
+    return {}
+
+
 def _params(final: Fit, declared: Fit, ident: dict[str, dict], draws: np.ndarray, spec: ArmSpec) -> list[dict]:
     sd = final.sd()
     prior = np.concatenate([b.prior for b in final.blocks])
@@ -496,13 +532,20 @@ def _params(final: Fit, declared: Fit, ident: dict[str, dict], draws: np.ndarray
             "declared": float(prior[i]),
             **ident.get(lab, {"status": "identified"}),
         }
+        if entry["status"] == "not identifiable" and abs(final.x[i] - prior[i]) > 0.01 * max(abs(prior[i]), 1e-9):
+            entry["why"] = "the data say nothing of it alone; the link's physical consistency moved it"
+        # the wider of a window bootstrap and the covariance inflated by the residuals' autocorrelation
+        # time: each alone can be too narrow for one correlated trajectory
+        bounds, how = [], []
         if len(draws) >= 20:
-            lo, hi = np.percentile(draws[:, i], [2.5, 97.5])
-            entry["interval"] = [float(lo), float(hi)]
-            entry["interval_method"] = f"window bootstrap, {len(draws)} draws"
-        elif sd[i] > 0:
-            entry["interval"] = [float(final.x[i] - 1.96 * sd[i]), float(final.x[i] + 1.96 * sd[i])]
-            entry["interval_method"] = "covariance x autocorrelation time"
+            bounds.append(np.percentile(draws[:, i], [2.5, 97.5]))
+            how.append(f"window bootstrap ({len(draws)} draws)")
+        if sd[i] > 0:
+            bounds.append(np.array([final.x[i] - 1.96 * sd[i], final.x[i] + 1.96 * sd[i]]))
+            how.append("covariance x autocorrelation time")
+        if bounds:
+            entry["interval"] = [float(min(b[0] for b in bounds)), float(max(b[1] for b in bounds))]
+            entry["interval_method"] = "the wider of " + " and ".join(how) if len(how) > 1 else how[0]
         if lab in final.at_bound:
             entry["at_bound"] = True
         out.append(entry)

@@ -39,7 +39,6 @@ class ArmLog:
     dq: np.ndarray
     ddq: np.ndarray
     tau: np.ndarray  # (N, n) the torque signal (measured torque, command or current)
-    ref: np.ndarray | None  # (N, n) logged position reference (a declared controller)
     train: np.ndarray  # (N,) bool
     rate: float
     source_fps: float  # the log's (uniform or resampled) rate before decimation
@@ -100,13 +99,11 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
     """Process the episodes as the module docstring states; one line naming the column on bad data."""
     if not episodes:
         raise DataError("the log holds no episode")
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "ep", "q", "dq", "ddq", "tau", "ref")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "ep", "q", "dq", "ddq", "tau")}
     dense: dict[str, list[np.ndarray]] = {"q": [], "dq": [], "tau": []}
     resampled, lengths, source_rates = [], [], []
     for i, ep in enumerate(episodes):
         cols = {k: _column(ep, s, f"signals.{k}", i) for k, s in spec.signals.items()}
-        if spec.controller is not None:
-            cols["ref"] = _column(ep, spec.controller.reference, "controller.reference", i)
         t = _clock(ep, fps)
         if not is_regular(t):
             rate = float(1.0 / np.median(np.diff(t)))
@@ -136,8 +133,6 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
         parts["ep"].append(np.full(len(keep), i))
         for k, v in (("q", q), ("dq", dq), ("ddq", ddq), ("tau", tau)):
             parts[k].append(v[keep])
-        if "ref" in cols:
-            parts["ref"].append(_filter(cols["ref"], src, spec.filter_hz)[keep])
         for k, v in (("q", q), ("dq", dq), ("tau", tau)):
             dense[k].append(v[margin : len(t) - margin])
         lengths.append(len(keep))
@@ -167,7 +162,6 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
         dq=np.concatenate(parts["dq"]),
         ddq=np.concatenate(parts["ddq"]),
         tau=np.concatenate(parts["tau"]),
-        ref=np.concatenate(parts["ref"]) if parts["ref"] else None,
         train=train,
         rate=float(source_rates[0] / max(1, int(round(source_rates[0] / spec.rate)))),
         source_fps=float(source_rates[0]),

@@ -91,7 +91,16 @@ def forward_errors(
         if spec.torque == "measured":  # a link-side torque drives the link: the rotor is on the sensor's other side
             m.dof_armature[am.dadr] = 0.0
         ctrl = np.zeros((len(q), m.nu))
-        ctrl[:, am.motors] = ctrl_arm / m.actuator_gear[am.motors, 0]
+        ctrl[:, am.motors] = ctrl_arm / m.actuator_gear[am.motors, 0] / am.model.actuator_gainprm[am.motors, 0]
+        if spec.controller is not None:  # the log's loop closed in the simulation (bench.calibrate.feedback)
+            kp, kd = (np.asarray(g) for g in spec.controller)
+            gear, gain = m.actuator_gear[am.motors, 0], m.actuator_gainprm[am.motors, 0]
+            m.actuator_biastype[am.motors] = mujoco.mjtBias.mjBIAS_AFFINE
+            m.actuator_biasprm[am.motors, 0] = 0.0
+            m.actuator_biasprm[am.motors, 1] = -kp / gear**2
+            m.actuator_biasprm[am.motors, 2] = -kd / gear**2
+            m.actuator_ctrllimited[am.motors] = 0
+            ctrl[:, am.motors] += (kp * q + kd * dq) / (gear * gain)
         rec = Recording(
             fps=fps, qpos=q, qvel=dq, ctrl=ctrl, inputs=None, offsets=offs, train=[], holdout=hold, qvel_logged=True
         )

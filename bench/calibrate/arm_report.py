@@ -110,6 +110,18 @@ def _fmt(v: Any, digits: int = 4) -> str:
     return str(v)
 
 
+def _what(a: dict) -> str:
+    """A found effect's physical values with their intervals, for the report."""
+    if a["name"] == "payload":
+        mi = a["mass_interval"]
+        com = ", ".join(f"{c:.4f} [{lo:.4f}, {hi:.4f}]" for c, (lo, hi) in zip(a["com"], a["com_interval"]))
+        return f": {a['mass']:.4g} kg [{mi[0]:.4g}, {mi[1]:.4g}], centre of mass {com} m in its frame"
+    if a["name"] == "actuator_gain":
+        gi = a["gain_interval"]
+        return f": gain {a['gain']:.4g} [{gi[0]:.4g}, {gi[1]:.4g}]"
+    return ""
+
+
 def markdown(doc: dict[str, Any], plot: str | None) -> str:
     """report.md: errors per joint before and after, parameters with status and interval, effects, warnings."""
     tq = doc["errors"]["torque"]
@@ -185,7 +197,8 @@ def markdown(doc: dict[str, Any], plot: str | None) -> str:
         )
     lines += ["", "## Effects", "", "Searched: " + "; ".join(doc["effects_searched"]) + "."]
     added = ", ".join(
-        f"{a['name']} at {a['target']} (held-out -{100 * a['heldout_drop']:.1f}%)" for a in doc["effects_added"]
+        f"{a['name']} at {a['target']}{_what(a)} (held-out -{100 * a['heldout_drop']:.1f}%)"
+        for a in doc["effects_added"]
     )
     lines.append(f"Added: {added or 'none'}.")
     if doc["not_carried"]:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bench.calibrate.feedback import gains
 from bench.calibrate.spec import TraceSpec, parse_trace
 from bench.core.errors import SpecError, valid_choices
 from bench.replay.spec import SignalSpec, check_keys, number, parse_signal, read_spec_file
@@ -46,16 +47,6 @@ SIGNALS = ("qpos", "qvel", "torque")
 TORQUE_KINDS = ("measured", "command", "current")
 FRICTION = ("coulomb", "viscous", "offset")
 ARM_EFFECTS = ("payload", "actuator_gain", "stribeck_friction", "asymmetric_friction", "joint_spring")
-CONTROLLER_KEYS = ("kp", "kd", "reference")
-
-
-@dataclass(frozen=True)
-class Controller:
-    """A joint-space PD loop the log was recorded under: tau = u_ff + kp (q_ref - q) - kd dq, per joint."""
-
-    kp: tuple[float, ...]
-    kd: tuple[float, ...]
-    reference: SignalSpec  # the logged position reference q_ref
 
 
 @dataclass(frozen=True)
@@ -78,7 +69,7 @@ class ArmSpec:
     holdout: float = 0.3
     horizon: float = 0.05  # seconds of the forward-simulation (k-step) check
     bootstrap: int = 200
-    controller: Controller | None = None
+    controller: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (kp, kd) per joint: the log's loop
     trace: TraceSpec = field(default_factory=TraceSpec)
     source: Path | None = None
 
@@ -102,14 +93,7 @@ class ArmSpec:
             "bootstrap": self.bootstrap,
             "controller": None
             if self.controller is None
-            else {
-                "kp": list(self.controller.kp),
-                "kd": list(self.controller.kd),
-                "reference": {
-                    "column": self.controller.reference.column,
-                    "index": list(self.controller.reference.index),
-                },
-            },
+            else {"kp": list(self.controller[0]), "kd": list(self.controller[1])},
             "trace": dict(self.trace.__dict__),
             "source": str(self.source) if self.source else None,
         }
@@ -163,22 +147,13 @@ def _model(raw: Any, base_dir: Path) -> tuple[Path | None, str | None, str | Non
     return path, None, None
 
 
-def _controller(raw: Any, n: int) -> Controller | None:
+def _controller(raw: Any, n: int) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     if raw is None:
         return None
-    raw = check_keys(raw, CONTROLLER_KEYS, "controller")
-    gains = {}
-    for key in ("kp", "kd"):
-        v = raw.get(key)
-        if not isinstance(v, (list, tuple)) or len(v) != n:
-            raise SpecError(f"spec field 'controller.{key}' must list one gain per joint ({n}); got {v!r}")
-        gains[key] = tuple(number(x, f"controller.{key}", lo=0.0) for x in v)
-    if "reference" not in raw:
-        raise SpecError("spec field 'controller.reference' is required (column and index of the logged q_ref)")
-    ref = parse_signal(raw["reference"], "controller.reference")
-    if len(ref.index) != n:
-        raise SpecError(f"spec field 'controller.reference.index' must name {n} columns (one per joint)")
-    return Controller(gains["kp"], gains["kd"], ref)
+    kp, kd = gains(raw)
+    if len(kp) != n:
+        raise SpecError(f"spec field 'controller.kp' must list one gain per joint ({n}); got {len(kp)}")
+    return kp, kd
 
 
 def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> ArmSpec:

@@ -79,6 +79,9 @@ def set_std(m: mujoco.MjModel, body: int, p: np.ndarray) -> None:
     m.body_ipos[body] = c
     m.body_inertia[body] = w
     m.body_iquat[body] = quat
+    # the compiler marks bodies whose inertial frame sits on (or turns with) the body frame, and MuJoCo
+    # then skips body_ipos / body_iquat: a moved or turned inertial frame must clear the mark
+    m.body_sameframe[body] = int(mujoco.mjtSameFrame.mjSAMEFRAME_NONE)
 
 
 def point_mass(mass: float, com: np.ndarray) -> np.ndarray:
@@ -143,15 +146,26 @@ class Dynamics:
         return out
 
     def body_columns(self, body: int, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, base: np.ndarray) -> np.ndarray:
-        """(N, n, 10): the torque per unit of each standard parameter of `body` (exact by linearity)."""
+        """(N, n, 10): the torque per unit of each standard parameter of `body`.
+
+        The torque is linear in a body's standard parameters only while they describe a physical
+        body (MuJoCo stores principal inertias), so every difference is taken around a *reference*
+        body: the declared one with 1 kg m^2 of isotropic inertia added about its frame origin, far
+        inside the physical set, where a step of any parameter stays physical. The result does not
+        depend on the reference (linearity); `base` is unused and kept for the call's shape.
+        """
         p0 = std_params(self.m, body)
+        ref = p0.copy()
+        ref[[4, 7, 9]] += 1.0  # + 1 kg m^2 about each axis: a step of m or m c keeps it positive definite
+        set_std(self.m, body, ref)
+        at_ref = self.torques(q, dq, ddq)
         cols = np.empty((*q.shape, 10))
         for k in range(10):
-            p = p0.copy()
+            p = ref.copy()
             p[k] += STD_STEP[k]
             set_std(self.m, body, p)
-            cols[..., k] = (self.torques(q, dq, ddq) - base) / STD_STEP[k]
-            set_std(self.m, body, p0)
+            cols[..., k] = (self.torques(q, dq, ddq) - at_ref) / STD_STEP[k]
+        set_std(self.m, body, p0)
         return cols
 
 

@@ -11,7 +11,8 @@ when their positions differ by half the play. MuJoCo has no such joint, so the m
   no force passes, at either end a stiff limit constraint transmits the drive force.
 
 New elements are appended, so every body, joint, dof and actuator index of the declared model is
-unchanged and the declared parameters and other effects are written where they were. The log
+unchanged and the declared parameters and other effects are written where they were; keyframes get
+each rotor at its link's position (at rest), sites, tendons and equality constraints are untouched. The log
 measures either side (`Side`): the link (an output encoder) or the motor (an encoder on the motor
 shaft, as on most geared drives); the other side's position is not logged and starts at the edge
 of the play the logged command pushes towards (`coordinates`).
@@ -77,6 +78,15 @@ def build(source: Path | str, plays: tuple[tuple[int, str], ...], like: mujoco.M
         tendon.wrap_joint(f"{a.name or act}_rotor", 1.0)
         tendon.wrap_joint(link, -1.0)
         a.target = f"{a.name or act}_rotor"
+    # keyframes list every coordinate: each rotor starts where its link is in that keyframe, at rest
+    link_qpos = [int(base.jnt_qposadr[int(base.actuator_trnid[a, 0])]) for a, _ in plays]
+    for key in spec.keys:
+        qpos = np.asarray(key.qpos, dtype=np.float64)
+        if qpos.size == base.nq:
+            key.qpos = np.concatenate([qpos, qpos[link_qpos]])
+        qvel = np.asarray(key.qvel, dtype=np.float64)
+        if qvel.size == base.nv:
+            key.qvel = np.concatenate([qvel, np.zeros(len(plays))])
     model = spec.compile()
     model.opt.timestep = like.opt.timestep
     out = []

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.calibrate.apply import read_calibration
 from bench.calibrate.data import extract
+from bench.calibrate.feedback import close_loop
 from bench.calibrate.model import Candidate, Layout, Plant
 from bench.calibrate.spec import parse_spec
 from bench.calibrate.suite import suite_plant
@@ -47,6 +48,8 @@ def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
     model = load_model(spec.model)
     ds = read_dataset(logs)
     rec = extract(spec, [ep.data for ep in ds.episodes], float(ds.fps), nq=model.nq, nv=model.nv, nu=model.nu)
+    if spec.controller is not None:  # the calibration's own closed loop
+        model, rec = close_loop(model, rec, *spec.controller)
     return Plant(spec, model, rec), [int(ep.index) for ep in ds.episodes]
 
 

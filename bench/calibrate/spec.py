@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from bench.calibrate.effects import EFFECTS
+from bench.calibrate.feedback import gains
 from bench.core.errors import SpecError, did_you_mean
 from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
-SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads")
+SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads", "controller")
 PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init", "scale")
 EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
@@ -67,6 +68,7 @@ class CalibrationSpec(SignalMap):
     horizon: float = 0.2  # seconds per truncated horizon (the k of k-step errors)
     trace: TraceSpec = field(default_factory=TraceSpec)
     threads: int = 1
+    controller: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (kp, kd) per actuator: the log's loop
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form, for embedding the exact spec in a result file."""
@@ -99,6 +101,11 @@ class CalibrationSpec(SignalMap):
             "holdout": self.holdout,
             "horizon": self.horizon,
             "trace": dict(self.trace.__dict__),
+            **(
+                {"controller": {"kp": list(self.controller[0]), "kd": list(self.controller[1])}}
+                if self.controller
+                else {}
+            ),
             "source": source,
         }
 
@@ -229,5 +236,6 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6),
         trace=parse_trace(raw.get("trace")),
         threads=number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),
+        controller=gains(raw["controller"]) if raw.get("controller") is not None else None,
         source=source,
     )

@@ -25,6 +25,7 @@ import numpy as np
 
 from bench.calibrate.data import extract
 from bench.calibrate.effects import EFFECTS, MERGES
+from bench.calibrate.feedback import close_loop
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
 from bench.calibrate.metrics import evaluate, heldout_errors
 from bench.calibrate.model import Candidate, Layout, Plant
@@ -318,6 +319,8 @@ def run(
     t0 = time.perf_counter()
     model = load_model(spec.model)
     rec = extract(spec, episodes, fps, nq=model.nq, nv=model.nv, nu=model.nu, seed=seed)
+    if spec.controller is not None:  # the log's feedback loop, closed in every simulated horizon
+        model, rec = close_loop(model, rec, *spec.controller)
     return calibrate(Plant(spec, model, rec), seed=seed, t0=t0, **loop)
 
 
@@ -360,6 +363,43 @@ def calibrate(
         f"{cal.errors['final']['free_run_nrmse']:.4g} ({cal.wall['total']:.1f} s)"
     )
     return cal
+
+
+def at_bounds(layout: Layout, x: np.ndarray, rel: float = 1e-6) -> list[str]:
+    """Parameters the fit left on a bound of their range (the bound, not the data, decided them)."""
+    lo, hi = layout.bounds
+    span = np.maximum(hi - lo, 1e-300)
+    out = []
+    for lab, v, a, b, w in zip(layout.labels, x, lo, hi, span):
+        if v <= a + rel * w:
+            out.append(f"{lab} = {v:.4g} at its lower bound")
+        elif v >= b - rel * w:
+            out.append(f"{lab} = {v:.4g} at its upper bound")
+    return out
+
+
+def honesty(layout: Layout, x: np.ndarray, errors: dict[str, dict]) -> list[str]:
+    """What a user must not miss: parameters on a bound, and a held-out error that rose while the fitted
+    one (k-step) fell."""
+    out = [f"parameter {b} (widen the bounds, or the data do not pin it)" for b in at_bounds(layout, x)]
+    k0, k1 = errors["declared"].get("k_step_nrmse"), errors["final"].get("k_step_nrmse")
+    n0 = errors["nominal"].get("k_step_nrmse")
+    for other in ("free_run_nrmse", "one_step_nrmse"):
+        for ref in ("nominal", "declared"):
+            a, b = errors[ref].get(other), errors["final"].get(other)
+            fitted_fell = (
+                (k1 is not None)
+                and (k0 if ref == "declared" else n0) is not None
+                and k1 < (k0 if ref == "declared" else n0)
+            )
+            if a is not None and b is not None and fitted_fell and b > a * 1.001:
+                label = other.replace("_nrmse", "").replace("_", "-")
+                out.append(
+                    f"held-out {label} NRMSE rose {ref} -> final ({a:.4g} -> {b:.4g}) while the fitted k-step "
+                    f"error fell: the fit trades one horizon for another"
+                )
+                break
+    return out
 
 
 def _fmt(v: float | None) -> str:
@@ -435,7 +475,7 @@ def _calibrate(
         "final": loop.objective(layout, hold).residual_grid(cur.x[None])[0],
         "start": hold.start,
     }
-    cal.warnings = sorted(set(declared.warnings) | set(cur.warnings))
+    cal.warnings = sorted(set(declared.warnings) | set(cur.warnings)) + honesty(layout, cur.x, errors)
     t3 = time.perf_counter()
     cal.wall = {"total": t3 - t0, "declared_fit": t2 - t1, "trace": t3 - t2, "sim_steps": sim.steps}
     return cal

@@ -263,7 +263,9 @@ def _summary(cal, path: Path) -> None:
             "learned residual, apart from the physics (held-out k-step NRMSE): "
             f"{h['physics']['k_step_nrmse']:.4g} -> {h['physics_plus_residual']['k_step_nrmse']:.4g}"
         )
-    print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s)")
+    flags = [w for w in cal.warnings if "bound" in w or "rose" in w]
+    tail = f"; {len(flags)} to check: " + "; ".join(flags) if flags else ""
+    print(f"wrote {path} and {path.parent / 'report.md'} ({cal.wall['total']:.1f} s){tail}")
 
 
 def cmd_suite(cfg: SuiteCalibrateConfig) -> int:

@@ -304,6 +304,8 @@ def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
             arr[row, int(e.get("column", 0))] = e["value"]
         else:
             arr[row] = e["value"]
+        if e["field"] in ("body_ipos", "body_iquat"):  # MuJoCo skips these for bodies marked "same frame"
+            m.body_sameframe[row] = int(mujoco.mjtSameFrame.mjSAMEFRAME_NONE)
         setconst |= e["field"] in ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_armature")
     if setconst:
         _set_const(mj)
