@@ -40,7 +40,7 @@ CASES = ("payload", "actuator_gain", "none")
 COULOMB = np.array([0.3, 0.5, 0.3, 0.1, 0.1, 0.05])
 VISCOUS = np.array([0.2, 0.3, 0.2, 0.05, 0.05, 0.02])
 OFFSET = np.array([0.1, -0.2, 0.05, 0.0, 0.02, 0.0])
-PAYLOAD = {"mass": 1.2, "com": [0.05, 0.02, 0.03]}  # kg, m in the flange frame
+PAYLOAD: dict[str, Any] = {"mass": 1.2, "com": [0.05, 0.02, 0.03]}  # kg, m in the flange frame
 GAIN = {"joint": "joint2", "gain": 0.8}  # the drive delivers this share of the command
 NOISE = {"qpos": 2e-4, "qvel": 5e-3, "torque": 0.05}  # rad, rad/s, N·m
 
