@@ -1,4 +1,4 @@
-"""Real2Sim from Python: calibrate a suite's robot from logs, write the report, identify the model it fits.
+"""Real2Sim from Python: calibrate a suite's robot or a real arm from logs, write the report, identify the model.
 
 `bench calibrate suite=NAME robot=R logs=DIR` is the command over the same functions; a calibration
 is carried into runs with `RunConfig(calibration=...)` (docs/calibration.md).
@@ -7,7 +7,19 @@ is carried into runs with `RunConfig(calibration=...)` (docs/calibration.md).
 from __future__ import annotations
 
 from bench.calibrate.apply import model_hash
+from bench.calibrate.arm import ArmCalibration, calibrate_arm
+from bench.calibrate.arm_report import write_arm_report
+from bench.calibrate.arm_spec import load_arm_spec
 from bench.calibrate.report import write_report
 from bench.calibrate.suite import calibrate_suite, torque_joints
 
-__all__ = ["calibrate_suite", "model_hash", "torque_joints", "write_report"]
+__all__ = [
+    "ArmCalibration",
+    "calibrate_arm",
+    "calibrate_suite",
+    "load_arm_spec",
+    "model_hash",
+    "torque_joints",
+    "write_arm_report",
+    "write_report",
+]

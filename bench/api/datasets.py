@@ -6,6 +6,6 @@ for at start-up.
 
 from __future__ import annotations
 
-from bench.logs import read_dataset, write_dataset
+from bench.logs import import_csv, read_dataset, write_dataset
 
-__all__ = ["read_dataset", "write_dataset"]
+__all__ = ["import_csv", "read_dataset", "write_dataset"]

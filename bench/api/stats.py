@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from bench.scoring.agreement import Outcome, agreement, mmrv
 from bench.scoring.coverage import TrainingData, coverage_report, fmt_pct, initial_states_from_suite
-from bench.scoring.stats import wilson
+from bench.scoring.stats import paired_gap, wilson
 from bench.scoring.summary import fmt_estimate, load_run
 from bench.scoring.trend import SeriesBootstrap, slope_with_interval
 
@@ -23,6 +23,7 @@ __all__ = [
     "initial_states_from_suite",
     "load_run",
     "mmrv",
+    "paired_gap",
     "slope_with_interval",
     "wilson",
 ]

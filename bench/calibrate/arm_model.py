@@ -227,16 +227,26 @@ def check_torques(am: ArmModel, tau: np.ndarray, model_tau: np.ndarray, column: 
                 f"log column {column} is {ratio:.3g}x the model's torques on the loaded joints: {guess}? "
                 "the model is in N·m (N for slide joints); convert the log before calibrating"
             )
+    from scipy.optimize import linear_sum_assignment  # scipy: loaded only when a log is checked
+
     n = tau.shape[1]
-    c = np.corrcoef(np.concatenate([tau, model_tau], axis=1).T)[:n, n:]
-    c = np.nan_to_num(c)
-    for i in range(n):
-        j = int(np.argmax(np.abs(c[i])))
-        if j != i and abs(c[i, j]) > 0.8 and abs(c[i, i]) < 0.5 and loaded[j]:
-            raise DataError(
-                f"log column {column}[{i}] follows the model's joint {am.joints[j]} (correlation {c[i, j]:+.2f}), "
-                f"not {am.joints[i]} ({c[i, i]:+.2f}): the log's joint order differs from the spec's 'joints'"
-            )
+    c = np.nan_to_num(np.corrcoef(np.concatenate([tau, model_tau], axis=1).T)[:n, n:])
+    # the pairing of log columns with model joints that follows the model's torques best, in shape
+    # (correlation) and in size (log RMS ratio); another order than the spec's, clearly better on every
+    # column it moves, means the log's columns are in another order
+    ratio = np.abs(np.log(np.maximum(rms_log, 1e-9)[:, None] / np.maximum(rms_model, 1e-9)[None, :]))
+    cost = (1.0 - np.abs(c)) + 0.5 * ratio
+    rows, cols = linear_sum_assignment(cost)
+    moved = [(i, int(j)) for i, j in zip(rows, cols) if i != j and loaded[j]]
+    ident = float(np.trace(cost))
+    if moved and cost[rows, cols].sum() < ident - 0.5 and all(cost[i, j] < cost[i, i] - 0.2 for i, j in moved):
+        i, j = moved[0]
+        order = [am.joints[int(k)] for k in cols]
+        raise DataError(
+            f"log column {column}[{i}] follows the model's joint {am.joints[j]} (correlation {c[i, j]:+.2f}), "
+            f"not {am.joints[i]} ({c[i, i]:+.2f}): the log's joint order differs from the spec's 'joints' "
+            f"(the torques fit the order {', '.join(order)})"
+        )
 
 
 def realise(am: ArmModel, values: dict[str, Any]) -> mujoco.MjModel:
