@@ -154,8 +154,10 @@ def run_population(a: Args, work: Path, cal_dir: Path) -> dict[str, Any]:
 
 
 def rank_change(rows: dict[str, Any], seed: int) -> dict[str, Any]:
-    nominal = {k: Outcome(v["nominal"]["successes"], v["nominal"]["n"]) for k, v in rows.items()}
-    calibrated = {k: Outcome(v["calibrated"]["successes"], v["calibrated"]["n"]) for k, v in rows.items()}
+    nominal = {k: Outcome(trials=v["nominal"]["n"], successes=v["nominal"]["successes"]) for k, v in rows.items()}
+    calibrated = {
+        k: Outcome(trials=v["calibrated"]["n"], successes=v["calibrated"]["successes"]) for k, v in rows.items()
+    }
     agree = agreement(sim=nominal, real=calibrated, seed=seed)
     order = lambda side: sorted(rows, key=lambda k: -rows[k][side]["successes"] / max(rows[k][side]["n"], 1))  # noqa: E731
     return {

@@ -180,3 +180,21 @@ def test_merge_needs_out_and_inputs(tmp_path: Path, capsys):
     assert cli.main(["leaderboard", "merge", "x", "outt=y"]) == 2
     assert "unknown key 'outt'" in capsys.readouterr().err
     assert not (tmp_path / "l.json").exists()
+
+
+def test_runs_of_different_suite_specs_are_not_ranked_together_unless_told_to():
+    from bench.protocols.suite import SuiteSpec
+
+    a, b = summary("a", "expert", ALL), summary("b", "random", ALL)
+    a["provenance"]["packages"] = {"mujoco": "3.3.0", "numpy": "1.26.4"}
+    b["provenance"]["packages"] = {"mujoco": "3.3.1", "numpy": "1.26.0"}  # numpy is not a simulator
+    with pytest.raises(
+        DataError, match=r"b: suite toy: simulator mujoco 3\.3\.0 vs 3\.3\.1 \(in a\): refusing to rank"
+    ):
+        merge([("a", a), ("b", b)])
+    assert len(merge([("a", a), ("b", b)], allow_spec_change=True)["entries"]) == 2
+    b["provenance"]["packages"]["mujoco"] = "3.3.0"
+    merge([("a", a), ("b", b)])  # numpy's version does not change what the suite simulates
+    sa = SuiteSpec.of(a["suite"], a["provenance"]["packages"])
+    assert sa.digest == SuiteSpec.of(json.loads(json.dumps(a["suite"])), a["provenance"]["packages"]).digest
+    assert sa.to_json()["simulators"] == {"mujoco": "3.3.0"} and sa.digest.startswith("toy-v1@")

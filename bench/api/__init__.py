@@ -56,7 +56,7 @@ from bench.execution.run_config import (
 )
 from bench.execution.runner import LocalExecutor, Worker, WorkerSpec
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
-from bench.protocols.suite import Cell, Condition, Job, expand_jobs, select_cells
+from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
 from bench.sims import axes, perturb
@@ -230,9 +230,11 @@ def _now() -> str:
 def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
     cfg = p.config
+    packages = provenance.package_versions()
     meta = {
         "run_id": cfg.run_id,
         "suite": p.suite.describe(),
+        "suite_spec": SuiteSpec.of(p.suite.describe(), packages).to_json(),  # what was run, comparable across runs
         "policy": {
             "name": cfg.policy,
             "checkpoint": p.identity.checkpoint,
@@ -243,7 +245,7 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
         "provenance": {
             "bench_version": __version__,
             "git_sha": provenance.git_sha(),
-            "packages": provenance.package_versions(),
+            "packages": packages,
             **provenance.machine(),
             "workers": workers,
             "backend": [],

@@ -22,6 +22,7 @@ from typing import Any
 
 from bench.core.errors import DataError
 from bench.core.schema import load_json, validate
+from bench.protocols.suite import SuiteSpec
 from bench.scoring.summary import fmt_estimate
 
 # -- merging ------------------------------------------------------------------------------------
@@ -111,13 +112,18 @@ def _group_key(e: dict) -> str:
     return f"{s['name']} v{s['version']} · {e['metric']}" + (f" · {sel}" if sel else "")
 
 
-def merge(docs: list[tuple[str, dict]]) -> dict:
+def merge(docs: list[tuple[str, dict]], allow_spec_change: bool = False) -> dict:
     """The leaderboard of validated input documents (summaries and/or leaderboards).
 
+    Runs of one suite must have the same suite spec (`bench.protocols.suite.SuiteSpec`: version,
+    split manifest, options, simulator versions) to be ranked together; `allow_spec_change` ranks
+    them anyway (options and simulator versions only: another version or manifest never pairs).
+
     Raises:
-        DataError: inputs with the same suite name but another version or split manifest.
+        DataError: inputs with the same suite name but another version, split manifest or spec.
     """
     suites: dict[str, dict] = {}
+    specs: dict[str, tuple[SuiteSpec, str]] = {}
     entries: list[dict] = []
     for source, doc in docs:
         if doc["schema"] == LEADERBOARD_ID:
@@ -139,6 +145,16 @@ def merge(docs: list[tuple[str, dict]]) -> dict:
                 raise DataError(
                     f"{src}: suite {suite['name']} v{suite['version']} has another split manifest "
                     f"than {old['_source']}; refusing to rank across split manifests"
+                )
+        if doc["schema"] != LEADERBOARD_ID:  # a run: its spec holds options and simulator versions too
+            spec = SuiteSpec.of(doc["suite"], doc.get("provenance", {}).get("packages"))
+            seen = specs.get(spec.name)
+            if seen is None:
+                specs[spec.name] = (spec, source)
+            elif (why := seen[0].differs(spec)) and not allow_spec_change:
+                raise DataError(
+                    f"{source}: {why} (in {seen[1]}): refusing to rank runs of different suite specs "
+                    "(allow_spec_change=true ranks them anyway)"
                 )
         entries.extend(new)
     by_key: dict[tuple, list[dict]] = {}

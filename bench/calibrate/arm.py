@@ -350,7 +350,7 @@ def calibrate_arm(
             f"{r['source_period_s']['max'] * 1e3:.2f} ms) resampled to {r['fps']:g} Hz by linear interpolation"
         )
     check_positions(am, data.q, spec.signals["qpos"].column)
-    signal = data.tau.copy()
+    signal = data.tau.copy() * (np.asarray(spec.gains) if spec.gains else 1.0)  # currents in torque units
     n_rows, n = signal.shape
     dyn = Dynamics(am.model, am.qadr, am.dadr, am.qpos0)
     base = dyn.torques(data.q, data.dq, data.ddq)

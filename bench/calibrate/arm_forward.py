@@ -71,6 +71,8 @@ def forward_errors(
     step = max(1, int(round(src * am.model.opt.timestep)))  # log frames per model timestep (at least one)
     fps = src / step
     q, dq, tau = (data.dense[k][::step] for k in ("q", "dq", "tau"))
+    if spec.gains:  # a current signal in torque units
+        tau = tau * np.asarray(spec.gains)
     offs = np.concatenate(
         [
             [0],

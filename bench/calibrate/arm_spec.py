@@ -41,6 +41,7 @@ ARM_KEYS = (
     "horizon",
     "bootstrap",
     "controller",
+    "gains",
     "trace",
 )
 SIGNALS = ("qpos", "qvel", "torque")
@@ -70,6 +71,7 @@ class ArmSpec:
     horizon: float = 0.05  # seconds of the forward-simulation (k-step) check
     bootstrap: int = 200
     controller: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (kp, kd) per joint: the log's loop
+    gains: tuple[float, ...] | None = None  # torque per unit of a `current` signal (torque constant x gear)
     trace: TraceSpec = field(default_factory=TraceSpec)
     source: Path | None = None
 
@@ -94,6 +96,7 @@ class ArmSpec:
             "controller": None
             if self.controller is None
             else {"kp": list(self.controller[0]), "kd": list(self.controller[1])},
+            "gains": list(self.gains) if self.gains else None,
             "trace": dict(self.trace.__dict__),
             "source": str(self.source) if self.source else None,
         }
@@ -177,6 +180,17 @@ def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = N
     kind = raw.get("torque", "measured")
     if kind not in TORQUE_KINDS:
         raise SpecError(f"spec field 'torque': {kind!r}; {valid_choices(str(kind), TORQUE_KINDS)}")
+    gains = None
+    if kind == "current":
+        g = raw.get("gains")
+        if not isinstance(g, (list, tuple)) or len(g) != len(joints):
+            raise SpecError(
+                f"spec field 'gains' must list, per joint, the torque per unit of current (torque constant x gear "
+                f"ratio) for torque: current ({len(joints)} numbers); got {g!r}"
+            )
+        gains = tuple(number(x, "gains", lo=1e-9) for x in g)
+    elif raw.get("gains") is not None:
+        raise SpecError("spec field 'gains' is only for torque: current (the log's currents to torque)")
     inertia_raw = raw.get("inertia", "all")
     inertia = None if inertia_raw == "all" else () if inertia_raw in ("none", None) else _names(inertia_raw, "inertia")
     armature = raw.get("armature", kind != "measured")
@@ -210,6 +224,7 @@ def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = N
         horizon=number(raw.get("horizon", 0.05), "horizon", lo=1e-3, hi=10.0),
         bootstrap=number(raw.get("bootstrap", 200), "bootstrap", lo=0, hi=10_000, integer=True),
         controller=_controller(raw.get("controller"), len(joints)),
+        gains=gains,
         trace=parse_trace(raw.get("trace")),
         source=source,
     )

@@ -103,7 +103,11 @@ def help_text() -> str:
         "horizons re-initialised from logged states), trace what is still wrong to a missing effect of the\n"
         "library, add it, refit, and report held-out errors before and after.",
         CalibrateConfig,
-        notes="suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
+        notes="A spec with `method: idim` calibrates a real arm from its own torque log by inverse dynamics\n"
+        "(links' inertia, friction, offsets; payload and drive-gain effects; a forward check), e.g. the real Panda:\n"
+        'bench/calibrate/models/panda_gaz.yaml (docs/calibration.md, "Real arms"); its calibration.json carries\n'
+        "`apply` (bench run ... calibration=OUT) and `draws` (perturb.AXIS=from(OUT)).\n\n"
+        "suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
         "state before each frame, the command of every physics step): a damping and an armature scale over\n"
         "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"
         "calibration.json then carries an `apply` section: `bench run suite=NAME ... calibration=OUT` runs\n"

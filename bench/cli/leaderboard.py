@@ -21,6 +21,7 @@ class MergeConfig:
 
     out: Optional[str] = None  # the merged leaderboard, a new .json file (required; never an input)
     overwrite: bool = False  # replace an existing out file that bench wrote
+    allow_spec_change: bool = False  # rank runs whose suite options or simulator versions differ (refused by default)
 
 
 USAGE = "usage: bench leaderboard validate FILE... | merge RUN... out=FILE | show FILE"
@@ -79,7 +80,7 @@ def _merge(argv: list[str]) -> int:
         raise ConfigError("leaderboard merge: give at least one RUN directory, summary.json or leaderboard.json")
     if not cfg.out.endswith(".json"):
         raise ConfigError(f"leaderboard merge: out={cfg.out!r} must end in .json")
-    board = merge([read_input(a) for a in inputs])  # every input validated before anything is written
+    board = merge([read_input(a) for a in inputs], cfg.allow_spec_change)  # every input validated before writing
     validate(board, "merged leaderboard")
     outputs.check("out", cfg.out, {"input": inputs}, kind="file", overwrite=cfg.overwrite)
     write_atomic(Path(cfg.out), board)

@@ -56,10 +56,11 @@ from bench.board.gate_inputs import (
 from bench.board.gate_pairs import cell_counts, pair_records
 from bench.cli.regress_args import DEFAULT_EPISODES, episodes_of, help_text, parse_args
 from bench.core import config as config_mod
+from bench.core import provenance
 from bench.core.errors import ConfigError
 from bench.core.provenance import checkpoint_provenance
 from bench.execution.runner import LocalExecutor
-from bench.protocols.suite import select_cells
+from bench.protocols.suite import SuiteSpec, select_cells
 from bench.sims import axes
 
 SCHEMA_ID = "bench.regress/2"
@@ -259,6 +260,16 @@ def main(argv: list[str]) -> int:
     metric = any_cfg.metric if any_cfg else recorded[0].meta["config"].get("metric", "success_once")
     seed = any_cfg.seed if any_cfg else int(recorded[0].meta["config"].get("seed", 0))
     suite_desc = live[0].p.suite.describe() if live else recorded[0].meta["suite"]
+    specs = [(s.role, SuiteSpec.of(s.p.suite.describe(), provenance.package_versions())) for s in live] + [
+        (s.role, SuiteSpec.of(s.meta["suite"], s.meta.get("provenance", {}).get("packages"))) for s in recorded
+    ]
+    for role, spec in specs[1:]:
+        why = specs[0][1].differs(spec)
+        if why and not cfg.allow_spec_change:
+            raise ConfigError(
+                f"{role} and {specs[0][0]} ran different suite specs ({why}): their episodes do not pair "
+                "(allow_spec_change=true compares them anyway)"
+            )
     for side in recorded:
         if side.meta["suite"].get("version") != suite_desc.get("version") or side.meta["suite"].get(
             "name"

@@ -28,6 +28,7 @@ class RegressConfig:
     cell_alpha: float = 0.5  # share of alpha for the per-cell tests (Holm); 0 = pooled statistics only
     batch: int = 5  # episodes per cell between looks (early stopping); 0 = one look at the end
     strict: bool = False  # inconclusive (budget spent, nothing certain) fails with exit 1
+    allow_spec_change: bool = False  # pair episodes of runs whose suite options or simulator versions differ
     out: Optional[str] = None  # verdict JSON (X.junit.xml, X.md beside it); default RUNS/RUN_ID/verdict.json
     runs: str = "runs"  # parent folder of the gate's run directories
     run_id: Optional[str] = None  # gate folder name; default regress-<timestamp>

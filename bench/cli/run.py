@@ -59,7 +59,7 @@ def help_text(argv: list[str] | None = None) -> str:
 
 def _perturb_help() -> str:
     return (
-        "\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi); dict form\n"
+        "\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi) | from(CALIBRATION); dict form\n"
         "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n"
     )
 

@@ -12,6 +12,8 @@ seed). `SuiteBase` gives a suite the contract's defaults; subclassing it is opti
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +39,8 @@ __all__ = [
     "expand_jobs",
     "summary_line",
     "cell_to_dict",
+    "SuiteSpec",
+    "SIM_PACKAGES",
 ]
 
 SPLITS = ("seen", "unseen")
@@ -80,6 +84,79 @@ def episode_seed(run_seed: int, episode: int) -> int:
 def condition_rng(seed: int, condition: Condition) -> np.random.Generator:
     """Generator for a condition's random draws in one episode (stable across processes)."""
     return np.random.default_rng([int(seed), zlib.crc32(condition.name.encode())])
+
+
+# the packages whose version changes what a suite simulates (a run's provenance lists every package)
+SIM_PACKAGES = ("mujoco", "robosuite", "metaworld", "gymnasium", "mani-skill", "sapien", "gym-aloha", "gym-pusht")
+
+
+@dataclass(frozen=True)
+class SuiteSpec:
+    """What a run's suite was, frozen and serialisable (as Gymnasium's EnvSpec is for an env): name,
+    version, split manifest (tasks, robots, envs: seen and unseen), the suite's own options and the
+    simulator versions. Two runs are comparable when their specs are equal; `digest` names one.
+
+    Built from what every run already stores (the summary's `suite`, its provenance's packages), so
+    summaries written before the spec existed read into one too.
+    """
+
+    name: str
+    version: str
+    manifest: tuple[tuple[str, tuple[tuple[str, tuple[str, ...]], ...]], ...]
+    options: tuple[tuple[str, str], ...]
+    simulators: tuple[tuple[str, str], ...]
+
+    @classmethod
+    def of(cls, suite: dict[str, Any], packages: dict[str, Any] | None) -> SuiteSpec:
+        """From a suite's `describe()` (a summary's or run.json's `suite`) and a provenance's packages."""
+        manifest = suite.get("manifest") or {}
+        options = {k: v for k, v in suite.items() if k not in ("name", "version", "manifest")}
+        sims = {k: str(v) for k, v in (packages or {}).items() if k in SIM_PACKAGES and v is not None}
+        return cls(
+            name=str(suite.get("name")),
+            version=str(suite.get("version")),
+            manifest=tuple(
+                (axis, tuple((sp, tuple(str(x) for x in vals)) for sp, vals in sorted(splits.items())))
+                for axis, splits in sorted(manifest.items())
+            ),
+            options=tuple((k, json.dumps(v, sort_keys=True)) for k, v in sorted(options.items())),
+            simulators=tuple(sorted(sims.items())),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "version": self.version,
+            "manifest": {a: {s: list(v) for s, v in splits} for a, splits in self.manifest},
+            "options": {k: json.loads(v) for k, v in self.options},
+            "simulators": dict(self.simulators),
+            "digest": self.digest,
+        }
+
+    @property
+    def digest(self) -> str:
+        """`name-vVERSION@` and 12 hex digits of a hash of everything else."""
+        body = json.dumps([self.manifest, self.options, self.simulators], sort_keys=True)
+        return f"{self.name}-v{self.version}@{hashlib.sha256(body.encode()).hexdigest()[:12]}"
+
+    def differs(self, other: SuiteSpec) -> str | None:
+        """The first difference from `other`, in words, or None when the two are the same suite."""
+        if self.name != other.name:
+            return f"suite {self.name!r} vs {other.name!r}"
+        if self.version != other.version:
+            return f"suite {self.name} version {self.version} vs {other.version}"
+        if self.manifest != other.manifest:
+            return f"suite {self.name}: another split manifest"
+        # options and simulators that only one side records (an older run) cannot differ
+        a, b = dict(self.options), dict(other.options)
+        for k in sorted(set(a) & set(b)):
+            if a[k] != b[k]:
+                return f"suite {self.name}: option {k}={a[k]} vs {b[k]}"
+        a, b = dict(self.simulators), dict(other.simulators)
+        for k in sorted(set(a) & set(b)):
+            if a[k] != b[k]:
+                return f"suite {self.name}: simulator {k} {a[k]} vs {b[k]}"
+        return None
 
 
 class SuiteBase:
