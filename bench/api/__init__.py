@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from bench import __version__
 from bench.core import config as config_mod
@@ -56,6 +56,7 @@ from bench.execution.run_config import (
 )
 from bench.execution.runner import LocalExecutor, Worker, WorkerSpec
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
+from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
@@ -147,7 +148,7 @@ def load_policy(ref: str) -> PolicyPlugin:
     return registry.load_policy(ref)
 
 
-def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Any:
+def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Executor:
     """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
     if cfg.executor == "ray":
         return RayExecutor(cfg.ray_address, cfg.actors, cfg.actor_cpus, cfg.actor_gpus, cfg.ray_env, note=note)
@@ -307,7 +308,7 @@ def run(
     only: Callable[[Job], bool] | None = None,
     progress: bool = False,
     summarize: bool = True,
-    executor: Any = None,
+    executor: Executor | None = None,
     on_record: Callable[[EpisodeRecord], None] | None = None,
 ) -> RunResult:
     """Run a config or a plan into its run directory; recorded episodes are skipped (resume).
@@ -317,7 +318,8 @@ def run(
         only: run only the jobs it accepts (e.g. the first k episodes); the others stay to do.
         progress: show a progress bar on stderr.
         summarize: write summary.json when done (and assemble `record=` datasets).
-        executor: an object with `execute(jobs, worker_spec, on_record)`; default: local processes.
+        executor: a `bench.protocols.executor.Executor` (its `capabilities` say whether it reaches a
+            cluster first or prints notes); default: local processes, or Ray with executor=ray.
         on_record: called with each new record after it is written.
     """
     p = cfg if isinstance(cfg, Plan) else plan(cfg)
@@ -327,9 +329,10 @@ def run(
     todo = [j for j in p.jobs if j.job_id not in done_ids and (only is None or only(j))]
     workers = min(c.workers or os.cpu_count() or 1, max(1, len(todo)))
     executor = executor or make_executor(c, workers)
+    caps = capabilities(executor)  # what it declares (bench.protocols.executor), never probed
     try:
-        if todo and hasattr(executor, "connect"):  # a cluster: reached and sized before anything is written
-            workers = executor.connect(len(todo), p.config.suite, str(p.config.policy))
+        if todo and "cluster" in caps:  # a cluster: reached and sized before anything is written
+            workers = cast(ClusterExecutor, executor).connect(len(todo), p.config.suite, str(p.config.policy))
         meta, ctx = start(p, workers)
         t0 = time.time()
         with (
@@ -343,14 +346,13 @@ def run(
                 if on_record is not None:
                     on_record(record)
 
-            if progress and hasattr(executor, "note"):
-                executor.note = bar.note
+            if progress and "notes" in caps:
+                cast(Any, executor).note = bar.note
             executor.execute(todo, p.worker_spec(ctx), write)
     finally:
-        if hasattr(executor, "close"):
-            executor.close()
+        executor.close()
     meta["provenance"]["executor"] = (
-        c.executor if not hasattr(executor, "cluster") else {"kind": c.executor, **executor.cluster}
+        c.executor if "cluster" not in caps else {"kind": c.executor, **cast(ClusterExecutor, executor).cluster}
     )
     summary = finish(p, meta, workers) if summarize else None
     records = read_records(episodes_path)

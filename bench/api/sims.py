@@ -7,10 +7,11 @@ imports its simulator only when an env is made, so importing this module stays c
 
 from __future__ import annotations
 
+from bench.protocols.env import unwrap
 from bench.sims import maniskill  # the module: suites call `maniskill.missing_extra()` (tests replace it)
 from bench.sims.axes import AXES, conditions_from_config
 from bench.sims.camera import camera_names
-from bench.sims.camera_env import CameraOptions, camera_spec, check_options, unwrap, with_cameras
+from bench.sims.camera_env import CameraOptions, camera_spec, check_options, with_cameras
 from bench.sims.gym import GymEnv
 from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv

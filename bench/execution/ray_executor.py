@@ -130,6 +130,8 @@ class RayExecutor:
         note: called with one-line progress notes (actors lost, waiting for placement).
     """
 
+    capabilities: frozenset[str] = frozenset({"cluster", "notes"})  # bench.protocols.executor
+
     def __init__(
         self,
         address: str = "auto",

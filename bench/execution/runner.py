@@ -312,8 +312,13 @@ class LocalExecutor:
     `MAX_RETRIES` times each, the reasons kept in the record's `extras["retries"]`.
     """
 
+    capabilities: frozenset[str] = frozenset()  # no cluster to reach, no notes of its own
+
     def __init__(self, workers: int):
         self.workers = max(1, int(workers))
+
+    def close(self) -> None:
+        """Nothing outlives `execute`: its child processes are joined before it returns."""
 
     def execute(self, jobs: list[Job], spec: WorkerSpec, on_record: Callable[[EpisodeRecord], None]) -> None:
         """Run `jobs`, calling `on_record` for each finished episode (in finish order, one call at a time)."""

@@ -1,14 +1,89 @@
 """Helpers for env adapters (the contract itself is `bench.protocols.EnvAdapter`).
 
-`obs_slices` finds a named field in a state vector, `state_hash` fingerprints initial
-states, `mj_input_names` names the MuJoCo inputs an `InputLog` records.
+`AdapterBase` holds the contract's defaults (an adapter sets what it has and inherits the rest);
+`AdapterWrapper` forwards the whole contract to an inner adapter, so a wrapper (cameras, a perturbed
+interface) overrides only what it changes. `obs_slices` finds a named field in a state vector,
+`state_hash` fingerprints initial states, `mj_input_names` names the MuJoCo inputs an `InputLog`
+records.
 """
 
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
+
+from bench.protocols import ActionSpec, InputLog, ModelAxes, MujocoHandle, Obs, ObsSpec
+
+# the contract's attributes, which `AdapterWrapper` copies from its inner adapter
+ATTRIBUTES = ("backend", "horizon", "fps", "obs_spec", "action_spec", "mujoco", "inputs", "model_axes")
+
+
+class AdapterBase:
+    """Defaults of the `EnvAdapter` contract: an adapter sets `backend`, `horizon`, `obs_spec` and
+    `action_spec` and implements `reset`, `step` and `success`; the rest has a default here (no
+    notion of time, no MuJoCo model, no input log, no non-MuJoCo model axes, the MuJoCo state as
+    the initial state, nothing to close)."""
+
+    backend: str = "unknown"
+    horizon: int = 0
+    fps: float = 0.0
+    obs_spec: ObsSpec
+    action_spec: ActionSpec
+    mujoco: MujocoHandle | None = None
+    inputs: InputLog | None = None
+    model_axes: ModelAxes | None = None
+
+    def reset(self, seed: int) -> Obs:
+        raise NotImplementedError
+
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
+        raise NotImplementedError
+
+    def success(self) -> bool:
+        raise NotImplementedError
+
+    def init_state(self) -> np.ndarray:
+        """The MuJoCo state after reset (qpos, qvel); an adapter without MuJoCo overrides it."""
+        if self.mujoco is None:
+            raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state: implement init_state")
+        return np.concatenate([self.mujoco.data.qpos, self.mujoco.data.qvel]).copy()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class AdapterWrapper(AdapterBase):
+    """An adapter around another: the contract forwarded to `inner`, attributes copied once at
+    construction (no `__getattr__` forwarding), methods calling through. Override what changes."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        for name in ATTRIBUTES:
+            setattr(self, name, getattr(inner, name))
+
+    def reset(self, seed: int) -> Obs:
+        return self.inner.reset(seed)
+
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
+        return self.inner.step(action)
+
+    def success(self) -> bool:
+        return bool(self.inner.success())
+
+    def init_state(self) -> np.ndarray:
+        return self.inner.init_state()
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def unwrap(env: Any) -> Any:
+    """The innermost adapter under any number of wrappers (an expert needs the concrete env)."""
+    while isinstance(env, AdapterWrapper):
+        env = env.inner
+    return env
 
 
 def obs_slices(obs_names: list[tuple[str, int]]) -> dict[str, slice]:

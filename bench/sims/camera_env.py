@@ -20,7 +20,8 @@ from typing import Any, Optional
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import RGB, STATE, ActionSpec, Feature, Obs, ObsSpec
+from bench.protocols import RGB, STATE, Feature, Obs, ObsSpec
+from bench.protocols.env import AdapterWrapper
 from bench.sims.camera import CameraRig, camera_names, check_renderer, parse_image_size
 
 OBS_MODES = ("state", "rgb", "state+rgb")
@@ -106,8 +107,9 @@ def with_cameras(env: Any, options: Any, defaults: Sequence[str], where: str) ->
         raise
 
 
-class CameraEnv:
-    """An env adapter plus offscreen cameras; forwards the `EnvAdapter` contract to `inner`.
+class CameraEnv(AdapterWrapper):
+    """An env adapter plus offscreen cameras; the `EnvAdapter` contract forwarded to `inner`
+    (`AdapterWrapper`), the observation and its spec extended with the camera images.
 
     Attributes:
         inner: the wrapped adapter (suites hand it to code that needs the concrete env, e.g. experts).
@@ -116,15 +118,9 @@ class CameraEnv:
     """
 
     def __init__(self, inner: Any, mode: str, cameras: Sequence[str], size: tuple[int, int], where: str):
-        self.inner = inner
+        super().__init__(inner)
         self.mode = mode
-        self.backend: str = inner.backend
-        self.horizon: int = inner.horizon
-        self.fps: float = inner.fps
-        self.action_spec: ActionSpec = inner.action_spec
-        self.inputs = inner.inputs
-        self.model_axes = inner.model_axes
-        self.mujoco = inner.mujoco
+        assert self.mujoco is not None  # checked by the suite before wrapping: cameras need a MuJoCo model
         self.rig = CameraRig(self.mujoco.model, self.mujoco.data, cameras, size, where=where)
         self.mujoco.cameras = self.rig
         spec = dict(inner.obs_spec)
@@ -148,20 +144,10 @@ class CameraEnv:
         obs, reward, terminated, truncated, info = self.inner.step(action)
         return self._obs(obs), reward, terminated, truncated, info
 
-    def success(self) -> bool:
-        return self.inner.success()
-
-    def init_state(self) -> np.ndarray:
-        return self.inner.init_state()
-
     def close(self) -> None:
         try:
             self.rig.close()
-            self.mujoco.cameras = None
+            if self.mujoco is not None:
+                self.mujoco.cameras = None
         finally:
             self.inner.close()
-
-
-def unwrap(env: Any) -> Any:
-    """The adapter inside a `CameraEnv` (suites' experts need the concrete env), else `env` itself."""
-    return env.inner if isinstance(env, CameraEnv) else env

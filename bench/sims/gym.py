@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs
+from bench.protocols.env import AdapterBase
 
 
-class GymEnv:
+class GymEnv(AdapterBase):
     """One Gymnasium env, built once and reset with a seed per episode."""
 
     def __init__(self, env_id: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
@@ -69,8 +70,6 @@ class GymEnv:
                 self.backend += f"/mujoco-{mujoco.__version__}"
         except ImportError:
             pass
-        self.inputs = None
-        self.model_axes = None
         dt = getattr(unwrapped, "dt", None)
         self.fps = 1.0 / float(dt) if isinstance(dt, (int, float)) and dt > 0 else 0.0
         self._low, self._high = self.action_spec.low, self.action_spec.high

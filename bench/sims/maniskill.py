@@ -38,6 +38,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
+from bench.protocols.env import AdapterBase
 from bench.sims.physx_axes import PhysxAxes
 from bench.sims.sapien_novulkan import CHECKED, prepare
 
@@ -247,7 +248,7 @@ def _freeze_imports() -> None:
         _FROZEN["done"] = True
 
 
-class ManiSkillEnv:
+class ManiSkillEnv(AdapterBase):
     """One ManiSkill3 env behind the `EnvAdapter` contract (built once per worker and cell)."""
 
     mujoco: MujocoHandle | None = None

@@ -41,6 +41,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, ActionSpec, Feature, InputLog, MujocoHandle, Obs
+from bench.protocols.env import AdapterBase
 
 MAX_PATH_LENGTH = 500  # Meta-World's truncation: one more step raises
 BENCHMARKS = ("ML10", "ML25", "ML45")
@@ -133,8 +134,10 @@ def _parse_env_dict(name: str) -> dict[str, list[str]] | None:
     return None
 
 
-class MetaWorldEnv:
+class MetaWorldEnv(AdapterBase):
     """One Meta-World v3 task with the goal hidden; see the module docstring for seeding."""
+
+    mujoco: MujocoHandle  # always: a MuJoCo backend
 
     def __init__(self, task: str, horizon: int = MAX_PATH_LENGTH):
         quiet_metaworld()
@@ -159,7 +162,6 @@ class MetaWorldEnv:
         self.obs_spec = {STATE: Feature.state(OBS_NAMES)}
         self.action_spec = ActionSpec.box(ACTION_NAMES, -1.0, 1.0)
         self.mujoco = MujocoHandle(env.model, env.data)
-        self.model_axes = None
         self._t = 0
         self._success = False
         self._init_state = np.zeros(0)  # set by reset

@@ -30,6 +30,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
+from bench.protocols.env import AdapterWrapper
 from bench.protocols.suite import Condition
 from bench.sims import visual_scene
 from bench.sims.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
@@ -439,7 +440,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
 
 
 # -- interface axes --------------------------------------------------------------------------
-class Interface:
+class Interface(AdapterWrapper):
     """The env seen through a perturbed interface: command hold, latency, action and observation noise.
 
     Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
@@ -458,6 +459,7 @@ class Interface:
         obs_noise: float = 0.0,
         action_hold: int = 1,
     ):
+        super().__init__(env)
         self.env, self.rng = env, rng
         self.latency, self.action_noise = int(latency), float(action_noise)
         self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))

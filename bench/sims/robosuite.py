@@ -22,6 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
+from bench.protocols.env import AdapterBase
 
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
@@ -127,10 +128,10 @@ class Observer(Protocol):
         ...
 
 
-class RobosuiteEnv:
+class RobosuiteEnv(AdapterBase):
     """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
 
-    model_axes = None  # MuJoCo: bench.sims.perturb edits the model through `mujoco`
+    mujoco: MujocoHandle  # always: bench.sims.perturb edits the model through it (no `model_axes`)
 
     def __init__(
         self, task: str, robot: str, horizon: int, observer: Observer, env_kwargs: dict[str, Any] | None = None
