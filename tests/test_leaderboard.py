@@ -48,7 +48,7 @@ def summary(
         "expected_episodes": 10 * len(rates),
         "provenance": provenance(backend=["b"], episode_seeds=list(range(10)), finished_at=finished),
     }
-    s = build(_records(run_id, rates), run_meta=meta)
+    s = build(_records(run_id, rates), run_meta=meta).to_json()
     validate(s)
     return s
 

@@ -46,7 +46,7 @@ def _perturbed_summary() -> dict:
     base = summary("tmp", "p", ALL)
     meta = {k: base[k] for k in ("suite", "policy", "config", "provenance")}
     meta["run_id"], meta["expected_episodes"] = "pert", len(recs)
-    return build(recs, run_meta=meta)
+    return build(recs, run_meta=meta).to_json()
 
 
 def _pngs_ok(out: Path, names: set[str]) -> None:

@@ -33,7 +33,7 @@ def test_summary_validates_and_rescores_identically(run: Path):
     records = read_records(run / EPISODES)
     assert len(records) == summary["counts"]["episodes"]
     assert {r.run_id for r in records} == {summary["run_id"]} == {run.name}
-    rescored = json.loads(json.dumps(build(records, run_meta=meta)))
+    rescored = json.loads(json.dumps(build(records, run_meta=meta).to_json()))
     assert rescored == summary
 
 

@@ -151,7 +151,7 @@ def test_summary_with_sensitivity_validates_against_the_schema():
         "expected_episodes": 12,
         "provenance": provenance(episode_seeds=[1], started_at="t"),
     }
-    summary = build(recs, run_meta=meta)
+    summary = build(recs, run_meta=meta).to_json()
     assert validate(summary) == "bench.summary/1"
     assert [e["condition"] for e in summary["sensitivity"]] == ["nominal", "friction=0.1", "latency~U(0,4)"]
     broken = json.loads(json.dumps(summary))

@@ -60,6 +60,7 @@ from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
+from bench.scoring.typed import RunMeta
 from bench.sims import axes, perturb
 
 # the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
@@ -232,18 +233,18 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
     cfg = p.config
     packages = provenance.package_versions()
-    meta = {
-        "run_id": cfg.run_id,
-        "suite": p.suite.describe(),
-        "suite_spec": SuiteSpec.of(p.suite.describe(), packages).to_json(),  # what was run, comparable across runs
-        "policy": {
+    meta = RunMeta(
+        run_id=str(cfg.run_id),
+        suite=p.suite.describe(),
+        suite_spec=SuiteSpec.of(p.suite.describe(), packages).to_json(),  # what was run, comparable across runs
+        policy={
             "name": cfg.policy,
             "checkpoint": p.identity.checkpoint,
             "checkpoint_sha256": p.identity.checkpoint_sha256,
         },
-        "config": p.config_dict(),
-        "expected_episodes": len(p.jobs),
-        "provenance": {
+        config=p.config_dict(),
+        expected_episodes=len(p.jobs),
+        provenance={
             "bench_version": __version__,
             "git_sha": provenance.git_sha(),
             "packages": packages,
@@ -260,7 +261,7 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
                 else {}
             ),
         },
-    }
+    ).to_json()
     meta_path = p.run_dir / "run.json"
     if meta_path.exists():
         old = load_json(meta_path)
@@ -296,7 +297,7 @@ def finish(p: Plan, meta: dict[str, Any], workers: int) -> dict[str, Any]:
     meta["provenance"]["workers"] = workers
     meta["provenance"]["backend"] = sorted({r.backend for r in records if r.backend})
     write_atomic(p.run_dir / "run.json", meta)
-    summary = build(records, run_meta=meta)
+    summary = build(records, run_meta=meta).to_json()
     validate(summary, "summary")
     write_atomic(p.run_dir / "summary.json", summary)
     return summary
@@ -371,7 +372,7 @@ def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
     config_mod.check_stored(
         RunConfig, meta.get("config") if isinstance(meta, dict) else None, str(Path(run_dir) / "run.json")
     )
-    summary = build(records, run_meta=meta)
+    summary = build(records, run_meta=meta).to_json()
     validate(summary, "summary")
     write_atomic(Path(run_dir) / "summary.json", summary)
     return summary

@@ -24,6 +24,7 @@ from bench.core.errors import DataError
 from bench.core.schema import load_json, validate
 from bench.protocols.suite import SuiteSpec
 from bench.scoring.summary import fmt_estimate
+from bench.scoring.typed import Summary
 
 # -- merging ------------------------------------------------------------------------------------
 LEADERBOARD_ID = "bench.leaderboard/1"
@@ -65,11 +66,12 @@ def _score(summary: dict) -> tuple[str | None, dict]:
 
 
 def entry_from_summary(summary: dict, source: str) -> dict:
-    """One leaderboard entry from a run summary (scores copied, nothing recomputed)."""
+    """One leaderboard entry from a run summary (scores copied, nothing recomputed), read through the
+    typed `Summary` (a field of the wrong type is one line naming it)."""
     split, score = _score(summary)
-    nominal = [c for c in summary["cells"] if c["condition"] == "nominal"]
-    cells = sorted(f"{c['task']}/{c['robot']}/{c['env']}" for c in nominal)
-    cfg = summary.get("config", {})
+    typed = Summary.from_json(summary, source)
+    cells = sorted(c.key for c in typed.nominal_cells())
+    cfg = typed.config
     selection = {k: cfg.get(k) for k in SELECTION_KEYS if cfg.get(k) not in (None, [], {}, 0)}
     prov = summary.get("provenance", {})
     if prov.get("calibration"):  # a calibrated simulator is another simulator: never pooled or ranked with nominal

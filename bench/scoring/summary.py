@@ -31,6 +31,7 @@ from bench.scoring import stats as scoring
 from bench.scoring.rows import cell_row
 from bench.scoring.sensitivity import render as render_sensitivity
 from bench.scoring.sensitivity import sensitivity
+from bench.scoring.typed import Summary
 
 SCHEMA_ID = "bench.summary/1"
 
@@ -51,8 +52,9 @@ def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
     return np.array([getattr(r, attr) for r in recs if r.error is None], dtype=float)
 
 
-def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str, Any]:
-    """The summary dict for `records`; `run_meta` carries run_id, suite, policy, config, provenance."""
+def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
+    """The summary of `records`, typed (`Summary.to_json()` is summary.json); `run_meta` carries run_id,
+    suite, policy, config, provenance."""
     cfg = run_meta["config"]
     n_boot, conf = int(cfg.get("n_boot", 2000)), float(cfg.get("confidence", 0.95))
     records = dedupe(records)
@@ -123,7 +125,7 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> dict[str
         summary["policy_latency"] = latency
     if any(r.condition != "nominal" for r in records):
         summary["sensitivity"] = sensitivity(records, rng, n_boot=n_boot, confidence=conf)
-    return summary
+    return Summary.from_json(summary, "summary of " + str(run_meta["run_id"]))
 
 
 def _score_returns(
