@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from bench.core.errors import ConfigError, DataError
+from bench.protocols import Cell, Suite
 from bench.sims.perturb import write_fields
 
 # the MjModel fields whose values fingerprint a robot's nominal model (`model_hash`): fixed, so a
@@ -236,7 +237,7 @@ def check(mj: Any, cal: dict[str, Any]) -> None:
         )
 
 
-def verify(suite: Any, cells: list, horizon: int, cal: dict[str, Any]) -> None:
+def verify(suite: Suite, cells: list[Cell], horizon: int, cal: dict[str, Any]) -> None:
     """Build the env of the calibration's robot once and check the calibration fits its model (before a run
     writes anything)."""
     cell = next(c for c in cells if c.robot == cal["robot"])

@@ -16,7 +16,7 @@ from bench.core import outputs
 from bench.core.config import MAX_HORIZON, MAX_SEED, command_help, one_or_more, ranged
 from bench.core.errors import ConfigError
 from bench.core.io import write_atomic
-from bench.protocols import registry
+from bench.protocols import Suite, registry
 from bench.protocols.suite import SPLIT_AXES, select_cells
 from bench.scoring.coverage import (
     coverage_report,
@@ -74,7 +74,7 @@ def _check_common(suite_name: str, quantile: float) -> Any:
     return registry.make_suite(suite_name)
 
 
-def _eval_cells(suite, cfg) -> list:
+def _eval_cells(suite: Suite, cfg: Any) -> list:
     for s in cfg.splits or []:
         if s not in ("seen", "unseen"):
             raise ConfigError(f"splits: {s!r} is not a split; valid: seen, unseen")

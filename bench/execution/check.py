@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter, defaultdict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from bench.protocols import CAPABILITIES, STATE, EnvAdapter, check_obs
+from bench.protocols import CAPABILITIES, STATE, Cell, EnvAdapter, Suite, check_obs
 from bench.protocols.env import state_hash
-from bench.protocols.suite import METRICS, SPLIT_AXES, SPLITS, Cell, Job
+from bench.protocols.suite import METRICS, SPLIT_AXES, SPLITS, Job
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class Problem:
     message: str
 
 
-def check_manifest(manifest: dict[str, dict[str, list]], source: str = "manifest") -> list[Problem]:
+def check_manifest(manifest: Mapping[str, Mapping[str, Sequence[str]]], source: str = "manifest") -> list[Problem]:
     """Seen and unseen disjoint on every axis; no value listed twice on one side."""
     problems = []
     for axis, split in manifest.items():
@@ -54,7 +54,7 @@ def check_manifest(manifest: dict[str, dict[str, list]], source: str = "manifest
     return problems
 
 
-def check_cells(cells: list[Cell], manifest: dict[str, dict[str, list]]) -> list[Problem]:
+def check_cells(cells: list[Cell], manifest: Mapping[str, Mapping[str, Sequence[str]]]) -> list[Problem]:
     """Each cell's split must match what the manifest says about its robot/task/env."""
     problems = []
     for cell in cells:
@@ -86,7 +86,7 @@ def check_seeds(jobs: list[Job]) -> list[Problem]:
     return []
 
 
-def fast_check(suite, cells: list[Cell], jobs: list[Job]) -> list[Problem]:
+def fast_check(suite: Suite, cells: list[Cell], jobs: list[Job]) -> list[Problem]:
     """The checks `bench run` does before starting (nothing is built)."""
     return (
         check_manifest(suite.manifest, f"suite {suite.name}") + check_cells(cells, suite.manifest) + check_seeds(jobs)
@@ -138,7 +138,7 @@ def check_init_states(
     return problems, hashes
 
 
-def check_suite(suite: Any) -> list[Problem]:
+def check_suite(suite: Suite) -> list[Problem]:
     """The suite against the `Suite` protocol: attributes, options, capabilities, cells and their specs."""
     where = f"suite {getattr(suite, 'name', '?')}"
     problems: list[Problem] = []
@@ -183,7 +183,7 @@ def check_suite(suite: Any) -> list[Problem]:
     return problems
 
 
-def check_contract(suite: Any, cell: Cell, horizon: int, steps: int = 20, seed: int = 123) -> list[Problem]:
+def check_contract(suite: Suite, cell: Cell, horizon: int, steps: int = 20, seed: int = 123) -> list[Problem]:
     """Gymnasium-checker-like test of one cell's env: spec, reset/step, success, finiteness, determinism."""
     problems: list[Problem] = []
     env = suite.make_env(cell, horizon)

@@ -14,6 +14,7 @@ to their cell (`bench.board.report`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,8 @@ import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.core.video import BackgroundMp4Writer
-from bench.protocols import RGB, Obs
+from bench.protocols import RGB, Cell, EnvAdapter, Obs, Suite
+from bench.protocols.suite import Job
 from bench.sims.camera import check_renderer
 
 VIDEO_DIR = "videos"
@@ -36,8 +38,10 @@ def video_path(run_dir: str | Path, job_id: str) -> Path:
 class EpisodeVideo:
     """The video of one episode: `frame(obs)` after reset and after every step, then `close()`."""
 
-    def __init__(self, path: Path, env: Any, obs_keys: list[str]):
+    def __init__(self, path: Path, env: EnvAdapter, obs_keys: list[str]):
         self.path = path
+        if env.mujoco is None:  # check_run refused the run before any episode
+            raise ConfigError(f"video: env {env.backend} has no MuJoCo cameras")
         self.rig = env.mujoco.cameras
         self.keys = [k for k in obs_keys if k.startswith(RGB)]
         fps = float(env.fps) if env.fps and env.fps > 0 else 20.0
@@ -81,7 +85,7 @@ def _side_by_side(images: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(padded, axis=1)
 
 
-def start(run_dir: str | None, episodes: int, job: Any, env: Any) -> EpisodeVideo | None:
+def start(run_dir: str | None, episodes: int, job: Job, env: EnvAdapter) -> EpisodeVideo | None:
     """The video of `job` when the run asks for one (`video=N`, job among the first N episodes) and the env
     has cameras; else None."""
     if not run_dir or job.episode >= episodes or env.mujoco is None or env.mujoco.cameras is None:
@@ -89,7 +93,7 @@ def start(run_dir: str | None, episodes: int, job: Any, env: Any) -> EpisodeVide
     return EpisodeVideo(video_path(run_dir, job.job_id), env, list(env.obs_spec))
 
 
-def check_run(suite: Any, cells: Any, horizon: int) -> None:
+def check_run(suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
     """Before a `video=N` run writes anything: a renderer can start, and the first cell's env has cameras."""
     check_renderer()
     if not cells:

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bench.core.errors import ConfigError, valid_choices
-from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy
+from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy, Suite
 
 __all__ = [
     "Cell",
@@ -212,13 +212,13 @@ class SuiteBase:
         return out
 
 
-def summary_line(suite: Any) -> str:
+def summary_line(suite: Any) -> str:  # a Suite class or instance
     """The first line of a suite's (class or instance) docstring (what `bench list` prints)."""
     doc = (suite.__doc__ or "").strip().splitlines()
     return doc[0] if doc else ""
 
 
-def select_cells(suite: Any, selection: Any) -> list[Cell]:
+def select_cells(suite: Suite, selection: Any) -> list[Cell]:
     """The suite's cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset).
 
     An empty list selects nothing and is refused, as is a value the suite does not have.

@@ -31,7 +31,7 @@ import numpy as np
 
 from bench.core.errors import BenchError, ConfigError
 from bench.core.io import jsonable
-from bench.protocols import Obs, PolicyContext, PolicyIdentity, PolicyPlugin
+from bench.protocols import Cell, EnvAdapter, Obs, PolicyContext, PolicyIdentity, PolicyPlugin, Suite
 from bench.remote import latency, link, wire
 from bench.remote import obs_map as obs_map_mod
 
@@ -189,7 +189,7 @@ def check_actions(reply: dict[str, Any], dim: int, where: str) -> np.ndarray:
 class RemotePolicy:
     """One cell's policy behind a server: `reset(seed)` per episode, `act(obs)` one round trip."""
 
-    def __init__(self, options: RemoteOptions, cell: Any, env: Any, ctx: PolicyContext):
+    def __init__(self, options: RemoteOptions, cell: Cell, env: EnvAdapter, ctx: PolicyContext):
         self.options, self.cell, self.ctx = options, cell, ctx
         self.dim, self.fps = int(env.action_spec.dim), float(env.fps)
         entries = obs_map_mod.parse(options.obs_map)
@@ -331,7 +331,7 @@ class RemotePlugin(PolicyPlugin):
             return PolicyIdentity(str(ckpt) if ckpt else None, str(sha) if sha else None)
         return PolicyIdentity()
 
-    def preflight(self, options: Any, suite: Any, cells: Sequence[Any], horizon: int) -> None:
+    def preflight(self, options: Any, suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
         """Reachable server, obs_map sources in every cell's observation, and a bench server able to serve them."""
         validate(options)
         entries = obs_map_mod.parse(options.obs_map)
@@ -348,5 +348,5 @@ class RemotePlugin(PolicyPlugin):
         finally:
             conn.close()
 
-    def make(self, cell: Any, env: Any, ctx: PolicyContext) -> RemotePolicy:
+    def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> RemotePolicy:
         return RemotePolicy(ctx.options, cell, env, ctx)

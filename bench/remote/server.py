@@ -35,7 +35,7 @@ from bench import __version__
 from bench.core import config as config_mod
 from bench.core.errors import BenchError, ConfigError, did_you_mean
 from bench.core.io import jsonable
-from bench.protocols import TASK, Feature, PolicyContext, registry
+from bench.protocols import TASK, Feature, PolicyContext, Suite, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
 from bench.remote.serving import RequestError, WebsocketServer
@@ -139,7 +139,7 @@ class PolicyServer:
                     raise RequestError(f"suite {name!r}: {exc}") from None
             return self._suites[key]
 
-    def build(self, suite: Any, cell_key: Any, run_seed: int, horizon: int) -> Served:
+    def build(self, suite: Suite, cell_key: Any, run_seed: int, horizon: int) -> Served:
         """The cell's env and policy, made as a bench worker makes them."""
         cells = {c.key: c for c in suite.all_cells()}
         if cell_key not in cells:

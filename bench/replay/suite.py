@@ -14,7 +14,7 @@ import numpy as np
 
 from bench.core.errors import DataError
 from bench.execution.recording import episode_cell
-from bench.protocols import registry
+from bench.protocols import EnvAdapter, registry
 from bench.protocols.env import mj_input_names
 from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, _read_logs, measured
 from bench.replay.data import Recording, Window
@@ -39,9 +39,11 @@ def _coordinates(model) -> tuple[list[str], np.ndarray]:
     return names, np.array(idx, dtype=np.int64)
 
 
-def _set_state(env, state: np.ndarray) -> None:
+def _set_state(env: EnvAdapter, state: np.ndarray) -> None:
 
     mj = env.mujoco
+    if mj is None:
+        raise DataError(f"replay: env {env.backend} has no MuJoCo state to set")
     nq = mj.model.nq
     mj.data.qpos[:] = state[:nq]
     mj.data.qvel[:] = state[nq:]

@@ -20,7 +20,7 @@ from typing import Any, Optional
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import RGB, STATE, Feature, Obs, ObsSpec
+from bench.protocols import RGB, STATE, EnvAdapter, Feature, Obs, ObsSpec
 from bench.protocols.env import AdapterWrapper
 from bench.sims.camera import CameraRig, camera_names, check_renderer, parse_image_size
 
@@ -80,7 +80,7 @@ def camera_spec(base: ObsSpec, options: Any, defaults: Sequence[str]) -> ObsSpec
     return out
 
 
-def with_cameras(env: Any, options: Any, defaults: Sequence[str], where: str) -> Any:
+def with_cameras(env: EnvAdapter, options: Any, defaults: Sequence[str], where: str) -> EnvAdapter:
     """`env` with a camera rig (and image observations when `obs=` asks for them).
 
     Without image observations the rig is still attached when the model has the cameras (for

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import STATE, EnvAdapter, MujocoHandle, Obs
+from bench.protocols import STATE, Cell, EnvAdapter, MujocoHandle, Obs, Suite
 from bench.protocols.env import AdapterWrapper
 from bench.protocols.suite import Condition
 from bench.sims import visual_scene
@@ -188,7 +188,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
             )
 
 
-def validate_run(suite, cells: Sequence, conditions: Sequence[Condition], horizon: int) -> None:
+def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condition], horizon: int) -> None:
     """Check model-axis conditions against real envs before a run writes anything.
 
     Builds (then closes) the first cell's env, or every cell's when names are targeted

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import ConfigError
-from bench.protocols import option_keys, registry
+from bench.protocols import EnvAdapter, option_keys, registry
 from bench.sims.camera_env import CameraEnv
 from bench.sims.perturb_visual import AXES, TEXTURES, check, model_names, surface, target_geoms, textures_of
 
@@ -242,19 +242,22 @@ def _rig(env: Any) -> Any:
     return None if mj is None else mj.cameras
 
 
-def clear(env: Any) -> None:
+def clear(env: EnvAdapter) -> None:
     """Put the env's rendered scene back to nominal (every episode, whatever its condition)."""
     rig = _rig(env)
     if rig is not None and isinstance(rig.hook, VisualScene):
         rig.hook.clear()
 
 
-def apply(env: Any, axis: str, value: float, named: dict[str, list[str]], rng: np.random.Generator) -> dict[str, Any]:
+def apply(
+    env: EnvAdapter, axis: str, value: float, named: dict[str, list[str]], rng: np.random.Generator
+) -> dict[str, Any]:
     """Apply one visual axis at `value` for this episode; returns the params to record."""
     rig = _rig(env)
     if rig is None:
         raise ConfigError(f"perturb.{axis}: env {env.backend} has no cameras to perturb")
     if not isinstance(rig.hook, VisualScene):
+        assert env.mujoco is not None  # a rig exists only on a MuJoCo handle (_rig)
         rig.hook = VisualScene(rig, tuple(env.mujoco.object_bodies), where=env.backend)
     return rig.hook.apply(axis, value, named, rng)
 
@@ -272,7 +275,7 @@ def suites_with_cameras() -> list[str]:
     return out
 
 
-def validate(env: Any, axis: str, named: dict[str, list[str]], where: str) -> None:
+def validate(env: EnvAdapter, axis: str, named: dict[str, list[str]], where: str) -> None:
     """ConfigError naming the axis (and the suites that can apply it) unless `env` can apply it this run."""
     rig = _rig(env)
     if rig is None:
@@ -285,4 +288,5 @@ def validate(env: Any, axis: str, named: dict[str, list[str]], where: str) -> No
             f"perturb.{axis} changes only what the cameras see, and obs=state gives the policy no "
             f"image; use obs=rgb or obs=state+rgb"
         )
+    assert env.mujoco is not None  # a rig exists only on a MuJoCo handle (_rig)
     check(env.mujoco.model, tuple(env.mujoco.object_bodies), axis, named, list(rig.cameras), where)
