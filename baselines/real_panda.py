@@ -7,8 +7,8 @@
    inverse dynamics (`bench/calibrate/models/panda_gaz.yaml`): OUT/calibration/.
 2. Compares the fitted friction with the model the log's authors identified (Gaz et al., RA-L 2019:
    tau_f = A / (1 + exp(-a (dq + s))) - A / (1 + exp(-a s)) per joint), on the held-out velocities.
-3. Runs a population of policies (scripted expert, noisy, timid and weak-grip experts, two
-   behaviour-cloning checkpoints, random) on the nominal and on the calibrated Panda, the same seeds on
+3. Runs a population of policies (scripted expert, noisy, timid and weak-grip experts, the committed
+   behaviour-cloning checkpoint and a smaller one trained here on 8 demonstrations per seen arm, random) on the nominal and on the calibrated Panda, the same seeds on
    both, and reports per-policy success with paired intervals and the change in rank order.
 4. Runs the scripted expert under `perturb.AXIS=from(calibration)` on damping, dry friction and the
    links' inertia: the measured robot within what the calibration knows about it.
@@ -21,6 +21,7 @@ improves them.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 import time
@@ -30,6 +31,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from baselines import bc
 from bench import api
 from bench.api.calibration import calibrate_arm, load_arm_spec, write_arm_report
 from bench.api.data import outputs, write_atomic
@@ -58,8 +60,8 @@ POLICIES: list[tuple[str, str, dict[str, Any]]] = [
     ("expert-noise0.6", "baselines.expert_variants:ExpertVariant", {"noise": 0.6}),
     ("expert-timid0.5", "baselines.expert_variants:ExpertVariant", {"scale": 0.5}),
     ("expert-weakgrip0.3", "baselines.expert_variants:ExpertVariant", {"grip": 0.3}),
-    ("bc", "bc", {}),
-    ("bc-coverage", "checkpoint", {"checkpoint": str(ROOT / "results" / "coverage" / "bc" / "policy.safetensors")}),
+    ("bc", "bc", {}),  # the committed checkpoint: 40 demonstrations per seen arm
+    ("bc-small", "checkpoint", {}),  # trained here: 8 demonstrations per seen arm, a 64x64 MLP (checkpoint set below)
     ("random", "random", {}),
 ]
 SWEEP_AXES = ("damping", "frictionloss", "link_mass")
@@ -114,9 +116,43 @@ def friction_table(cal: dict, dq_hold: np.ndarray) -> dict[str, Any]:
     }
 
 
-def run_population(a: Args, work: Path, cal_dir: Path) -> dict[str, Any]:
+def train_small_bc(a: Args, work: Path) -> Path:
+    """A second, weaker behaviour-cloning policy: 8 scripted demonstrations per seen arm, a small MLP."""
+    demos = work / "demos"
+    for old in (demos, work / "runs" / "demos-small"):
+        if old.exists():
+            shutil.rmtree(old)
+    api.run(
+        api.RunConfig(
+            suite="held_out_robots",
+            policy="scripted",
+            splits=["seen"],
+            episodes=8,
+            seed=100,
+            workers=a.workers,
+            out=str(work / "runs"),
+            run_id="demos-small",
+            record=str(demos),
+        ),
+        progress=True,
+    )
+    path, _ = bc.train(
+        bc.Args(
+            data=[str(demos)],
+            out=str(work / "bc_small" / "policy.safetensors"),
+            hidden=[64, 64],
+            overwrite=True,
+            seed=0,
+        )
+    )
+    return path
+
+
+def run_population(a: Args, work: Path, cal_dir: Path, small_bc: Path) -> dict[str, Any]:
     rows: dict[str, Any] = {}
     for name, policy, options in POLICIES:
+        if name == "bc-small":
+            options = {"checkpoint": str(small_bc)}
         per: dict[str, Any] = {}
         for cond, extra in (("nominal", {}), ("calibrated", {"calibration": str(cal_dir)})):
             cfg = api.RunConfig(
@@ -169,6 +205,9 @@ def rank_change(rows: dict[str, Any], seed: int) -> dict[str, Any]:
 
 def run_sweep(a: Args, work: Path, cal_dir: Path) -> dict[str, Any]:
     perturb = {axis: f"from({cal_dir})" for axis in SWEEP_AXES}
+    old = work / "runs" / "sweep-from-calibration"
+    if old.exists():  # condition names carry the calibration's sha256: never mix two calibrations' draws
+        shutil.rmtree(old)
     cfg = api.RunConfig(
         suite="held_out_robots",
         policy="scripted",
@@ -211,12 +250,14 @@ def main_args(a: Args) -> int:
     doc = json.loads(cal_json.read_text())
     hold = ~cal.log.train
     friction = friction_table(doc, cal.log.dq[hold])
-    rows = run_population(a, work, staging)
+    small_bc = train_small_bc(a, work)
+    rows = run_population(a, work, staging, small_bc)
     ranks = rank_change(rows, a.seed)
     sweep = run_sweep(a, work, staging)
 
     def write(tmp: Path) -> None:
         shutil.copytree(staging, tmp / "calibration")
+        shutil.copytree(small_bc.parent, tmp / "bc_small")
         write_atomic(tmp / "population.json", {"policies": rows, **ranks, "episodes": a.episodes, "seed": a.seed})
         write_atomic(tmp / "friction.json", friction)
         write_atomic(tmp / "sweep.json", sweep)
@@ -242,8 +283,9 @@ def readme(a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t
         "# A real Franka Panda's log in the loop: calibrated robot, moved predictions",
         "",
         "Reproduce: `python -m baselines.real_panda out=results/real_panda work=/tmp/real_panda "
-        f"episodes={a.episodes} seed={a.seed} workers={a.workers}` ({total / 60:.0f} min on 2 cores; the "
-        f"calibration alone: {t_cal:.1f} s).",
+        f"episodes={a.episodes} seed={a.seed} workers={a.workers}` (this invocation: {total / 60:.0f} min on 2 "
+        f"cores, policy runs already recorded in WORK resumed; the calibration alone: {t_cal:.1f} s on a "
+        f"machine at load {os.getloadavg()[0]:.1f}: `benchmarks/bench_arm_calibrate.py` times it on one quiet core).",
         "",
         "Data: Gaz et al.'s excitation trajectory (`../shared/data/real/panda_gaz`, 21 s, irregular clock "
         "resampled to 1 kHz by linear interpolation, measured link-side joint torque with gravity). Declared "

@@ -244,7 +244,6 @@ def test_the_real_panda_is_calibrated_from_its_own_log(panda_logs, tmp_path):
         if b > a * 1.001
     ]
     assert bool(rose) == any("forward k-step position error rose" in w for w in cal.warnings)
-    assert cal.wall["total"] < 120
 
 
 # -- the calibrated Panda in the suites, and its uncertainty as a perturbation --------------------------

@@ -83,7 +83,8 @@ def model_hash(model: mujoco.MjModel, joints: list[str]) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def _moved_by(model: mujoco.MjModel, body: int, link: int) -> bool:
+def fixed_to(model: mujoco.MjModel, body: int, link: int) -> bool:
+    """True when `body` is `link` or hangs from it through bodies without joints (they move as one)."""
     while body > 0:
         if body == link:
             return True
@@ -104,7 +105,7 @@ def robot_hash(model: mujoco.MjModel, joints: list[str]) -> str:
             return f"missing joint {name}"
         d = int(model.jnt_dofadr[j])
         link = int(model.jnt_bodyid[j])
-        group = [b for b in range(model.nbody) if _moved_by(model, b, link)]
+        group = [b for b in range(model.nbody) if fixed_to(model, b, link)]
         rows.append(
             [
                 name,

@@ -23,8 +23,7 @@ import numpy as np
 from bench.calibrate.arm_spec import ArmSpec
 from bench.core.errors import DataError, SpecError
 from bench.logs.resample import is_regular, resample
-from bench.replay.data import split
-from bench.replay.spec import SignalSpec
+from bench.replay.data import column, split
 
 EDGE_S = 0.1  # seconds dropped at each end of an episode after filtering
 
@@ -48,35 +47,6 @@ class ArmLog:
     dense_offsets: np.ndarray  # (E + 1,) episode offsets of `dense`
     dense_train: list[tuple[int, int, int]]  # (episode, start, stop) training windows of `dense`
     dense_hold: list[tuple[int, int, int]]
-
-
-def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> np.ndarray:
-    if sig.column not in ep:
-        valid = sorted(k for k, v in ep.items() if np.asarray(v).ndim in (1, 2))
-        raise SpecError(
-            f"spec field '{where}.column': column {sig.column!r} is not in the log (episode {i}); "
-            f"valid: {', '.join(valid)}"
-        )
-    arr = np.asarray(ep[sig.column], dtype=np.float64)
-    arr = arr[:, None] if arr.ndim == 1 else arr
-    bad = [j for j in sig.index if j >= arr.shape[1]]
-    if bad:
-        raise SpecError(
-            f"spec field '{where}.index': index {bad[0]} is out of range for column {sig.column!r} "
-            f"of width {arr.shape[1]} (valid 0..{arr.shape[1] - 1})"
-        )
-    out = arr[:, list(sig.index)]
-    nan = ~np.isfinite(out)
-    if nan.any():
-        rows, cols = np.nonzero(nan)
-        j = int(cols[0])
-        stretch = np.flatnonzero(nan[:, j])
-        end = int(stretch[-1]) if np.all(np.diff(stretch) == 1) else int(stretch[np.argmax(np.diff(stretch) > 1)])
-        raise DataError(
-            f"log column {sig.column!r}[{sig.index[j]}] (episode {i}) is NaN or inf in rows {int(rows[0])}..{end}: "
-            "cut the episode there or fill the stretch before calibrating"
-        )
-    return out
 
 
 def _clock(ep: dict[str, np.ndarray], fps: float) -> np.ndarray:
@@ -103,7 +73,7 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
     dense: dict[str, list[np.ndarray]] = {"q": [], "dq": [], "tau": []}
     resampled, lengths, source_rates = [], [], []
     for i, ep in enumerate(episodes):
-        cols = {k: _column(ep, s, f"signals.{k}", i) for k, s in spec.signals.items()}
+        cols = {k: column(ep, s, f"signals.{k}", i) for k, s in spec.signals.items()}
         t = _clock(ep, fps)
         if not is_regular(t):
             rate = float(1.0 / np.median(np.diff(t)))

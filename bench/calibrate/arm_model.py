@@ -16,6 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from bench.calibrate.apply import fixed_to
 from bench.calibrate.arm_spec import ArmSpec
 from bench.calibrate.idim import inertia_at_com, point_mass, set_std, std_params
 from bench.core import config as config_mod
@@ -96,17 +97,6 @@ def _payload(m: mujoco.MjModel, name: str | None, last_body: int) -> tuple[int, 
     raise SpecError(f"spec field 'payload': {name!r} is not a body or site of the model.{did_you_mean(name, names)}")
 
 
-def _moved_by(m: mujoco.MjModel, body: int, anchor: int) -> bool:
-    """True when `body` is `anchor` or hangs from it through bodies without joints."""
-    while body > 0:
-        if body == anchor:
-            return True
-        if m.body_jntnum[body] > 0:
-            return False
-        body = int(m.body_parentid[body])
-    return False
-
-
 def build(spec: ArmSpec) -> ArmModel:
     """Load the declared model and resolve the spec's names in it (one SpecError naming the field otherwise)."""
     if spec.model is not None:
@@ -129,7 +119,7 @@ def build(spec: ArmSpec) -> ArmModel:
             if n not in names and not any(x.endswith(n) for x in names):
                 raise SpecError(f"spec field 'inertia': {n!r} is not a link the joints move; links: {', '.join(names)}")
     pb, ppos, prot, pname = _payload(model, spec.payload, links[-1])
-    if not _moved_by(model, pb, links[-1]):
+    if not fixed_to(model, pb, links[-1]):
         raise SpecError(
             f"spec field 'payload': {pname!r} is not fixed to the last link {model.body(links[-1]).name!r} "
             "(a payload sits at the flange or a tool frame on it)"
@@ -141,7 +131,7 @@ def build(spec: ArmSpec) -> ArmModel:
             if hit.size:
                 motors[hit[0]] = a
     data = mujoco.MjData(model)
-    groups = [[b for b in range(model.nbody) if _moved_by(model, b, link)] for link in links]
+    groups = [[b for b in range(model.nbody) if fixed_to(model, b, link)] for link in links]
     return ArmModel(
         model=model,
         joints=[model.joint(j).name for j in jids],

@@ -56,7 +56,8 @@ class Recording:
         )
 
 
-def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> np.ndarray:
+def column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> np.ndarray:
+    """The signal `sig` of episode `i` as float64 (T, len(index)); one line naming the field or rows otherwise."""
     if sig.column not in ep:
         valid = sorted(k for k, v in ep.items() if np.asarray(v).ndim in (1, 2))
         raise SpecError(
@@ -75,8 +76,17 @@ def _column(ep: dict[str, np.ndarray], sig: SignalSpec, where: str, i: int) -> n
             f"of width {arr.shape[1]} (valid 0..{arr.shape[1] - 1})"
         )
     out = arr[:, list(sig.index)]
-    if not np.all(np.isfinite(out)):
-        raise DataError(f"log column {sig.column!r} (episode {i}) holds NaN or inf values")
+    bad = ~np.isfinite(out)
+    if bad.any():
+        rows, cols = np.nonzero(bad)
+        j = int(cols[0])
+        stretch = np.flatnonzero(bad[:, j])
+        gap = np.flatnonzero(np.diff(stretch) > 1)
+        end = int(stretch[gap[0]]) if gap.size else int(stretch[-1])
+        raise DataError(
+            f"log column {sig.column!r}[{sig.index[j]}] (episode {i}) is NaN or inf in rows {int(stretch[0])}..{end}: "
+            "cut the episode there or fill the stretch before using it"
+        )
     return out
 
 
@@ -135,22 +145,22 @@ def extract(
     parts: dict[str, list[np.ndarray]] = {"qpos": [], "qvel": [], "ctrl": [], "inputs": []}
     lengths = []
     for i, ep in enumerate(episodes):
-        qpos = _column(ep, spec.signals["qpos"], "signals.qpos", i)
-        ctrl = _column(ep, spec.signals["ctrl"], "signals.ctrl", i)
+        qpos = column(ep, spec.signals["qpos"], "signals.qpos", i)
+        ctrl = column(ep, spec.signals["ctrl"], "signals.ctrl", i)
         t = len(qpos)
         if t < 4:
             raise DataError(f"episode {i} has {t} frames; replay and calibration need at least 4")
         if len(ctrl) != t:
             raise DataError(f"episode {i}: {len(ctrl)} ctrl frames but {t} qpos frames")
         if "qvel" in spec.signals:
-            qvel = _column(ep, spec.signals["qvel"], "signals.qvel", i)
+            qvel = column(ep, spec.signals["qvel"], "signals.qvel", i)
         else:
             qvel = estimate_velocity(qpos, fps)
         parts["qpos"].append(qpos)
         parts["qvel"].append(qvel)
         parts["ctrl"].append(ctrl)
         if "inputs" in spec.signals:
-            parts["inputs"].append(_column(ep, spec.signals["inputs"], "signals.inputs", i))
+            parts["inputs"].append(column(ep, spec.signals["inputs"], "signals.inputs", i))
         lengths.append(t)
     hold: list[Window] = []
     if holdout is None:
