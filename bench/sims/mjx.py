@@ -217,7 +217,7 @@ class Rollouts:
         jax, jnp, mjx = self.jax, self.jnp, self.mjx
         if self.floor and "dof_frictionloss" in world:
             world = {**world, "dof_frictionloss": world["dof_frictionloss"] + self.floor}
-        m = self.mx.replace(**world) if world else self.mx
+        m = self.mx.tree_replace(dict(world)) if world else self.mx
         d = mjx.make_data(m).replace(qpos=qpos0, qvel=qvel0)
         nu, s = self.nu, self.substeps
 
