@@ -68,6 +68,11 @@ STANDARD_FIELDS = (
 )
 
 
+def _scaled(vg: tuple[float, np.ndarray], scale: float) -> tuple[float, np.ndarray]:
+    """Loss and gradient divided by the starting loss (L-BFGS-B's tolerances are absolute)."""
+    return vg[0] * scale, vg[1] * scale
+
+
 def _friction_rows(layout: Layout) -> bool:
     """Whether the layout's parameters can move a friction loss (then MJX needs a row on every dof)."""
     fields = {s.field for s in layout.plant.slots} | {f for c in layout.active for f in c.effect.fields}
@@ -173,7 +178,8 @@ class GradientFitter:
     @staticmethod
     def _unflat(rows: np.ndarray, like: dict[str, Any]) -> dict[str, Any]:
         """Rows of flat vectors (K, size) as `like`'s structure with a leading axis of K (tangents)."""
-        k, i, out = len(rows), 0, {"model": {}}
+        k, i = len(rows), 0
+        out: dict[str, Any] = {"model": {}}
         for f in sorted(like["model"]):
             a = like["model"][f]
             out["model"][f] = rows[:, i : i + a.size].reshape((k, *a.shape))
@@ -216,8 +222,8 @@ class GradientFitter:
             self._rollouts[key] = mjx_backend.Rollouts(plant.model, plant.substeps, frictionloss_rows=rows)
         if id(plant) not in self._fields:
             mx_fields = {f.name for f in type(self._rollouts[key].mx).fields()}
-            fields = set(_float_fields(plant.model, STANDARD_FIELDS)) | _declared_fields(plant)
-            self._fields[id(plant)] = sorted(f for f in fields if f in mx_fields)
+            names = set(_float_fields(plant.model, STANDARD_FIELDS)) | _declared_fields(plant)
+            self._fields[id(plant)] = sorted(f for f in names if f in mx_fields)
         rollouts, fields = self._rollouts[key], self._fields[id(plant)]
         rec = plant.rec
         s = plant.substeps
@@ -239,7 +245,7 @@ class GradientFitter:
             "mask": mask,
             "channels": np.asarray(obj.channels),
         }
-        if inputs:
+        if inputs and rec.inputs is not None:
             batch["inputs"] = hold(rec.inputs, s)[idx]
         labels = layout.labels
         compile0 = rollouts.compile_s
@@ -271,7 +277,7 @@ class GradientFitter:
         scale = 1.0 / max(f0, 1e-300)
         if p:
             res = minimize(
-                lambda z: tuple(v * scale if i == 0 else v * scale for i, v in enumerate(value_grad(z))),
+                lambda z: _scaled(value_grad(z), scale),
                 z0,
                 jac=True,
                 method="L-BFGS-B",

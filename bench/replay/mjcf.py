@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import mujoco
 
@@ -52,7 +53,7 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     if ignored.get("params"):
         notes.append("the spec's free parameters keep the model's values (replay uses the model as given)")
     traces = Replay({}, errors, rec.qpos, rec.offsets, float(rec.fps), joints, [ep.index for ep in eps])
-    extra = {}
+    extra: dict[str, Any] = {}
     if isinstance(sim, MjxSimulator):
         extra["mjx"] = {"device": mjx_backend.device(), "compile_s": round(sim.compile_s, 3)}
     if records is not None:

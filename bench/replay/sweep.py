@@ -51,7 +51,8 @@ def worlds(model: mujoco.MjModel, conds: list[Condition], draws: int, seed: int)
     env = SimpleNamespace(mujoco=MujocoHandle(copy.copy(model), None), model_axes=None, backend="mjcf")
     env.mujoco.data = mujoco.MjData(env.mujoco.model)
     perturb.validate(env, conds, where="the spec's model")
-    rows, models = [], []
+    rows: list[dict] = []
+    models: list[Any] = []
     for ci, cond in enumerate(conds):
         ranged = (cond.spec or {}).get("kind", "grid") != "grid"
         for draw in range(draws if ranged else 1):
