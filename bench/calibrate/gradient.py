@@ -12,11 +12,11 @@ windows, so the gradient of a long log stays well conditioned. What differs is h
 - the solver is L-BFGS-B on bound-normalised parameters (z in [0, 1]): quasi-Newton steps built from
   those gradients, with the bounds kept exactly.
 
-Solver settings it needs: MJX's constraint solver at one iteration (`opt.iterations = 1`; reverse
-mode cannot pass the solver's `while_loop`). For models without constraint rows (no contact, no
-limit, no friction loss) this changes nothing; with friction loss every dof gets its row, and the
-one-iteration Newton step is what the gradient sees (the CPU simulator, converged, is what the
-reported errors use). JAX runs in float64.
+Solver settings it needs: reverse-mode gradients pass MJX's constraint solver only at one iteration
+(`opt.iterations = 1`), which changes nothing for a model without constraint rows (no contact, limit
+or friction loss): such fits are reverse mode. A layout that can move a friction loss keeps the
+model's solver and gets forward-mode derivatives, one tangent per parameter (`bench.sims.mjx.Rollouts`;
+one iteration is not MuJoCo's converged friction). JAX runs in float64.
 
 A parameter vector reaches MJX as model fields (`realise` on the CPU side, the same code the
 least-squares path uses, so both fit the same model): the MjModel float fields it changes, a constant
