@@ -133,8 +133,10 @@ class _Loop:
         channels: np.ndarray,
         log: Callable[[str], None],
         seed: int = 0,
+        fitter: Callable[..., FitResult] = fit,
     ) -> None:
         self.plant, self.sim, self.train, self.hold = plant, sim, train, hold
+        self.fitter = fitter  # `fit` (least squares) or `bench.calibrate.gradient.GradientFitter` (MJX)
         self.scale, self.channels, self.log = scale, channels, log
         self.tr = plant.spec.trace
         m = min(len(train), max(JUDGE_MIN, int(np.ceil(JUDGE_SHARE * len(train)))))
@@ -157,7 +159,7 @@ class _Loop:
         return Objective(self.sim, layout, segs, self.plant.rec, self.scale, self.channels)
 
     def fit(self, layout: Layout, x0: np.ndarray, broyden: bool = False) -> FitResult:
-        return fit(self.objective(layout, self.train), x0, broyden=broyden)
+        return self.fitter(self.objective(layout, self.train), x0, broyden=broyden)
 
     def heldout(self, pairs: list[tuple[Layout, np.ndarray]]) -> list[float]:
         return heldout_errors(self.sim, pairs, self.hold, self.plant.rec, self.scale, self.channels)
@@ -181,7 +183,7 @@ class _Loop:
         reasons it fails (none: passes)."""
         new, xinit, off = start
         ssr0, n_eff = self.base(layout, cur)
-        f = fit(self.objective(new, self.judged), xinit, tol=TRIAL_TOL, broyden=True)
+        f = self.fitter(self.objective(new, self.judged), xinit, tol=TRIAL_TOL, broyden=True)
         err = self.heldout([(new, f.x)])[0]
         drop = 1.0 - err / err0
         crit = self.tr.criterion
@@ -333,16 +335,17 @@ def calibrate(
     log: Callable[[str], None] = lambda msg: None,
     residual: bool = False,
     t0: float | None = None,
+    fitter: Callable[..., FitResult] = fit,
 ) -> Calibration:
     """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
     suite's robot in its scene). `effects`: "spec" (the spec's list), None (all), () (none) or explicit
     requests; with `residual`, a learned residual is fitted after the loop and reported apart from the
-    physics (`Calibration.learned`)."""
+    physics (`Calibration.learned`); `fitter` fits a layout's parameters (`fit`, or a gradient fitter)."""
     t0 = time.perf_counter() if t0 is None else t0
     spec = plant.spec
     sim = plant.simulator(threads or spec.threads)
     try:
-        cal = _calibrate(spec, plant, sim, seed, effects, log, t0)
+        cal = _calibrate(spec, plant, sim, seed, effects, log, t0, fitter)
         if residual:
             t1 = time.perf_counter()
             cal.learned = learn(sim, cal.layout.realise(cal.final_fit.x), cal.k, seed)
@@ -414,6 +417,7 @@ def _calibrate(
     effects: tuple[EffectRequest, ...] | None | str,
     log: Callable[[str], None],
     t0: float,
+    fitter: Callable[..., FitResult] = fit,
 ) -> Calibration:
     """Nominal errors, declared fit, the add / refit / accept rounds, final errors."""
     rec = plant.rec
@@ -424,7 +428,7 @@ def _calibrate(
     scale = np.maximum(np.concatenate([rec.qpos[train_frames], rec.qvel[train_frames]], axis=1).std(axis=0), 1e-9)
     train = horizons(rec, rec.train, k, limit=spec.trace.max_segments, seed=seed)
     hold = horizons(rec, rec.holdout, k)
-    loop = _Loop(plant, sim, train, hold, scale, channels, log, seed)
+    loop = _Loop(plant, sim, train, hold, scale, channels, log, seed, fitter)
     names = [n or f"q{i}" for i, n in enumerate(plant.joint_names)]
 
     layout = Layout(plant, [])

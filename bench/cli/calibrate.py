@@ -14,6 +14,7 @@ from bench.calibrate.arm_report import write_arm_report
 from bench.calibrate.arm_spec import ARM_EFFECTS, ArmSpec, is_arm_spec, parse_arm_spec
 from bench.calibrate.effects import EFFECTS
 from bench.calibrate.generate import write_case
+from bench.calibrate.gradient import METHODS, GradientFitter
 from bench.calibrate.report import write_report
 from bench.calibrate.spec import EffectRequest, load_spec
 from bench.calibrate.suite import calibrate_suite
@@ -22,7 +23,10 @@ from bench.core import config, outputs
 from bench.core.config import ranged
 from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.logs import read_dataset
-from bench.replay.spec import read_spec_file
+from bench.replay.spec import load_model, read_spec_file
+from bench.sims.mjx import check_model
+from bench.sims.mjx import device as mjx_device
+from bench.sims.mjx import require as require_mjx
 
 MAX_THREADS = 256  # rollout threads: far above any core count here, far below what hangs a machine
 MAX_EPISODES = 10_000  # generated episodes
@@ -41,6 +45,7 @@ class CalibrateConfig:
     threads: Optional[int] = ranged(None, 1, MAX_THREADS)  # rollout threads (default: the spec's, 1)
     quiet: bool = False  # no progress lines on stderr
     residual: bool = True  # also fit a learned residual (a model of the force the calibrated physics misses); held-out errors with and without it
+    method: str = "least_squares"  # how each fit runs: least_squares (finite differences, CPU MuJoCo) | gradient (MJX, the mjx extra; docs/mjx.md)
     overwrite: bool = False  # replace an existing out folder that bench wrote
 
 
@@ -81,7 +86,7 @@ GENERATE_USAGE = (
 )
 USAGE = (
     "usage: bench calibrate spec=SPEC logs=DIR out=DIR [seed=0] [effects=all|[name,...]] [threads=1] [quiet=false]\n"
-    "                       [residual=true]\n"
+    "                       [residual=true] [method=least_squares|gradient]\n"
     "       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]\n"
     "                       [residual=true]\n"
     f"       {GENERATE_USAGE.removeprefix('usage: ')}\n"
@@ -213,10 +218,21 @@ def _arm_effects(value: Any) -> tuple[str, ...]:
 def cmd_run(cfg: CalibrateConfig) -> int:
     """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
     spec_file, logs, out_dir = _require(cfg, "spec", "logs", "out")
+    if cfg.method not in METHODS:
+        raise ConfigError(
+            f"key 'method': {cfg.method!r} is not a fitting method; valid: {', '.join(METHODS)}."
+            f"{did_you_mean(str(cfg.method), METHODS)}"
+        )
     raw, spec_path = read_spec_file(Path(spec_file).expanduser())
     if is_arm_spec(raw):
+        if cfg.method == "gradient":
+            raise ConfigError(
+                "key 'method': gradient fits forward (simulation) specs; an arm spec (method: idim) is linear "
+                "least squares on the torque, solved exactly: leave method= out"
+            )
         return cmd_arm(cfg, parse_arm_spec(raw, spec_path.parent, spec_path), spec_file, logs, out_dir)
     spec = load_spec(spec_path)
+    fitter = _gradient_fitter(spec, cfg.quiet) if cfg.method == "gradient" else None
     out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})
     episodes, fps = _load_logs(Path(logs).expanduser())
     cal = run(
@@ -228,12 +244,28 @@ def cmd_run(cfg: CalibrateConfig) -> int:
         threads=spec.threads if cfg.threads is None else cfg.threads,
         log=_log(cfg.quiet),
         residual=cfg.residual,
+        **({"fitter": fitter} if fitter is not None else {}),
     )
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    path = _write(out, cal)
+    extra = None
+    if fitter is not None:
+        extra = {"method": {"name": "gradient", "device": mjx_device(), **fitter.stats.to_json()}}
+        st = fitter.stats
+        print(
+            f"gradient fits: {st.fits} ({st.fallbacks} by least squares), {st.evaluations} value-and-gradient "
+            f"evaluations, {st.wall_s:.1f} s of which {st.compile_s:.1f} s compiling ({mjx_device()})"
+        )
+    path = _write(out, cal, extra)
     _summary(cal, path)
     return 0
+
+
+def _gradient_fitter(spec: Any, quiet: bool) -> GradientFitter:
+    """The MJX fitter, after checking (before any work) that JAX is installed and MJX can simulate the model."""
+    require_mjx()
+    check_model(load_model(spec.model), where=spec.model.name)
+    return GradientFitter(log=_log(quiet))
 
 
 def _log(quiet: bool):

@@ -110,6 +110,7 @@ def help_text() -> str:
     """`bench replay --help`: the horizons, the keys (from ReplayConfig), the two backends."""
     return config_mod.command_help(
         "usage: bench replay logs=DIR spec=SPEC [k=10] [episodes=[0,3]] [out=DIR] [plot=2] [threads=1]\n"
+        "                    [backend=mujoco|mjx] [perturb.AXIS=[levels]|uniform(lo,hi)] [worlds=1] [seed=0]\n"
         "       bench replay logs=DIR suite=held_out_robots [commands=ctrl|action] [k=10] [episodes=[..]] [out=DIR] "
         "[threads=1]",
         "Open-loop replay: each logged episode is replayed from its logged states under its logged\n"
@@ -130,6 +131,9 @@ def help_text() -> str:
         "physics alone; default when the log has action.ctrl, as robosuite and Meta-World recordings do);\n"
         "commands=action feeds the logged policy actions through the env's controller in a Python step loop\n"
         "(physics and controller).\n"
+        "backend=mjx: the spec's segments in one compiled MJX call (the mjx extra; docs/mjx.md).\n"
+        "perturb.AXIS=...: also replay in perturbed worlds (model axes of bench run; worlds= draws per range), all\n"
+        "worlds of a horizon in one batched call; one record per world in replay.json's sweep.\n"
         "out=: replay.json (schema bench.replay/1) and replay.png (logged vs replayed); never the logs or\n"
         "inside them.",
         examples=[

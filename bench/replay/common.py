@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
@@ -19,6 +19,7 @@ SCHEMA = "bench.replay/1"
 HORIZON_LABELS = {"one_step": "one-step", "k_step": "k-step", "free_run": "free run"}
 STATIC = 1e-9  # a joint whose logged position spreads less than this has no NRMSE
 COMMANDS = ("ctrl", "action")
+BACKENDS = ("mujoco", "mjx")
 CTRL = "action.ctrl"
 ROLLOUT_BYTES = 256 * 2**20  # states returned by one mujoco.rollout call, at most
 
@@ -37,6 +38,14 @@ class ReplayConfig:
     plot: int = ranged(2, 0, 50)  # episodes drawn in replay.png (0: no plot)
     threads: int = ranged(1, 1, 256)  # mujoco.rollout threads (results do not depend on it)
     commands: Optional[str] = None  # suite logs: ctrl (batched) | action (env step loop); default ctrl if logged
+    backend: str = (
+        "mujoco"  # spec replays: mujoco (mujoco.rollout on CPU threads) | mjx (one batched MJX call; the mjx extra)
+    )
+    perturb: dict[str, Any] = field(
+        default_factory=dict
+    )  # spec replays: physical-axis sweep, e.g. perturb.damping=[0.5,2] (docs/mjx.md)
+    worlds: int = ranged(1, 1, 100_000)  # draws per perturb.AXIS=uniform(lo,hi) range (a grid level is one world)
+    seed: int = ranged(0, 0)  # seed of the sweep's draws
 
 
 @dataclass
@@ -94,6 +103,13 @@ def _check_cfg(cfg: ReplayConfig) -> None:
         raise ConfigError(f"threads must be an integer in [1, 64]; got {cfg.threads}")
     if cfg.commands is not None and cfg.commands not in COMMANDS:
         raise ConfigError(f"commands is {cfg.commands!r}; valid: {', '.join(COMMANDS)} (suite logs only)")
+    if cfg.backend not in BACKENDS:
+        raise ConfigError(f"key 'backend': {cfg.backend!r} is not a replay backend; valid: {', '.join(BACKENDS)}")
+    if cfg.suite and (cfg.backend != "mujoco" or cfg.perturb or cfg.worlds != 1):
+        raise ConfigError(
+            "backend=, perturb.* and worlds= apply to MJCF replays (spec=); a suite replay (suite=) runs in the "
+            "suite's own env"
+        )
     if cfg.commands is not None and not cfg.suite:
         raise ConfigError(
             "commands= applies to suite= replays of `bench run record=` datasets; an MJCF replay "
