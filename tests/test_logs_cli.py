@@ -92,8 +92,8 @@ def test_import_rlds(tmp_path):
     "argv, message",
     [
         (
-            ["logs", "import", "x.csv", "out=o", "velocity=true"],
-            "unknown key 'velocity' (for format=csv); valid keys — all formats: out, format",
+            ["logs", "import", "x.csv", "out=o", "split=train"],
+            "unknown key 'split' (for format=csv); valid keys — all formats: out, format",
         ),
         (["logs", "import", "x.csv"], "missing key 'out'"),
         (["logs", "import", "x.bin", "out=o"], "cannot tell the format"),
