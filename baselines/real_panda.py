@@ -20,6 +20,7 @@ improves them.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -148,6 +149,17 @@ def train_small_bc(a: Args, work: Path) -> Path:
     return path
 
 
+def drop_stale(run_dir: Path, cal_dir: Path) -> None:
+    """A calibrated run recorded with an earlier fit is another robot: start it again (bench refuses to mix)."""
+    meta = run_dir / "run.json"
+    if not meta.is_file():
+        return
+    sha = hashlib.sha256((cal_dir / "calibration.json").read_bytes()).hexdigest()
+    if json.loads(meta.read_text()).get("provenance", {}).get("calibration", {}).get("sha256") != sha:
+        print(f"{run_dir.name}: recorded with an earlier calibration; running it again")
+        shutil.rmtree(run_dir)
+
+
 def run_population(a: Args, work: Path, cal_dir: Path, small_bc: Path) -> dict[str, Any]:
     rows: dict[str, Any] = {}
     for name, policy, options in POLICIES:
@@ -155,6 +167,8 @@ def run_population(a: Args, work: Path, cal_dir: Path, small_bc: Path) -> dict[s
             options = {"checkpoint": str(small_bc)}
         per: dict[str, Any] = {}
         for cond, extra in (("nominal", {}), ("calibrated", {"calibration": str(cal_dir)})):
+            if cond == "calibrated":
+                drop_stale(work / "runs" / f"{name}-{cond}", cal_dir)
             cfg = api.RunConfig(
                 suite="held_out_robots",
                 policy=policy,
@@ -284,7 +298,7 @@ def readme(a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t
         "",
         "Reproduce: `python -m baselines.real_panda out=results/real_panda work=/tmp/real_panda "
         f"episodes={a.episodes} seed={a.seed} workers={a.workers}` (this invocation: {total / 60:.0f} min on 2 "
-        f"cores, policy runs already recorded in WORK resumed; the calibration alone: {t_cal:.1f} s on a "
+        f"cores; runs already recorded in WORK resumed where nominal or fitted by the same calibration file; the calibration alone: {t_cal:.1f} s on a "
         f"machine at load {os.getloadavg()[0]:.1f}: `benchmarks/bench_arm_calibrate.py` times it on one quiet core).",
         "",
         "Data: Gaz et al.'s excitation trajectory (`../shared/data/real/panda_gaz`, 21 s, irregular clock "

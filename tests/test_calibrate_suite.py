@@ -112,6 +112,36 @@ def test_run_with_the_calibration_uses_the_calibrated_model(calibrated, tmp_path
     assert entry["selection"]["calibration"] == f"Panda:{prov['sha256'][:12]}"  # apart from nominal runs
 
 
+def test_resume_refuses_a_calibration_that_changed_under_the_same_path(calibrated, tmp_path):
+    """A re-fitted calibration at the same path is another robot: a resumed run never mixes the two."""
+    import shutil
+
+    from bench import api
+    from bench.core.errors import ConfigError
+
+    cal = tmp_path / "cal"
+    shutil.copytree(calibrated.parent, cal)
+    cfg = api.RunConfig(
+        robots=["Panda"],
+        policy="scripted",
+        episodes=1,
+        horizon=5,
+        workers=1,
+        run_id="c",
+        out=str(tmp_path / "runs"),
+        calibration=str(cal),
+    )
+    api.run(cfg)
+    assert api.run(cfg).resumed == 1  # the same calibration resumes
+    doc = json.loads((cal / "calibration.json").read_text())
+    for e in doc["apply"]["edits"]:
+        if e["field"] == "dof_damping":
+            e["value"] *= 1.5
+    (cal / "calibration.json").write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match=r"recorded with calibration sha256 [0-9a-f]{12} \(now [0-9a-f]{12}\)"):
+        api.run(cfg)
+
+
 def _tampered(calibrated, tmp_path, **change):
     doc = json.loads(calibrated.read_text())
     for key, value in change.items():

@@ -229,6 +229,10 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+def _calibration_sha(meta: dict[str, Any]) -> str | None:
+    return ((meta.get("provenance") or {}).get("calibration") or {}).get("sha256")
+
+
 def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
     cfg = p.config
@@ -276,6 +280,12 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
             raise ConfigError(
                 f"run_id={cfg.run_id!r} exists with {k}={old.get('config', {}).get(k)!r} (now "
                 f"{new_cfg.get(k)!r}); use the same settings to resume it, or a new run_id"
+            )
+        was, now = (_calibration_sha(old), _calibration_sha(meta))
+        if was != now:  # the same calibration path may hold a newer fit: never mix two robots in one run
+            raise ConfigError(
+                f"run_id={cfg.run_id!r} was recorded with calibration sha256 {str(was)[:12]} (now "
+                f"{str(now)[:12]}); resume it with the same calibration, or use a new run_id"
             )
         meta = old
     else:
