@@ -23,9 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT.parent / "shared" / "data" / "real" / "panda_gaz" / "trajectory_1.csv"
 SPEC = ROOT / "bench" / "calibrate" / "models" / "panda_gaz.yaml"
-COLS = (
-    "state=[q1,q2,q3,q4,q5,q6,q7] velocity=[dq1,dq2,dq3,dq4,dq5,dq6,dq7] effort=[tau1,tau2,tau3,tau4,tau5,tau6,tau7]"
-)
+COLS = "state=[q1,q2,q3,q4,q5,q6,q7] velocity=[dq1,dq2,dq3,dq4,dq5,dq6,dq7] effort=[tau1,tau2,tau3,tau4,tau5,tau6,tau7]"
 
 
 def main() -> int:

@@ -97,7 +97,10 @@ def test_one_or_more_takes_a_bare_name_plain_lists_do_not():
         ),
         (["calibrate", "generate", "effect=none", "out=o", "episodes=1"], r"episodes=1: must be in \[2, 10000\]"),
         (["leaderboard", "merge", "run", "out=x.json", "overwrite=maybe"], r"bad value for 'overwrite'"),
-        (["leaderboard", "merge", "run", "out=x.json", "outt=y"], r"unknown key 'outt'; valid keys: out, overwrite, allow_spec_change\."),
+        (
+            ["leaderboard", "merge", "run", "out=x.json", "outt=y"],
+            r"unknown key 'outt'; valid keys: out, overwrite, allow_spec_change\.",
+        ),
     ],
 )
 def test_typed_keys_of_logs_calibrate_leaderboard(argv, pattern, capsys, tmp_path, monkeypatch):
