@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,25 @@ from typing import Any
 import yaml
 
 from bench.core.errors import SpecError, did_you_mean, valid_choices
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.1 reads `1e6` and `-1.0e6` as strings (it wants `1.0e+6`); spec files read them as the numbers
+    everybody means (YAML 1.2's float rule)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
 
 MAP_KEYS = ("model", "substeps", "signals")
 MAX_SUBSTEPS = 10_000  # simulator steps per log frame: more is a typo, and multiplies every rollout
@@ -62,7 +82,7 @@ def read_spec_file(path: str | Path) -> tuple[Any, Path]:
     except UnicodeDecodeError as exc:
         raise SpecError(f"spec {str(path)!r} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
-        raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        raw = json.loads(text) if path.suffix == ".json" else yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
     except (yaml.YAMLError, ValueError, RecursionError) as exc:  # ValueError: bad JSON, integers of 4300+ digits
         first = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
         kind = "JSON" if path.suffix == ".json" else "YAML"
