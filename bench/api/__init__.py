@@ -195,6 +195,8 @@ def plan(cfg: RunConfig) -> Plan:
     axes.check_horizon(conditions, horizon)
     check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
+        axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_ref)
     if cfg.video:
         check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
@@ -343,6 +345,8 @@ def run(
 
             if progress and hasattr(executor, "note"):
                 executor.note = bar.note
+            if progress and hasattr(executor, "status"):
+                executor.status = bar.waiting  # what a worker waits for (a policy server warming up)
             executor.execute(todo, p.worker_spec(ctx), write)
     finally:
         if hasattr(executor, "close"):
