@@ -288,7 +288,9 @@ def calibration_section(cal: dict, tmp: Path) -> str:
 
 
 def verdict_section(v: dict) -> str:
-    cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note"}[v["verdict"]]
+    cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note", "nothing_measured": "bad"}[
+        v["verdict"]
+    ]
     rows = [
         [
             _e(c["task"]),
