@@ -237,10 +237,10 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
         "suite": p.suite.describe(),
         "policy": {
             "name": cfg.policy,
-            "checkpoint": p.identity.checkpoint,
+            "checkpoint": provenance.portable(p.identity.checkpoint),
             "checkpoint_sha256": p.identity.checkpoint_sha256,
         },
-        "config": p.config_dict(),
+        "config": provenance.portable_config(p.config_dict()),
         "expected_episodes": len(p.jobs),
         "provenance": {
             "bench_version": __version__,
@@ -254,7 +254,12 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
             "started_at": _now(),
             "finished_at": None,
             **(
-                {"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
+                {
+                    "calibration": {
+                        k: provenance.portable(p.calibration[k]) if k == "path" else p.calibration[k]
+                        for k in ("path", "sha256", "robot", "model_hash")
+                    }
+                }
                 if p.calibration
                 else {}
             ),
@@ -264,10 +269,11 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     if meta_path.exists():
         old = load_json(meta_path)
         new_cfg = meta["config"]
+        old_cfg = provenance.portable_config(old.get("config", {}))  # a run recorded before paths were portable
         diffs = [
             k
-            for k in sorted(set(old.get("config", {})) | set(new_cfg))
-            if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)
+            for k in sorted(set(old_cfg) | set(new_cfg))
+            if k not in RESUMABLE_KEYS and old_cfg.get(k) != new_cfg.get(k)
         ]
         if diffs:
             k = diffs[0]

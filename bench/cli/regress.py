@@ -58,7 +58,7 @@ from bench.board.gate_pairs import cell_counts, pair_records, unmeasured
 from bench.cli.regress_args import DEFAULT_EPISODES, episodes_of, help_text, parse_args
 from bench.core import config as config_mod
 from bench.core.errors import ConfigError, NothingMeasured
-from bench.core.provenance import checkpoint_provenance
+from bench.core.provenance import checkpoint_provenance, portable
 from bench.execution.runner import LocalExecutor
 from bench.protocols.suite import select_cells
 from bench.sims import axes
@@ -183,7 +183,7 @@ def _input_paths(sides: list[_Side]) -> list[tuple[Path, str]]:
 def _checkpoint_of(side: _Side) -> tuple[str | None, str | None]:
     """(checkpoint path, sha256) of a side's policy: from the live plan, or as its run recorded it."""
     if side.live:
-        return side.p.identity.checkpoint, side.p.identity.checkpoint_sha256
+        return portable(side.p.identity.checkpoint), side.p.identity.checkpoint_sha256
     pol = (side.meta or {}).get("policy", {})
     return pol.get("checkpoint"), pol.get("checkpoint_sha256")
 
