@@ -1429,8 +1429,17 @@ CAP, NM, SLOW, SHORT, BOUNDS = (
     "short episodes",
     "physically impossible bounds",
 )
+
+
+def unlimited(family: str, name: str, argv: list[str], match: str, **kw) -> None:
+    """`add` without the address-space limit: these cases start threads (a run's progress ticker, a remote
+    policy's wait reports) and MuJoCo models, which fail with "can't start new thread" or "could not allocate
+    memory" under the corpus' 4 GB limit once a long corpus run has loaded the simulators."""
+    add(family, name, argv, match, **{"memory_gb": None, **kw})
+
+
 MS = ["run", "suite=maniskill_tasks", "tasks=[PickCube]", "policy=random", "episodes=1", "workers=1"]
-add(
+unlimited(
     CAP,
     "cap-maniskill-cameras-without-vulkan",
     [*MS, "obs=rgb", "out={case}/runs"],
@@ -1438,7 +1447,7 @@ add(
     needs=("no-vulkan",),
     timeout=120,
 )
-add(
+unlimited(
     CAP,
     "cap-maniskill-gpu-backend",
     [*MS, "sim_backend=physx_cuda", "out={case}/runs"],
@@ -1446,25 +1455,24 @@ add(
     needs=("no-physx-gpu",),
     timeout=120,
 )
-add(
+unlimited(
     CAP,
     "cap-visual-axis-on-a-state-only-policy",
     ["run", "policy=bc", "robots=[Panda]", "obs=state+rgb", "perturb.light=[0.3]", "episodes=1", "out={case}/runs"],
     r"perturb\.light changes only camera images, and policy 'bc' reads none",
     timeout=120,
-    memory_gb=None,  # robosuite's renderer maps more address space than the corpus' 4 GB limit
 )
-add(
+unlimited(
     CAP,
     "cap-remote-nothing-listening",
     [*RUN, "policy=remote", "port=1", "warmup_s=1"],
     r"policy=remote: no policy server at 127\.0\.0\.1:1: connection refused",
 )
-add(CAP, "cap-toy-policy-needs-a-camera", [*RUN, "policy=tests.toy_suite:NeedsCamera"], r"needs observation keys")
+unlimited(CAP, "cap-toy-policy-needs-a-camera", [*RUN, "policy=tests.toy_suite:NeedsCamera"], r"needs observation keys")
 
 # nothing measured: the run, score or gate writes what it measured (records, summary) and exits 3
 TOY_RUN = [TOY, "workers=1", "episodes=1", "n_boot=200", "out={case}/runs", "run_id=r"]
-add(
+unlimited(
     NM,
     "nm-every-episode-errors",
     ["run", *TOY_RUN, "fault=raise", "robots=[c]"],
@@ -1472,7 +1480,7 @@ add(
     code=3,
     allowed=("{case}/runs",),
 )
-add(
+unlimited(
     NM,
     "nm-one-cell-of-three-empty",
     ["run", *TOY_RUN, "fault=nan_reward"],
@@ -1480,7 +1488,7 @@ add(
     code=3,
     allowed=("{case}/runs",),
 )
-add(
+unlimited(
     NM,
     "nm-score-of-an-empty-run",
     ["score", "{case}/run"],
@@ -1504,7 +1512,7 @@ def _errored(robot: str):
 
 
 GATE_OUT = ("{case}/g", "{case}/v.json", "{case}/v.junit.xml", "{case}/v.md")
-add(
+unlimited(
     NM,
     "nm-gate-against-a-baseline-that-measured-nothing-in-a-cell",
     [
@@ -1521,7 +1529,7 @@ add(
     code=3,
     allowed=GATE_OUT,
 )
-add(
+unlimited(
     NM,
     "nm-remote-server-that-never-warms-up",
     ["run", *TOY_RUN, "robots=[a]", "policy=remote", "port={port:stall_openpi}", "warmup_s=0.5"],
@@ -1533,26 +1541,26 @@ add(
 
 # slow servers: set-up is bounded by warmup_s (not timeout_s); one that never answers is one line
 REMOTE = [*RUN, "policy=remote"]
-add(
+unlimited(
     SLOW,
     "slow-server-hangs-at-the-handshake",
     [*REMOTE, "port={port:hang}", "warmup_s=1"],
     r"policy=remote: the server at 127\.0\.0\.1:\d+ accepted the connection but did not answer the websocket "
     r"handshake within warmup_s=1 s",
 )
-add(
+unlimited(
     SLOW,
     "slow-server-never-answers-the-check",
     [*REMOTE, "port={port:stall}", "warmup_s=1"],
     r"policy=remote: the server at 127\.0\.0\.1:\d+ did not answer within warmup_s=1 s",
 )
-add(SLOW, "slow-warmup-zero", [*REMOTE, "warmup_s=0"], r"warmup_s=0\.0: must be > 0")
-add(SLOW, "slow-warmup-huge", [*REMOTE, "warmup_s=1e9"], r"warmup_s=1000000000\.0: must be > 0 and at most 3600")
-add(SLOW, "slow-warmup-nan", [*REMOTE, "warmup_s=nan"], r"warmup_s")
-add(SLOW, "slow-timeout-negative", [*REMOTE, "timeout_s=-1"], r"timeout_s=-1\.0: must be > 0")
+unlimited(SLOW, "slow-warmup-zero", [*REMOTE, "warmup_s=0"], r"warmup_s=0\.0: must be > 0")
+unlimited(SLOW, "slow-warmup-huge", [*REMOTE, "warmup_s=1e9"], r"warmup_s=1000000000\.0: must be > 0 and at most 3600")
+unlimited(SLOW, "slow-warmup-nan", [*REMOTE, "warmup_s=nan"], r"warmup_s")
+unlimited(SLOW, "slow-timeout-negative", [*REMOTE, "timeout_s=-1"], r"timeout_s=-1\.0: must be > 0")
 
 # short episodes: shorter than k is measured (to each episode's end); shorter than the minimum is refused
-add(
+unlimited(
     SHORT,
     "short-replay-k-longer-than-every-episode",
     ["replay", "logs={ws}/ds", "spec={ws}/spec.yaml", "k=1000", "out={case}/r"],
@@ -1571,14 +1579,14 @@ def _short_logs(frames: int):
     return setup
 
 
-add(
+unlimited(
     SHORT,
     "short-replay-episodes-below-the-minimum",
     ["replay", "logs={case}/ds", "spec={ws}/spec.yaml"],
     r"episode 0 has 3 frames; replay and calibration need at least 4",
     setup=_short_logs(3),
 )
-add(
+unlimited(
     SHORT,
     "short-replay-episodes-of-five-frames-k-10",
     ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "k=10", "out={case}/r"],
@@ -1587,7 +1595,7 @@ add(
     code=0,
     allowed=("{case}/r",),
 )
-add(
+unlimited(
     SHORT,
     "short-calibrate-horizon-longer-than-the-episodes",
     ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/cal"],

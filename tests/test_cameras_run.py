@@ -154,7 +154,7 @@ def test_video_of_first_n_episodes_and_report(tmp_path):
         api.config_from_argv(
             [
                 *LIFT,
-                "policy=scripted",
+                "policy=random",  # a policy that takes the images (a state-only one is refused a visual axis)
                 "episodes=2",
                 "horizon=6",
                 "video=1",

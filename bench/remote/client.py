@@ -282,7 +282,11 @@ class RemotePolicy:
         weakref.finalize(self, self.conn.close)  # the runner drops policies without closing them
         self._rtt: list[float] = []
         self._server_ms: list[float] = []
-        self.warm_up(0)  # before any episode: the server's set-up is not an episode's time
+        try:
+            self.warm_up(0)  # before any episode: the server's set-up is not an episode's time
+        except BaseException:
+            self.conn.close()
+            raise
 
     def _reset_message(self, seed: int) -> dict[str, Any]:
         suite = self.ctx.suite
