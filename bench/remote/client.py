@@ -12,8 +12,9 @@ Two bounds. A server pays its set-up on a connection's first answers: loading a 
 compile, building a cell's simulator (tens of seconds for real VLA servers). `warmup_s` (default
 300 s) bounds that: a policy's first connection (retrying with exponential backoff while nothing
 listens yet), the server's metadata, the reset that builds a cell (and any reset that changes
-cell), and one warm-up inference on a zero observation of the cell's spec (its answer is not used). The policy warms its connection up when it is made, before the worker starts episodes,
-and says through `PolicyContext.status` (the run's progress) what it is waiting for. `timeout_s`
+cell), and one warm-up inference on a zero observation of the cell's spec (its answer is not used).
+The policy warms its connection up when it is made, before the worker starts episodes, and says
+through `PolicyContext.status` (the run's progress) what it is waiting for. `timeout_s`
 (default 10 s) bounds every other answer, and reconnecting to a server that went away mid-run: a
 dead server, or an answer that is not a finite (T, A) action chunk of the env's width, fails that
 episode with the reason (the run goes on, and the next episode reconnects and warms up again).
@@ -99,7 +100,8 @@ class Connection:
 
     Any failure during a request closes the socket, so a late answer can never be taken for
     the answer to the next request. `warmup_s` bounds the first connection and the answers a caller
-    asks for with `warm=True`; `timeout_s` reconnecting and every other answer. `report` hears what a long wait is for (see `_Wait`).
+    asks for with `warm=True`; `timeout_s` reconnecting and every other answer. `report` hears what a
+    long wait is for (see `_Wait`).
     """
 
     def __init__(
@@ -441,6 +443,7 @@ class RemotePlugin(PolicyPlugin):
         if key not in self._meta:
             validate(options)
             conn = Connection(options.host, options.port, options.timeout_s, options.warmup_s, _to_stderr)
+            _lost.discard(conn.where)  # a new run waits for a server's set-up again, whatever an earlier one saw
             try:
                 self._meta[key] = conn.connect()
             except RemoteError as exc:
