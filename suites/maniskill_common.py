@@ -85,7 +85,7 @@ def check_common(obs: str, cameras: Optional[Sequence[str]], image_size: int, si
         raise ConfigError(f"cameras={list(cameras)}: cameras need obs=rgb or obs=state+rgb (obs={obs})")
     if cameras is not None and not cameras:
         raise ConfigError("cameras=[] names no camera; leave it out for every camera of the cell")
-    check_backend(sim_backend)
+    check_backend(sim_backend, cameras="rgb" in obs)  # a GPU backend, a Vulkan device: before any episode
     if reset not in RESETS:
         raise ConfigError(
             f"reset={reset!r}: valid: {', '.join(RESETS)} (rebuild: the same seed and actions give the "

@@ -3,12 +3,16 @@
 For each case the command runs in process (`bench.cli.main`, or a `python -m` module's `main`) and
 must: exit 2, print exactly one line on stderr that matches the case's pattern (it names the field),
 print no traceback, and leave every file of the workspace as it was: nothing changed, nothing removed,
-nothing created (a bad input writes nothing). The workspace is built once (a LeRobot dataset, a toy
+nothing created (a bad input writes nothing). Two kinds of case expect another exit code: a run, score
+or gate that measured nothing exits 3 with a last stderr line `nothing measured: ...` matching the
+pattern (it may write its records where the case allows), and an input that looks odd but must work
+(episodes shorter than k) exits 0. Misbehaving policy servers (`server_port`) run on 127.0.0.1. The workspace is built once (a LeRobot dataset, a toy
 run, a leaderboard, outcome tables, CSV / MAT / RLDS logs, an MJCF with its spec, a checkpoint); each
 case writes its own bad files into a folder of its own before the snapshot is taken.
 
-`python tests/hostile.py` runs the corpus and prints, per family of the issue (data loss,
-tracebacks, silent acceptances, unbounded work, files left behind, unreadable output), how many
+`python tests/hostile.py` runs the corpus and prints, per family of the issues (data loss,
+tracebacks, silent acceptances, unbounded work, files left behind, unreadable output; capability
+missing, nothing measured, slow servers, short episodes, physically impossible bounds), how many
 inputs were tried and how many failed; the test module (tests/test_hostile_inputs.py) asserts each.
 """
 
@@ -34,7 +38,20 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 TOY = "suite=tests.toy_suite:ToySuite"
-FAMILIES = ("data loss", "traceback", "silent acceptance", "unbounded work", "left behind", "unreadable output")
+FAMILIES = (
+    "data loss",
+    "traceback",
+    "silent acceptance",
+    "unbounded work",
+    "left behind",
+    "unreadable output",
+    # issue 28: runs that look fine but measured nothing, and what they come from
+    "capability missing",
+    "nothing measured",
+    "slow servers",
+    "short episodes",
+    "physically impossible bounds",
+)
 
 ARM_XML = """<mujoco model="arm1">
   <option timestep="0.01"/>
@@ -148,8 +165,66 @@ def build_workspace(root: Path) -> Path:
     )
     _rlds(root / "rlds")
     _checkpoint(root / "ckpt" / "policy.safetensors")
+    _capabilities(root)
     (root / "cases").mkdir()
     return root
+
+
+def _capabilities(root: Path) -> None:
+    """Markers of what this machine lacks (a capability-missing case `needs` its marker: it runs only here)."""
+    import importlib.util
+
+    if importlib.util.find_spec("mani_skill") is not None:
+        from bench.sims.maniskill import physx_gpu_library
+        from bench.sims.sapien_novulkan import render_device_available
+
+        if not render_device_available():
+            (root / "no-vulkan").write_text("SAPIEN finds no Vulkan device here\n")
+        import torch
+
+        if not torch.cuda.is_available() or physx_gpu_library() is not None:
+            (root / "no-physx-gpu").write_text("no CUDA device, or no PhysX GPU library\n")
+
+
+# ----------------------------------------------------------------------------- slow policy servers
+
+_SERVERS: dict[str, int] = {}
+_KEEP: list = []  # the servers' sockets, open while the corpus runs
+SERVERS = ("hang", "stall", "stall_openpi")
+
+
+def server_port(name: str) -> int:
+    """The port of a misbehaving policy server on 127.0.0.1, started once per process (daemon threads).
+
+    hang: accepts TCP connections (the kernel's backlog) and never answers the websocket handshake.
+    stall: a bench server (bench's protocol in its metadata) that never answers a request.
+    stall_openpi: the same, as an openpi server (no bench metadata: no request before the episodes' warm-up).
+    """
+    if name not in _SERVERS:
+        import socket
+        import threading
+
+        from bench.remote import wire
+        from bench.remote.serving import WebsocketServer
+
+        if name == "hang":
+            sock = socket.create_server(("127.0.0.1", 0), backlog=64)
+            _KEEP.append(sock)
+            _SERVERS[name] = sock.getsockname()[1]
+        else:
+
+            class Stall:
+                def handle(self, request):
+                    threading.Event().wait()  # never answers
+
+                def close(self) -> None:
+                    pass
+
+            meta = {"bench": {"protocol": wire.PROTOCOL}} if name == "stall" else {"policy": "stalls"}
+            ws = WebsocketServer(Stall, meta, "127.0.0.1", 0)
+            _KEEP.append(ws)
+            _SERVERS[name] = ws.start()
+    return _SERVERS[name]
 
 
 # ----------------------------------------------------------------------------- running one input
@@ -277,6 +352,9 @@ class Case:
     allowed: tuple[str, ...] = field(default=())  # paths (relative to the workspace) the command may create
 
     def expand(self, text: str, ws: Path, case: Path) -> str:
+        for name in SERVERS:  # {port:hang}: the port of a misbehaving server (`server_port`)
+            if f"{{port:{name}}}" in text:
+                text = text.replace(f"{{port:{name}}}", str(server_port(name)))
         return text.replace("{ws}", str(ws)).replace("{case}", str(case))
 
 
@@ -308,6 +386,9 @@ def check(case: Case, ws: Path) -> tuple[list[str], Result | None]:
             problems.append(f"{len(lines)} lines on stderr: {res.err.strip()[:300]!r}")
         elif not re.search(case.match, lines[0]):
             problems.append(f"stderr does not match {case.match!r}: {lines[0][:300]}")
+    elif res.exc is None and case.code == 3:  # nothing measured: the run's output, then the one line saying so
+        if not lines or not lines[-1].startswith("nothing measured: ") or not re.search(case.match, lines[-1]):
+            problems.append(f"last stderr line is not 'nothing measured: ...{case.match}': {lines[-1:]!r}")
     if "Traceback (most recent call last)" in res.err + res.out:
         problems.append("a traceback was printed")
     allowed = {case.expand(a, ws, case_dir) for a in case.allowed}
@@ -362,13 +443,13 @@ def edit_json(rel: str, fn: Callable[[dict], object]) -> Callable[[Path], None]:
 
 def summarize(results: list[tuple[Case, list[str]]]) -> str:
     """Per family: tried, handled, failed (with the failures listed)."""
-    lines = [f"{'family':<20} {'tried':>6} {'ok':>6} {'failed':>7}"]
+    lines = [f"{'family':<30} {'tried':>6} {'ok':>6} {'failed':>7}"]
     for fam in FAMILIES:
         rows = [(c, p) for c, p in results if c.family == fam]
         bad = [(c, p) for c, p in rows if p]
-        lines.append(f"{fam:<20} {len(rows):>6} {len(rows) - len(bad):>6} {len(bad):>7}")
+        lines.append(f"{fam:<30} {len(rows):>6} {len(rows) - len(bad):>6} {len(bad):>7}")
     lines.append(
-        f"{'total':<20} {len(results):>6} {sum(1 for _, p in results if not p):>6} {sum(1 for _, p in results if p):>7}"
+        f"{'total':<30} {len(results):>6} {sum(1 for _, p in results if not p):>6} {sum(1 for _, p in results if p):>7}"
     )
     for c, p in results:
         if p:

@@ -1421,6 +1421,228 @@ add(SA, "leaderboard-unknown-sub", ["leaderboard", "frob"], r"frob")
 add(SA, "calibrate-unknown-positional", ["calibrate", "frob"], r"frob")
 
 
+# ----------------------------------------------------------------------------- issue 28's families
+CAP, NM, SLOW, SHORT, BOUNDS = (
+    "capability missing",
+    "nothing measured",
+    "slow servers",
+    "short episodes",
+    "physically impossible bounds",
+)
+
+
+def unlimited(family: str, name: str, argv: list[str], match: str, **kw) -> None:
+    """`add` without the address-space limit: these cases start threads (a run's progress ticker, a remote
+    policy's wait reports) and MuJoCo models, which fail with "can't start new thread" or "could not allocate
+    memory" under the corpus' 4 GB limit once a long corpus run has loaded the simulators."""
+    add(family, name, argv, match, **{"memory_gb": None, **kw})
+
+
+MS = ["run", "suite=maniskill_tasks", "tasks=[PickCube]", "policy=random", "episodes=1", "workers=1"]
+unlimited(
+    CAP,
+    "cap-maniskill-cameras-without-vulkan",
+    [*MS, "obs=rgb", "out={case}/runs"],
+    r"obs=rgb: ManiSkill cameras need a Vulkan device .*fetch_lavapipe\.sh",
+    needs=("no-vulkan",),
+    timeout=120,
+)
+unlimited(
+    CAP,
+    "cap-maniskill-gpu-backend",
+    [*MS, "sim_backend=physx_cuda", "out={case}/runs"],
+    r"sim_backend=physx_cuda: .*use sim_backend=physx_cpu",
+    needs=("no-physx-gpu",),
+    timeout=120,
+)
+unlimited(
+    CAP,
+    "cap-visual-axis-on-a-state-only-policy",
+    ["run", "policy=bc", "robots=[Panda]", "obs=state+rgb", "perturb.light=[0.3]", "episodes=1", "out={case}/runs"],
+    r"perturb\.light changes only camera images, and policy 'bc' reads none",
+    timeout=120,
+)
+unlimited(
+    CAP,
+    "cap-remote-nothing-listening",
+    [*RUN, "policy=remote", "port=1", "warmup_s=1"],
+    r"policy=remote: no policy server at 127\.0\.0\.1:1: connection refused",
+)
+unlimited(CAP, "cap-toy-policy-needs-a-camera", [*RUN, "policy=tests.toy_suite:NeedsCamera"], r"needs observation keys")
+
+# nothing measured: the run, score or gate writes what it measured (records, summary) and exits 3
+TOY_RUN = [TOY, "workers=1", "episodes=1", "n_boot=200", "out={case}/runs", "run_id=r"]
+unlimited(
+    NM,
+    "nm-every-episode-errors",
+    ["run", *TOY_RUN, "fault=raise", "robots=[c]"],
+    r"run r .*no episode completed: all 1 errored.*RuntimeError: toy env exploded",
+    code=3,
+    allowed=("{case}/runs",),
+)
+unlimited(
+    NM,
+    "nm-one-cell-of-three-empty",
+    ["run", *TOY_RUN, "fault=nan_reward"],
+    r"1 of 3 cells completed no episode \(reach/c/line\) while the others did; error: non-finite reward",
+    code=3,
+    allowed=("{case}/runs",),
+)
+unlimited(
+    NM,
+    "nm-score-of-an-empty-run",
+    ["score", "{case}/run"],
+    r"episodes\.jsonl holds no episode record",
+    setup=copy("run", "run", _bytes("episodes.jsonl", b"")),
+    code=3,
+    allowed=("{case}/run/summary.json",),
+)
+
+
+def _errored(robot: str):
+    def edit(root: Path) -> None:
+        p = root / "episodes.jsonl"
+        recs = [json.loads(line) for line in p.read_text().splitlines()]
+        for r in recs:
+            if r["robot"] == robot:
+                r.update(error="RuntimeError: simulator lost", success_once=False, success_at_end=False)
+        p.write_text("".join(json.dumps(r) + "\n" for r in recs))
+
+    return edit
+
+
+GATE_OUT = ("{case}/g", "{case}/v.json", "{case}/v.junit.xml", "{case}/v.md")
+unlimited(
+    NM,
+    "nm-gate-against-a-baseline-that-measured-nothing-in-a-cell",
+    [
+        "regress",
+        "candidate=scripted",
+        "baseline={case}/base",
+        "workers=1",
+        "runs={case}/g",
+        "run_id=g",
+        "out={case}/v.json",
+    ],
+    r"regress g: the baseline completed no episode in 1 of 3 cells \(reach/b/line\).*simulator lost",
+    setup=copy("run", "base", _errored("b")),
+    code=3,
+    allowed=GATE_OUT,
+)
+unlimited(
+    NM,
+    "nm-remote-server-that-never-warms-up",
+    ["run", *TOY_RUN, "robots=[a]", "policy=remote", "port={port:stall_openpi}", "warmup_s=0.5"],
+    r"no episode completed.*building env/policy failed: RemoteError: the server at 127\.0\.0\.1:\d+ did not "
+    r"answer within warmup_s=0\.5 s",
+    code=3,
+    allowed=("{case}/runs",),
+)
+
+# slow servers: set-up is bounded by warmup_s (not timeout_s); one that never answers is one line
+REMOTE = [*RUN, "policy=remote"]
+unlimited(
+    SLOW,
+    "slow-server-hangs-at-the-handshake",
+    [*REMOTE, "port={port:hang}", "warmup_s=1"],
+    r"policy=remote: the server at 127\.0\.0\.1:\d+ accepted the connection but did not answer the websocket "
+    r"handshake within warmup_s=1 s",
+)
+unlimited(
+    SLOW,
+    "slow-server-never-answers-the-check",
+    [*REMOTE, "port={port:stall}", "warmup_s=1"],
+    r"policy=remote: the server at 127\.0\.0\.1:\d+ did not answer within warmup_s=1 s",
+)
+unlimited(SLOW, "slow-warmup-zero", [*REMOTE, "warmup_s=0"], r"warmup_s=0\.0: must be > 0")
+unlimited(SLOW, "slow-warmup-huge", [*REMOTE, "warmup_s=1e9"], r"warmup_s=1000000000\.0: must be > 0 and at most 3600")
+unlimited(SLOW, "slow-warmup-nan", [*REMOTE, "warmup_s=nan"], r"warmup_s")
+unlimited(SLOW, "slow-timeout-negative", [*REMOTE, "timeout_s=-1"], r"timeout_s=-1\.0: must be > 0")
+
+# short episodes: shorter than k is measured (to each episode's end); shorter than the minimum is refused
+unlimited(
+    SHORT,
+    "short-replay-k-longer-than-every-episode",
+    ["replay", "logs={ws}/ds", "spec={ws}/spec.yaml", "k=1000", "out={case}/r"],
+    r"",
+    code=0,
+    allowed=("{case}/r",),
+)
+
+
+def _short_logs(frames: int):
+    def setup(ws: Path, case: Path) -> None:
+        from hostile import _arm_logs
+
+        _arm_logs(case / "ds", episodes=2, frames=frames)
+
+    return setup
+
+
+unlimited(
+    SHORT,
+    "short-replay-episodes-below-the-minimum",
+    ["replay", "logs={case}/ds", "spec={ws}/spec.yaml"],
+    r"episode 0 has 3 frames; replay and calibration need at least 4",
+    setup=_short_logs(3),
+)
+unlimited(
+    SHORT,
+    "short-replay-episodes-of-five-frames-k-10",
+    ["replay", "logs={case}/ds", "spec={ws}/spec.yaml", "k=10", "out={case}/r"],
+    r"",
+    setup=_short_logs(5),
+    code=0,
+    allowed=("{case}/r",),
+)
+unlimited(
+    SHORT,
+    "short-calibrate-horizon-longer-than-the-episodes",
+    ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/cal"],
+    r"",
+    setup=_spec(SPEC_YAML + "horizon: 100\n"),
+    code=0,
+    allowed=("{case}/cal",),
+)
+
+# physically impossible bounds: a spec whose bounds let a mass, a damping, a friction ... leave physics
+for name, param, match in [
+    ("mass-negative", "{name: m, field: body_mass, elements: [link1], bounds: [-5, -1]}", r"body_mass go negative"),
+    ("mass-crossing-zero", "{name: m, field: body_mass, elements: [link1], bounds: [-1, 2]}", r"go negative"),
+    ("damping-negative", "{name: d, field: dof_damping, elements: [j1], bounds: [-0.5, 5]}", r"dof_damping go neg"),
+    ("armature-negative", "{name: a, field: dof_armature, elements: [j1], bounds: [-1, 0.1]}", r"an armature"),
+    ("inertia-negative", "{name: i, field: body_inertia, elements: [link1], bounds: [-1, 1]}", r"an inertia"),
+    ("frictionloss-negative", "{name: f, field: dof_frictionloss, elements: [j1], bounds: [-1, 1]}", r"friction"),
+    ("stiffness-negative", "{name: k, field: jnt_stiffness, elements: [j1], bounds: [-3, -1]}", r"joint stiffness"),
+    (
+        "damping-scale-negative",
+        "{name: d, field: dof_damping, elements: [j1], bounds: [-1, 2], scale: true}",
+        r"the factor on dof_damping go negative",
+    ),
+]:
+    add(
+        BOUNDS,
+        f"bounds-{name}",
+        ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/cal"],
+        rf"params\[0\]\.bounds.*{match}",
+        setup=_spec(SPEC_YAML.replace("{name: damping, field: dof_damping, elements: [j1], bounds: [0.01, 5]}", param)),
+    )
+for name, effect, match in [
+    ("friction-negative", "{name: coulomb_friction, bounds: [-1, 1]}", r"coulomb_friction's friction go negative"),
+    ("delay-negative", "{name: actuator_delay, bounds: [-0.1, 0.1]}", r"actuator_delay's delay go negative"),
+    ("share-above-one", "{name: torque_saturation, bounds: [0, 2]}", r"clipped_share go above 1"),
+    ("payload-negative", "{name: payload_mass, bounds: [-2, 0]}", r"payload_mass's mass go negative"),
+    ("deadband-negative", "{name: deadband, bounds: [-1, 1]}", r"deadband's deadband go negative"),
+]:
+    add(
+        BOUNDS,
+        f"bounds-effect-{name}",
+        ["calibrate", "spec={case}/spec.yaml", "logs={ws}/ds", "out={case}/cal"],
+        rf"effects\[0\]\.bounds.*{match}",
+        setup=_spec(SPEC_YAML.replace("effects: none", f"effects: [{effect}]")),
+    )
+
+
 # Cases kept in modules of their own (one per owner) register through `add` as well.
 def _load_extra_cases() -> None:
     import importlib

@@ -40,6 +40,41 @@ def bench(
     return {"rc": res.returncode, "stderr": res.stderr[-4000:], "seconds": round(time.time() - t0, 2)}
 
 
+def session_processes(sid: int) -> list[str]:
+    """`pid state command` of every process in session `sid` (from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()  # state ppid pgrp session ...
+            if int(fields[3]) != sid:
+                continue
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")[:200]
+        except (OSError, IndexError, ValueError):
+            continue
+        out.append(f"{entry.name} {fields[0]} {cmd}")
+    return out
+
+
+def leftovers(out: Path, run_id: str, *args: str) -> dict[str, Any]:
+    """`bench run` in a session of its own; the processes still in that session the moment it has exited.
+
+    stderr goes to a file, not a pipe: waiting for a pipe's end would wait for every process holding it.
+    """
+    with open(out / f"{run_id}.stderr", "w") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "bench", "run", *args, f"out={out}", f"run_id={run_id}"],
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+        )
+        rc = proc.wait(timeout=300)
+    left = session_processes(proc.pid)
+    return {"rc": rc, "left": left, "stderr": (out / f"{run_id}.stderr").read_text()[-4000:]}
+
+
 def records(out: Path, run_id: str) -> list[dict[str, Any]]:
     path = out / run_id / "episodes.jsonl"
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
@@ -112,7 +147,7 @@ def basics(out: Path) -> dict[str, Any]:
         )
         facts["mismatch"] = mismatch(out, cluster.address)
         facts["no_gpu"] = bench(out, "nogpu", TOY, "actor_gpus=1", *ray)
-    facts["private"] = bench(out, "private", TOY, "episodes=1", "executor=ray", "ray_address=local", "actors=1")
+    facts["private"] = leftovers(out, "private", TOY, "episodes=1", "executor=ray", "ray_address=local", "actors=1")
     for run_id in ("ray", "local", "hang", "raise", "plug_code", "private"):
         facts[f"records_{run_id}"] = records(out, run_id)
         summary = out / run_id / "summary.json"

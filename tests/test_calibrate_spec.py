@@ -73,6 +73,24 @@ BAD = [
         {"params": [{"name": "m", "field": "body_mass", "elements": ["link9"], "bounds": [0, 1]}]},
         r"'link9' is not a body",
     ),
+    (
+        {"params": [{"name": "m", "field": "body_mass", "elements": ["link1"], "bounds": [-5, -1]}]},
+        r"'params\[0\].bounds': \[-5.0, -1.0\] lets body_mass go negative, which a mass cannot; valid: bounds "
+        r"within \[0, inf\)",
+    ),
+    (
+        {"params": [{"name": "d", "field": "dof_damping", "elements": ["j1"], "bounds": [-0.5, 2], "scale": True}]},
+        r"'params\[0\].bounds': \[-0.5, 2.0\] lets the factor on dof_damping go negative, which a damping cannot",
+    ),
+    (
+        {"effects": [{"name": "torque_saturation", "bounds": [0, 1.5]}]},
+        r"'effects\[0\].bounds': \[0.0, 1.5\] lets torque_saturation's clipped_share go above 1, which a share "
+        r"of commands cannot; valid: bounds within \[0, 1\]",
+    ),
+    (
+        {"effects": [{"name": "coulomb_friction", "bounds": [-1, 1]}]},
+        r"'effects\[0\].bounds': \[-1.0, 1.0\] lets coulomb_friction's friction go negative",
+    ),
     ({"effects": ["coulomb_fricton"]}, r"unknown effect 'coulomb_fricton'.*Did you mean 'coulomb_friction'"),
     ({"holdout": 2}, r"spec field 'holdout' must be a number in"),
     (
@@ -119,6 +137,10 @@ BAD = [
         "not-a-field",
         "bad-bounds",
         "unknown-body",
+        "negative-mass",
+        "negative-damping-factor",
+        "share-above-one",
+        "negative-friction",
         "unknown-effect",
         "holdout-range",
         "missing-ctrl",

@@ -77,6 +77,13 @@ def test_bad_camera_input_is_one_line_exit_2(capsys):
         assert main(["run", "suite=held_out_robots", "policy=scripted", "robots=[Panda]", "episodes=1", *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+    # a policy that reads no image: the drop would be +0 [0, 0], which reads as robustness
+    for policy in ("bc", "scripted"):
+        argv = ["run", f"policy={policy}", "robots=[Panda]", "episodes=1", "obs=state+rgb", "perturb.light=[0.3]"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert f"perturb.light changes only camera images, and policy '{policy}' reads none (it reads state)" in err
     assert main(["run", "suite=gym", "env_id=InvertedPendulum-v5", "episodes=1", "perturb.light=[0.5]"]) == 2
     err = capsys.readouterr().err.strip()
     assert "perturb.light: InvertedPendulum-v5/default/default" in err and "has no camera rig" in err
@@ -147,7 +154,7 @@ def test_video_of_first_n_episodes_and_report(tmp_path):
         api.config_from_argv(
             [
                 *LIFT,
-                "policy=scripted",
+                "policy=random",  # a policy that takes the images (a state-only one is refused a visual axis)
                 "episodes=2",
                 "horizon=6",
                 "video=1",

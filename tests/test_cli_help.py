@@ -48,6 +48,7 @@ def _table() -> dict[tuple[str, ...], list[str]]:
         ("perf",): _keys(PerfConfig),
         ("logs",): [],
         ("logs", "info"): [],
+        ("logs", "verify"): [],
         ("logs", "import"): _keys(ImportConfig, *FORMATS.values()),
         ("logs", "card"): _keys(CardConfig),
         ("logs", "rank"): _keys(RankConfig),
@@ -84,3 +85,16 @@ def test_help_lists_every_key_and_exits_0(argv, capsys):
     assert out.startswith("usage: bench " + argv[0]) and not err, err
     missing = [key for key in TABLE[argv] if not re.search(rf"^  {re.escape(key)}\b", out, re.M)]
     assert not missing, f"bench {' '.join(argv)} --help lacks the keys {missing}"
+
+
+def test_list_names_the_policy_bench_run_uses_by_default(capsys):
+    """`bench list` names each suite's default policy: the one `bench run suite=NAME` runs without policy=."""
+    from bench.protocols import registry
+
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "held_out_robots (v1, default policy: bc, reference policy: scripted)" in out
+    for name in registry.names(registry.SUITES):
+        cls = registry.suite_class(name)
+        used = cls.default_policy or cls.reference_policy  # as bench.execution.run_config.config_from_argv picks it
+        assert re.search(rf"^  {re.escape(name)} \(v\S+, default policy: {re.escape(used)}[,)]", out, re.M), name

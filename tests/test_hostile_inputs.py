@@ -1,7 +1,8 @@
 """The hostile-input corpus (tests/hostile_corpus.py, checked by tests/hostile.py) as tests: one per case.
 
 Every case must exit 2 with exactly one stderr line naming the field, print no traceback, and leave every
-file of the workspace as it was. The corpus runs once per session in a fresh interpreter (`python
+file of the workspace as it was (or, for a run that measured nothing, exit 3 with a last line saying so;
+for episodes shorter than k, exit 0: tests/hostile.py). The corpus runs once per session in a fresh interpreter (`python
 tests/hostile.py DIR`: each case runs in process there, under a time and address-space limit that would
 be unreliable inside pytest's own, larger process); each test then reads its case's verdict.
 Cases listed in KNOWN_FAILING are strict xfails with the reason they still fail: fixing one turns its

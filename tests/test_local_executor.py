@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +18,8 @@ from bench.execution import run_config
 from bench.execution.scheduling import JobQueue, given_up_message
 from bench.protocols.suite import Cell, Condition, expand_jobs
 from bench.records import comparable
+
+REPO = Path(__file__).resolve().parents[1]
 
 TOY = "tests.toy_suite:ToySuite"
 
@@ -103,3 +108,48 @@ def test_executor_keys_are_checked_before_anything_runs(tmp_path, argv, message)
 def test_executor_keys_may_change_on_resume():
     where_and_how = {"executor", "ray_address", "actors", "actor_cpus", "actor_gpus", "ray_env", "workers"}
     assert where_and_how <= run_config.RESUMABLE_KEYS
+
+
+def _session(sid: int) -> list[str]:
+    """`pid state command` of every process in session `sid` (from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()  # state ppid pgrp session ...
+            if int(fields[3]) == sid:
+                out.append(f"{entry.name} {fields[0]} {(entry / 'cmdline').read_bytes()[:120]!r}")
+        except (OSError, IndexError, ValueError):
+            continue
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="lists processes from /proc (Linux)")
+def test_a_run_with_workers_leaves_no_process_behind(tmp_path):
+    """The moment `bench run workers=2` has exited, nothing of it is left in its session: no child, and no
+    multiprocessing resource tracker (which spawned children start, and which outlived the run by a moment)."""
+    for i in range(3):
+        with open(tmp_path / "err", "w") as err:  # not a pipe: waiting for its end would wait for its holders
+            proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "bench",
+                    "run",
+                    "suite=tests.toy_suite:ToySuite",
+                    "episodes=4",
+                    "workers=2",
+                    "n_boot=200",
+                    f"out={tmp_path}",
+                    f"run_id=r{i}",
+                ],
+                cwd=REPO,
+                env={**os.environ, "PYTHONPATH": str(REPO)},
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                start_new_session=True,
+            )
+            assert proc.wait(timeout=300) == 0, (tmp_path / "err").read_text()[-2000:]
+        assert _session(proc.pid) == []
+        assert "12 episodes in" in (tmp_path / "err").read_text()

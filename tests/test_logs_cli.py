@@ -1,4 +1,4 @@
-"""`bench logs info|import` through the top-level dispatcher."""
+"""`bench logs info|verify|import` through the top-level dispatcher."""
 
 from __future__ import annotations
 
@@ -20,7 +20,14 @@ def _need(path: Path) -> Path:
 
 
 @pytest.mark.parametrize(
-    "argv", [["logs"], ["logs", "--help"], ["logs", "info", "--help"], ["logs", "import", "--help"]]
+    "argv",
+    [
+        ["logs"],
+        ["logs", "--help"],
+        ["logs", "info", "--help"],
+        ["logs", "verify", "--help"],
+        ["logs", "import", "--help"],
+    ],
 )
 def test_help(argv, capsys):
     assert main(argv) == 0
@@ -56,6 +63,85 @@ def test_info(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "episodes  2  (frames 6; length 3..3" in text and "fps       15" in text
     assert "observation.state" in text and "float32" in text and "[2]" in text and "reach" in text
+
+
+def _dataset(root: Path, video: bool = False) -> Path:
+    eps = [
+        {
+            "observation.state": np.random.default_rng(e).normal(size=(20, 2)),
+            "action": np.zeros((20, 1)),
+            **({"observation.images.cam": np.full((20, 16, 16, 3), 40 * e, np.uint8)} if video else {}),
+        }
+        for e in range(3)
+    ]
+    write_dataset(root, from_arrays(eps, fps=10, video=video))
+    return root
+
+
+def _edit(path: Path, fn) -> None:
+    data = bytearray(path.read_bytes())
+    path.write_bytes(bytes(fn(data)))
+
+
+DATA = "data/chunk-000/file-000.parquet"
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda d: d[: len(d) // 2], "not a readable parquet file (truncated?)"),  # truncated
+        (lambda d: d[:-200] + b"\0" * 200, "not a readable parquet file (truncated?)"),  # garbage over the footer
+        (lambda d: b"", "not a readable parquet file (truncated?)"),  # empty
+        (None, "file is missing"),
+    ],
+    ids=["truncated", "garbage-footer", "empty", "missing"],
+)
+def test_info_reads_every_data_files_footer(tmp_path, capsys, damage, message):
+    """`bench logs info` reads no frame, but a data file that is gone or not parquet is named (exit 2)."""
+    root = _dataset(tmp_path / "d")
+    assert main(["logs", "info", str(root)]) == 0
+    assert "files     1 data file(s) (60 rows), 0 video file(s): footers read" in capsys.readouterr().out
+    if damage is None:
+        (root / DATA).unlink()
+    else:
+        _edit(root / DATA, damage)
+    assert main(["logs", "info", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{root / DATA}: {message}" in err, err
+    assert main(["logs", "verify", str(root)]) == 2
+    assert f"{root / DATA}: {message}" in capsys.readouterr().err
+
+
+def test_verify_reads_every_frame_info_only_the_footers(tmp_path, capsys):
+    """Bytes spoiled inside a data page leave the footer intact: `info` passes, `verify` names the file."""
+    import pyarrow.parquet as pq
+
+    root = _dataset(tmp_path / "d")
+    assert main(["logs", "verify", str(root)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"{root}: ok: 3 episodes, 60 frames; 1 data file(s) and 0 video file(s) read in full")
+    page = pq.read_metadata(root / DATA).row_group(0).column(0).data_page_offset
+
+    def spoil(d: bytearray) -> bytearray:
+        d[page + 10 : page + 60] = b"\xff" * 50
+        return d
+
+    _edit(root / DATA, spoil)
+    assert main(["logs", "info", str(root)]) == 0  # footers only: this damage is not visible there
+    capsys.readouterr()
+    assert main(["logs", "verify", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(root / DATA) in err and "corrupt" in err, err
+
+
+def test_info_and_verify_check_video_files(tmp_path, capsys):
+    root = _dataset(tmp_path / "v", video=True)
+    assert main(["logs", "verify", str(root)]) == 0
+    assert "1 data file(s) and 1 video file(s) read in full" in capsys.readouterr().out
+    video = next((root / "videos").rglob("*.mp4"))
+    video.write_bytes(b"")
+    assert main(["logs", "info", str(root)]) == 2
+    assert f"{video}: video file is empty" in capsys.readouterr().err
 
 
 def test_import_csv(tmp_path, capsys):
@@ -99,7 +185,10 @@ def test_import_rlds(tmp_path):
         (["logs", "import", "x.bin", "out=o"], "cannot tell the format"),
         (["logs", "import", "x.csv", "out=o", "format=hdf5"], "format is 'hdf5'; valid: csv, mat, rlds"),
         (["logs", "info", "/nonexistent/dataset"], "dataset folder does not exist"),
-        (["logs", "inf", "x"], "unknown logs subcommand 'inf'; valid: info, import, card, rank. Did you mean 'info'"),
+        (
+            ["logs", "inf", "x"],
+            "unknown logs subcommand 'inf'; valid: info, verify, import, card, rank. Did you mean 'info'",
+        ),
     ],
 )
 def test_errors_exit_2(argv, message, capsys):

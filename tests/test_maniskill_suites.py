@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -127,14 +128,66 @@ def test_bad_options_are_one_line():
         suite("maniskill_held_out_robots", cameras=["base_camera"])
     with pytest.raises(ConfigError, match=r"reset='hard': valid: rebuild, soft"):
         suite("maniskill_held_out_robots", reset="hard")
-    s = suite("maniskill_held_out_robots", obs="rgb", cameras=["hand_camera"])
-    cell = next(c for c in s.all_cells() if c.robot == "fetch")
+    from suites.maniskill_common import cell_cameras  # the declared spec's check (building the suite needs Vulkan)
+
     with pytest.raises(
         ConfigError,
         match=r"cameras: 'hand_camera' is not a camera of a table-top task with fetch; "
         r"valid: base_camera, fetch_head, fetch_hand",
     ):
-        s.obs_spec(cell)
+        cell_cameras("fetch", "rgb", ["hand_camera"])
+
+
+@needs_ms
+def test_cameras_without_a_vulkan_device_are_refused_when_the_run_is_planned(tmp_path):
+    """obs=rgb on a machine without Vulkan: one line naming the fix, exit 2, nothing written, no episode."""
+    from bench.sims.sapien_novulkan import render_device_available
+
+    if render_device_available():
+        pytest.skip("this machine has a Vulkan device: ManiSkill renders cameras here")
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bench",
+            "run",
+            "suite=maniskill_tasks",
+            "tasks=[PickCube]",
+            "obs=rgb",
+            "policy=random",
+            "episodes=2",
+            "workers=1",
+            f"out={tmp_path}",
+            "run_id=rgb",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert re.search(
+        r"^error: obs=rgb: ManiSkill cameras need a Vulkan device .*fetch_lavapipe\.sh.*obs=state", lines[0]
+    )
+    assert not (tmp_path / "rgb").exists()
+
+
+@needs_ms
+def test_the_gpu_backend_names_the_physx_library_it_lacks():
+    """sim_backend=physx_cuda needs a CUDA device and SAPIEN's PhysX GPU library (downloaded at first use)."""
+    import torch
+
+    from bench.sims.maniskill import physx_gpu_library
+
+    missing = physx_gpu_library()
+    if missing is not None:
+        assert re.search(r"\.sapien/physx/[^/]+/libPhysXGpu_64\.so$", missing)
+    want = "no CUDA device" if not torch.cuda.is_available() else "PhysX GPU library .* is missing"
+    if torch.cuda.is_available() and missing is None:
+        pytest.skip("this machine has CUDA and the PhysX GPU library: physx_cuda can run")
+    with pytest.raises(ConfigError, match=rf"sim_backend=physx_cuda: .*{want}.*use sim_backend=physx_cpu"):
+        suite("maniskill_tasks", sim_backend="physx_cuda")
 
 
 @needs_ms

@@ -78,3 +78,36 @@ def test_file_gone_or_changed_since_the_run_is_noted(tmp_path: Path):
     assert changed["sha256"] == hashlib.sha256(b"new bytes").hexdigest() and "changed since" in changed["note"]
     trusted = checkpoint_provenance(path, "c" * 64, hash_file=False)  # the caller has just hashed it
     assert trusted["sha256"] == "c" * 64 and trusted["note"] is None
+
+
+def test_paths_inside_the_checkout_are_recorded_relative_to_it(tmp_path, monkeypatch):
+    from bench.core.provenance import ROOT, local, portable, portable_config
+
+    packaged = ROOT / "baselines" / "checkpoints" / "bc_lift_seen40.safetensors"
+    assert portable(str(packaged)) == "baselines/checkpoints/bc_lift_seen40.safetensors"
+    monkeypatch.chdir(tmp_path)  # wherever a command runs, a recorded path inside the checkout is found
+    assert local("baselines/checkpoints/bc_lift_seen40.safetensors") == packaged
+    outside = tmp_path / "policy.safetensors"
+    assert portable(str(outside)) == str(outside) and portable("runs/x") == "runs/x" and portable(None) is None
+    cfg = portable_config({"checkpoint": str(packaged), "out": "runs", "episodes": 3, "env_id": "/not/a/path/key"})
+    assert cfg == {
+        "checkpoint": "baselines/checkpoints/bc_lift_seen40.safetensors",
+        "out": "runs",
+        "episodes": 3,
+        "env_id": "/not/a/path/key",
+    }
+
+
+def test_a_run_of_the_packaged_policy_records_its_checkpoint_relative_to_the_checkout(tmp_path):
+    from bench import api
+
+    p = api.plan(api.RunConfig(policy="bc", robots=["Panda"], episodes=1, out=str(tmp_path), run_id="r"))
+    meta, _ = api.start(p, 1)
+    stored = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert stored == meta
+    assert (
+        stored["policy"]["checkpoint"]
+        == stored["config"]["checkpoint"]
+        == ("baselines/checkpoints/bc_lift_seen40.safetensors")
+    )
+    api.start(p, 1)  # resuming compares the stored (portable) settings with the plan's: the same run

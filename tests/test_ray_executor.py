@@ -141,6 +141,8 @@ def test_gpu_requests_are_checked_against_the_cluster(basics):
 def test_a_private_cluster_for_one_run(basics):
     assert basics["private"]["rc"] == 0, basics["private"]["stderr"]
     assert len(basics["records_private"]) == 3 and basics["summary_private"]["provenance"]["executor"]["nodes"] == 1
+    # the moment the run has exited, no Ray daemon or worker of its private cluster is left in its session
+    assert basics["private"]["left"] == [], basics["private"]["left"]
 
 
 def test_executor_ray_without_ray_installed_gives_the_install_command(tmp_path):

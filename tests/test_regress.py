@@ -329,3 +329,40 @@ def test_plan_prints_the_budget_for_a_stated_power(tmp_path: Path):
     _one_line_error(_bench("regress", "plan=true", "drop=0.04", cwd=tmp_path), "drop=0.04: must exceed margin=0.05")
     _one_line_error(_bench("regress", "plan=true", "power=1.5", cwd=tmp_path), "power=1.5: must be in (0, 1)")
     assert list(tmp_path.iterdir()) == []  # plan writes nothing
+
+
+def test_a_side_that_measured_nothing_fails_the_gate_with_exit_3(tmp_path: Path):
+    """A baseline whose robot-c episodes all errored passes no candidate: the gate exits 3, not 0."""
+    base = _bench(
+        "run",
+        "suite=tests.toy_suite:ToySuite",
+        "fault=raise",
+        "episodes=4",
+        "workers=1",
+        "n_boot=200",
+        "run_id=base",
+        f"out={tmp_path}",
+        cwd=REPO,
+    )
+    assert base.returncode == 3, base.stderr[-2000:]  # the baseline run itself says so
+    assert "nothing measured: run base" in base.stderr and "1 of 3 cells completed no episode (reach/c/line)" in (
+        base.stderr
+    )
+    res = _bench(
+        "regress",
+        "candidate=scripted",
+        f"baseline={tmp_path / 'base'}",
+        "workers=1",
+        f"runs={tmp_path}",
+        "run_id=g",
+        f"out={tmp_path / 'v.json'}",
+        cwd=REPO,
+    )
+    assert res.returncode == 3, res.stderr[-2000:]
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.startswith("nothing measured: regress g: the baseline completed no episode in 1 of 3 cells")
+    assert "RuntimeError: toy env exploded" in last
+    v = json.loads((tmp_path / "v.json").read_text())
+    assert v["verdict"] == "nothing_measured" and v["exit_code"] == 3 and v["note"].startswith("nothing measured:")
+    failures = ET.parse(tmp_path / "v.junit.xml").getroot().findall(".//testcase[@name='verdict']/failure")
+    assert failures and failures[0].get("message") == "NOTHING MEASURED (exit 3)"

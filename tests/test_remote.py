@@ -182,7 +182,8 @@ def test_obs_map_and_task_reach_the_server(tmp_path):
     finally:
         server.close()
     assert all(r.error is None for r in res.records) and any(r.success_once for r in res.records)
-    first = server.requests[0]
+    warm, first = server.requests[0], server.requests[1]  # the warm-up inference: zeros of the same entries
+    assert sorted(warm) == sorted(first) and not warm["observation/state"].any()
     assert sorted(first) == ["goal_only", "observation/state", "prompt"] and first["prompt"] == "reach"
     assert first["goal_only"].tolist() == [0.5] and first["observation/state"].dtype == np.float32
 
@@ -311,7 +312,9 @@ def test_bad_answers_fail_the_episode_with_the_reason(tmp_path, answer, reason):
     finally:
         server.close()
     assert len(res.records) == 6 and all(r.error and reason in r.error for r in res.records), res.records[0].error
-    assert res.records[0].error.startswith("RemoteError: ")
+    # a server that closes instead of answering fails the warm-up, when the policy is made
+    prefix = "building env/policy failed: RemoteError: " if reason == "closed the connection" else "RemoteError: "
+    assert res.records[0].error.startswith(prefix)
     assert res.summary["counts"]["errors"] == 6
 
 
@@ -359,7 +362,7 @@ def test_episodes_fail_while_the_server_is_down_and_succeed_when_it_is_back(tmp_
 def test_nothing_listening_is_one_line_naming_host_port(tmp_path, capsys):
     port = free_port()
     t0 = time.monotonic()
-    rc = main(["run", f"suite={TOY}", "policy=remote", f"port={port}", "timeout_s=0.5", f"out={tmp_path}", "run_id=x"])
+    rc = main(["run", f"suite={TOY}", "policy=remote", f"port={port}", "warmup_s=0.5", f"out={tmp_path}", "run_id=x"])
     err = capsys.readouterr().err
     assert rc == 2 and time.monotonic() - t0 < 5
     assert err.count("\n") == 1 and f"no policy server at 127.0.0.1:{port}: connection refused" in err
@@ -531,8 +534,11 @@ def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_pat
         )
     finally:
         server.close()
-    assert all(r.error is None for r in res.records) and len(server.requests) == 1  # 3 steps < 5 per chunk
-    req = server.requests[0]
+    # the warm-up inference (zeros of the same entries), then one request: 3 steps < 5 rows per chunk
+    assert all(r.error is None for r in res.records) and len(server.requests) == 2
+    warm, req = server.requests
+    assert {k: np.shape(v) for k, v in warm.items()} == {k: np.shape(v) for k, v in req.items()}
+    assert not warm["observation/image"].any() and warm["prompt"] == "Lift"
     assert req["observation/image"].dtype == np.uint8 and req["observation/image"].shape == (32, 32, 3)
     assert np.array_equal(req["observation/image"], first["rgb.agentview"])
     assert np.array_equal(req["observation/wrist_image"], first["rgb.robot0_eye_in_hand"])

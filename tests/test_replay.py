@@ -124,6 +124,29 @@ def test_k_of_one_is_the_one_step_error(cases, nominal_spec):
     assert doc["horizons"]["k_step"]["per_joint"] == doc["horizons"]["one_step"]["per_joint"]
 
 
+def test_episodes_shorter_than_k_replay_to_their_end_and_plot(cases, nominal_spec, tmp_path):
+    """k longer than every episode (200 frames): one k-step horizon per episode, to its end: the free run.
+
+    Each horizon stops at its episode's last frame (it used to run on into the next episode's frames,
+    and the plot failed on the length mismatch)."""
+    out = tmp_path / "out"
+    assert main(["replay", f"logs={cases['None']}", f"spec={nominal_spec}", "k=1000", f"out={out}"]) == 0
+    doc = _strict_json(out / "replay.json")
+    assert doc["horizons"]["k_step"]["per_joint"] == doc["horizons"]["free_run"]["per_joint"]
+    assert doc["horizons"]["k_step"]["frames"] == doc["horizons"]["free_run"]["frames"] == doc["frames"] - 2
+    assert any("2 of 2 episode(s) are shorter than k = 1000 frames" in n for n in doc["notes"])
+    assert (out / "replay.png").stat().st_size > 0
+    # one episode shorter than k, one longer: the short one's horizon ends with it, the long one is covered
+    a, _ = simulate_arm(None, episodes=1, duration=0.1, seed=1)  # 10 frames
+    b, _ = simulate_arm(None, episodes=1, duration=0.5, seed=2)  # 50 frames
+    write_dataset(tmp_path / "mixed", from_arrays([a[0], b[0]], fps=100))
+    rep = run(ReplayConfig(logs=str(tmp_path / "mixed"), spec=str(nominal_spec), k=20))
+    k = rep.errors["k_step"]
+    assert k.mask[0].sum() == 9 and k.mask[1:].all()  # the 10-frame episode: 9 frames ahead of its start
+    assert rep.doc["horizons"]["k_step"]["frames"] == 9 + 3 * 20  # 50 frames: horizons from 0, 20 and 29
+    assert np.isfinite(rep.doc["horizons"]["k_step"]["rmse"]) and rep.doc["horizons"]["k_step"]["rmse"] < 1e-2
+
+
 def test_a_joint_that_never_moves_has_no_nrmse(tmp_path, nominal_spec):
     eps, _ = simulate_arm(None, episodes=1, duration=0.5, seed=0)
     state = eps[0]["observation.state"].copy()

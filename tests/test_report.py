@@ -131,3 +131,21 @@ def test_bad_calibration_exits_2(tmp_path: Path, capsys):
     )
     assert "errors must hold" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_returns_are_shown_as_returns_and_stderr_stays_clean(tmp_path: Path, capsys):
+    """The committed leaderboard holds HalfCheetah scored by return (-274.6): never a percentage; no warning."""
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "lb"
+    assert cli.main(["report", str(repo / "results" / "leaderboard.json"), f"out={out}"]) == 0
+    assert capsys.readouterr().err == ""  # no library warning (matplotlib layout) reaches stderr
+    page = (out / "index.html").read_text()
+    gym = page[page.index("<h2>gym v1") :].split("</table>")[0]
+    assert "seen -274.6 [-325.5, -233.9]" in gym and "%" not in gym.split("<table>")[1]
+    assert "-27460%" not in page
+    assert Image.open(out / "leaderboard.png").size[0] > 1000
+    run = tmp_path / "run"
+    assert cli.main(["report", str(repo / "results" / "runs" / "gym-HalfCheetah-random-s0"), f"out={run}"]) == 0
+    assert capsys.readouterr().err == ""
+    cells = (run / "index.html").read_text()
+    assert "<h2>Return per cell</h2>" in cells and "<th>mean return</th>" in cells and "-274.6 [" in cells

@@ -52,3 +52,36 @@ def test_leaderboard_is_the_merge_of_the_committed_runs(monkeypatch):
     assert json.loads(json.dumps(merge(inputs))) == board, (
         "results/leaderboard.json is stale: bench leaderboard merge results/runs/* out=results/leaderboard.json overwrite=true"
     )
+
+
+# Checkpoint specs that mirror the spec inside their .safetensors header: their training metadata names the
+# scratch folder the demonstrations were read from, and rewriting the header would change the sha256 that every
+# committed record carries (the records must stay byte-identical).
+MIRRORED_SPECS = {"coverage/bc/policy.json"}
+
+
+def _absolute_paths(node, where: str = ""):
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _absolute_paths(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _absolute_paths(v, f"{where}[{i}]")
+    elif isinstance(node, str) and (node.startswith(("/", "~")) or node[1:3] in (":\\", ":/")):
+        yield f"{where}={node}"
+
+
+def test_committed_results_hold_no_absolute_path():
+    """Results and their provenance name files relative to the checkout, never a folder of the machine
+    that made them (bench writes paths inside the checkout relative to it: bench.core.provenance.portable)."""
+    found = []
+    for path in sorted(RESULTS.rglob("*.json")) + sorted(RESULTS.rglob("*.jsonl")):
+        rel = path.relative_to(RESULTS).as_posix()
+        if rel in MIRRORED_SPECS:
+            continue
+        text = path.read_text()
+        docs = (
+            [json.loads(text)] if path.suffix == ".json" else [json.loads(ln) for ln in text.splitlines() if ln.strip()]
+        )
+        found += [f"{rel}: {hit}" for doc in docs for hit in _absolute_paths(doc)]
+    assert not found, found[:10]

@@ -88,7 +88,7 @@ def test_resume_after_kill_9(tmp_path):
 
 
 def test_a_hanging_env_times_out_and_the_run_goes_on(tmp_path):
-    assert run(tmp_path, "t", "fault=hang", "timeout=0.3", "episodes=2") == 0
+    assert run(tmp_path, "t", "fault=hang", "timeout=0.3", "episodes=2") == 3  # cell c measured nothing
     recs = records(tmp_path, "t")
     hung = [r for r in recs if r.robot == "c"]
     assert len(hung) == 2 and all(r.error.startswith("timeout after 0.3 s at step 2") for r in hung)
@@ -103,8 +103,11 @@ def test_a_hanging_env_times_out_and_the_run_goes_on(tmp_path):
         ("nan_obs", "non-finite observation 'state' at step 3"),
     ],
 )
-def test_env_faults_are_recorded_and_the_run_goes_on(tmp_path, fault, message):
-    assert run(tmp_path, "f", f"fault={fault}") == 0
+def test_env_faults_are_recorded_and_the_run_goes_on(tmp_path, fault, message, capsys):
+    assert run(tmp_path, "f", f"fault={fault}") == 3  # every episode of cell c failed: it measured nothing
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith(f"nothing measured: run f ({tmp_path / 'f'}): 1 of 3 cells completed no episode ")
+    assert f"(reach/c/line) while the others did; error: {message}" in last
     recs = records(tmp_path, "f")
     bad = [r for r in recs if r.robot == "c"]
     assert len(bad) == 4 and all(r.error and r.error.startswith(message) for r in bad), bad[0].error
@@ -116,7 +119,7 @@ def test_env_faults_are_recorded_and_the_run_goes_on(tmp_path, fault, message):
 
 
 def test_non_finite_action_is_recorded(tmp_path):
-    assert run(tmp_path, "n", "policy=tests.toy_suite:nan_policy", "episodes=1") == 0
+    assert run(tmp_path, "n", "policy=tests.toy_suite:nan_policy", "episodes=1") == 3  # no episode completed
     assert all(r.error == "policy returned a non-finite action at step 1" for r in records(tmp_path, "n"))
 
 
@@ -182,8 +185,42 @@ def test_progress_bar_counts_successes_or_shows_the_mean_return(tmp_path, capsys
     """The bar shows what the run is scored by: successes, or the mean return of completed episodes."""
     monkeypatch.setenv("COLUMNS", "200")  # a captured stream is not a terminal: rich would crop the bar at 80
     assert run(tmp_path, "s", "episodes=1") == 0
-    assert f"successes {sum(r.success_once for r in records(tmp_path, 's'))} " in capsys.readouterr().err
+    assert f"successes {sum(r.success_once for r in records(tmp_path, 's'))}," in capsys.readouterr().err
     assert run(tmp_path, "r", "episodes=1", "metric=return") == 0
     returns = [r.return_ for r in records(tmp_path, "r")]
     err = capsys.readouterr().err
     assert f"mean return {sum(returns) / len(returns):.2f}" in err and "successes" not in err
+
+
+def test_a_partly_failed_run_counts_its_errors_per_cell_in_its_last_line(tmp_path, capsys):
+    """Some episodes of a cell errored, every cell has a completed one: exit 0, the last line counts them."""
+    assert run(tmp_path, "p", "episodes=2") == 0
+    path = tmp_path / "p" / "episodes.jsonl"
+    recs = [json.loads(line) for line in path.read_text().splitlines()]
+    for r in recs:
+        if r["robot"] in ("a", "b") and r["episode"] == 1:
+            r.update(error="RuntimeError: lost", success_once=False, success_at_end=False)
+    path.write_text("".join(json.dumps(r) + "\n" for r in recs))
+    capsys.readouterr()
+    assert main(["score", str(tmp_path / "p")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1] == (
+        "2 of 6 episodes errored or timed out (reach/a/line 1 of 2, reach/b/line 1 of 2); see 'error' in episodes.jsonl"
+    )
+    path.write_text("")  # no record at all
+    assert main(["score", str(tmp_path / "p")]) == 3
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"nothing measured: {tmp_path / 'p'}: episodes.jsonl holds no episode record"
+    )
+
+
+def test_a_log_that_is_not_a_terminal_gets_a_progress_line_while_nothing_finishes(tmp_path, capsys, monkeypatch):
+    """CI logs: a plain progress line at least every PERIOD_S seconds (here 0.2 s), also between episodes."""
+    from bench.execution import progress
+
+    monkeypatch.setattr(progress, "PERIOD_S", 0.2)
+    assert run(tmp_path, "slow", "robots=[a]", "episodes=2", "horizon=30", "step_delay=0.05") == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if f"] {TOY[6:]}: " in ln]
+    assert len(lines) >= 10, lines  # 2 episodes x 30 steps x 50 ms = 3 s
+    assert any(": 0/2 episodes, successes 0, errors 0, elapsed " in ln for ln in lines)
+    assert lines[-1].endswith("eta 0:00:00") and ": 2/2 episodes" in lines[-1]

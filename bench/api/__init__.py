@@ -197,6 +197,8 @@ def plan(cfg: RunConfig) -> Plan:
     axes.check_horizon(conditions, horizon)
     check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
+        axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_ref)
     if cfg.video:
         check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
@@ -243,10 +245,10 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
         suite_spec=SuiteSpec.of(p.suite.describe(), packages).to_json(),  # what was run, comparable across runs
         policy={
             "name": cfg.policy,
-            "checkpoint": p.identity.checkpoint,
+            "checkpoint": provenance.portable(p.identity.checkpoint),
             "checkpoint_sha256": p.identity.checkpoint_sha256,
         },
-        config=p.config_dict(),
+        config=provenance.portable_config(p.config_dict()),
         expected_episodes=len(p.jobs),
         provenance={
             "bench_version": __version__,
@@ -260,7 +262,12 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
             "started_at": _now(),
             "finished_at": None,
             **(
-                {"calibration": {k: p.calibration[k] for k in ("path", "sha256", "robot", "model_hash")}}
+                {
+                    "calibration": {
+                        k: provenance.portable(p.calibration[k]) if k == "path" else p.calibration[k]
+                        for k in ("path", "sha256", "robot", "model_hash")
+                    }
+                }
                 if p.calibration
                 else {}
             ),
@@ -270,10 +277,11 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     if meta_path.exists():
         old = load_json(meta_path)
         new_cfg = meta["config"]
+        old_cfg = provenance.portable_config(old.get("config", {}))  # a run recorded before paths were portable
         diffs = [
             k
-            for k in sorted(set(old.get("config", {})) | set(new_cfg))
-            if k not in RESUMABLE_KEYS and old.get("config", {}).get(k) != new_cfg.get(k)
+            for k in sorted(set(old_cfg) | set(new_cfg))
+            if k not in RESUMABLE_KEYS and old_cfg.get(k) != new_cfg.get(k)
         ]
         if diffs:
             k = diffs[0]
@@ -359,6 +367,8 @@ def run(
 
             if progress and "notes" in caps:
                 cast(Any, executor).note = bar.note
+            if progress and "status" in caps:
+                cast(Any, executor).status = bar.waiting  # what a worker waits for (a policy server warming up)
             executor.execute(todo, p.worker_spec(ctx), write)
     finally:
         executor.close()

@@ -17,7 +17,12 @@ from typing import Any
 from bench.core.io import write_atomic, write_text_atomic
 from bench.core.schema import validate
 
-VERDICT_WORDS = {"regression": "REGRESSION", "no_regression": "NO REGRESSION", "inconclusive": "INCONCLUSIVE"}
+VERDICT_WORDS = {
+    "regression": "REGRESSION",
+    "no_regression": "NO REGRESSION",
+    "inconclusive": "INCONCLUSIVE",
+    "nothing_measured": "NOTHING MEASURED",
+}
 
 
 def output_paths(verdict: Path) -> dict[str, Path]:
@@ -143,8 +148,15 @@ def render(doc: dict[str, Any], console: Any = None) -> None:
             look["decision"],
         )
     console.print(lk)
-    colour = {"regression": "bold red", "no_regression": "bold green", "inconclusive": "bold yellow"}[doc["verdict"]]
+    colour = {
+        "regression": "bold red",
+        "no_regression": "bold green",
+        "inconclusive": "bold yellow",
+        "nothing_measured": "bold red",
+    }[doc["verdict"]]
     extra = f": {regressed_line(doc)}" if doc["regressed"] else ""
+    if doc["verdict"] == "nothing_measured":
+        extra = f": {doc['note']}"
     if doc["verdict"] == "inconclusive":
         extra = " — the budget could not certify either way; " + (
             "strict=true: failing" if doc["strict"] else "passing (strict=true would fail); raise episodes="
@@ -238,7 +250,7 @@ def junit_xml(doc: dict[str, Any]) -> str:
             case(agg, t["id"], out=summary)
     verdict = suite("verdict")
     headline = f"{VERDICT_WORDS[doc['verdict']]} (exit {doc['exit_code']})"
-    case(verdict, "verdict", failure=headline if doc["exit_code"] == 1 else None, out=_detail(doc))
+    case(verdict, "verdict", failure=headline if doc["exit_code"] != 0 else None, out=_detail(doc))
     for key in ("tests", "failures", "skipped"):
         root.set(key, str(sum(int(s.get(key, "0")) for s in root)))
     ET.indent(root)
@@ -277,7 +289,7 @@ def _size(n: int | None) -> str:
 
 def markdown(doc: dict[str, Any]) -> str:
     """A Markdown summary of a verdict for a CI job's step summary."""
-    mark = {"regression": "❌", "no_regression": "✅", "inconclusive": "⚠️"}[doc["verdict"]]
+    mark = {"regression": "❌", "no_regression": "✅", "inconclusive": "⚠️", "nothing_measured": "❌"}[doc["verdict"]]
     out = [f"### {mark} Transfer gate: {VERDICT_WORDS[doc['verdict']].lower()} (exit {doc['exit_code']})", ""]
     cand, base = doc["candidate"], doc["baseline"]
     out.append(

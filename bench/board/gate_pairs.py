@@ -5,7 +5,7 @@ statistics of `bench.board.gate`.
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Any
 
 from bench.board import gate
@@ -62,3 +62,29 @@ def cell_counts(cells: dict[tuple, list[tuple]], metric: str) -> dict[gate.CellK
         k: gate.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
         for k, prs in cells.items()
     }
+
+
+def unmeasured(sides: dict[str, list], planned: list[tuple], max_episode: int) -> tuple[str | None, bool]:
+    """(why the comparison measured nothing, whether a side completed no episode at all), or (None, False).
+
+    A side that completed no episode of a planned cell (episodes below `max_episode`) leaves that
+    cell's comparison empty: its failures would decide the verdict (a baseline that could not run
+    passes any candidate). The line names the side, the cells and the most frequent error there.
+    """
+    for role, records in sides.items():
+        recs = [r for r in dedupe(records) if r.episode < max_episode]
+        done = {(r.task, r.robot, r.env, r.condition, r.split) for r in recs if r.error is None}
+        empty = [k for k in planned if k not in done]
+        if not empty:
+            continue
+        names = [f"{k[0]}/{k[1]}/{k[2]}" + ("" if k[3] == "nominal" else f" {k[3]}") for k in empty]
+        listed = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+        where = "in any cell" if len(empty) == len(planned) else f"in {len(empty)} of {len(planned)} cells ({listed})"
+        errors = Counter(
+            " ".join(str(r.error).split())
+            for r in recs
+            if r.error is not None and (r.task, r.robot, r.env, r.condition, r.split) in set(empty)
+        )
+        why = f"; error: {errors.most_common(1)[0][0][:300]}" if errors else ""
+        return f"the {role} completed no episode {where}{why}", len(empty) == len(planned)
+    return None, False

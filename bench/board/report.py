@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.board.report_figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
-from bench.board.report_html import CSS, _e, _img, _pct, _signed, _table
+from bench.board.report_html import CSS, _e, _img, _pct, _return, _signed, _table
 from bench.board.report_remote import latency_section
 from bench.core.errors import DataError
 from bench.core.io import first_nonfinite
@@ -150,10 +150,11 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     videos = _videos(records, run_dir, tmp)
     parts = []
     if fig_cells(summary, tmp / "cells.png"):
+        what = "mean return with bootstrap intervals" if metric == "return" else f"{_e(metric)} with Wilson intervals"
         parts.append(
-            "<h2>Success per cell</h2>"
-            + _img("cells.png", "success per cell")
-            + f"<p class='note'>Nominal cells; bars are {_e(metric)} with Wilson intervals, "
+            f"<h2>{'Return' if metric == 'return' else 'Success'} per cell</h2>"
+            + _img("cells.png", "score per cell")
+            + f"<p class='note'>Nominal cells; bars are {what}, "
             "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>"
         )
     if fig_splits_gaps(summary, tmp / "gaps.png"):
@@ -196,6 +197,7 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
     if section:
         parts.append(section)
+    by_return = metric == "return"
     rows = [
         [
             _e(c["task"]),
@@ -204,6 +206,7 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
             f"<span class='{c['split']}'>{_e(c['split'])}</span>",
             _e(c["condition"]),
             str(c["n"]),
+            *([_return(c.get("return"))] if by_return else []),
             _pct(c["success_once"]),
             _pct(c["success_at_end"]),
             str(c["errors"] or ""),
@@ -214,10 +217,11 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     parts.append(
         "<h2>All cells</h2>"
         + _table(
-            ["task", "robot", "env", "split", "condition", "n", "success once", "success at end", "errors"]
+            ["task", "robot", "env", "split", "condition", "n", *(["mean return"] if by_return else [])]
+            + ["success once", "success at end", "errors"]
             + (["episode videos"] if videos else []),
             rows,
-            {5, 8},
+            {5, 6, 9} if by_return else {5, 8},
         )
     )
     return parts
@@ -232,8 +236,10 @@ def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
         groups.setdefault(e["group"], []).append(e)
     for g, es in groups.items():
         rows = []
+        by_return = all(e["metric"] == "return" for e in es)
         for e in es:
             m = e["metric"]
+            value = _return if m == "return" else _pct  # a return is in the env's units, not a percentage
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
             sha = e["policy"].get("checkpoint_sha256")
             rows.append(
@@ -241,16 +247,17 @@ def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
                     str(e["rank"] or "–"),
                     _e(e["policy"]["name"]),
                     _e(sha[:12]) if sha else "–",
-                    f"{_e(e['score']['split'] or '')} {_pct(e['score'])}",
-                    _pct(e["splits"].get("seen", {}).get(m, {}).get("mean")),
-                    _pct(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
+                    f"{_e(e['score']['split'] or '')} {value(e['score'])}",
+                    value(e["splits"].get("seen", {}).get(m, {}).get("mean")),
+                    value(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
                     _signed(gap),
                     str(e["counts"]["episodes"]),
                     _e(e["run_id"]),
                 ]
             )
+        what = "mean return (the env's units)" if by_return else "success"
         parts.append(
-            f"<h2>{_e(g)}</h2><p class='note'>Ranked by the lower bound of the score.</p>"
+            f"<h2>{_e(g)}</h2><p class='note'>Scores are {what}; ranked by the lower bound of the score.</p>"
             + _table(
                 ["#", "policy", "checkpoint", "score", "seen", "unseen", "gap seen−unseen", "episodes", "run"],
                 rows,
@@ -288,7 +295,9 @@ def calibration_section(cal: dict, tmp: Path) -> str:
 
 
 def verdict_section(v: dict) -> str:
-    cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note"}[v["verdict"]]
+    cls = {"regression": "bad", "no_regression": "good", "inconclusive": "note", "nothing_measured": "bad"}[
+        v["verdict"]
+    ]
     rows = [
         [
             _e(c["task"]),

@@ -39,10 +39,16 @@ def _err(est: dict | None) -> tuple[float, float, float] | None:
     return v, max(v - lo, 0.0), max(hi - v, 0.0)
 
 
+def _score(c: dict, metric: str) -> dict | None:
+    """A cell's headline estimate: its success rate, or for a run scored by return its mean return."""
+    return c.get("return") if metric == "return" else c.get(metric)
+
+
 def fig_cells(summary: dict, path: Path) -> bool:
-    """Success per task, robot/env with Wilson intervals; seen then unseen, coloured by split."""
+    """Success (or, for a run scored by return, mean return) per task, robot/env with intervals; seen then unseen."""
     plt = _plt()
     metric = summary["metric"]
+    by_return = metric == "return"
     other = "success_at_end" if metric == "success_once" else "success_once"
     cells = [c for c in summary["cells"] if c["condition"] == "nominal"]
     if not cells:
@@ -52,21 +58,35 @@ def fig_cells(summary: dict, path: Path) -> bool:
     fig, axes = plt.subplots(
         len(tasks),
         1,
-        figsize=(max(6.0, 0.75 * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2), 2.8 * len(tasks)),
+        figsize=(
+            max(6.0, (1.1 if envs else 0.75) * max(len([c for c in cells if c["task"] == t]) for t in tasks) + 2),
+            2.8 * len(tasks),
+        ),
         squeeze=False,
     )
+    conf = int(summary["confidence"] * 100)
     for ax, task in zip(axes[:, 0], tasks):
         rows = sorted(
             (c for c in cells if c["task"] == task), key=lambda c: (c["split"] != "seen", c["robot"], c["env"])
         )
         xs = range(len(rows))
         for x, c in zip(xs, rows):
-            e = _err(c[metric])
+            e = _err(_score(c, metric))
             if e:
                 ax.bar(x, e[0], color=COLOURS[c["split"]], alpha=0.85, width=0.65)
                 ax.errorbar(x, e[0], yerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
-                ax.text(x, e[0] + e[2] + 0.02, f"{e[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
-            o = _err(c[other])
+                label = f"{e[0]:.4g}" if by_return else f"{e[0] * 100:.0f}%"
+                top = e[0] + e[2] if e[0] >= 0 else e[0] - e[1]
+                ax.annotate(
+                    label,
+                    (x, top),
+                    xytext=(0, 2 if e[0] >= 0 else -2),
+                    textcoords="offset points",
+                    ha="center",
+                    va="bottom" if e[0] >= 0 else "top",
+                    fontsize=7,
+                )
+            o = None if by_return else _err(c[other])
             if o:
                 ax.plot(x, o[0], marker="_", ms=16, mew=2, color="black", alpha=0.6)
         ax.set_xticks(list(xs))
@@ -74,16 +94,19 @@ def fig_cells(summary: dict, path: Path) -> bool:
         n_seen = sum(c["split"] == "seen" for c in rows)
         if 0 < n_seen < len(rows):
             ax.axvline(n_seen - 0.5, color="grey", ls=":", lw=1)
-        ax.set_ylim(0, 1.15)
-        ax.set_ylabel(f"{metric}")
-        ax.set_title(
-            f"{task}: success per cell ({int(summary['confidence'] * 100)}% Wilson); bar = {metric}, tick = {other}",
-            fontsize=9,
-            loc="left",
-        )
+        if by_return:
+            ax.axhline(0, color="grey", lw=0.8)
+            ax.margins(y=0.15)
+            ax.set_ylabel("mean return")
+            title = f"{task}: mean return per cell ({conf}% bootstrap)"
+        else:
+            ax.set_ylim(0, 1.15)
+            ax.set_ylabel(f"{metric}")
+            title = f"{task}: success per cell ({conf}% Wilson); bar = {metric}, tick = {other}"
+        ax.set_title(title, fontsize=9, loc="left")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
-    fig.legend(handles, ["seen", "unseen"], loc="lower center", fontsize=8, frameon=False, ncols=2)
-    _save(fig, path, rect=(0, 0.07 / len(tasks), 1, 1))
+    axes[0, 0].legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1, 1))
+    _save(fig, path)
     return True
 
 
@@ -108,7 +131,11 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     a1.set_yticks(range(len(labels)))
     a1.set_yticklabels(labels)
     a1.invert_yaxis()
-    a1.set_xlim(0, 1.02)
+    if metric == "return":  # returns have the env's own scale (HalfCheetah: hundreds, negative)
+        a1.axvline(0, color="grey", lw=0.8)
+        a1.margins(x=0.1)
+    else:
+        a1.set_xlim(0, 1.02)
     a1.set_title(f"{metric} over nominal cells", fontsize=9, loc="left")
     for j, g in enumerate(gaps):
         e = _err(g)
@@ -131,7 +158,10 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     a2.set_yticks(range(len(gaps)))
     a2.set_yticklabels([f"{g['reference']}→{g['target']}\n{g['metric']}" for g in gaps], fontsize=8)
     a2.invert_yaxis()
-    a2.set_xlim(-1.02, 1.02)
+    if metric == "return" or any(g["metric"] == "return" for g in gaps):
+        a2.margins(x=0.1)
+    else:
+        a2.set_xlim(-1.02, 1.02)
     a2.set_title("transfer gap (reference − target)", fontsize=9, loc="left")
     _save(fig, path)
     return True
@@ -222,39 +252,74 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
 
 
 def fig_leaderboard(board: dict, path: Path) -> bool:
-    """Per entry: seen and unseen success side by side with intervals, in ranking order per group."""
+    """Per entry: seen and unseen means side by side with intervals, in ranking order per group.
+
+    Entries scored by success share one panel (0..100%); entries scored by return (e.g. HalfCheetah,
+    whose returns are in the hundreds and negative) get a panel of their own, in the env's units.
+    """
     plt = _plt()
     entries = board["entries"]
     if not entries:
         return False
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(entries) + 2), 3.4))
+    panels = [
+        (kind, [e for e in entries if (e["metric"] == "return") == (kind == "return")])
+        for kind in ("success", "return")
+    ]
+    panels = [(kind, es) for kind, es in panels if es]
+    fig, axs = plt.subplots(
+        1,
+        len(panels),
+        figsize=(max(6.0, 1.5 * len(entries) + 2.5), 3.8),
+        squeeze=False,
+        gridspec_kw={"width_ratios": [max(len(es), 1.5) for _, es in panels]},
+    )
     width = 0.38
-    labels = []
-    for i, e in enumerate(entries):
-        m = e["metric"]
-        for j, split in enumerate(("seen", "unseen")):
-            est = _err(e["splits"].get(split, {}).get(m, {}).get("mean"))
-            if est:
-                x = i + (j - 0.5) * width
-                ax.bar(x, est[0], width=width, color=COLOURS[split], alpha=0.85)
-                ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
-                ax.text(x, est[0] + est[2] + 0.02, f"{est[0] * 100:.0f}%", ha="center", va="bottom", fontsize=7)
-        sha = e["policy"].get("checkpoint_sha256")
-        labels.append(
-            f"#{e['rank'] or '–'} {e['policy']['name']}" + (f"\n{sha[:8]}" if sha else "") + f"\n{e['suite']['name']}"
-        )
-    ax.set_xticks(range(len(entries)))
-    ax.set_xticklabels(labels, fontsize=7)
-    groups = [e["group"] for e in entries]
-    for i in range(1, len(entries)):
-        if groups[i] != groups[i - 1]:
-            ax.axvline(i - 0.5, color="grey", ls=":", lw=1)
-    ax.set_ylim(0, 1.15)
-    ax.set_ylabel("mean success")
+    for ax, (kind, es) in zip(axs[0], panels):
+        labels = []
+        for i, e in enumerate(es):
+            m = e["metric"]
+            for j, split in enumerate(("seen", "unseen")):
+                est = _err(e["splits"].get(split, {}).get(m, {}).get("mean"))
+                if est:
+                    x = i + (j - 0.5) * width
+                    ax.bar(x, est[0], width=width, color=COLOURS[split], alpha=0.85)
+                    ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
+                    text = f"{est[0]:.4g}" if kind == "return" else f"{est[0] * 100:.0f}%"
+                    top = est[0] + est[2] if est[0] >= 0 else est[0] - est[1]
+                    ax.annotate(
+                        text,
+                        (x, top),
+                        xytext=(0, 2 if est[0] >= 0 else -2),
+                        textcoords="offset points",
+                        ha="center",
+                        va="bottom" if est[0] >= 0 else "top",
+                        fontsize=7,
+                    )
+            sha = e["policy"].get("checkpoint_sha256")
+            labels.append(
+                f"#{e['rank'] or '–'} {e['policy']['name']}"
+                + (f"\n{sha[:8]}" if sha else "")
+                + f"\n{e['suite']['name']}"
+            )
+        ax.set_xticks(range(len(es)))
+        ax.set_xlim(-0.7, len(es) - 0.3)
+        ax.set_xticklabels(labels, fontsize=7, rotation=30, ha="right", rotation_mode="anchor")
+        groups = [e["group"] for e in es]
+        for i in range(1, len(es)):
+            if groups[i] != groups[i - 1]:
+                ax.axvline(i - 0.5, color="grey", ls=":", lw=1)
+        if kind == "return":
+            ax.axhline(0, color="grey", lw=0.8)
+            ax.margins(y=0.15)
+            ax.set_ylabel("mean return (env units)")
+            ax.set_title("scored by return", fontsize=9, loc="left")
+        else:
+            ax.set_ylim(0, 1.15)
+            ax.set_ylabel("mean success")
+            ax.set_title("seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
-    fig.legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, ncols=2, loc="lower center")
-    ax.set_title("leaderboard: seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
-    _save(fig, path, rect=(0, 0.06, 1, 1))
+    axs[0, -1].legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1, 1))
+    _save(fig, path)
     return True
 
 

@@ -28,11 +28,16 @@ def _e(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _estimate(est: dict | None, pct: bool) -> str:
+def _estimate(est: dict | None, pct: bool, signed: bool = True) -> str:
     """`summary.fmt_estimate`, or n/a with the reason (escaped) when there is no value."""
     if not est or est.get("value") is None:
         return f"n/a{' (' + _e(est.get('reason')) + ')' if est and est.get('reason') else ''}"
-    return fmt_estimate(est, pct)
+    return fmt_estimate(est, pct, signed)
+
+
+def _return(est: dict | None) -> str:
+    """A mean return with its interval, in the env's units (`-274.6 [-325.5, -233.9]`), never as a percentage."""
+    return _estimate(est, pct=False, signed=False)
 
 
 def _pct(est: dict | None) -> str:

@@ -24,6 +24,48 @@ EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
 
 
+# What a bound may not cross: MjModel fields, and effect parameters (by name), that are physically
+# non-negative, with the quantity's name for the message and an upper limit where there is one.
+PHYSICAL_FIELDS = {
+    "body_mass": "a mass",
+    "body_inertia": "an inertia",
+    "dof_damping": "a damping",
+    "dof_armature": "an armature",
+    "dof_frictionloss": "a friction loss",
+    "jnt_stiffness": "a joint stiffness",
+    "geom_friction": "a friction coefficient",
+    "tendon_damping": "a tendon damping",
+    "tendon_stiffness": "a tendon stiffness",
+    "tendon_frictionloss": "a tendon friction loss",
+}
+PHYSICAL_EFFECT_PARAMS: dict[str, tuple[str, float | None]] = {
+    "friction": ("a friction", None),
+    "friction_pos": ("a friction", None),
+    "friction_neg": ("a friction", None),
+    "static_excess": ("a static friction excess", None),
+    "stribeck_velocity": ("a Stribeck velocity", None),
+    "damping": ("a damping", None),
+    "armature": ("an armature", None),
+    "delay": ("a delay", None),
+    "clipped_share": ("a share of commands", 1.0),
+    "deadband": ("a dead band", None),
+    "play": ("a play width", None),
+    "mass": ("a mass", None),
+    "stiffness": ("a stiffness", None),
+}
+
+
+def _physical(bounds: tuple[float, float], what: str, top: float | None, quantity: str, where: str) -> None:
+    """SpecError when `bounds` reach below 0 (or above `top`), where `what` would stop being physical."""
+    lo, hi = bounds
+    if lo < 0 or (top is not None and hi > top):
+        valid = f"[0, {top:g}]" if top is not None else "[0, inf)"
+        raise SpecError(
+            f"spec field {where!r}: {[lo, hi]} lets {quantity} go {'negative' if lo < 0 else f'above {top:g}'}, "
+            f"which {what} cannot; valid: bounds within {valid}"
+        )
+
+
 @dataclass(frozen=True)
 class ParamSpec:
     """A declared free parameter: one value per element of an `MjModel` field, within bounds."""
@@ -172,6 +214,10 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
                     f"{', '.join(EFFECTS[name].params)}; got {item['bounds']!r}"
                 )
             bounds = tuple(_bounds(x, where + ".bounds") for x in b)
+            for param, pair in zip(EFFECTS[name].params, bounds):
+                if param in PHYSICAL_EFFECT_PARAMS:
+                    what, top = PHYSICAL_EFFECT_PARAMS[param]
+                    _physical(pair, what, top, f"{name}'s {param}", where + ".bounds")
         out.append(EffectRequest(name=name, targets=targets, bounds=bounds))
     return tuple(out)
 
@@ -217,12 +263,17 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         scale = p.get("scale", False)
         if not isinstance(scale, bool):
             raise SpecError(f"spec field {where + '.scale'!r} must be true or false; got {scale!r}")
+        bounds = _bounds(p["bounds"], where + ".bounds")
+        if p["field"] in PHYSICAL_FIELDS:  # a factor (scale: true) on a non-negative value must not be negative either
+            what = PHYSICAL_FIELDS[p["field"]]
+            quantity = f"the factor on {p['field']}" if scale else p["field"]
+            _physical(bounds, what, None, quantity, where + ".bounds")
         params.append(
             ParamSpec(
                 name=name,
                 field=p["field"],
                 elements=_names(p["elements"], where + ".elements"),
-                bounds=_bounds(p["bounds"], where + ".bounds"),
+                bounds=bounds,
                 column=column,
                 init=init,
                 scale=scale,

@@ -120,6 +120,11 @@ def _entry(cand: Candidate, **kw) -> dict:
     return {"name": cand.effect.name, "target": t.label, "joint": t.joint or None, "kind": t.kind, **kw}
 
 
+def _subset(segs: Segments, rows: np.ndarray) -> Segments:
+    """The segments `rows` of `segs`, their mask (horizons of episodes shorter than k) kept."""
+    return Segments(segs.start[rows], segs.length, None if segs.mask is None else segs.mask[rows])
+
+
 class _Loop:
     """State of one calibration: the simulator, the data split and the current model."""
 
@@ -141,9 +146,9 @@ class _Loop:
         self.tr = plant.spec.trace
         m = min(len(train), max(JUDGE_MIN, int(np.ceil(JUDGE_SHARE * len(train)))))
         pick = np.random.default_rng([seed, 1]).choice(len(train), size=m, replace=False)
-        self.judged = Segments(train.start[np.sort(pick)], train.length)  # where candidates are refitted
+        self.judged = _subset(train, np.sort(pick))  # where candidates are refitted
         pick = np.random.default_rng([seed, 2]).choice(len(hold), size=min(len(hold), SCORE_MAX), replace=False)
-        self.scored = Segments(hold.start[np.sort(pick)], hold.length)  # where signatures are scored
+        self.scored = _subset(hold, np.sort(pick))  # where signatures are scored
         self._base: tuple[int, float, float] | None = None  # (id of the current fit, its SSR and n_eff there)
 
     def base(self, layout: Layout, cur: FitResult) -> tuple[float, float]:

@@ -34,7 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "perf": ("bench.cli.perf:main", "measure harness throughput against raw simulator stepping"),
     "logs": (
         "bench.cli.logs:main",
-        "real-log tools: info DIR | import SRC out=DIR | card DIR | rank DIR calibration=FILE",
+        "real-log tools: info DIR | verify DIR | import SRC out=DIR | card DIR | rank DIR calibration=FILE",
     ),
     "replay": ("bench.cli.replay:main", "open-loop replay of logged commands in the simulator; per-joint RMSE/NRMSE"),
     "serve": ("bench.cli.serve:main", "serve a bench policy over openpi's websocket protocol (for policy=remote)"),

@@ -39,8 +39,14 @@ def main_list(argv: list[str]) -> int:
         keys = option_keys(cls.Options)
         unavailable = getattr(cls, "unavailable", None)  # SuiteBase's hook; other suites may lack it
         why = unavailable() if unavailable is not None else None
+        default = getattr(cls, "default_policy", "") or cls.reference_policy  # what `bench run` runs without policy=
+        policies = (
+            f"default policy: {default}"
+            if default == cls.reference_policy
+            else f"default policy: {default}, reference policy: {cls.reference_policy}"
+        )
         print(
-            f"  {name} (v{cls.version}, reference policy: {cls.reference_policy}) — {summary_line(cls)}"
+            f"  {name} (v{cls.version}, {policies}) — {summary_line(cls)}"
             + (f" [keys: {', '.join(keys)}]" if keys else "")
             + (f"\n      unavailable: {why}" if why else "")
         )

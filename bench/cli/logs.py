@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from bench.core import config, outputs
 from bench.core.config import MAX_SEED, one_or_more, ranged
 from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.core.io import write_atomic
-from bench.logs import import_csv, import_mat, import_rlds, info, read_dataset, write_dataset
+from bench.logs import check_files, import_csv, import_mat, import_rlds, info, read_dataset, verify, write_dataset
 from bench.logs.card import card, format_card
 from bench.logs.lerobot_info import MAX_FPS
 from bench.protocols import STATE
@@ -101,6 +102,7 @@ class RankConfig:
 
 
 INFO_USAGE = "usage: bench logs info DIR"
+VERIFY_USAGE = "usage: bench logs verify DIR"
 IMPORT_USAGE = "usage: bench logs import SRC out=DIR [format=csv|mat|rlds] [key=value ...]"
 CARD_USAGE = (
     "usage: bench logs card DIR [suite=NAME] [episodes=10] [seed=0] [dup_tol=0.05] [overlap_tol=0.01]\n"
@@ -111,12 +113,14 @@ RANK_USAGE = "usage: bench logs rank DIR calibration=FILE [horizon=free_run|k_st
 
 def help_text() -> str:
     """`bench logs --help`: the subcommands (each has its own --help with its keys)."""
-    usages = [INFO_USAGE, IMPORT_USAGE, CARD_USAGE.split("\n")[0], RANK_USAGE]
+    usages = [INFO_USAGE, VERIFY_USAGE, IMPORT_USAGE, CARD_USAGE.split("\n")[0], RANK_USAGE]
     return config.command_help(
         "\n".join([usages[0]] + ["      " + u.removeprefix("usage:") for u in usages[1:]]),
         "Real-robot logs as LeRobot v3.0 datasets (parquet, read and written without pandas).",
         notes="subcommands:\n"
-        "  info    episodes, frames, fps, features with shapes and tasks of a dataset folder\n"
+        "  info    episodes, frames, fps, features with shapes and tasks of a dataset folder; every data\n"
+        "          file's footer is read (a truncated or garbage file is named)\n"
+        "  verify  read every frame of every file of a dataset folder (exit 2 naming the first bad one)\n"
         "  import  convert a CSV file, a MATLAB .mat file or RLDS tfrecord shards to a dataset\n"
         "  card    how many episodes are worth having: N_eff = N (1 - d) (1 - n) (1 - c)\n"
         "  rank    episodes ordered by sim-real surprise under a calibrated model\n\n"
@@ -128,11 +132,26 @@ def info_help() -> str:
     """`bench logs info --help`."""
     return config.command_help(
         INFO_USAGE,
-        "Print a LeRobot v3.0 dataset's summary from its metadata (no frames are read): episodes,\n"
-        "frames, episode lengths, fps, robot type, every feature with dtype and shape, the tasks.\n"
-        "Camera features are dtype `image` (PNG inside the parquet) or `video` (MP4 files; shown with\n"
-        "codec, pixel format, fps and number of files). It takes no keys.",
+        "Print a LeRobot v3.0 dataset's summary from its metadata: episodes, frames, episode lengths,\n"
+        "fps, robot type, every feature with dtype and shape, the tasks. Camera features are dtype\n"
+        "`image` (PNG inside the parquet) or `video` (MP4 files; shown with codec, pixel format, fps and\n"
+        "number of files). No frame is read, but every data file's parquet footer is: a missing,\n"
+        "truncated or garbage file, other columns than declared or other row counts than the episodes\n"
+        "table's are named (exit 2). `bench logs verify DIR` reads every frame. It takes no keys.",
         examples=["bench logs info logs/pendulum"],
+    )
+
+
+def verify_help() -> str:
+    """`bench logs verify --help`."""
+    return config.command_help(
+        VERIFY_USAGE,
+        "Read a LeRobot v3.0 dataset completely: every data file's footer and every row group decoded\n"
+        "and checked as the readers check it (columns and shapes as declared, episode and task indices,\n"
+        "no NaN or inf, increasing timestamps, row counts as the episodes table says), and every video\n"
+        "frame decoded. Prints the counts, or one line naming the first bad file and field (exit 2).\n"
+        "It takes no keys.",
+        examples=["bench logs verify logs/pendulum"],
     )
 
 
@@ -253,7 +272,10 @@ def cmd_import(argv: list[str]) -> int:
 
 
 def _info(root: Path | str) -> dict:
-    return info(root)
+    """The metadata summary, after every data file's footer is read (`check_files`: no frames)."""
+    summary = info(root)
+    summary["files"] = check_files(root)
+    return summary
 
 
 def format_info(summary: dict) -> str:
@@ -283,6 +305,12 @@ def format_info(summary: dict) -> str:
                 f"{files} mp4 file{'s' if files != 1 else ''}"
             )
         lines.append(f"  {name.ljust(width)}  {feat['dtype']:<8} {str(feat['shape']):<14} {shown}".rstrip())
+    files = summary.get("files")
+    if files:
+        lines.append(
+            f"files     {files['data_files']} data file(s) ({files['rows']} rows), {files['video_files']} video "
+            "file(s): footers read, as the metadata says (`bench logs verify` reads every frame)"
+        )
     lines.append(f"tasks     {len(summary['tasks'])}")
     for i, task in enumerate(summary["tasks"][:20]):
         lines.append(f"  {i:>3}  {task}")
@@ -296,6 +324,19 @@ def cmd_info(argv: list[str]) -> int:
     if len(argv) != 1 or "=" in argv[0]:
         raise ConfigError(f"expected one dataset folder: {INFO_USAGE.removeprefix('usage: ')}")
     print(format_info(_info(Path(argv[0]).expanduser())))
+    return 0
+
+
+def cmd_verify(argv: list[str]) -> int:
+    """`bench logs verify DIR` (no keys): every frame of every file read and checked."""
+    if len(argv) != 1 or "=" in argv[0]:
+        raise ConfigError(f"expected one dataset folder: {VERIFY_USAGE.removeprefix('usage: ')}")
+    t0 = time.perf_counter()
+    got = verify(Path(argv[0]).expanduser())
+    print(
+        f"{argv[0]}: ok: {got['episodes']} episodes, {got['frames']} frames; {got['data_files']} data file(s) and "
+        f"{got['video_files']} video file(s) read in full ({time.perf_counter() - t0:.1f} s)"
+    )
     return 0
 
 
@@ -383,6 +424,7 @@ def cmd_rank(argv: list[str]) -> int:
 # subcommand -> (handler, its --help)
 SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
     "info": (cmd_info, info_help),
+    "verify": (cmd_verify, verify_help),
     "import": (cmd_import, import_help),
     "card": (cmd_card, card_help),
     "rank": (cmd_rank, rank_help),
@@ -390,7 +432,7 @@ SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
 
 
 def main(argv: list[str]) -> int:
-    """Dispatch `bench logs info|import|card|rank`."""
+    """Dispatch `bench logs info|verify|import|card|rank`."""
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(help_text(), end="")
         return 0

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import tempfile
 import time
 from collections.abc import Callable
@@ -38,7 +39,9 @@ import numpy as np
 
 from bench import api
 from bench.core import config as config_mod
+from bench.core import outputs
 from bench.core.errors import ConfigError
+from bench.core.io import write_atomic
 from bench.execution.runner import LocalExecutor
 from bench.records import RecordWriter
 from bench.sims.camera import SCENE_FLAGS
@@ -61,17 +64,27 @@ class PerfConfig:
     cameras: Optional[list[str]] = None  # cameras to render (default: the suite's)
     image_size: int = 128  # image height and width in pixels
     video: bool = True  # with cameras: also measure the cost of filming every episode (video=N)
+    out: Optional[str] = None  # also write the measurements as JSON (schema bench.perf/1) to this new file
 
 
 def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None = None) -> Any:
-    """A random-policy plan of one cell; nothing is written."""
+    """A random-policy plan of one cell; nothing is written (its run directory is never made: the
+    episodes are timed in this process and their records go to a private temporary file)."""
+    scratch = tempfile.mkdtemp(prefix="bench-perf-")  # new and empty: whatever the temporary folder holds
+    try:
+        return _one_cell(cfg, episodes, suite_options, scratch)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _one_cell(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None, scratch: str) -> Any:
     run = api.RunConfig(
         suite=cfg.suite,
         policy="random",
         episodes=episodes,
         seed=cfg.seed,
         horizon=cfg.horizon,
-        out=tempfile.gettempdir(),
+        out=scratch,
         run_id="perf",
         suite_options=dict(suite_options or {}),
         robots=[cfg.robot] if cfg.robot else None,
@@ -233,6 +246,7 @@ def help_text() -> str:
             "bench perf                                   # held_out_robots, first cell (Panda)",
             "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0",
             "bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost",
+            "bench perf scaling_episodes=0 out=perf.json   # the measurements as JSON too",
         ],
     )
 
@@ -248,19 +262,32 @@ def main(argv: list[str]) -> int:
             raise ConfigError(f"{key}={getattr(cfg, key)}: must be in [1, 10000]")
     if not 0 <= cfg.scaling_episodes <= 10_000:
         raise ConfigError(f"scaling_episodes={cfg.scaling_episodes}: must be in [0, 10000]")
+    out = outputs.check("out", cfg.out, {}, kind="file", can_overwrite=False) if cfg.out else None
+    if out is not None and out.suffix != ".json":
+        raise ConfigError(f"out={cfg.out!r}: the measurements are written as JSON; give a file name ending in .json")
     cams = {"obs": cfg.obs, "image_size": cfg.image_size, **({"cameras": cfg.cameras} if cfg.cameras else {})}
     options = cams if cfg.obs != "state" else {}
     p = make_plan(cfg, cfg.episodes, options)
     cell = p.cells[0]
+    doc: dict[str, Any] = {
+        "schema": SCHEMA_ID,
+        "config": dataclasses.asdict(cfg),
+        "machine": {"cores": os.cpu_count(), "loadavg": _loadavg()},
+        "suite": p.suite.name,
+        "cell": cell.key,
+        "horizon": p.horizon,
+    }
     print(
         f"machine: {os.cpu_count()} cores; suite {p.suite.name}, cell {cell.key}, horizon {p.horizon}, random policy"
         + (f"; obs={cfg.obs}, {cfg.image_size}x{cfg.image_size} images" if options else "")
     )
     if options:
         costs = render_cost(p)
+        doc["render_ms"] = costs
         flags = ", ".join(f"{k} {'on' if v else 'off'}" for k, v in SCENE_FLAGS.items())
         print("rendering: " + ", ".join(f"{c} {ms:.1f} ms/frame" for c, ms in costs.items()) + f" ({flags})")
     a = harness_vs_bare(p)
+    doc["harness_vs_bare"] = a
     print(
         f"harness {a['harness_steps_per_s']:.1f} env-steps/s, bare loop {a['bare_steps_per_s']:.1f} env-steps/s "
         f"({a['steps']} steps each{', both rendering every step' if options else ''}): "
@@ -268,12 +295,14 @@ def main(argv: list[str]) -> int:
     )
     if options and cfg.video:
         v = video_overhead(p)
+        doc["video"] = v
         print(
             f"video: {v['video_steps_per_s']:.1f} env-steps/s filming every episode, {v['plain_steps_per_s']:.1f} "
             f"without: wall time x{v['wall_ratio']:.3f}"
         )
     if cfg.scaling_episodes:
         b = workers_scaling(make_plan(cfg, cfg.scaling_episodes, options), cfg.workers)
+        doc["scaling"] = {"workers": cfg.workers, **b}
         w = cfg.workers
         print(
             f"steady state: 1 worker {b['one']['steady']:.1f} env-steps/s, {w} workers {b['many']['steady']:.1f} "
@@ -289,4 +318,18 @@ def main(argv: list[str]) -> int:
             f"excluded): 1 worker {b['one']['busy']:.3f} of {b['one']['wall']:.1f} s, {w} workers "
             f"{b['many']['busy']:.3f} of {b['many']['wall']:.1f} s"
         )
+    if out is not None:
+        write_atomic(out, doc)
+        print(f"measurements: {out}")
     return 0
+
+
+SCHEMA_ID = "bench.perf/1"
+
+
+def _loadavg() -> list[float] | None:
+    """The machine's load averages (1, 5, 15 min) while measuring: other load changes every ratio."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None

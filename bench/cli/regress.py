@@ -26,7 +26,8 @@ training metadata) and, beside it, JUnit XML and a Markdown summary (`bench.boar
 command line is checked by `bench.cli.regress_args`, episodes are paired by `bench.board.gate_pairs`.
 See docs/ci-gate.md.
 
-Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input.
+Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input, 3 nothing
+measured: a side completed no episode of some cell (verdict `nothing_measured`; a CI job fails).
 """
 
 from __future__ import annotations
@@ -53,12 +54,12 @@ from bench.board.gate_inputs import (
     load_recorded,
     resolve,
 )
-from bench.board.gate_pairs import cell_counts, pair_records
+from bench.board.gate_pairs import cell_counts, pair_records, unmeasured
 from bench.cli.regress_args import DEFAULT_EPISODES, episodes_of, help_text, parse_args
 from bench.core import config as config_mod
 from bench.core import provenance
-from bench.core.errors import ConfigError
-from bench.core.provenance import checkpoint_provenance
+from bench.core.errors import ConfigError, NothingMeasured
+from bench.core.provenance import checkpoint_provenance, portable
 from bench.execution.runner import LocalExecutor
 from bench.protocols.suite import SuiteSpec, select_cells
 from bench.sims import axes
@@ -183,7 +184,7 @@ def _input_paths(sides: list[_Side]) -> list[tuple[Path, str]]:
 def _checkpoint_of(side: _Side) -> tuple[str | None, str | None]:
     """(checkpoint path, sha256) of a side's policy: from the live plan, or as its run recorded it."""
     if side.live:
-        return side.p.identity.checkpoint, side.p.identity.checkpoint_sha256
+        return portable(side.p.identity.checkpoint), side.p.identity.checkpoint_sha256
     pol = (side.meta or {}).get("policy", {})
     return pol.get("checkpoint"), pol.get("checkpoint_sha256")
 
@@ -366,9 +367,13 @@ def main(argv: list[str]) -> int:
         look = {"look": k + 1, "episodes_per_cell": n_eps, **gate.evaluate_look(counts, design, k, rng, n_boot)}
         looks.append(look)
         console.print(gate_outputs.look_line(look, len(schedule)), soft_wrap=True)
-        if look["decision"] != "continue":
+        sides = {"candidate": cand.records, "baseline": base.records}
+        empty, dead = unmeasured(sides, planned, n_eps)
+        if look["decision"] != "continue" or dead:  # a side that completed nothing will not start now
             break
     verdict, code = gate.decide(looks, cfg.strict)
+    if empty:  # a cell compared against nothing: exit 3, whatever the statistics said
+        verdict, code = "nothing_measured", NothingMeasured.exit_code
     for side in live:
         finish(side.p, side.meta, workers)  # summary.json of each live run, for the leaderboard/report
 
@@ -379,7 +384,7 @@ def main(argv: list[str]) -> int:
         "verdict": verdict,
         "exit_code": code,
         "identical": False,
-        "note": None,
+        "note": f"nothing measured: {empty}" if empty else None,
         "stopped_early": len(looks) < len(schedule),
         "candidate": _describe(cand, prov["candidate"]),
         "baseline": _describe(base, prov["baseline"]),
@@ -392,6 +397,8 @@ def main(argv: list[str]) -> int:
         "wall_s": round(time.time() - t0, 2),
     }
     gate_outputs.write(doc, paths, console)
+    if empty:
+        raise NothingMeasured(f"regress {gate_id}: {empty}")
     return code
 
 

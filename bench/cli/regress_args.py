@@ -54,7 +54,8 @@ def help_text() -> str:
         notes=(
             "  (and the `bench run` keys suite, episodes (default 20), seed, workers, horizon, timeout, robots,\n"
             "   tasks, envs, splits, metric, n_boot, confidence, perturb.*, the suite's own keys; bench run --help)\n\n"
-            "exit: 0 no regression (inconclusive passes unless strict=true), 1 regression, 2 bad input.\n"
+            "exit: 0 no regression (inconclusive passes unless strict=true), 1 regression, 2 bad input,\n"
+            "3 nothing measured (a side completed no episode of some cell: verdict nothing_measured).\n"
             "writes: RUNS/RUN_ID/RUN_ID-candidate/ (and -baseline/ unless reused) run dirs, the verdict JSON\n"
             "(schema bench.regress/2: verdict, regressed cells with drops and bounds, looks, checkpoint sha256,\n"
             "size and training metadata), and beside it X.junit.xml (one test case per cell) and X.md (a\n"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Optional
 
@@ -33,7 +34,8 @@ def help_text() -> str:
         "                per-cell table. Given a run directory: its episode videos (bench run video=N) in the\n"
         "                cell table, copied into DIR/videos, and a robustness table (per axis, levels pooled:\n"
         "                nominal vs perturbed success, drop with its interval).\n"
-        "  leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound.\n"
+        "  leaderboard:  score, seen/unseen success and gap per entry with intervals, ranked by the lower bound\n"
+        "                (entries scored by return, e.g. HalfCheetah, in the env's units, in a panel of their own).\n"
         "  calibration=  held-out error (one-step, k-step, free-run NRMSE) nominal -> declared fit -> final.\n"
         "  verdict=      a bench regress verdict: per-cell baseline vs candidate and the looks.\n"
         "Inputs are validated before anything is written. DIR is never an input or inside one; an existing\n"
@@ -67,12 +69,14 @@ def main(argv: list[str]) -> int:
         {"input": positional[0], "run": run_dir, "calibration": cfg.calibration, "verdict": cfg.verdict},
         overwrite=cfg.overwrite,
     )
-    outputs.replace_dir(
-        out,
-        lambda tmp: (tmp / "index.html").write_text(
-            build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"
-        ),
-    )
+    with warnings.catch_warnings():  # matplotlib's layout notes are not the reader's concern: stderr stays clean
+        warnings.simplefilter("ignore")
+        outputs.replace_dir(
+            out,
+            lambda tmp: (tmp / "index.html").write_text(
+                build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"
+            ),
+        )
     figs = sorted(p.name for p in out.glob("*.png"))
     print(f"report of {src} -> {out / 'index.html'} ({', '.join(figs) or 'no figures'})")
     return 0

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from bench import api
 from bench.api import RunConfig, score
 from bench.core import config as config_mod
 from bench.core.config import command_help
-from bench.core.errors import BenchError, ConfigError
+from bench.core.errors import BenchError, ConfigError, NothingMeasured
 from bench.protocols import Suite, option_keys, registry
-from bench.scoring.summary import render
+from bench.records import EPISODES, read_records
+from bench.scoring.summary import nothing_measured, render
 from bench.sims.axes import axes_help
 
 
@@ -38,6 +41,9 @@ def help_text(argv: list[str] | None = None) -> str:
         "OUT/RUN_ID/summary.json (success per cell with Wilson intervals, seen/unseen means with\n"
         "bootstrap intervals, the seen-unseen transfer gap) and prints the table.\n"
         "Rerunning with the same run_id resumes: recorded episodes are skipped.\n"
+        "Exit codes: 0 done (a last line counts the episodes that errored, per cell), 2 bad input or a\n"
+        "missing capability (nothing written), 3 nothing measured: no episode completed, or a cell has\n"
+        "none while others do (records and summary are kept; docs/guarantees.md).\n"
         "Each key belongs to the runner, to the suite or to the policy; `bench run suite=NAME\n"
         "policy=NAME --help` lists the keys of that suite and policy.\n\n"
         f"runner keys:\n{config_mod.key_help(RunConfig)}\n{plugin_keys}\n"
@@ -73,6 +79,9 @@ def main(argv: list[str]) -> int:
     result = api.run(p, progress=True)
     if result.summary is not None:
         render(result.summary)
+        why = nothing_measured(result.summary, result.records)
+        if why:
+            raise NothingMeasured(f"run {p.config.run_id} ({result.run_dir}): {why}")
     return 0
 
 
@@ -83,7 +92,8 @@ def main_score(argv: list[str]) -> int:
             command_help(
                 "usage: bench score RUN_DIR",
                 "Recomputes RUN_DIR/summary.json from RUN_DIR/episodes.jsonl (the records are the source of\n"
-                "truth) and prints the table.",
+                "truth) and prints the table. Exits 3 when the run measured nothing: no episode completed, or\n"
+                "a cell has none while others do (docs/guarantees.md).",
                 examples=["bench score runs/my_run"],
             ),
             end="",
@@ -92,5 +102,9 @@ def main_score(argv: list[str]) -> int:
 
     if len(argv) != 1:
         raise ConfigError(f"score takes one RUN_DIR, got {argv}")
-    render(score(argv[0]))
+    summary = score(argv[0])
+    render(summary)
+    why = nothing_measured(summary, read_records(Path(argv[0]) / EPISODES))
+    if why:
+        raise NothingMeasured(f"{argv[0]}: {why}")
     return 0

@@ -1,6 +1,8 @@
-"""Exceptions of the harness: one class per kind of failure, all exit code 2 at the CLI.
+"""Exceptions of the harness: one class per kind of failure; bad input is exit code 2 at the CLI.
 
-Messages are one line: they name the field, the bad value and what would be valid.
+Messages are one line: they name the field, the bad value and what would be valid. The one
+exception that is not bad input is `NothingMeasured` (exit 3): the command ran, but no episode
+(or no episode of some cell) completed, so its numbers measure nothing (docs/guarantees.md).
 """
 
 from __future__ import annotations
@@ -49,3 +51,13 @@ def valid_choices(value: str, valid: Iterable[str]) -> str:
 
 class ExecutorError(BenchError):
     """The jobs cannot run where asked: a worker that cannot start, an unreachable or mismatched Ray cluster."""
+
+
+class NothingMeasured(BenchError):
+    """A run, score or gate in which no episode completed, or a cell has none while others do (exit 3).
+
+    Not bad input: everything was written (records, summary) and is kept; the one line says which
+    cells measured nothing and why their episodes failed.
+    """
+
+    exit_code = 3

@@ -9,7 +9,7 @@ import os
 import sys
 from collections.abc import Callable
 
-from bench.core.errors import BenchError
+from bench.core.errors import BenchError, NothingMeasured
 
 
 def _one_line(text: str) -> str:
@@ -32,13 +32,18 @@ def guarded(command: Callable[[], int | None]) -> int:
     """Run one command the way the CLI does: its exit code, never a traceback.
 
     Bad input (a `BenchError`) is one line on stderr and exit code 2; so is an OS error about a
-    file (missing, unreadable, unwritable, a full disk: the line names the file). Ctrl-C keeps the
-    records written so far (exit 130). A broken pipe (`bench ... --help | head`) exits quietly.
+    file (missing, unreadable, unwritable, a full disk: the line names the file). A run, score or
+    gate that measured nothing (`NothingMeasured`) is one line starting `nothing measured:`, exit 3.
+    Ctrl-C keeps the records written so far (exit 130). A broken pipe (`bench ... --help | head`)
+    exits quietly.
     Anything else is a bug in bench: one line saying so, exit 1 (`BENCH_TRACEBACK=1` prints the
     traceback instead). `python -m baselines.bc` and the other experiment scripts go through here too.
     """
     try:
         return int(command() or 0)
+    except NothingMeasured as exc:
+        print(f"nothing measured: {_one_line(str(exc))}", file=sys.stderr)
+        return exc.exit_code
     except BenchError as exc:
         print(f"error: {_one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code

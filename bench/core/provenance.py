@@ -42,10 +42,43 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (or install root) holding bench/ and baselines/
+PATH_KEYS = ("checkpoint", "calibration", "record", "out")  # run keys (config) that name files or folders
+
+
+def portable(path: str | os.PathLike[str] | None) -> str | None:
+    """`path` as a result file records it: relative to the checkout when it lies inside it (the packaged BC
+    checkpoint, a committed run), so a committed result names no folder of the machine that made it; any
+    other path as it was given. Reading it back (`local`) resolves such a path against the checkout."""
+    if path is None:
+        return None
+    p = Path(path)
+    if not p.is_absolute():
+        return str(path)
+    try:
+        return p.resolve().relative_to(ROOT).as_posix()
+    except (ValueError, OSError):
+        return str(path)
+
+
+def local(path: str | os.PathLike[str]) -> Path:
+    """A recorded path on this machine: as given when it exists here, else relative to the checkout (`portable`)."""
+    p = Path(path)
+    if p.is_absolute() or p.exists():
+        return p
+    inside = ROOT / p
+    return inside if inside.exists() else p
+
+
+def portable_config(config: dict) -> dict:
+    """A run's flat config with its path keys (`PATH_KEYS`) made `portable`."""
+    return {k: portable(v) if k in PATH_KEYS and isinstance(v, str) else v for k, v in config.items()}
+
+
 @lru_cache(maxsize=1)
 def git_sha() -> str | None:
     """The harness checkout's commit (with `-dirty` when it has local changes), or None."""
-    root = Path(__file__).resolve().parents[2]
+    root = ROOT
     try:
         sha = subprocess.run(
             ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5, check=True
@@ -109,9 +142,9 @@ def checkpoint_provenance(path: str | Path, recorded_sha256: str | None = None, 
     recorded `recorded_sha256` gets a `note` saying so. With `hash_file=False` the file is
     taken to be `recorded_sha256` (the caller has just hashed it; checkpoints can be large).
     """
-    p = Path(path)
+    p = local(path)
     out: dict = {
-        "path": str(p),
+        "path": str(path),
         "format": p.suffix.lstrip(".") or None,
         "sha256": recorded_sha256,
         "size_bytes": None,

@@ -31,7 +31,7 @@ from typing import Any
 
 from bench.core.errors import BenchError, ConfigError, ExecutorError
 from bench.core.io import write_bytes_atomic
-from bench.execution import ray_env
+from bench.execution import processes, ray_env
 from bench.execution.rollout import trajectory_path
 from bench.execution.runner import Worker, WorkerSpec, given_up_record, with_retries
 from bench.execution.scheduling import MAX_RETRIES, JobQueue, depth
@@ -150,6 +150,7 @@ class RayExecutor:
         self.note = note or (lambda text: None)
         self.owns_ray = False
         self.connected = False
+        self.before: set[int] = set()  # processes below this one before `connect`
         self.size = 0
         self.cluster: dict[str, Any] = {}
 
@@ -162,6 +163,7 @@ class RayExecutor:
         """
         if not self.connected:
             env = ray_env.runtime_env(self.env, suite_ref, policy_ref, self.extra_env)
+            self.before = set(processes.descendants())  # a private cluster's daemons are the ones that appear
             self.owns_ray = ray_env.connect(self.address, env)
             self.connected = True
             try:
@@ -221,9 +223,15 @@ class RayExecutor:
             check_worker(driver, info)
 
     def close(self) -> None:
-        """Disconnect (and stop the private cluster of ray_address=local); actors end with the job."""
+        """Disconnect (and stop the private cluster of ray_address=local); actors end with the job.
+
+        The private cluster's processes (those that appeared below this one since `connect`) are waited
+        for, and ended if they linger: a run leaves no Ray daemon behind.
+        """
         if self.connected and self.owns_ray:
+            started = [p for p in processes.descendants() if p not in self.before]
             ray_env.import_ray().shutdown()
+            processes.reap(started)
         self.connected = self.owns_ray = False
 
     # -- running ------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import warnings
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing import resource_tracker
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -54,7 +55,10 @@ class Worker:
         self.spec = spec
         self.suite = registry.make_suite(spec.suite_ref, spec.suite_options)
         self.plugin = registry.load_policy(spec.policy_ref)
-        self.policy_ctx = PolicyContext(spec.policy_options, self.suite, spec.seed, spec.ctx.horizon)
+        self.on_status: Callable[[str | None], None] | None = None  # where the policy's waits are reported
+        self.policy_ctx = PolicyContext(
+            spec.policy_options, self.suite, spec.seed, spec.ctx.horizon, status=self._status
+        )
         self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
         self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
 
@@ -89,6 +93,10 @@ class Worker:
         if not usable:  # the env may be in a bad state after an error: rebuild next time
             self.drop(job.cell.key)
         return record
+
+    def _status(self, text: str | None) -> None:
+        if self.on_status is not None:
+            self.on_status(text)
 
     def drop(self, key: str) -> None:
         env, _ = self.cache.pop(key, (None, None))
@@ -145,13 +153,20 @@ def _child_main(conn: Connection, spec: WorkerSpec) -> None:
     except BaseException as exc:
         conn.send(("init_error", str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"))
         return
-    conn.send(("ready", os.getpid()))
+    lock = threading.Lock()  # the policy may report a wait from a timer thread while a record is sent
+
+    def send(message: tuple) -> None:
+        with lock:
+            conn.send(message)
+
+    worker.on_status = lambda text: send(("status", text))
+    send(("ready", os.getpid()))
     try:
         while True:
             job = conn.recv()
             if job is None:
                 break
-            conn.send(("record", worker.run(job)))
+            send(("record", worker.run(job)))
     except (EOFError, OSError):  # the parent is gone: nothing to report to
         pass
     finally:
@@ -191,8 +206,10 @@ class _Children:
         queue: JobQueue,
         cond: threading.Condition,
         emit: Callable[[EpisodeRecord], None],
+        status: Callable[[str | None, Any], None] | None = None,
     ):
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
+        self.status = status
         self.ctx = mp.get_context("spawn")
         self.children = [_Child(self.ctx, spec) for _ in range(n)]
         self.respawns = n * (MAX_RETRIES + 1)
@@ -229,6 +246,9 @@ class _Children:
             return
         if kind == "ready":
             child.ready = True
+        elif kind == "status":
+            if self.status is not None:
+                self.status(payload, child.proc.pid)
         elif kind == "init_error":
             raise ExecutorError(f"a worker process could not start: {payload}")
         else:
@@ -312,10 +332,11 @@ class LocalExecutor:
     `MAX_RETRIES` times each, the reasons kept in the record's `extras["retries"]`.
     """
 
-    capabilities: frozenset[str] = frozenset()  # no cluster to reach, no notes of its own
+    capabilities: frozenset[str] = frozenset({"status"})  # no cluster to reach, no notes of its own
 
     def __init__(self, workers: int):
         self.workers = max(1, int(workers))
+        self.status: Callable[[str | None, Any], None] | None = None  # (what a worker waits for, which worker)
 
     def close(self) -> None:
         """Nothing outlives `execute`: its child processes are joined before it returns."""
@@ -332,10 +353,13 @@ class LocalExecutor:
             with emit_lock:
                 on_record(record)
 
-        children = _Children(self.workers - 1, spec, queue, cond, emit) if self.workers > 1 else None
+        children = _Children(self.workers - 1, spec, queue, cond, emit, self.status) if self.workers > 1 else None
         worker = None
         try:
             worker = Worker(spec)
+            if self.status is not None:
+                status, me = self.status, os.getpid()
+                worker.on_status = lambda text: status(text, me)
             while True:
                 with cond:
                     job = None
@@ -356,8 +380,42 @@ class LocalExecutor:
         finally:
             if children is not None:
                 children.close()
+                stop_resource_tracker()
             if worker is not None:
                 worker.close()
+
+
+def stop_resource_tracker(timeout: float = 10.0) -> None:
+    """Stop multiprocessing's resource tracker once the children are gone, so a run leaves no process behind.
+
+    Starting a spawned child starts the tracker, a process of its own that otherwise outlives this one
+    by a moment (it exits when the last holder of its pipe does); it is started again with the next
+    child. This closes our end and reaps it, waiting at most `timeout` seconds (a child that still holds
+    the pipe keeps it alive). Private API of multiprocessing: nothing is done where it is absent.
+    """
+    tracker = getattr(resource_tracker, "_resource_tracker", None)
+    lock = getattr(tracker, "_lock", None)
+    if tracker is None or lock is None or not hasattr(tracker, "_fd") or not hasattr(tracker, "_pid"):
+        return
+    with lock:
+        fd, pid = tracker._fd, tracker._pid
+        if fd is None or pid is None:
+            return
+        tracker._fd = tracker._pid = None
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            if os.waitpid(pid, os.WNOHANG)[0]:
+                return
+        except ChildProcessError:  # already reaped
+            return
+        if time.monotonic() > deadline:
+            return
+        time.sleep(0.02)
 
 
 def execute(jobs: list[Job], spec: WorkerSpec, workers: int, on_record: Callable[[EpisodeRecord], None]) -> None:

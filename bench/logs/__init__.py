@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from bench.logs.dataset import Episode, LogDataset, from_arrays, validate
 from bench.logs.importers import import_csv, import_mat
-from bench.logs.lerobot import info, iter_episodes, read_dataset, read_episode, write_dataset
+from bench.logs.lerobot import check_files, info, iter_episodes, read_dataset, read_episode, verify, write_dataset
 from bench.logs.rlds import import_rlds
 
 __all__ = [
@@ -25,6 +25,8 @@ __all__ = [
     "iter_episodes",
     "write_dataset",
     "info",
+    "check_files",
+    "verify",
     "import_csv",
     "import_mat",
     "import_rlds",

@@ -39,7 +39,7 @@ from bench.logs.lerobot_index import (
     info,
 )
 from bench.logs.lerobot_info import MAX_FPS
-from bench.logs.lerobot_read import iter_episodes, read_dataset, read_episode
+from bench.logs.lerobot_read import check_files, iter_episodes, read_dataset, read_episode, verify
 from bench.logs.lerobot_stats import QUANTILES, STAT_NAMES
 from bench.logs.lerobot_write import write_dataset
 
@@ -63,9 +63,11 @@ __all__ = [
     "VIDEO_COLUMNS",
     "VIDEO_FILES_SIZE_IN_MB",
     "VIDEO_PATH",
+    "check_files",
     "info",
     "iter_episodes",
     "read_dataset",
     "read_episode",
+    "verify",
     "write_dataset",
 ]

@@ -261,6 +261,47 @@ def _check_file_rows(idx: Index, rel: str, eps: np.ndarray, num_rows: int) -> np
     return np.concatenate([first, [total]])
 
 
+def _files(idx: Index) -> dict[str, np.ndarray]:
+    """Data file -> the episodes it holds, in row order."""
+    files: dict[str, list[int]] = {}
+    for e in range(len(idx.episode_index)):
+        files.setdefault(idx.data_file(e), []).append(e)
+    return {rel: np.asarray(sorted(m, key=lambda k: int(idx.start[k])), dtype=np.int64) for rel, m in files.items()}
+
+
+def check_files(root: str | os.PathLike) -> dict[str, int]:
+    """Every file the metadata points to, checked without reading frames (what `bench logs info` runs).
+
+    Each data file's parquet footer is read: the file is there and is parquet (a truncated or garbage
+    file has no footer), its columns are the declared features, and its row count is what the
+    episodes table assigns it. Each video file is there and not empty. Raises a one-line DataError
+    naming the file; returns {"data_files", "video_files", "rows"}.
+    """
+    idx = load_index(root)
+    rows = 0
+    files = _files(idx)
+    for rel, eps in files.items():
+        pf, starts = _footer(idx.root, rel)
+        _check_schema(idx, rel, pf)
+        _check_file_rows(idx, rel, eps, int(starts[-1]))
+        rows += int(starts[-1])
+    videos = {idx.video_file(key, e) for key in idx.videos for e in range(len(idx.episode_index))}
+    for rel in sorted(videos):
+        path = idx.root / rel
+        if not path.is_file() or path.stat().st_size == 0:
+            raise DataError(f"{location(idx.root, rel)}: video file is {'empty' if path.is_file() else 'missing'}")
+    return {"data_files": len(files), "video_files": len(videos), "rows": rows}
+
+
+def verify(root: str | os.PathLike) -> dict[str, int]:
+    """Read every frame of every file (`bench logs verify`): the footers (`check_files`), then every row
+    group decoded and checked as `read_dataset` checks it (episode and task indices, NaN/inf, timestamps),
+    and every video frame decoded. Raises a one-line DataError naming the file; returns the counts."""
+    counts = check_files(root)
+    ds = read_dataset(root, videos=True)
+    return {**counts, "episodes": len(ds.episodes), "frames": sum(len(ep.data["timestamp"]) for ep in ds.episodes)}
+
+
 def read_dataset(root: str | os.PathLike, videos: bool = True) -> LogDataset:
     """Read a whole LeRobot v3.0 dataset into memory.
 
@@ -274,12 +315,8 @@ def read_dataset(root: str | os.PathLike, videos: bool = True) -> LogDataset:
             the returned dataset (for consumers of the numeric features only: decoding costs time).
     """
     idx = load_index(root)
-    files: dict[str, list[int]] = {}
-    for e in range(len(idx.episode_index)):
-        files.setdefault(idx.data_file(e), []).append(e)
     episodes: list[Episode | None] = [None] * len(idx.episode_index)
-    for rel, members in files.items():
-        eps = np.asarray(sorted(members, key=lambda k: int(idx.start[k])), dtype=np.int64)
+    for rel, eps in _files(idx).items():
         pf = open_parquet(idx.root, rel)
         offsets = _check_file_rows(idx, rel, eps, pf.metadata.num_rows)
         # Single-threaded decoding: as fast for episode-sized row groups and no thread pool

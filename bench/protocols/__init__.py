@@ -326,6 +326,9 @@ class PolicyContext:
     suite: Suite
     seed: int  # the run seed
     horizon: int
+    # while the policy waits for something outside any episode (a policy server warming up): called with
+    # what it waits for, then with None; the run's progress shows it. None: nobody listens.
+    status: Callable[[str | None], None] | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)

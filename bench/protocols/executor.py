@@ -5,7 +5,9 @@ running jobs is declared in `capabilities`, not found by probing attributes:
 
 - `"cluster"`: it must reach (and size) a cluster before the first byte is written —
   `connect(n_jobs, suite, policy) -> workers` — and describes it in `cluster` (run.json's executor);
-- `"notes"`: it reports progress lines itself; the run sets `note` to the progress bar's printer.
+- `"notes"`: it reports progress lines itself; the run sets `note` to the progress bar's printer;
+- `"status"`: its workers report what they wait for (a policy server warming up); the run sets `status` to
+  the progress bar's `waiting(text, worker)`.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 from bench.core.errors import ConfigError
 from bench.protocols.suite import Job
 
-EXECUTOR_CAPABILITIES = frozenset({"cluster", "notes"})
+EXECUTOR_CAPABILITIES = frozenset({"cluster", "notes", "status"})
 
 
 @runtime_checkable

@@ -5,25 +5,35 @@
 Each `act(obs)` is one round trip: the observation (selected and renamed by `obs_map=`) goes
 out as msgpack-numpy, the server's `{"actions": (T, A)}` comes back, and the runner executes the
 first `replan_every` rows open loop (all of them with 0) before asking again. `reset(seed)`
-starts an episode: it (re)connects when needed — retrying with exponential backoff for up to
-`timeout_s` — and, towards a bench server, tells it the episode's seed and cell so the served
-policy resets exactly as it would in process. Every blocking call is bounded by `timeout_s`:
-a dead, unreachable or slow server, or an answer that is not a finite (T, A) action chunk of
-the env's width, fails that episode with the reason (the run goes on, and the next episode
-reconnects). Round-trip latencies are recorded per episode (`bench.remote.latency`).
+starts an episode: towards a bench server it tells the server the episode's seed and cell so the
+served policy resets exactly as it would in process.
+
+Two bounds. A server pays its set-up on a connection's first answers: loading a model, a JIT
+compile, building a cell's simulator (tens of seconds for real VLA servers). `warmup_s` (default
+300 s) bounds that: a policy's first connection (retrying with exponential backoff while nothing
+listens yet), the server's metadata, the reset that builds a cell (and any reset that changes
+cell), and one warm-up inference on a zero observation of the cell's spec (its answer is not used).
+The policy warms its connection up when it is made, before the worker starts episodes, and says
+through `PolicyContext.status` (the run's progress) what it is waiting for. `timeout_s`
+(default 10 s) bounds every other answer, and reconnecting to a server that went away mid-run: a
+dead server, or an answer that is not a finite (T, A) action chunk of the env's width, fails that
+episode with the reason (the run goes on, and the next episode reconnects and warms up again).
+Round-trip latencies are recorded per episode (`bench.remote.latency`); warm-up answers are not.
 
 Before any worker starts, the plugin connects once (`identity`/`preflight`): nothing listening
-is one line naming host:port (exit 2); a bench server also checks that it can serve the run's
-suite and cells.
+within `warmup_s` is one line naming host:port (exit 2); a bench server also checks that it can
+serve the run's suite and cells.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+import threading
 import time
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -41,26 +51,76 @@ BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.05, 1.0
 
 
 class RemoteError(BenchError):
-    """A policy server that cannot be reached, is too slow, or answers outside the protocol."""
+    """A policy server that cannot be reached, is too slow, or answers outside the protocol.
+
+    `answered`: the server did answer (a refusal, or an answer outside the protocol), so it is up.
+    """
+
+    def __init__(self, message: str, answered: bool = False):
+        super().__init__(message)
+        self.answered = answered
 
 
 def address(host: str, port: int) -> str:
     return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
 
 
+WAIT_NOTE_S = 2.0  # a wait longer than this is reported (to the run's progress, or stderr before the run)
+_lost: set[str] = set()  # servers this process failed to (re)connect to: connecting is bounded by timeout_s
+
+
+class _Wait:
+    """Reports what a connection waits for once the wait has lasted WAIT_NOTE_S: quick answers say nothing."""
+
+    def __init__(self, report: Callable[[str | None], None] | None, text: str):
+        self.report, self.text, self.shown = report, text, False
+        self.timer: threading.Timer | None = None
+
+    def __enter__(self) -> _Wait:
+        if self.report is not None:
+            self.timer = threading.Timer(WAIT_NOTE_S, self._show)
+            self.timer.daemon = True
+            self.timer.start()
+        return self
+
+    def _show(self) -> None:
+        self.shown = True
+        if self.report is not None:
+            self.report(self.text)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        if self.shown and self.report is not None:
+            self.report(None)
+
+
 class Connection:
     """One websocket to a policy server: connect with backoff, bounded request/answer, metadata.
 
     Any failure during a request closes the socket, so a late answer can never be taken for
-    the answer to the next request.
+    the answer to the next request. `warmup_s` bounds the first connection and the answers a caller
+    asks for with `warm=True`; `timeout_s` reconnecting and every other answer. `report` hears what a
+    long wait is for (see `_Wait`).
     """
 
-    def __init__(self, host: str, port: int, timeout_s: float):
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        timeout_s: float,
+        warmup_s: float | None = None,
+        report: Callable[[str | None], None] | None = None,
+    ):
         self.host, self.port, self.timeout_s = host, int(port), float(timeout_s)
+        self.warmup_s = float(timeout_s if warmup_s is None else warmup_s)
+        self.report = report
         self.where = address(host, port)
         self.uri = f"ws://{self.where}"
         self.ws: link.Link | None = None
         self.metadata: dict[str, Any] = {}
+        self.cell: str | None = None  # the cell of the last acknowledged reset on this connection
+        self.reached = False  # connected before: a reconnect (after a lost connection) is bounded by timeout_s
 
     @property
     def connected(self) -> bool:
@@ -73,43 +133,61 @@ class Connection:
         return meta if isinstance(meta, dict) and meta.get("protocol") == wire.PROTOCOL else None
 
     def connect(self) -> dict[str, Any]:
-        """Open the socket and read the server's metadata; retry with backoff until `timeout_s` is spent."""
-        self.close()
-        deadline = time.monotonic() + self.timeout_s
-        delay, attempts, last = BACKOFF_FIRST_S, 0, "no attempt"
-        while True:
-            attempts += 1
-            left = deadline - time.monotonic()
-            try:
-                ws = link.connect(self.uri, max(left, 0.01), MAX_REPLY_BYTES)
-            except ValueError as exc:  # not a ws:// address
-                raise RemoteError(f"host={self.host!r} port={self.port}: not a valid address ({exc})") from None
-            except (OSError, TimeoutError, EOFError) as exc:  # link.HandshakeFailed is an OSError
-                last = _reason(exc)
-            else:
-                try:
-                    self.metadata = self._metadata(ws, deadline)
-                except BaseException:
-                    ws.close()
-                    raise
-                self.ws = ws
-                return self.metadata
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise RemoteError(
-                    f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
-                    f"timeout_s={self.timeout_s:g} s; is bench serve or the server running?)"
-                )
-            time.sleep(min(delay, left))
-            delay = min(delay * 2, BACKOFF_MAX_S)
+        """Open the socket and read the server's metadata, retrying with backoff.
 
-    def _metadata(self, ws: link.Link, deadline: float) -> dict[str, Any]:
+        The first connection is bounded by `warmup_s` (a server may still be loading its model before
+        it listens); a reconnect, or any connection to a server this process already failed to reach,
+        by `timeout_s`: a server that went away mid-run fails episodes quickly until it is back.
+        """
+        self.close()
+        self.cell = None
+        first = not self.reached and self.where not in _lost
+        limit, key = (self.warmup_s, "warmup_s") if first else (self.timeout_s, "timeout_s")
+        deadline = time.monotonic() + limit
+        delay, attempts, last = BACKOFF_FIRST_S, 0, "no attempt"
+        silent = False  # the last attempt's TCP connection was accepted, and then nothing came
+        with _Wait(self.report if first else None, f"the policy server at {self.where} (up to {key}={limit:g} s)"):
+            while True:
+                attempts += 1
+                left = deadline - time.monotonic()
+                try:
+                    ws = link.connect(self.uri, max(left, 0.01), MAX_REPLY_BYTES)
+                except ValueError as exc:  # not a ws:// address
+                    raise RemoteError(f"host={self.host!r} port={self.port}: not a valid address ({exc})") from None
+                except (OSError, TimeoutError, EOFError) as exc:  # link.HandshakeFailed is an OSError
+                    last, silent = _reason(exc), isinstance(exc, TimeoutError)
+                else:
+                    try:
+                        self.metadata = self._metadata(ws, deadline, key, limit)
+                    except BaseException:
+                        ws.close()
+                        _lost.add(self.where)
+                        raise
+                    self.ws, self.reached = ws, True
+                    _lost.discard(self.where)
+                    return self.metadata
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    _lost.add(self.where)
+                    if silent:
+                        raise RemoteError(
+                            f"the server at {self.where} accepted the connection but did not answer the websocket "
+                            f"handshake within {key}={limit:g} s (is it hung, or not a websocket policy server?)"
+                        )
+                    raise RemoteError(
+                        f"no policy server at {self.where}: {last} ({attempts} attempt(s) in "
+                        f"{key}={limit:g} s; is bench serve or the server running?)"
+                    )
+                time.sleep(min(delay, left))
+                delay = min(delay * 2, BACKOFF_MAX_S)
+
+    def _metadata(self, ws: link.Link, deadline: float, key: str, limit: float) -> dict[str, Any]:
         try:
             frame = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
         except TimeoutError:
             raise RemoteError(
                 f"the server at {self.where} accepted the connection but sent no metadata within "
-                f"timeout_s={self.timeout_s:g} s (is it a websocket policy server?)"
+                f"{key}={limit:g} s (is it a websocket policy server?)"
             ) from None
         except Exception as exc:
             raise RemoteError(f"the server at {self.where} closed before sending metadata: {_reason(exc)}") from None
@@ -118,35 +196,42 @@ class Connection:
         except wire.WireError as exc:
             raise RemoteError(f"server at {self.where}: {exc}") from None
 
-    def request(self, message: dict[str, Any]) -> dict[str, Any]:
-        """Send one message and return the decoded answer; RemoteError (and a closed socket) on any failure."""
+    def request(self, message: dict[str, Any], warm: bool = False) -> dict[str, Any]:
+        """Send one message and return the decoded answer; RemoteError (and a closed socket) on any failure.
+
+        `warm`: the answer may pay the server's set-up (bounded by `warmup_s`, and reported if long).
+        """
         if self.ws is None:
             raise RemoteError(f"not connected to {self.where}")
         try:
             frame = wire.encode(message)
         except wire.WireError as exc:
             raise RemoteError(f"observation for {self.where}: {exc}") from None
+        limit, key = (self.warmup_s, "warmup_s") if warm else (self.timeout_s, "timeout_s")
         ok = False
         try:
-            self.ws.send(frame)
-            answer = self.ws.recv(timeout=self.timeout_s)
+            with _Wait(
+                self.report if warm else None,
+                f"the policy server at {self.where} to warm up (up to warmup_s={limit:g} s)",
+            ):
+                self.ws.send(frame)
+                answer = self.ws.recv(timeout=limit)
             ok = True
         except TimeoutError:
-            raise RemoteError(
-                f"the server at {self.where} did not answer within timeout_s={self.timeout_s:g} s"
-            ) from None
+            raise RemoteError(f"the server at {self.where} did not answer within {key}={limit:g} s") from None
         except (link.Closed, OSError) as exc:
             raise RemoteError(f"the server at {self.where} closed the connection ({_reason(exc)})") from None
         finally:
             if not ok:  # includes the episode's own timeout interrupting recv: never reuse this socket
                 self.close()
         if isinstance(answer, str):
-            raise RemoteError(f"the server at {self.where} refused the request: {' '.join(answer.split())[:400]}")
+            text = " ".join(answer.split())[:400]
+            raise RemoteError(f"the server at {self.where} refused the request: {text}", answered=True)
         try:
             return wire.decode(answer, "the server's answer")
         except wire.WireError as exc:
             self.close()  # it does not speak the protocol: start clean next time
-            raise RemoteError(f"server at {self.where}: {exc}") from None
+            raise RemoteError(f"server at {self.where}: {exc}", answered=True) from None
 
     def close(self) -> None:
         ws, self.ws = self.ws, None
@@ -187,17 +272,23 @@ def check_actions(reply: dict[str, Any], dim: int, where: str) -> np.ndarray:
 
 
 class RemotePolicy:
-    """One cell's policy behind a server: `reset(seed)` per episode, `act(obs)` one round trip."""
+    """One cell's policy behind a server: warmed up when made, `reset(seed)` per episode, `act(obs)` one round trip."""
 
     def __init__(self, options: RemoteOptions, cell: Cell, env: EnvAdapter, ctx: PolicyContext):
         self.options, self.cell, self.ctx = options, cell, ctx
         self.dim, self.fps = int(env.action_spec.dim), float(env.fps)
         entries = obs_map_mod.parse(options.obs_map)
         self.map = obs_map_mod.ClientMap(entries, env.obs_spec, cell.task)
-        self.conn = Connection(options.host, options.port, options.timeout_s)
+        self.zero = self.map(zero_observation(env.obs_spec, cell.task))
+        self.conn = Connection(options.host, options.port, options.timeout_s, options.warmup_s, ctx.status)
         weakref.finalize(self, self.conn.close)  # the runner drops policies without closing them
         self._rtt: list[float] = []
         self._server_ms: list[float] = []
+        try:
+            self.warm_up(0)  # before any episode: the server's set-up is not an episode's time
+        except BaseException:
+            self.conn.close()
+            raise
 
     def _reset_message(self, seed: int) -> dict[str, Any]:
         suite = self.ctx.suite
@@ -212,21 +303,42 @@ class RemotePolicy:
             }
         }
 
+    def warm_up(self, seed: int) -> None:
+        """Connect and wait for the server's set-up, each answer bounded by `warmup_s`.
+
+        A bench server builds the cell's env and policy at its first reset; any server may load or
+        compile its model at its first inference, made here on a zero observation of the cell's spec.
+        Its answer is not used: any answer, a refusal or one outside the protocol included, means the
+        server is ready (the episodes say what is wrong with its answers); only no answer fails.
+        """
+        self.conn.connect()
+        if self.conn.bench is not None:
+            _control(self.conn, self._reset_message(seed), warm=True)
+        try:
+            self.conn.request(self.zero, warm=True)
+        except RemoteError as exc:
+            if not exc.answered:
+                raise
+            if not self.conn.connected:  # its answer closed the connection: the episode starts on a fresh one
+                self.conn.connect()
+                if self.conn.bench is not None:
+                    _control(self.conn, self._reset_message(seed))
+
     def reset(self, seed: int) -> None:
         self._rtt, self._server_ms = [], []
         for attempt in (0, 1):
-            fresh = not self.conn.connected
-            if fresh:
-                self.conn.connect()
+            if not self.conn.connected:
+                self.warm_up(seed)  # a new connection: the server sets it up again (the reset included)
+                return
             if self.conn.bench is None:
                 return  # openpi servers keep no per-episode state we could reset
             try:
-                _control(self.conn, self._reset_message(seed))
+                _control(self.conn, self._reset_message(seed), warm=self.conn.cell != self.cell.key)
                 return
             except RemoteError:
-                if fresh or attempt:  # a fresh connection that fails is a real failure
+                if attempt:
                     raise
-                # the server may have restarted since the last episode: reconnect once
+                self.conn.close()  # the server may have restarted since the last episode: reconnect once
 
     def act(self, obs: Obs) -> np.ndarray:
         if not self.conn.connected:
@@ -249,6 +361,14 @@ class RemotePolicy:
         self.conn.close()
 
 
+def zero_observation(spec: Any, task: str) -> dict[str, Any]:
+    """An observation of `spec` made of zeros (the task name for text entries): the warm-up inference's input."""
+    return {
+        key: task if feat.dtype == "str" else np.zeros(feat.shape, dtype=np.dtype(feat.dtype))
+        for key, feat in spec.items()
+    }
+
+
 def suite_ref(suite: Any) -> dict[str, Any]:
     """How a client names its suite to a bench server: name, class path and options (JSON)."""
     cls = type(suite)
@@ -266,13 +386,16 @@ def _jsonable(x: Any) -> Any:
     return jsonable(x)
 
 
-def _control(conn: Connection, message: dict[str, Any]) -> dict[str, Any]:
-    reply = conn.request(message)
+def _control(conn: Connection, message: dict[str, Any], warm: bool = False) -> dict[str, Any]:
+    """Send a bench control message and check the acknowledgement (`warm`: it may pay the server's set-up)."""
+    reply = conn.request(message, warm=warm)
     body = reply.get(wire.CONTROL)
     if not isinstance(body, dict) or not body.get("ok"):
         raise RemoteError(
             f"the server at {conn.where} did not acknowledge {message[wire.CONTROL]['op']!r}: {str(body)[:200]}"
         )
+    if message[wire.CONTROL]["op"] == "reset":
+        conn.cell = message[wire.CONTROL].get("cell")
     return body
 
 
@@ -282,7 +405,8 @@ class RemoteOptions:
 
     host: str = "127.0.0.1"  # the policy server's address (bench serve, openpi, the lerobot adapter)
     port: int = 8000  # its port (8000 is openpi's and bench serve's default)
-    timeout_s: float = 10.0  # bound on connecting (with retries) and on each answer; then the episode fails
+    timeout_s: float = 10.0  # bound on each answer in an episode (and on reconnecting mid-run); then it fails
+    warmup_s: float = 300.0  # bound on connecting and on the server's set-up: first answers of a connection
     replan_every: int = 0  # rows of each action chunk executed before asking again; 0 = the whole chunk
     obs_map: Optional[list[str]] = None  # WIRE_KEY:SOURCE entries, e.g. [observation/state:state,prompt:task]
 
@@ -293,8 +417,10 @@ def validate(options: RemoteOptions) -> None:
         raise ConfigError(f"host={options.host!r}: give a host name or IP address (e.g. 127.0.0.1)")
     if not 1 <= options.port <= 65535:
         raise ConfigError(f"port={options.port}: must be in [1, 65535]")
-    if not (math.isfinite(options.timeout_s) and 0 < options.timeout_s <= MAX_TIMEOUT_S):
-        raise ConfigError(f"timeout_s={options.timeout_s}: must be > 0 and at most {MAX_TIMEOUT_S:g} s")
+    for key in ("timeout_s", "warmup_s"):
+        value = getattr(options, key)
+        if not (math.isfinite(value) and 0 < value <= MAX_TIMEOUT_S):
+            raise ConfigError(f"{key}={value}: must be > 0 and at most {MAX_TIMEOUT_S:g} s")
     if options.replan_every < 0:
         raise ConfigError(f"replan_every={options.replan_every}: must be >= 0 (0 = execute the whole chunk)")
     obs_map_mod.parse(options.obs_map)
@@ -316,9 +442,12 @@ class RemotePlugin(PolicyPlugin):
         key = (options.host, options.port)
         if key not in self._meta:
             validate(options)
-            conn = Connection(options.host, options.port, options.timeout_s)
+            conn = Connection(options.host, options.port, options.timeout_s, options.warmup_s, _to_stderr)
+            _lost.discard(conn.where)  # a new run waits for a server's set-up again, whatever an earlier one saw
             try:
                 self._meta[key] = conn.connect()
+            except RemoteError as exc:
+                raise RemoteError(f"policy=remote: {exc}") from None
             finally:
                 conn.close()
         return self._meta[key]
@@ -338,11 +467,12 @@ class RemotePlugin(PolicyPlugin):
         for cell in cells:
             obs_map_mod.check(entries, suite.obs_spec(cell), f"suite {suite.name!r} cell {cell.key}")
         self._metadata(options)
-        conn = Connection(options.host, options.port, options.timeout_s)
+        conn = Connection(options.host, options.port, options.timeout_s, options.warmup_s, _to_stderr)
         try:
             conn.connect()
             if conn.bench is not None:
-                _control(conn, {wire.CONTROL: {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells]}})
+                check = {wire.CONTROL: {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells]}}
+                _control(conn, check, warm=True)
         except RemoteError as exc:
             raise RemoteError(f"policy=remote: {exc}") from None
         finally:
@@ -350,3 +480,9 @@ class RemotePlugin(PolicyPlugin):
 
     def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> RemotePolicy:
         return RemotePolicy(ctx.options, cell, env, ctx)
+
+
+def _to_stderr(text: str | None) -> None:
+    """Before the run (no progress yet): what the plan waits for, on stderr (a long wait is not a hang)."""
+    if text is not None:
+        print(f"waiting for {text}; Ctrl-C stops", file=sys.stderr, flush=True)

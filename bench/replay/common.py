@@ -175,6 +175,13 @@ def measured(
     """`traces` (its doc empty) with its replay.json document (schema bench.replay/1): the errors summarised
     (`summarise`; `rows` adds fields to the per-episode rows), fields common to both backends, then `extra`."""
     horizons, per_episode = summarise(traces.errors, traces.qpos, traces.offsets, traces.joints, traces.episodes, cfg.k)
+    short = int(np.sum(np.diff(traces.offsets) - 1 < cfg.k))
+    if short:
+        notes = [
+            *notes,
+            f"{short} of {len(traces.episodes)} episode(s) are shorter than k = {cfg.k} frames: their k-step "
+            "horizon runs to the episode's end (as their free run does)",
+        ]
     for row, more in zip(per_episode, rows or []):
         row.update(more)
     doc = {

@@ -115,9 +115,11 @@ def as_given(model: mujoco.MjModel, rec: Recording, substeps: int) -> Variant:
 def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None = None, seed: int = 0) -> Segments:
     """Back-to-back k-frame horizons covering each window (the last one overlaps to reach its end).
 
-    With `limit`, a seeded subset of at most that many horizons (the fit's cost is linear in them).
+    A window shorter than k frames gets one horizon to its end; the frames past it (which would run
+    into the next episode) are masked out. With `limit`, a seeded subset of at most that many
+    horizons (the fit's cost is linear in them).
     """
-    starts = []
+    starts, ends = [], []
     for w in windows:
         first, last = rec.offsets[w.episode] + w.start, rec.offsets[w.episode] + w.stop - 1  # last frame
         kk = min(k, last - first)
@@ -127,10 +129,14 @@ def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None
         if s[-1] + kk < last:
             s.append(last - kk)
         starts.extend(s)
-    start = np.array(starts, dtype=np.int64)
+        ends.extend([last] * len(s))
+    start, end = np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64)
     if limit is not None and len(start) > limit:
-        start = np.sort(np.random.default_rng(seed).choice(start, size=limit, replace=False))
-    return Segments(start, k)
+        keep = np.random.default_rng(seed).choice(len(start), size=limit, replace=False)  # as choice(start, ...)
+        keep = keep[np.argsort(start[keep], kind="stable")]  # in the order of their start frames
+        start, end = start[keep], end[keep]
+    mask = start[:, None] + 1 + np.arange(k)[None, :] <= end[:, None]
+    return Segments(start, k, None if mask.all() else mask)
 
 
 def free_runs(rec: Recording, windows: list[Window]) -> Segments:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -261,9 +261,64 @@ def render(summary: dict[str, Any], console=None) -> None:
             console.print(sentence)
     if summary.get("sensitivity"):
         render_sensitivity(summary["sensitivity"], console)
+    errored = errored_line(summary)
+    if errored:
+        console.print(f"[yellow]{errored}[/]", soft_wrap=True)
+
+
+def _cell_label(c: dict[str, Any]) -> str:
+    return f"{c['task']}/{c['robot']}/{c['env']}" + ("" if c["condition"] == "nominal" else f" {c['condition']}")
+
+
+def _listed(labels: list[str], most: int = 8) -> str:
+    return ", ".join(labels[:most]) + (f" and {len(labels) - most} more" if len(labels) > most else "")
+
+
+def errored_line(summary: dict[str, Any]) -> str | None:
+    """How many episodes errored or timed out, per cell (None when none did): a partly failed run's last line."""
+    cells = [c for c in summary["cells"] if c["errors"]]
+    if not cells:
+        return None
     counts = summary["counts"]
-    if counts["errors"]:
-        console.print(f"[yellow]{counts['errors']} episode(s) errored or timed out; see 'error' in episodes.jsonl[/]")
+    per_cell = [f"{_cell_label(c)} {c['errors']} of {c['n'] + c['errors']}" for c in cells]
+    return (
+        f"{counts['errors']} of {counts['episodes']} episodes errored or timed out ({_listed(per_cell)}); "
+        "see 'error' in episodes.jsonl"
+    )
+
+
+def nothing_measured(summary: dict[str, Any], records: list[EpisodeRecord] | None = None) -> str | None:
+    """Why the scores of `summary` measure nothing (one line), or None when every cell has a completed episode.
+
+    Nothing is measured when no episode is recorded, when every episode errored, or when a cell has
+    no completed episode while others have: its rates would be missing from every aggregate and
+    gap, and the rest would read as if the run were whole. With `records`, the line ends with the
+    most frequent error of those cells (e.g. a renderer or a policy server that is missing).
+    """
+    cells = summary["cells"]
+    if not cells:
+        return "episodes.jsonl holds no episode record"
+    empty = [c for c in cells if c["n"] == 0]
+    if not empty:
+        return None
+    if len(empty) == len(cells):
+        head = f"no episode completed: all {summary['counts']['episodes']} errored or timed out"
+    else:
+        head = (
+            f"{len(empty)} of {len(cells)} cells completed no episode ({_listed([_cell_label(c) for c in empty])}) "
+            "while the others did"
+        )
+    keys = {(c["task"], c["robot"], c["env"], c["split"], c["condition"]) for c in empty}
+    errors = Counter(
+        " ".join(str(r.error).split())
+        for r in records or []
+        if r.error is not None and (r.task, r.robot, r.env, r.split, r.condition) in keys
+    )
+    if not errors:
+        return head
+    reason, n = errors.most_common(1)[0]
+    total = sum(errors.values())
+    return f"{head}; {'error' if n == total else f'most frequent error ({n} of {total})'}: {reason[:400]}"
 
 
 _HELD_OUT_WORDS = {"robots": "robots", "envs": "environments", "tasks": "tasks"}

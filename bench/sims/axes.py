@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import ConfigError, DataError, did_you_mean
+from bench.protocols import RGB
 from bench.protocols.suite import NOMINAL, Condition
 from bench.sims import perturb_visual
 
@@ -391,6 +392,26 @@ def check_horizon(conditions: list[Condition], horizon: int) -> None:
                 f"perturb.{axis.name}: {worst:g} control steps is not less than the horizon "
                 f"({horizon} steps); valid: < {horizon} (or a longer horizon=)"
             )
+
+
+def check_policy_sees(conditions: list[Condition], needs: tuple[str, ...], spec: Any, policy: str) -> None:
+    """A visual axis changes only camera images: refused (ConfigError naming the axis) for a policy that reads none.
+
+    `needs` are the observation keys the policy declares it reads (none: the whole observation, as a
+    remote policy without `obs_map` gets it) and `spec` a cell's declared observation. Without this, a
+    state-only policy would report a drop of +0 [0, 0] that reads as robustness.
+    """
+    visual = [c for c in conditions if c.axis in VISUAL_AXES]
+    if not visual:
+        return
+    seen = [k for k in (needs or tuple(spec)) if str(k).startswith(RGB)]
+    if not seen:
+        reads = ", ".join(needs) if needs else ", ".join(spec)
+        raise ConfigError(
+            f"perturb.{visual[0].axis} changes only camera images, and policy {policy!r} reads none (it reads "
+            f"{reads}): the drop would measure nothing; use a policy that observes images (e.g. bc_image, or "
+            "remote with an rgb.* entry in obs_map) or leave the visual axes out"
+        )
 
 
 def axes_help() -> str:

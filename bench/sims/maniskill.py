@@ -32,6 +32,7 @@ import logging
 import os
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -40,7 +41,7 @@ from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
 from bench.protocols.env import AdapterBase
 from bench.sims.physx_axes import PhysxAxes
-from bench.sims.sapien_novulkan import CHECKED, prepare
+from bench.sims.sapien_novulkan import CHECKED, check_cameras, prepare
 
 if TYPE_CHECKING:
     from bench.sims.physx_axes import PhysxAxes
@@ -78,8 +79,14 @@ def _require() -> None:
     logger.setLevel(logging.ERROR)
 
 
-def check_backend(sim_backend: str) -> None:
-    """Refuse a backend ManiSkill cannot run here (physx_cuda needs a CUDA device)."""
+def check_backend(sim_backend: str, cameras: bool = False) -> None:
+    """Refuse, in one line saying what is missing and how to get it, what ManiSkill cannot run here.
+
+    physx_cuda needs a CUDA device and SAPIEN's PhysX GPU library, which SAPIEN downloads from GitHub
+    at first use (machines without internet access never get it); `cameras` (obs=rgb) needs a Vulkan
+    device (`sapien_novulkan.check_cameras`). Checked when the suite is built, i.e. when a run is
+    planned: before any episode.
+    """
     if sim_backend not in SIM_BACKENDS:
         raise ConfigError(f"sim_backend={sim_backend!r}: valid: {', '.join(SIM_BACKENDS)}")
     if sim_backend == "physx_cuda":
@@ -90,6 +97,29 @@ def check_backend(sim_backend: str) -> None:
                 "sim_backend=physx_cuda: this machine has no CUDA device (torch.cuda.is_available() "
                 "is False); use sim_backend=physx_cpu"
             )
+        missing = physx_gpu_library()
+        if missing is not None:
+            raise ConfigError(
+                f"sim_backend=physx_cuda: SAPIEN's PhysX GPU library {missing} is missing; SAPIEN downloads it "
+                'from GitHub at first use, which bench never does: run `python -c "import sapien; '
+                "sapien.physx.enable_gpu()\"` where the network allows (or unzip SAPIEN's linux-so.zip of "
+                "github.com/sapien-sim/physx-precompiled there), or use sim_backend=physx_cpu"
+            )
+    if cameras:
+        _require()
+        check_cameras()
+
+
+def physx_gpu_library() -> str | None:
+    """The path of SAPIEN's PhysX GPU library when it is not on disk (None when it is), without downloading it."""
+    _require()
+    import sapien.physx  # the maniskill extra: loaded only for ManiSkill suites
+
+    if sapien.physx.is_gpu_enabled():
+        return None
+    name = "PhysXGpu_64.dll" if os.name == "nt" else "libPhysXGpu_64.so"
+    path = Path.home() / ".sapien" / "physx" / str(sapien.physx.version()) / name
+    return None if path.is_file() else str(path)
 
 
 def cameras_of(robot: str) -> tuple[str, ...]:

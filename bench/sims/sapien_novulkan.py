@@ -148,16 +148,16 @@ def install() -> None:
     _state["mode"] = "stand-ins"
 
 
-def prepare(cameras: bool) -> str:
-    """Make ManiSkill scenes buildable in this process; return "vulkan" or "stand-ins".
+def check_cameras() -> None:
+    """ConfigError (what is missing and how to get it) unless ManiSkill can render cameras in this process.
 
-    With a Vulkan device nothing is changed. Without one, camera observations are impossible
-    (ConfigError naming the fix) and state-only envs get the inert stand-ins.
+    Called when a run with camera observations is planned, so a machine without a Vulkan device refuses
+    the run in one line before any episode, instead of failing every one of them.
     """
     mode = _state["mode"]
     if mode is None:
         mode = _state["mode"] = "vulkan" if render_device_available() else None
-    if cameras and mode != "vulkan":
+    if mode != "vulkan":
         why = (
             "the inert SAPIEN materials are installed in this process"
             if mode == "stand-ins"
@@ -166,6 +166,19 @@ def prepare(cameras: bool) -> str:
         raise ConfigError(
             f"obs=rgb: ManiSkill cameras need a Vulkan device and {why}; {LAVAPIPE_HINT}, or use obs=state"
         )
+
+
+def prepare(cameras: bool) -> str:
+    """Make ManiSkill scenes buildable in this process; return "vulkan" or "stand-ins".
+
+    With a Vulkan device nothing is changed. Without one, camera observations are impossible
+    (ConfigError naming the fix, `check_cameras`) and state-only envs get the inert stand-ins.
+    """
+    if cameras:
+        check_cameras()
+    mode = _state["mode"]
+    if mode is None:
+        mode = _state["mode"] = "vulkan" if render_device_available() else None
     if mode is None:
         install()
         mode = "stand-ins"
