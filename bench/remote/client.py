@@ -342,7 +342,10 @@ class RemotePlugin(PolicyPlugin):
         try:
             conn.connect()
             if conn.bench is not None:
-                _control(conn, {wire.CONTROL: {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells]}})
+                first = cells[0] if cells else None
+                sends = obs_map_mod.wire_spec(entries, suite.obs_spec(first)) if first is not None else {}
+                check = {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells], "sends": sends}
+                _control(conn, {wire.CONTROL: check})
         except RemoteError as exc:
             raise RemoteError(f"policy=remote: {exc}") from None
         finally:
