@@ -89,33 +89,38 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
     idx = _select(names, env_fields, "--env-fields")
     keep = _select(names, state_fields, "--state-fields") if state_fields else None
 
-    def env_state(row: dict, episode: int, frame: int) -> np.ndarray:
-        return np.asarray(row["observation.state"], np.float32)[idx]
+    # the state of every frame, in the order lerobot's tool rewrites them (data files sorted, rows in order)
+    import pyarrow.parquet as pq
+
+    files = sorted((Path(src) / "data").glob("*/*.parquet"))
+    state = np.concatenate(
+        [np.stack(pq.read_table(f, columns=["observation.state"]).column(0).to_numpy(zero_copy_only=False)) for f in files]
+    ).astype(np.float32)
+
+
+    def rows(columns: list[int]) -> np.ndarray:  # one vector per frame (an object array: lerobot's tool slices it)
+        out = np.empty(len(state), dtype=object)
+        out[:] = list(state[:, columns])
+        return out
 
     info = {"dtype": "float32", "shape": [len(idx)], "names": [names[i] for i in idx]}
-    add: dict[str, Any] = {"observation.environment_state": (env_state, info)}
+    add: dict[str, Any] = {"observation.environment_state": (rows(idx), info)}
     drop = [f for f in BENCH_ONLY if f in ds.meta.features]
     if keep is not None:  # lerobot cannot replace a feature in one pass: select into a new one, then rename
         state_info = {"dtype": "float32", "shape": [len(keep)], "names": [names[i] for i in keep]}
-        add["observation.state_selected"] = (
-            lambda row, episode, frame: np.asarray(row["observation.state"], np.float32)[keep],
-            state_info,
-        )
-        drop.append("observation.state")
+        add["observation.state_selected"] = (rows(keep), state_info)
     tmp = f"{dst}.partial"
     out = modify_features(
         ds,
         add_features=add,
-        remove_features=drop or None,
+        remove_features=(drop + ["observation.state"] if keep is not None else drop) or None,
         output_dir=tmp if keep is not None else dst,
         repo_id=f"bench/{Path(dst).name}",
     )
     if keep is not None:
         out = modify_features(
             out,
-            add_features={
-                "observation.state": (lambda row, episode, frame: np.asarray(row["observation.state_selected"]), state_info)
-            },
+            add_features={"observation.state": (rows(keep), state_info)},
             remove_features="observation.state_selected",
             output_dir=dst,
             repo_id=f"bench/{Path(dst).name}",
@@ -124,7 +129,7 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
     state_note = f"; observation.state = {', '.join(names[i] for i in keep)}" if keep is not None else ""
     print(
         f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
-        f"{', '.join(info['names'])}{state_note}; dropped {', '.join(d for d in drop if d != 'observation.state') or 'nothing'}"
+        f"{', '.join(info['names'])}{state_note}; dropped {', '.join(drop) or 'nothing'}"
     )
 
 

@@ -205,8 +205,11 @@ class AlohaEnv:
             self._sim.BOX_POSE[0] = np.concatenate(self._utils.sample_insertion_pose(seed))
         ts = self._env.reset()
         self._reward = 0.0
-        data = self._physics.data
-        self._init = np.concatenate([data.qpos, data.qvel]).copy()
+        data, model = self._physics.data, self._physics.model.ptr
+        # the start and the physics it evolves under: scenes share starts but not dynamics (`bench check` tells
+        # a held-out scene from a copy of a seen one by this)
+        physics = [model.body_mass, model.geom_friction[:, 0], model.actuator_gainprm[:, 0], model.dof_frictionloss]
+        self._init = np.concatenate([data.qpos, data.qvel, *physics]).copy()
         return self._obs(ts.observation)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:

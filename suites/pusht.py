@@ -160,8 +160,14 @@ class PushTEnv:
         return self._obs(raw)
 
     def _state(self) -> np.ndarray:
-        e = self._env
-        return np.array([*e.agent.position, *e.block.position, e.block.angle], dtype=np.float64)
+        """The start, and the scene it plays in (goal, block size and centre of gravity, colours): scenes share
+        starts, so `bench check` tells a held-out scene from a copy of a seen one by the rest."""
+        import pygame  # pygame: loaded only when a PushT env is made
+
+        e, p = self._env, self._env.params
+        colors = [c / 255.0 for name in ("block", "goal", "background") for c in pygame.Color(p["colors"][name])[:3]]
+        scene = [*e.goal_pose, p["scale"], p["cog_shift"], *colors]
+        return np.array([*e.agent.position, *e.block.position, e.block.angle, *scene], dtype=np.float64)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
         raw, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32).ravel())
