@@ -86,7 +86,7 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
         fail(f"{dst} exists; give a new folder (nothing is overwritten)")
     ds = _dataset(src)
     names = list(ds.meta.features["observation.state"]["names"] or [])
-    idx = _select(names, env_fields, "--env-fields")
+    idx = _select(names, env_fields, "--env-fields") if env_fields else []
     keep = _select(names, state_fields, "--state-fields") if state_fields else None
 
     # the state of every frame, in the order lerobot's tool rewrites them (data files sorted, rows in order)
@@ -104,7 +104,7 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
         return out
 
     info = {"dtype": "float32", "shape": [len(idx)], "names": [names[i] for i in idx]}
-    add: dict[str, Any] = {"observation.environment_state": (rows(idx), info)}
+    add: dict[str, Any] = {"observation.environment_state": (rows(idx), info)} if idx else {}
     drop = [f for f in BENCH_ONLY if f in ds.meta.features]
     if keep is not None:  # lerobot cannot replace a feature in one pass: select into a new one, then rename
         state_info = {"dtype": "float32", "shape": [len(keep)], "names": [names[i] for i in keep]}
@@ -129,7 +129,7 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
     state_note = f"; observation.state = {', '.join(names[i] for i in keep)}" if keep is not None else ""
     print(
         f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
-        f"{', '.join(info['names'])}{state_note}; dropped {', '.join(drop) or 'nothing'}"
+        f"{', '.join(info['names']) or '(none)'}{state_note}; dropped {', '.join(drop) or 'nothing'}"
     )
 
 
@@ -295,7 +295,7 @@ def main(argv: list[str]) -> int:
     p.add_argument(
         "--env-fields",
         default=",".join(DEFAULT_ENV_FIELDS),
-        help="state fields that form observation.environment_state (comma-separated)",
+        help="state fields that form observation.environment_state (comma-separated; '' = none, for image policies)",
     )
     p.add_argument(
         "--state-fields",

@@ -185,4 +185,9 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    code = main(sys.argv[1:])
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # exit now: tearing the interpreter down under the server's thread aborts in torch's native code
+    # ("terminate called without an active exception"), which would turn bench's exit code into 134
+    os._exit(code)

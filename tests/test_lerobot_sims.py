@@ -92,7 +92,9 @@ def test_aloha_scenes_scale_the_model_and_split_by_region():
     try:
         box = nominal.mujoco.model.body("box").id
         assert heavy.mujoco.model.body_mass[box] == pytest.approx(4 * nominal.mujoco.model.body_mass[box])
-        assert np.allclose(heavy.mujoco.model.body_mass[:box], nominal.mujoco.model.body_mass[:box])  # arms as they were
+        assert np.allclose(
+            heavy.mujoco.model.body_mass[:box], nominal.mujoco.model.body_mass[:box]
+        )  # arms as they were
         assert np.allclose(weak.mujoco.model.actuator_gainprm[:, 0], 0.4 * nominal.mujoco.model.actuator_gainprm[:, 0])
         assert np.allclose(weak.mujoco.model.actuator_biasprm[:, 1], 0.4 * nominal.mujoco.model.actuator_biasprm[:, 1])
     finally:
@@ -173,7 +175,9 @@ def test_pusht_matches_gym_pusht_and_its_scenes():
     try:
         obs = env.reset(5)
         ref_obs, _ = ref.reset(seed=5)
-        assert np.array_equal(obs["state"], np.concatenate([ref_obs["agent_pos"], ref_obs["environment_state"]]).astype(np.float32))
+        assert np.array_equal(
+            obs["state"], np.concatenate([ref_obs["agent_pos"], ref_obs["environment_state"]]).astype(np.float32)
+        )
         for t in range(30):
             action = np.array([100 + 10 * t, 300.0], np.float32)
             obs, reward, *_ = env.step(action)
@@ -216,7 +220,16 @@ def test_pusht_images_and_recolouring():
 def test_pusht_expert_moves_the_block_towards_the_goal(tmp_path):
     """The pushing controller covers part of the goal zone (its success rate is measured in the README)."""
     out = tmp_path / "runs"
-    argv = ["run", "suite=pusht", "envs=[nominal]", "policy=scripted", "episodes=4", "workers=1", f"out={out}", "run_id=p"]
+    argv = [
+        "run",
+        "suite=pusht",
+        "envs=[nominal]",
+        "policy=scripted",
+        "episodes=4",
+        "workers=1",
+        f"out={out}",
+        "run_id=p",
+    ]
     assert main(argv) == 0
     records = read_records(out / "p" / "episodes.jsonl")
     assert all(r.error is None for r in records)
