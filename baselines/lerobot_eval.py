@@ -19,7 +19,8 @@ checkout's `.venv/bin/bench`, else `bench` on PATH).
 
 Flags read (the others of lerobot-eval are refused with the list of these):
     --policy.path  --env.type (aloha | pusht)  --env.task  --env.episode_length  --eval.n_episodes
-    --eval.batch_size (accepted; bench runs one env per worker)  --seed  --policy.device  --bench
+    --seed  --policy.device  --bench; accepted and not needed: --eval.batch_size (bench runs one env per
+    worker) and --env.obs_type (bench sends what the policy's input features name)
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ FLAGS = (
     "--env.type",
     "--env.task",
     "--env.episode_length",
+    "--env.obs_type",
     "--eval.n_episodes",
     "--eval.batch_size",
     "--seed",
@@ -87,7 +89,10 @@ def parse(argv: list[str]) -> tuple[dict[str, str], list[str]]:
         name, eq, value = arg.partition("=")
         if name not in FLAGS:
             hint = difflib.get_close_matches(name, FLAGS, 1)
-            fail(f"{name}: not a flag this command reads; valid: {', '.join(FLAGS)}" + (f"; did you mean {hint[0]}?" if hint else ""))
+            fail(
+                f"{name}: not a flag this command reads; valid: {', '.join(FLAGS)}"
+                + (f"; did you mean {hint[0]}?" if hint else "")
+            )
         flags[name] = value if eq else next(it, "")
     return flags, extra
 
@@ -103,8 +108,8 @@ def _int(flags: dict[str, str], name: str, default: int, low: int) -> int:
     return value
 
 
-def bench_command(flags: dict[str, str], extra: list[str], served: Served, port: int) -> list[str]:
-    """The `bench run` argv that evaluates the served policy as lerobot-eval would."""
+def env_and_task(flags: dict[str, str]) -> tuple[dict, str]:
+    """lerobot's env type and task as bench's suite entry and task id (one-line errors listing the valid ones)."""
     env_type = flags.get("--env.type", "")
     if env_type not in ENVS:
         fail(f"--env.type={env_type!r}: bench has suites for {', '.join(ENVS)}")
@@ -116,6 +121,13 @@ def bench_command(flags: dict[str, str], extra: list[str], served: Served, port:
             f"--env.task={task!r}: not a task of {env_type}; valid: {', '.join(env['tasks'])}"
             + (f"; did you mean {hint[0]}?" if hint else "")
         )
+    return env, task
+
+
+def bench_command(flags: dict[str, str], extra: list[str], served: Served, port: int) -> list[str]:
+    """The `bench run` argv that evaluates the served policy as lerobot-eval would."""
+    env, task = env_and_task(flags)
+    env_type = flags["--env.type"]
     sources: dict[str, str] = env["sources"]  # type: ignore[assignment]
     obs_map = []
     for key in served.inputs:
@@ -126,9 +138,7 @@ def bench_command(flags: dict[str, str], extra: list[str], served: Served, port:
             )
         obs_map.append(f"{key}:{sources[key]}")
     images = any(sources[k].startswith("rgb.") for k in served.inputs)
-    episodes = _int(flags, "--eval.n_episodes", 50, 1)
-    seed = _int(flags, "--seed", 1000, 0)
-    horizon = _int(flags, "--env.episode_length", int(env["episode_length"]), 1)  # type: ignore[call-overload]
+    episodes, seed, horizon = numbers(flags, env)
     n_action_steps = int(getattr(served.policy.config, "n_action_steps", 0) or 0)
     cmd = [
         "run",
@@ -152,6 +162,13 @@ def bench_command(flags: dict[str, str], extra: list[str], served: Served, port:
     return [*cmd, *extra]
 
 
+def numbers(flags: dict[str, str], env: dict) -> tuple[int, int, int]:
+    """--eval.n_episodes, --seed and --env.episode_length, checked."""
+    episodes = _int(flags, "--eval.n_episodes", 50, 1)
+    seed = _int(flags, "--seed", 1000, 0)
+    return episodes, seed, _int(flags, "--env.episode_length", int(env["episode_length"]), 1)
+
+
 def bench_executable(flags: dict[str, str]) -> str:
     given = flags.get("--bench")
     if given:
@@ -171,6 +188,7 @@ def main(argv: list[str]) -> int:
     if not flags.get("--policy.path"):
         fail("--policy.path: give the trained policy's folder (.../checkpoints/last/pretrained_model)")
     exe = bench_executable(flags)
+    numbers(flags, env_and_task(flags)[0])  # every flag checked before the policy loads
     from bench.api.serving import WebsocketServer
 
     served = Served(flags["--policy.path"], flags.get("--policy.device", "cpu"))
@@ -185,7 +203,10 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    code = main(sys.argv[1:])
+    try:
+        code = main(sys.argv[1:])
+    except SystemExit as exc:  # fail(): a one-line error, exit 2
+        code = exc.code if isinstance(exc.code, int) else 2
     sys.stdout.flush()
     sys.stderr.flush()
     # exit now: tearing the interpreter down under the server's thread aborts in torch's native code
