@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -78,8 +79,6 @@ def _select(names: list[str], fields: list[str], flag: str) -> list[int]:
 def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] | None = None) -> None:
     """DST = SRC + observation.environment_state (named state fields) - bench's replay-only features; with
     `state_fields`, observation.state keeps only those fields (e.g. ALOHA's agent_pos, as lerobot-eval sends it)."""
-    import shutil
-
     from lerobot.datasets.dataset_tools import modify_features
 
     if os.path.exists(dst):
@@ -90,13 +89,15 @@ def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] |
     keep = _select(names, state_fields, "--state-fields") if state_fields else None
 
     # the state of every frame, in the order lerobot's tool rewrites them (data files sorted, rows in order)
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # pyarrow: loaded only when a dataset is prepared
 
     files = sorted((Path(src) / "data").glob("*/*.parquet"))
     state = np.concatenate(
-        [np.stack(pq.read_table(f, columns=["observation.state"]).column(0).to_numpy(zero_copy_only=False)) for f in files]
+        [
+            np.stack(pq.read_table(f, columns=["observation.state"]).column(0).to_numpy(zero_copy_only=False))
+            for f in files
+        ]
     ).astype(np.float32)
-
 
     def rows(columns: list[int]) -> np.ndarray:  # one vector per frame (an object array: lerobot's tool slices it)
         out = np.empty(len(state), dtype=object)

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-
 ARENA = (22.0, 490.0)  # where the agent (radius 15) can stand: inside gym-pusht's walls at 5 and 506 px
 
 

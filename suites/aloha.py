@@ -56,11 +56,21 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass, field
+from importlib import metadata
 from typing import Any, Optional
 
 import numpy as np
 
-from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
+from bench.api import ConfigError
+from bench.api.sims import (
+    RENDERER_DEFAULTS,
+    CameraOptions,
+    camera_spec,
+    check_options,
+    set_nominal,
+    unwrap,
+    with_cameras,
+)
 from bench.protocols import STATE, TASK, ActionSpec, Feature, MujocoHandle, Obs, ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
@@ -154,8 +164,6 @@ class AlohaEnv:
         from gym_aloha import constants, utils  # gym-aloha: loaded only when an ALOHA env is made
         from gym_aloha.tasks import sim  # gym-aloha: loaded only when an ALOHA env is made
 
-        from bench.api.sims import set_nominal
-
         spec = TASKS[task]
         self.task_id, self.kind, self.horizon, self.fps = task, spec.kind, int(horizon), FPS
         self._sim, self._utils = sim, utils
@@ -240,8 +248,6 @@ def _without_images(base: type) -> type:
 
 
 def _version(dist: str, module: Any) -> str:
-    from importlib import metadata
-
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:
@@ -264,8 +270,6 @@ class Aloha(SuiteBase):
         return missing_extra()
 
     def __init__(self, options: Any = None) -> None:
-        from bench.api import ConfigError
-
         why = missing_extra()
         if why:
             raise ConfigError(why)
@@ -284,8 +288,6 @@ class Aloha(SuiteBase):
         return camera_spec({STATE: state_feature(cell.task), TASK: Feature.text()}, self.options, ["top"])
 
     def make_env(self, cell: Cell, horizon: int):
-        from bench.api.sims import RENDERER_DEFAULTS, with_cameras
-
         scene = SEEN_SCENES.get(cell.env, UNSEEN_SCENES.get(cell.env, {}))
         env = AlohaEnv(cell.task, horizon, scene, where=cell.key)
         return with_cameras(env, self.options, ["top"], cell.key, scene_flags=RENDERER_DEFAULTS)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
+from importlib import metadata
 from typing import Any
 
 import numpy as np
@@ -235,8 +236,6 @@ def _scene_env_class() -> type:
 
 
 def _version(dist: str, module: Any) -> str:
-    from importlib import metadata
-
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:

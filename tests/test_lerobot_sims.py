@@ -187,7 +187,7 @@ def test_pusht_matches_gym_pusht_and_its_scenes():
     finally:
         env.close()
         ref.close()
-    for name, params in {**pusht.SEEN_SCENES, **pusht.UNSEEN_SCENES}.items():
+    for name in {**pusht.SEEN_SCENES, **pusht.UNSEEN_SCENES}:
         assert pusht.in_seen_region(pusht.scene_params(name)) == (name in pusht.SEEN_SCENES), name
     big = suite.make_env(_cell(suite, "PushT-v0", "big_block"), 5)
     moved = suite.make_env(_cell(suite, "PushT-v0", "goal_moved"), 5)
