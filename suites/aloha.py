@@ -37,7 +37,10 @@ Conditions:
     nominal; `perturb.*` model axes on the MuJoCo model (friction, mass [the cube, or peg and
     socket], link_mass, frictionloss, armature, gain, gravity; the model has no joint damping, so
     `perturb.damping` is refused: use frictionloss), interface axes (latency, action_noise,
-    obs_noise, action_hold) and, with `obs=state+rgb`, the visual axes on the images.
+    obs_noise, action_hold; latency's first steps command the neutral action, here the zero joint
+    pose) and, with `obs=state+rgb`, the visual axes on the images: light, light_dir, camera_pos,
+    camera_rot, object_color, table_color, background (not texture: the table has none; not
+    distractors: the table is a mesh, not a box to stand them on).
 Success:
     gym-aloha's reward reaches its maximum, 4 (cube held by the left gripper off the table;
     peg touching the socket's pin); the episode ends there, as gym-aloha's does (terminated),

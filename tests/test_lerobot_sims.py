@@ -118,6 +118,28 @@ def test_set_nominal_refuses_a_non_model_axis_and_a_used_env():
         env.close()
 
 
+def test_aloha_visual_axes_change_the_image_only():
+    from bench.sims import perturb
+    from bench.sims.axes import conditions_from_config
+
+    suite = aloha.Aloha(aloha.AlohaOptions(obs="state+rgb", image_size=[48, 64]))
+    env = suite.make_env(_cell(suite, TRANSFER, "nominal"), 2)
+    try:
+        nominal, dim, red_table = conditions_from_config({"light": [0.3], "table_color": [1.0]})
+        rng = np.random.default_rng(0)
+        images, states = [], []
+        for cond in (nominal, dim, red_table):
+            stepper, _ = perturb.apply(env, cond, rng)
+            obs = stepper.reset(1)
+            images.append(obs["rgb.top"].astype(float))
+            states.append(obs["state"])
+        assert images[1].mean() < images[0].mean() - 5  # dimmer
+        assert np.abs(images[2] - images[0]).mean() > 1  # another table colour
+        assert all(np.array_equal(s, states[0]) for s in states)  # the physics is untouched
+    finally:
+        env.close()
+
+
 def test_aloha_unknown_task_lists_the_valid_ones():
     suite = aloha.Aloha()
     with pytest.raises(ConfigError, match="tasks: 'AlohaTransferCub-v0' is not in suite 'aloha'.*AlohaTransferCube-v0"):
