@@ -63,8 +63,32 @@ def _score(summary: dict) -> tuple[str | None, dict]:
     return None, {"value": None, "ci": None, "reason": "no scored nominal cell"}
 
 
+def _drops(summary: dict) -> list[dict]:
+    """Per perturbation condition, pooled over the run's cells: the headline metric and its drop from nominal,
+    paired by episode seed, with intervals (copied from the summary's sensitivity table)."""
+    metric = summary["metric"]
+    out = []
+    for row in summary.get("sensitivity") or []:
+        if row.get("scope") != "all" or row.get("kind") == "nominal" or metric not in row.get("drop_vs_nominal", {}):
+            continue
+        rate = {"value": row.get("mean_return"), "ci": None} if metric == "return" else row.get(metric, {})
+        out.append(
+            {
+                "condition": row["condition"],
+                "axis": row.get("axis"),
+                "level": row.get("level"),
+                "n": row.get("n"),
+                "value": rate.get("value"),
+                "ci": rate.get("ci"),
+                "drop": row["drop_vs_nominal"][metric],
+            }
+        )
+    return out
+
+
 def entry_from_summary(summary: dict, source: str) -> dict:
-    """One leaderboard entry from a run summary (scores copied, nothing recomputed)."""
+    """One leaderboard entry from a run summary (scores copied, nothing recomputed); `drops` when the run
+    perturbed the physics or the interface (per axis and level, pooled over cells)."""
     split, score = _score(summary)
     nominal = [c for c in summary["cells"] if c["condition"] == "nominal"]
     cells = sorted(f"{c['task']}/{c['robot']}/{c['env']}" for c in nominal)
@@ -90,6 +114,7 @@ def entry_from_summary(summary: dict, source: str) -> dict:
         "finished_at": prov.get("finished_at"),
         "git_sha": prov.get("git_sha"),
         "superseded": [],
+        **({"drops": drops} if (drops := _drops(summary)) else {}),
     }
 
 
