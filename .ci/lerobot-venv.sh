@@ -7,7 +7,8 @@
 # So: torch 2.13.0 CPU first, lerobot without its dependencies, then the part of its dependency list that
 # dataset loading and training import (pyserial and diffusers: lerobot's training script imports every policy
 # and robot module), within lerobot's own version ranges where the registry has them, plus websockets and
-# msgpack for the adapter's server (bench's own wire code, imported from this checkout).
+# msgpack for the adapter's server (bench's own wire code, imported from this checkout), and lerobot's simulated
+# envs (gym-aloha, gym-pusht) at the versions bench pins, for lerobot-eval (tests/test_lerobot_parity.py).
 #
 #   bash .ci/lerobot-venv.sh [DIR]          # default DIR: .lerobot-venv (git-ignored)
 #   BENCH_LEROBOT_PYTHON=DIR/bin/python pytest tests/test_lerobot_interop.py
@@ -32,6 +33,9 @@ PY="$DIR/bin/python"
     "deepdiff>=7,<9" "packaging>=24.2,<26" "draccus==0.10.0" "jsonlines>=4,<5" "einops>=0.8,<0.9" \
     "termcolor>=2.4,<4" "gymnasium>=1.1,<2" "imageio>=2.34,<3" "numpy<2" "pyarrow<26" pillow \
     "pyserial>=3.5,<4" "diffusers>=0.27.2,<0.36" "websockets>=15,<18" "msgpack>=1.0.5"
+# lerobot's simulated envs, at bench's pins (pyproject's lerobot-sims extra: the same physics on both sides, so
+# lerobot-eval and bench run the same episodes; tests/test_lerobot_parity.py)
+"$PY" -m pip install -q "mujoco==3.3.0" "gym-aloha==0.1.5" "dm-control==1.0.28" "gym-pusht==0.1.8" "numpy<2"
 "$PY" -m pip install -q --no-deps torchcodec==0.12.0
 FFMPEG_LIBS="libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4"
 if ! ldconfig -p | grep -q 'libavdevice\.so\.59'; then
@@ -50,4 +54,4 @@ if old in s:
         ")  # usort:skip\nif extension._has_ops():\n    from torchvision import _autograd_registrations, _meta_registrations\n", 1)
     init.write_text(s)
 PYEOF
-HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; from torchcodec.decoders import VideoDecoder; import lerobot.scripts.lerobot_train, websockets, msgpack; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"
+HF_HUB_OFFLINE=1 "$PY" -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; from torchcodec.decoders import VideoDecoder; import lerobot.scripts.lerobot_train, lerobot.scripts.lerobot_eval, websockets, msgpack, gym_aloha, gym_pusht; import lerobot; print('lerobot', lerobot.__version__, 'ready in', '$DIR')"

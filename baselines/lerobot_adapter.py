@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -67,35 +68,96 @@ def _dataset(root: str) -> Any:
     return LeRobotDataset(f"bench/{Path(root).name}", root=root)
 
 
-def prepare(src: str, dst: str, env_fields: list[str]) -> None:
-    """DST = SRC + observation.environment_state (named state fields) - bench's replay-only features."""
+def _select(names: list[str], fields: list[str], flag: str) -> list[int]:
+    """Indices of the named state fields (a field `f` names `f` or `f_0`, `f_1`, ...), in the order given."""
+    missing = [f for f in fields if not any(n == f or n.startswith(f + "_") for n in names)]
+    if missing or not fields:
+        fail(f"{flag}: {missing or fields} not in observation.state (names: {', '.join(names)})")
+    return [i for f in fields for i, n in enumerate(names) if n == f or n.startswith(f + "_")]
+
+
+def prepare(src: str, dst: str, env_fields: list[str], state_fields: list[str] | None = None) -> None:
+    """DST = SRC + observation.environment_state (named state fields) - bench's replay-only features; with
+    `state_fields`, observation.state keeps only those fields (e.g. ALOHA's agent_pos, as lerobot-eval sends it)."""
     from lerobot.datasets.dataset_tools import modify_features
 
     if os.path.exists(dst):
         fail(f"{dst} exists; give a new folder (nothing is overwritten)")
     ds = _dataset(src)
     names = list(ds.meta.features["observation.state"]["names"] or [])
-    idx = [i for i, n in enumerate(names) if any(n == f or n.startswith(f + "_") for f in env_fields)]
-    missing = [f for f in env_fields if not any(n == f or n.startswith(f + "_") for n in names)]
-    if missing or not idx:
-        fail(f"--env-fields: {missing or env_fields} not in observation.state (names: {', '.join(names)})")
+    idx = _select(names, env_fields, "--env-fields") if env_fields else []
+    keep = _select(names, state_fields, "--state-fields") if state_fields else None
 
-    def env_state(row: dict, episode: int, frame: int) -> np.ndarray:
-        return np.asarray(row["observation.state"], np.float32)[idx]
+    # the state of every frame, in the order lerobot's tool rewrites them (data files sorted, rows in order)
+    import pyarrow.parquet as pq  # pyarrow: loaded only when a dataset is prepared
+
+    files = sorted((Path(src) / "data").glob("*/*.parquet"))
+    state = np.concatenate(
+        [
+            np.stack(pq.read_table(f, columns=["observation.state"]).column(0).to_numpy(zero_copy_only=False))
+            for f in files
+        ]
+    ).astype(np.float32)
+
+    def rows(columns: list[int]) -> np.ndarray:  # one vector per frame (an object array: lerobot's tool slices it)
+        out = np.empty(len(state), dtype=object)
+        out[:] = list(state[:, columns])
+        return out
 
     info = {"dtype": "float32", "shape": [len(idx)], "names": [names[i] for i in idx]}
+    add: dict[str, Any] = {"observation.environment_state": (rows(idx), info)} if idx else {}
     drop = [f for f in BENCH_ONLY if f in ds.meta.features]
+    if keep is not None:  # lerobot cannot replace a feature in one pass: select into a new one, then rename
+        state_info = {"dtype": "float32", "shape": [len(keep)], "names": [names[i] for i in keep]}
+        add["observation.state_selected"] = (rows(keep), state_info)
+    tmp = f"{dst}.partial"
     out = modify_features(
         ds,
-        add_features={"observation.environment_state": (env_state, info)},
-        remove_features=drop or None,
-        output_dir=dst,
+        add_features=add,
+        remove_features=(drop + ["observation.state"] if keep is not None else drop) or None,
+        output_dir=tmp if keep is not None else dst,
         repo_id=f"bench/{Path(dst).name}",
     )
+    if keep is not None:
+        out = modify_features(
+            out,
+            add_features={"observation.state": (rows(keep), state_info)},
+            remove_features="observation.state_selected",
+            output_dir=dst,
+            repo_id=f"bench/{Path(dst).name}",
+        )
+        shutil.rmtree(tmp)
+    state_note = f"; observation.state = {', '.join(names[i] for i in keep)}" if keep is not None else ""
     print(
         f"wrote {dst}: {out.num_episodes} episodes, {len(out)} frames; observation.environment_state = "
-        f"{', '.join(info['names'])}; dropped {', '.join(drop) or 'nothing'}"
+        f"{', '.join(info['names']) or '(none)'}{state_note}; dropped {', '.join(drop) or 'nothing'}"
     )
+
+
+def feature_mismatch(inputs: dict[str, Any], sends: Any) -> str | None:
+    """One line naming the first input feature of the policy that the client will not send, or not in its
+    shape (images: uint8 H x W x 3 for a C x H x W feature), or None. `sends` is what a bench client announces
+    in its preflight check ({wire key: {"shape", "dtype"}}); a client that announces nothing is not checked."""
+    if not isinstance(sends, dict) or not sends:
+        return None
+    for key, feat in inputs.items():
+        shape = [int(n) for n in feat.shape]
+        if feat.type.name == "VISUAL":
+            want, what = [shape[1], shape[2], shape[0]], "a uint8 image"
+        else:
+            want, what = shape, "a float vector"
+        got = sends.get(key)
+        if not isinstance(got, dict):
+            return (
+                f"the policy's input feature {key!r} ({what} of shape {want}) is not in the observation bench sends "
+                f"({', '.join(sorted(sends))}); map it with obs_map=[{key}:SOURCE]"
+            )
+        if list(got.get("shape") or []) != want or (feat.type.name == "VISUAL" and got.get("dtype") != "uint8"):
+            return (
+                f"the policy's input feature {key!r} is {what} of shape {want}, but bench sends "
+                f"{got.get('dtype')} {got.get('shape')} under that name (check obs_map=, obs=, image_size=)"
+            )
+    return None
 
 
 class LerobotSession:
@@ -116,7 +178,11 @@ class LerobotSession:
                     raise RequestError(f"reset: seed={seed!r} must be a non-negative integer")
                 self.s.policy.reset()
                 torch.manual_seed(seed)
-            elif op != "check":
+            elif op == "check":
+                problem = feature_mismatch(self.s.inputs, body.get("sends"))
+                if problem:
+                    raise RequestError(problem)
+            else:
                 raise RequestError(f"control op {op!r} is unknown; valid: reset, check")
             return {wire.CONTROL: {"ok": True, "op": op}}
         t0 = time.perf_counter()
@@ -230,7 +296,12 @@ def main(argv: list[str]) -> int:
     p.add_argument(
         "--env-fields",
         default=",".join(DEFAULT_ENV_FIELDS),
-        help="state fields that form observation.environment_state (comma-separated)",
+        help="state fields that form observation.environment_state (comma-separated; '' = none, for image policies)",
+    )
+    p.add_argument(
+        "--state-fields",
+        default="",
+        help="keep only these state fields in observation.state (comma-separated; default: all)",
     )
     s = sub.add_parser("serve", help="serve a trained lerobot policy over the remote-policy protocol")
     s.add_argument("policy_dir")
@@ -239,7 +310,12 @@ def main(argv: list[str]) -> int:
     s.add_argument("--device", default="cpu")
     args = parser.parse_args(argv)
     if args.command == "prepare":
-        prepare(args.src, args.dst, [f.strip() for f in args.env_fields.split(",") if f.strip()])
+        prepare(
+            args.src,
+            args.dst,
+            [f.strip() for f in args.env_fields.split(",") if f.strip()],
+            [f.strip() for f in args.state_fields.split(",") if f.strip()] or None,
+        )
     else:
         if not 0 <= args.port <= 65535:
             fail(f"--port {args.port}: must be in [0, 65535]")

@@ -3,6 +3,7 @@ and results/leaderboard.json is exactly the merge of the committed runs."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -85,3 +86,17 @@ def test_committed_results_hold_no_absolute_path():
         )
         found += [f"{rel}: {hit}" for doc in docs for hit in _absolute_paths(doc)]
     assert not found, found[:10]
+
+
+def test_aloha_act_entry_has_its_gap_and_per_axis_drops():
+    """The small ACT on ALOHA transfer-cube (results/aloha_act): seen/unseen gap and each axis' drop, with intervals."""
+    board = load_json(RESULTS / "leaderboard.json")
+    entry = next(e for e in board["entries"] if e["run_id"] == "aloha-act-s100")
+    assert entry["suite"]["name"] == "aloha" and entry["policy"]["checkpoint"] == "results/aloha_act/pretrained_model"
+    gap = next(g for g in entry["gaps"] if g["kind"] == "seen-unseen" and g["metric"] == "success_once")
+    assert gap["value"] is not None and len(gap["ci"]) == 2
+    drops = {d["axis"]: d for d in entry["drops"]}
+    assert set(drops) == {"friction", "mass", "gain", "frictionloss", "latency"}
+    assert all(d["drop"]["n_pairs"] == 70 and len(d["drop"]["ci"]) == 2 for d in drops.values())
+    weights = RESULTS / "aloha_act" / "pretrained_model" / "model.safetensors"
+    assert hashlib.sha256(weights.read_bytes()).hexdigest() == entry["policy"]["checkpoint_sha256"]

@@ -110,6 +110,8 @@ class Plan:
     def config_dict(self) -> dict[str, Any]:
         """The flat config stored in run.json and the summary: runner keys, then the suite's and policy's."""
         cfg = {k: getattr(self.config, k) for k in RUNNER_KEYS}
+        if cfg["seed_scheme"] == "hashed":  # the default, left out: runs written before the key existed resume
+            del cfg["seed_scheme"]
         for opts in (self.suite_options, self.policy_options):
             if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
                 cfg.update(dataclasses.asdict(opts))
@@ -201,7 +203,7 @@ def plan(cfg: RunConfig) -> Plan:
         axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_ref)
     if cfg.video:
         check_run(suite, cells, horizon)
-    jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed)
+    jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed, cfg.seed_scheme)
     problems = fast_check(suite, cells, jobs)
     if problems and not cfg.allow_split_violation:
         raise SplitError(

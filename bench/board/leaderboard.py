@@ -65,9 +65,33 @@ def _score(summary: dict) -> tuple[str | None, dict]:
     return None, {"value": None, "ci": None, "reason": "no scored nominal cell"}
 
 
+def _drops(summary: dict) -> list[dict]:
+    """Per perturbation condition, pooled over the run's cells: the headline metric and its drop from nominal,
+    paired by episode seed, with intervals (copied from the summary's sensitivity table)."""
+    metric = summary["metric"]
+    out = []
+    for row in summary.get("sensitivity") or []:
+        if row.get("scope") != "all" or row.get("kind") == "nominal" or metric not in row.get("drop_vs_nominal", {}):
+            continue
+        rate = {"value": row.get("mean_return"), "ci": None} if metric == "return" else row.get(metric, {})
+        out.append(
+            {
+                "condition": row["condition"],
+                "axis": row.get("axis"),
+                "level": row.get("level"),
+                "n": row.get("n"),
+                "value": rate.get("value"),
+                "ci": rate.get("ci"),
+                "drop": row["drop_vs_nominal"][metric],
+            }
+        )
+    return out
+
+
 def entry_from_summary(summary: dict, source: str) -> dict:
     """One leaderboard entry from a run summary (scores copied, nothing recomputed), read through the
-    typed `Summary` (a field of the wrong type is one line naming it)."""
+    typed `Summary` (a field of the wrong type is one line naming it); `drops` when the run perturbed the
+    physics or the interface (per axis and level, pooled over cells)."""
     split, score = _score(summary)
     typed = Summary.from_json(summary, source)
     cells = sorted(c.key for c in typed.nominal_cells())
@@ -93,6 +117,7 @@ def entry_from_summary(summary: dict, source: str) -> dict:
         "finished_at": prov.get("finished_at"),
         "git_sha": prov.get("git_sha"),
         "superseded": [],
+        **({"drops": drops} if (drops := _drops(summary)) else {}),
     }
 
 

@@ -22,7 +22,7 @@ from bench.core import outputs
 from bench.core.errors import ConfigError
 from bench.execution import ray_env
 from bench.protocols import option_keys, registry
-from bench.protocols.suite import METRICS, SPLITS
+from bench.protocols.suite import MAX_ENV_SEED, METRICS, SEED_SCHEMES, SPLITS
 
 # limits that keep a typo from starting an absurd job (the message names the limit; bench.core.config owns them)
 MAX_EPISODES = config_mod.MAX_EPISODES
@@ -43,6 +43,7 @@ class RunConfig:
     policy: Optional[str] = None  # registered policy or package.module:attr; default: the suite's default
     episodes: int = ranged(10, 1, MAX_EPISODES)  # episodes per cell and condition
     seed: int = ranged(0, 0, config_mod.MAX_SEED)  # run seed: episode seeds, perturbation draws, bootstrap
+    seed_scheme: str = "hashed"  # episode seeds: hashed (bench's) or consecutive (seed + episode, lerobot-eval's)
     workers: int = ranged(0, 0, MAX_WORKERS)  # executor=local: processes running episodes; 0 = all cores
     out: str = "runs"  # parent folder of run directories
     run_id: Optional[str] = None  # run directory name; an existing one is resumed
@@ -129,6 +130,13 @@ def check_runner(cfg: RunConfig) -> None:
     config_mod.validate(cfg)
     if cfg.metric is not None and cfg.metric not in METRICS:
         raise ConfigError(f"metric={cfg.metric!r}: valid: {', '.join(METRICS)}")
+    if cfg.seed_scheme not in SEED_SCHEMES:
+        raise ConfigError(f"seed_scheme={cfg.seed_scheme!r}: valid: {', '.join(SEED_SCHEMES)}")
+    if cfg.seed_scheme == "consecutive" and cfg.seed + cfg.episodes - 1 > MAX_ENV_SEED:
+        raise ConfigError(
+            f"seed={cfg.seed}: with seed_scheme=consecutive the last episode's seed (seed + episodes - 1) must be "
+            f"at most {MAX_ENV_SEED} (environments take 32-bit seeds)"
+        )
     for s in cfg.splits or []:
         if s not in SPLITS:
             raise ConfigError(f"splits: {s!r} is not a split; valid: {', '.join(SPLITS)}")

@@ -30,6 +30,7 @@ __all__ = [
     "Job",
     "NOMINAL",
     "SPLITS",
+    "SEED_SCHEMES",
     "SPLIT_AXES",
     "METRICS",
     "SuiteBase",
@@ -44,6 +45,10 @@ __all__ = [
 ]
 
 SPLITS = ("seen", "unseen")
+# how episode seeds follow from the run seed: bench's hashed draw, or run seed + episode index (the convention of
+# lerobot-eval's --seed and of Gymnasium's vector envs, so an evaluation made there is re-run on the same starts)
+SEED_SCHEMES = ("hashed", "consecutive")
+MAX_ENV_SEED = 2**32 - 1  # Gymnasium and numpy's legacy RandomState take 32-bit seeds
 # selection key (`robots=[...]`) -> the Cell attribute it selects on; also the manifest's axes
 SPLIT_AXES: dict[str, str] = {"robots": "robot", "tasks": "task", "envs": "env"}
 METRICS = ("success_once", "success_at_end", "return")
@@ -76,8 +81,14 @@ class Job:
         return f"{self.cell.key}|{self.condition.name}|{self.episode}"
 
 
-def episode_seed(run_seed: int, episode: int) -> int:
-    """Seed of episode `episode` of a run: independent of cell and condition (paired by seed)."""
+def episode_seed(run_seed: int, episode: int, scheme: str = "hashed") -> int:
+    """Seed of episode `episode` of a run: independent of cell and condition (paired by seed).
+
+    `hashed` (bench's default): a 32-bit draw from SeedSequence([run_seed, episode]);
+    `consecutive`: run_seed + episode, lerobot-eval's `--seed` convention.
+    """
+    if scheme == "consecutive":
+        return int(run_seed) + int(episode)
     return int(np.random.SeedSequence([int(run_seed), int(episode)]).generate_state(1)[0])
 
 
@@ -238,10 +249,15 @@ def select_cells(suite: Suite, selection: Any) -> list[Cell]:
     return cells
 
 
-def expand_jobs(cells: Sequence[Cell], conditions: Sequence[Condition], episodes: int, seed: int) -> list[Job]:
+def expand_jobs(
+    cells: Sequence[Cell], conditions: Sequence[Condition], episodes: int, seed: int, scheme: str = "hashed"
+) -> list[Job]:
     """Jobs in cell-major order, so each worker reuses its env across consecutive episodes."""
     return [
-        Job(cell, cond, ep, episode_seed(seed, ep)) for cell in cells for cond in conditions for ep in range(episodes)
+        Job(cell, cond, ep, episode_seed(seed, ep, scheme))
+        for cell in cells
+        for cond in conditions
+        for ep in range(episodes)
     ]
 
 

@@ -471,8 +471,10 @@ class RemotePlugin(PolicyPlugin):
         try:
             conn.connect()
             if conn.bench is not None:
-                check = {wire.CONTROL: {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells]}}
-                _control(conn, check, warm=True)
+                first = cells[0] if cells else None
+                sends = obs_map_mod.wire_spec(entries, suite.obs_spec(first)) if first is not None else {}
+                check = {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells], "sends": sends}
+                _control(conn, {wire.CONTROL: check}, warm=True)
         except RemoteError as exc:
             raise RemoteError(f"policy=remote: {exc}") from None
         finally:

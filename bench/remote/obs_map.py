@@ -108,6 +108,29 @@ def check(entries: list[Entry] | None, spec: ObsSpec, where: str, key: str = "ob
                     )
 
 
+def wire_spec(entries: list[Entry] | None, spec: ObsSpec) -> dict[str, dict[str, Any]]:
+    """What the client sends under each wire key: {"shape": [...], "dtype": ...} ("str" for the task).
+
+    Sent with the preflight "check", so a server can name an input it will not get, or one of the wrong
+    shape, before any episode (the lerobot adapter compares it with its policy's input features).
+    """
+    if entries is None:
+        out = {k: {"shape": list(f.shape), "dtype": f.dtype} for k, f in spec.items()}
+        out.setdefault(TASK, {"shape": [], "dtype": "str"})
+        return out
+    sent: dict[str, dict[str, Any]] = {}
+    for e in entries:
+        if e.fields:
+            widths = dict(spec[STATE].fields)
+            sent[e.wire] = {"shape": [sum(widths[f] for f in e.fields)], "dtype": "float32"}
+        elif e.keys == (TASK,):
+            sent[e.wire] = {"shape": [], "dtype": "str"}
+        else:
+            feature = spec[e.keys[0]]
+            sent[e.wire] = {"shape": list(feature.shape), "dtype": feature.dtype}
+    return sent
+
+
 class ClientMap:
     """Builds the message a server gets from one observation (select, rename, slice state fields)."""
 

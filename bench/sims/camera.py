@@ -15,9 +15,11 @@ not use robosuite's). On CPU machines EGL renders in software (Mesa llvmpipe). W
 can be made, `RendererError` says why in one line and how to enable one.
 
 Scene settings (they change what a policy sees, so `describe()` records them): shadows,
-reflections and the skybox are off: on these CPU machines that halves the cost of a frame
-(robosuite Lift, one 128x128 camera: ~69 -> ~38 ms, NOTES-simulators.md). Same state and seed
-give bit-identical images.
+reflections and the skybox are off by default: on these CPU machines that halves the cost of a
+frame (robosuite Lift, one 128x128 camera: ~69 -> ~38 ms, NOTES-simulators.md). A suite whose
+policies were trained on another renderer's images passes that renderer's settings (`scene_flags`;
+`RENDERER_DEFAULTS` are MuJoCo's and dm_control's, which gym-aloha renders with). Same state and
+seed give bit-identical images.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from bench.protocols import RGB, Feature
 
 IMAGE_SIZE_RANGE = (16, 1024)
 SCENE_FLAGS = {"shadows": False, "reflections": False, "skybox": False}
+RENDERER_DEFAULTS = {"shadows": True, "reflections": True, "skybox": True}  # MuJoCo's own (dm_control renders so)
 _GL_BACKENDS = ("egl", "osmesa", "glfw")
 
 SceneHook = Callable[[Any, str], None]  # (mujoco.MjvScene, camera name) -> None, called before each render
@@ -151,9 +154,18 @@ class CameraRig:
         cameras: names of cameras in the model (checked: an unknown name lists the valid ones).
         size: (height, width) in pixels, each in IMAGE_SIZE_RANGE.
         where: the env's name for error messages.
+        scene_flags: shadows / reflections / skybox on or off (default `SCENE_FLAGS`: all off).
     """
 
-    def __init__(self, model: Any, data: Any, cameras: Sequence[str], size: tuple[int, int], where: str = "the env"):
+    def __init__(
+        self,
+        model: Any,
+        data: Any,
+        cameras: Sequence[str],
+        size: tuple[int, int],
+        where: str = "the env",
+        scene_flags: dict[str, bool] | None = None,
+    ):
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
         self.model, self.data = model, data
@@ -168,9 +180,12 @@ class CameraRig:
         self._closed = False
         self.hook: SceneHook | None = None
         self.scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom + 100))
-        self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = SCENE_FLAGS["shadows"]
-        self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = SCENE_FLAGS["reflections"]
-        self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = SCENE_FLAGS["skybox"]
+        self.scene_flags = {**SCENE_FLAGS, **(scene_flags or {})}
+        if set(self.scene_flags) != set(SCENE_FLAGS):
+            raise ValueError(f"scene_flags: {sorted(self.scene_flags)}; valid keys: {', '.join(SCENE_FLAGS)}")
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.scene_flags["shadows"]
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = self.scene_flags["reflections"]
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = self.scene_flags["skybox"]
         self._option = mujoco.MjvOption()
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
@@ -214,7 +229,7 @@ class CameraRig:
             "cameras": list(self.cameras),
             "height": self.height,
             "width": self.width,
-            "scene": dict(SCENE_FLAGS),
+            "scene": dict(self.scene_flags),
             "gl": _backend(),
         }
 

@@ -80,11 +80,14 @@ def camera_spec(base: ObsSpec, options: Any, defaults: Sequence[str]) -> ObsSpec
     return out
 
 
-def with_cameras(env: EnvAdapter, options: Any, defaults: Sequence[str], where: str) -> EnvAdapter:
+def with_cameras(
+    env: EnvAdapter, options: Any, defaults: Sequence[str], where: str, scene_flags: dict[str, bool] | None = None
+) -> EnvAdapter:
     """`env` with a camera rig (and image observations when `obs=` asks for them).
 
     Without image observations the rig is still attached when the model has the cameras (for
     episode videos and visual perturbations); an env without cameras is returned as it is.
+    `scene_flags`: the rig's renderer settings (`bench.sims.camera.CameraRig`; default all off).
     """
     if env.mujoco is None:
         if wants_images(options):
@@ -101,7 +104,7 @@ def with_cameras(env: EnvAdapter, options: Any, defaults: Sequence[str], where: 
         if not cams:
             return env
     try:
-        return CameraEnv(env, options.obs, cams, parse_image_size(options.image_size), where)
+        return CameraEnv(env, options.obs, cams, parse_image_size(options.image_size), where, scene_flags)
     except BaseException:
         env.close()
         raise
@@ -117,11 +120,19 @@ class CameraEnv(AdapterWrapper):
         mode: the `obs=` mode.
     """
 
-    def __init__(self, inner: Any, mode: str, cameras: Sequence[str], size: tuple[int, int], where: str):
+    def __init__(
+        self,
+        inner: Any,
+        mode: str,
+        cameras: Sequence[str],
+        size: tuple[int, int],
+        where: str,
+        scene_flags: dict[str, bool] | None = None,
+    ):
         super().__init__(inner)
         self.mode = mode
         assert self.mujoco is not None  # checked by the suite before wrapping: cameras need a MuJoCo model
-        self.rig = CameraRig(self.mujoco.model, self.mujoco.data, cameras, size, where=where)
+        self.rig = CameraRig(self.mujoco.model, self.mujoco.data, cameras, size, where=where, scene_flags=scene_flags)
         self.mujoco.cameras = self.rig
         spec = dict(inner.obs_spec)
         if mode == "rgb":

@@ -372,6 +372,30 @@ def _value(mj: MujocoHandle, field: str, element: str, column: int) -> float:
     return float(arr[row, column] if arr.ndim == 2 else arr[row])
 
 
+def set_nominal(mj: MujocoHandle, levels: dict[str, float], where: str = "the env") -> None:
+    """Edit a freshly built model as the model axes would at `levels` ({axis: scale of the current value}),
+    once, before its first episode: the edited values are then the env's nominal ones, which `apply`
+    restores and perturbations scale. A suite's held-out scenes are built this way from the same axes
+    (e.g. {"mass": 3.0}: the object three times heavier in every episode of the cell).
+
+    Raises ConfigError for an axis that is not a model axis (or a level out of its range), and
+    RuntimeError when episodes already ran on the handle (their nominal values are cached).
+    """
+    if mj in _CACHE:
+        raise RuntimeError(f"set_nominal on {where}: call it when the env is built, before its first episode")
+    for name, level in levels.items():
+        axis = axis_named(name)
+        if axis.kind != "model":
+            raise ConfigError(
+                f"scene of {where}: {name!r} is a {axis.kind} axis; a scene scales model axes: {', '.join(MODEL_AXES)}"
+            )
+        condition = Condition(name=f"{name}={level:g}", axis=name, level=float(level))
+        _scale_model(mj, _Nominal(mj.model), name, targets(mj, condition, where), float(level))
+        if axis.setconst:
+            _set_const(mj)
+    mj.forward()
+
+
 def _draw(condition: Condition, rng: np.random.Generator) -> float:
     kind = (condition.spec or {}).get("kind", "grid")
     if kind == "grid":
