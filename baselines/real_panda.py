@@ -35,7 +35,7 @@ import numpy as np
 from baselines import bc
 from bench import api
 from bench.api.calibration import calibrate_arm, load_arm_spec, write_arm_report
-from bench.api.data import outputs, write_atomic
+from bench.api.data import outputs, portable, write_atomic
 from bench.api.datasets import import_csv, read_dataset, write_dataset
 from bench.api.scripts import build_from_argv, command_help, guarded
 from bench.api.stats import Outcome, agreement, paired_gap
@@ -269,6 +269,10 @@ def main_args(a: Args) -> int:
     ranks = rank_change(rows, a.seed)
     sweep = run_sweep(a, work, staging)
 
+    # the result names the copies it holds (relative to the checkout when it lies there), never the work folder
+    moves = {str(staging): portable(out / "calibration"), str(small_bc.parent): portable(out / "bc_small")}
+    rows, sweep = relocated(rows, moves), relocated(sweep, moves)
+
     def write(tmp: Path) -> None:
         shutil.copytree(staging, tmp / "calibration")
         shutil.copytree(small_bc.parent, tmp / "bc_small")
@@ -280,6 +284,18 @@ def main_args(a: Args) -> int:
     outputs.replace_dir(out, write)
     print(f"wrote {out}: calibration in {t_cal:.1f} s, {len(rows)} policies x 2 robots x {a.episodes} episodes")
     return 0
+
+
+def relocated(node: Any, moves: dict[str, Any]) -> Any:
+    """`node` with every string that starts with a key of `moves` starting with its value instead."""
+    if isinstance(node, dict):
+        return {k: relocated(v, moves) for k, v in node.items()}
+    if isinstance(node, list):
+        return [relocated(v, moves) for v in node]
+    if isinstance(node, str):
+        for old, new in moves.items():
+            node = node.replace(old, str(new))
+    return node
 
 
 def _iv(e: dict) -> str:
