@@ -118,6 +118,24 @@ def test_batched_replay_equals_a_python_step_loop(nominal_spec):
             np.testing.assert_allclose(e.pred[s, :n], ref, rtol=0, atol=1e-12, err_msg=f"{h} segment {s}")
 
 
+def test_no_segment_simulates_to_an_empty_batch(nominal_spec):
+    """An empty set of segments (a split that held nothing out) is an empty result, not a crash in MuJoCo's rollout."""
+    from bench.replay.data import extract
+    from bench.replay.simulate import Segments, Simulator, as_given, prepare_model
+    from bench.replay.spec import load_model, load_signal_map
+
+    spec, _ = load_signal_map(nominal_spec)
+    eps, _ = simulate_arm("coulomb_friction", episodes=1, duration=0.2, seed=1)
+    rec = extract(spec, eps, 100.0, nq=3, nv=3, nu=3)
+    model, substeps = prepare_model(load_model(spec.model), rec.fps, spec.substeps)
+    sim = Simulator(model, rec, substeps)
+    try:
+        out = sim.run([as_given(model, rec, substeps)], Segments(np.zeros(0, np.int64), 5))
+    finally:
+        sim.close()
+    assert out.shape == (1, 0, 5, 6)
+
+
 def test_k_of_one_is_the_one_step_error(cases, nominal_spec):
     doc = run(ReplayConfig(logs=str(cases["None"]), spec=str(nominal_spec), k=1, episodes=[1])).doc
     assert doc["episodes"] == [1]

@@ -240,6 +240,8 @@ class Simulator:
     def run(self, variants: list[Variant], segs: Segments) -> np.ndarray:
         """Simulated [qpos, qvel] at the frames each segment predicts: (V, n, length, nq + nv)."""
         out = np.empty((len(variants), len(segs), segs.length, self.nq + self.nv))
+        if len(segs) == 0 or not variants:  # nothing to simulate (MuJoCo's rollout crashes on an empty batch)
+            return out
         groups: dict[tuple, list[int]] = {}
         for i, v in enumerate(variants):
             groups.setdefault((v.force is not None, self._structure(v.model)), []).append(i)
