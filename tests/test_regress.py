@@ -356,6 +356,7 @@ def test_a_side_that_measured_nothing_fails_the_gate_with_exit_3(tmp_path: Path)
         f"runs={tmp_path}",
         "run_id=g",
         f"out={tmp_path / 'v.json'}",
+        "allow_spec_change=true",  # the baseline's suite faulted on purpose (fault=raise); the candidate's does not
         cwd=REPO,
     )
     assert res.returncode == 3, res.stderr[-2000:]

@@ -130,7 +130,7 @@ def test_episode_timeout_is_recorded_and_the_run_goes_on(tmp_path, capsys):
     assert code == 3  # every episode timed out: the run measured nothing, and says so
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith("nothing measured: run t") and "no episode completed: all 2 errored or timed out" in last
-    assert "error: timeout after 0.3 s" in last
+    assert "timeout after 0.3 s" in last
     recs = read_records(tmp_path / "t" / "episodes.jsonl")
     assert len(recs) == 2
     assert all(r.error and r.error.startswith("timeout after 0.3 s") and not r.success_once for r in recs)

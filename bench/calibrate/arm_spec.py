@@ -22,6 +22,7 @@ from typing import Any
 from bench.calibrate.feedback import gains
 from bench.calibrate.spec import TraceSpec, parse_trace
 from bench.core.errors import SpecError, valid_choices
+from bench.core.provenance import portable
 from bench.replay.spec import SignalSpec, check_keys, number, parse_signal, read_spec_file
 
 ARM_KEYS = (
@@ -98,7 +99,7 @@ class ArmSpec:
             else {"kp": list(self.controller[0]), "kd": list(self.controller[1])},
             "gains": list(self.gains) if self.gains else None,
             "trace": dict(self.trace.__dict__),
-            "source": str(self.source) if self.source else None,
+            "source": portable(self.source),  # relative to the checkout when inside it
         }
 
 

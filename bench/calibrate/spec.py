@@ -18,6 +18,7 @@ from bench.calibrate.feedback import gains
 from bench.core.errors import SpecError, did_you_mean
 from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
+MAX_HORIZON_S = 3600.0  # seconds per truncated horizon: longer is a typo (a free run is the whole episode anyway)
 SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads", "controller")
 PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init", "scale")
 EFFECT_KEYS = ("name", "targets", "bounds")
@@ -284,7 +285,7 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
         params=tuple(params),
         effects=_effects(raw.get("effects", "all")),
         holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
-        horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6),
+        horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6, hi=MAX_HORIZON_S),
         trace=parse_trace(raw.get("trace")),
         threads=number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),
         controller=gains(raw["controller"]) if raw.get("controller") is not None else None,

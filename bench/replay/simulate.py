@@ -119,12 +119,13 @@ def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None
     into the next episode) are masked out. With `limit`, a seeded subset of at most that many
     horizons (the fit's cost is linear in them).
     """
-    starts, ends = [], []
+    starts, ends, longest = [], [], 1
     for w in windows:
         first, last = rec.offsets[w.episode] + w.start, rec.offsets[w.episode] + w.stop - 1  # last frame
         kk = min(k, last - first)
         if kk < 1:
             continue
+        longest = max(longest, kk)
         s = list(range(first, last - kk + 1, kk))
         if s[-1] + kk < last:
             s.append(last - kk)
@@ -135,6 +136,7 @@ def horizons(rec: Recording, windows: list[Window], k: int, *, limit: int | None
         keep = np.random.default_rng(seed).choice(len(start), size=limit, replace=False)  # as choice(start, ...)
         keep = keep[np.argsort(start[keep], kind="stable")]  # in the order of their start frames
         start, end = start[keep], end[keep]
+    k = min(k, longest)  # no segment is longer than its window: frames past every window's end are never simulated
     mask = start[:, None] + 1 + np.arange(k)[None, :] <= end[:, None]
     return Segments(start, k, None if mask.all() else mask)
 

@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from bench.core.errors import SpecError, did_you_mean, valid_choices
+from bench.core.provenance import portable
 
 
 class _Loader(yaml.SafeLoader):
@@ -68,7 +69,7 @@ class SignalMap:
             "model": str(self.model),
             "substeps": self.substeps,
             "signals": {k: {"column": s.column, "index": list(s.index)} for k, s in self.signals.items()},
-            "source": str(self.source) if self.source else None,
+            "source": portable(self.source),  # relative to the checkout when inside it
         }
 
 
