@@ -254,9 +254,9 @@ def main_args(a: Args) -> int:
     write_dataset(logs, ds)
     spec = load_arm_spec(SPEC)
     ds = read_dataset(logs)
-    t1 = time.perf_counter()
+    load0, t1, c1 = os.getloadavg()[0], time.perf_counter(), time.process_time()
     cal = calibrate_arm(spec, [e.data for e in ds.episodes], float(ds.fps), seed=0, log=print)
-    t_cal = time.perf_counter() - t1
+    t_cal = {"wall": time.perf_counter() - t1, "cpu": time.process_time() - c1, "load": (load0, os.getloadavg()[0])}
     staging = work / "calibration"
     if staging.exists():
         shutil.rmtree(staging)
@@ -282,7 +282,7 @@ def main_args(a: Args) -> int:
         (tmp / "README.md").write_text(readme(a, doc, friction, rows, ranks, sweep, t_cal, time.perf_counter() - t0))
 
     outputs.replace_dir(out, write)
-    print(f"wrote {out}: calibration in {t_cal:.1f} s, {len(rows)} policies x 2 robots x {a.episodes} episodes")
+    print(f"wrote {out}: calibration in {t_cal['wall']:.1f} s, {len(rows)} policies x 2 robots x {a.episodes} episodes")
     return 0
 
 
@@ -305,7 +305,9 @@ def _iv(e: dict) -> str:
     return f"{e['value']:+.2f}" + (f" [{lo:+.2f}, {hi:+.2f}]" if lo is not None else "")
 
 
-def readme(a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t_cal: float, total: float) -> str:
+def readme(
+    a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t_cal: dict[str, Any], total: float
+) -> str:
     tq = doc["errors"]["torque"]
     fw = doc["errors"].get("forward", {}).get("k_step", {})
     joints = [j.split("_")[-1] for j in tq["joints"]]
@@ -314,8 +316,9 @@ def readme(a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t
         "",
         "Reproduce: `python -m baselines.real_panda out=results/real_panda work=/tmp/real_panda "
         f"episodes={a.episodes} seed={a.seed} workers={a.workers}` (this invocation: {total / 60:.0f} min on 2 "
-        f"cores; runs already recorded in WORK resumed where nominal or fitted by the same calibration file; the calibration alone: {t_cal:.1f} s on a "
-        f"machine at load {os.getloadavg()[0]:.1f}: `benchmarks/bench_arm_calibrate.py` times it on one quiet core).",
+        f"cores; runs already recorded in WORK resumed where nominal or fitted by the same calibration file; the calibration alone: {t_cal['cpu']:.1f} s of CPU, "
+        f"{t_cal['wall']:.1f} s of wall time on a machine at load {t_cal['load'][0]:.1f} -> {t_cal['load'][1]:.1f}: "
+        "`benchmarks/bench_arm_calibrate.py` times it on one core).",
         "",
         "Data: Gaz et al.'s excitation trajectory (`../shared/data/real/panda_gaz`, 21 s, irregular clock "
         "resampled to 1 kHz by linear interpolation, measured link-side joint torque with gravity). Declared "
