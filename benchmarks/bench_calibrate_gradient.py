@@ -67,8 +67,9 @@ def emps_case(tmp: Path) -> tuple[Path, Path]:
     return MODELS / "emps.yaml", tmp / "emps"
 
 
-def panda_case(tmp: Path, seconds: float | None = None) -> tuple[Path, Path]:
-    """The Panda log resampled to 2 ms (first `seconds` of it), its spec and the dynamics-only model, in `tmp`."""
+def panda_case(tmp: Path, seconds: float | None = None, horizon: float = 0.2) -> tuple[Path, Path]:
+    """The Panda log resampled to 2 ms (first `seconds` of it), its spec (windows of `horizon` s) and the
+    dynamics-only model, in `tmp`."""
     from bench.logs import import_csv, write_dataset
     from bench.sims import panda_dynamics
 
@@ -96,7 +97,7 @@ def panda_case(tmp: Path, seconds: float | None = None) -> tuple[Path, Path]:
         f"  - {{name: damping, field: dof_damping, elements: [{', '.join(joints)}], bounds: [0, 5]}}\n"
         f"  - {{name: armature, field: dof_armature, elements: [{', '.join(joints)}], bounds: [0, 1]}}\n"
         f"  - {{name: link_mass, field: body_mass, elements: [{', '.join(links)}], bounds: [0.5, 2], scale: true}}\n"
-        "effects: none\nholdout: 0.3\nhorizon: 0.2\n"
+        f"effects: none\nholdout: 0.3\nhorizon: {horizon}\n"
     )
     return spec, tmp / "panda_logs"
 
