@@ -60,6 +60,8 @@ class LiftObserver:
         if task not in OBJECT:
             raise ValueError(f"task {task!r} not supported; valid: {sorted(OBJECT)}")
         self._object = OBJECT[task]
+        # what observe() reads after a step (the fast path polls only these observables)
+        self.raw_keys = ("robot0_eef_pos", "robot0_eef_quat", f"{self._object}_pos", f"{self._object}_quat")
         self._quat0_conj = np.array([0.0, 0.0, 0.0, 1.0])
 
     def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:

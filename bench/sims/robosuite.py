@@ -23,6 +23,7 @@ import numpy as np
 
 from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import AdapterBase
+from bench.sims import robosuite_fast
 
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
@@ -128,13 +129,23 @@ class Observer(Protocol):
         ...
 
 
+# An Observer may also declare `raw_keys: tuple[str, ...]`, the raw observation entries `observe`
+# reads after a step: the fast path (bench.sims.robosuite_fast) then polls only those observables.
+
+
 class RobosuiteEnv(AdapterBase):
     """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
 
     mujoco: MujocoHandle  # always: bench.sims.perturb edits the model through it (no `model_axes`)
 
     def __init__(
-        self, task: str, robot: str, horizon: int, observer: Observer, env_kwargs: dict[str, Any] | None = None
+        self,
+        task: str,
+        robot: str,
+        horizon: int,
+        observer: Observer,
+        env_kwargs: dict[str, Any] | None = None,
+        fast: bool = True,
     ):
         _quiet_robosuite()
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
@@ -171,6 +182,14 @@ class RobosuiteEnv(AdapterBase):
         self._wrap_physics_steps(data)
         self._success = False
         self.mujoco = MujocoHandle(model, data, observer.bind(self))
+        # the fast path (bench.sims.robosuite_fast) where it applies, robosuite's own env.step otherwise
+        self.fast_path_reason = "turned off (fast_path=false)" if not fast else robosuite_fast.reason_not(self.raw)
+        log = self.inputs
+        self._fast = (
+            robosuite_fast.FastStep(self.raw, getattr(observer, "raw_keys", None), lambda: log.rows)
+            if self.fast_path_reason is None
+            else None
+        )
 
     # -- actuator commands at every physics step (for batched replay) -------------------------
     def _wrap_physics_steps(self, data) -> None:
@@ -211,7 +230,8 @@ class RobosuiteEnv(AdapterBase):
         return self.observer.observe(raw)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
-        raw, reward, done, info = self.raw.step(np.asarray(action, dtype=np.float64))
+        act = np.asarray(action, dtype=np.float64)
+        raw, reward, done, info = self._fast.step(act) if self._fast is not None else self.raw.step(act)
         self._success = bool(self.raw._check_success())
         return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
 
