@@ -127,7 +127,8 @@ def make_env(
     """A robosuite env of `task` on `robot` with the agnostic observation (and cameras per `options`)."""
     from bench.api.sims import RobosuiteEnv, with_cameras
 
-    env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
+    fast = bool(getattr(options, "fast_path", True))
+    env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs, fast=fast)
     if options is None:
         return env
     return with_cameras(env, options, DEFAULT_CAMERAS, where or f"{task}/{robot}")

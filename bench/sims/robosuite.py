@@ -17,6 +17,7 @@ import logging
 import os
 import sys
 import types
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -24,6 +25,7 @@ import numpy as np
 from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import AdapterBase
 from bench.sims import robosuite_fast
+from bench.sims.camera_env import CameraOptions
 
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
@@ -108,6 +110,15 @@ MAKE_OPTIONS: dict[str, Any] = {
     "reward_shaping": True,
     "seed": 0,
 }
+
+
+@dataclass(frozen=True)
+class RobosuiteOptions(CameraOptions):
+    """Keys of the robosuite suites: the camera keys plus the choice of stepping path."""
+
+    fast_path: bool = field(
+        default=True, metadata={"spec": False}
+    )  # step through bench's robosuite fast path where it applies (same records); false: robosuite's own env.step
 
 
 class Observer(Protocol):

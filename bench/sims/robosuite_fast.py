@@ -32,6 +32,9 @@ from typing import Any
 
 import numpy as np
 
+# the ufunc np.clip calls, without np.clip's argument handling (the same values)
+_CLIP: Any = np.core.umath.clip  # type: ignore[attr-defined]  # numpy's stubs omit umath's ufuncs
+
 
 def reason_not(raw: Any) -> str | None:
     """Why the fast path does not apply to robosuite env `raw` (None when it does)."""
@@ -118,7 +121,7 @@ class FastStep:
         self._jacr = np.zeros((3, nv))
         self._jacp_c = np.zeros((3, nv))
         self._jacr_c = np.zeros((3, nv))
-        self._full_m = np.ndarray(shape=(nv, nv), dtype=np.float64, order="C")
+        self._full_m: np.ndarray = np.ndarray(shape=(nv, nv), dtype=np.float64, order="C")
 
     def _observables(self) -> list[Any]:
         obs = self.raw._observables
@@ -133,7 +136,9 @@ class FastStep:
             raise ValueError("executing action in terminated episode")
         robot = env.robots[0]
         if len(action) != env.action_dim:
-            raise AssertionError(f"environment got invalid action dimension -- expected {env.action_dim}, got {len(action)}")
+            raise AssertionError(
+                f"environment got invalid action dimension -- expected {env.action_dim}, got {len(action)}"
+            )
         env.timestep += 1
         # per policy step (robosuite rebuilds the controllers at every reset: look them up again)
         cc = robot.composite_controller
@@ -144,29 +149,47 @@ class FastStep:
         grip_low, grip_high = m.actuator_ctrlrange[grip_act, 0], m.actuator_ctrlrange[grip_act, 1]
         center = m.site(f"{osc.naming_prefix}{osc.part_name}_center").id
         ref = m.site(osc.ref_name).id
-        qpos_i, qvel_i = osc.qpos_index, osc.qvel_index
+        # index arrays once per step (robosuite passes lists, which numpy converts at every use: same elements)
+        qpos_i, qvel_i = np.asarray(osc.qpos_index, dtype=np.intp), np.asarray(osc.qvel_index, dtype=np.intp)
+        arm_act = np.asarray(arm_act, dtype=np.intp)
+        grip_act = np.asarray(grip_act, dtype=np.intp)
         kp_pos, kp_ori = np.array(osc.kp[0:3]), np.array(osc.kp[3:6])
         kd_pos, kd_ori = osc.kd[0:3], osc.kd[3:6]
         initial_joint = osc.initial_joint
         observables = self._observables()
         timestep, cache = env.model_timestep, env._obs_cache
         jacp, jacr, jacp_c, jacr_c, full_m = self._jacp, self._jacr, self._jacp_c, self._jacr_c, self._full_m
-        qvel, qpos, qfrc_bias, site_xpos, site_xmat, ctrl = d.qvel, d.qpos, d.qfrc_bias, d.site_xpos, d.site_xmat, d.ctrl
+        qvel, qpos, qfrc_bias, site_xpos, site_xmat, ctrl = (
+            d.qvel,
+            d.qpos,
+            d.qfrc_bias,
+            d.site_xpos,
+            d.site_xmat,
+            d.ctrl,
+        )
         orientation_error, opspace, nullspace = self._orientation_error, self._opspace_matrices, self._nullspace_torques
+        dot, array, multiply, concatenate, clip = np.dot, np.array, np.multiply, np.concatenate, _CLIP
+        step1, step2, jac_site, full_mass = mj.mj_step1, mj.mj_step2, mj.mj_jacSite, mj.mj_fullM
         rows = self._log_rows()
-        c_pos, c_ori, c_full = np.zeros((3, len(qvel_i))), np.zeros((3, len(qvel_i))), np.zeros((6, len(qvel_i)))
-        vels = goal_pos = goal_ori = None
+        n = len(qvel_i)
+        c_pos, c_ori, c_full = np.zeros((3, n)), np.zeros((3, n)), np.zeros((6, n))
+        # the controller's origin site welded to the world: its pose and (zero) Jacobian are the same bits at
+        # every substep, so the origin, the goal in the world frame and the site Jacobian are read once per step
+        fixed_origin = bool(m.body_weldid[m.site_bodyid[center]] == 0)
         for i in range(int(env.control_timestep / env.model_timestep)):
-            mj.mj_step1(m, d)
-            # controller origin (robosuite's update_state; a fixed base: the same pose every substep, read anyway)
-            origin_pos = np.array(site_xpos[center])
-            origin_ori = np.array(site_xmat[center].reshape([3, 3]))
+            step1(m, d)
+            if i == 0 or not fixed_origin:
+                # robosuite's update_state(): the controller's origin
+                origin_pos = array(site_xpos[center])
+                origin_ori = array(site_xmat[center].reshape([3, 3]))
+                jac_site(m, d, jacp_c, jacr_c, center)
             if i == 0:
                 # robosuite's control() at a policy step: update_state, set_goal (whose update() reads the
                 # reference data, unless the controller still holds fresh data from its reset), run_controller
                 osc.update_origin(origin_pos, origin_ori)
                 cc.set_goal(action)  # robosuite's own: the gripper's format_action and the OSC goal
-                vels = grip.run_controller()  # constant over the policy step: goal_qvel does not change
+                # the gripper's command is constant over the policy step (goal_qvel does not change)
+                grip_ctrl = clip(grip.run_controller(), grip_low, grip_high)
                 goal_pos, goal_ori = osc.goal_pos, osc.goal_ori
                 ref_pos, ref_ori_mat = osc.ref_pos, osc.ref_ori_mat
                 ref_pos_vel, ref_ori_vel = osc.ref_pos_vel, osc.ref_ori_vel
@@ -174,43 +197,42 @@ class FastStep:
                 joint_pos, joint_vel, mass_matrix = osc.joint_pos, osc.joint_vel, osc.mass_matrix
             else:
                 # the OSC's update(): reference site pose, velocities, Jacobians, joint state, mass matrix
-                ref_pos = np.array(site_xpos[ref])
-                ref_ori_mat = np.array(site_xmat[ref].reshape([3, 3]))
-                mj.mj_jacSite(m, d, jacp, jacr, ref)
-                ref_pos_vel = np.array(np.dot(jacp, qvel))
-                ref_ori_vel = np.array(np.dot(jacr, qvel))
+                ref_pos = array(site_xpos[ref])
+                ref_ori_mat = array(site_xmat[ref].reshape([3, 3]))
+                jac_site(m, d, jacp, jacr, ref)
+                ref_pos_vel = dot(jacp, qvel)
+                ref_ori_vel = dot(jacr, qvel)
                 # into C-ordered arrays as robosuite does (a fancy-indexed copy is F-ordered, and BLAS
                 # sums a transposed product in another order for each: the last bits would differ)
                 j_pos, j_ori, j_full = c_pos, c_ori, c_full
-                j_pos[:, :] = np.array(jacp.reshape((3, -1))[:, qvel_i])
-                j_ori[:, :] = np.array(jacr.reshape((3, -1))[:, qvel_i])
-                j_full[:, :] = np.vstack([j_pos, j_ori])
-                joint_pos = np.array(qpos[qpos_i])
-                joint_vel = np.array(qvel[qvel_i])
-                mj.mj_fullM(m, full_m, d.qM)
+                j_pos[:, :] = jacp[:, qvel_i]
+                j_ori[:, :] = jacr[:, qvel_i]
+                j_full[:3] = j_pos  # robosuite: np.vstack([J_pos, J_ori]), the same numbers
+                j_full[3:] = j_ori
+                joint_pos = qpos[qpos_i]
+                joint_vel = qvel[qvel_i]
+                full_mass(m, full_m, d.qM)
                 mass_matrix = full_m[qvel_i, :][:, qvel_i]
+            if i == 0 or not fixed_origin:
+                desired_world_pos = origin_pos + dot(origin_ori, goal_pos)
+                desired_world_ori = dot(origin_ori, goal_ori)
             # the OSC's run_controller()
-            desired_world_pos = origin_pos + np.dot(origin_ori, goal_pos)
-            desired_world_ori = np.dot(origin_ori, goal_ori)
             ori_error = orientation_error(desired_world_ori, ref_ori_mat)
             position_error = desired_world_pos - ref_pos
-            mj.mj_jacSite(m, d, jacp_c, jacr_c, center)
-            base_pos_vel = np.array(np.dot(jacp_c, qvel))
-            vel_pos_error = -(ref_pos_vel - base_pos_vel)
-            desired_force = np.multiply(np.array(position_error), kp_pos) + np.multiply(vel_pos_error, kd_pos)
-            base_ori_vel = np.array(np.dot(jacr_c, qvel))
-            vel_ori_error = -(ref_ori_vel - base_ori_vel)
-            desired_torque = np.multiply(np.array(ori_error), kp_ori) + np.multiply(vel_ori_error, kd_ori)
+            vel_pos_error = -(ref_pos_vel - dot(jacp_c, qvel))
+            desired_force = multiply(position_error, kp_pos) + multiply(vel_pos_error, kd_pos)
+            vel_ori_error = -(ref_ori_vel - dot(jacr_c, qvel))
+            desired_torque = multiply(ori_error, kp_ori) + multiply(vel_ori_error, kd_ori)
             _, lambda_pos, lambda_ori, nullspace_matrix = opspace(mass_matrix, j_full, j_pos, j_ori)
-            decoupled_wrench = np.concatenate([np.dot(lambda_pos, desired_force), np.dot(lambda_ori, desired_torque)])
-            torques = np.dot(j_full.T, decoupled_wrench) + qfrc_bias[qvel_i]
+            decoupled_wrench = concatenate([dot(lambda_pos, desired_force), dot(lambda_ori, desired_torque)])
+            torques = dot(j_full.T, decoupled_wrench) + qfrc_bias[qvel_i]
             torques += nullspace(mass_matrix, nullspace_matrix, initial_joint, joint_pos, joint_vel)
             # robot.control(): clip to the actuators' ranges and command them
-            ctrl[arm_act] = np.clip(torques, arm_low, arm_high)
-            ctrl[grip_act] = np.clip(vels, grip_low, grip_high)
+            ctrl[arm_act] = clip(torques, arm_low, arm_high)
+            ctrl[grip_act] = grip_ctrl
             if rows is not None:
                 rows.append(ctrl.copy())
-            mj.mj_step2(m, d)
+            step2(m, d)
             for observable in observables:
                 observable.update(timestep=timestep, obs_cache=cache, force=False)
         osc.torques = torques
