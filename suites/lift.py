@@ -86,7 +86,7 @@ class LiftObserver:
             last = data.qpos[self._grip_idx].copy()
             still = 0
             for _ in range(300):  # Jaco needs ~200 steps from open to closed
-                env.raw.step(command)
+                env.raw_step(command)
                 q = data.qpos[self._grip_idx].copy()
                 still = still + 1 if np.max(np.abs(q - last)) < 1e-4 else 0
                 last = q

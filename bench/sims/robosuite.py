@@ -127,7 +127,7 @@ class Observer(Protocol):
     obs_spec: ObsSpec
 
     def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
-        """Called once after the env is built (may step it to measure things); returns the
+        """Called once after the env is built (may step it with `env.raw_step` to measure things); returns the
         manipulated object's bodies (`perturb.mass` targets)."""
         ...
 
@@ -192,7 +192,6 @@ class RobosuiteEnv(AdapterBase):
         self.inputs = InputLog(model, int(mujoco.mjtState.mjSTATE_CTRL))  # robosuite drives actuators only
         self._wrap_physics_steps(data)
         self._success = False
-        self.mujoco = MujocoHandle(model, data, observer.bind(self))
         # the fast path (bench.sims.robosuite_fast) where it applies, robosuite's own env.step otherwise
         self.fast_path_reason = "turned off (fast_path=false)" if not fast else robosuite_fast.reason_not(self.raw)
         log = self.inputs
@@ -201,6 +200,7 @@ class RobosuiteEnv(AdapterBase):
             if self.fast_path_reason is None
             else None
         )
+        self.mujoco = MujocoHandle(model, data, observer.bind(self))
 
     # -- actuator commands at every physics step (for batched replay) -------------------------
     def _wrap_physics_steps(self, data) -> None:
@@ -232,6 +232,11 @@ class RobosuiteEnv(AdapterBase):
                 sampler.rng = env.rng
         return env.reset()
 
+    def raw_step(self, action: np.ndarray) -> tuple[dict, float, bool, dict]:
+        """One robosuite step (fast path or `env.step`): robosuite's raw (observation, reward, done, info)."""
+        act = np.asarray(action, dtype=np.float64)
+        return self._fast.step(act) if self._fast is not None else self.raw.step(act)
+
     def reset(self, seed: int) -> Obs:
         raw = self.raw_reset(int(seed))
         self.observer.reset(raw)
@@ -241,8 +246,7 @@ class RobosuiteEnv(AdapterBase):
         return self.observer.observe(raw)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
-        act = np.asarray(action, dtype=np.float64)
-        raw, reward, done, info = self._fast.step(act) if self._fast is not None else self.raw.step(act)
+        raw, reward, done, info = self.raw_step(action)
         self._success = bool(self.raw._check_success())
         return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
 
