@@ -85,7 +85,8 @@ def greedy(obs, key="state"):
 
 
 def run_cfg(tmp_path, run_id, policy, **kw):
-    policy_options = {k: kw.pop(k) for k in ("host", "port", "timeout_s", "replan_every", "obs_map") if k in kw}
+    keys = ("host", "port", "timeout_s", "replan_every", "obs_map", "overlap")
+    policy_options = {k: kw.pop(k) for k in keys if k in kw}
     return api.RunConfig(
         suite=TOY,
         policy=policy,
@@ -129,6 +130,30 @@ def test_remote_records_equal_in_process(tmp_path, policy, replan):
     assert all(0 < s["rtt_ms"]["p50"] < 1000 and s["fps"] == 10.0 and "server_ms" in s for s in stats)
     meta = (tmp_path / "remote" / "run.json").read_text()
     assert '"port": ' in meta and '"name": "remote"' in meta
+
+
+def test_overlapped_requests_record_the_observation_the_server_saw(tmp_path):
+    """overlap=true: the next chunk is asked for with the observation of the step before it starts."""
+    with bench_server("tests.toy_suite:chunk_policy") as port:
+        over = api.run(run_cfg(tmp_path, "over", "remote", port=port, replan_every=2, overlap=True))
+        plain = api.run(run_cfg(tmp_path, "plain", "remote", port=port, replan_every=2))
+    assert all(r.error is None for r in over.records + plain.records) and len(over.records) == 9
+    for r in over.records:
+        stats = r.extras["policy"]
+        # chunk 1 from step 0's observation (rows 0-1 at steps 0-1), then one request at every other step
+        # from the observation of the step before the chunk starts (rows 1-2 of each answer executed)
+        assert stats["overlap"] is True and stats["obs_steps"] == [0] + list(range(1, r.length - 1, 2)), stats
+        assert stats["requests"] == len(stats["obs_steps"])
+    for r in plain.records:
+        assert r.extras["policy"]["overlap"] is False and r.extras["policy"]["obs_steps"] == list(range(0, r.length, 2))
+    # the toy task is solved either way (one step older observations barely matter to it)
+    assert sum(r.success_once for r in over.records) == sum(r.success_once for r in plain.records)
+
+
+def test_overlap_refuses_a_chunk_it_cannot_overlap(tmp_path):
+    with bench_server("tests.toy_suite:chunk_policy") as port:
+        res = api.run(run_cfg(tmp_path, "short", "remote", port=port, replan_every=4, overlap=True, episodes=1))
+    assert all("give a replan_every below the chunk length" in (r.error or "") for r in res.records)
 
 
 def test_checkpoint_identity_travels(tmp_path):
@@ -375,6 +400,7 @@ def test_nothing_listening_is_one_line_naming_host_port(tmp_path, capsys):
         (["port=0"], "port=0: must be in [1, 65535]"),
         (["timeout_s=0"], "timeout_s=0.0: must be > 0"),
         (["replan_every=-1"], "replan_every=-1: must be >= 0"),
+        (["overlap=true"], "overlap=true: give replan_every >= 1"),
         (["obs_map=[observation/state]"], "entry 'observation/state' is not WIRE_KEY:SOURCE"),
         (
             ["obs_map=[img:rgb.front]"],
