@@ -569,3 +569,42 @@ def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_pat
     assert np.array_equal(req["observation/image"], first["rgb.agentview"])
     assert np.array_equal(req["observation/wrist_image"], first["rgb.robot0_eye_in_hand"])
     assert np.array_equal(req["observation/state"], first["state"][:8]) and req["prompt"] == "Lift"
+
+
+def test_envs_prepared_ahead_are_handed_over_once():
+    """bench serve builds the envs of announced cells in the background; a reset takes them, or builds its own."""
+    from bench.remote.server import Prepared
+
+    made, closed = [], []
+
+    class Env:
+        def __init__(self, key):
+            self.key = key
+            made.append(key)
+
+        def close(self):
+            closed.append(self.key)
+
+    gate, started = threading.Event(), threading.Event()
+
+    def slow(key):
+        started.set()
+        gate.wait(5)
+        return Env(key)
+
+    p = Prepared(limit=2)
+    p.add("a", lambda: slow("a"))
+    p.add("b", lambda: Env("b"))
+    p.add("c", lambda: Env("c"))  # over the limit: not built ahead
+    assert started.wait(5)
+    assert p.take("b") is None  # queued behind "a", not started: the caller builds it itself, now
+    gate.set()
+    env = p.take("a")  # under way: waits for it
+    assert env is not None and env.key == "a" and p.take("a") is None
+    p.add("d", lambda: Env("d"))
+    for _ in range(100):
+        if "d" in made:
+            break
+        time.sleep(0.05)
+    p.close()  # "d" was never taken: closed with the server
+    assert made == ["a", "d"] and closed == ["d"]

@@ -83,9 +83,12 @@ def main(argv: list[str]) -> int:
         ) from None
     where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
 
-    ws.serve_until_stopped(
-        f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
-        f"default cell {server.default_cell}); Ctrl-C stops",
-        "bench serve",
-    )
+    try:
+        ws.serve_until_stopped(
+            f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
+            f"default cell {server.default_cell}); Ctrl-C stops",
+            "bench serve",
+        )
+    finally:
+        server.close()
     return 0

@@ -560,7 +560,13 @@ class RemotePlugin(PolicyPlugin):
             if conn.bench is not None:
                 first = cells[0] if cells else None
                 sends = obs_map_mod.wire_spec(entries, suite.obs_spec(first)) if first is not None else {}
-                check = {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells], "sends": sends}
+                check = {
+                    "op": "check",
+                    **suite_ref(suite),
+                    "cells": [c.key for c in cells],
+                    "sends": sends,
+                    "horizon": int(horizon),  # the server builds these cells' envs while the workers start
+                }
                 _control(conn, {wire.CONTROL: check}, warm=True)
         except RemoteError as exc:
             raise RemoteError(f"policy=remote: {exc}") from None

@@ -56,6 +56,7 @@ class ServeConfig:
     port: int = 8000  # port to listen on; 0 = any free port (printed at start)
     obs_map: Optional[list[str]] = None  # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
     max_message_mb: float = 64.0  # largest request accepted, in MiB
+    prepare: int = 8  # envs built ahead, in the background, for the cells a bench client announces (0 = none)
 
 
 @dataclass
@@ -113,6 +114,7 @@ class PolicyServer:
         }
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
+        self.prepared = Prepared(cfg.prepare, log=self.log)
 
     # -- suites and cells, resolved from what a client names ------------------------------
     def suite_for(self, name: Any, path: Any, options: Any) -> Any:
@@ -140,12 +142,14 @@ class PolicyServer:
             return self._suites[key]
 
     def build(self, suite: Suite, cell_key: Any, run_seed: int, horizon: int) -> Served:
-        """The cell's env and policy, made as a bench worker makes them."""
+        """The cell's env and policy, made as a bench worker makes them (the env prepared ahead if it was)."""
         cells = {c.key: c for c in suite.all_cells()}
         if cell_key not in cells:
             raise RequestError(f"cell {cell_key!r} is not a cell of suite {suite.name!r}")
         cell = cells[cell_key]
-        env = suite.make_env(cell, horizon)
+        env = self.prepared.take(env_key(suite, cell_key, horizon))
+        if env is None:
+            env = suite.make_env(cell, horizon)
         try:
             missing = [k for k in self.needs if k not in env.obs_spec]
             if missing:
@@ -159,6 +163,16 @@ class PolicyServer:
             env.close()
             raise
         return Served(env, policy, dict(env.obs_spec))
+
+    def prepare(self, suite: Suite, cells: list[str], horizon: int) -> None:
+        """Start building the envs of `cells` in the background (a client announced its run)."""
+        by_key = {c.key: c for c in suite.all_cells()}
+        for key in cells:
+            cell = by_key[key]
+            self.prepared.add(env_key(suite, key, horizon), lambda c=cell: suite.make_env(c, horizon))
+
+    def close(self) -> None:
+        self.prepared.close()
 
     # -- serving --------------------------------------------------------------------------
     def websocket(self) -> WebsocketServer:
@@ -216,6 +230,9 @@ class Session:
             missing = [c for c in asked if c not in cells] if isinstance(asked, list) else ["(cells is not a list)"]
             if missing:
                 raise RequestError(f"suite {suite.name!r} on this server has no cell {missing[0]!r}")
+            horizon = body.get("horizon")
+            if isinstance(horizon, int) and not isinstance(horizon, bool) and 1 <= horizon <= MAX_HORIZON:
+                self.server.prepare(suite, list(asked), horizon)  # built while the client starts its workers
             return {wire.CONTROL: {"ok": True, "op": "check"}}
         seed = body.get("seed")
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
@@ -284,6 +301,94 @@ class Session:
             except Exception:
                 pass
         self.served.clear()
+
+
+def env_key(suite: Any, cell: Any, horizon: Any) -> str:
+    """What makes two envs of a suite interchangeable: its class and options, the cell and the horizon."""
+    return json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, horizon], default=str)
+
+
+class Prepared:
+    """Envs built ahead by one background thread, in the order asked, at most `limit` at a time.
+
+    `take(key)` hands over a ready env (waiting for it if its build is under way) or None when there is
+    none, so the caller builds its own. Envs nobody took are closed with the server.
+    """
+
+    def __init__(self, limit: int, log: Callable[[str], None] | None = None):
+        self.limit = max(0, int(limit))
+        self.log = log or (lambda text: None)
+        self._cond = threading.Condition()
+        self._todo: list[tuple[str, Callable[[], Any]]] = []
+        self._ready: dict[str, list[Any]] = {}
+        self._building: str | None = None
+        self._count = 0  # asked for, not yet taken or closed
+        self._closed = False
+        self._thread: threading.Thread | None = None
+
+    def add(self, key: str, make: Callable[[], Any]) -> None:
+        with self._cond:
+            if self._closed or self._count >= self.limit:
+                return
+            if key in self._ready or key == self._building or any(k == key for k, _ in self._todo):
+                return  # one env per cell ahead: a second connection to the same cell builds its own
+            self._todo.append((key, make))
+            self._count += 1
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="bench-serve-prepare", daemon=True)
+                self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                if self._closed or not self._todo:
+                    self._thread = None
+                    return
+                key, make = self._todo.pop(0)
+                self._building = key
+            env = None
+            try:
+                env = make()
+            except Exception as exc:  # the client's own reset builds it again and reports the failure
+                self.log(f"building an env ahead failed: {type(exc).__name__}: {exc}")
+            with self._cond:
+                self._building = None
+                if env is not None and not self._closed:
+                    self._ready.setdefault(key, []).append(env)
+                else:
+                    self._count -= 1
+                    if env is not None:
+                        env.close()
+                self._cond.notify_all()
+
+    def take(self, key: str) -> Any:
+        with self._cond:
+            while self._building == key or any(k == key for k, _ in self._todo):
+                if key != self._building:  # not started yet: the caller builds it itself, now
+                    self._todo = [(k, m) for k, m in self._todo if k != key]
+                    self._count -= 1
+                    return None
+                self._cond.wait(0.5)
+            envs = self._ready.get(key)
+            if not envs:
+                return None
+            env = envs.pop()
+            if not envs:
+                del self._ready[key]
+            self._count -= 1
+            return env
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._todo.clear()
+            envs = [e for v in self._ready.values() for e in v]
+            self._ready.clear()
+        for env in envs:
+            try:
+                env.close()
+            except Exception:
+                pass
 
 
 def _json(options: Any) -> Any:
