@@ -22,6 +22,7 @@ says otherwise, answers `GET /healthz`, and stops cleanly on Ctrl-C or SIGTERM.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import threading
 import time
@@ -168,8 +169,7 @@ class PolicyServer:
         """Start building the envs of `cells` in the background (a client announced its run)."""
         by_key = {c.key: c for c in suite.all_cells()}
         for key in cells:
-            cell = by_key[key]
-            self.prepared.add(env_key(suite, key, horizon), lambda c=cell: suite.make_env(c, horizon))
+            self.prepared.add(env_key(suite, key, horizon), functools.partial(suite.make_env, by_key[key], horizon))
 
     def close(self) -> None:
         self.prepared.close()
