@@ -47,6 +47,7 @@ def bench_server(policy: str = "scripted", log: list | None = None, **keys):
         yield port
     finally:
         ws.shutdown()
+        server.close()
 
 
 class FaultServer:
@@ -446,6 +447,9 @@ def test_server_refuses_a_suite_it_does_not_serve(tmp_path, capsys):
         (["obs_map=[s:state.pos]"], "a server can only rename whole entries"),
         (["checkpoint=x.safetensors"], "unknown key 'checkpoint'"),
         (["policy=checkpoint", "checkpoint=/nonexistent.safetensors"], "no such file"),
+        (["batch=0"], "batch=0: must be in [1, 1024]"),
+        (["batch=2", "batch_wait_ms=-1"], "batch_wait_ms=-1.0: must be in [0, 1000]"),
+        (["prepare=-1"], "prepare=-1: must be in [0, 1024]"),
     ],
 )
 def test_bench_serve_bad_input(capsys, args, message):
@@ -608,3 +612,60 @@ def test_envs_prepared_ahead_are_handed_over_once():
         time.sleep(0.05)
     p.close()  # "d" was never taken: closed with the server
     assert made == ["a", "d"] and closed == ["d"]
+
+
+def _toy_checkpoint(path, chunk=3, width=64):
+    import torch
+
+    from baselines.architectures import build
+    from baselines.checkpoint import save_checkpoint
+
+    torch.manual_seed(0)
+    model = build("mlp", 2, chunk, {"hidden": [width, width]})
+    spec = {"architecture": "mlp", "kwargs": {"hidden": [width, width]}, "obs_names": [["pos", 1], ["goal", 1]]}
+    return save_checkpoint(path, model, {**spec, "action_names": ["push"], "chunk": chunk})
+
+
+def test_batching_server_answers_concurrent_workers_in_batches(tmp_path):
+    """batch=4: four connections' requests share forward passes, and get the answers they get alone."""
+    from bench.remote.client import Connection
+
+    ckpt = _toy_checkpoint(tmp_path / "p.safetensors")
+    rng = np.random.default_rng(0)
+    observations = [rng.uniform(-1, 1, (20, 2)).astype(np.float32) for _ in range(4)]
+    reset = {
+        "__bench__": {
+            "op": "reset",
+            "seed": 0,
+            "cell": "reach/a/line",
+            "suite": "toy",
+            "suite_class": "tests.toy_suite:ToySuite",
+            "suite_options": {},
+            "run_seed": 0,
+            "horizon": 30,
+        }
+    }
+
+    def ask(port, k, out):
+        conn = Connection("127.0.0.1", port, 30.0)
+        conn.connect()
+        conn.request(reset)
+        out[k] = [conn.request({"state": o}) for o in observations[k]]
+        conn.close()
+
+    answers = {}
+    for batch in (1, 4):
+        with bench_server("checkpoint", checkpoint=str(ckpt), batch=batch, batch_wait_ms=50.0) as port:
+            got: dict = {}
+            threads = [threading.Thread(target=ask, args=(port, k, got)) for k in range(4)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(60)
+            answers[batch] = got
+    sizes = [a["server_timing"].get("batch", 1) for k in range(4) for a in answers[4][k]]
+    assert max(sizes) > 1  # requests did share forward passes
+    for k in range(4):
+        for a, b in zip(answers[1][k], answers[4][k]):
+            assert a["actions"].shape == (3, 1)
+            np.testing.assert_allclose(a["actions"], b["actions"], rtol=1e-5, atol=1e-6)

@@ -39,6 +39,7 @@ from bench.core.io import jsonable
 from bench.protocols import TASK, Feature, PolicyContext, Suite, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
+from bench.remote.batching import Batcher, batchable
 from bench.remote.serving import RequestError, WebsocketServer
 
 MAX_HORIZON = 100_000
@@ -58,6 +59,8 @@ class ServeConfig:
     obs_map: Optional[list[str]] = None  # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
     max_message_mb: float = 64.0  # largest request accepted, in MiB
     prepare: int = 8  # envs built ahead, in the background, for the cells a bench client announces (0 = none)
+    batch: int = 1  # answer up to N connections' requests in one forward pass (policies with act_batch); 1 = off
+    batch_wait_ms: float = 2.0  # with batch > 1: how long the first request of a batch waits for more, at most
 
 
 @dataclass
@@ -116,6 +119,7 @@ class PolicyServer:
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
         self.prepared = Prepared(cfg.prepare, log=self.log)
+        self.batcher = Batcher(cfg.batch, cfg.batch_wait_ms / 1000.0) if cfg.batch > 1 else None
 
     # -- suites and cells, resolved from what a client names ------------------------------
     def suite_for(self, name: Any, path: Any, options: Any) -> Any:
@@ -173,6 +177,8 @@ class PolicyServer:
 
     def close(self) -> None:
         self.prepared.close()
+        if self.batcher is not None:
+            self.batcher.close()
 
     # -- serving --------------------------------------------------------------------------
     def websocket(self) -> WebsocketServer:
@@ -252,12 +258,17 @@ class Session:
         if self.current is None:
             self.current = self._default()
         obs = self.observation(msg, self.current.spec)
-        t0 = time.perf_counter()
-        actions = np.asarray(self.current.policy.act(obs))
-        infer_ms = (time.perf_counter() - t0) * 1000.0
+        policy, batcher = self.current.policy, self.server.batcher
+        timing: dict[str, Any] = {}
+        if batcher is not None and batchable(policy):
+            actions, infer_ms, timing["batch"] = batcher.submit(policy, obs)
+        else:
+            t0 = time.perf_counter()
+            actions = np.asarray(policy.act(obs))
+            infer_ms = (time.perf_counter() - t0) * 1000.0
         if actions.ndim == 1:
             actions = actions[None, :]  # openpi clients index rows of a chunk
-        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms}}
+        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms, **timing}}
 
     def observation(self, msg: dict[str, Any], spec: dict[str, Feature]) -> dict[str, Any]:
         """The bench observation in a request: renamed, restricted to the cell's spec, shapes and dtypes checked."""
