@@ -185,7 +185,7 @@ def main(argv: list[str]) -> int:
         elif part == "workers":
             part_workers(scaling, horizon)
         elif part in ("remote", "batch"):
-            from benchmarks import bench_throughput_remote as remote
+            import bench_throughput_remote as remote  # the same folder: run as a script
 
             remote.PARTS[part](kv)
         else:
