@@ -9,11 +9,12 @@ remote  held_out_robots, robots=[Panda,UR5e], a generated torch MLP policy answe
           chunked   replan_every=5: in process, and remote with overlap=true
           per step  replan_every=1 (a round trip at every step): in process, remote with overlap=true,
                     and remote without overlap (records equal to in process: checked)
-batch   `bench serve batch=8` with a wider MLP (hidden [2048, 2048, 2048], one action per answer): env
-        workers 1, 2, 4, 8 all talking to that one server, against the same number of workers each holding
-        its own copy of the policy (`policy=checkpoint`). Throughput = all env steps / wall time of the
-        episodes (from the first episode's start to the last one's end, from the records), so worker
-        start-up is left out on both sides.
+batch   `bench serve batch=8` with a wider MLP (hidden [4096, 4096, 4096], one action per answer): env
+        worker processes 1, 2, 4, 8 all talking to that one server, against the same number of workers each
+        holding its own copy of the policy (`policy=checkpoint`, one torch thread each). Each worker builds
+        its env and policy as a bench worker does (`bench.api.worker`), all start stepping together
+        (a barrier: start-up left out on both sides) and step for `batch_seconds`, asking the policy at
+        every step; throughput = all their env steps / that time.
 """
 
 from __future__ import annotations
@@ -146,42 +147,82 @@ def part_remote(kv: dict[str, str]) -> None:
                 )
 
 
-def _throughput(out: Path) -> tuple[float, int]:
-    recs = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
-    start = min(r["finished_at"] - r["wall_s"] for r in recs)
-    end = max(r["finished_at"] for r in recs)
-    errors = sum(1 for r in recs if r.get("error"))
-    return sum(r["length"] for r in recs) / (end - start), errors
+def _worker(policy_keys: dict, horizon: int, seconds: float, barrier, results, index: int) -> None:
+    """One env worker: build its env and policy as a bench worker does, wait for the others, then step
+    `seconds` (the policy asked at every step) and report its env steps."""
+    import torch
+
+    from bench import api
+
+    torch.set_num_threads(1)
+    plan = api.plan(
+        api.RunConfig(
+            suite="held_out_robots",
+            policy=policy_keys["policy"],
+            robots=["Panda"],
+            episodes=1,
+            horizon=horizon,
+            seed=index,
+            out=tempfile.gettempdir(),
+            run_id=f"batch-bench-{os.getpid()}",
+            policy_options={k: v for k, v in policy_keys.items() if k != "policy"},
+        )
+    )
+    worker = api.worker(plan)
+    job = plan.jobs[0]
+    env, policy = worker.built(job)
+    obs = env.reset(job.seed)
+    policy.reset(job.seed)
+    barrier.wait()
+    steps, t = 0, 0
+    deadline = time.perf_counter() + seconds
+    while time.perf_counter() < deadline:
+        action = np.asarray(policy.act(obs))
+        obs = env.step(action[0] if action.ndim == 2 else action)[0]
+        steps, t = steps + 1, t + 1
+        if t >= horizon:
+            obs, t = env.reset(job.seed), 0
+            policy.reset(job.seed)
+    results[index] = steps
+    worker.close()
+
+
+def _concurrent(workers: int, policy_keys: dict, horizon: int, seconds: float) -> float:
+    """Env-steps/s of `workers` processes stepping at the same time (start-up excluded: they start together)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    barrier = ctx.Barrier(workers + 1)
+    results = ctx.Manager().dict()
+    procs = [
+        ctx.Process(target=_worker, args=(policy_keys, horizon, seconds, barrier, results, i)) for i in range(workers)
+    ]
+    for proc in procs:
+        proc.start()
+    barrier.wait()
+    t0 = time.perf_counter()
+    for proc in procs:
+        proc.join()
+    if len(results) != workers:
+        raise RuntimeError(f"{workers - len(results)} worker(s) failed")
+    return sum(results.values()) / max(seconds, time.perf_counter() - t0)
 
 
 def part_batch(kv: dict[str, str]) -> None:
-    per_worker = int(kv.get("batch_episodes", 2))
+    seconds = float(kv.get("batch_seconds", 6))
     horizon = int(kv.get("batch_horizon", 100))
     counts = [int(x) for x in kv.get("batch_workers", "[1,2,4,8]").strip("[]").split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        ckpt = make_checkpoint(folder, [2048, 2048, 2048], 1, "wide")
+        ckpt = make_checkpoint(folder, [4096, 4096, 4096], 1, "wide")
         _forward_cost(ckpt)
         with serve("policy=checkpoint", f"checkpoint={ckpt}", "batch=8", "batch_wait_ms=2") as port:
             for w in counts:
-                common = [
-                    "robots=[Panda]",
-                    f"episodes={per_worker * w}",
-                    f"horizon={horizon}",
-                    f"workers={w}",
-                ]
-                rates = {}
-                for side, keys in (
-                    ("own copy", ["policy=checkpoint", f"checkpoint={ckpt}"]),
-                    ("shared server", ["policy=remote", f"port={port}", "timeout_s=120"]),
-                ):
-                    run_id = f"b{w}-{side.replace(' ', '-')}"
-                    _bench_run(folder, run_id, *common, *keys)
-                    rates[side] = _throughput(folder / run_id)
-                (own, e1), (shared, e2) = rates["own copy"], rates["shared server"]
+                own = _concurrent(w, {"policy": "checkpoint", "checkpoint": str(ckpt)}, horizon, seconds)
+                shared = _concurrent(w, {"policy": "remote", "port": port, "timeout_s": 120.0}, horizon, seconds)
                 print(
-                    f"  {w} worker(s): own policy copy {own:.1f} env-steps/s, one batching server {shared:.1f}: "
-                    f"shared / own = {shared / own:.2f}{'  (errors!)' if e1 or e2 else ''}   [load {load()}]"
+                    f"  {w} worker(s), {seconds:g} s each way: each with its own policy copy {own:.1f} env-steps/s, "
+                    f"all sharing one batch=8 server {shared:.1f}: shared / own = {shared / own:.2f}   [load {load()}]"
                 )
 
 
@@ -200,7 +241,7 @@ def _forward_cost(ckpt: Path) -> None:
         for _ in range(20):
             policy.act_batch(obs[:n])
         ms = (time.perf_counter() - t0) / 20 * 1e3
-        print(f"  wide MLP (3 x 2048, {os.path.getsize(ckpt) / 2**20:.0f} MiB): batch {n}: {ms:.2f} ms per forward pass")
+        print(f"  wide MLP (3 x 4096, {os.path.getsize(ckpt) / 2**20:.0f} MiB): batch {n}: {ms:.2f} ms per forward pass")
 
 
 PARTS = {"remote": part_remote, "batch": part_batch}

@@ -6,14 +6,16 @@ by the policies' `batch_key` (policies with equal keys answer identically: the s
 bounds and chunking) and answers each group with one `act_batch(observations)` call. A policy
 without `act_batch`/`batch_key` is answered alone, in its own connection's thread, as without batching.
 
-The bounded wait is the knob: it is added to a request's latency only while fewer than `size`
-requests are waiting, and it lets requests of workers that are mid-step join the batch.
+The bounded wait is the knob: a batch goes as soon as `size` requests wait, or as many as there are
+connections (`clients()`: every connected worker has asked, nobody else can join), else when the first
+request has waited `wait_s`; so a lone worker pays no wait, and workers that are mid-step can join.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -38,8 +40,9 @@ def batchable(policy: Any) -> bool:
 class Batcher:
     """Collects requests from many threads and answers them in batches of at most `size`."""
 
-    def __init__(self, size: int, wait_s: float):
+    def __init__(self, size: int, wait_s: float, clients: Callable[[], int] | None = None):
         self.size, self.wait_s = max(1, int(size)), max(0.0, float(wait_s))
+        self.clients = clients or (lambda: self.size)
         self._cond = threading.Condition()
         self._waiting: list[_Request] = []
         self._closed = False
@@ -70,7 +73,7 @@ class Batcher:
                 if self._closed and not self._waiting:
                     return
                 deadline = time.monotonic() + self.wait_s
-                while len(self._waiting) < self.size and not self._closed:
+                while len(self._waiting) < min(self.size, max(1, self.clients())) and not self._closed:
                     left = deadline - time.monotonic()
                     if left <= 0:
                         break

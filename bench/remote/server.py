@@ -119,7 +119,8 @@ class PolicyServer:
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
         self.prepared = Prepared(cfg.prepare, log=self.log)
-        self.batcher = Batcher(cfg.batch, cfg.batch_wait_ms / 1000.0) if cfg.batch > 1 else None
+        self.sessions = 0  # open connections (a batch need not wait for more requests than there are clients)
+        self.batcher = Batcher(cfg.batch, cfg.batch_wait_ms / 1000.0, lambda: self.sessions) if cfg.batch > 1 else None
 
     # -- suites and cells, resolved from what a client names ------------------------------
     def suite_for(self, name: Any, path: Any, options: Any) -> Any:
@@ -206,6 +207,8 @@ class Session:
         self.server = server
         self.served: dict[str, Served] = {}
         self.current: Served | None = None
+        with server._lock:
+            server.sessions += 1
 
     def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
         if wire.CONTROL in msg:
@@ -306,6 +309,8 @@ class Session:
         return obs
 
     def close(self) -> None:
+        with self.server._lock:
+            self.server.sessions -= 1
         for served in self.served.values():
             try:
                 served.env.close()
