@@ -418,8 +418,9 @@ class CheckpointPlugin(PolicyPlugin):
         """
         import torch
 
-        if options.replan_every < 0:
-            raise ConfigError(f"replan_every={options.replan_every}: must be >= 0 (0 = the whole chunk)")
+        replan = getattr(options, "replan_every", 0)  # PackagedBC's options have no chunking
+        if replan < 0:
+            raise ConfigError(f"replan_every={replan}: must be >= 0 (0 = the whole chunk)")
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
@@ -437,9 +438,10 @@ class CheckpointPlugin(PolicyPlugin):
         import torch
 
         torch.set_num_threads(1)  # one core per worker: the runner parallelises across processes
-        if ctx.options.replan_every < 0:
-            raise ConfigError(f"replan_every={ctx.options.replan_every}: must be >= 0 (0 = the whole chunk)")
-        return load_policy(ctx.options.checkpoint, env, ctx.options.replan_every)
+        replan = getattr(ctx.options, "replan_every", 0)  # PackagedBC's options have no chunking
+        if replan < 0:
+            raise ConfigError(f"replan_every={replan}: must be >= 0 (0 = the whole chunk)")
+        return load_policy(ctx.options.checkpoint, env, replan)
 
 
 # the behaviour-cloning checkpoint committed with results/coverage (Lift, trained on the seen arms only)
