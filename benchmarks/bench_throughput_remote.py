@@ -241,7 +241,9 @@ def _forward_cost(ckpt: Path) -> None:
         for _ in range(20):
             policy.act_batch(obs[:n])
         ms = (time.perf_counter() - t0) / 20 * 1e3
-        print(f"  wide MLP (3 x 4096, {os.path.getsize(ckpt) / 2**20:.0f} MiB): batch {n}: {ms:.2f} ms per forward pass")
+        print(
+            f"  wide MLP (3 x 4096, {os.path.getsize(ckpt) / 2**20:.0f} MiB): batch {n}: {ms:.2f} ms per forward pass"
+        )
 
 
 PARTS = {"remote": part_remote, "batch": part_batch}
