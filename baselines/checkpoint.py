@@ -19,6 +19,8 @@ Format (two files side by side):
         "action": {"mean": [...action_dim], "std": [...action_dim]}
       },
       "clip_actions": true,                           # optional (default true): clip to the env's bounds
+      "chunk": 1,                                     # optional (default 1): actions per answer; the model
+                                                      #   outputs chunk x action_dim numbers, row by row
       "meta": {...}                                   # optional, free-form (training set, suite, seed ...)
     }
 
@@ -66,8 +68,10 @@ SPEC_KEYS = (
     "action_dim",
     "normalization",
     "clip_actions",
+    "chunk",
     "meta",
 )
+MAX_CHUNK = 1000
 
 
 def spec_path(path: str | Path) -> Path:
@@ -162,6 +166,11 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
     if not isinstance(clip, bool):
         raise SpecError(f"{source}: clip_actions must be true or false, got {clip!r}")
     out["clip_actions"] = clip
+    if "chunk" in spec:
+        chunk = spec["chunk"]
+        if not isinstance(chunk, int) or isinstance(chunk, bool) or not 1 <= chunk <= MAX_CHUNK:
+            raise SpecError(f"{source}: chunk={chunk!r} must be an integer in [1, {MAX_CHUNK}] (actions per answer)")
+        out["chunk"] = chunk
     if "meta" in spec:
         meta = spec["meta"]
         if not isinstance(meta, dict):
@@ -199,7 +208,7 @@ def save_checkpoint(path: str | Path, model, spec: dict[str, Any]) -> Path:
         raise ConfigError(f"save_checkpoint: path {str(path)!r} must end in .safetensors")
     spec = normalize_spec(spec)
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    fresh = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
+    fresh = build(spec["architecture"], spec["obs_dim"], spec["action_dim"] * spec.get("chunk", 1), spec["kwargs"])
     _load_state(fresh, state, str(path))
     from safetensors.torch import save as to_bytes
 
@@ -297,8 +306,10 @@ def load_spec(path: str | Path, meta: dict[str, str] | None = None) -> dict[str,
 class CheckpointPolicy:
     """A deterministic torch policy: normalise the state -> model -> de-normalise action -> clip."""
 
-    def __init__(self, model, spec: dict[str, Any], action_low=None, action_high=None):
+    def __init__(self, model, spec: dict[str, Any], action_low=None, action_high=None, replan_every: int = 0):
         self.model, self.spec = model.eval(), spec
+        self.chunk, self.replan_every = int(spec.get("chunk", 1)), int(replan_every)
+        self.batch_key: Any = None  # set by load_policy: equal keys answer identically (bench serve batch=N)
         norm = spec.get("normalization", {})
         od, ad = spec["obs_dim"], spec["action_dim"]
         o, a = norm.get("obs"), norm.get("action")
@@ -314,19 +325,28 @@ class CheckpointPolicy:
         """Nothing to reset: the policy is deterministic and stateless."""
 
     def act(self, obs: Obs) -> np.ndarray:
-        """Action for one observation (its flat `state`)."""
+        """Action (A,) for one observation (its flat `state`), or a chunk (T, A) with the spec's `chunk`."""
+        return self.act_batch([obs])[0]
+
+    def act_batch(self, batch: list[Obs]) -> list[np.ndarray]:
+        """`act` for several observations in one forward pass (`bench serve batch=N` groups requests)."""
         import torch
 
-        x = (np.asarray(obs[STATE], np.float32) - self.obs_mean) / self.obs_std
+        x = (np.stack([np.asarray(o[STATE], np.float32) for o in batch]) - self.obs_mean) / self.obs_std
         with torch.inference_mode():
-            y = self.model(torch.from_numpy(x[None, :])).numpy()[0]
-        action = y * self.act_std + self.act_mean
+            y = self.model(torch.from_numpy(x)).numpy()
+        y = y.reshape(len(batch), self.chunk, -1)
+        actions = y * self.act_std + self.act_mean
         if self.low is not None:
-            action = np.clip(action, self.low, self.high)
-        return action.astype(np.float32)
+            actions = np.clip(actions, self.low, self.high)
+        actions = actions.astype(np.float32)
+        if self.chunk == 1:
+            return [a[0] for a in actions]
+        n = self.replan_every
+        return [a[:n] if n else a for a in actions]
 
 
-def load_policy(path: str | Path, env=None) -> CheckpointPolicy:
+def load_policy(path: str | Path, env=None, replan_every: int = 0) -> CheckpointPolicy:
     """Load the checkpoint at `path`; with `env`, check its obs/action names and clip to its bounds.
 
     Raises:
@@ -337,12 +357,17 @@ def load_policy(path: str | Path, env=None) -> CheckpointPolicy:
 
     tensors, meta = read_weights(path)
     spec = load_spec(path, meta)
-    model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"], spec["kwargs"])
+    model = build(spec["architecture"], spec["obs_dim"], spec["action_dim"] * spec.get("chunk", 1), spec["kwargs"])
     _load_state(model, {k: v.float() for k, v in tensors.items()}, f"checkpoint={str(path)!r}")
     if env is None:
-        return CheckpointPolicy(model, spec)
-    check_names(spec, env, str(path))
-    return CheckpointPolicy(model, spec, env.action_spec.low, env.action_spec.high)
+        policy = CheckpointPolicy(model, spec, replan_every=replan_every)
+    else:
+        check_names(spec, env, str(path))
+        policy = CheckpointPolicy(model, spec, env.action_spec.low, env.action_spec.high, replan_every)
+    # policies with equal keys answer identically, so `bench serve batch=N` answers them in one forward pass
+    bounds = b"" if policy.low is None else policy.low.tobytes() + policy.high.tobytes()
+    policy.batch_key = (sha256_file(Path(path)), replan_every, bounds)
+    return policy
 
 
 def check_names(spec: dict[str, Any], env, source: str) -> None:
@@ -371,6 +396,7 @@ class CheckpointOptions:
     """Keys of policy=checkpoint."""
 
     checkpoint: str  # the weights (.safetensors, or a weights-only .pt) with NAME.json, the spec, beside them
+    replan_every: int = 0  # with a chunked spec: rows of each chunk executed before asking again; 0 = all
 
 
 class CheckpointPlugin(PolicyPlugin):
@@ -392,6 +418,9 @@ class CheckpointPlugin(PolicyPlugin):
         """
         import torch
 
+        replan = getattr(options, "replan_every", 0)  # PackagedBC's options have no chunking
+        if replan < 0:
+            raise ConfigError(f"replan_every={replan}: must be >= 0 (0 = the whole chunk)")
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
@@ -409,7 +438,10 @@ class CheckpointPlugin(PolicyPlugin):
         import torch
 
         torch.set_num_threads(1)  # one core per worker: the runner parallelises across processes
-        return load_policy(ctx.options.checkpoint, env)
+        replan = getattr(ctx.options, "replan_every", 0)  # PackagedBC's options have no chunking
+        if replan < 0:
+            raise ConfigError(f"replan_every={replan}: must be >= 0 (0 = the whole chunk)")
+        return load_policy(ctx.options.checkpoint, env, replan)
 
 
 # the behaviour-cloning checkpoint committed with results/coverage (Lift, trained on the seen arms only)

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
+from bench.api.sims import RobosuiteOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
@@ -54,7 +54,7 @@ class HeldOutRobots(SuiteBase):
 
     name = "held_out_robots"
     version = "1"
-    Options = CameraOptions
+    Options = RobosuiteOptions
     reference_policy = "scripted"
     default_policy = "bc"
     default_horizon = 250

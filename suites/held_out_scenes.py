@@ -45,7 +45,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
+from bench.api.sims import RobosuiteOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
@@ -138,7 +138,7 @@ class HeldOutScenes(SuiteBase):
 
     name = "held_out_scenes"
     version = "1"
-    Options = CameraOptions
+    Options = RobosuiteOptions
     reference_policy = "scripted"
     default_horizon = 250
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}

@@ -60,6 +60,8 @@ class LiftObserver:
         if task not in OBJECT:
             raise ValueError(f"task {task!r} not supported; valid: {sorted(OBJECT)}")
         self._object = OBJECT[task]
+        # what observe() reads after a step (the fast path polls only these observables)
+        self.raw_keys = ("robot0_eef_pos", "robot0_eef_quat", f"{self._object}_pos", f"{self._object}_quat")
         self._quat0_conj = np.array([0.0, 0.0, 0.0, 1.0])
 
     def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
@@ -84,7 +86,7 @@ class LiftObserver:
             last = data.qpos[self._grip_idx].copy()
             still = 0
             for _ in range(300):  # Jaco needs ~200 steps from open to closed
-                env.raw.step(command)
+                env.raw_step(command)
                 q = data.qpos[self._grip_idx].copy()
                 still = still + 1 if np.max(np.abs(q - last)) < 1e-4 else 0
                 last = q
@@ -125,7 +127,8 @@ def make_env(
     """A robosuite env of `task` on `robot` with the agnostic observation (and cameras per `options`)."""
     from bench.api.sims import RobosuiteEnv, with_cameras
 
-    env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs)
+    fast = bool(getattr(options, "fast_path", True))
+    env = RobosuiteEnv(task, robot, horizon, LiftObserver(task), env_kwargs=env_kwargs, fast=fast)
     if options is None:
         return env
     return with_cameras(env, options, DEFAULT_CAMERAS, where or f"{task}/{robot}")

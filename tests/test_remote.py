@@ -47,6 +47,7 @@ def bench_server(policy: str = "scripted", log: list | None = None, **keys):
         yield port
     finally:
         ws.shutdown()
+        server.close()
 
 
 class FaultServer:
@@ -85,7 +86,8 @@ def greedy(obs, key="state"):
 
 
 def run_cfg(tmp_path, run_id, policy, **kw):
-    policy_options = {k: kw.pop(k) for k in ("host", "port", "timeout_s", "replan_every", "obs_map") if k in kw}
+    keys = ("host", "port", "timeout_s", "replan_every", "obs_map", "overlap")
+    policy_options = {k: kw.pop(k) for k in keys if k in kw}
     return api.RunConfig(
         suite=TOY,
         policy=policy,
@@ -129,6 +131,30 @@ def test_remote_records_equal_in_process(tmp_path, policy, replan):
     assert all(0 < s["rtt_ms"]["p50"] < 1000 and s["fps"] == 10.0 and "server_ms" in s for s in stats)
     meta = (tmp_path / "remote" / "run.json").read_text()
     assert '"port": ' in meta and '"name": "remote"' in meta
+
+
+def test_overlapped_requests_record_the_observation_the_server_saw(tmp_path):
+    """overlap=true: the next chunk is asked for with the observation of the step before it starts."""
+    with bench_server("tests.toy_suite:chunk_policy") as port:
+        over = api.run(run_cfg(tmp_path, "over", "remote", port=port, replan_every=2, overlap=True))
+        plain = api.run(run_cfg(tmp_path, "plain", "remote", port=port, replan_every=2))
+    assert all(r.error is None for r in over.records + plain.records) and len(over.records) == 9
+    for r in over.records:
+        stats = r.extras["policy"]
+        # chunk 1 from step 0's observation (rows 0-1 at steps 0-1), then one request at every other step
+        # from the observation of the step before the chunk starts (rows 1-2 of each answer executed)
+        assert stats["overlap"] is True and stats["obs_steps"] == [0] + list(range(1, r.length - 1, 2)), stats
+        assert stats["requests"] == len(stats["obs_steps"])
+    for r in plain.records:
+        assert r.extras["policy"]["overlap"] is False and r.extras["policy"]["obs_steps"] == list(range(0, r.length, 2))
+    # the toy task is solved either way (one step older observations barely matter to it)
+    assert sum(r.success_once for r in over.records) == sum(r.success_once for r in plain.records)
+
+
+def test_overlap_refuses_a_chunk_it_cannot_overlap(tmp_path):
+    with bench_server("tests.toy_suite:chunk_policy") as port:
+        res = api.run(run_cfg(tmp_path, "short", "remote", port=port, replan_every=4, overlap=True, episodes=1))
+    assert all("give a replan_every below the chunk length" in (r.error or "") for r in res.records)
 
 
 def test_checkpoint_identity_travels(tmp_path):
@@ -375,6 +401,7 @@ def test_nothing_listening_is_one_line_naming_host_port(tmp_path, capsys):
         (["port=0"], "port=0: must be in [1, 65535]"),
         (["timeout_s=0"], "timeout_s=0.0: must be > 0"),
         (["replan_every=-1"], "replan_every=-1: must be >= 0"),
+        (["overlap=true"], "overlap=true: give replan_every >= 1"),
         (["obs_map=[observation/state]"], "entry 'observation/state' is not WIRE_KEY:SOURCE"),
         (
             ["obs_map=[img:rgb.front]"],
@@ -420,6 +447,9 @@ def test_server_refuses_a_suite_it_does_not_serve(tmp_path, capsys):
         (["obs_map=[s:state.pos]"], "a server can only rename whole entries"),
         (["checkpoint=x.safetensors"], "unknown key 'checkpoint'"),
         (["policy=checkpoint", "checkpoint=/nonexistent.safetensors"], "no such file"),
+        (["batch=0"], "batch=0: must be in [1, 1024]"),
+        (["batch=2", "batch_wait_ms=-1"], "batch_wait_ms=-1.0: must be in [0, 1000]"),
+        (["prepare=-1"], "prepare=-1: must be in [0, 1024]"),
     ],
 )
 def test_bench_serve_bad_input(capsys, args, message):
@@ -543,3 +573,99 @@ def test_camera_images_travel_to_bench_serve_and_to_openpi_style_servers(tmp_pat
     assert np.array_equal(req["observation/image"], first["rgb.agentview"])
     assert np.array_equal(req["observation/wrist_image"], first["rgb.robot0_eye_in_hand"])
     assert np.array_equal(req["observation/state"], first["state"][:8]) and req["prompt"] == "Lift"
+
+
+def test_envs_prepared_ahead_are_handed_over_once():
+    """bench serve builds the envs of announced cells in the background; a reset takes them, or builds its own."""
+    from bench.remote.server import Prepared
+
+    made, closed = [], []
+
+    class Env:
+        def __init__(self, key):
+            self.key = key
+            made.append(key)
+
+        def close(self):
+            closed.append(self.key)
+
+    gate, started = threading.Event(), threading.Event()
+
+    def slow(key):
+        started.set()
+        gate.wait(5)
+        return Env(key)
+
+    p = Prepared(limit=2)
+    p.add("a", lambda: slow("a"))
+    p.add("b", lambda: Env("b"))
+    p.add("c", lambda: Env("c"))  # over the limit: not built ahead
+    assert started.wait(5)
+    assert p.take("b") is None  # queued behind "a", not started: the caller builds it itself, now
+    gate.set()
+    env = p.take("a")  # under way: waits for it
+    assert env is not None and env.key == "a" and p.take("a") is None
+    p.add("d", lambda: Env("d"))
+    for _ in range(100):
+        if "d" in made:
+            break
+        time.sleep(0.05)
+    p.close()  # "d" was never taken: closed with the server
+    assert made == ["a", "d"] and closed == ["d"]
+
+
+def _toy_checkpoint(path, chunk=3, width=64):
+    import torch
+
+    from baselines.architectures import build
+    from baselines.checkpoint import save_checkpoint
+
+    torch.manual_seed(0)
+    model = build("mlp", 2, chunk, {"hidden": [width, width]})
+    spec = {"architecture": "mlp", "kwargs": {"hidden": [width, width]}, "obs_names": [["pos", 1], ["goal", 1]]}
+    return save_checkpoint(path, model, {**spec, "action_names": ["push"], "chunk": chunk})
+
+
+def test_batching_server_answers_concurrent_workers_in_batches(tmp_path):
+    """batch=4: four connections' requests share forward passes, and get the answers they get alone."""
+    from bench.remote.client import Connection
+
+    ckpt = _toy_checkpoint(tmp_path / "p.safetensors")
+    rng = np.random.default_rng(0)
+    observations = [rng.uniform(-1, 1, (20, 2)).astype(np.float32) for _ in range(4)]
+    reset = {
+        "__bench__": {
+            "op": "reset",
+            "seed": 0,
+            "cell": "reach/a/line",
+            "suite": "toy",
+            "suite_class": "tests.toy_suite:ToySuite",
+            "suite_options": {},
+            "run_seed": 0,
+            "horizon": 30,
+        }
+    }
+
+    def ask(port, k, out):
+        conn = Connection("127.0.0.1", port, 30.0)
+        conn.connect()
+        conn.request(reset)
+        out[k] = [conn.request({"state": o}) for o in observations[k]]
+        conn.close()
+
+    answers = {}
+    for batch in (1, 4):
+        with bench_server("checkpoint", checkpoint=str(ckpt), batch=batch, batch_wait_ms=50.0) as port:
+            got: dict = {}
+            threads = [threading.Thread(target=ask, args=(port, k, got)) for k in range(4)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(60)
+            answers[batch] = got
+    sizes = [a["server_timing"].get("batch", 1) for k in range(4) for a in answers[4][k]]
+    assert max(sizes) > 1  # requests did share forward passes
+    for k in range(4):
+        for a, b in zip(answers[1][k], answers[4][k]):
+            assert a["actions"].shape == (3, 1)
+            np.testing.assert_allclose(a["actions"], b["actions"], rtol=1e-5, atol=1e-6)

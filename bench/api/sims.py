@@ -16,7 +16,7 @@ from bench.sims.gym import GymEnv
 from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
 from bench.sims.perturb import set_nominal
-from bench.sims.robosuite import RobosuiteEnv
+from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions
 
 __all__ = [
     "AXES",
@@ -31,6 +31,7 @@ __all__ = [
     "MetaWorldEnv",
     "NativeInterface",
     "RobosuiteEnv",
+    "RobosuiteOptions",
     "camera_names",
     "camera_spec",
     "cameras_of",

@@ -55,6 +55,12 @@ def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
         raise ConfigError(f"port={cfg.port}: must be in [0, 65535] (0 = any free port)")
     if not (math.isfinite(cfg.max_message_mb) and 0 < cfg.max_message_mb <= 4096):
         raise ConfigError(f"max_message_mb={cfg.max_message_mb}: must be in (0, 4096]")
+    if not 1 <= cfg.batch <= 1024:
+        raise ConfigError(f"batch={cfg.batch}: must be in [1, 1024] (1 = answer each request alone)")
+    if not (math.isfinite(cfg.batch_wait_ms) and 0 <= cfg.batch_wait_ms <= 1000):
+        raise ConfigError(f"batch_wait_ms={cfg.batch_wait_ms}: must be in [0, 1000]")
+    if not 0 <= cfg.prepare <= 1024:
+        raise ConfigError(f"prepare={cfg.prepare}: must be in [0, 1024] (0 = build envs on first reset only)")
     if not 0 <= cfg.horizon <= MAX_HORIZON or cfg.seed < 0:
         raise ConfigError(f"horizon={cfg.horizon} seed={cfg.seed}: horizon in [0, {MAX_HORIZON}], seed >= 0")
     return cfg, config_mod.build(suite_cls.Options, parts[1]), config_mod.build(plugin.Options, parts[2])
@@ -83,9 +89,12 @@ def main(argv: list[str]) -> int:
         ) from None
     where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
 
-    ws.serve_until_stopped(
-        f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
-        f"default cell {server.default_cell}); Ctrl-C stops",
-        "bench serve",
-    )
+    try:
+        ws.serve_until_stopped(
+            f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
+            f"default cell {server.default_cell}); Ctrl-C stops",
+            "bench serve",
+        )
+    finally:
+        server.close()
     return 0

@@ -100,11 +100,17 @@ def _check_obs(obs: Obs, t: int) -> None:
 
 
 class _Actions:
-    """The policy's commands one step at a time: a chunk (T, A) is executed open loop, row by row."""
+    """The policy's commands one step at a time: a chunk (T, A) is executed open loop, row by row.
 
-    def __init__(self, policy: Policy, dim: int):
-        self.policy, self.dim = policy, dim
+    A policy with `prefetch(obs, t) -> bool` (a remote one with `overlap=true`) is told when the current
+    chunk's last row is about to execute at step t, so it can start computing the next chunk while the
+    env steps; its next `act` returns that chunk.
+    """
+
+    def __init__(self, policy: Policy, dim: int, horizon: int):
+        self.policy, self.dim, self.horizon = policy, dim, horizon
         self.queue: list[np.ndarray] = []
+        self.prefetch = getattr(policy, "prefetch", None)
 
     def next(self, obs: Obs, t: int) -> np.ndarray:
         if not self.queue:
@@ -119,7 +125,10 @@ class _Actions:
                 )
             if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
                 raise NonFinite(f"policy returned a non-finite action at step {t}")
-        return self.queue.pop(0)
+        action = self.queue.pop(0)
+        if not self.queue and self.prefetch is not None and t + 1 < self.horizon:
+            self.prefetch(obs, t)
+        return action
 
 
 def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
@@ -151,7 +160,7 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
                 video.frame(obs)
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
-            actions = _Actions(policy, env.action_spec.dim)
+            actions = _Actions(policy, env.action_spec.dim, ctx.horizon)
             if log is not None:
                 log.start()
             for t in range(ctx.horizon):

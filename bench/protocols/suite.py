@@ -212,14 +212,19 @@ class SuiteBase:
         raise ConfigError(f"suite {self.name!r} declares no scripted expert")
 
     def describe(self) -> dict[str, Any]:
-        """JSON-able identity of the suite: name, version, split manifest and its non-default options."""
+        """JSON-able identity of the suite: name, version, split manifest and its options.
+
+        An option declared with `metadata={"spec": False}` changes how the same numbers are computed,
+        not what is computed (robosuite's `fast_path`): it is left out, so runs with and without it
+        compare as the same suite."""
         out: dict[str, Any] = {
             "name": self.name,
             "version": self.version,
             "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()},
         }
         if dataclasses.is_dataclass(self.options) and not isinstance(self.options, type):
-            out.update({k: v for k, v in dataclasses.asdict(self.options).items()})
+            hidden = {f.name for f in dataclasses.fields(self.options) if f.metadata.get("spec") is False}
+            out.update({k: v for k, v in dataclasses.asdict(self.options).items() if k not in hidden})
         return out
 
 

@@ -207,15 +207,44 @@ class Connection:
             frame = wire.encode(message)
         except wire.WireError as exc:
             raise RemoteError(f"observation for {self.where}: {exc}") from None
+        limit = self.warmup_s if warm else self.timeout_s
+        with _Wait(
+            self.report if warm else None,
+            f"the policy server at {self.where} to warm up (up to warmup_s={limit:g} s)",
+        ):
+            self._send(frame)
+            return self.receive(warm)
+
+    def send(self, message: dict[str, Any]) -> None:
+        """Send one message without waiting for its answer (`receive` reads it): the caller works meanwhile."""
+        if self.ws is None:
+            raise RemoteError(f"not connected to {self.where}")
+        try:
+            frame = wire.encode(message)
+        except wire.WireError as exc:
+            raise RemoteError(f"observation for {self.where}: {exc}") from None
+        self._send(frame)
+
+    def _send(self, frame: bytes) -> None:
+        assert self.ws is not None
+        ok = False
+        try:
+            self.ws.send(frame)
+            ok = True
+        except (link.Closed, OSError) as exc:
+            raise RemoteError(f"the server at {self.where} closed the connection ({_reason(exc)})") from None
+        finally:
+            if not ok:
+                self.close()
+
+    def receive(self, warm: bool = False) -> dict[str, Any]:
+        """The decoded answer to the message sent last; RemoteError (and a closed socket) on any failure."""
+        if self.ws is None:
+            raise RemoteError(f"the connection to {self.where} was lost")
         limit, key = (self.warmup_s, "warmup_s") if warm else (self.timeout_s, "timeout_s")
         ok = False
         try:
-            with _Wait(
-                self.report if warm else None,
-                f"the policy server at {self.where} to warm up (up to warmup_s={limit:g} s)",
-            ):
-                self.ws.send(frame)
-                answer = self.ws.recv(timeout=limit)
+            answer = self.ws.recv(timeout=limit)
             ok = True
         except TimeoutError:
             raise RemoteError(f"the server at {self.where} did not answer within {key}={limit:g} s") from None
@@ -284,6 +313,9 @@ class RemotePolicy:
         weakref.finalize(self, self.conn.close)  # the runner drops policies without closing them
         self._rtt: list[float] = []
         self._server_ms: list[float] = []
+        self._steps = 0  # env steps the actions returned so far cover (the step the next act() answers)
+        self._obs_steps: list[int] = []  # per chunk: the step whose observation the server saw
+        self._pending: float | None = None  # overlap: when the prefetched request went out
         try:
             self.warm_up(0)  # before any episode: the server's set-up is not an episode's time
         except BaseException:
@@ -326,6 +358,10 @@ class RemotePolicy:
 
     def reset(self, seed: int) -> None:
         self._rtt, self._server_ms = [], []
+        self._steps, self._obs_steps = 0, []
+        if self._pending is not None:  # an answer nobody read (the last episode ended early): start clean
+            self._pending = None
+            self.conn.close()
         for attempt in (0, 1):
             if not self.conn.connected:
                 self.warm_up(seed)  # a new connection: the server sets it up again (the reset included)
@@ -343,19 +379,62 @@ class RemotePolicy:
     def act(self, obs: Obs) -> np.ndarray:
         if not self.conn.connected:
             raise RemoteError(f"the connection to {self.conn.where} was lost during the episode")
+        if self._pending is not None:
+            return self._collect()
         message = self.map(obs)
         t0 = time.perf_counter()
         reply = self.conn.request(message)
         self._rtt.append(time.perf_counter() - t0)
+        self._obs_steps.append(self._steps)
+        chunk = self._chunk(reply)
+        n = self.options.replan_every
+        rows = chunk[:n] if n else chunk
+        self._steps += len(rows)
+        return rows
+
+    def _chunk(self, reply: dict[str, Any]) -> np.ndarray:
         timing = reply.get("server_timing")
         if isinstance(timing, dict) and isinstance(timing.get("infer_ms"), (int, float)):
             self._server_ms.append(float(timing["infer_ms"]))
-        chunk = check_actions(reply, self.dim, self.conn.where)
+        return check_actions(reply, self.dim, self.conn.where)
+
+    def prefetch(self, obs: Obs, t: int) -> bool:
+        """`overlap=true`: send the next chunk's request now, from step `t`'s observation, while the env steps.
+
+        Called by the rollout as the current chunk's last row is about to execute (at step `t`); the next
+        `act` then reads that answer instead of sending its own observation. The server's chunk starts at
+        step `t` (its first row is the action for the observation it saw), so rows 1 .. replan_every are
+        executed from step t + 1 on: the same timing as without overlap, one step of observation older.
+        """
+        if not self.options.overlap or not self.conn.connected or self._pending is not None:
+            return False
+        self.conn.send(self.map(obs))
+        self._pending = time.perf_counter()
+        self._obs_steps.append(int(t))
+        return True
+
+    def _collect(self) -> np.ndarray:
+        sent, self._pending = self._pending, None
+        assert sent is not None
+        reply = self.conn.receive()
+        self._rtt.append(time.perf_counter() - sent)  # the round trip, mostly hidden behind the env's step
+        chunk = self._chunk(reply)
         n = self.options.replan_every
-        return chunk[:n] if n else chunk
+        if len(chunk) <= n:
+            raise RemoteError(
+                f"overlap=true executes rows 1..{n} of each chunk (replan_every={n}), but {self.conn.where} "
+                f"answered {len(chunk)} row(s): give a replan_every below the chunk length, or overlap=false"
+            )
+        rows = chunk[1 : 1 + n]
+        self._steps += len(rows)
+        return rows
 
     def episode_stats(self) -> dict[str, Any]:
-        return latency.episode_stats(self._rtt, self._server_ms, self.fps)
+        stats = latency.episode_stats(self._rtt, self._server_ms, self.fps)
+        # which observation the server saw for each chunk: the step it was taken at (overlap: one step early)
+        stats["obs_steps"] = list(self._obs_steps)
+        stats["overlap"] = bool(self.options.overlap)
+        return stats
 
     def close(self) -> None:
         self.conn.close()
@@ -408,6 +487,9 @@ class RemoteOptions:
     timeout_s: float = 10.0  # bound on each answer in an episode (and on reconnecting mid-run); then it fails
     warmup_s: float = 300.0  # bound on connecting and on the server's set-up: first answers of a connection
     replan_every: int = 0  # rows of each action chunk executed before asking again; 0 = the whole chunk
+    overlap: bool = (
+        False  # ask for the next chunk one step early, while the env steps (needs 1 <= replan_every < chunk length)
+    )
     obs_map: Optional[list[str]] = None  # WIRE_KEY:SOURCE entries, e.g. [observation/state:state,prompt:task]
 
 
@@ -423,6 +505,11 @@ def validate(options: RemoteOptions) -> None:
             raise ConfigError(f"{key}={value}: must be > 0 and at most {MAX_TIMEOUT_S:g} s")
     if options.replan_every < 0:
         raise ConfigError(f"replan_every={options.replan_every}: must be >= 0 (0 = execute the whole chunk)")
+    if options.overlap and options.replan_every < 1:
+        raise ConfigError(
+            "overlap=true: give replan_every >= 1 (and below the server's chunk length); the next chunk is "
+            "requested while row replan_every of the current one executes"
+        )
     obs_map_mod.parse(options.obs_map)
 
 
@@ -473,7 +560,13 @@ class RemotePlugin(PolicyPlugin):
             if conn.bench is not None:
                 first = cells[0] if cells else None
                 sends = obs_map_mod.wire_spec(entries, suite.obs_spec(first)) if first is not None else {}
-                check = {"op": "check", **suite_ref(suite), "cells": [c.key for c in cells], "sends": sends}
+                check = {
+                    "op": "check",
+                    **suite_ref(suite),
+                    "cells": [c.key for c in cells],
+                    "sends": sends,
+                    "horizon": int(horizon),  # the server builds these cells' envs while the workers start
+                }
                 _control(conn, {wire.CONTROL: check}, warm=True)
         except RemoteError as exc:
             raise RemoteError(f"policy=remote: {exc}") from None

@@ -22,6 +22,7 @@ says otherwise, answers `GET /healthz`, and stops cleanly on Ctrl-C or SIGTERM.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import threading
 import time
@@ -38,6 +39,7 @@ from bench.core.io import jsonable
 from bench.protocols import TASK, Feature, PolicyContext, Suite, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
+from bench.remote.batching import Batcher, batchable
 from bench.remote.serving import RequestError, WebsocketServer
 
 MAX_HORIZON = 100_000
@@ -56,6 +58,9 @@ class ServeConfig:
     port: int = 8000  # port to listen on; 0 = any free port (printed at start)
     obs_map: Optional[list[str]] = None  # WIRE_KEY:BENCH_KEY renames of incoming entries: [observation/state:state]
     max_message_mb: float = 64.0  # largest request accepted, in MiB
+    prepare: int = 8  # envs built ahead, in the background, for the cells a bench client announces (0 = none)
+    batch: int = 1  # answer up to N connections' requests in one forward pass (policies with act_batch); 1 = off
+    batch_wait_ms: float = 2.0  # with batch > 1: how long the first request of a batch waits for more, at most
 
 
 @dataclass
@@ -113,6 +118,9 @@ class PolicyServer:
         }
         self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
+        self.prepared = Prepared(cfg.prepare, log=self.log)
+        self.sessions = 0  # open connections (a batch need not wait for more requests than there are clients)
+        self.batcher = Batcher(cfg.batch, cfg.batch_wait_ms / 1000.0, lambda: self.sessions) if cfg.batch > 1 else None
 
     # -- suites and cells, resolved from what a client names ------------------------------
     def suite_for(self, name: Any, path: Any, options: Any) -> Any:
@@ -140,12 +148,14 @@ class PolicyServer:
             return self._suites[key]
 
     def build(self, suite: Suite, cell_key: Any, run_seed: int, horizon: int) -> Served:
-        """The cell's env and policy, made as a bench worker makes them."""
+        """The cell's env and policy, made as a bench worker makes them (the env prepared ahead if it was)."""
         cells = {c.key: c for c in suite.all_cells()}
         if cell_key not in cells:
             raise RequestError(f"cell {cell_key!r} is not a cell of suite {suite.name!r}")
         cell = cells[cell_key]
-        env = suite.make_env(cell, horizon)
+        env = self.prepared.take(env_key(suite, cell_key, horizon))
+        if env is None:
+            env = suite.make_env(cell, horizon)
         try:
             missing = [k for k in self.needs if k not in env.obs_spec]
             if missing:
@@ -159,6 +169,17 @@ class PolicyServer:
             env.close()
             raise
         return Served(env, policy, dict(env.obs_spec))
+
+    def prepare(self, suite: Suite, cells: list[str], horizon: int) -> None:
+        """Start building the envs of `cells` in the background (a client announced its run)."""
+        by_key = {c.key: c for c in suite.all_cells()}
+        for key in cells:
+            self.prepared.add(env_key(suite, key, horizon), functools.partial(suite.make_env, by_key[key], horizon))
+
+    def close(self) -> None:
+        self.prepared.close()
+        if self.batcher is not None:
+            self.batcher.close()
 
     # -- serving --------------------------------------------------------------------------
     def websocket(self) -> WebsocketServer:
@@ -186,6 +207,8 @@ class Session:
         self.server = server
         self.served: dict[str, Served] = {}
         self.current: Served | None = None
+        with server._lock:
+            server.sessions += 1
 
     def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
         if wire.CONTROL in msg:
@@ -216,6 +239,9 @@ class Session:
             missing = [c for c in asked if c not in cells] if isinstance(asked, list) else ["(cells is not a list)"]
             if missing:
                 raise RequestError(f"suite {suite.name!r} on this server has no cell {missing[0]!r}")
+            horizon = body.get("horizon")
+            if isinstance(horizon, int) and not isinstance(horizon, bool) and 1 <= horizon <= MAX_HORIZON:
+                self.server.prepare(suite, list(asked), horizon)  # built while the client starts its workers
             return {wire.CONTROL: {"ok": True, "op": "check"}}
         seed = body.get("seed")
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
@@ -235,12 +261,17 @@ class Session:
         if self.current is None:
             self.current = self._default()
         obs = self.observation(msg, self.current.spec)
-        t0 = time.perf_counter()
-        actions = np.asarray(self.current.policy.act(obs))
-        infer_ms = (time.perf_counter() - t0) * 1000.0
+        policy, batcher = self.current.policy, self.server.batcher
+        timing: dict[str, Any] = {}
+        if batcher is not None and batchable(policy):
+            actions, infer_ms, timing["batch"] = batcher.submit(policy, obs)
+        else:
+            t0 = time.perf_counter()
+            actions = np.asarray(policy.act(obs))
+            infer_ms = (time.perf_counter() - t0) * 1000.0
         if actions.ndim == 1:
             actions = actions[None, :]  # openpi clients index rows of a chunk
-        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms}}
+        return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms, **timing}}
 
     def observation(self, msg: dict[str, Any], spec: dict[str, Feature]) -> dict[str, Any]:
         """The bench observation in a request: renamed, restricted to the cell's spec, shapes and dtypes checked."""
@@ -278,12 +309,102 @@ class Session:
         return obs
 
     def close(self) -> None:
+        with self.server._lock:
+            self.server.sessions -= 1
         for served in self.served.values():
             try:
                 served.env.close()
             except Exception:
                 pass
         self.served.clear()
+
+
+def env_key(suite: Any, cell: Any, horizon: Any) -> str:
+    """What makes two envs of a suite interchangeable: its class and options, the cell and the horizon."""
+    return json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, horizon], default=str)
+
+
+class Prepared:
+    """Envs built ahead by one background thread, in the order asked, at most `limit` at a time.
+
+    `take(key)` hands over a ready env (waiting for it if its build is under way) or None when there is
+    none, so the caller builds its own. Envs nobody took are closed with the server.
+    """
+
+    def __init__(self, limit: int, log: Callable[[str], None] | None = None):
+        self.limit = max(0, int(limit))
+        self.log = log or (lambda text: None)
+        self._cond = threading.Condition()
+        self._todo: list[tuple[str, Callable[[], Any]]] = []
+        self._ready: dict[str, list[Any]] = {}
+        self._building: str | None = None
+        self._count = 0  # asked for, not yet taken or closed
+        self._closed = False
+        self._thread: threading.Thread | None = None
+
+    def add(self, key: str, make: Callable[[], Any]) -> None:
+        with self._cond:
+            if self._closed or self._count >= self.limit:
+                return
+            if key in self._ready or key == self._building or any(k == key for k, _ in self._todo):
+                return  # one env per cell ahead: a second connection to the same cell builds its own
+            self._todo.append((key, make))
+            self._count += 1
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="bench-serve-prepare", daemon=True)
+                self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                if self._closed or not self._todo:
+                    self._thread = None
+                    return
+                key, make = self._todo.pop(0)
+                self._building = key
+            env = None
+            try:
+                env = make()
+            except Exception as exc:  # the client's own reset builds it again and reports the failure
+                self.log(f"building an env ahead failed: {type(exc).__name__}: {exc}")
+            with self._cond:
+                self._building = None
+                if env is not None and not self._closed:
+                    self._ready.setdefault(key, []).append(env)
+                else:
+                    self._count -= 1
+                    if env is not None:
+                        env.close()
+                self._cond.notify_all()
+
+    def take(self, key: str) -> Any:
+        with self._cond:
+            while self._building == key or any(k == key for k, _ in self._todo):
+                if key != self._building:  # not started yet: the caller builds it itself, now
+                    self._todo = [(k, m) for k, m in self._todo if k != key]
+                    self._count -= 1
+                    return None
+                self._cond.wait(0.5)
+            envs = self._ready.get(key)
+            if not envs:
+                return None
+            env = envs.pop()
+            if not envs:
+                del self._ready[key]
+            self._count -= 1
+            return env
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._todo.clear()
+            envs = [e for v in self._ready.values() for e in v]
+            self._ready.clear()
+        for env in envs:
+            try:
+                env.close()
+            except Exception:
+                pass
 
 
 def _json(options: Any) -> Any:

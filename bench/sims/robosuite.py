@@ -17,12 +17,15 @@ import logging
 import os
 import sys
 import types
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
 from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import AdapterBase
+from bench.sims import robosuite_fast
+from bench.sims.camera_env import CameraOptions
 
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
@@ -109,13 +112,22 @@ MAKE_OPTIONS: dict[str, Any] = {
 }
 
 
+@dataclass(frozen=True)
+class RobosuiteOptions(CameraOptions):
+    """Keys of the robosuite suites: the camera keys plus the choice of stepping path."""
+
+    fast_path: bool = field(
+        default=True, metadata={"spec": False}
+    )  # step through bench's robosuite fast path where it applies (same records); false: robosuite's own env.step
+
+
 class Observer(Protocol):
     """The task's view of a robosuite env (owned by a suite): spec, one-time binding, observation."""
 
     obs_spec: ObsSpec
 
     def bind(self, env: RobosuiteEnv) -> tuple[str, ...]:
-        """Called once after the env is built (may step it to measure things); returns the
+        """Called once after the env is built (may step it with `env.raw_step` to measure things); returns the
         manipulated object's bodies (`perturb.mass` targets)."""
         ...
 
@@ -128,13 +140,23 @@ class Observer(Protocol):
         ...
 
 
+# An Observer may also declare `raw_keys: tuple[str, ...]`, the raw observation entries `observe`
+# reads after a step: the fast path (bench.sims.robosuite_fast) then polls only those observables.
+
+
 class RobosuiteEnv(AdapterBase):
     """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
 
     mujoco: MujocoHandle  # always: bench.sims.perturb edits the model through it (no `model_axes`)
 
     def __init__(
-        self, task: str, robot: str, horizon: int, observer: Observer, env_kwargs: dict[str, Any] | None = None
+        self,
+        task: str,
+        robot: str,
+        horizon: int,
+        observer: Observer,
+        env_kwargs: dict[str, Any] | None = None,
+        fast: bool = True,
     ):
         _quiet_robosuite()
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
@@ -170,6 +192,14 @@ class RobosuiteEnv(AdapterBase):
         self.inputs = InputLog(model, int(mujoco.mjtState.mjSTATE_CTRL))  # robosuite drives actuators only
         self._wrap_physics_steps(data)
         self._success = False
+        # the fast path (bench.sims.robosuite_fast) where it applies, robosuite's own env.step otherwise
+        self.fast_path_reason = "turned off (fast_path=false)" if not fast else robosuite_fast.reason_not(self.raw)
+        log = self.inputs
+        self._fast = (
+            robosuite_fast.FastStep(self.raw, getattr(observer, "raw_keys", None), lambda: log.rows)
+            if self.fast_path_reason is None
+            else None
+        )
         self.mujoco = MujocoHandle(model, data, observer.bind(self))
 
     # -- actuator commands at every physics step (for batched replay) -------------------------
@@ -202,6 +232,11 @@ class RobosuiteEnv(AdapterBase):
                 sampler.rng = env.rng
         return env.reset()
 
+    def raw_step(self, action: np.ndarray) -> tuple[dict, float, bool, dict]:
+        """One robosuite step (fast path or `env.step`): robosuite's raw (observation, reward, done, info)."""
+        act = np.asarray(action, dtype=np.float64)
+        return self._fast.step(act) if self._fast is not None else self.raw.step(act)
+
     def reset(self, seed: int) -> Obs:
         raw = self.raw_reset(int(seed))
         self.observer.reset(raw)
@@ -211,7 +246,7 @@ class RobosuiteEnv(AdapterBase):
         return self.observer.observe(raw)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
-        raw, reward, done, info = self.raw.step(np.asarray(action, dtype=np.float64))
+        raw, reward, done, info = self.raw_step(action)
         self._success = bool(self.raw._check_success())
         return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
 

@@ -1,0 +1,199 @@
+"""Throughput per core, every figure a ratio measured in this one run (issue 29).
+
+    python benchmarks/bench_throughput.py [parts=[fast,workers,remote,batch]] [episodes=6] [horizon=250]
+        [scaling_episodes=12] [profile=false]
+
+Parts (each printed with the machine's load, /proc/loadavg, before and after):
+  fast     held_out_robots, random policy, Panda: the harness on bench's robosuite fast path ÷ a bare
+           robosuite loop (`robosuite.make` + soft reset + `env.step`, nothing else), episodes
+           interleaved (`bench.cli.perf.harness_vs_bare`), and the same with `fast_path=false` as a
+           control; then the fast path ÷ robosuite's `env.step` at the adapter, per arm (all 7), with
+           the records' equality checked on the way. `profile=true` adds where a step's time goes,
+           by cProfile, with and without the fast path.
+  workers  held_out_robots (Panda, random policy, `scaling_episodes` episodes): 2 workers ÷ 1, end to end
+           (worker start-up, imports and env builds included) and in steady state (`bench.cli.perf`).
+  remote   see benchmarks/bench_remote.py's throughput, here with overlapped (`overlap=true`) requests.
+  batch    `bench serve batch=N` against each worker holding its own policy copy.
+Targets: fast >= 2.0x bare robosuite; workers >= 1.9x end to end; remote >= 1.0 (chunked) and >= 0.95
+(per step); batch: a table.
+"""
+
+from __future__ import annotations
+
+import cProfile
+import dataclasses
+import io
+import os
+import pstats
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
+
+
+def load() -> str:
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def _plan(robot: str, episodes: int, horizon: int, fast: bool = True, seed: int = 0):
+    from bench import api
+
+    return api.plan(
+        api.RunConfig(
+            suite="held_out_robots",
+            policy="random",
+            robots=[robot],
+            episodes=episodes,
+            seed=seed,
+            horizon=horizon,
+            out=tempfile.gettempdir(),
+            run_id="throughput-bench",
+            suite_options={"fast_path": fast},
+        )
+    )
+
+
+def part_fast(episodes: int, horizon: int, profile: bool) -> None:
+    from bench.cli.perf import harness_vs_bare
+    from bench.sims.robosuite import MAKE_OPTIONS, _quiet_robosuite
+
+    class Bare:
+        """Bare robosuite: the placement generator re-seeded per episode, its own soft reset, `env.step`."""
+
+        def __init__(self) -> None:
+            _quiet_robosuite()
+            import robosuite
+
+            self.env = robosuite.make("Lift", robots="Panda", horizon=horizon, **MAKE_OPTIONS)
+
+        def reset(self, seed: int) -> None:
+            self.env.rng = np.random.default_rng(seed)
+            self.env.placement_initializer.rng = self.env.rng
+            self.env.reset()
+
+        def step(self, action) -> None:
+            self.env.step(action)
+
+        def close(self) -> None:
+            self.env.close()
+
+    for fast in (True, False):
+        res = harness_vs_bare(_plan("Panda", episodes, horizon, fast), bare=Bare)
+        h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
+        name = "fast path" if fast else "fast_path=false (control)"
+        print(
+            f"  harness, {name}: {h:.1f} env-steps/s; bare robosuite loop {r:.1f} env-steps/s; "
+            f"harness / bare = {h / r:.3f}   [load {load()}]"
+        )
+    print("  adapter: fast path ÷ robosuite env.step per arm (same env seeds and actions, interleaved; equal bytes?)")
+    from bench.api.sims import RobosuiteEnv
+    from suites.lift import LiftObserver
+
+    for arm in ARMS:
+        fast_env = RobosuiteEnv("Lift", arm, horizon, LiftObserver())
+        plain_env = RobosuiteEnv("Lift", arm, horizon, LiftObserver(), fast=False)
+        secs = {"fast": 0.0, "plain": 0.0}
+        same = True
+        for ep in range(2):
+            rng = np.random.default_rng(ep)
+            fast_env.reset(ep)
+            plain_env.reset(ep)
+            for t in range(min(horizon, 100)):
+                action = rng.uniform(-1, 1, 7)
+                order = (
+                    (("fast", fast_env), ("plain", plain_env))
+                    if t % 2 == 0
+                    else (("plain", plain_env), ("fast", fast_env))
+                )
+                out = {}
+                for name, env in order:
+                    t0 = time.perf_counter()
+                    out[name] = env.step(action)
+                    secs[name] += time.perf_counter() - t0
+                same &= out["fast"][0]["state"].tobytes() == out["plain"][0]["state"].tobytes()
+                same &= out["fast"][1] == out["plain"][1]
+                same &= fast_env.mujoco.data.qpos.tobytes() == plain_env.mujoco.data.qpos.tobytes()
+        print(f"    {arm:8s} fast / env.step = {secs['plain'] / secs['fast']:.2f}x   identical: {same}")
+        fast_env.close()
+        plain_env.close()
+        if profile and arm == "Panda":
+            for label, fast in (("robosuite env.step", False), ("fast path", True)):
+                print(f"  profile, {label} (Panda, 200 steps; top 12 by own time):")
+                print(_profile(fast, horizon))
+
+
+def _profile(fast: bool, horizon: int) -> str:
+    from bench.api.sims import RobosuiteEnv
+    from suites.lift import LiftObserver
+
+    env = RobosuiteEnv("Lift", "Panda", horizon, LiftObserver(), fast=fast)
+    env.reset(0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        env.step(rng.uniform(-1, 1, 7))
+    prof = cProfile.Profile()
+    t0 = time.perf_counter()
+    prof.enable()
+    for _ in range(200):
+        env.step(rng.uniform(-1, 1, 7))
+    prof.disable()
+    wall = time.perf_counter() - t0
+    env.close()
+    buf = io.StringIO()
+    stats = pstats.Stats(prof, stream=buf)
+    stats.sort_stats("tottime").print_stats(12)
+    lines = [ln for ln in buf.getvalue().splitlines() if ln.strip()]
+    start = next(i for i, ln in enumerate(lines) if ln.lstrip().startswith("ncalls"))
+    body = "\n".join("    " + ln.replace(sys.prefix, "<venv>") for ln in lines[start:])
+    return f"    {wall / 200 * 1e3:.2f} ms per step under the profiler\n{body}"
+
+
+def part_workers(episodes: int, horizon: int) -> None:
+    from bench.cli.perf import workers_scaling
+
+    p = _plan("Panda", episodes, horizon)
+    p = dataclasses.replace(p, cells=p.cells[:1], jobs=[j for j in p.jobs if j.cell == p.cells[0]])
+    print(f"  load before: {load()}")
+    b = workers_scaling(p, 2)
+    print(
+        f"  end to end ({episodes} episodes x {horizon} steps, start-up and env builds included): "
+        f"1 worker {b['one']['end_to_end']:.1f} ({b['one']['wall']:.1f} s), 2 workers {b['many']['end_to_end']:.1f} "
+        f"env-steps/s ({b['many']['wall']:.1f} s): 2 / 1 = {b['ratio_end_to_end']:.3f}"
+    )
+    print(
+        f"  steady state: 1 worker {b['one']['steady']:.1f}, 2 workers {b['many']['steady']:.1f} env-steps/s: "
+        f"2 / 1 = {b['ratio_steady']:.3f}   [load after {load()}]"
+    )
+
+
+def main(argv: list[str]) -> int:
+    kv = dict(a.split("=", 1) for a in argv)
+    parts = kv.get("parts", "[fast,workers,remote,batch]").strip("[]").split(",")
+    episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 250))
+    scaling = int(kv.get("scaling_episodes", 12))
+    profile = kv.get("profile", "false") == "true"
+    print(f"machine: {os.cpu_count()} cores, load {load()} (1/5/15 min)")
+    for part in parts:
+        t0 = time.perf_counter()
+        print(f"[{part}]")
+        if part == "fast":
+            part_fast(episodes, horizon, profile)
+        elif part == "workers":
+            part_workers(scaling, horizon)
+        elif part in ("remote", "batch"):
+            import bench_throughput_remote as remote  # the same folder: run as a script
+
+            remote.PARTS[part](kv)
+        else:
+            raise SystemExit(f"parts: {part!r} is not a part; valid: fast, workers, remote, batch")
+        print(f"  ({time.perf_counter() - t0:.0f} s)")
+    print(f"load at the end: {load()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
