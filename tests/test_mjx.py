@@ -232,10 +232,18 @@ def test_gradient_calibration_matches_least_squares(case, tmp_path):
 @needs_mjx
 @pytest.mark.slow
 def test_non_finite_gradient_names_window_and_parameter(case, tmp_path):
-    """A damping driven far negative makes the simulation blow up: the fit stops naming both, exit 2."""
+    """A motor gear of 1e200 makes the simulation overflow: the fit stops naming the window and the parameter,
+    exit 2. (A negative damping would do it too, but such bounds are refused before any work.)"""
     spec = tmp_path / "spec.yaml"
     text = (case / "spec.yaml").read_text().replace("arm3_declared.xml", str(case / "arm3_declared.xml"))
-    spec.write_text(text.replace("bounds: [0.0, 3.0]", "bounds: [-1.0e6, -9.0e5]"))
+    declared = "- name: damping\n  field: dof_damping\n  elements: [j1, j3]\n  bounds: [0.0, 3.0]"
+    assert declared in text
+    spec.write_text(
+        text.replace(
+            declared,
+            "- name: gear\n  field: actuator_gear\n  column: 0\n  elements: [m1]\n  bounds: [1.0e200, 2.0e200]",
+        )
+    )
     out = tmp_path / "out"
     r = bench(
         "calibrate",
@@ -248,6 +256,6 @@ def test_non_finite_gradient_names_window_and_parameter(case, tmp_path):
     )
     assert r.returncode == 2, r.stderr
     line = r.stderr.strip().splitlines()[-1]
-    assert "gradient turned non-finite in window" in line and "damping[j" in line
+    assert "gradient turned non-finite in window" in line and "for parameter gear = 1e+200" in line
     assert "method=least_squares" in line
     assert not out.exists()
