@@ -13,6 +13,7 @@ information criteria, which would otherwise accept any improvement at all.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -231,11 +232,24 @@ def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6
         z, nfev, success = res.x, res.nfev, bool(res.success)
     else:
         z, nfev, success = np.zeros(0), 0, True
-    x = lo + z * span
-    grid = grid_at(z)
+    return optimum(obj, lo + z * span, grid_at(z), lambda r: exact_jac(z), span, labels, nfev, success)
+
+
+def optimum(
+    obj: Objective,
+    x: np.ndarray,
+    grid: np.ndarray,
+    jacobian: Callable[[np.ndarray], np.ndarray],
+    span: np.ndarray,
+    labels: list[str],
+    nfev: int,
+    success: bool,
+) -> FitResult:
+    """The fit's result at `x` (residual `grid` there): intervals from `jacobian(residuals)` in normalised
+    units, inflated by the residual's autocorrelation time, and their warnings. Every fitter reports this way."""
     r = grid[obj.mask]
     tau = autocorrelation_time(grid)
-    jz = exact_jac(z) if len(x) else np.zeros((len(r), 0))
+    jz = jacobian(r) if len(x) else np.zeros((len(r), 0))
     cov, sd, warnings = covariance(jz, r, tau, span, labels)
     return FitResult(
         x=x,
