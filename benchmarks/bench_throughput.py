@@ -58,31 +58,19 @@ def _plan(robot: str, episodes: int, horizon: int, fast: bool = True, seed: int 
 
 
 def part_fast(episodes: int, horizon: int, profile: bool) -> None:
+    from bench_robosuite_raw import Bare as RawBare  # the same folder: run as a script; the one bare loop
+
     from bench.cli.perf import harness_vs_bare
     from bench.sims.robosuite import MAKE_OPTIONS, _quiet_robosuite
 
-    class Bare:
-        """Bare robosuite: the placement generator re-seeded per episode, its own soft reset, `env.step`."""
+    def bare() -> RawBare:
+        _quiet_robosuite()
+        import robosuite
 
-        def __init__(self) -> None:
-            _quiet_robosuite()
-            import robosuite
-
-            self.env = robosuite.make("Lift", robots="Panda", horizon=horizon, **MAKE_OPTIONS)
-
-        def reset(self, seed: int) -> None:
-            self.env.rng = np.random.default_rng(seed)
-            self.env.placement_initializer.rng = self.env.rng
-            self.env.reset()
-
-        def step(self, action) -> None:
-            self.env.step(action)
-
-        def close(self) -> None:
-            self.env.close()
+        return RawBare(robosuite.make("Lift", robots="Panda", horizon=horizon, **MAKE_OPTIONS))
 
     for fast in (True, False):
-        res = harness_vs_bare(_plan("Panda", episodes, horizon, fast), bare=Bare)
+        res = harness_vs_bare(_plan("Panda", episodes, horizon, fast), bare=bare)
         h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
         name = "fast path" if fast else "fast_path=false (control)"
         print(
