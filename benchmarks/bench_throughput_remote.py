@@ -19,7 +19,6 @@ batch   `bench serve batch=8` with a wider MLP (hidden [4096, 4096, 4096], one a
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -29,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_remote import serve  # the same folder (run as a script or from bench_throughput): one server launcher
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -58,26 +58,6 @@ def make_checkpoint(folder: Path, hidden: list[int], chunk: int, name: str) -> P
         "meta": {"made_by": "benchmarks/bench_throughput_remote.py", "weights": "random, torch.manual_seed(0)"},
     }
     return save_checkpoint(folder / f"{name}.safetensors", model, spec)
-
-
-@contextlib.contextmanager
-def serve(*keys: str):
-    """`bench serve` in its own process on 127.0.0.1 (port chosen by the OS); yields the port."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "bench", "serve", "port=0", *keys],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        line = proc.stdout.readline()
-        if "ws://127.0.0.1:" not in line:
-            raise RuntimeError(f"bench serve did not start: {line!r}")
-        yield int(line.split("ws://127.0.0.1:")[1].split(" ")[0])
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 def _bench_run(out: Path, run_id: str, *keys: str) -> float:
