@@ -244,8 +244,10 @@ def main_args(a: Args) -> int:
     log = Path(a.log).expanduser()
     if not log.is_file():
         raise api.DataError(f"log={str(log)!r}: the Panda CSV is missing (../shared/data/real/panda_gaz)")
-    out = outputs.check("out", a.out, {"log": str(log)}, overwrite=a.overwrite)
-    work = Path(a.work).expanduser()
+    # the work folder is resumed (its runs are kept) and parts of it are rebuilt: it must not hold, or lie in, the
+    # log, and the result (swapped in whole) must neither be it, hold it, nor lie inside it
+    work = outputs.check("work", a.work, {"log": str(log)}, resume=lambda p: True)
+    out = outputs.check("out", a.out, {"log": str(log), "work": str(work)}, overwrite=a.overwrite)
     t0 = time.perf_counter()
     ds = import_csv(log, time="time_s", resample=1000.0, robot_type="panda", **{k: v for k, v in JOINT_COLS.items()})
     logs = work / "logs"

@@ -335,3 +335,21 @@ def test_from_calibration_draws_one_replicate_per_episode(panda_calibration, tmp
                 perturb={"friction": f"from({panda_calibration})"},
             )
         )
+
+
+@needs_panda
+def test_real_panda_refuses_a_work_folder_that_holds_or_is_its_output(tmp_path, capsys):
+    """baselines.real_panda rebuilds parts of work= and swaps out= in whole: neither may hold the other (nor the
+    log), checked before anything is written."""
+    from baselines import real_panda
+
+    for out, work, words in (
+        (tmp_path / "o", tmp_path / "o" / "w", "contains the input work="),
+        (tmp_path / "o", tmp_path / "o", "is the input work="),
+        (tmp_path / "o" / "r", tmp_path / "o", "lies inside the input work="),
+        (tmp_path / "o", SHARED.parent.parent, "contains the input log="),
+    ):
+        assert real_panda.main([f"out={out}", f"work={work}"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, err
+    assert list(tmp_path.iterdir()) == []
