@@ -64,7 +64,8 @@ examples:
   bench list
   bench leaderboard validate runs/<run_id>/summary.json
 
-`bench COMMAND --help` describes a command and its keys. Bad input exits 2.
+`bench COMMAND --help` describes a command and its keys. Bad input exits 2; a run, score or gate that
+measured nothing exits 3 (docs/guarantees.md).
 """
 
 
