@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -52,14 +53,28 @@ def cfg(run_id: str, tmp_path, **kw) -> api.RunConfig:
     return api.RunConfig(suite=TOY, policy="scripted", out=str(tmp_path), run_id=run_id, **kw)
 
 
-def test_a_killed_worker_process_loses_no_episode(tmp_path):
-    """SIGKILL a child mid-run: its in-flight episodes run again elsewhere, once, noting why."""
+def _dead(pid: int) -> bool:
+    """The process has exited (a zombie not yet reaped, or gone): its end of every pipe is closed."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] in "ZX"
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+
+
+@pytest.mark.parametrize("await_death", [False, True], ids=["kill", "kill-then-feed-the-dead"])
+def test_a_killed_worker_process_loses_no_episode(tmp_path, await_death):
+    """SIGKILL a child mid-run: its in-flight episodes run again elsewhere, once, noting why.
+
+    With `await_death` the kill completes before the dispatcher feeds that child its next job, so
+    the send meets a closed pipe (CI once died here with BrokenPipeError)."""
     killed: list[int] = []
 
     def kill_first_child(record):
         if not killed and record.worker_pid != os.getpid():
             killed.append(record.worker_pid)
             os.kill(record.worker_pid, signal.SIGKILL)
+            while await_death and not _dead(record.worker_pid):
+                time.sleep(0.01)
 
     slow = {"step_delay": 0.02}
     res = api.run(cfg("k", tmp_path, episodes=6, workers=2, suite_options=slow), on_record=kill_first_child)

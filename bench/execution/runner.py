@@ -284,7 +284,10 @@ class _Children:
                         break
                     child.inflight.append(job)
                 child.warm.add(job.cell.key)
-                child.conn.send(job)
+                try:
+                    child.conn.send(job)
+                except OSError:  # it died since its last message: `_receive` reads what it sent, then its EOF
+                    child.ready = False  # requeues its in-flight jobs (this one included) via `_lost`
         with self.cond:
             idle = [] if self.queue else [c for c in self.children if not c.inflight]
             for child in idle:  # nothing left for it: let it close its envs while the others finish
