@@ -8,6 +8,7 @@ refusals, the rest is marked slow.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -115,9 +116,29 @@ def test_missing_jax_names_the_extra(monkeypatch):
     from bench.sims import mjx as backend
 
     monkeypatch.setattr(backend, "_state", {})
+    monkeypatch.setenv("XLA_FLAGS", "")  # require() may add the CPU flag: restored after the test
     monkeypatch.setitem(sys.modules, "jax", None)  # import jax -> ImportError, as without the extra
     with pytest.raises(ConfigError, match=r'pip install -e "\.\[mjx\]"'):
         backend.require()
+
+
+@needs_mjx
+def test_xla_cpu_fusion_emitters_are_turned_off_only_where_jaxlib_has_the_slow_default(monkeypatch):
+    """jaxlib 0.7's XLA:CPU fusion emitters run MJX 100-300x slower (benchmarks/bench_mjx.py); the flag goes
+    into XLA_FLAGS for those versions only (an unknown flag aborts XLA), and a user's own choice stays."""
+    from importlib.metadata import version
+
+    from bench.sims import mjx as backend
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_hlo_as_text=false")
+    jaxlib = tuple(int(p) for p in version("jaxlib").split(".")[:2])
+    slow = backend.CPU_FLAG_JAXLIB[0] <= jaxlib < backend.CPU_FLAG_JAXLIB[1]
+    assert backend.xla_cpu_flags() == (backend.CPU_FLAG if slow else None)
+    want = "--xla_dump_hlo_as_text=false" + (f" {backend.CPU_FLAG}" if slow else "")
+    assert os.environ["XLA_FLAGS"] == want
+    assert backend.xla_cpu_flags() is None and os.environ["XLA_FLAGS"] == want  # once only
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    assert backend.xla_cpu_flags() is None and os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=true"
 
 
 # --- batched simulation equals the CPU path -------------------------------------------------------------
