@@ -280,3 +280,49 @@ def test_non_finite_gradient_names_window_and_parameter(case, tmp_path):
     assert "gradient turned non-finite in window" in line and "for parameter gear = 1e+200" in line
     assert "method=least_squares" in line
     assert not out.exists()
+
+
+@needs_mjx
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not (SHARED / "data/real/panda_gaz/trajectory_1.csv").exists(), reason="needs ../shared/data/real/panda_gaz"
+)
+def test_gradient_fit_on_real_panda_log_reaches_least_squares(tmp_path):
+    """The real Panda log (its first 6 s; 100-step windows), torque-driven: the gradient fit's held-out k-step error is within the
+    least-squares fit's 95% bootstrap interval (or below it)."""
+    sys.path.insert(0, str(REPO))
+    from benchmarks.bench_calibrate_gradient import calibrate, panda_case
+
+    spec, logs = panda_case(tmp_path, seconds=6.0)
+    ls = calibrate(spec, logs, "least_squares")
+    gd = calibrate(spec, logs, "gradient")
+    assert gd["kstep"] <= ls["interval"][1], (gd["kstep"], ls["interval"])
+    assert gd["kstep"] < 0.9 * calibrate_nominal(spec, logs)
+
+
+def calibrate_nominal(spec: Path, logs: Path) -> float:
+    """Held-out k-step error of the model as given (declared values, no fit)."""
+    from bench.calibrate.data import extract  # the calibration's: splits off the held-out share
+    from bench.calibrate.fit import Objective
+    from bench.calibrate.model import Layout, Plant
+    from bench.calibrate.spec import load_spec
+    from bench.logs import read_dataset
+    from bench.replay.simulate import horizons
+    from bench.replay.spec import load_model
+
+    s = load_spec(spec)
+    ds = read_dataset(logs)
+    model = load_model(s.model)
+    rec = extract(s, [e.data for e in ds.episodes], float(ds.fps), nq=model.nq, nv=model.nv, nu=model.nu, seed=0)
+    plant = Plant(s, model, rec)
+
+    k = max(1, int(round(s.horizon * rec.fps)))
+    train = rec.frames(rec.train)
+    scale = np.maximum(np.concatenate([rec.qpos[train], rec.qvel[train]], axis=1).std(axis=0), 1e-9)
+    sim = plant.simulator()
+    try:
+        obj = Objective(sim, Layout(plant, []), horizons(rec, rec.holdout, k), rec, scale, np.arange(14))
+        grid = obj.residual_grid(plant.declared_nominal()[None])[0]
+    finally:
+        sim.close()
+    return float((grid**2).reshape(len(grid), -1).mean())
