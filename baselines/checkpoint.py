@@ -372,7 +372,12 @@ def load_policy(path: str | Path, env=None, replan_every: int = 0) -> Checkpoint
 
 def check_names(spec: dict[str, Any], env, source: str) -> None:
     """ConfigError unless the env's state fields and action names equal the ones the policy was trained on."""
-    env_obs = [[str(n), int(w)] for n, w in env.obs_spec[STATE].fields]
+    check_declared(spec, env.obs_spec, env.action_spec.names, source)
+
+
+def check_declared(spec: dict[str, Any], obs_spec: Any, action_names: Any, source: str) -> None:
+    """`check_names` against an observation spec and action names (an env's, or a suite's declared ones)."""
+    env_obs = [[str(n), int(w)] for n, w in obs_spec[STATE].fields]
     if env_obs != spec["obs_names"]:
         first = next(
             (i for i, (a, b) in enumerate(zip(env_obs, spec["obs_names"])) if a != b),
@@ -384,10 +389,9 @@ def check_names(spec: dict[str, Any], env, source: str) -> None:
             f"checkpoint={source!r}: obs_names differ from the env's at field {first}: policy "
             f"expects {want}, env gives {have}; the policy was trained on another observation layout"
         )
-    if list(env.action_spec.names) != spec["action_names"]:
+    if list(action_names) != spec["action_names"]:
         raise ConfigError(
-            f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's "
-            f"{list(env.action_spec.names)}"
+            f"checkpoint={source!r}: action_names {spec['action_names']} differ from the env's {list(action_names)}"
         )
 
 
@@ -411,10 +415,11 @@ class CheckpointPlugin(PolicyPlugin):
         return PolicyIdentity(str(options.checkpoint), sha256_file(path))
 
     def preflight(self, options: Any, suite: Any, cells: Sequence[Any], horizon: int) -> None:
-        """Load the weights and compare the names with the first cell's env, before any worker starts.
+        """Load the weights and compare the names with the first cell's, before any worker starts.
 
-        A mismatch must stop the run with exit 2, not fill it with error records. The names
-        come from the suite's declared observation; the env is built only for the action names.
+        A mismatch must stop the run with exit 2, not fill it with error records. The names come from
+        the suite's declaration (`obs_spec`, `action_names`); the first cell's env is built only when
+        the suite does not declare its action names (building a robosuite env costs seconds).
         """
         import torch
 
@@ -425,7 +430,11 @@ class CheckpointPlugin(PolicyPlugin):
         torch.set_num_threads(1)
         try:
             policy = load_policy(options.checkpoint)
-            if cells:
+            declared = getattr(suite, "action_names", None)  # optional in the Suite protocol (SuiteBase: None)
+            names = declared(cells[0]) if cells and declared is not None else None
+            if names is not None:
+                check_declared(policy.spec, suite.obs_spec(cells[0]), names, str(options.checkpoint))
+            elif cells:
                 env = suite.make_env(cells[0], horizon)
                 try:
                     check_names(policy.spec, env, str(options.checkpoint))

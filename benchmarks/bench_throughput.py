@@ -1,7 +1,7 @@
 """Throughput per core, every figure a ratio measured in this one run (issue 29).
 
     python benchmarks/bench_throughput.py [parts=[fast,workers,remote,batch]] [episodes=6] [horizon=250]
-        [scaling_episodes=12] [profile=false]
+        [scaling_episodes=12] [repeats=1] [profile=false]   (parts: fast, workers, suite, remote, batch)
 
 Parts (each printed with the machine's load, /proc/loadavg, before and after):
   fast     held_out_robots, random policy, Panda: the harness on bench's robosuite fast path ÷ a bare
@@ -12,6 +12,9 @@ Parts (each printed with the machine's load, /proc/loadavg, before and after):
            by cProfile, with and without the fast path.
   workers  held_out_robots (Panda, random policy, `scaling_episodes` episodes): 2 workers ÷ 1, end to end
            (worker start-up, imports and env builds included) and in steady state (`bench.cli.perf`).
+  suite    the main job as a command, `bench run suite=held_out_robots episodes=<scaling_episodes>`
+           (all 7 arms, the default policy) with workers=1 and workers=2, alternating `repeats` times (default
+           1): wall time from the command's start to its exit, 2 workers ÷ 1.
   remote   see benchmarks/bench_remote.py's throughput, here with overlapped (`overlap=true`) requests.
   batch    `bench serve batch=N` against each worker holding its own policy copy.
 Targets: fast >= 2.0x bare robosuite; workers >= 1.9x end to end; remote >= 1.0 (chunked) and >= 0.95
@@ -158,6 +161,42 @@ def part_workers(episodes: int, horizon: int) -> None:
     )
 
 
+def part_suite(episodes: int, repeats: int) -> None:
+    """The whole main job end to end: `bench run suite=held_out_robots episodes=N workers=1` and `workers=2`
+    as commands (interpreter start-up, imports, plan, every worker's start-up and env builds, all 7 arms,
+    the summary and leaderboard included), alternating, `repeats` times each; wall time and env-steps/s."""
+    import json
+    import subprocess
+
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    steps: dict[int, int] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for rep in range(repeats):
+            for w in (1, 2) if rep % 2 == 0 else (2, 1):
+                run_id = f"w{w}-{rep}"
+                argv = [
+                    "suite=held_out_robots",
+                    f"episodes={episodes}",
+                    f"workers={w}",
+                    f"out={tmp}",
+                    f"run_id={run_id}",
+                ]
+                t0 = time.perf_counter()
+                res = subprocess.run([sys.executable, "-m", "bench", "run", *argv], capture_output=True, text=True)
+                wall = time.perf_counter() - t0
+                if res.returncode != 0:
+                    raise SystemExit(f"bench run {' '.join(argv)} exited {res.returncode}: {res.stderr.strip()[-400:]}")
+                with open(os.path.join(tmp, run_id, "episodes.jsonl")) as f:
+                    steps[w] = sum(json.loads(line)["length"] for line in f if line.strip())
+                walls[w].append(wall)
+                print(f"  workers={w}: {wall:.1f} s, {steps[w] / wall:.1f} env-steps/s   [load {load()}]", flush=True)
+    one, two = (float(np.median(walls[w])) for w in (1, 2))
+    print(
+        f"  held_out_robots end to end (7 arms x {episodes} episodes, the `bench run` command, median of "
+        f"{repeats}): 1 worker {one:.1f} s, 2 workers {two:.1f} s: 2 / 1 = {one / two:.3f}"
+    )
+
+
 def main(argv: list[str]) -> int:
     kv = dict(a.split("=", 1) for a in argv)
     parts = kv.get("parts", "[fast,workers,remote,batch]").strip("[]").split(",")
@@ -172,12 +211,14 @@ def main(argv: list[str]) -> int:
             part_fast(episodes, horizon, profile)
         elif part == "workers":
             part_workers(scaling, horizon)
+        elif part == "suite":
+            part_suite(scaling, int(kv.get("repeats", 1)))
         elif part in ("remote", "batch"):
             import bench_throughput_remote as remote  # the same folder: run as a script
 
             remote.PARTS[part](kv)
         else:
-            raise SystemExit(f"parts: {part!r} is not a part; valid: fast, workers, remote, batch")
+            raise SystemExit(f"parts: {part!r} is not a part; valid: fast, workers, suite, remote, batch")
         print(f"  ({time.perf_counter() - t0:.0f} s)")
     print(f"load at the end: {load()}")
     return 0

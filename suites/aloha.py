@@ -290,6 +290,9 @@ class Aloha(SuiteBase):
     def obs_spec(self, cell: Cell) -> ObsSpec:
         return camera_spec({STATE: state_feature(cell.task), TASK: Feature.text()}, self.options, ["top"])
 
+    def action_names(self, cell: Cell) -> list[str]:
+        return list(ACTION_NAMES)  # both arms' joints and grippers, as AlohaEnv's action_spec
+
     def make_env(self, cell: Cell, horizon: int):
         scene = SEEN_SCENES.get(cell.env, UNSEEN_SCENES.get(cell.env, {}))
         env = AlohaEnv(cell.task, horizon, scene, where=cell.key)

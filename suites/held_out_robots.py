@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.api.sims import RobosuiteOptions, camera_spec, check_options, unwrap
+from bench.api.sims import ROBOSUITE_ACTION_NAMES, RobosuiteOptions, camera_spec, check_options, unwrap
 from bench.protocols import ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
@@ -76,6 +76,9 @@ class HeldOutRobots(SuiteBase):
         from suites.lift import DEFAULT_CAMERAS, LiftObserver
 
         return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
+
+    def action_names(self, cell: Cell) -> list[str]:
+        return list(ROBOSUITE_ACTION_NAMES)  # OSC_POSE deltas + gripper on every arm (RobosuiteEnv checks the size)
 
     def make_env(self, cell: Cell, horizon: int):
         from suites import lift

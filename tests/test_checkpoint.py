@@ -212,3 +212,38 @@ def test_bench_run_bad_spec_exits_2_and_writes_nothing(ckpt: Path, tmp_path: Pat
     assert res.stderr.strip().startswith("error:") and len(res.stderr.strip().splitlines()) == 1
     assert "weights do not fit" in res.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_preflight_checks_declared_names_without_building_an_env(ckpt: Path, tmp_path: Path):
+    """held_out_robots declares its action names: the preflight compares a checkpoint with the declaration
+    (exit 2 material on a mismatch) and builds no env (seconds saved on every `bench run policy=bc`)."""
+    from baselines.checkpoint import CheckpointOptions, CheckpointPlugin
+    from suites.held_out_robots import HeldOutRobots
+
+    class NoBuild(HeldOutRobots):
+        def make_env(self, cell, horizon):
+            raise AssertionError("the preflight built an env")
+
+    suite = NoBuild()
+    cells = suite.all_cells()
+    CheckpointPlugin().preflight(CheckpointOptions(str(ckpt)), suite, cells, 20)  # names agree: no error
+    other = save_checkpoint(
+        tmp_path / "rev" / "p.safetensors",
+        build("mlp", 18, 7, {"hidden": [16, 16]}),
+        _spec(action_names=ACTION_NAMES[::-1]),
+    )
+    with pytest.raises(ConfigError, match=r"action_names \['gripper'.* differ from the env's \['dx'"):
+        CheckpointPlugin().preflight(CheckpointOptions(str(other)), suite, cells, 20)
+
+
+@pytest.mark.parametrize("name", ["held_out_robots", "held_out_scenes"])
+def test_declared_action_names_equal_the_built_env_for_every_cell(name):
+    from bench.api import load_suite
+
+    suite = load_suite(name)
+    for cell in suite.all_cells():
+        env = suite.make_env(cell, 10)
+        try:
+            assert list(env.action_spec.names) == list(suite.action_names(cell)), cell.key
+        finally:
+            env.close()

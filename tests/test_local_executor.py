@@ -29,18 +29,22 @@ def jobs(cells: str = "ab", episodes: int = 3):
     return expand_jobs([Cell("toy", "reach", r, "line", "seen") for r in cells], [Condition()], episodes, 0)
 
 
-def test_queue_is_cell_major_and_prefers_a_warm_cell():
-    q = JobQueue(jobs("abc", 2))
-    assert [q.take().cell.robot for _ in range(3)] == ["a", "a", "b"]
-    assert q.take(warm={"reach/c/line"}).cell.robot == "c"  # a worker that built c stays on c
-    assert q.take(warm={"reach/a/line"}).cell.robot == "b"  # a is done: the next cell in order
-    assert q.take().cell.robot == "c" and q.take() is None and not q
+def test_queue_is_cell_major_and_prefers_a_warm_cell_then_a_cell_nobody_started():
+    q = JobQueue(jobs("abcd", 2))
+    assert q.take().cell.robot == "a"
+    assert q.take(warm={"reach/a/line"}).cell.robot == "a"  # a worker that built a stays on a
+    assert q.take().cell.robot == "b"  # a cold worker starts a cell nobody started, not a's last job
+    assert q.take(warm={"reach/a/line"}).cell.robot == "c"  # a is done: the next cell nobody started
+    assert q.take(warm={"reach/c/line"}).cell.robot == "c"
+    assert q.take(warm={"reach/c/line"}).cell.robot == "d"
+    assert q.take().cell.robot == "b"  # every cell started: the first with jobs left, in cell-major order
+    assert q.take(warm={"reach/d/line"}).cell.robot == "d" and q.take() is None and not q
 
 
 def test_a_lost_job_goes_first_and_is_given_up_after_bounded_retries():
     q = JobQueue(jobs("ab", 2), max_retries=2)
     first = q.take()
-    q.take()
+    q.take(warm={"reach/a/line"})
     assert q.lost(first, "worker 1 died") and q.take(warm={"reach/b/line"}) == first  # retried before all else
     assert q.lost(first, "worker 2 died") and q.take() == first
     assert not q.lost(first, "worker 3 died")  # third loss: given up, not queued again

@@ -16,6 +16,7 @@ from bench.sims.gym import GymEnv
 from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
 from bench.sims.perturb import set_nominal
+from bench.sims.robosuite import ACTION_NAMES as ROBOSUITE_ACTION_NAMES
 from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "OBS_NAMES",
     "RENDERER_DEFAULTS",
     "RESETS",
+    "ROBOSUITE_ACTION_NAMES",
     "TOO_HIGH",
     "CameraOptions",
     "GymEnv",

@@ -3,7 +3,8 @@
 Both executors (local processes, Ray actors) hand out jobs through one `JobQueue`, so they
 schedule alike: jobs keep the suite's cell-major order; a worker that asks for work gets
 the next job of a cell whose env it has already built (its "warm" cells) if one is left,
-else the first job in cell-major order. A job whose worker was lost (a killed process, a
+else the first job of a cell no worker has started (so workers split the cells instead of
+each building every cell's env), else the first job in cell-major order. A job whose worker was lost (a killed process, a
 dead node) is handed out before any other, with the reason kept, at most `max_retries`
 times; after that it is given up and the caller records it as an error episode, so a job
 that kills every worker it touches cannot stall a run. Nothing here runs an episode.
@@ -37,6 +38,7 @@ class JobQueue:
         self.cells: OrderedDict[str, deque[Job]] = OrderedDict()
         for job in jobs:
             self.cells.setdefault(job.cell.key, deque()).append(job)
+        self.started: set[str] = set()  # cells some worker has taken a job of (and so built, or is building)
         self.retries: dict[str, list[str]] = {}  # job id -> why each earlier attempt was lost
         self.lost_jobs: deque[Job] = deque()  # jobs whose worker was lost: handed out first
 
@@ -54,11 +56,15 @@ class JobQueue:
             if key in warm and queue:
                 return self._pop(key)
         for key, queue in self.cells.items():
+            if queue and key not in self.started:
+                return self._pop(key)
+        for key, queue in self.cells.items():
             if queue:
                 return self._pop(key)
         return None
 
     def _pop(self, key: str) -> Job:
+        self.started.add(key)
         queue = self.cells[key]
         job = queue.popleft()
         if not queue:

@@ -208,6 +208,11 @@ class SuiteBase:
     def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
         raise NotImplementedError
 
+    def action_names(self, cell: Cell) -> Sequence[str] | None:
+        """The action names a cell's env will take, declared without building it; None (this default) when
+        only a built env can tell (a policy's preflight then builds one to check a checkpoint against)."""
+        return None
+
     def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
         raise ConfigError(f"suite {self.name!r} declares no scripted expert")
 
