@@ -1,6 +1,7 @@
 """Both calibration methods side by side: time, held-out error (with an interval) and effects found.
 
     python benchmarks/bench_calibrate_gradient.py [case=all|arm|emps|panda] [effects=[viscous_damping,...]]
+        [panda_effects=[payload_mass,bias,...]]
 
 For each case the same spec and logs are calibrated twice in this process, by `method=least_squares`
 (finite-difference Jacobians on CPU MuJoCo) and by `method=gradient` (MJX gradients, L-BFGS-B), and
@@ -17,7 +18,7 @@ both found the same effects. Cases:
     linearly resampled to 2 ms and driven by the measured joint torques on robosuite's Panda as a
     dynamics-only model built at run time (bench.sims.panda_dynamics); declared per-joint damping and
     armature and one mass scale over the links, 100-step windows, the last 30% of time held out, no
-    effect search (effects: none).
+    effect search unless `panda_effects=[...]` names effect families to search (bench.calibrate.effects).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class Keys:
     effects: Optional[list[str]] = (
         None  # arm cases' hidden effects (default: viscous_damping, payload_mass, coulomb_friction)
     )
+    panda_effects: Optional[list[str]] = None  # effect families searched on the real Panda (default: none)
 
 
 def arm_case(effect: str, tmp: Path) -> tuple[Path, Path]:
@@ -67,9 +69,11 @@ def emps_case(tmp: Path) -> tuple[Path, Path]:
     return MODELS / "emps.yaml", tmp / "emps"
 
 
-def panda_case(tmp: Path, seconds: float | None = None, horizon: float = 0.2) -> tuple[Path, Path]:
-    """The Panda log resampled to 2 ms (first `seconds` of it), its spec (windows of `horizon` s) and the
-    dynamics-only model, in `tmp`."""
+def panda_case(
+    tmp: Path, seconds: float | None = None, horizon: float = 0.2, effects: list[str] | None = None
+) -> tuple[Path, Path]:
+    """The Panda log resampled to 2 ms (first `seconds` of it), its spec (windows of `horizon` s, the effect
+    library `effects` searched, none by default) and the dynamics-only model, in `tmp`."""
     from bench.logs import import_csv, write_dataset
     from bench.sims import panda_dynamics
 
@@ -97,7 +101,7 @@ def panda_case(tmp: Path, seconds: float | None = None, horizon: float = 0.2) ->
         f"  - {{name: damping, field: dof_damping, elements: [{', '.join(joints)}], bounds: [0, 5]}}\n"
         f"  - {{name: armature, field: dof_armature, elements: [{', '.join(joints)}], bounds: [0, 1]}}\n"
         f"  - {{name: link_mass, field: body_mass, elements: [{', '.join(links)}], bounds: [0.5, 2], scale: true}}\n"
-        f"effects: none\nholdout: 0.3\nhorizon: {horizon}\n"
+        f"effects: {'[' + ', '.join(effects) + ']' if effects else 'none'}\nholdout: 0.3\nhorizon: {horizon}\n"
     )
     return spec, tmp / "panda_logs"
 
@@ -192,7 +196,7 @@ def main(argv: list[str]) -> int:
                 print(f"emps: skipped, {EMPS_MAT} not found")
         if case in ("all", "panda"):
             if PANDA_CSV.exists():
-                ok &= compare("panda", *panda_case(tmp))
+                ok &= compare("panda", *panda_case(tmp, effects=cfg.panda_effects))
             else:
                 print(f"panda: skipped, {PANDA_CSV} not found")
     print(f"load at the end {open('/proc/loadavg').read().split()[:3]}")

@@ -306,7 +306,13 @@ class _Children:
         self.retired.append(child)
 
     def close(self) -> None:
-        """Stop the thread and the children (those still running an episode are killed)."""
+        """Stop the thread and the children (those still running an episode are killed), and wait for them."""
+        self.stop()
+        self.join()
+
+    def stop(self) -> None:
+        """Stop the thread and tell the children to stop (those still running an episode are killed); returns
+        while they close their envs, so the caller can close its own meanwhile (`join` waits for them)."""
         self.stopping = True
         self.wake_w.send(None)
         self.thread.join(5)
@@ -316,6 +322,9 @@ class _Children:
             if child.inflight:
                 child.proc.kill()
             self._retire(child)
+
+    def join(self) -> None:
+        """Wait (10 s at most, then kill) for the children `stop` told to stop."""
         deadline = time.time() + 10
         for child in self.retired:
             child.proc.join(max(0.0, deadline - time.time()))
@@ -382,10 +391,14 @@ class LocalExecutor:
                 raise children.error
         finally:
             if children is not None:
-                children.close()
-                stop_resource_tracker()
-            if worker is not None:
-                worker.close()
+                children.stop()  # the children close their envs while this process closes its own
+            try:
+                if worker is not None:
+                    worker.close()
+            finally:
+                if children is not None:
+                    children.join()
+                    stop_resource_tracker()
 
 
 def stop_resource_tracker(timeout: float = 10.0) -> None:
