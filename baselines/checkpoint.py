@@ -430,8 +430,7 @@ class CheckpointPlugin(PolicyPlugin):
         torch.set_num_threads(1)
         try:
             policy = load_policy(options.checkpoint)
-            declared = getattr(suite, "action_names", None)  # optional in the Suite protocol (SuiteBase: None)
-            names = declared(cells[0]) if cells and declared is not None else None
+            names = suite.action_names(cells[0]) if cells else None
             if names is not None:
                 check_declared(policy.spec, suite.obs_spec(cells[0]), names, str(options.checkpoint))
             elif cells:

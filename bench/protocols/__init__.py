@@ -309,6 +309,11 @@ class Suite(Protocol):
         """Build the cell's env (called once per worker and cell)."""
         ...
 
+    def action_names(self, cell: Cell) -> Sequence[str] | None:
+        """The action names a cell's env will take, declared without building it; None when only a built env
+        can tell (`SuiteBase`'s default)."""
+        ...
+
     def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
         """The suite's scripted expert for a cell (only with the "expert" capability)."""
         ...
