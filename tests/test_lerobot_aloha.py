@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -92,6 +93,7 @@ def test_act_trained_on_aloha_runs_through_policy_remote(lerobot_python, tmp_pat
             f"--policy.path={policy}",
             "--env.type=aloha",
             "--env.task=AlohaTransfer-v0",
+            f"--bench={Path(sys.executable).parent / 'bench'}",  # bench beside the tests' Python, wherever its venv is
         ],
         cwd=REPO,
         capture_output=True,
