@@ -36,15 +36,11 @@ class Bare:
         self.env.close()
 
 
-def main(argv: list[str]) -> int:
+def plan(robot: str, episodes: int, horizon: int, seed: int = 0, run_id: str = "raw-bench", fast: bool = True):
+    """held_out_robots with the random policy on one arm: the plan both this script and bench_throughput time."""
     from bench import api
-    from bench.cli.perf import harness_vs_bare
-    from bench.sims.robosuite import _quiet_robosuite
 
-    kv = dict(a.split("=", 1) for a in argv)
-    robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
-    horizon, seed = int(kv.get("horizon", 250)), int(kv.get("seed", 0))
-    plan = api.plan(
+    return api.plan(
         api.RunConfig(
             suite="held_out_robots",
             policy="random",
@@ -53,9 +49,20 @@ def main(argv: list[str]) -> int:
             seed=seed,
             horizon=horizon,
             out=tempfile.gettempdir(),
-            run_id="raw-bench",
+            run_id=run_id,
+            suite_options={"fast_path": fast},
         )
     )
+
+
+def main(argv: list[str]) -> int:
+    from bench.cli.perf import harness_vs_bare
+    from bench.sims.robosuite import _quiet_robosuite
+
+    kv = dict(a.split("=", 1) for a in argv)
+    robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
+    horizon, seed = int(kv.get("horizon", 250)), int(kv.get("seed", 0))
+    p = plan(robot, episodes, horizon, seed)
 
     def bare() -> Bare:
         _quiet_robosuite()
@@ -65,7 +72,7 @@ def main(argv: list[str]) -> int:
 
         return Bare(robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS))
 
-    res = harness_vs_bare(plan, bare=bare)
+    res = harness_vs_bare(p, bare=bare)
     h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
     print(f"robosuite Lift/{robot}, {episodes} episodes x {horizon} steps, random policy")
     print(f"harness {h:.1f} env-steps/s, raw robosuite {r:.1f} env-steps/s: harness / raw = {h / r:.3f}")

@@ -33,6 +33,8 @@ import tempfile
 import time
 
 import numpy as np
+from bench_robosuite_raw import Bare as RawBare  # the same folder (run as a script): the one bare loop
+from bench_robosuite_raw import plan  # ... and the plan it times
 
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
 
@@ -42,27 +44,7 @@ def load() -> str:
         return " ".join(f.read().split()[:3])
 
 
-def _plan(robot: str, episodes: int, horizon: int, fast: bool = True, seed: int = 0):
-    from bench import api
-
-    return api.plan(
-        api.RunConfig(
-            suite="held_out_robots",
-            policy="random",
-            robots=[robot],
-            episodes=episodes,
-            seed=seed,
-            horizon=horizon,
-            out=tempfile.gettempdir(),
-            run_id="throughput-bench",
-            suite_options={"fast_path": fast},
-        )
-    )
-
-
 def part_fast(episodes: int, horizon: int, profile: bool) -> None:
-    from bench_robosuite_raw import Bare as RawBare  # the same folder: run as a script; the one bare loop
-
     from bench.cli.perf import harness_vs_bare
     from bench.sims.robosuite import MAKE_OPTIONS, _quiet_robosuite
 
@@ -73,7 +55,7 @@ def part_fast(episodes: int, horizon: int, profile: bool) -> None:
         return RawBare(robosuite.make("Lift", robots="Panda", horizon=horizon, **MAKE_OPTIONS))
 
     for fast in (True, False):
-        res = harness_vs_bare(_plan("Panda", episodes, horizon, fast), bare=bare)
+        res = harness_vs_bare(plan("Panda", episodes, horizon, run_id="throughput-bench", fast=fast), bare=bare)
         h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
         name = "fast path" if fast else "fast_path=false (control)"
         print(
@@ -146,7 +128,7 @@ def _profile(fast: bool, horizon: int) -> str:
 def part_workers(episodes: int, horizon: int) -> None:
     from bench.cli.perf import workers_scaling
 
-    p = _plan("Panda", episodes, horizon)
+    p = plan("Panda", episodes, horizon, run_id="throughput-bench")
     p = dataclasses.replace(p, cells=p.cells[:1], jobs=[j for j in p.jobs if j.cell == p.cells[0]])
     print(f"  load before: {load()}")
     b = workers_scaling(p, 2)

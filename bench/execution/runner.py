@@ -340,8 +340,9 @@ class LocalExecutor:
     The parent runs episodes from the first second while the children start (spawn, imports
     and env builds take seconds each), so start-up overlaps with work; children get jobs as
     soon as they are ready. Jobs go cell-major, a worker preferring a cell whose env it has
-    built, then a cell nobody has started (`JobQueue.take`). A child that dies (killed, segfault) has its episodes retried elsewhere, at most
-    `MAX_RETRIES` times each, the reasons kept in the record's `extras["retries"]`.
+    built, then a cell nobody has started (`JobQueue.take`). A child that dies (killed,
+    segfault) has its episodes retried elsewhere, at most `MAX_RETRIES` times each, the reasons
+    kept in the record's `extras["retries"]`.
     """
 
     capabilities: frozenset[str] = frozenset({"status"})  # no cluster to reach, no notes of its own

@@ -4,10 +4,11 @@ Both executors (local processes, Ray actors) hand out jobs through one `JobQueue
 schedule alike: jobs keep the suite's cell-major order; a worker that asks for work gets
 the next job of a cell whose env it has already built (its "warm" cells) if one is left,
 else the first job of a cell no worker has started (so workers split the cells instead of
-each building every cell's env), else the first job in cell-major order. A job whose worker was lost (a killed process, a
-dead node) is handed out before any other, with the reason kept, at most `max_retries`
-times; after that it is given up and the caller records it as an error episode, so a job
-that kills every worker it touches cannot stall a run. Nothing here runs an episode.
+each building every cell's env), else the first job in cell-major order. A job whose worker
+was lost (a killed process, a dead node) is handed out before any other, with the reason
+kept, at most `max_retries` times; after that it is given up and the caller records it as an
+error episode, so a job that kills every worker it touches cannot stall a run. Nothing here
+runs an episode.
 """
 
 from __future__ import annotations

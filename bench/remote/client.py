@@ -201,18 +201,12 @@ class Connection:
 
         `warm`: the answer may pay the server's set-up (bounded by `warmup_s`, and reported if long).
         """
-        if self.ws is None:
-            raise RemoteError(f"not connected to {self.where}")
-        try:
-            frame = wire.encode(message)
-        except wire.WireError as exc:
-            raise RemoteError(f"observation for {self.where}: {exc}") from None
         limit = self.warmup_s if warm else self.timeout_s
         with _Wait(
             self.report if warm else None,
             f"the policy server at {self.where} to warm up (up to warmup_s={limit:g} s)",
         ):
-            self._send(frame)
+            self.send(message)
             return self.receive(warm)
 
     def send(self, message: dict[str, Any]) -> None:
@@ -223,10 +217,6 @@ class Connection:
             frame = wire.encode(message)
         except wire.WireError as exc:
             raise RemoteError(f"observation for {self.where}: {exc}") from None
-        self._send(frame)
-
-    def _send(self, frame: bytes) -> None:
-        assert self.ws is not None
         ok = False
         try:
             self.ws.send(frame)

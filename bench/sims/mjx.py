@@ -25,6 +25,7 @@ import copy
 import os
 import time
 from collections.abc import Callable, Mapping
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +50,6 @@ CPU_FLAG_JAXLIB = ((0, 7), (0, 8))  # jaxlib versions [from, to) that have the f
 def xla_cpu_flags() -> str | None:
     """Add `CPU_FLAG` to `XLA_FLAGS` for this process (before JAX creates its CPU backend) where the installed
     jaxlib needs it and `XLA_FLAGS` does not already choose; returns the flag added, or None."""
-    from importlib.metadata import PackageNotFoundError, version  # read once, when MJX is first asked for
-
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_cpu_use_fusion_emitters" in flags:
         return None  # the user chose
