@@ -204,4 +204,10 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    from bench.core.errors import BenchError
+
+    try:
+        sys.exit(main(sys.argv[1:]))
+    except BenchError as exc:  # bad keys or a bad spec (panda_effects=[nosuch]): one line, as bench's commands
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
