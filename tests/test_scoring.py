@@ -17,6 +17,33 @@ def test_wilson_matches_hand_computation():
     assert est.hi == pytest.approx(0.644492 + 0.247715, abs=1e-5)
 
 
+@pytest.mark.parametrize("confidence", [0.8, 0.9, 0.95, 0.99, 0.999])
+def test_wilson_is_scipys_to_the_last_bit(confidence):
+    """`wilson` computes scipy's Wilson interval without importing scipy.stats: the same floats, every k <= n <= 60."""
+    from scipy.stats import binomtest
+
+    for n in range(1, 61):
+        for k in range(n + 1):
+            ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
+            est = scoring.wilson(k, n, confidence)
+            assert (est.lo, est.hi) == (float(ci.low), float(ci.high)), (k, n)
+
+
+def test_iqm_is_scipys_trim_mean_to_the_last_bit():
+    from scipy.stats import trim_mean
+
+    rng = np.random.default_rng(0)
+    for shape in [(1,), (3,), (4,), (7,), (12,), (5, 9), (200, 13), (3, 4, 17)]:
+        for values in (
+            rng.normal(size=shape),
+            rng.integers(0, 2, size=shape),
+            rng.uniform(size=shape).astype(np.float32),
+        ):
+            for axis in range(-1, -values.ndim - 1, -1):
+                ours, theirs = scoring.iqm(values, axis=axis), trim_mean(values, 0.25, axis=axis)
+                assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), (shape, values.dtype, axis)
+
+
 def test_wilson_extremes_and_empty():
     zero = scoring.wilson(0, 10)  # lower bound exactly 0, upper z^2/(n+z^2) = 3.8415/13.8415 = 0.27753
     assert zero.lo == pytest.approx(0.0, abs=1e-12) and zero.hi == pytest.approx(0.27753, abs=1e-4)
