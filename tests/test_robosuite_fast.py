@@ -56,6 +56,9 @@ def test_fast_path_applies_and_matches_env_step_state_by_state():
     plain = RobosuiteEnv("Lift", "Panda", 40, LiftObserver(), fast=False)
     assert fast.fast_path_reason is None
     assert plain.fast_path_reason == "turned off (fast_path=false)"
+    # the fast path's build compiles no robot-only model (robosuite's own build does; nothing reads it)
+    assert fast.raw.robots[0].robot_model.mujoco_model is None
+    assert plain.raw.robots[0].robot_model.mujoco_model is not None
     for seed in (0, 1):
         rng = np.random.default_rng(seed)
         a, b = fast.reset(seed), plain.reset(seed)
@@ -72,6 +75,30 @@ def test_fast_path_applies_and_matches_env_step_state_by_state():
             assert fast.inputs.take().tobytes() == plain.inputs.take().tobytes()
         fast.inputs.stop()
         plain.inputs.stop()
+
+
+def test_nothing_in_robosuite_reads_the_robot_only_model_the_fast_path_skips():
+    """`bench.sims.robosuite._without_robot_only_models` leaves `robot_model.mujoco_model` None: robosuite must
+    only ever set it (RobotModel) and ask for it to be set (Robot.load_model). A robosuite that reads it fails here."""
+    import pathlib
+    import re
+
+    import robosuite
+
+    uses = []
+    for path in sorted(pathlib.Path(robosuite.__file__).parent.rglob("*.py")):
+        for line in path.read_text(errors="replace").splitlines():
+            if re.search(r"\bmujoco_model\b", line):
+                uses.append(f"{path.name}:{line.strip()}")
+    allowed = {
+        "robot_model.py:self.mujoco_model: Optional[mujoco.MjModel] = None",
+        "robot_model.py:def set_mujoco_model(self, mujoco_model: Optional[mujoco.MjModel] = None):",
+        "robot_model.py:if mujoco_model is not None:",
+        "robot_model.py:self.mujoco_model = mujoco_model",
+        "robot_model.py:self.mujoco_model = self.get_model()",
+        "robot.py:self.robot_model.set_mujoco_model()",
+    }
+    assert uses and set(uses) <= allowed, sorted(set(uses) - allowed)
 
 
 def test_fast_path_refuses_what_it_was_not_checked_against():

@@ -13,6 +13,7 @@ what fixes the object's initial pose (robosuite's own `seed` only works at make)
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -51,6 +52,43 @@ def _quiet_robosuite() -> None:
         private.CONSOLE_LOGGING_LEVEL = "ERROR"  # type: ignore[attr-defined]  # a bare ModuleType has no attributes
         sys.modules["robosuite.macros_private"] = private
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+
+
+def import_robosuite() -> Any:
+    """robosuite, imported quietly (`_quiet_robosuite`) with MuJoCo; a suite's `preload` calls it."""
+    _quiet_robosuite()
+    import mujoco  # noqa: F401  # MuJoCo's native library: loaded only when a model is simulated
+    import robosuite  # robosuite: loaded only when its env is made (or a worker preloads it)
+
+    return robosuite
+
+
+@contextlib.contextmanager
+def _without_robot_only_models(skip: bool) -> Any:
+    """While robosuite builds an env (`skip`: the fast path's builds), compile no robot-only MuJoCo model.
+
+    `Robot.load_model` compiles each robot's XML on its own before the whole scene is compiled
+    (`RobotModel.set_mujoco_model`: 0.2-0.3 s of a 0.3-0.6 s `robosuite.make` on these arms) and keeps
+    the result in `robot_model.mujoco_model`, which nothing in robosuite 1.5 reads (tests/test_robosuite_fast.py
+    checks its source); here it stays None. The scene's own model is compiled as before, so the env is
+    the same (the records of both paths are compared bit for bit).
+    """
+    if not skip:
+        yield
+        return
+    from robosuite.models.robots.robot_model import RobotModel  # robosuite: imported by the caller already
+
+    compile_alone = RobotModel.set_mujoco_model
+
+    def keep_given(self: Any, mujoco_model: Any = None) -> None:
+        if mujoco_model is not None:
+            self.mujoco_model = mujoco_model
+
+    RobotModel.set_mujoco_model = keep_given  # type: ignore[method-assign]  # restored below
+    try:
+        yield
+    finally:
+        RobotModel.set_mujoco_model = compile_alone  # type: ignore[method-assign]
 
 
 def _scene_env_name(task: str) -> str:
@@ -158,9 +196,8 @@ class RobosuiteEnv(AdapterBase):
         env_kwargs: dict[str, Any] | None = None,
         fast: bool = True,
     ):
-        _quiet_robosuite()
-        import mujoco  # MuJoCo's native library: loaded only when a model is simulated
-        import robosuite  # robosuite: loaded only when its env is made
+        robosuite = import_robosuite()
+        import mujoco  # imported by `import_robosuite`: here for its name
 
         self.task, self.robot, self.horizon = task, robot, int(horizon)
         self.observer = observer
@@ -173,14 +210,15 @@ class RobosuiteEnv(AdapterBase):
             if described
             else np.zeros(0)
         )
-        self.raw = robosuite.make(
-            _scene_env_name(task) if scene else task,
-            **scene,
-            robots=robot,
-            horizon=self.horizon,
-            **MAKE_OPTIONS,
-            **env_kwargs,
-        )
+        with _without_robot_only_models(skip=fast):
+            self.raw = robosuite.make(
+                _scene_env_name(task) if scene else task,
+                **scene,
+                robots=robot,
+                horizon=self.horizon,
+                **MAKE_OPTIONS,
+                **env_kwargs,
+            )
         model, data = self.raw.sim.model._model, self.raw.sim.data._data
         self.backend = f"robosuite-{robosuite.__version__}/mujoco-{mujoco.__version__}"
         self.fps = float(self.raw.control_freq)  # control steps per second
