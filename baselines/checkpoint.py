@@ -442,6 +442,9 @@ class CheckpointPlugin(PolicyPlugin):
         finally:
             torch.set_num_threads(threads)
 
+    def preload(self) -> None:
+        import torch  # noqa: F401  # torch: a worker started while the parent plans imports it meanwhile
+
     def make(self, cell: Any, env: Any, ctx: PolicyContext) -> CheckpointPolicy:
         import torch
 

@@ -41,7 +41,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.api.sims import ROBOSUITE_ACTION_NAMES, RobosuiteOptions, camera_spec, check_options, unwrap
+from bench.api.sims import (
+    ROBOSUITE_ACTION_NAMES,
+    RobosuiteOptions,
+    camera_spec,
+    check_options,
+    import_robosuite,
+    unwrap,
+)
 from bench.protocols import ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
@@ -79,6 +86,10 @@ class HeldOutRobots(SuiteBase):
 
     def action_names(self, cell: Cell) -> list[str]:
         return list(ROBOSUITE_ACTION_NAMES)  # OSC_POSE deltas + gripper on every arm (RobosuiteEnv checks the size)
+
+    @classmethod
+    def preload(cls) -> None:
+        import_robosuite()
 
     def make_env(self, cell: Cell, horizon: int):
         from suites import lift

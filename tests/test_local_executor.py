@@ -4,6 +4,7 @@ and the same records whatever the number of workers (toy suite, tests/toy_suite.
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import signal
 import subprocess
@@ -104,6 +105,52 @@ def test_parent_and_children_share_the_work(tmp_path):
     res = api.run(cfg("w3", tmp_path, episodes=4, workers=3, suite_options={"step_delay": 0.01}))
     pids = {r.worker_pid for r in res.records}
     assert os.getpid() in pids and len(pids) == 3  # the parent ran episodes while the two children started
+
+
+def _marks(folder: Path, n: int, timeout: float = 120.0) -> set[int]:
+    """The pids that left a preload mark in `folder`, once `n` have (or at `timeout`)."""
+    deadline = time.time() + timeout
+    while len(list(folder.iterdir())) < n and time.time() < deadline:
+        time.sleep(0.05)
+    return {int(f.name) for f in folder.iterdir()}
+
+
+def test_workers_start_while_the_plan_finishes_and_run_its_episodes(tmp_path, monkeypatch):
+    """`plan_with_workers` starts the children as soon as the job count is known; they preload (the toy
+    suite's `preload` leaves its pid) before `run` is called, and then run episodes."""
+    (marks := tmp_path / "marks").mkdir()
+    monkeypatch.setenv("TOY_PRELOAD_MARK", str(marks))
+    p, executor = api.plan_with_workers(cfg("pre", tmp_path, episodes=4, workers=3, suite_options={"step_delay": 0.01}))
+    assert not (tmp_path / "pre").exists()  # the plan wrote nothing
+    pids = _marks(marks, 2)
+    assert len(pids) == 2 and os.getpid() not in pids  # two children preloaded before the run began
+    res = api.run(p, executor=executor)
+    assert {r.worker_pid for r in res.records} == {os.getpid(), *pids} and len(res.records) == 12
+    assert mp.active_children() == []
+
+
+def test_no_more_workers_start_than_there_are_jobs(tmp_path, monkeypatch):
+    (marks := tmp_path / "marks").mkdir()
+    monkeypatch.setenv("TOY_PRELOAD_MARK", str(marks))
+    p, executor = api.plan_with_workers(cfg("few", tmp_path, episodes=1, workers=8))  # 3 jobs: 2 children
+    assert len(_marks(marks, 2)) == 2 and len(_marks(marks, 3, timeout=2.0)) == 2  # and no third, 2 s later
+    res = api.run(p, executor=executor)
+    assert len(res.records) == 3 and mp.active_children() == []
+
+
+def test_a_plan_that_fails_stops_the_workers_it_started(tmp_path, monkeypatch):
+    """The calibration is checked after the workers started (after the policy's preflight): the error
+    comes out as usual, the children are gone and nothing was written."""
+    with pytest.raises(ConfigError, match="calibration"):
+        api.plan_with_workers(cfg("bad", tmp_path, workers=3, calibration=str(tmp_path / "none.json")))
+    assert mp.active_children() == [] and not (tmp_path / "bad").exists()
+
+
+def test_workers_started_for_a_finished_run_are_stopped(tmp_path):
+    api.run(cfg("done", tmp_path, episodes=2, workers=1))
+    p, executor = api.plan_with_workers(cfg("done", tmp_path, episodes=2, workers=3))  # resume: nothing to do
+    res = api.run(p, executor=executor)
+    assert res.ran == 0 and res.resumed == 6 and mp.active_children() == []
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ from step `fault_step`.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -113,6 +114,13 @@ class ToySuite(SuiteBase):
             from bench.core.errors import ConfigError
 
             raise ConfigError(f"fault={self.options.fault!r}: valid: {', '.join(FAULTS)}")
+
+    @classmethod
+    def preload(cls) -> None:
+        """Leaves this process's pid in the folder TOY_PRELOAD_MARK names (tests of prestarted workers)."""
+        mark = os.environ.get("TOY_PRELOAD_MARK")
+        if mark:
+            open(os.path.join(mark, str(os.getpid())), "w").close()
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, "reach", r, "line", s) for s, robots in self.manifest["robots"].items() for r in robots]

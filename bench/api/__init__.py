@@ -14,6 +14,7 @@ through these functions.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import time
@@ -57,7 +58,7 @@ from bench.execution.run_config import (
 from bench.execution.runner import LocalExecutor, Worker, WorkerSpec
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
-from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, select_cells
+from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
 from bench.scoring.typed import RunMeta
@@ -151,22 +152,48 @@ def load_policy(ref: str) -> PolicyPlugin:
     return registry.load_policy(ref)
 
 
-def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Executor:
-    """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
+def make_executor(
+    cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None, own_process: bool = False
+) -> Executor:
+    """The executor `cfg` asks for: local processes, or actors on a Ray cluster (`own_process`: see
+    `LocalExecutor`)."""
     if cfg.executor == "ray":
         return RayExecutor(cfg.ray_address, cfg.actors, cfg.actor_cpus, cfg.actor_gpus, cfg.ray_env, note=note)
-    return LocalExecutor(workers)
+    return LocalExecutor(workers, own_process)
 
 
-def plan(cfg: RunConfig) -> Plan:
-    """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing."""
+def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, Executor]:
+    """`plan(cfg)` and the executor `run` should use, its local worker processes already starting.
+
+    The children start as soon as the job count is known and import what the suite and policy `preload`
+    (robosuite, torch) while this process finishes the plan (a checkpoint's preflight imports torch, ~1 s),
+    so they reach their first episode about when this process does. A plan that fails closes the executor
+    (its children are killed; they wrote nothing); otherwise pass both to `run`, which closes it.
+    `own_process`: this process exists for the run (the `bench run` command; see `LocalExecutor`).
+    """
+    executor = make_executor(cfg, cfg.workers or os.cpu_count() or 1, own_process=own_process)
+    local = executor if isinstance(executor, LocalExecutor) else None
+    try:
+        p = plan(cfg, on_jobs=None if local is None else functools.partial(local.prestart, cfg.suite, cfg.policy))
+    except BaseException:
+        executor.close()
+        raise
+    return p, executor
+
+
+def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
+    """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing.
+
+    `on_jobs` is called with the number of jobs as soon as it is known, before the policy's preflight (which
+    may import torch, ~1 s): `bench run` starts its worker processes there (`LocalExecutor.prestart`).
+    """
     check_runner(cfg)
     suite_cls = registry.suite_class(cfg.suite)
     suite_options = build_options(suite_cls.Options, cfg.suite_options, f"suite {cfg.suite}")
     suite = suite_cls(suite_options)
-    policy_ref = cfg.policy or suite.default_policy
-    plugin = registry.load_policy(policy_ref)
-    policy_options = build_options(plugin.Options, cfg.policy_options, f"policy {policy_ref}")
+    policy_name = policy_ref(suite, cfg.policy)
+    plugin = registry.load_policy(policy_name)
+    policy_options = build_options(plugin.Options, cfg.policy_options, f"policy {policy_name}")
     horizon = cfg.horizon or suite.default_horizon
     if suite.max_horizon is not None and horizon > suite.max_horizon:
         raise ConfigError(
@@ -184,9 +211,13 @@ def plan(cfg: RunConfig) -> Plan:
         missing = [k for k in needs if k not in spec]
         if missing:
             raise ConfigError(
-                f"policy {policy_ref!r} needs observation keys {missing}; suite {suite.name!r} cell "
+                f"policy {policy_name!r} needs observation keys {missing}; suite {suite.name!r} cell "
                 f"{cell.key} provides {describe_spec(spec)}"
             )
+    conditions = axes.conditions_from_config(cfg.perturb)
+    axes.check_horizon(conditions, horizon)
+    if on_jobs is not None:
+        on_jobs(len(cells) * len(conditions) * cfg.episodes)
     identity = plugin.identity(policy_options)
     plugin.preflight(policy_options, suite, cells, horizon)
     calibration = None
@@ -195,12 +226,10 @@ def plan(cfg: RunConfig) -> Plan:
 
         calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
         verify(suite, cells, horizon, calibration)
-    conditions = axes.conditions_from_config(cfg.perturb)
-    axes.check_horizon(conditions, horizon)
     check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
-        axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_ref)
+        axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_name)
     if cfg.video:
         check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed, cfg.seed_scheme)
@@ -210,8 +239,8 @@ def plan(cfg: RunConfig) -> Plan:
             f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
             "lists them; allow_split_violation=true runs anyway)"
         )
-    run_id = cfg.run_id or f"{suite.name}-{policy_ref.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_ref, metric=cfg.metric or suite.default_metric)
+    run_id = cfg.run_id or f"{suite.name}-{policy_name.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_name, metric=cfg.metric or suite.default_metric)
     run_dir = check_outputs(cfg, run_id, identity.checkpoint)
     return Plan(
         resolved,

@@ -17,7 +17,7 @@ from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterfac
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
 from bench.sims.perturb import set_nominal
 from bench.sims.robosuite import ACTION_NAMES as ROBOSUITE_ACTION_NAMES
-from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions
+from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions, import_robosuite
 
 __all__ = [
     "AXES",
@@ -38,6 +38,7 @@ __all__ = [
     "camera_spec",
     "cameras_of",
     "check_backend",
+    "import_robosuite",
     "check_options",
     "conditions_from_config",
     "maniskill",

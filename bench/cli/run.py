@@ -10,6 +10,7 @@ from bench.core import config as config_mod
 from bench.core.config import command_help
 from bench.core.errors import BenchError, ConfigError, NothingMeasured
 from bench.protocols import Suite, option_keys, registry
+from bench.protocols.suite import policy_ref
 from bench.records import EPISODES, read_records
 from bench.scoring.summary import nothing_measured, render
 from bench.sims.axes import axes_help
@@ -27,7 +28,7 @@ def help_text(argv: list[str] | None = None) -> str:
     plugin_keys = ""
     try:
         suite_cls: type[Suite] = registry.suite_class(suite)
-        policy = policy or suite_cls.default_policy or suite_cls.reference_policy
+        policy = policy_ref(suite_cls, policy)
         plugin = registry.load_policy(policy)
         for owner, schema in ((f"suite {suite}", suite_cls.Options), (f"policy {policy}", plugin.Options)):
             keys = config_mod.key_help(schema) if option_keys(schema) else "  (none)"
@@ -75,8 +76,8 @@ def main(argv: list[str]) -> int:
         print(help_text([a for a in argv if a not in ("-h", "--help")]))
         return 0
 
-    p = api.plan(api.config_from_argv(argv))
-    result = api.run(p, progress=True)
+    p, executor = api.plan_with_workers(api.config_from_argv(argv), own_process=True)
+    result = api.run(p, progress=True, executor=executor)
     if result.summary is not None:
         render(result.summary)
         why = nothing_measured(result.summary, result.records)

@@ -87,7 +87,7 @@ class RayWorker:
         out = probe_node(self.spec.suite_ref, self.spec.policy_ref)
         if out["error"] is None:
             try:
-                self.worker = Worker(self.spec)
+                self.worker = Worker(self.spec, freeze=True)
             except BenchError as exc:
                 out["error"] = str(exc)
             except Exception as exc:

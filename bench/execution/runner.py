@@ -11,6 +11,7 @@ produces the same records. An executor is any object with
 
 from __future__ import annotations
 
+import gc
 import multiprocessing as mp
 import os
 import signal
@@ -18,7 +19,7 @@ import threading
 import time
 import warnings
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from multiprocessing import resource_tracker
 from multiprocessing.connection import Connection, wait
@@ -28,9 +29,11 @@ from bench.core.errors import BenchError, ExecutorError
 from bench.execution.rollout import RunContext, job_record, run_episode
 from bench.execution.scheduling import MAX_RETRIES, JobQueue, depth, given_up_message
 from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
-from bench.protocols.suite import Job
+from bench.protocols.suite import Job, policy_ref
 from bench.records import EpisodeRecord
 from bench.sims.perturb import write_fields
+
+_CTX = mp.get_context("spawn")  # a fresh interpreter per child: no inherited threads or locks
 
 
 @dataclass(frozen=True)
@@ -47,9 +50,12 @@ class WorkerSpec:
 
 
 class Worker:
-    """Runs jobs in this process: builds each cell's env and policy once, then one episode per job."""
+    """Runs jobs in this process: builds each cell's env and policy once, then one episode per job.
 
-    def __init__(self, spec: WorkerSpec):
+    `freeze`: this process exists to run episodes (a child, a Ray actor, the `bench run` command), so
+    after the first build everything alive is frozen for the collector (`freeze_imports`)."""
+
+    def __init__(self, spec: WorkerSpec, freeze: bool = False):
         warnings.filterwarnings("ignore")
 
         self.spec = spec
@@ -61,6 +67,7 @@ class Worker:
         )
         self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
         self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
+        self.freeze = freeze
 
     def built(self, job: Job) -> tuple[EnvAdapter, Policy]:
         """The (env, policy) of the job's cell, built on first use."""
@@ -81,6 +88,9 @@ class Worker:
                 env.close()
                 raise
             self.cache[key] = (env, policy)
+            if self.freeze:  # after the first build the heavy imports are done: see `freeze_imports`
+                freeze_imports()
+                self.freeze = False
         return self.cache[key]
 
     def run(self, job: Job) -> EpisodeRecord:
@@ -109,6 +119,19 @@ class Worker:
     def close(self) -> None:
         for key in list(self.cache):
             self.drop(key)
+
+
+def freeze_imports() -> None:
+    """Move every object alive now out of the cyclic collector's sight (`gc.freeze`), once per process.
+
+    Called after a worker process's first build, when the suite's and policy's lazy imports are done:
+    torch and robosuite alone leave ~240k long-lived objects that every full collection would walk again,
+    0.1-0.14 s each, and robosuite runs one per env close (`MjSim.free`) besides Python's own every few
+    thousand allocations; the interpreter's exit walks them once more (~0.4 s). Frozen objects are still
+    freed by reference counting; only cyclic garbage alive at this moment (the first env's, at most) stays
+    until the process exits. Not done in a process that merely calls `bench.api.run` (a notebook's).
+    """
+    gc.freeze()
 
 
 def error_record(job: Job, ctx: RunContext, error: str) -> EpisodeRecord:
@@ -145,11 +168,22 @@ def given_up_record(job: Job, ctx: RunContext, reasons: list[str]) -> EpisodeRec
 # -- the local executor ----------------------------------------------------------------------
 
 
-def _child_main(conn: Connection, spec: WorkerSpec) -> None:
-    """A child process: build a Worker, report ready, then run the jobs the parent sends until None."""
+def _child_main(conn: Connection, spec: WorkerSpec | None, preload: tuple[str, str | None] | None = None) -> None:
+    """A child process: build a Worker, report ready, then run the jobs the parent sends until None.
+
+    Started ahead of the plan (`spec` None), it first imports what the suite's envs and the policy need
+    (`preload`: the suite and policy refs, whose `preload` methods do it), then waits for the spec.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it stops the children
+    if spec is None:
+        if preload is not None:
+            _preload(*preload)
+        try:
+            spec = conn.recv()
+        except (EOFError, OSError):  # the parent is gone (its plan failed): nothing to do
+            return
     try:
-        worker = Worker(spec)
+        worker = Worker(spec, freeze=True)
     except BaseException as exc:
         conn.send(("init_error", str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"))
         return
@@ -173,17 +207,38 @@ def _child_main(conn: Connection, spec: WorkerSpec) -> None:
         worker.close()
 
 
-class _Child:
-    """A child process, the jobs sent to it and not yet answered, and the cells it has built."""
+def _preload(suite_ref: str, policy: str | None) -> None:
+    """Import what the suite's envs and the policy (`policy=`, None: the suite's default) need, ignoring
+    errors: the plan and the builds report them with their own messages."""
+    try:
+        suite_cls = registry.suite_class(suite_ref)
+        suite_cls.preload()
+        registry.load_policy(policy_ref(suite_cls, policy)).preload()
+    except Exception:
+        pass
 
-    def __init__(self, ctx: Any, spec: WorkerSpec):
+
+class _Child:
+    """A child process, the jobs sent to it and not yet answered, and the cells it has built.
+
+    Made with `spec` None (`LocalExecutor.prestart`), it imports what `preload` names and waits for
+    `give(spec)`."""
+
+    def __init__(self, ctx: Any, spec: WorkerSpec | None, preload: tuple[str, str | None] | None = None):
         self.conn, theirs = ctx.Pipe()
-        self.proc = ctx.Process(target=_child_main, args=(theirs, spec), daemon=True)
+        self.proc = ctx.Process(target=_child_main, args=(theirs, spec, preload), daemon=True)
         self.proc.start()
         theirs.close()
         self.ready = False
         self.inflight: deque[Job] = deque()
         self.warm: set[str] = set()
+
+    def give(self, spec: WorkerSpec) -> None:
+        """Send a prestarted child its spec; a child that died meanwhile is found by its EOF."""
+        try:
+            self.conn.send(spec)
+        except OSError:
+            pass
 
     def exit_reason(self) -> str:
         self.proc.join(5)
@@ -207,11 +262,15 @@ class _Children:
         cond: threading.Condition,
         emit: Callable[[EpisodeRecord], None],
         status: Callable[[str | None, Any], None] | None = None,
+        started: Sequence[_Child] = (),
     ):
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
         self.status = status
-        self.ctx = mp.get_context("spawn")
-        self.children = [_Child(self.ctx, spec) for _ in range(n)]
+        self.ctx = _CTX
+        self.children = list(started[:n])  # prestarted children first, then new ones
+        for child in self.children:
+            child.give(spec)
+        self.children += [_Child(self.ctx, spec) for _ in range(n - len(self.children))]
         self.respawns = n * (MAX_RETRIES + 1)
         self.retired: list[_Child] = []  # told to stop (or killed); joined by close()
         self.wake_r, self.wake_w = mp.Pipe(duplex=False)  # close() wakes the dispatcher out of its wait
@@ -343,19 +402,49 @@ class LocalExecutor:
     built, then a cell nobody has started (`JobQueue.take`). A child that dies (killed,
     segfault) has its episodes retried elsewhere, at most `MAX_RETRIES` times each, the reasons
     kept in the record's `extras["retries"]`.
+
+    `prestart` starts the children before the jobs are known (`bench.api.plan_with_workers`: while the
+    plan finishes). `own_process`: this process exists for the run (the `bench run` command), so its
+    own worker freezes the collector after its first build, as the children do (`freeze_imports`).
     """
 
     capabilities: frozenset[str] = frozenset({"status"})  # no cluster to reach, no notes of its own
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, own_process: bool = False):
         self.workers = max(1, int(workers))
+        self.own_process = own_process  # this process exists for the run (`bench run`): its worker freezes too
         self.status: Callable[[str | None, Any], None] | None = None  # (what a worker waits for, which worker)
+        self.started: list[_Child] = []
+
+    def prestart(self, suite_ref: str, policy: str | None, jobs: int) -> None:
+        """Start the child processes for `jobs` jobs now, before `execute`: while the caller finishes its plan
+        (a checkpoint's preflight imports torch, ~1 s), each imports bench and what the suite's and policy's
+        `preload` name (robosuite, torch), then waits for `execute`'s spec. `policy` None: the suite's
+        default. Children `execute` does not need, or that `close` finds unused, are killed."""
+        more = min(self.workers, jobs) - 1 - len(self.started)
+        self.started += [_Child(_CTX, None, (suite_ref, policy)) for _ in range(more)]
 
     def close(self) -> None:
-        """Nothing outlives `execute`: its child processes are joined before it returns."""
+        """Stop prestarted children `execute` never took (a plan that failed); nothing else outlives `execute`."""
+        self._drop_started(0)
+
+    def _drop_started(self, keep: int) -> list[_Child]:
+        """The first `keep` prestarted children; the others are killed (they hold nothing but imports)."""
+        kept, extra = self.started[:keep], self.started[keep:]
+        self.started = []
+        for child in extra:
+            child.proc.kill()
+        for child in extra:
+            child.proc.join(5)
+            child.conn.close()
+        if extra and not kept:
+            stop_resource_tracker()
+        return kept
 
     def execute(self, jobs: list[Job], spec: WorkerSpec, on_record: Callable[[EpisodeRecord], None]) -> None:
         """Run `jobs`, calling `on_record` for each finished episode (in finish order, one call at a time)."""
+        n = max(0, min(self.workers, len(jobs)) - 1)  # children: never more processes than jobs
+        started = self._drop_started(n)
         if not jobs:
             return
         queue = JobQueue(jobs)
@@ -366,10 +455,10 @@ class LocalExecutor:
             with emit_lock:
                 on_record(record)
 
-        children = _Children(self.workers - 1, spec, queue, cond, emit, self.status) if self.workers > 1 else None
+        children = _Children(n, spec, queue, cond, emit, self.status, started) if n > 0 else None
         worker = None
         try:
-            worker = Worker(spec)
+            worker = Worker(spec, freeze=self.own_process)
             if self.status is not None:
                 status, me = self.status, os.getpid()
                 worker.on_status = lambda text: status(text, me)

@@ -318,6 +318,12 @@ class Suite(Protocol):
         """The suite's scripted expert for a cell (only with the "expert" capability)."""
         ...
 
+    @classmethod
+    def preload(cls) -> None:
+        """Import what building the suite's envs needs (its simulator), in a worker process started while
+        the parent still plans; `SuiteBase`'s default imports nothing."""
+        ...
+
     def describe(self) -> dict[str, Any]:
         """JSON-able identity: name, version, manifest and the options that change results."""
         ...
@@ -355,7 +361,8 @@ class PolicyPlugin:
     Override what differs: `Options` (the policy's own keys, e.g. `checkpoint=`), `obs_keys`
     (the observation entries it reads, checked against the suite's declared spec before any
     worker starts), `identity` (checkpoint + sha256 for the records), `preflight` (checks in
-    the parent before any worker starts) and `make` (one policy per cell and worker).
+    the parent before any worker starts), `make` (one policy per cell and worker) and
+    `preload` (heavy imports `make` needs, done by workers started while the parent plans).
     A plain function `factory(cell, env, ctx) -> Policy` is accepted too (`FactoryPlugin`).
 
     With `reports_stats = True`, the policies it makes implement `episode_stats() -> dict`
@@ -377,6 +384,10 @@ class PolicyPlugin:
 
     def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy:
         raise NotImplementedError
+
+    def preload(self) -> None:
+        """Import what `make` needs (torch, say), in a worker process started while the parent still plans;
+        nothing by default. Errors are the build's to report: a worker ignores them here."""
 
 
 class FactoryPlugin(PolicyPlugin):

@@ -216,6 +216,11 @@ class SuiteBase:
     def make_expert(self, cell: Cell, env: EnvAdapter) -> Policy:
         raise ConfigError(f"suite {self.name!r} declares no scripted expert")
 
+    @classmethod
+    def preload(cls) -> None:
+        """Import what building the suite's envs needs, in a worker started while the parent plans (the
+        simulator: robosuite takes ~0.5 s); nothing by default. Errors are the build's to report."""
+
     def describe(self) -> dict[str, Any]:
         """JSON-able identity of the suite: name, version, split manifest and its options.
 
@@ -231,6 +236,11 @@ class SuiteBase:
             hidden = {f.name for f in dataclasses.fields(self.options) if f.metadata.get("spec") is False}
             out.update({k: v for k, v in dataclasses.asdict(self.options).items() if k not in hidden})
         return out
+
+
+def policy_ref(suite: Any, policy: str | None) -> str:  # a Suite class or instance
+    """The policy a run of `suite` uses: `policy`, else the suite's `default_policy`, else its reference policy."""
+    return policy or suite.default_policy or suite.reference_policy
 
 
 def summary_line(suite: Any) -> str:  # a Suite class or instance
