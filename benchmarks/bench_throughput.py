@@ -1,7 +1,7 @@
 """Throughput per core, every figure a ratio measured in this one run (issue 29).
 
     python benchmarks/bench_throughput.py [parts=[fast,workers,remote,batch]] [episodes=6] [horizon=250]
-        [scaling_episodes=12] [repeats=1] [profile=false]   (parts: fast, workers, suite, remote, batch)
+        [scaling_episodes=12] [repeats=1] [suite_policy=] [profile=false]   (parts: fast, workers, suite, remote, batch)
 
 Parts (each printed with the machine's load, /proc/loadavg, before and after):
   fast     held_out_robots, random policy, Panda: the harness on bench's robosuite fast path ÷ a bare
@@ -13,8 +13,9 @@ Parts (each printed with the machine's load, /proc/loadavg, before and after):
   workers  held_out_robots (Panda, random policy, `scaling_episodes` episodes): 2 workers ÷ 1, end to end
            (worker start-up, imports and env builds included) and in steady state (`bench.cli.perf`).
   suite    the main job as a command, `bench run suite=held_out_robots episodes=<scaling_episodes>`
-           (all 7 arms, the default policy) with workers=1 and workers=2, alternating `repeats` times (default
-           1): wall time from the command's start to its exit, 2 workers ÷ 1.
+           (all 7 arms, the default policy bc, or `suite_policy=`, e.g. scripted) with workers=1 and
+           workers=2, alternating `repeats` times (default 1): wall time from the command's start to its
+           exit, 2 workers ÷ 1.
   remote   see benchmarks/bench_remote.py's throughput, here with overlapped (`overlap=true`) requests.
   batch    `bench serve batch=N` against each worker holding its own policy copy.
 Targets: fast >= 2.0x bare robosuite; workers >= 1.9x end to end; remote >= 1.0 (chunked) and >= 0.95
@@ -143,7 +144,7 @@ def part_workers(episodes: int, horizon: int) -> None:
     )
 
 
-def part_suite(episodes: int, repeats: int) -> None:
+def part_suite(episodes: int, repeats: int, policy: str = "") -> None:
     """The whole main job end to end: `bench run suite=held_out_robots episodes=N workers=1` and `workers=2`
     as commands (interpreter start-up, imports, plan, every worker's start-up and env builds, all 7 arms,
     the summary and leaderboard included), alternating, `repeats` times each; wall time and env-steps/s."""
@@ -158,6 +159,7 @@ def part_suite(episodes: int, repeats: int) -> None:
                 run_id = f"w{w}-{rep}"
                 argv = [
                     "suite=held_out_robots",
+                    *([f"policy={policy}"] if policy else []),
                     f"episodes={episodes}",
                     f"workers={w}",
                     f"out={tmp}",
@@ -174,17 +176,33 @@ def part_suite(episodes: int, repeats: int) -> None:
                 print(f"  workers={w}: {wall:.1f} s, {steps[w] / wall:.1f} env-steps/s   [load {load()}]", flush=True)
     one, two = (float(np.median(walls[w])) for w in (1, 2))
     print(
-        f"  held_out_robots end to end (7 arms x {episodes} episodes, the `bench run` command, median of "
+        f"  held_out_robots end to end (7 arms x {episodes} episodes, policy={policy or 'bc (default)'}, the "
+        "`bench run` command, median of "
         f"{repeats}): 1 worker {one:.1f} s, 2 workers {two:.1f} s: 2 / 1 = {one / two:.3f}"
     )
 
 
+PARTS = ("fast", "workers", "suite", "remote", "batch")
+KEYS = (
+    "parts", "episodes", "horizon", "scaling_episodes", "repeats", "suite_policy", "profile",
+    "remote_episodes", "batch_seconds", "batch_horizon", "batch_workers",
+)  # fmt: skip
+
+
 def main(argv: list[str]) -> int:
+    bad = [a for a in argv if "=" not in a or a.split("=", 1)[0] not in KEYS]
+    if bad:
+        print(f"error: {bad[0]!r}: give key=value with a key among {', '.join(KEYS)}", file=sys.stderr)
+        return 2
     kv = dict(a.split("=", 1) for a in argv)
     parts = kv.get("parts", "[fast,workers,remote,batch]").strip("[]").split(",")
     episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 250))
     scaling = int(kv.get("scaling_episodes", 12))
     profile = kv.get("profile", "false") == "true"
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:  # checked before any part runs
+        print(f"error: parts: {unknown[0]!r} is not a part; valid: {', '.join(PARTS)}", file=sys.stderr)
+        return 2
     print(f"machine: {os.cpu_count()} cores, load {load()} (1/5/15 min)")
     for part in parts:
         t0 = time.perf_counter()
@@ -194,13 +212,11 @@ def main(argv: list[str]) -> int:
         elif part == "workers":
             part_workers(scaling, horizon)
         elif part == "suite":
-            part_suite(scaling, int(kv.get("repeats", 1)))
+            part_suite(scaling, int(kv.get("repeats", 1)), kv.get("suite_policy", ""))
         elif part in ("remote", "batch"):
             import bench_throughput_remote as remote  # the same folder: run as a script
 
             remote.PARTS[part](kv)
-        else:
-            raise SystemExit(f"parts: {part!r} is not a part; valid: fast, workers, suite, remote, batch")
         print(f"  ({time.perf_counter() - t0:.0f} s)")
     print(f"load at the end: {load()}")
     return 0
