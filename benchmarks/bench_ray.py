@@ -79,8 +79,8 @@ def overhead(run: dict, workers: int) -> float:
 def main(argv: list[str]) -> int:
     from bench import api
     from bench.cli import perf
+    from bench.execution.local import LocalExecutor
     from bench.execution.ray_executor import RayExecutor
-    from bench.execution.runner import LocalExecutor
     from bench.records import RecordWriter, comparable
 
     kv = dict(a.split("=", 1) for a in argv)

@@ -41,6 +41,7 @@ from bench.core.io import write_atomic
 from bench.core.schema import load_json, validate
 from bench.execution.check import fast_check
 from bench.execution.episode_video import check_run
+from bench.execution.local import LocalExecutor, Worker, WorkerSpec
 from bench.execution.progress import RunProgress
 from bench.execution.ray_executor import RayExecutor
 from bench.execution.rollout import RunContext
@@ -55,7 +56,6 @@ from bench.execution.run_config import (
     config_from_argv,
     observation_bytes,
 )
-from bench.execution.runner import LocalExecutor, Worker, WorkerSpec
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
@@ -171,10 +171,13 @@ def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, 
     (its children are killed; they wrote nothing); otherwise pass both to `run`, which closes it.
     `own_process`: this process exists for the run (the `bench run` command; see `LocalExecutor`).
     """
-    executor = make_executor(cfg, cfg.workers or os.cpu_count() or 1, own_process=own_process)
-    local = executor if isinstance(executor, LocalExecutor) else None
+    workers = cfg.workers or os.cpu_count() or 1
+    if cfg.executor != "local":  # a cluster's workers are reached in `run`
+        p = plan(cfg)
+        return p, make_executor(cfg, workers, own_process=own_process)
+    executor = LocalExecutor(workers, own_process)
     try:
-        p = plan(cfg, on_jobs=None if local is None else functools.partial(local.prestart, cfg.suite, cfg.policy))
+        p = plan(cfg, on_jobs=functools.partial(executor.prestart, cfg.suite, cfg.policy))
     except BaseException:
         executor.close()
         raise

@@ -11,7 +11,7 @@ Works on any suite (one cell, the random policy, whose actions depend only on th
 2. N workers ÷ 1 worker on the same jobs, in steady state (each worker's steps over its episodes'
    wall time, summed over workers) and end to end (worker start-up and env builds included: what
    a short run gets). N workers = this process and N-1 children; this process runs episodes from
-   the start while the children spawn, import and build (bench.execution.runner.LocalExecutor). Also
+   the start while the children spawn, import and build (bench.execution.local.LocalExecutor). Also
    printed: the share of the workers' wall time spent inside episodes (end to end ÷ steady
    state, roughly), which other load on the machine changes much less than the throughputs.
 3. With cameras (`obs=rgb` or `obs=state+rgb`, suites built on `bench.sims.camera_env`): the cost of
@@ -42,7 +42,7 @@ from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.errors import ConfigError
 from bench.core.io import write_atomic
-from bench.execution.runner import LocalExecutor
+from bench.execution.local import LocalExecutor
 from bench.records import RecordWriter
 from bench.sims.camera import SCENE_FLAGS
 

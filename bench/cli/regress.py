@@ -60,7 +60,7 @@ from bench.core import config as config_mod
 from bench.core import provenance
 from bench.core.errors import ConfigError, NothingMeasured
 from bench.core.provenance import checkpoint_provenance, portable
-from bench.execution.runner import LocalExecutor
+from bench.execution.local import LocalExecutor
 from bench.protocols.suite import SuiteSpec, select_cells
 from bench.sims import axes
 
