@@ -129,9 +129,8 @@ class _Children:
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
         self.status = status
         self.ctx = _CTX
-        self.children = list(started[:n])  # prestarted children first, then new ones
-        for child in self.children:
-            child.give(spec)
+        self.children = list(started[:n])  # prestarted children first (the dispatcher sends their spec), then new
+        self.unspecified = list(self.children)
         self.children += [_Child(self.ctx, spec) for _ in range(n - len(self.children))]
         self.respawns = n * (MAX_RETRIES + 1)
         self.retired: list[_Child] = []  # told to stop (or killed); joined by close()
@@ -147,6 +146,9 @@ class _Children:
 
     def _serve(self) -> None:
         try:
+            # a prestarted child's spec is sent here, not by the caller: a send may block until the child reads it
+            for waiting in self.unspecified:
+                waiting.give(self.spec)
             while not self.stopping:
                 ready = wait([self.wake_r, *(c.conn for c in self.children)], timeout=1.0)
                 for conn in ready:
