@@ -39,64 +39,25 @@ Policies:
 
 from __future__ import annotations
 
-from typing import Any
-
-from bench.api.sims import (
-    ROBOSUITE_ACTION_NAMES,
-    RobosuiteOptions,
-    camera_spec,
-    check_options,
-    import_robosuite,
-    unwrap,
-)
-from bench.protocols import ObsSpec
-from bench.protocols.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell
+from suites.lift import LiftSuite, make_env
 
 SEEN = ["Panda", "Sawyer", "IIWA"]
 UNSEEN = ["UR5e", "Kinova3", "Jaco", "XArm7"]
 
 
-class HeldOutRobots(SuiteBase):
+class HeldOutRobots(LiftSuite):
     """Lift on 7 robosuite arms; 3 seen, 4 held out (RoboNet style)."""
 
     name = "held_out_robots"
     version = "1"
-    Options = RobosuiteOptions
-    reference_policy = "scripted"
     default_policy = "bc"
-    default_horizon = 250
     manifest = {"robots": {"seen": SEEN, "unseen": UNSEEN}}
-    capabilities = frozenset({"expert"})
-
-    def __init__(self, options: Any = None) -> None:
-        from suites.lift import CAMERAS
-
-        super().__init__(options)
-        check_options(self.options, CAMERAS, "robosuite Lift")
 
     def all_cells(self) -> list[Cell]:
         return [Cell(self.name, "Lift", r, "default", "seen") for r in SEEN] + [
             Cell(self.name, "Lift", r, "default", "unseen") for r in UNSEEN
         ]
 
-    def obs_spec(self, cell: Cell) -> ObsSpec:
-        from suites.lift import DEFAULT_CAMERAS, LiftObserver
-
-        return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
-
-    def action_names(self, cell: Cell) -> list[str]:
-        return list(ROBOSUITE_ACTION_NAMES)  # OSC_POSE deltas + gripper on every arm (RobosuiteEnv checks the size)
-
-    @classmethod
-    def preload(cls) -> None:
-        import_robosuite()
-
     def make_env(self, cell: Cell, horizon: int):
-        from suites import lift
-
-        return lift.make_env(cell.task, cell.robot, horizon, options=self.options, where=cell.key)
-
-    def make_expert(self, cell: Cell, env):
-        from suites import lift
-
-        return lift.make_expert(unwrap(env))
+        return make_env(cell.task, cell.robot, horizon, options=self.options, where=cell.key)

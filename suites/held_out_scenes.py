@@ -45,16 +45,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.api.sims import (
-    ROBOSUITE_ACTION_NAMES,
-    RobosuiteOptions,
-    camera_spec,
-    check_options,
-    import_robosuite,
-    unwrap,
-)
-from bench.protocols import ObsSpec
-from bench.protocols.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell
+from suites.lift import LiftSuite, make_env
 
 NOMINAL: dict[str, Any] = {
     "table_height": 0.80,
@@ -140,22 +132,12 @@ def env_kwargs(params: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-class HeldOutScenes(SuiteBase):
+class HeldOutScenes(LiftSuite):
     """Panda Lift in 12 robosuite scenes (table height/size/friction, spawn region); 6 seen, 6 held out."""
 
     name = "held_out_scenes"
     version = "1"
-    Options = RobosuiteOptions
-    reference_policy = "scripted"
-    default_horizon = 250
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
-    capabilities = frozenset({"expert"})
-
-    def __init__(self, options: Any = None) -> None:
-        from suites.lift import CAMERAS
-
-        super().__init__(options)
-        check_options(self.options, CAMERAS, "robosuite Lift")
 
     def all_cells(self) -> list[Cell]:
         return [
@@ -164,22 +146,8 @@ class HeldOutScenes(SuiteBase):
             for scene in scenes
         ]
 
-    def obs_spec(self, cell: Cell) -> ObsSpec:
-        from suites.lift import DEFAULT_CAMERAS, LiftObserver
-
-        return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
-
-    def action_names(self, cell: Cell) -> list[str]:
-        return list(ROBOSUITE_ACTION_NAMES)  # OSC_POSE deltas + gripper on every arm (RobosuiteEnv checks the size)
-
-    @classmethod
-    def preload(cls) -> None:
-        import_robosuite()
-
     def make_env(self, cell: Cell, horizon: int):
-        from suites import lift
-
-        return lift.make_env(
+        return make_env(
             cell.task,
             cell.robot,
             horizon,
@@ -187,8 +155,3 @@ class HeldOutScenes(SuiteBase):
             options=self.options,
             where=cell.key,
         )
-
-    def make_expert(self, cell: Cell, env):
-        from suites import lift
-
-        return lift.make_expert(unwrap(env))

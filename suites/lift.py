@@ -1,6 +1,6 @@
-"""robosuite Lift as an embodiment-agnostic task: its observation and its scripted expert.
+"""robosuite Lift as an embodiment-agnostic task: its observation, its scripted expert and a suite base.
 
-Shared by `held_out_robots` and `held_out_scenes`. The observation is the same 18 numbers
+Shared by `held_out_robots` and `held_out_scenes` (both are `LiftSuite`s). The observation is the same 18 numbers
 on every arm (`OBS_FIELDS`): end-effector position (world), end-effector orientation
 relative to its own orientation at reset (robosuite's eef frames differ per arm, so only
 relative orientation compares), gripper opening normalised to 1 = fully open, 0 = fully
@@ -14,7 +14,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bench.protocols import STATE, Feature, Obs, Policy
+from bench.api.sims import (
+    ROBOSUITE_ACTION_NAMES,
+    RobosuiteOptions,
+    camera_spec,
+    check_options,
+    import_robosuite,
+    unwrap,
+)
+from bench.protocols import STATE, Feature, Obs, ObsSpec, Policy
+from bench.protocols.suite import Cell, SuiteBase
 
 if TYPE_CHECKING:
     from bench.api.sims import RobosuiteEnv
@@ -139,3 +148,31 @@ def make_expert(env: Any) -> Policy:
     from baselines.scripted_lift import LiftExpert
 
     return LiftExpert(list(env.obs_spec[STATE].fields), env.action_spec.dim)
+
+
+class LiftSuite(SuiteBase):
+    """What the Lift suites share: robosuite's options (cameras among `CAMERAS`), the agnostic observation
+    (with the cameras the options ask for), OSC_POSE deltas + gripper on every arm, robosuite preloaded in
+    workers started ahead of the plan, and the scripted expert. A subclass names its cells and builds them."""
+
+    Options = RobosuiteOptions
+    reference_policy = "scripted"
+    default_horizon = 250
+    capabilities = frozenset({"expert"})
+
+    def __init__(self, options: Any = None) -> None:
+        super().__init__(options)
+        check_options(self.options, CAMERAS, "robosuite Lift")
+
+    def obs_spec(self, cell: Cell) -> ObsSpec:
+        return camera_spec(LiftObserver.obs_spec, self.options, DEFAULT_CAMERAS)
+
+    def action_names(self, cell: Cell) -> list[str]:
+        return list(ROBOSUITE_ACTION_NAMES)  # OSC_POSE deltas + gripper on every arm (RobosuiteEnv checks the size)
+
+    @classmethod
+    def preload(cls) -> None:
+        import_robosuite()
+
+    def make_expert(self, cell: Cell, env: Any) -> Policy:
+        return make_expert(unwrap(env))
