@@ -24,6 +24,13 @@ class Bare:
     def __init__(self, env) -> None:
         self.env = env
 
+    @classmethod
+    def make(cls, robot: str, horizon: int) -> Bare:
+        """robosuite's own `Lift` on `robot`, made as the harness makes it (the same options), nothing else."""
+        from bench.sims.robosuite import MAKE_OPTIONS, import_robosuite
+
+        return cls(import_robosuite().make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS))
+
     def reset(self, seed: int) -> None:
         self.env.rng = np.random.default_rng(seed)
         self.env.placement_initializer.rng = self.env.rng
@@ -57,22 +64,13 @@ def plan(robot: str, episodes: int, horizon: int, seed: int = 0, run_id: str = "
 
 def main(argv: list[str]) -> int:
     from bench.cli.perf import harness_vs_bare
-    from bench.sims.robosuite import _quiet_robosuite
 
     kv = dict(a.split("=", 1) for a in argv)
     robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
     horizon, seed = int(kv.get("horizon", 250)), int(kv.get("seed", 0))
     p = plan(robot, episodes, horizon, seed)
 
-    def bare() -> Bare:
-        _quiet_robosuite()
-        import robosuite
-
-        from bench.sims.robosuite import MAKE_OPTIONS
-
-        return Bare(robosuite.make("Lift", robots=robot, horizon=horizon, **MAKE_OPTIONS))
-
-    res = harness_vs_bare(p, bare=bare)
+    res = harness_vs_bare(p, bare=lambda: Bare.make(robot, horizon))
     h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
     print(f"robosuite Lift/{robot}, {episodes} episodes x {horizon} steps, random policy")
     print(f"harness {h:.1f} env-steps/s, raw robosuite {r:.1f} env-steps/s: harness / raw = {h / r:.3f}")

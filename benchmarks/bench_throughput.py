@@ -47,16 +47,12 @@ def load() -> str:
 
 def part_fast(episodes: int, horizon: int, profile: bool) -> None:
     from bench.cli.perf import harness_vs_bare
-    from bench.sims.robosuite import MAKE_OPTIONS, _quiet_robosuite
-
-    def bare() -> RawBare:
-        _quiet_robosuite()
-        import robosuite
-
-        return RawBare(robosuite.make("Lift", robots="Panda", horizon=horizon, **MAKE_OPTIONS))
 
     for fast in (True, False):
-        res = harness_vs_bare(plan("Panda", episodes, horizon, run_id="throughput-bench", fast=fast), bare=bare)
+        res = harness_vs_bare(
+            plan("Panda", episodes, horizon, run_id="throughput-bench", fast=fast),
+            bare=lambda: RawBare.make("Panda", horizon),
+        )
         h, r = res["harness_steps_per_s"], res["bare_steps_per_s"]
         name = "fast path" if fast else "fast_path=false (control)"
         print(

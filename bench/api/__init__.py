@@ -41,7 +41,7 @@ from bench.core.io import write_atomic
 from bench.core.schema import load_json, validate
 from bench.execution.check import fast_check
 from bench.execution.episode_video import check_run
-from bench.execution.local import LocalExecutor, Worker, WorkerSpec
+from bench.execution.local import LocalExecutor
 from bench.execution.progress import RunProgress
 from bench.execution.ray_executor import RayExecutor
 from bench.execution.rollout import RunContext
@@ -56,6 +56,7 @@ from bench.execution.run_config import (
     config_from_argv,
     observation_bytes,
 )
+from bench.execution.runner import Worker, WorkerSpec
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
@@ -152,14 +153,11 @@ def load_policy(ref: str) -> PolicyPlugin:
     return registry.load_policy(ref)
 
 
-def make_executor(
-    cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None, own_process: bool = False
-) -> Executor:
-    """The executor `cfg` asks for: local processes, or actors on a Ray cluster (`own_process`: see
-    `LocalExecutor`)."""
+def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Executor:
+    """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
     if cfg.executor == "ray":
         return RayExecutor(cfg.ray_address, cfg.actors, cfg.actor_cpus, cfg.actor_gpus, cfg.ray_env, note=note)
-    return LocalExecutor(workers, own_process)
+    return LocalExecutor(workers)
 
 
 def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, Executor]:
@@ -174,7 +172,7 @@ def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, 
     workers = cfg.workers or os.cpu_count() or 1
     if cfg.executor != "local":  # a cluster's workers are reached in `run`
         p = plan(cfg)
-        return p, make_executor(cfg, workers, own_process=own_process)
+        return p, make_executor(cfg, workers)
     executor = LocalExecutor(workers, own_process)
     try:
         p = plan(cfg, on_jobs=functools.partial(executor.prestart, cfg.suite, cfg.policy))
@@ -219,8 +217,9 @@ def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
             )
     conditions = axes.conditions_from_config(cfg.perturb)
     axes.check_horizon(conditions, horizon)
+    n_jobs = len(cells) * len(conditions) * cfg.episodes
     if on_jobs is not None:
-        on_jobs(len(cells) * len(conditions) * cfg.episodes)
+        on_jobs(n_jobs)
     identity = plugin.identity(policy_options)
     plugin.preflight(policy_options, suite, cells, horizon)
     calibration = None
@@ -229,7 +228,7 @@ def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
 
         calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
         verify(suite, cells, horizon, calibration)
-    check_work(cfg, len(cells) * len(conditions) * cfg.episodes, horizon, step_bytes)
+    check_work(cfg, n_jobs, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
         axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_name)

@@ -86,9 +86,9 @@ class _Child:
     Made with `spec` None (`LocalExecutor.prestart`), it imports what `preload` names and waits for
     `give(spec)`."""
 
-    def __init__(self, ctx: Any, spec: WorkerSpec | None, preload: tuple[str, str | None] | None = None):
-        self.conn, theirs = ctx.Pipe()
-        self.proc = ctx.Process(target=_child_main, args=(theirs, spec, preload), daemon=True)
+    def __init__(self, spec: WorkerSpec | None, preload: tuple[str, str | None] | None = None):
+        self.conn, theirs = _CTX.Pipe()
+        self.proc = _CTX.Process(target=_child_main, args=(theirs, spec, preload), daemon=True)
         self.proc.start()
         theirs.close()
         self.ready = False
@@ -128,10 +128,9 @@ class _Children:
     ):
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
         self.status = status
-        self.ctx = _CTX
         self.children = list(started[:n])  # prestarted children first (the dispatcher sends their spec), then new
         self.unspecified = list(self.children)
-        self.children += [_Child(self.ctx, spec) for _ in range(n - len(self.children))]
+        self.children += [_Child(spec) for _ in range(n - len(self.children))]
         self.respawns = n * (MAX_RETRIES + 1)
         self.retired: list[_Child] = []  # told to stop (or killed); joined by close()
         self.wake_r, self.wake_w = mp.Pipe(duplex=False)  # close() wakes the dispatcher out of its wait
@@ -191,7 +190,7 @@ class _Children:
             child.inflight.clear()
             if self.queue and self.respawns > 0:
                 self.respawns -= 1
-                self.children.append(_Child(self.ctx, self.spec))
+                self.children.append(_Child(self.spec))
             self.cond.notify_all()
         for job in given_up:
             self.emit(given_up_record(job, self.spec.ctx, self.queue.attempts(job)))
@@ -286,7 +285,7 @@ class LocalExecutor:
         `preload` name (robosuite, torch), then waits for `execute`'s spec. `policy` None: the suite's
         default. Children `execute` does not need, or that `close` finds unused, are killed."""
         more = min(self.workers, jobs) - 1 - len(self.started)
-        self.started += [_Child(_CTX, None, (suite_ref, policy)) for _ in range(more)]
+        self.started += [_Child(None, (suite_ref, policy)) for _ in range(more)]
 
     def close(self) -> None:
         """Stop prestarted children `execute` never took (a plan that failed); nothing else outlives `execute`."""
