@@ -20,6 +20,7 @@ from bench.api.sims import (
     camera_spec,
     check_options,
     import_robosuite,
+    remembered,
     unwrap,
 )
 from bench.protocols import STATE, Feature, Obs, ObsSpec, Policy
@@ -81,7 +82,18 @@ class LiftObserver:
         return (getattr(env.raw, self._object).root_body,)
 
     def _calibrate_gripper(self) -> None:
-        """Measure the finger joints fully open and fully closed in free air, once per build.
+        """The finger joints fully open and fully closed in free air, measured once per build (or taken from
+        another worker's build of the same cell in this run: `remembered`)."""
+        ends = remembered("lift-gripper", self._measure_gripper)
+        grip_open, grip_closed = ends["open"], ends["closed"]
+        mask = np.abs(grip_open - grip_closed) > 1e-3  # joints that move
+        # per-step opening = mean((q - closed) / (open - closed)) over the moving joints
+        self._grip_qidx = self._grip_idx[mask]
+        self._grip_c = grip_closed[mask]
+        self._grip_inv_span = 1.0 / (grip_open - grip_closed)[mask]
+
+    def _measure_gripper(self) -> dict[str, np.ndarray]:
+        """Drive the fingers open, then shut, until they stop: their joint positions at both ends.
 
         Reset poses are not fully open on every hand (Jaco starts half-closed), so both
         ends are driven to; Jaco's three fingers need ~105 steps each way.
@@ -102,12 +114,7 @@ class LiftObserver:
                 if still >= 10:  # the fingers reached their end
                     break
             ends.append(last)
-        grip_open, grip_closed = ends
-        mask = np.abs(grip_open - grip_closed) > 1e-3  # joints that move
-        # per-step opening = mean((q - closed) / (open - closed)) over the moving joints
-        self._grip_qidx = self._grip_idx[mask]
-        self._grip_c = grip_closed[mask]
-        self._grip_inv_span = 1.0 / (grip_open - grip_closed)[mask]
+        return {"open": ends[0], "closed": ends[1]}
 
     def _opening(self) -> float:
         frac = float(((self._data.qpos[self._grip_qidx] - self._grip_c) * self._grip_inv_span).mean())

@@ -64,6 +64,7 @@ from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
 from bench.scoring.typed import RunMeta
 from bench.sims import axes, perturb
+from bench.sims.build_memo import memo_folder
 
 # the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
 __all__ = [
@@ -119,7 +120,7 @@ class Plan:
                 cfg.update(dataclasses.asdict(opts))
         return json.loads(json.dumps(cfg))
 
-    def worker_spec(self, ctx: Any) -> WorkerSpec:
+    def worker_spec(self, ctx: Any, build_memo: str | None = None) -> WorkerSpec:
         return WorkerSpec(
             self.config.suite,
             self.suite_options,
@@ -128,6 +129,7 @@ class Plan:
             self.config.seed,
             ctx,
             self.calibration,
+            build_memo,
         )
 
 
@@ -402,7 +404,8 @@ def run(
                 cast(Any, executor).note = bar.note
             if progress and "status" in caps:
                 cast(Any, executor).status = bar.waiting  # what a worker waits for (a policy server warming up)
-            executor.execute(todo, p.worker_spec(ctx), write)
+            with memo_folder() as memo:  # what one build of a cell measures, for the workers that build it again
+                executor.execute(todo, p.worker_spec(ctx, memo), write)
     finally:
         executor.close()
     meta["provenance"]["executor"] = (

@@ -10,6 +10,7 @@ from __future__ import annotations
 from bench.protocols.env import unwrap
 from bench.sims import maniskill  # the module: suites call `maniskill.missing_extra()` (tests replace it)
 from bench.sims.axes import AXES, conditions_from_config
+from bench.sims.build_memo import remembered
 from bench.sims.camera import RENDERER_DEFAULTS, camera_names
 from bench.sims.camera_env import CameraOptions, camera_spec, check_options, with_cameras
 from bench.sims.gym import GymEnv
@@ -42,6 +43,7 @@ __all__ = [
     "check_options",
     "conditions_from_config",
     "maniskill",
+    "remembered",
     "set_nominal",
     "unwrap",
     "with_cameras",

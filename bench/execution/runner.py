@@ -21,6 +21,7 @@ from bench.execution.scheduling import given_up_message
 from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
+from bench.sims.build_memo import building
 from bench.sims.perturb import write_fields
 
 
@@ -35,6 +36,7 @@ class WorkerSpec:
     seed: int  # the run seed
     ctx: RunContext
     calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
+    build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (build_memo)
 
 
 class Worker:
@@ -61,7 +63,8 @@ class Worker:
         """The (env, policy) of the job's cell, built on first use."""
         key = job.cell.key
         if key not in self.cache:
-            env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
+            with building(self.spec.build_memo, key):  # a cell another worker built: reuse what it measured
+                env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
             try:
                 cal = self.spec.calibration
                 if cal is not None and job.cell.robot == cal["robot"]:  # checked against this model by `plan`
