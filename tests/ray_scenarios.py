@@ -41,7 +41,7 @@ def bench(
 
 
 def session_processes(sid: int) -> list[str]:
-    """`pid state command` of every process in session `sid` (from /proc)."""
+    """`pid state ppid=PPID command` of every process in session `sid` (from /proc; `[name]` for one that exited)."""
     out = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -51,9 +51,10 @@ def session_processes(sid: int) -> list[str]:
             if int(fields[3]) != sid:
                 continue
             cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")[:200]
+            cmd = cmd or f"[{(entry / 'comm').read_text().strip()}]"  # an exited process keeps only its name
         except (OSError, IndexError, ValueError):
             continue
-        out.append(f"{entry.name} {fields[0]} {cmd}")
+        out.append(f"{entry.name} {fields[0]} ppid={fields[1]} {cmd}")
     return out
 
 
@@ -71,7 +72,9 @@ def leftovers(out: Path, run_id: str, *args: str) -> dict[str, Any]:
             start_new_session=True,
         )
         rc = proc.wait(timeout=300)
-    left = session_processes(proc.pid)
+    # an exited process handed to init (state Z, ppid 1) holds nothing and init reaps it when it gets to it
+    # (this machine's init can take seconds under load); a live process, or a zombie whose parent lives, counts
+    left = [p for p in session_processes(proc.pid) if " Z ppid=1 [" not in p]
     return {"rc": rc, "left": left, "stderr": (out / f"{run_id}.stderr").read_text()[-4000:]}
 
 
