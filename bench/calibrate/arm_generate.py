@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from bench.calibrate.idim import point_mass, set_std, std_params
+from bench.calibrate.inertial import point_mass, set_std, std_params
 from bench.core.errors import ConfigError, valid_choices
 from bench.core.io import write_atomic
 from bench.logs import from_arrays, write_dataset
