@@ -628,7 +628,7 @@ def _toy_checkpoint(path, chunk=3, width=64):
 
 def test_batching_server_answers_concurrent_workers_in_batches(tmp_path):
     """batch=4: four connections' requests share forward passes, and get the answers they get alone."""
-    from bench.remote.client import Connection
+    from bench.remote.connection import Connection
 
     ckpt = _toy_checkpoint(tmp_path / "p.safetensors")
     rng = np.random.default_rng(0)
