@@ -14,7 +14,7 @@ from bench import api
 from bench.execution.runner import Worker
 from bench.protocols.env import unwrap
 from bench.records import comparable
-from bench.sims.build_memo import building, memo_folder, remembered
+from bench.sims.build_memo import PREFIX, building, memo_folder, remembered
 
 
 def _counting():
@@ -84,3 +84,25 @@ def test_a_second_worker_takes_the_gripper_range_and_its_records_equal(tmp_path,
     assert len(calls) == 2
     assert all(r.error is None for r in records)
     assert [comparable(r) for r in records] == [comparable(r) for r in alone]
+
+
+def test_the_folder_of_a_killed_run_goes_with_the_next_run(tmp_path):
+    """A run killed with SIGKILL cannot remove its memo folder; the next one removes the folders of
+    processes that are gone (and leaves those of live ones)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    code = (
+        "from bench.sims.build_memo import memo_folder\nwith memo_folder() as f:\n    print(f, flush=True)\n    input()"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    left = proc.stdout.readline().strip()
+    proc.kill()
+    proc.wait()
+    assert os.path.isdir(left) and os.path.basename(left).startswith(f"{PREFIX}{proc.pid}-")
+    with memo_folder() as mine:
+        assert not os.path.exists(left)
+        with memo_folder() as nested:  # a live process's folder is kept
+            assert os.path.isdir(mine) and os.path.isdir(nested)
+    assert os.path.dirname(mine) == tempfile.gettempdir()

@@ -7,7 +7,7 @@ same thing again. While a worker builds a cell (`building`), `remembered(name, m
 first builder of that cell in this run measured, or measures and keeps it for the next.
 
 Exact by construction: the memo lives in a folder the run makes for itself and removes when it ends
-(`bench.api.run`), and is keyed by the cell, so only builds of the same cell from the same config in
+(`bench.api.run`; one left by a killed run goes with the next run's start), and is keyed by the cell, so only builds of the same cell from the same config in
 the same invocation share a value, and a build is deterministic. A worker that cannot see the folder (a
 Ray actor on another machine) measures for itself; outside `building` (a benchmark, a test, a notebook)
 nothing is remembered. Values are dicts of numpy arrays, written atomically (tmp + rename).
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -65,8 +66,32 @@ def remembered(name: str, measure: Callable[[], dict[str, np.ndarray]]) -> dict[
     return value
 
 
+PREFIX = "bench-build-memo-"  # + the pid of the process whose run made it
+
+
 @contextmanager
 def memo_folder() -> Iterator[str]:
-    """A folder for one run's memo (under the system's temporary folder), removed when the run ends."""
-    with tempfile.TemporaryDirectory(prefix="bench-build-memo-") as folder:
+    """A folder for one run's memo (under the system's temporary folder), removed when the run ends.
+
+    A run killed before it could remove its folder (kill -9) leaves it behind: each new one first removes
+    the folders of processes that no longer exist."""
+    _sweep(Path(tempfile.gettempdir()))
+    with tempfile.TemporaryDirectory(prefix=f"{PREFIX}{os.getpid()}-") as folder:
         yield folder
+
+
+def _sweep(parent: Path) -> None:
+    for folder in parent.glob(f"{PREFIX}*"):
+        pid = folder.name[len(PREFIX) :].split("-", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
