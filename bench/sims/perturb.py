@@ -11,7 +11,7 @@ implementation serves every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJ
 MJCF); other backends apply them through their `model_axes` capability (PhysX). Their
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
-drifts. Interface axes wrap the env (`Interface`): action latency, action noise,
+drifts. Interface axes wrap the env (`bench.sims.perturb_interface.Interface`): action latency, action noise,
 observation noise and a slower control rate (action hold). Visual axes (kind "visual":
 light, camera pose, colours, textures, background, distractors) change only what the
 env's cameras render; `bench.sims.visual_scene` applies them, called from here (the catalogue
@@ -22,18 +22,17 @@ The axes and the `perturb.*` grammar that makes conditions are `bench.sims.axes`
 from __future__ import annotations
 
 import weakref
-from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import STATE, Cell, EnvAdapter, MujocoHandle, Obs, Suite
-from bench.protocols.env import AdapterWrapper
+from bench.protocols import Cell, EnvAdapter, MujocoHandle, Suite
 from bench.protocols.suite import Condition
 from bench.sims import visual_scene
 from bench.sims.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
+from bench.sims.perturb_interface import Interface
 
 
 # -- names in the model --------------------------------------------------------------------
@@ -461,63 +460,3 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
     nom.const_dirty = axis.setconst
     mj.forward()
     return env, {axis.name: value}
-
-
-# -- interface axes --------------------------------------------------------------------------
-class Interface(AdapterWrapper):
-    """The env seen through a perturbed interface: command hold, latency, action and observation noise.
-
-    Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
-    delayed by `latency` steps (the queue starts with the neutral action: zeros clipped to
-    the bounds), perturbed by Gaussian noise with std `action_noise` x half-range and
-    clipped to the bounds; the state observation gets Gaussian noise with std `obs_noise`.
-    All draws come from the episode's generator.
-    """
-
-    def __init__(
-        self,
-        env: EnvAdapter,
-        rng: np.random.Generator,
-        latency: int = 0,
-        action_noise: float = 0.0,
-        obs_noise: float = 0.0,
-        action_hold: int = 1,
-    ):
-        super().__init__(env)
-        self.env, self.rng = env, rng
-        self.latency, self.action_noise = int(latency), float(action_noise)
-        self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))
-        self.low = np.asarray(env.action_spec.low, dtype=np.float64)
-        self.high = np.asarray(env.action_spec.high, dtype=np.float64)
-        half = (self.high - self.low) / 2.0
-        self._half = np.where(np.isfinite(half), half, 1.0)
-        self.neutral = np.clip(np.zeros_like(self.low), self.low, self.high)
-        self._reset_state()
-
-    def _reset_state(self) -> None:
-        self._queue: deque = deque([self.neutral.copy() for _ in range(self.latency)])
-        self._held = self.neutral.copy()
-        self._t = 0
-
-    def _obs(self, obs: Obs) -> Obs:
-        if self.obs_noise <= 0 or STATE not in obs:
-            return obs
-        state = obs[STATE]
-        noisy = state + self.rng.normal(0.0, self.obs_noise, size=np.shape(state))
-        return {**obs, STATE: noisy.astype(np.asarray(state).dtype, copy=False)}
-
-    def reset(self, seed: int) -> Obs:
-        self._reset_state()
-        return self._obs(self.env.reset(seed))
-
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
-        if self._t % self.action_hold == 0:
-            self._held = np.asarray(action, dtype=np.float64).copy()
-        self._t += 1
-        self._queue.append(self._held)
-        executed = self._queue.popleft()
-        if self.action_noise > 0:
-            executed = executed + self.rng.normal(0.0, 1.0, size=executed.shape) * self.action_noise * self._half
-            executed = np.clip(executed, self.low, self.high)
-        obs, reward, terminated, truncated, info = self.env.step(executed.astype(np.float32))
-        return self._obs(obs), reward, terminated, truncated, info

@@ -1,0 +1,73 @@
+"""The interface axes' wrapper: the env seen through a held, delayed and noisy command and a noisy observation.
+
+`bench.sims.perturb.apply` wraps an env in it for a condition on `latency`, `action_noise`, `obs_noise` or
+`action_hold`; every draw comes from the episode's generator.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from bench.protocols import STATE, EnvAdapter, Obs
+from bench.protocols.env import AdapterWrapper
+
+
+class Interface(AdapterWrapper):
+    """The env seen through a perturbed interface: command hold, latency, action and observation noise.
+
+    Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
+    delayed by `latency` steps (the queue starts with the neutral action: zeros clipped to
+    the bounds), perturbed by Gaussian noise with std `action_noise` x half-range and
+    clipped to the bounds; the state observation gets Gaussian noise with std `obs_noise`.
+    All draws come from the episode's generator.
+    """
+
+    def __init__(
+        self,
+        env: EnvAdapter,
+        rng: np.random.Generator,
+        latency: int = 0,
+        action_noise: float = 0.0,
+        obs_noise: float = 0.0,
+        action_hold: int = 1,
+    ):
+        super().__init__(env)
+        self.env, self.rng = env, rng
+        self.latency, self.action_noise = int(latency), float(action_noise)
+        self.obs_noise, self.action_hold = float(obs_noise), max(1, int(action_hold))
+        self.low = np.asarray(env.action_spec.low, dtype=np.float64)
+        self.high = np.asarray(env.action_spec.high, dtype=np.float64)
+        half = (self.high - self.low) / 2.0
+        self._half = np.where(np.isfinite(half), half, 1.0)
+        self.neutral = np.clip(np.zeros_like(self.low), self.low, self.high)
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._queue: deque = deque([self.neutral.copy() for _ in range(self.latency)])
+        self._held = self.neutral.copy()
+        self._t = 0
+
+    def _obs(self, obs: Obs) -> Obs:
+        if self.obs_noise <= 0 or STATE not in obs:
+            return obs
+        state = obs[STATE]
+        noisy = state + self.rng.normal(0.0, self.obs_noise, size=np.shape(state))
+        return {**obs, STATE: noisy.astype(np.asarray(state).dtype, copy=False)}
+
+    def reset(self, seed: int) -> Obs:
+        self._reset_state()
+        return self._obs(self.env.reset(seed))
+
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+        if self._t % self.action_hold == 0:
+            self._held = np.asarray(action, dtype=np.float64).copy()
+        self._t += 1
+        self._queue.append(self._held)
+        executed = self._queue.popleft()
+        if self.action_noise > 0:
+            executed = executed + self.rng.normal(0.0, 1.0, size=executed.shape) * self.action_noise * self._half
+            executed = np.clip(executed, self.low, self.high)
+        obs, reward, terminated, truncated, info = self.env.step(executed.astype(np.float32))
+        return self._obs(obs), reward, terminated, truncated, info
