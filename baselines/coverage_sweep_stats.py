@@ -15,7 +15,7 @@ from bench.api.stats import SeriesBootstrap, TrainingData, coverage_report, fmt_
 
 
 class SweepConfig(Protocol):
-    """What the analysis reads of the sweep's config (`baselines.coverage_sweep.SweepConfig`)."""
+    """What the analysis reads of the sweep's config (`baselines.coverage_sweep_config.SweepConfig`)."""
 
     @property
     def seeds(self) -> Sequence[int]: ...
