@@ -181,7 +181,8 @@ def load_demos(
 
     if not paths:
         raise ConfigError("data: give at least one dataset folder, e.g. data=[demos/seen]")
-    obs, act, epi, episodes = [], [], [], []
+    obs, act, epi = [], [], []
+    episodes: list[dict[str, Any]] = []
     obs_names = action_names = None
     seen_robots: set[str] = set()
     counts: dict[tuple, int] = {}

@@ -122,7 +122,7 @@ def normalize_spec(spec: Any, source: str = "policy spec") -> dict[str, Any]:
     if not isinstance(kwargs, dict):
         raise SpecError(f"{source}: kwargs must be an object, got {type(kwargs).__name__}")
     try:
-        obs_names = [[str(n), int(w)] for n, w in spec["obs_names"]]
+        obs_names: list[list[Any]] = [[str(n), int(w)] for n, w in spec["obs_names"]]
     except (TypeError, ValueError):
         raise SpecError(f"{source}: obs_names must be a list of [name, width] pairs") from None
     if not obs_names or any(w < 1 for _, w in obs_names):

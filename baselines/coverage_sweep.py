@@ -73,7 +73,9 @@ def _record_demos(cfg: SweepConfig, work: Path, log) -> list[Path]:
             need[r] = max(need[r], cfg.surrogate_episodes // len(others))
     base_n = per_robot(cfg, k_max)
     dr = "dr" in parts and bool(cfg.dr_axis)
-    common = dict(suite=cfg.suite, policy="scripted", workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs"))
+    common: dict[str, Any] = dict(
+        suite=cfg.suite, policy="scripted", workers=cfg.workers, horizon=cfg.horizon, out=str(work / "runs")
+    )
     sources = []
     perturb = {cfg.dr_axis: [t for _, _, t in dr_condition_names(cfg)]} if dr else {}
     base = RunConfig(

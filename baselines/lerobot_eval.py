@@ -31,6 +31,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 REPO = Path(__file__).resolve().parents[1]
@@ -39,7 +40,7 @@ sys.path.insert(0, str(REPO))
 from baselines.lerobot_adapter import LerobotSession, Served, fail  # noqa: E402
 
 # lerobot's env types -> bench suites: tasks, and where each of lerobot's input features comes from
-ENVS = {
+ENVS: dict[str, dict[str, Any]] = {
     "aloha": {
         "suite": "aloha",
         "tasks": ("AlohaTransferCube-v0", "AlohaInsertion-v0"),

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 SUITE, ROBOT = "held_out_robots", "Panda"
-REAL = {
+REAL: dict[str, Any] = {
     "damping_scale": 8.0,
     "friction": 0.8,
     "friction_joints": ("robot0_joint2", "robot0_joint4", "robot0_joint6"),

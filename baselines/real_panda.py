@@ -166,7 +166,11 @@ def run_population(a: Args, work: Path, cal_dir: Path, small_bc: Path) -> dict[s
         if name == "bc-small":
             options = {"checkpoint": str(small_bc)}
         per: dict[str, Any] = {}
-        for cond, extra in (("nominal", {}), ("calibrated", {"calibration": str(cal_dir)})):
+        conditions: tuple[tuple[str, dict[str, Any]], ...] = (
+            ("nominal", {}),
+            ("calibrated", {"calibration": str(cal_dir)}),
+        )
+        for cond, extra in conditions:
             if cond == "calibrated":
                 drop_stale(work / "runs" / f"{name}-{cond}", cal_dir)
             cfg = api.RunConfig(
@@ -249,7 +253,15 @@ def main_args(a: Args) -> int:
     work = outputs.check("work", a.work, {"log": str(log)}, resume=lambda p: True)
     out = outputs.check("out", a.out, {"log": str(log), "work": str(work)}, overwrite=a.overwrite)
     t0 = time.perf_counter()
-    ds = import_csv(log, time="time_s", resample=1000.0, robot_type="panda", **{k: v for k, v in JOINT_COLS.items()})
+    ds = import_csv(
+        log,
+        time="time_s",
+        resample=1000.0,
+        robot_type="panda",
+        state=JOINT_COLS["state"],
+        velocity=JOINT_COLS["velocity"],
+        effort=JOINT_COLS["effort"],
+    )
     logs = work / "logs"
     if logs.exists():
         shutil.rmtree(logs)
