@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from bench import api
-from bench.execution.runner import Worker
+from bench.execution.runner import MEMO_PREFIX, Worker, memo_folder
 from bench.protocols.env import unwrap
 from bench.records import comparable
-from bench.sims.build_memo import PREFIX, building, memo_folder, remembered
+from bench.sims.build_memo import building, remembered
 
 
 def _counting():
@@ -93,14 +93,12 @@ def test_the_folder_of_a_killed_run_goes_with_the_next_run(tmp_path):
     import sys
     import tempfile
 
-    code = (
-        "from bench.sims.build_memo import memo_folder\nwith memo_folder() as f:\n    print(f, flush=True)\n    input()"
-    )
+    code = "from bench.execution.runner import memo_folder\nwith memo_folder() as f:\n    print(f, flush=True)\n    input()"
     proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     left = proc.stdout.readline().strip()
     proc.kill()
     proc.wait()
-    assert os.path.isdir(left) and os.path.basename(left).startswith(f"{PREFIX}{proc.pid}-")
+    assert os.path.isdir(left) and os.path.basename(left).startswith(f"{MEMO_PREFIX}{proc.pid}-")
     with memo_folder() as mine:
         assert not os.path.exists(left)
         with memo_folder() as nested:  # a live process's folder is kept

@@ -56,7 +56,7 @@ from bench.execution.run_config import (
     config_from_argv,
     observation_bytes,
 )
-from bench.execution.runner import Worker, WorkerSpec
+from bench.execution.runner import Worker, WorkerSpec, memo_folder
 from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
@@ -64,7 +64,6 @@ from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
 from bench.scoring.typed import RunMeta
 from bench.sims import axes, perturb
-from bench.sims.build_memo import memo_folder
 
 # the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
 __all__ = [

@@ -227,11 +227,6 @@ class _Children:
             child.proc.kill()
         self.retired.append(child)
 
-    def close(self) -> None:
-        """Stop the thread and the children (those still running an episode are killed), and wait for them."""
-        self.stop()
-        self.join()
-
     def stop(self) -> None:
         """Stop the thread and tell the children to stop (those still running an episode are killed); returns
         while they close their envs, so the caller can close its own meanwhile (`join` waits for them)."""

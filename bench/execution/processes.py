@@ -48,8 +48,17 @@ def descendants(pid: int | None = None) -> list[int]:
     return sorted(out)
 
 
-def _alive(pid: int) -> bool:
-    """Running (a zombie has exited: it only waits to be reaped by its parent)."""
+def alive(pid: int) -> bool:
+    """Running (a zombie has exited: it only waits to be reaped by its parent). Without /proc: the process
+    exists (`kill(pid, 0)`; another user's counts)."""
+    if not PROC.is_dir():
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+        return True
     try:
         stat = (PROC / str(pid) / "stat").read_text()
     except OSError:
@@ -73,7 +82,7 @@ def reap(pids: list[int], timeout: float = 10.0) -> list[int]:
                     continue
             except ChildProcessError:  # not our child (or already reaped)
                 pass
-            if not _alive(pid):
+            if not alive(pid):
                 left.remove(pid)
         if not left or time.monotonic() > deadline:
             break

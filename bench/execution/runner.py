@@ -11,11 +11,17 @@ workers and produces the same records. An executor is any object with
 from __future__ import annotations
 
 import gc
+import os
+import shutil
+import tempfile
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+from bench.execution.processes import alive
 from bench.execution.rollout import RunContext, job_record, run_episode
 from bench.execution.scheduling import given_up_message
 from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
@@ -36,7 +42,7 @@ class WorkerSpec:
     seed: int  # the run seed
     ctx: RunContext
     calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
-    build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (build_memo)
+    build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (`memo_folder`)
 
 
 class Worker:
@@ -110,6 +116,24 @@ class Worker:
     def close(self) -> None:
         for key in list(self.cache):
             self.drop(key)
+
+
+MEMO_PREFIX = "bench-build-memo-"  # + the pid of the process whose run made it
+
+
+@contextmanager
+def memo_folder() -> Iterator[str]:
+    """A folder for one run's build memo (`WorkerSpec.build_memo`, `bench.sims.build_memo`) under the system's
+    temporary folder, removed when the run ends.
+
+    A run killed before it could remove its folder (kill -9) leaves it behind: each new one first removes
+    the folders of processes that are gone."""
+    for old in Path(tempfile.gettempdir()).glob(f"{MEMO_PREFIX}*"):
+        pid = old.name[len(MEMO_PREFIX) :].split("-", 1)[0]
+        if pid.isdigit() and not alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+    with tempfile.TemporaryDirectory(prefix=f"{MEMO_PREFIX}{os.getpid()}-") as folder:
+        yield folder
 
 
 def freeze_imports() -> None:

@@ -7,24 +7,26 @@ same thing again. While a worker builds a cell (`building`), `remembered(name, m
 first builder of that cell in this run measured, or measures and keeps it for the next.
 
 Exact by construction: the memo lives in a folder the run makes for itself and removes when it ends
-(`bench.api.run`; one left by a killed run goes with the next run's start), and is keyed by the cell, so only builds of the same cell from the same config in
-the same invocation share a value, and a build is deterministic. A worker that cannot see the folder (a
-Ray actor on another machine) measures for itself; outside `building` (a benchmark, a test, a notebook)
-nothing is remembered. Values are dicts of numpy arrays, written atomically (tmp + rename).
+(`bench.execution.runner.memo_folder`), and is keyed by the cell, so only builds of the same cell from the
+same config in the same invocation share a value, and a build is deterministic. A worker that cannot see
+the folder (a Ray actor on another machine) measures for itself; outside `building` (a benchmark, a test,
+a notebook) nothing is remembered. Values are dicts of numpy arrays, written atomically
+(`bench.core.io.write_bytes_atomic`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import os
-import shutil
-import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
 
 import numpy as np
+
+from bench.core.io import write_bytes_atomic
 
 _BUILDING: ContextVar[tuple[str, str] | None] = ContextVar("bench_build_memo", default=None)
 
@@ -56,42 +58,10 @@ def remembered(name: str, measure: Callable[[], dict[str, np.ndarray]]) -> dict[
     except FileNotFoundError:  # not measured yet in this run (files appear whole: tmp + rename)
         pass
     value = measure()
+    buf = io.BytesIO()
+    np.savez(buf, **value)
     try:
-        fd, tmp = tempfile.mkstemp(dir=memo_dir, suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **value)
-        os.replace(tmp, path)
-    except OSError:  # the run ended and removed the folder meanwhile: nothing to share
+        write_bytes_atomic(path, buf.getvalue())
+    except OSError:  # the folder cannot be written: nothing to share
         pass
     return value
-
-
-PREFIX = "bench-build-memo-"  # + the pid of the process whose run made it
-
-
-@contextmanager
-def memo_folder() -> Iterator[str]:
-    """A folder for one run's memo (under the system's temporary folder), removed when the run ends.
-
-    A run killed before it could remove its folder (kill -9) leaves it behind: each new one first removes
-    the folders of processes that no longer exist."""
-    _sweep(Path(tempfile.gettempdir()))
-    with tempfile.TemporaryDirectory(prefix=f"{PREFIX}{os.getpid()}-") as folder:
-        yield folder
-
-
-def _sweep(parent: Path) -> None:
-    for folder in parent.glob(f"{PREFIX}*"):
-        pid = folder.name[len(PREFIX) :].split("-", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
-            shutil.rmtree(folder, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
