@@ -45,7 +45,7 @@ def wilson(successes: int, trials: int, confidence: float = 0.95) -> Estimate:
     """Success rate with a Wilson score interval.
 
     The closed form of `scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")`, term for
-    term (Newcombe 1998), so the numbers are scipy's to the last bit (`tests/test_stats.py` checks) without
+    term (Newcombe 1998), so the numbers are scipy's to the last bit (`tests/test_scoring.py` checks) without
     importing scipy.stats (~0.35 s, paid by every command that scores).
     """
     if trials <= 0:
