@@ -16,6 +16,7 @@ cannot be undone: a process that installed them cannot build camera observations
 
 from __future__ import annotations
 
+import warnings
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
@@ -33,6 +34,9 @@ _VISUAL_ADDERS = (
     "add_sphere_visual",
     "add_visual_from_file",
 )
+# SAPIEN warns at import when the system has no libvulkan.so.1 and falls back to the one it bundles, which works:
+# on the machines this module is for, that line is noise before every one bench prints (an error included)
+warnings.filterwarnings("ignore", message="Failed to find system libvulkan", category=UserWarning)
 LAVAPIPE_HINT = "run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it prints"
 
 _state: dict[str, Any] = {"mode": None}  # None (not decided yet) | "vulkan" | "stand-ins"
