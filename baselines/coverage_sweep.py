@@ -35,12 +35,12 @@ from baselines.coverage_sweep_config import (
     sweep_help,
 )
 from baselines.coverage_sweep_stats import (  # noqa: F401  (render_sweep, plot_sweep: public here too)
-    _coverage_summary,
-    _per_seed_cells,
-    _series,
-    _training_summary,
+    coverage_summary,
+    per_seed_cells,
     plot_sweep,
     render_sweep,
+    series_summary,
+    training_summary,
 )
 from bench.api import ConfigError, DataError, RunConfig
 from bench.api.stats import SeriesBootstrap, initial_states_from_suite
@@ -318,7 +318,7 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
         ]
 
     def series(entries: list[dict], xlabel: str) -> dict[str, Any]:
-        return _series(entries, xlabel, unseen_keys, rng, cfg)
+        return series_summary(entries, xlabel, unseen_keys, rng, cfg)
 
     k_max = len(cfg.order)
     entries: dict[str, dict] = {}
@@ -332,8 +332,8 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
                 "x": float(k),
                 "train_keys": [key_of[r] for r in robots],
                 "outcomes": evaluate(name, models, cfg.eval_episodes),
-                "training": _training_summary([m[1] for m in models]),
-                "coverage": _coverage_summary(demos, cells, suite.manifest, [NOMINAL], states, groups),
+                "training": training_summary([m[1] for m in models]),
+                "coverage": coverage_summary(demos, cells, suite.manifest, [NOMINAL], states, groups),
             }
         if "robots" in parts:
             doc["robots"] = series(
@@ -345,7 +345,7 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
         eval_conds = conditions_from_config({cfg.dr_axis: [t for _, _, t in dr_conds]})
         base = dict(entries[f"robots{k_max}"], x=0.0)
         demos0 = _select(sources, [(r, "nominal", n) for r in cfg.order], successful_only)
-        base["coverage"] = _coverage_summary(demos0, cells, suite.manifest, eval_conds, states, groups)
+        base["coverage"] = coverage_summary(demos0, cells, suite.manifest, eval_conds, states, groups)
         dr_entries = [base]
         for w, cond, _ in dr_conds:
             name = f"dr-{cfg.dr_axis}-{w:g}"
@@ -356,8 +356,8 @@ def run_sweep(cfg: SweepConfig, suite, work: Path, log) -> dict[str, Any]:
                     "x": w,
                     "train_keys": [key_of[r] for r in cfg.order],
                     "outcomes": evaluate(name, models, cfg.eval_episodes),
-                    "training": _training_summary([m[1] for m in models]),
-                    "coverage": _coverage_summary(demos, cells, suite.manifest, eval_conds, states, groups),
+                    "training": training_summary([m[1] for m in models]),
+                    "coverage": coverage_summary(demos, cells, suite.manifest, eval_conds, states, groups),
                 }
             )
         doc["dr"] = series(dr_entries, f"domain-randomisation width on {cfg.dr_axis} (uniform(1-w, 1+w))")
@@ -382,7 +382,7 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
     for name in names:
         _, models = model(f"surrogate-{name}", variants[name])
         outcomes.append(evaluate(f"surrogate-{name}", models, cfg.surrogate_eval_episodes, [target]))
-        trainings.append(_training_summary([m[1] for m in models]))
+        trainings.append(training_summary([m[1] for m in models]))
     boot = SeriesBootstrap(outcomes, rng, cfg.n_boot, cfg.confidence)
     results: dict[str, Any] = {}
     base_v, base_r = boot.mean(0, [key])
@@ -391,7 +391,7 @@ def _surrogate(cfg: SweepConfig, model, evaluate, key_of: dict, rng) -> dict[str
         results[name] = {
             "training": trainings[k],
             "success": boot.estimate(v, r),
-            "cells": _per_seed_cells(outcomes[k], cfg),
+            "cells": per_seed_cells(outcomes[k], cfg),
         }
         if k == 0:
             continue

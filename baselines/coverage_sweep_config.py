@@ -140,7 +140,7 @@ def check_sweep(cfg: SweepConfig, suite) -> None:
 
 
 def surrogate_condition(text: str):
-    """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.sims.perturb's grammar."""
+    """The Condition of `surrogate_perturb` ("AXIS=LEVEL"), checked with bench.sims.perturb.reset's grammar."""
     from bench.api.sims import conditions_from_config
 
     if "=" not in text:
@@ -157,7 +157,7 @@ def surrogate_condition(text: str):
 
 
 def dr_condition_names(cfg: SweepConfig) -> list[tuple[float, str, str]]:
-    """(width, condition name, perturb grammar) per DR width, names as bench.sims.perturb forms them."""
+    """(width, condition name, perturb grammar) per DR width, names as bench.sims.perturb.reset forms them."""
     from bench.api.sims import conditions_from_config
 
     out = []

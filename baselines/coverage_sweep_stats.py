@@ -25,7 +25,7 @@ class SweepConfig(Protocol):
     def confidence(self) -> float: ...
 
 
-def _training_summary(infos: Sequence[dict]) -> dict[str, Any]:
+def training_summary(infos: Sequence[dict]) -> dict[str, Any]:
     return {
         "episodes": infos[0]["episodes"],
         "frames": infos[0]["frames"],
@@ -34,7 +34,7 @@ def _training_summary(infos: Sequence[dict]) -> dict[str, Any]:
     }
 
 
-def _per_seed_cells(outcomes: Sequence[dict[str, np.ndarray]], cfg: SweepConfig) -> dict[str, Any]:
+def per_seed_cells(outcomes: Sequence[dict[str, np.ndarray]], cfg: SweepConfig) -> dict[str, Any]:
     """Per cell: successes and episodes pooled over the training seeds, with a Wilson interval."""
     out = {}
     for key in outcomes[0]:
@@ -49,7 +49,7 @@ def _per_seed_cells(outcomes: Sequence[dict[str, np.ndarray]], cfg: SweepConfig)
     return out
 
 
-def _coverage_summary(demos, cells, manifest, conditions, states, groups) -> dict[str, Any]:
+def coverage_summary(demos, cells, manifest, conditions, states, groups) -> dict[str, Any]:
     train = TrainingData(
         demos.obs.astype(float),
         demos.episode,
@@ -82,7 +82,9 @@ def _coverage_summary(demos, cells, manifest, conditions, states, groups) -> dic
     return out
 
 
-def _series(entries: list[dict], xlabel: str, unseen_keys: Sequence[str], rng, cfg: SweepConfig) -> dict[str, Any]:
+def series_summary(
+    entries: list[dict], xlabel: str, unseen_keys: Sequence[str], rng, cfg: SweepConfig
+) -> dict[str, Any]:
     """Held-out and in-distribution success, gap, difference to the first point, and slopes of one series."""
     boot = SeriesBootstrap([e["outcomes"] for e in entries], rng, cfg.n_boot, cfg.confidence)
     points, held, held_reps, gaps, gap_reps, n_held, n_gap = [], [], [], [], [], [], []
@@ -100,7 +102,7 @@ def _series(entries: list[dict], xlabel: str, unseen_keys: Sequence[str], rng, c
             "held_out": boot.estimate(h, h_r),
             "in_distribution": boot.estimate(i, i_r),
             "gap": boot.estimate(g, g_r),
-            "cells": _per_seed_cells(e["outcomes"], cfg),
+            "cells": per_seed_cells(e["outcomes"], cfg),
             "training": e["training"],
             "coverage": e["coverage"],
         }

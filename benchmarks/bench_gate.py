@@ -1,4 +1,4 @@
-"""Error rates of the regression gate's decision rule (`bench.board.gate`), and one real gate on a one-robot collapse.
+"""Error rates of the regression gate's decision rule (`bench.board.gate.sequential`), and one real gate on a one-robot collapse.
 
     python benchmarks/bench_gate.py                      # 1000 synthetic gates per scenario, default budget
     python benchmarks/bench_gate.py --gates 300 --budget 7x10/5
@@ -6,8 +6,8 @@
 
 Synthetic gates (a simulation of the statistical procedure, not of robots): paired 0/1 outcomes
 are drawn for 7 cells shaped like held_out_robots (3 seen robots, 4 unseen) and fed, look by
-look, to the very functions `bench regress` calls (`gate.Design`, `gate.evaluate_look`,
-`gate.decide`), with the default margin 0.05, alpha 0.05, cell_alpha 0.5 and the bootstrap size
+look, to the very functions `bench regress` calls (`sequential.Design`, `sequential.evaluate_look`,
+`sequential.decide`), with the default margin 0.05, alpha 0.05, cell_alpha 0.5 and the bootstrap size
 the gate uses. Outcomes of a pair share their initial state with probability rho (the
 candidate's uniform draw is the baseline's), else are independent. Printed per scenario: the
 share of gates that fail (regression), pass certified (no regression) or end inconclusive, the
@@ -15,7 +15,7 @@ share naming the collapsed cell, the share naming a cell whose true drop is with
 (a false cell claim), episodes per cell used, and a 95% Wilson interval on the failure rate.
 Null scenarios (no cell drops by more than the margin) measure the false-alarm rate, which must
 stay at most alpha; the others measure power. The one-cell collapse is also computed exactly by
-`bench.board.gate_power` (the `plan=true` calculation) to check it against the simulation.
+`bench.board.gate.power` (the `plan=true` calculation) to check it against the simulation.
 
 --real: one gate on real rollouts. The baseline is the committed behaviour-cloning run
 results/runs/held_out_robots-bc-s0 (7 robots x 10 episodes, seed 0). The candidate is the same
@@ -44,8 +44,8 @@ ROBOTS = ["Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7"]
 
 
 def one_gate(rng: np.random.Generator, pb: np.ndarray, pc: np.ndarray, rho: float, design, n_boot: int):
-    """One synthetic gate through bench.board.gate: (verdict, rejected test ids at the last look, episodes per cell used)."""
-    from bench.board import gate
+    """One synthetic gate through bench.board.gate.sequential: (verdict, rejected test ids at the last look, episodes per cell used)."""
+    from bench.board.gate import sequential
 
     k, e = len(pb), design.schedule[-1]
     u = rng.random((k, e))
@@ -53,11 +53,11 @@ def one_gate(rng: np.random.Generator, pb: np.ndarray, pc: np.ndarray, rho: floa
     base, cand = u < pb[:, None], v < pc[:, None]
     looks = []
     for i, n in enumerate(design.schedule):
-        counts = {key: gate.pairs_of(base[j, :n], cand[j, :n]) for j, key in enumerate(design.cells)}
-        looks.append(gate.evaluate_look(counts, design, i, rng, n_boot, bounds=False))
+        counts = {key: sequential.pairs_of(base[j, :n], cand[j, :n]) for j, key in enumerate(design.cells)}
+        looks.append(sequential.evaluate_look(counts, design, i, rng, n_boot, bounds=False))
         if looks[-1]["decision"] != "continue":
             break
-    return gate.decide(looks, False)[0], looks[-1].get("regressed", []), design.schedule[len(looks) - 1]
+    return sequential.decide(looks, False)[0], looks[-1].get("regressed", []), design.schedule[len(looks) - 1]
 
 
 def wilson(k: int, n: int) -> tuple[float, float]:
@@ -68,11 +68,11 @@ def wilson(k: int, n: int) -> tuple[float, float]:
 
 
 def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> dict[str, float]:
-    from bench.board import gate
+    from bench.board.gate import sequential
 
     keys = tuple(("Lift", ROBOTS[j], "default", "nominal", SPLITS[j]) for j in range(cells))
-    design = gate.Design(0.05, 0.05, 0.5, tuple(gate.looks_schedule(episodes, batch)), keys)
-    n_boot = gate.n_boot_needed(design, 2000)
+    design = sequential.Design(0.05, 0.05, 0.5, tuple(sequential.looks_schedule(episodes, batch)), keys)
+    n_boot = sequential.n_boot_needed(design, 2000)
     pb = RATES[:cells]
     collapse = pb.copy()
     collapse[0] = 0.3
@@ -107,8 +107,10 @@ def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> d
             v, rejected, n = one_gate(rng, base_rates, cand_rates, rho, design, n_boot)
             verdicts.append(v)
             used.append(n)
-            named += gate.cell_id(keys[0]) in rejected
-            false_cell += any(gate.cell_id(k) in rejected for j, k in enumerate(keys) if true_drop[j] <= 0.05 + 1e-9)
+            named += sequential.cell_id(keys[0]) in rejected
+            false_cell += any(
+                sequential.cell_id(k) in rejected for j, k in enumerate(keys) if true_drop[j] <= 0.05 + 1e-9
+            )
         fail = verdicts.count("regression")
         lo, hi = wilson(fail, gates)
         out[label] = fail / gates
@@ -124,12 +126,12 @@ def synthetic(gates: int, cells: int, episodes: int, batch: int, seed: int) -> d
 
 def plan_check(cells: int, episodes: int, batch: int, simulated: dict[str, float]) -> None:
     """The exact power of `bench regress plan=true` against the simulated gates (rho 0 = its assumption)."""
-    from bench.board import gate, gate_power
+    from bench.board.gate import power, sequential
 
-    d = gate.Design(0.05, 0.05, 0.5)
-    budget = gate_power.Budget(power=0.8, rate=0.9, drop=0.6, n_cells=cells, batch=batch, design=d, episodes=episodes)
-    exact = gate_power.scenario_power("cell", episodes, budget, SPLITS[:cells])
-    need, got = gate_power.episodes_needed("cell", budget, SPLITS[:cells])
+    d = sequential.Design(0.05, 0.05, 0.5)
+    budget = power.Budget(power=0.8, rate=0.9, drop=0.6, n_cells=cells, batch=batch, design=d, episodes=episodes)
+    exact = power.scenario_power("cell", episodes, budget, SPLITS[:cells])
+    need, got = power.episodes_needed("cell", budget, SPLITS[:cells])
     sim = simulated.get("Panda 0.9 -> 0.3, rho 0")
     print(
         f"\nplan check (one cell 0.9 -> 0.3, outcomes independent): exact power of the cell's own test "

@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.logs import from_arrays, lerobot_index, lerobot_read, read_dataset, read_episode, write_dataset
+from bench.logs import from_arrays, read_dataset, read_episode, write_dataset
+from bench.logs.lerobot import index as lerobot_index
+from bench.logs.lerobot import read as lerobot_read
 
 
 def _clear_caches() -> None:

@@ -12,7 +12,7 @@ Task:
     substeps of 2 ms); the initial object poses are gym-aloha's `sample_box_pose(seed)` /
     `sample_insertion_pose(seed)`, so an episode seed gives the start `gym.make(...).reset(seed=)` gives.
 Split (scenes = the env axis; levels are scales of gym-aloha's values, set with the harness's
-model axes, `bench.sims.perturb.set_nominal`):
+model axes, `bench.sims.perturb.reset.set_nominal`):
     seen region: every level within [0.5, 2] (training data may cover it)
     seen   = nominal; light_object (object mass x0.5); grippy (friction of every geom x1.5)
     unseen = heavy_object (mass x4); slippery (friction x0.3); weak_servos (actuator gain x0.4:

@@ -22,7 +22,7 @@ Action:
     gripper, +1 open / -1 closed, ManiSkill's convention).
 Conditions:
     nominal; `perturb.*`: friction, mass, link_mass, damping, gain, gravity through PhysX
-    (`bench.sims.physx_axes`), and the interface axes (latency, action/obs noise, action_hold).
+    (`bench.sims.perturb.physx`), and the interface axes (latency, action/obs noise, action_hold).
 Success:
     ManiSkill's `info["success"]` (task-specific, most require the robot to be static);
     success_once = at any step, success_at_end = at the last step (horizon 250 steps, 20 Hz).

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.calibrate.arm import calibrate_arm
-from bench.calibrate.arm_generate import GAIN, PAYLOAD, write_arm_case
-from bench.calibrate.arm_spec import load_arm_spec, parse_arm_spec
+from bench.calibrate.arm.generate import GAIN, PAYLOAD, write_arm_case
+from bench.calibrate.arm.loop import calibrate_arm
+from bench.calibrate.arm.spec import load_arm_spec, parse_arm_spec
 from bench.cli import main
 from bench.core.errors import DataError, SpecError
 from bench.logs import from_arrays, import_csv, read_dataset, write_dataset

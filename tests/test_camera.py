@@ -1,4 +1,4 @@
-"""Offscreen cameras (bench.sims.camera) and visual perturbation axes (bench.sims.perturb_visual, bench.sims.visual_scene) on a
+"""Offscreen cameras (bench.sims.camera) and visual perturbation axes (bench.sims.perturb.visual, bench.sims.perturb.scene) on a
 real MuJoCo scene rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a
 floor, a wall, a light, a fixed front camera and a camera on a moving body."""
 
@@ -13,8 +13,8 @@ import pytest
 
 from bench.core.errors import ConfigError
 from bench.sims.camera import CameraRig, check_cameras, parse_image_size
-from bench.sims.perturb_visual import AXES, check
-from bench.sims.visual_scene import VisualScene
+from bench.sims.perturb.scene import VisualScene
+from bench.sims.perturb.visual import AXES, check
 
 mujoco = pytest.importorskip("mujoco")
 

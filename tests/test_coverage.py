@@ -16,7 +16,7 @@ from bench.logs import from_arrays, write_dataset
 from bench.protocols.suite import Cell
 from bench.scoring import coverage as covm
 from bench.scoring import trend
-from bench.sims.axes import conditions_from_config
+from bench.sims.perturb.axes import conditions_from_config
 
 CELLS = [
     Cell("s", "Lift", "Panda", "default", "seen"),

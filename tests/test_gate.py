@@ -1,11 +1,11 @@
-"""The gate's statistics (bench.board.gate): alpha spending, weighted Holm, per-cell tests, bounds; the power calculation."""
+"""The gate's statistics (bench.board.gate.sequential): alpha spending, weighted Holm, per-cell tests, bounds; the power calculation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench.board import gate, gate_power
+from bench.board.gate import power, sequential
 from bench.scoring import stats as scoring
 
 SEVEN = tuple(
@@ -22,8 +22,8 @@ SEVEN = tuple(
 )
 
 
-def design(episodes: int = 20, batch: int = 5, cells=SEVEN, **kw) -> gate.Design:
-    return gate.Design(schedule=tuple(gate.looks_schedule(episodes, batch)), cells=tuple(cells), **kw)
+def design(episodes: int = 20, batch: int = 5, cells=SEVEN, **kw) -> sequential.Design:
+    return sequential.Design(schedule=tuple(sequential.looks_schedule(episodes, batch)), cells=tuple(cells), **kw)
 
 
 @pytest.mark.parametrize(
@@ -32,7 +32,7 @@ def design(episodes: int = 20, batch: int = 5, cells=SEVEN, **kw) -> gate.Design
     ids=["even", "ragged", "single", "batch>episodes"],
 )
 def test_looks_schedule(episodes, batch, want):
-    assert gate.looks_schedule(episodes, batch) == want
+    assert sequential.looks_schedule(episodes, batch) == want
 
 
 @pytest.mark.parametrize(
@@ -44,8 +44,8 @@ def test_alpha_spent_over_tests_and_looks_sums_to_alpha(episodes, batch, cell_al
     for look, t in enumerate(d.thresholds):  # a Tango test is made only where it can reach its threshold
         for h, thr in t.items():
             if h != "iqm":
-                n = gate.planned_pairs(d, look)[h]
-                assert gate.min_p(n, 0.05) < thr
+                n = sequential.planned_pairs(d, look)[h]
+                assert sequential.min_p(n, 0.05) < thr
     if cell_alpha == 0:
         assert not any(h.startswith("cell:") for t in d.thresholds for h in t)
 
@@ -66,19 +66,19 @@ def test_cells_spend_their_alpha_only_where_they_can_reject():
 
 def test_holm_recycles_the_alpha_of_rejected_tests():
     t = {"a": 0.01, "b": 0.01, "c": 0.01}  # Bonferroni thresholds; the look's alpha is 0.03
-    out = gate.holm({"a": 0.001, "b": 0.014, "c": 0.5}, t)
+    out = sequential.holm({"a": 0.001, "b": 0.014, "c": 0.5}, t)
     assert out["a"] == (True, pytest.approx(0.01))
     assert out["b"] == (True, pytest.approx(0.015))  # rejected only thanks to Holm (0.014 > Bonferroni 0.01)
     assert out["c"][0] is False and out["c"][1] == pytest.approx(0.03)
     # weights: a test with a larger share is held to a larger threshold; order is by p / threshold
-    out = gate.holm({"a": 0.004, "b": 0.004}, {"a": 0.005, "b": 0.001})
+    out = sequential.holm({"a": 0.004, "b": 0.004}, {"a": 0.005, "b": 0.001})
     assert out["a"] == (True, pytest.approx(0.005)) and out["b"] == (True, pytest.approx(0.006))
 
 
 def counts_for(rates_base, rates_cand, n, rng, rho=0.5):
     u = rng.random((len(rates_base), n))
     v = np.where(rng.random(u.shape) < rho, u, rng.random(u.shape))
-    return {k: gate.pairs_of(u[i] < rates_base[i], v[i] < rates_cand[i]) for i, k in enumerate(SEVEN)}
+    return {k: sequential.pairs_of(u[i] < rates_base[i], v[i] < rates_cand[i]) for i, k in enumerate(SEVEN)}
 
 
 def test_one_cell_collapse_names_that_cell_with_its_drop_and_bounds():
@@ -88,11 +88,11 @@ def test_one_cell_collapse_names_that_cell_with_its_drop_and_bounds():
     cand[0] = 0.0
     d = design(20, 5)
     counts = counts_for(base, cand, 20, rng)
-    look = gate.evaluate_look(counts, d, 3, rng, gate.n_boot_needed(d, 2000))
+    look = sequential.evaluate_look(counts, d, 3, rng, sequential.n_boot_needed(d, 2000))
     assert look["decision"] == "regression"
     assert "cell:Lift/Panda/default" in look["regressed"]
     assert not any(h.startswith("cell:") and h != "cell:Lift/Panda/default" for h in look["regressed"])
-    rows = {r["robot"]: r for r in gate.cell_rows(counts, look)}
+    rows = {r["robot"]: r for r in sequential.cell_rows(counts, look)}
     panda = rows["Panda"]
     assert panda["regressed"] and panda["drop_lcb"] > 0.05 and panda["drop"] == counts[SEVEN[0]].drop
     assert panda["drop_lcb"] <= panda["drop"] <= panda["drop_ucb"]
@@ -105,7 +105,7 @@ def test_a_bound_above_the_margin_is_exactly_a_rejection(seed):
     base = rng.uniform(0.3, 1.0, 7)
     cand = np.clip(base - rng.choice([0.0, 0.1, 0.4, 0.7], 7), 0, 1)
     d = design(20, 5)
-    look = gate.evaluate_look(counts_for(base, cand, 20, rng), d, 3, rng, gate.n_boot_needed(d, 2000))
+    look = sequential.evaluate_look(counts_for(base, cand, 20, rng), d, 3, rng, sequential.n_boot_needed(d, 2000))
     for t in look["tests"]:
         if t["tested"]:
             assert (t["lcb"] > 0.05) == t["rejected"], t
@@ -114,16 +114,16 @@ def test_a_bound_above_the_margin_is_exactly_a_rejection(seed):
 def test_identical_outcomes_never_fail_and_pass_once_the_budget_can_certify():
     rng = np.random.default_rng(0)
     outcomes = rng.random((7, 20)) < 0.7
-    same = {k: gate.pairs_of(outcomes[i], outcomes[i]) for i, k in enumerate(SEVEN)}
+    same = {k: sequential.pairs_of(outcomes[i], outcomes[i]) for i, k in enumerate(SEVEN)}
     d = design(20, 5)
-    small = gate.evaluate_look(
-        {k: gate.pairs_of(outcomes[i, :5], outcomes[i, :5]) for i, k in enumerate(SEVEN)}, d, 0, rng, 500
+    small = sequential.evaluate_look(
+        {k: sequential.pairs_of(outcomes[i, :5], outcomes[i, :5]) for i, k in enumerate(SEVEN)}, d, 0, rng, 500
     )
     assert small["mean"]["value"] == 0 and small["decision"] == "continue" and not small["regressed"]
     # with no discordant pair the upper bound is z²/(n + z²), not 0 (a bootstrap would claim certainty)
     z = 2.2414  # certification: one-sided at 1 - 0.05 / 4 looks (the IQM is not used with 5 pairs per cell)
     assert small["mean"]["ucb"] == pytest.approx(z * z / (35 + z * z), rel=2e-3)
-    full = gate.evaluate_look(same, d, 3, rng, gate.n_boot_needed(d, 2000))
+    full = sequential.evaluate_look(same, d, 3, rng, sequential.n_boot_needed(d, 2000))
     assert full["decision"] == "no_regression" and full["mean"]["ucb"] < 0.05
 
 
@@ -131,18 +131,22 @@ def test_better_candidate_is_never_a_regression():
     rng = np.random.default_rng(1)
     base, cand = np.zeros((7, 20), bool), np.ones((7, 20), bool)
     d = design(20, 5)
-    look = gate.evaluate_look({k: gate.pairs_of(base[i], cand[i]) for i, k in enumerate(SEVEN)}, d, 3, rng, 2000)
+    look = sequential.evaluate_look(
+        {k: sequential.pairs_of(base[i], cand[i]) for i, k in enumerate(SEVEN)}, d, 3, rng, 2000
+    )
     assert look["decision"] == "no_regression" and look["mean"]["value"] == -1 and not look["regressed"]
 
 
 def test_iqm_does_not_decide_on_a_handful_of_pairs_or_cells():
     rng = np.random.default_rng(2)
     d = design(20, 5)
-    lost = {k: gate.Pairs(n10=5) for k in SEVEN}
-    look = gate.evaluate_look(lost, d, 0, rng, 2000)
+    lost = {k: sequential.Pairs(n10=5) for k in SEVEN}
+    look = sequential.evaluate_look(lost, d, 0, rng, 2000)
     iqm = next(t for t in look["tests"] if t["id"] == "iqm")
     assert iqm["tested"] is False and look["iqm"]["used"] is False  # 5 pairs per cell < IQM_MIN_PAIRS
-    assert gate.iqm_used([10] * 4) and not gate.iqm_used([10] * 3) and not gate.iqm_used([9] + [10] * 6)
+    assert (
+        sequential.iqm_used([10] * 4) and not sequential.iqm_used([10] * 3) and not sequential.iqm_used([9] + [10] * 6)
+    )
 
 
 def test_false_alarm_rate_at_the_margin_is_at_most_alpha():
@@ -155,16 +159,16 @@ def test_false_alarm_rate_at_the_margin_is_at_most_alpha():
     for _ in range(reps):
         u = rng.random((3, 8))
         v = np.where(rng.random((3, 8)) < 0.5, u, rng.random((3, 8)))
-        counts = {k: gate.pairs_of(u[i] < p_base[i], v[i] < p_base[i] - 0.05) for i, k in enumerate(cells)}
-        alarms += gate.evaluate_look(counts, d, 0, rng, 200, bounds=False)["decision"] == "regression"
+        counts = {k: sequential.pairs_of(u[i] < p_base[i], v[i] < p_base[i] - 0.05) for i, k in enumerate(cells)}
+        alarms += sequential.evaluate_look(counts, d, 0, rng, 200, bounds=False)["decision"] == "regression"
     assert alarms / reps <= 0.05 + 0.02
 
 
 @pytest.mark.parametrize("strict, want", [(False, ("inconclusive", 0)), (True, ("inconclusive", 1))])
 def test_inconclusive_passes_unless_strict(strict, want):
-    assert gate.decide([{"decision": "continue"}], strict) == want
-    assert gate.decide([{"decision": "regression"}], strict) == ("regression", 1)
-    assert gate.decide([{"decision": "no_regression"}], strict) == ("no_regression", 0)
+    assert sequential.decide([{"decision": "continue"}], strict) == want
+    assert sequential.decide([{"decision": "regression"}], strict) == ("regression", 1)
+    assert sequential.decide([{"decision": "no_regression"}], strict) == ("no_regression", 0)
 
 
 # -- scoring helpers the gate relies on ---------------------------------------------------------
@@ -183,7 +187,7 @@ def test_binary_bootstrap_from_counts_matches_resampling_episodes():
     rng = np.random.default_rng(5)
     base = rng.random((5, 12)) < 0.7
     cand = rng.random((5, 12)) < 0.5
-    counts = np.array([gate.pairs_of(b, c).as_row() for b, c in zip(base, cand)])
+    counts = np.array([sequential.pairs_of(b, c).as_row() for b, c in zip(base, cand)])
     p1, s1 = scoring.paired_stat_samples(base, cand, rng, "iqm", 40000)
     p2, s2 = scoring.paired_binary_stat_samples(counts, rng, "iqm", 40000)
     assert p1 == pytest.approx(p2)
@@ -201,13 +205,13 @@ def test_exact_power_of_one_look_matches_enumerating_the_trinomial():
         for c in range(n + 1 - b):
             if norm.sf(scoring._tango_z(b, c, n, 0.05)) < thr:
                 want += multinomial.pmf([b, c, n - b - c], n, [p10, p01, 1 - p10 - p01])
-    assert gate_power.sequential_power([n], [thr], p10, p01, 0.05) == pytest.approx(want, rel=1e-9)
+    assert power.sequential_power([n], [thr], p10, p01, 0.05) == pytest.approx(want, rel=1e-9)
 
 
 def test_exact_sequential_power_matches_monte_carlo():
     rng = np.random.default_rng(6)
     pairs, thr, p10, p01 = [5, 10, 15, 20], [0.0, 0.004, 0.004, 0.004], 0.55, 0.05
-    exact = gate_power.sequential_power(pairs, thr, p10, p01, 0.05)
+    exact = power.sequential_power(pairs, thr, p10, p01, 0.05)
     from scipy.stats import norm
 
     draws = rng.choice(3, p=[p10, p01, 1 - p10 - p01], size=(20000, 20))
@@ -220,9 +224,9 @@ def test_exact_sequential_power_matches_monte_carlo():
 
 
 def test_episodes_needed_is_the_smallest_budget_reaching_the_power():
-    d = gate.Design()
-    need, got = gate_power.episodes_needed("cell", gate_power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0))
+    d = sequential.Design()
+    need, got = power.episodes_needed("cell", power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0))
     assert need is not None and need % 5 == 0 and got >= 0.8
-    assert gate_power.scenario_power("cell", need - 5, gate_power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0)) < 0.8
-    never, _ = gate_power.episodes_needed("cell", gate_power.Budget(0.99, 0.2, 0.06, 7, 5, d, 0))
+    assert power.scenario_power("cell", need - 5, power.Budget(0.8, 0.9, 0.6, 7, 5, d, 0)) < 0.8
+    never, _ = power.episodes_needed("cell", power.Budget(0.99, 0.2, 0.06, 7, 5, d, 0))
     assert never is None  # a 1-point excess over the margin in one of 7 cells: no CI budget finds it

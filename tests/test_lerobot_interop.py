@@ -24,8 +24,9 @@ import pytest
 from video_frames import assert_close_frames, frames
 
 from bench.cli import main
-from bench.logs import from_arrays, lerobot, lerobot_write, read_dataset, read_episode, write_dataset
+from bench.logs import from_arrays, lerobot, read_dataset, read_episode, write_dataset
 from bench.logs.dataset import is_image
+from bench.logs.lerobot import write as lerobot_write
 
 REPO = Path(__file__).resolve().parents[1]
 LOADER = REPO / "tests" / "lerobot_load.py"

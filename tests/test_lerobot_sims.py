@@ -120,7 +120,7 @@ def test_set_nominal_refuses_a_non_model_axis_and_a_used_env():
 
 def test_aloha_visual_axes_change_the_image_only():
     from bench.sims import perturb
-    from bench.sims.axes import conditions_from_config
+    from bench.sims.perturb.axes import conditions_from_config
 
     suite = aloha.Aloha(aloha.AlohaOptions(obs="state+rgb", image_size=[48, 64]))
     env = suite.make_env(_cell(suite, TRANSFER, "nominal"), 2)

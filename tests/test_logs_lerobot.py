@@ -21,11 +21,11 @@ from bench.logs import (
     from_arrays,
     info,
     lerobot,
-    lerobot_write,
     read_dataset,
     read_episode,
     write_dataset,
 )
+from bench.logs.lerobot import write as lerobot_write
 
 REPO = Path(__file__).resolve().parents[1]
 FORMATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats"

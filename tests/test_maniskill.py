@@ -349,8 +349,9 @@ def test_friction_on_named_bodies_leaves_shared_materials_of_others_alone():
 
 
 def test_perturb_module_dispatches_to_model_axes():
-    """bench.sims.perturb.apply (the runner's entry) reaches the PhysX axes and records the value."""
-    from bench.sims import axes, perturb
+    """bench.sims.perturb.reset.apply (the runner's entry) reaches the PhysX axes and records the value."""
+    from bench.sims import perturb
+    from bench.sims.perturb import axes
 
     env = make()
     conds = axes.conditions_from_config({"mass": [2.0], "latency": [2]})

@@ -9,7 +9,8 @@ import pytest
 from bench.core.errors import ConfigError
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle
 from bench.protocols.suite import NOMINAL, Condition, condition_rng
-from bench.sims import axes, perturb
+from bench.sims import perturb
+from bench.sims.perturb import axes
 
 pytest.importorskip("gymnasium")
 

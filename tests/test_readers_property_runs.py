@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from bench.core.errors import BenchError
 from bench.core.schema import load_json, validate
-from bench.logs.lerobot_info import check_info
+from bench.logs.lerobot.validate import check_info
 from bench.records import EpisodeRecord, read_records
 from bench.scoring.summary import check_run_meta
 from tests.fixtures import record

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.board.gate_pairs import cell_counts, pair_records
+from bench.board.gate.pairs import cell_counts, pair_records
 from bench.core.errors import DataError
 from bench.protocols.suite import episode_seed
 from bench.records import EpisodeRecord

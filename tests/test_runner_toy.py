@@ -152,7 +152,7 @@ def test_entry_point_name_must_equal_suite_name(monkeypatch):
     from importlib.metadata import EntryPoint
 
     ep = EntryPoint(name="toy2", value="tests.toy_suite:ToySuite", group=registry.SUITES)
-    monkeypatch.setattr(registry, "_group", lambda group: {"toy2": ep})
+    monkeypatch.setattr(registry, "group_entry_points", lambda group: {"toy2": ep})
     with pytest.raises(
         RegistryError,
         match=r"suite='toy2': the entry point loads tests.toy_suite.ToySuite, whose "

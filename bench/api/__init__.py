@@ -63,7 +63,8 @@ from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, 
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
 from bench.scoring.summary import build, load_run
 from bench.scoring.typed import RunMeta
-from bench.sims import axes, perturb
+from bench.sims import perturb
+from bench.sims.perturb import axes
 
 # the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
 __all__ = [

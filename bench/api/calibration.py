@@ -7,9 +7,9 @@ is carried into runs with `RunConfig(calibration=...)` (docs/calibration.md).
 from __future__ import annotations
 
 from bench.calibrate.apply import model_hash
-from bench.calibrate.arm import ArmCalibration, calibrate_arm
-from bench.calibrate.arm_report import write_arm_report
-from bench.calibrate.arm_spec import load_arm_spec
+from bench.calibrate.arm.loop import ArmCalibration, calibrate_arm
+from bench.calibrate.arm.report import write_arm_report
+from bench.calibrate.arm.spec import load_arm_spec
 from bench.calibrate.report import write_report
 from bench.calibrate.suite import calibrate_suite, torque_joints
 

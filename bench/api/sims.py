@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from bench.protocols.env import unwrap
 from bench.sims import maniskill  # the module: suites call `maniskill.missing_extra()` (tests replace it)
-from bench.sims.axes import AXES, conditions_from_config
 from bench.sims.build_memo import remembered
 from bench.sims.camera import RENDERER_DEFAULTS, camera_names
 from bench.sims.camera_env import CameraOptions, camera_spec, check_options, with_cameras
 from bench.sims.gym import GymEnv
 from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
-from bench.sims.perturb import set_nominal
+from bench.sims.perturb.axes import AXES, conditions_from_config
+from bench.sims.perturb.reset import set_nominal
 from bench.sims.robosuite import ACTION_NAMES as ROBOSUITE_ACTION_NAMES
 from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions, import_robosuite
 

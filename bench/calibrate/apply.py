@@ -20,7 +20,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, DataError
 from bench.protocols import Cell, Suite
-from bench.sims.perturb import write_fields
+from bench.sims.perturb.reset import write_fields
 
 # the MjModel fields whose values fingerprint a robot's nominal model (`model_hash`): fixed, so a
 # calibration written before more fields became editable still matches its model

@@ -122,7 +122,7 @@ class FitResult:
         return abs(value) > 1.96 * sd
 
 
-def _jacobian(obj: Objective, x: np.ndarray, f0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def fd_jacobian(obj: Objective, x: np.ndarray, f0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     span = hi - lo
     z = (x - lo) / span
     h = obj.layout.fd_steps(Z_STEP)
@@ -205,7 +205,7 @@ def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6
             dz = z - zp
             j = jp + np.outer(f - fp - jp @ dz, dz) / max(float(dz @ dz), 1e-300)
         else:
-            j = _jacobian(obj, lo + z * span, f, lo, hi)
+            j = fd_jacobian(obj, lo + z * span, f, lo, hi)
         last[:] = [z.copy(), f, j]
         return j
 
@@ -213,7 +213,7 @@ def fit(obj: Objective, x0: np.ndarray, *, max_nfev: int = 40, tol: float = 1e-6
         key = z.tobytes()
         if key not in jacs:
             jacs.clear()
-            jacs[key] = _jacobian(obj, lo + z * span, fun(z), lo, hi)
+            jacs[key] = fd_jacobian(obj, lo + z * span, fun(z), lo, hi)
         return jacs[key]
 
     if len(x0):

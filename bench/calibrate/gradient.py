@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.calibrate.fit import FitResult, Objective, _jacobian, fit, optimum
+from bench.calibrate.fit import FitResult, Objective, fd_jacobian, fit, optimum
 from bench.calibrate.model import Layout
 from bench.core.errors import DataError
 from bench.replay.simulate import Variant, hold
@@ -326,4 +326,4 @@ class GradientFitter:
     def _result(obj: Objective, x: np.ndarray, lo, hi, labels, nfev: int, success: bool) -> FitResult:
         """The optimum with intervals and warnings from the CPU objective, as the least-squares path reports them."""
         grid = obj.residual_grid(x[None])[0]
-        return optimum(obj, x, grid, lambda r: _jacobian(obj, x, r, lo, hi), hi - lo, labels, nfev, success)
+        return optimum(obj, x, grid, lambda r: fd_jacobian(obj, x, r, lo, hi), hi - lo, labels, nfev, success)

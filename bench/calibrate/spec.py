@@ -159,7 +159,7 @@ def load_spec(path: str | Path) -> CalibrationSpec:
     if isinstance(raw, dict) and raw.get("method") == "idim":
         raise SpecError(
             f"spec {str(path)!r} asks for method: idim (a real arm's inverse dynamics); read it with "
-            "bench.calibrate.arm_spec.load_arm_spec (bench calibrate does)"
+            "bench.calibrate.arm.spec.load_arm_spec (bench calibrate does)"
         )
     return parse_spec(raw, base_dir=path.parent, source=path)
 

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-from bench.calibrate.arm import calibrate_arm, summary_line
-from bench.calibrate.arm_report import write_arm_report
-from bench.calibrate.arm_spec import ARM_EFFECTS, ArmSpec, is_arm_spec, parse_arm_spec
+from bench.calibrate.arm.loop import calibrate_arm, summary_line
+from bench.calibrate.arm.report import write_arm_report
+from bench.calibrate.arm.spec import ARM_EFFECTS, ArmSpec, is_arm_spec, parse_arm_spec
 from bench.calibrate.effects import EFFECTS
 from bench.calibrate.generate import write_case
 from bench.calibrate.gradient import METHODS, GradientFitter

@@ -25,7 +25,7 @@ from bench.scoring.coverage import (
     initial_states_from_suite,
     read_training,
 )
-from bench.sims import axes
+from bench.sims.perturb import axes
 
 
 @dataclass(frozen=True)

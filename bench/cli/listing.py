@@ -7,7 +7,7 @@ import time
 from bench.core.config import command_help
 from bench.core.errors import RegistryError
 from bench.protocols import option_keys
-from bench.protocols.registry import POLICIES, SUITES, _group, names, suite_class
+from bench.protocols.registry import POLICIES, SUITES, group_entry_points, names, suite_class
 from bench.protocols.suite import summary_line
 
 
@@ -56,7 +56,7 @@ def main_list(argv: list[str]) -> int:
                 if vals:
                     print(f"      {axis:<7} {side:<6} {', '.join(map(str, vals))}")
     print("policies:")
-    for name, ep in sorted(_group(POLICIES).items()):
+    for name, ep in sorted(group_entry_points(POLICIES).items()):
         print(f"  {name:<11} {ep.value}")
     print(f"({(time.perf_counter() - t0) * 1000:.0f} ms)")
     return 0

@@ -18,7 +18,7 @@ from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.core.io import write_atomic
 from bench.logs import check_files, import_csv, import_mat, import_rlds, info, read_dataset, verify, write_dataset
 from bench.logs.card import card, format_card
-from bench.logs.lerobot_info import MAX_FPS
+from bench.logs.lerobot.validate import MAX_FPS
 from bench.protocols import STATE
 from bench.protocols.suite import episode_seed
 

@@ -6,7 +6,7 @@ started from the same initial state; outcomes are compared pair by pair. A
 baseline given as a recorded run directory is not re-run: its episodes are reused
 and the candidate runs with that run's settings.
 
-Rule (drop = baseline − candidate success; the statistics are in `bench.board.gate`):
+Rule (drop = baseline − candidate success; the statistics are in `bench.board.gate.sequential`):
     regression     if a one-sided test finds the drop above `margin` — pooled over all
                    pairs, in the IQM of the per-cell rates, in a split, or in one cell
                    (weighted Holm across those tests: the verdict names what regressed);
@@ -21,10 +21,10 @@ counts as a failure of its side; pairs where both sides errored are left out.
 Identical checkpoints (same sha256) are not simulated: they cannot regress.
 
 Outputs: the verdict JSON (schema bench.regress/2, with both checkpoints' sha256, size and
-training metadata) and, beside it, JUnit XML and a Markdown summary (`bench.board.gate_outputs`).
-`plan=true` prints the episodes per cell a power target needs (`bench.board.gate_power`). The
-command line is checked by `bench.cli.regress_args`, episodes are paired by `bench.board.gate_pairs`.
-See docs/ci-gate.md.
+training metadata) and, beside it, JUnit XML and a Markdown summary (`bench.board.gate.outputs`).
+`plan=true` prints the episodes per cell a power target needs (`bench.board.gate.power`). The
+command line is checked by `bench.cli.regress_args`, episodes are paired by `bench.board.gate.pairs`.
+See docs/ci-sequential.md.
 
 Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input, 3 nothing
 measured: a side completed no episode of some cell (verdict `nothing_measured`; a CI job fails).
@@ -45,8 +45,8 @@ import numpy as np
 
 from bench import api
 from bench.api import config_from_argv, finish, load_suite, start
-from bench.board import gate, gate_outputs, gate_power
-from bench.board.gate_inputs import (
+from bench.board.gate import outputs, power, sequential
+from bench.board.gate.inputs import (
     cells_of_jobs,
     cells_of_records,
     check_outputs,
@@ -54,7 +54,7 @@ from bench.board.gate_inputs import (
     load_recorded,
     resolve,
 )
-from bench.board.gate_pairs import cell_counts, pair_records, unmeasured
+from bench.board.gate.pairs import cell_counts, pair_records, unmeasured
 from bench.cli.regress_args import DEFAULT_EPISODES, episodes_of, help_text, parse_args
 from bench.core import config as config_mod
 from bench.core import provenance
@@ -62,7 +62,7 @@ from bench.core.errors import ConfigError, NothingMeasured
 from bench.core.provenance import checkpoint_provenance, portable
 from bench.execution.local import LocalExecutor
 from bench.protocols.suite import SuiteSpec, select_cells
-from bench.sims import axes
+from bench.sims.perturb import axes
 
 SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"
@@ -209,9 +209,9 @@ def main(argv: list[str]) -> int:
         return 2
     cfg, forwarded, user_keys = parse_args(argv)
     if cfg.plan:
-        design = gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha)
+        design = sequential.Design(cfg.margin, cfg.alpha, cfg.cell_alpha)
         episodes = episodes_of(user_keys, DEFAULT_EPISODES)
-        budget = gate_power.Budget(cfg.power, cfg.rate, cfg.drop, cfg.cells, cfg.batch, design, episodes)
+        budget = power.Budget(cfg.power, cfg.rate, cfg.drop, cfg.cells, cfg.batch, design, episodes)
         return plan_command(budget, forwarded, unused=bool(cfg.candidate or cfg.baseline))
     cand_info, base_info = resolve(cfg.candidate, "candidate"), resolve(cfg.baseline, "baseline")
     gate_id = cfg.run_id or f"regress-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
@@ -294,13 +294,13 @@ def main(argv: list[str]) -> int:
         raise ConfigError(f"metric={metric!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
     if ref is not None:
         _check_pairable(ref, [s for s in (cand, base) if s is not ref])
-    paths = gate_outputs.output_paths(verdict_path)
+    paths = outputs.output_paths(verdict_path)
     check_outputs(paths, _input_paths([cand, base]))
     planned = sorted(cells_of_jobs(live[0].p.jobs, live[0].wanted) if live else cells_of_records(recorded[0].records))
     prov = {s.role: _provenance(s) for s in (cand, base)}
     shas = [(prov[r] or {}).get("sha256") for r in ("candidate", "baseline")]
-    schedule = gate.looks_schedule(episodes, cfg.batch) if live else [episodes]
-    design = gate.Design(cfg.margin, cfg.alpha, cfg.cell_alpha, tuple(schedule), tuple(planned))
+    schedule = sequential.looks_schedule(episodes, cfg.batch) if live else [episodes]
+    design = sequential.Design(cfg.margin, cfg.alpha, cfg.cell_alpha, tuple(schedule), tuple(planned))
     base_doc = {
         "schema": SCHEMA_ID,
         "margin": cfg.margin,
@@ -312,7 +312,7 @@ def main(argv: list[str]) -> int:
         "seed": seed,
         "episodes_max": episodes,
         "schedule": schedule,
-        "rule": gate.rule(design, metric),
+        "rule": sequential.rule(design, metric),
     }
     console = Console(stderr=True)
     if shas[0] is not None and shas[0] == shas[1]:
@@ -333,16 +333,16 @@ def main(argv: list[str]) -> int:
             "cells": [],
             "splits": [],
             "regressed": [],
-            "planned_cells": [gate.cell_id(k)[5:] + f" ({k[4]})" for k in planned],
+            "planned_cells": [sequential.cell_id(k)[5:] + f" ({k[4]})" for k in planned],
             "errors": {"candidate": 0, "baseline": 0, "both": 0},
             "unpaired": 0,
             "wall_s": 0.0,
         }
-        gate_outputs.write(doc, paths, console)
+        outputs.write(doc, paths, console)
         return 0
 
     # 4. looks
-    n_boot = gate.n_boot_needed(design, int(any_cfg.n_boot if any_cfg else 2000))
+    n_boot = sequential.n_boot_needed(design, int(any_cfg.n_boot if any_cfg else 2000))
     workers = 1
     if live:
         assert any_cfg is not None, "a live side has its run config"
@@ -357,21 +357,21 @@ def main(argv: list[str]) -> int:
     t0 = time.time()
     looks: list[dict[str, Any]] = []
     paired: dict[str, Any] = {"cells": {}, "errors": {"candidate": 0, "baseline": 0, "both": 0}, "unpaired": 0}
-    counts: dict[gate.CellKey, gate.Pairs] = {}
+    counts: dict[sequential.CellKey, sequential.Pairs] = {}
     for k, n_eps in enumerate(schedule):
         for side in live:
             _run_look(side, n_eps, workers, console)
         paired = pair_records(cand.records, base.records, max_episode=n_eps)
         counts = cell_counts(paired["cells"], metric)
         rng = np.random.default_rng([int(seed), 6007, k])
-        look = {"look": k + 1, "episodes_per_cell": n_eps, **gate.evaluate_look(counts, design, k, rng, n_boot)}
+        look = {"look": k + 1, "episodes_per_cell": n_eps, **sequential.evaluate_look(counts, design, k, rng, n_boot)}
         looks.append(look)
-        console.print(gate_outputs.look_line(look, len(schedule)), soft_wrap=True)
+        console.print(outputs.look_line(look, len(schedule)), soft_wrap=True)
         sides = {"candidate": cand.records, "baseline": base.records}
         empty, dead = unmeasured(sides, planned, n_eps)
         if look["decision"] != "continue" or dead:  # a side that completed nothing will not start now
             break
-    verdict, code = gate.decide(looks, cfg.strict)
+    verdict, code = sequential.decide(looks, cfg.strict)
     if empty:  # a cell compared against nothing: exit 3, whatever the statistics said
         verdict, code = "nothing_measured", NothingMeasured.exit_code
     for side in live:
@@ -389,14 +389,14 @@ def main(argv: list[str]) -> int:
         "candidate": _describe(cand, prov["candidate"]),
         "baseline": _describe(base, prov["baseline"]),
         "looks": looks,
-        "cells": gate.cell_rows(counts, last),
-        "splits": gate.split_rows(counts, last),
-        "regressed": [gate.regressed_entry(tests[h]) for h in sorted(last.get("regressed", []), key=_kind_order)],
+        "cells": sequential.cell_rows(counts, last),
+        "splits": sequential.split_rows(counts, last),
+        "regressed": [sequential.regressed_entry(tests[h]) for h in sorted(last.get("regressed", []), key=_kind_order)],
         "errors": paired["errors"],
         "unpaired": paired["unpaired"],
         "wall_s": round(time.time() - t0, 2),
     }
-    gate_outputs.write(doc, paths, console)
+    outputs.write(doc, paths, console)
     if empty:
         raise NothingMeasured(f"regress {gate_id}: {empty}")
     return code
@@ -413,7 +413,7 @@ def _provenance(side: _Side) -> dict[str, Any] | None:
     return checkpoint_provenance(path, sha, hash_file=not side.live)  # a live side's plan has just hashed it
 
 
-def plan_command(b: gate_power.Budget, forwarded: Sequence[str], unused: bool = False) -> int:
+def plan_command(b: power.Budget, forwarded: Sequence[str], unused: bool = False) -> int:
     """`bench regress plan=true`: print the budget table; runs and writes nothing.
 
     Args:
@@ -443,5 +443,5 @@ def plan_command(b: gate_power.Budget, forwarded: Sequence[str], unused: bool = 
         source = f" (suite {rc.suite}: {len(cells)} cells x {len(conditions)} condition(s))"
     if unused:
         print("plan=true runs nothing: candidate= and baseline= are not used")
-    print(gate_power.plan_text(b, splits, source), end="")
+    print(power.plan_text(b, splits, source), end="")
     return 0

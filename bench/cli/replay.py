@@ -11,7 +11,7 @@ from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.io import write_atomic
 from bench.replay import run
-from bench.replay.common import HORIZON_LABELS, Replay, ReplayConfig, _episode_of
+from bench.replay.common import HORIZON_LABELS, Replay, ReplayConfig, episode_of
 
 
 def render(doc: dict, console=None) -> None:
@@ -58,8 +58,8 @@ def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
     for c in range(n_ep):
         a, b = int(rep.offsets[c]), int(rep.offsets[c + 1])
         t = np.arange(b - a) / rep.fps
-        fsel = np.flatnonzero(_episode_of(rep.offsets, free.start) == c)
-        ksel = np.flatnonzero(_episode_of(rep.offsets, kst.start) == c)
+        fsel = np.flatnonzero(episode_of(rep.offsets, free.start) == c)
+        ksel = np.flatnonzero(episode_of(rep.offsets, kst.start) == c)
         for j in range(nj):
             ax = axes[j, c]
             ax.plot(t, rep.qpos[a:b, j], color="black", lw=1.4, label="logged")

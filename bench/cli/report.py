@@ -6,7 +6,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Optional
 
-from bench.board.report import build_page, load_calibration, load_input, load_verdict
+from bench.board.report.page import build_page, load_calibration, load_input, load_verdict
 from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.errors import ConfigError

@@ -13,7 +13,7 @@ from bench.protocols import Suite, option_keys, registry
 from bench.protocols.suite import policy_ref
 from bench.records import EPISODES, read_records
 from bench.scoring.summary import nothing_measured, render
-from bench.sims.axes import axes_help
+from bench.sims.perturb.axes import axes_help
 
 
 def help_text(argv: list[str] | None = None) -> str:

@@ -29,7 +29,7 @@ MAX_HORIZON = 100_000
 MAX_WORKERS = 1024
 MAX_TIMEOUT_S = 7 * 24 * 3600.0
 MAX_RUN_ID = 128
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+CONTROL_CHARS = re.compile(r"[\x00-\x1f\x7f]")
 _KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*")
 
 
@@ -122,7 +122,7 @@ def check_values(key: str, value: Any, rng: Range | None = None, depth: int = 0)
     if depth > 20:
         raise ConfigError(f"{key}: nested too deeply")
     if isinstance(value, str):
-        if _CONTROL.search(value):
+        if CONTROL_CHARS.search(value):
             raise ConfigError(f"{key}={value!r}: contains a control character; give printable text")
     elif isinstance(value, dict):
         for k, v in value.items():
@@ -232,7 +232,7 @@ def check_overrides(overrides: list[str], schema: type | None) -> None:
             raise ConfigError(f"argument {item!r} is not key=value{valid}")
         if not _KEY.fullmatch(key):
             raise ConfigError(f"key {key[:60]!r} is not a key name (letters, digits, _ and dotted parts){valid}")
-        if _CONTROL.search(item):
+        if CONTROL_CHARS.search(item):
             raise ConfigError(f"{key}={value!r}: contains a control character; give printable text")
         if not value.strip():
             raise ConfigError(f"{key}= has no value; give one or leave {key} out")

@@ -9,7 +9,7 @@ a video that cannot be written is reported in the episode record's `extras["vide
 fails the episode.
 
 Files: RUN_DIR/videos/<job id made safe>.mp4 (`video_path`); the HTML report embeds them next
-to their cell (`bench.board.report`).
+to their cell (`bench.board.report.page`).
 """
 
 from __future__ import annotations

@@ -155,7 +155,13 @@ def check_run_id(rid: str | None) -> None:
         return
     if not isinstance(rid, str) or not rid.strip():
         raise ConfigError(f"run_id={rid!r}: must be a non-empty folder name")
-    if "/" in rid or "\\" in rid or rid.startswith(".") or config_mod._CONTROL.search(rid) or len(rid) > MAX_RUN_ID:
+    if (
+        "/" in rid
+        or "\\" in rid
+        or rid.startswith(".")
+        or config_mod.CONTROL_CHARS.search(rid)
+        or len(rid) > MAX_RUN_ID
+    ):
         raise ConfigError(
             f"run_id={rid[:40]!r}{'...' if len(rid) > 40 else ''}: must be a plain folder name (no "
             f"slash, control character or leading dot) of at most {MAX_RUN_ID} characters"

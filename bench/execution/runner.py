@@ -28,7 +28,7 @@ from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
 from bench.sims.build_memo import building
-from bench.sims.perturb import write_fields
+from bench.sims.perturb.reset import write_fields
 
 
 @dataclass(frozen=True)

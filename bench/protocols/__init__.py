@@ -196,7 +196,7 @@ class InputLog:
 class ModelAxes(Protocol):
     """Capability of non-MuJoCo backends (e.g. PhysX through SAPIEN): model perturbation axes.
 
-    MuJoCo backends need none: `bench.sims.perturb` edits the `MjModel` of their `MujocoHandle`.
+    MuJoCo backends need none: `bench.sims.perturb.reset` edits the `MjModel` of their `MujocoHandle`.
     `apply` scales the axis' nominal values (cached by the implementation) by `scale` on the
     named targets ({"bodies": [...], "joints": [...], ...}; empty = the axis' default targets);
     `restore` puts every nominal value back. Both are called before the episode's reset.

@@ -32,7 +32,7 @@ def _installed(group: str) -> tuple[EntryPoint, ...]:
     return tuple(entry_points(group=group))
 
 
-def _group(group: str) -> dict[str, EntryPoint]:
+def group_entry_points(group: str) -> dict[str, EntryPoint]:
     found: dict[str, EntryPoint] = {}
     for ep in _installed(group):
         if ep.name in found and found[ep.name].value != ep.value:
@@ -46,7 +46,7 @@ def _group(group: str) -> dict[str, EntryPoint]:
 
 def names(group: str) -> list[str]:
     """Registered names in an entry-point group, sorted."""
-    return sorted(_group(group))
+    return sorted(group_entry_points(group))
 
 
 def import_module(module_name: str, kind: str) -> Any:
@@ -84,7 +84,7 @@ def import_ref(ref: str, kind: str) -> Any:
 def _load(group: str, name: str, kind: str) -> Any:
     if ":" in name:
         return import_ref(name, kind)
-    eps = _group(group)
+    eps = group_entry_points(group)
     if name not in eps:
         valid = sorted(eps)
         raise RegistryError(

@@ -56,7 +56,7 @@ METRICS = ("success_once", "success_at_end", "return")
 
 @dataclass(frozen=True)
 class Condition:
-    """A physics/interface condition: `nominal`, or one perturbation setting (see bench.sims.perturb)."""
+    """A physics/interface condition: `nominal`, or one perturbation setting (see bench.sims.perturb.reset)."""
 
     name: str = "nominal"
     axis: str | None = None  # e.g. "friction"; None for nominal

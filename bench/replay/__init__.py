@@ -35,7 +35,7 @@ per horizon) are what `bench.calibrate` builds on; nothing here imports `bench.c
 
 from __future__ import annotations
 
-from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, _check_cfg, summarise
+from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, check_config, summarise
 from bench.replay.mjcf import replay_mjcf
 from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
@@ -59,7 +59,7 @@ __all__ = [
 
 def run(cfg: ReplayConfig) -> Replay:
     """Validate the config and replay with the backend it names (`suite=` or `spec=`)."""
-    _check_cfg(cfg)
+    check_config(cfg)
     if cfg.suite:
         return replay_suite(cfg)
     return replay_mjcf(cfg)

@@ -62,7 +62,7 @@ class Replay:
 
 
 # --- shared: reading, selecting, summarising ---------------------------------------------------------
-def _read_logs(cfg: ReplayConfig):
+def read_logs(cfg: ReplayConfig):
     path = Path(str(cfg.logs)).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")
@@ -83,7 +83,7 @@ def _read_logs(cfg: ReplayConfig):
     return ds, [have[i] for i in cfg.episodes]
 
 
-def _check_cfg(cfg: ReplayConfig) -> None:
+def check_config(cfg: ReplayConfig) -> None:
     if not cfg.logs:
         raise ConfigError("logs= is required (a LeRobot v3 dataset folder)")
     if cfg.spec and cfg.suite:
@@ -117,7 +117,7 @@ def _check_cfg(cfg: ReplayConfig) -> None:
         )
 
 
-def _episode_of(offsets: np.ndarray, start: np.ndarray) -> np.ndarray:
+def episode_of(offsets: np.ndarray, start: np.ndarray) -> np.ndarray:
     return np.searchsorted(offsets, start, side="right") - 1
 
 
@@ -150,7 +150,7 @@ def summarise(
     for i, index in enumerate(episodes):
         row: dict[str, Any] = {"episode": int(index), "frames": int(offsets[i + 1] - offsets[i])}
         for label, e in errors.items():
-            sel = _episode_of(offsets, e.start) == i
+            sel = episode_of(offsets, e.start) == i
             m = e.mask[sel]
             n = max(int(m.sum()), 1)
             err = np.where(m[..., None], e.pred[sel] - e.target[sel], 0.0)

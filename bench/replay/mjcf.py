@@ -14,7 +14,7 @@ from typing import Any
 import mujoco
 
 from bench.replay import sweep
-from bench.replay.common import Replay, ReplayConfig, _read_logs, measured
+from bench.replay.common import Replay, ReplayConfig, measured, read_logs
 from bench.replay.data import extract
 from bench.replay.metrics import horizon_errors
 from bench.replay.mjx import MjxSimulator
@@ -32,7 +32,7 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     if cfg.backend == "mjx":  # refused before the logs are read: no JAX, or a model MJX cannot simulate
         mjx_backend.require()
         mjx_backend.check_model(model, where=given.model.name)
-    ds, eps = _read_logs(cfg)
+    ds, eps = read_logs(cfg)
     # extra inputs only drive calibration's input_channel effect: replay neither needs nor checks them
     smap = replace(given, signals={k: v for k, v in given.signals.items() if k != "inputs"})
     rec = extract(smap, [ep.data for ep in eps], float(ds.fps), nq=model.nq, nv=model.nv, nu=model.nu)

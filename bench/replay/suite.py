@@ -16,7 +16,7 @@ from bench.core.errors import DataError
 from bench.execution.recording import episode_cell
 from bench.protocols import EnvAdapter, registry
 from bench.protocols.env import mj_input_names
-from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, _read_logs, measured
+from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, measured, read_logs
 from bench.replay.data import Recording, Window
 from bench.replay.metrics import horizon_segments, segment_errors
 from bench.replay.simulate import Segments
@@ -52,7 +52,7 @@ def _set_state(env: EnvAdapter, state: np.ndarray) -> None:
 
 def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray]:
     """One nominal env per cell the episodes name; the compared coordinates (the same for all)."""
-    assert cfg.suite is not None and cfg.logs is not None, "a suite replay names its suite and logs (_check_cfg)"
+    assert cfg.suite is not None and cfg.logs is not None, "a suite replay names its suite and logs (check_config)"
     suite = registry.make_suite(cfg.suite)
     cells = {c.key: c for c in suite.all_cells()}
     width = ds.feature_shape("observation.sim_state")[0]
@@ -86,7 +86,7 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
         for env in built.values():
             env.close()
         raise
-    assert names is not None and idx is not None, "the dataset holds at least one episode (_read_logs)"
+    assert names is not None and idx is not None, "the dataset holds at least one episode (read_logs)"
     return envs, names, idx
 
 
@@ -328,7 +328,7 @@ def replay_suite(cfg: ReplayConfig) -> Replay:
     commands; positions after each frame are compared with the next logged state.
     """
     t0 = time.perf_counter()
-    ds, eps = _read_logs(cfg)
+    ds, eps = read_logs(cfg)
     commands = cfg.commands or ("ctrl" if CTRL in ds.features else "action")
     logs = load_suite_logs(cfg, ds, eps, need_ctrl=commands == "ctrl")
     try:

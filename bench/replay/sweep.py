@@ -2,7 +2,7 @@
 
 `bench replay spec=... logs=... perturb.damping=[0.5,2] perturb.link_mass=uniform(0.8,1.2) worlds=4`
 builds one world per (condition, draw): the nominal model first, then each `perturb.*` condition (the
-grammar and the model axes of `bench run`, applied by `bench.sims.perturb` to a copy of the spec's
+grammar and the model axes of `bench run`, applied by `bench.sims.perturb.reset` to a copy of the spec's
 model; a range is drawn `worlds` times from a generator seeded by (seed, condition, draw)). Every
 world replays every chosen episode at the three horizons; all worlds of one horizon are one batched
 call, `mujoco.rollout` on the CPU (backend=mujoco) or one compiled MJX call (backend=mjx), and both
@@ -26,7 +26,7 @@ from bench.replay.data import Recording
 from bench.replay.metrics import horizon_segments, segment_errors
 from bench.replay.simulate import Simulator, Variant, hold
 from bench.sims import perturb
-from bench.sims.axes import MODEL_AXES, conditions_from_config
+from bench.sims.perturb.axes import MODEL_AXES, conditions_from_config
 
 # MJX and MuJoCo's C code agree on these records (float64, models without contact) to within this,
 # relative to the logged position spread for NRMSE and in the joint's units for RMSE

@@ -34,7 +34,7 @@ import numpy as np
 from bench.core.errors import ConfigError, DataError
 from bench.logs import read_dataset
 from bench.protocols.suite import SPLIT_AXES, episode_seed
-from bench.sims.axes import AXES
+from bench.sims.perturb.axes import AXES
 
 MIN_SCALE = 1e-3  # floor of the per-dimension std used to normalise states (observation units)
 

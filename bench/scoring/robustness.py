@@ -17,8 +17,8 @@ import numpy as np
 
 from bench.records import EpisodeRecord, dedupe
 from bench.scoring import stats as scoring
-from bench.scoring.sensitivity import _paired
-from bench.sims.axes import AXES
+from bench.scoring.sensitivity import paired_arrays
+from bench.sims.perturb.axes import AXES
 
 
 def table(
@@ -51,7 +51,7 @@ def table(
     rows: list[dict[str, Any]] = []
     for axis, target in by_axis.items():
         ref_by_key = {key: nominal.get(cell_of[key], {}) for key in target}
-        ref, tgt = _paired(ref_by_key, target, metric)
+        ref, tgt = paired_arrays(ref_by_key, target, metric)
         n = int(ref.size)
         est = scoring.paired_gap(ref, tgt, rng, n_boot=n_boot, confidence=confidence).to_dict()
         base = float(ref.mean()) if n else None

@@ -62,7 +62,7 @@ def _param_summary(recs: Sequence[EpisodeRecord]) -> dict[str, Any]:
     }
 
 
-def _paired(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray, np.ndarray]:
+def paired_arrays(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray, np.ndarray]:
     """(cells, episodes) arrays over the cells and episode indices completed under both conditions.
 
     When every cell has the same set of paired episodes the arrays are rectangular and the
@@ -105,7 +105,7 @@ def _entry(
         if axis is None:
             gap[m] = {"value": None, "ci": None, "reason": "nominal is the reference", "n_pairs": 0}
             continue
-        ref, tgt = _paired(nominal, target, "return_" if m == "return" else m)
+        ref, tgt = paired_arrays(nominal, target, "return_" if m == "return" else m)
         est = scoring.paired_gap(ref, tgt, rng, n_boot=n_boot, confidence=confidence).to_dict()
         if est.get("value") is None:
             est["reason"] = "no episode completed under both nominal and this condition"

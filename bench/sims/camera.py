@@ -3,10 +3,10 @@
 One `CameraRig` per env instance, made when the env is built (once per worker) and closed with
 it: it owns an OpenGL context, a MuJoCo render context and one scene (made at the first render,
 so an env that never renders costs nothing), and renders every requested camera of the current
-`MjData` into (H, W, 3) uint8 arrays. `hook` (a `bench.sims.visual_scene.VisualScene`, set per
+`MjData` into (H, W, 3) uint8 arrays. `hook` (a `bench.sims.perturb.scene.VisualScene`, set per
 episode) edits the scene before each render. Every MuJoCo backend
 (robosuite, Meta-World, Gymnasium MuJoCo, raw MJCF) goes through it, so the images, the
-scene settings and the visual perturbations (`bench.sims.visual_scene`, applied through
+scene settings and the visual perturbations (`bench.sims.perturb.scene`, applied through
 `render(hook=...)`) are the same everywhere.
 
 OpenGL backend: the one `MUJOCO_GL` names (egl, osmesa, glfw); EGL when it is unset or

@@ -40,11 +40,11 @@ import numpy as np
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
 from bench.protocols.env import AdapterBase
-from bench.sims.physx_axes import PhysxAxes
+from bench.sims.perturb.physx import PhysxAxes
 from bench.sims.sapien_novulkan import CHECKED, check_cameras, prepare
 
 if TYPE_CHECKING:
-    from bench.sims.physx_axes import PhysxAxes
+    from bench.sims.perturb.physx import PhysxAxes
 
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 RESETS = ("rebuild", "soft")

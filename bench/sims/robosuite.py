@@ -185,7 +185,7 @@ class Observer(Protocol):
 class RobosuiteEnv(AdapterBase):
     """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
 
-    mujoco: MujocoHandle  # always: bench.sims.perturb edits the model through it (no `model_axes`)
+    mujoco: MujocoHandle  # always: bench.sims.perturb.reset edits the model through it (no `model_axes`)
 
     def __init__(
         self,

@@ -10,7 +10,7 @@
     torque: measured      # measured (torque sensors) | command (desired torque) | current (motor current)
 
 The rest has defaults (docs/calibration.md, "Real arms"). Every problem is a one-line `SpecError`
-naming the field; names are checked against the model in `bench.calibrate.arm`.
+naming the field; names are checked against the model in `bench.calibrate.arm.loop`.
 """
 
 from __future__ import annotations

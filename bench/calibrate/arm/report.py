@@ -15,8 +15,8 @@ import numpy as np
 
 from bench import __version__
 from bench.calibrate.apply import edits, model_hash, robot_hash
-from bench.calibrate.arm import ArmCalibration, summary_line
-from bench.calibrate.arm_model import realise
+from bench.calibrate.arm.loop import ArmCalibration, summary_line
+from bench.calibrate.arm.model import realise
 from bench.core.io import json_safe, write_atomic, write_text_atomic
 
 SCHEMA = "bench.calibration/1"

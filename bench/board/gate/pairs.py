@@ -1,6 +1,6 @@
 """Pairing the regression gate's two sides: candidate and baseline episode records matched by
 (cell, condition, episode), checked to start from the same state, and counted per cell for the
-statistics of `bench.board.gate`.
+statistics of `bench.board.gate.sequential`.
 """
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from typing import Any
 
-from bench.board import gate
+from bench.board.gate import sequential
 from bench.core.errors import DataError
 from bench.records import dedupe
 
@@ -56,10 +56,10 @@ def pair_records(candidate: list, baseline: list, max_episode: int | None = None
     return {"cells": dict(cells), "errors": errors, "unpaired": unpaired}
 
 
-def cell_counts(cells: dict[tuple, list[tuple]], metric: str) -> dict[gate.CellKey, gate.Pairs]:
+def cell_counts(cells: dict[tuple, list[tuple]], metric: str) -> dict[sequential.CellKey, sequential.Pairs]:
     """Paired (baseline, candidate) records per cell -> counts of the four outcome pairs in `metric`."""
     return {
-        k: gate.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
+        k: sequential.pairs_of([bool(getattr(b, metric)) for b, _ in prs], [bool(getattr(c, metric)) for _, c in prs])
         for k, prs in cells.items()
     }
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.board.report_figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
-from bench.board.report_html import CSS, _e, _img, _pct, _return, _signed, _table
-from bench.board.report_remote import latency_section
+from bench.board.report.figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
+from bench.board.report.html import CSS, esc, img_tag, rate_cell, return_cell, signed_cell, table_html
+from bench.board.report.remote import latency_section
 from bench.core.errors import DataError
 from bench.core.io import first_nonfinite
 from bench.core.schema import load_json, validate
@@ -105,8 +105,8 @@ def _videos(records: list, run_dir: Path | None, tmp: Path) -> dict[tuple[str, s
         outcome = "error" if r.error else ("success" if r.success_once else "failure")
         label = f"episode {r.episode}: {outcome}"
         out.setdefault((f"{r.task}/{r.robot}/{r.env}", r.condition), []).append(
-            f"<figure><video controls preload='metadata' width='192' src='videos/{_e(src.name)}' title='{_e(label)}'>"
-            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{_e(label)}</figcaption></figure>"
+            f"<figure><video controls preload='metadata' width='192' src='videos/{esc(src.name)}' title='{esc(label)}'>"
+            f"</video><figcaption class='{'good' if outcome == 'success' else 'bad'}'>{esc(label)}</figcaption></figure>"
         )
     return out
 
@@ -122,19 +122,19 @@ def robustness_section(summary: dict, records: list) -> str:
         rel = row["relative_drop"]
         rows.append(
             [
-                _e(row["axis"]),
-                _e(row["kind"]),
-                _e(", ".join(row["levels"])),
+                esc(row["axis"]),
+                esc(row["kind"]),
+                esc(", ".join(row["levels"])),
                 str(row["pairs"]),
                 f"{row['nominal'] * 100:.0f}%" if row["nominal"] is not None else "n/a",
                 f"{row['perturbed'] * 100:.0f}%" if row["perturbed"] is not None else "n/a",
-                _signed(row["drop"]),
+                signed_cell(row["drop"]),
                 f"{rel * 100:+.0f}%" if rel is not None else "n/a",
             ]
         )
     return (
         "<h2>Robustness per axis</h2>"
-        + _table(
+        + table_html(
             ["axis", "kind", "conditions", "pairs", f"nominal {metric}", "perturbed", "drop [CI]", "relative drop"],
             rows,
             {3, 4, 5, 7},
@@ -150,22 +150,27 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     videos = _videos(records, run_dir, tmp)
     parts = []
     if fig_cells(summary, tmp / "cells.png"):
-        what = "mean return with bootstrap intervals" if metric == "return" else f"{_e(metric)} with Wilson intervals"
+        what = "mean return with bootstrap intervals" if metric == "return" else f"{esc(metric)} with Wilson intervals"
         parts.append(
             f"<h2>{'Return' if metric == 'return' else 'Success'} per cell</h2>"
-            + _img("cells.png", "score per cell")
+            + img_tag("cells.png", "score per cell")
             + f"<p class='note'>Nominal cells; bars are {what}, "
             "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>"
         )
     if fig_splits_gaps(summary, tmp / "gaps.png"):
         rows = [
-            [f"{_e(g['reference'])} → {_e(g['target'])}", _e(g["metric"]), _e(g.get("statistic", "mean")), _signed(g)]
+            [
+                f"{esc(g['reference'])} → {esc(g['target'])}",
+                esc(g["metric"]),
+                esc(g.get("statistic", "mean")),
+                signed_cell(g),
+            ]
             for g in summary["gaps"]
         ]
         parts.append(
             "<h2>Splits and transfer gaps</h2>"
-            + _img("gaps.png", "splits and gaps")
-            + _table(["gap", "metric", "statistic", "value [CI]"], rows)
+            + img_tag("gaps.png", "splits and gaps")
+            + table_html(["gap", "metric", "statistic", "value [CI]"], rows)
         )
     axes = fig_sensitivity(summary, tmp / "sensitivity.png")
     if axes:
@@ -176,19 +181,19 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
             d = e["drop_vs_nominal"][metric]
             rows.append(
                 [
-                    _e(e["axis"]),
-                    _e(e["level"]),
+                    esc(e["axis"]),
+                    esc(e["level"]),
                     str(e["n"]),
-                    _pct(e[metric]),
-                    _signed(d),
+                    rate_cell(e[metric]),
+                    signed_cell(d),
                     f"{d.get('lost', '')}/{d.get('gained', '')}",
-                    _e(d.get("p_value", "")),
+                    esc(d.get("p_value", "")),
                 ]
             )
         parts.append(
             "<h2>Sensitivity per perturbation axis</h2>"
-            + _img("sensitivity.png", "sensitivity")
-            + _table(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows, {2})
+            + img_tag("sensitivity.png", "sensitivity")
+            + table_html(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows, {2})
         )
     robust = robustness_section(summary, records)
     if robust:
@@ -200,15 +205,15 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     by_return = metric == "return"
     rows = [
         [
-            _e(c["task"]),
-            _e(c["robot"]),
-            _e(c["env"]),
-            f"<span class='{c['split']}'>{_e(c['split'])}</span>",
-            _e(c["condition"]),
+            esc(c["task"]),
+            esc(c["robot"]),
+            esc(c["env"]),
+            f"<span class='{c['split']}'>{esc(c['split'])}</span>",
+            esc(c["condition"]),
             str(c["n"]),
-            *([_return(c.get("return"))] if by_return else []),
-            _pct(c["success_once"]),
-            _pct(c["success_at_end"]),
+            *([return_cell(c.get("return"))] if by_return else []),
+            rate_cell(c["success_once"]),
+            rate_cell(c["success_at_end"]),
             str(c["errors"] or ""),
         ]
         + ([" ".join(videos.get((f"{c['task']}/{c['robot']}/{c['env']}", c["condition"]), []))] if videos else [])
@@ -216,7 +221,7 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     ]
     parts.append(
         "<h2>All cells</h2>"
-        + _table(
+        + table_html(
             ["task", "robot", "env", "split", "condition", "n", *(["mean return"] if by_return else [])]
             + ["success once", "success at end", "errors"]
             + (["episode videos"] if videos else []),
@@ -230,7 +235,7 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
 def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
     parts = []
     if fig_leaderboard(board, tmp / "leaderboard.png"):
-        parts.append("<h2>Entries</h2>" + _img("leaderboard.png", "leaderboard"))
+        parts.append("<h2>Entries</h2>" + img_tag("leaderboard.png", "leaderboard"))
     groups: dict[str, list[dict]] = {}
     for e in board["entries"]:
         groups.setdefault(e["group"], []).append(e)
@@ -239,26 +244,26 @@ def leaderboard_sections(board: dict, tmp: Path) -> list[str]:
         by_return = all(e["metric"] == "return" for e in es)
         for e in es:
             m = e["metric"]
-            value = _return if m == "return" else _pct  # a return is in the env's units, not a percentage
+            value = return_cell if m == "return" else rate_cell  # a return is in the env's units, not a percentage
             gap = next((x for x in e["gaps"] if x["metric"] == m and x["kind"] == "seen-unseen"), None)
             sha = e["policy"].get("checkpoint_sha256")
             rows.append(
                 [
                     str(e["rank"] or "–"),
-                    _e(e["policy"]["name"]),
-                    _e(sha[:12]) if sha else "–",
-                    f"{_e(e['score']['split'] or '')} {value(e['score'])}",
+                    esc(e["policy"]["name"]),
+                    esc(sha[:12]) if sha else "–",
+                    f"{esc(e['score']['split'] or '')} {value(e['score'])}",
                     value(e["splits"].get("seen", {}).get(m, {}).get("mean")),
                     value(e["splits"].get("unseen", {}).get(m, {}).get("mean")),
-                    _signed(gap),
+                    signed_cell(gap),
                     str(e["counts"]["episodes"]),
-                    _e(e["run_id"]),
+                    esc(e["run_id"]),
                 ]
             )
         what = "mean return (the env's units)" if by_return else "success"
         parts.append(
-            f"<h2>{_e(g)}</h2><p class='note'>Scores are {what}; ranked by the lower bound of the score.</p>"
-            + _table(
+            f"<h2>{esc(g)}</h2><p class='note'>Scores are {what}; ranked by the lower bound of the score.</p>"
+            + table_html(
                 ["#", "policy", "checkpoint", "score", "seen", "unseen", "gap seen−unseen", "episodes", "run"],
                 rows,
                 {0, 7},
@@ -285,11 +290,11 @@ def calibration_section(cal: dict, tmp: Path) -> str:
     added = cal.get("added") or cal.get("accepted")
     if isinstance(added, list) and added:
         names = [a.get("name", a.get("effect", "?")) if isinstance(a, dict) else str(a) for a in added]
-        extra = f"<p>Accepted effects: {_e(', '.join(map(str, names)))}</p>"
+        extra = f"<p>Accepted effects: {esc(', '.join(map(str, names)))}</p>"
     return (
         "<h2>Calibration (held-out error before → after)</h2>"
-        + _img("calibration.png", "calibration")
-        + _table(["model"] + [lbl for _, lbl in keys], rows, {1, 2, 3, 4, 5})
+        + img_tag("calibration.png", "calibration")
+        + table_html(["model"] + [lbl for _, lbl in keys], rows, {1, 2, 3, 4, 5})
         + extra
     )
 
@@ -300,10 +305,10 @@ def verdict_section(v: dict) -> str:
     ]
     rows = [
         [
-            _e(c["task"]),
-            _e(c["robot"]),
-            _e(c["condition"]),
-            _e(c["split"]),
+            esc(c["task"]),
+            esc(c["robot"]),
+            esc(c["condition"]),
+            esc(c["split"]),
             str(c["pairs"]),
             f"{c['baseline'] * 100:.0f}%",
             f"{c['candidate'] * 100:.0f}%",
@@ -317,17 +322,17 @@ def verdict_section(v: dict) -> str:
     m = last.get("mean")
     bound = f" — drop {m['value']:+.3f}, one-sided bounds [{m['lcb']:+.3f}, {m['ucb']:+.3f}]" if m else ""
     named = "".join(
-        f"<li>{_e(r['kind'])} <b>{_e(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]</li>"
+        f"<li>{esc(r['kind'])} <b>{esc(r['name'])}</b>: drop {r['drop']:+.2f} [{r['lcb']:+.2f}, {r['ucb']:+.2f}]</li>"
         for r in v.get("regressed", [])
     )
     return (
-        f"<h2>Regression gate</h2><p>candidate <b>{_e(v['candidate']['spec'])}</b> vs baseline "
-        f"<b>{_e(v['baseline']['spec'])}</b>: <span class='{cls}'>{_e(v['verdict'].replace('_', ' '))}</span>"
+        f"<h2>Regression gate</h2><p>candidate <b>{esc(v['candidate']['spec'])}</b> vs baseline "
+        f"<b>{esc(v['baseline']['spec'])}</b>: <span class='{cls}'>{esc(v['verdict'].replace('_', ' '))}</span>"
         f"{bound} (margin {v['margin']}, {len(v['looks'])} of {len(v['schedule'])} looks)</p>"
         + (f"<p>Regressed:</p><ul>{named}</ul>" if named else "")
-        + (f"<p class='note'>{_e(v['note'])}</p>" if v.get("note") else "")
-        + f"<p class='note'>{_e(v['rule'])}</p>"
-        + _table(
+        + (f"<p class='note'>{esc(v['note'])}</p>" if v.get("note") else "")
+        + f"<p class='note'>{esc(v['rule'])}</p>"
+        + table_html(
             ["task", "robot", "condition", "split", "pairs", "baseline", "candidate", "drop", "drop LCB", "regressed"],
             rows,
             {4, 5, 6, 7, 8},
@@ -350,16 +355,16 @@ def build_page(
         prov = doc["provenance"]
         sha = doc["policy"].get("checkpoint_sha256")
         meta = (
-            f"suite {_e(doc['suite']['name'])} v{_e(doc['suite']['version'])} · policy {_e(doc['policy']['name'])}"
-            + (f" (checkpoint {_e(sha[:12])})" if sha else "")
-            + f" · metric {_e(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
-            f" · seed {prov.get('seed')} · git {_e(prov.get('git_sha'))} · finished {_e(prov.get('finished_at'))}"
+            f"suite {esc(doc['suite']['name'])} v{esc(doc['suite']['version'])} · policy {esc(doc['policy']['name'])}"
+            + (f" (checkpoint {esc(sha[:12])})" if sha else "")
+            + f" · metric {esc(doc['metric'])} · {doc['counts']['episodes']} episodes ({doc['counts']['errors']} errors)"
+            f" · seed {prov.get('seed')} · git {esc(prov.get('git_sha'))} · finished {esc(prov.get('finished_at'))}"
         )
         parts = run_sections(doc, tmp, run_dir)
     else:
         default = "leaderboard"
         meta = f"{len(doc['entries'])} entries · suites " + ", ".join(
-            f"{_e(s['name'])} v{_e(s['version'])}" for s in doc["suites"]
+            f"{esc(s['name'])} v{esc(s['version'])}" for s in doc["suites"]
         )
         parts = leaderboard_sections(doc, tmp)
     if verdict:
@@ -368,8 +373,8 @@ def build_page(
         parts.append(calibration_section(cal, tmp))
     t = title or default
     return (
-        f"<!doctype html><html><head><meta charset='utf-8'><title>{_e(t)}</title><style>{CSS}</style></head>"
-        f"<body><h1>{_e(t)}</h1><div class='meta'>{meta}</div>{''.join(parts)}"
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(t)}</title><style>{CSS}</style></head>"
+        f"<body><h1>{esc(t)}</h1><div class='meta'>{meta}</div>{''.join(parts)}"
         "<p class='meta'>Generated by bench report; intervals are two-sided at the run's confidence level.</p>"
         "</body></html>\n"
     )

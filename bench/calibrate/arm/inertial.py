@@ -1,7 +1,7 @@
 """A link's ten standard inertial parameters: to and from a MuJoCo body, and what makes them a physical body.
 
 Standard parameters p = [m, m·c (3), I about the link frame's origin (xx, xy, xz, yy, yz, zz)] are what
-inverse dynamics is linear in (`bench.calibrate.idim`). A body is physical exactly when its 4x4
+inverse dynamics is linear in (`bench.calibrate.arm.idim`). A body is physical exactly when its 4x4
 pseudo-inertia is positive definite (Wensing et al. 2017); fits move in log-Cholesky coordinates of it
 (`factor_of`, `std_of_factor`), so every value they reach is a body, and `physical` lifts one that is not.
 """

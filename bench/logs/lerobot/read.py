@@ -1,6 +1,6 @@
 """Frames of a LeRobot v3.0 dataset: parquet columns to numpy, PNG images, MP4 video features.
 
-Every row read is checked against the index (`bench.logs.lerobot_index`): declared columns and
+Every row read is checked against the index (`bench.logs.lerobot.index`): declared columns and
 shapes, episode and task indices, finite values, increasing timestamps. Video features are
 decoded with PyAV (`bench.core.video`).
 """
@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 from bench.core.errors import DataError
 from bench.core.video import VideoError, decode_frames
 from bench.logs.dataset import DEFAULT_FEATURES, FRAME_COLUMNS, Episode, LogDataset, first_bad_row
-from bench.logs.lerobot_index import (
+from bench.logs.lerobot.index import (
     INFO_PATH,
     TASKS_PATH,
     Index,

@@ -11,12 +11,12 @@ implementation serves every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJ
 MJCF); other backends apply them through their `model_axes` capability (PhysX). Their
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
-drifts. Interface axes wrap the env (`bench.sims.perturb_interface.Interface`): action latency, action noise,
+drifts. Interface axes wrap the env (`bench.sims.perturb.interface.Interface`): action latency, action noise,
 observation noise and a slower control rate (action hold). Visual axes (kind "visual":
 light, camera pose, colours, textures, background, distractors) change only what the
-env's cameras render; `bench.sims.visual_scene` applies them, called from here (the catalogue
-and its checks are `bench.sims.perturb_visual`'s).
-The axes and the `perturb.*` grammar that makes conditions are `bench.sims.axes`'.
+env's cameras render; `bench.sims.perturb.scene` applies them, called from here (the catalogue
+and its checks are `bench.sims.perturb.visual`'s).
+The axes and the `perturb.*` grammar that makes conditions are `bench.sims.perturb.axes`'.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ import numpy as np
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import Cell, EnvAdapter, MujocoHandle, Suite
 from bench.protocols.suite import Condition
-from bench.sims import visual_scene
-from bench.sims.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
-from bench.sims.perturb_interface import Interface
+from bench.sims.perturb import scene
+from bench.sims.perturb.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
+from bench.sims.perturb.interface import Interface
 
 
 # -- names in the model --------------------------------------------------------------------
@@ -148,7 +148,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     """
     for cond in conditions:
         if cond.axis in VISUAL_AXES:
-            visual_scene.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
+            scene.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
             continue
         if cond.axis not in MODEL_AXES:
             continue
@@ -423,7 +423,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         nom.restore()
     if env.model_axes is not None:
         env.model_axes.restore()
-    visual_scene.clear(env)
+    scene.clear(env)
     axis = axis_named(condition.axis) if condition.axis is not None else None
     if axis is not None and axis.kind == "visual":
         if mj is not None and nom is not None and nom.const_dirty:
@@ -431,7 +431,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
             nom.const_dirty = False
             mj.forward()
         value = _draw(condition, rng)
-        return env, visual_scene.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
+        return env, scene.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
     if axis is None or axis.kind == "interface":
         if mj is not None and nom is not None and nom.const_dirty:
             _set_const(mj)

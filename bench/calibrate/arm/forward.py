@@ -21,9 +21,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bench.calibrate.arm_data import ArmLog
-from bench.calibrate.arm_model import ArmModel, require_motors
-from bench.calibrate.arm_spec import ArmSpec
+from bench.calibrate.arm.data import ArmLog
+from bench.calibrate.arm.model import ArmModel, require_motors
+from bench.calibrate.arm.spec import ArmSpec
 from bench.replay.data import Recording, Window
 from bench.replay.metrics import segment_errors
 from bench.replay.simulate import Coordinates, Simulator, Variant, horizons

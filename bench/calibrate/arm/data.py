@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.calibrate.arm_spec import ArmSpec
+from bench.calibrate.arm.spec import ArmSpec
 from bench.core.errors import DataError, SpecError
 from bench.logs.resample import is_regular, resample
 from bench.replay.data import column, split

@@ -8,8 +8,8 @@ Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
     perturb.mass.uniform=[0.8,1.2]            dict form of a range
     perturb.damping=from(runs/panda_cal)      a calibration's bootstrap draws: one condition, a draw per episode
 
-Applying a condition to an env is `bench.sims.perturb`'s (model and interface axes) and
-`bench.sims.perturb_visual`'s (visual axes).
+Applying a condition to an env is `bench.sims.perturb.reset`'s (model and interface axes) and
+`bench.sims.perturb.visual`'s (visual axes).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.protocols import RGB
 from bench.protocols.suite import NOMINAL, Condition
-from bench.sims import perturb_visual
+from bench.sims.perturb import visual
 
 
 @dataclass(frozen=True)
@@ -175,8 +175,8 @@ AXES: dict[str, Axis] = {
     )
 }
 AXES.update(
-    {a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in perturb_visual.AXIS_TABLE}
-)  # bench.sims.perturb_visual
+    {a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in visual.AXIS_TABLE}
+)  # bench.sims.perturb.visual
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from bench.calibrate.inertial import LOG_DIAG, factor_of, physical, set_std, std_of_factor, std_params
+from bench.calibrate.arm.inertial import LOG_DIAG, factor_of, physical, set_std, std_of_factor, std_params
 from bench.core.errors import DataError
 
 FRICTION_V = 0.02  # rad/s: the Coulomb sign is smoothed as tanh(dq / FRICTION_V)

@@ -19,10 +19,10 @@ and re-uploaded before the next episode). Levels follow the physics axes' gramma
     distractors   count: objects (boxes, spheres, cylinders, capsules of random size and colour) placed
                   on the table top away from the manipulated object; visual only (no collisions)
 
-This module is the catalogue (`AXIS_TABLE`, kind "visual", which `bench.sims.axes` includes) and
+This module is the catalogue (`AXIS_TABLE`, kind "visual", which `bench.sims.perturb.axes` includes) and
 the checks of a model against it (`check`: targets, textures, a surface for distractors); it
-renders nothing. `bench.sims.visual_scene` applies the axes: its `VisualScene` holds one episode's
-perturbation of one rig and is the rig's render hook, and `bench.sims.perturb`, which owns the grammar
+renders nothing. `bench.sims.perturb.scene` applies the axes: its `VisualScene` holds one episode's
+perturbation of one rig and is the rig's render hook, and `bench.sims.perturb.reset`, which owns the grammar
 and the per-episode flow, calls its `clear`, `apply` and `validate`. Visual axes need the env's
 camera rig (`env.mujoco.cameras`, suites built on `bench.sims.camera_env`) and a policy that sees
 images (`obs=rgb` or `obs=state+rgb`).
@@ -41,7 +41,7 @@ TEXTURES = ("checker", "stripes", "noise", "rings")
 _GEOMS = ("geoms", "bodies")
 _CAMERA: dict[str, Any] = dict(targets=("cameras",), nominal=0.0)  # offsets of every (or the named) camera
 _BLEND: dict[str, Any] = dict(unit="blend 0..1", maximum=1.0, targets=_GEOMS, nominal=0.0)  # colour blends
-# Keyword arguments of `bench.sims.axes.Axis` (kind "visual"); `nominal` is the level that changes nothing.
+# Keyword arguments of `bench.sims.perturb.axes.Axis` (kind "visual"); `nominal` is the level that changes nothing.
 AXIS_TABLE: tuple[dict[str, Any], ...] = (
     dict(
         name="light",

@@ -23,7 +23,7 @@ from bench.core import outputs
 from bench.core.errors import DataError
 from bench.core.video import CODECS, TOLERANCE_S, Mp4Writer, VideoError, check_codec, check_size, probe
 from bench.logs.dataset import FRAME_COLUMNS, Episode, LogDataset, first_bad_row, validate
-from bench.logs.lerobot_index import (
+from bench.logs.lerobot.index import (
     CHUNKS_SIZE,
     CODEBASE_VERSION,
     DATA_FILES_SIZE_IN_MB,
@@ -39,8 +39,8 @@ from bench.logs.lerobot_index import (
     VIDEO_PATH,
     forget_index,
 )
-from bench.logs.lerobot_info import check_fps
-from bench.logs.lerobot_stats import STAT_NAMES, aggregate_stats, feature_stats, stats_arrow_type
+from bench.logs.lerobot.stats import STAT_NAMES, aggregate_stats, feature_stats, stats_arrow_type
+from bench.logs.lerobot.validate import check_fps
 
 # pandas reads `__index_level_0__` back as the index only with this schema metadata; lerobot
 # looks tasks up by that index (the task string), so without it tasks come back as integers.

@@ -11,7 +11,7 @@ SEEN, UNSEEN = "#3b6fb6", "#e07b28"
 COLOURS = {"seen": SEEN, "unseen": UNSEEN}
 
 
-def _plt():
+def pyplot():
     import matplotlib  # matplotlib: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
@@ -21,7 +21,7 @@ def _plt():
     return plt
 
 
-def _save(fig: Any, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+def save_figure(fig: Any, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
     """Lay out, write and close one figure (closed figures free their memory in long report runs)."""
     import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
 
@@ -46,7 +46,7 @@ def _score(c: dict, metric: str) -> dict | None:
 
 def fig_cells(summary: dict, path: Path) -> bool:
     """Success (or, for a run scored by return, mean return) per task, robot/env with intervals; seen then unseen."""
-    plt = _plt()
+    plt = pyplot()
     metric = summary["metric"]
     by_return = metric == "return"
     other = "success_at_end" if metric == "success_once" else "success_once"
@@ -106,13 +106,13 @@ def fig_cells(summary: dict, path: Path) -> bool:
         ax.set_title(title, fontsize=9, loc="left")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
     axes[0, 0].legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1, 1))
-    _save(fig, path)
+    save_figure(fig, path)
     return True
 
 
 def fig_splits_gaps(summary: dict, path: Path) -> bool:
     """Split means/IQM (left) and transfer gaps (right), with bootstrap intervals."""
-    plt = _plt()
+    plt = pyplot()
     metric = summary["metric"]
     splits = summary["splits"]
     gaps = [g for g in summary["gaps"] if g.get("value") is not None]
@@ -163,7 +163,7 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     else:
         a2.set_xlim(-1.02, 1.02)
     a2.set_title("transfer gap (reference − target)", fontsize=9, loc="left")
-    _save(fig, path)
+    save_figure(fig, path)
     return True
 
 
@@ -185,7 +185,7 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
     axes_names = sorted({e["axis"] for e in entries if e.get("axis")})
     if not axes_names:
         return []
-    plt = _plt()
+    plt = pyplot()
     nominal = next((e for e in entries if e.get("axis") is None and e.get("scope") == "all"), None)
     ncol = min(3, len(axes_names))
     nrow = (len(axes_names) + ncol - 1) // ncol
@@ -247,7 +247,7 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
         ax.legend(fontsize=7, frameon=False)
     for k in range(len(axes_names), nrow * ncol):
         axs[k // ncol, k % ncol].axis("off")
-    _save(fig, path)
+    save_figure(fig, path)
     return axes_names
 
 
@@ -257,7 +257,7 @@ def fig_leaderboard(board: dict, path: Path) -> bool:
     Entries scored by success share one panel (0..100%); entries scored by return (e.g. HalfCheetah,
     whose returns are in the hundreds and negative) get a panel of their own, in the env's units.
     """
-    plt = _plt()
+    plt = pyplot()
     entries = board["entries"]
     if not entries:
         return False
@@ -319,7 +319,7 @@ def fig_leaderboard(board: dict, path: Path) -> bool:
             ax.set_title("seen vs unseen mean success per entry (intervals from each run)", fontsize=9, loc="left")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[s]) for s in ("seen", "unseen")]
     axs[0, -1].legend(handles, ["seen", "unseen"], fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1, 1))
-    _save(fig, path)
+    save_figure(fig, path)
     return True
 
 
@@ -328,7 +328,7 @@ NRMSE_KEYS = (("one_step_nrmse", "one-step"), ("k_step_nrmse", "k-step"), ("free
 
 def fig_calibration(cal: dict, path: Path) -> bool:
     """Held-out NRMSE per horizon for the nominal model, the declared fit and the final model."""
-    plt = _plt()
+    plt = pyplot()
     stages = [s for s in ("nominal", "declared", "final") if isinstance(cal["errors"].get(s), dict)]
     fig, ax = plt.subplots(figsize=(6.5, 2.8))
     width = 0.8 / len(stages)
@@ -348,7 +348,7 @@ def fig_calibration(cal: dict, path: Path) -> bool:
     ax.set_ylabel("held-out NRMSE")
     ax.legend(fontsize=8, frameon=False)
     ax.set_title("calibration: error before → after (held-out)", fontsize=9, loc="left")
-    _save(fig, path)
+    save_figure(fig, path)
     return True
 
 

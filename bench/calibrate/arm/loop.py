@@ -2,12 +2,12 @@
 
     bench calibrate spec=bench/calibrate/models/panda_gaz.yaml logs=DIR out=DIR   # `method: idim`
 
-1. **Data** (`bench.calibrate.arm_data`): a uniform clock (resampled when the log's is not), the
+1. **Data** (`bench.calibrate.arm.data`): a uniform clock (resampled when the log's is not), the
    same zero-phase low-pass on every signal, derived velocities where none are logged, derived
    accelerations, a held-out time split.
 2. **Declared fit**: the torque signal against the declared model's rigid-body torque plus, per
    joint, Coulomb and viscous friction, an offset and a rotor inertia, and corrections to the ten
-   inertial parameters of every link (`bench.calibrate.idim`): weighted, bounded least squares.
+   inertial parameters of every link (`bench.calibrate.arm.idim`): weighted, bounded least squares.
    What the data cannot identify stays at its declared value and is reported as such.
 3. **Trace**: candidate effects (a payload at the flange or tool frame with its centre of mass, a
    gain error per drive for logs of commands or currents, Stribeck and asymmetric friction, a joint
@@ -31,13 +31,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bench.calibrate.arm_data import ArmLog, load_arm_log
-from bench.calibrate.arm_entries import effect_terms, link_entries, param_entries, uncarried_effects, warnings_of
-from bench.calibrate.arm_forward import forward_errors
-from bench.calibrate.arm_model import ArmModel, build, check_positions, check_torques, group_std, realise
-from bench.calibrate.arm_spec import ArmSpec
-from bench.calibrate.fit import information
-from bench.calibrate.idim import (
+from bench.calibrate.arm.data import ArmLog, load_arm_log
+from bench.calibrate.arm.entries import effect_terms, link_entries, param_entries, uncarried_effects, warnings_of
+from bench.calibrate.arm.forward import forward_errors
+from bench.calibrate.arm.idim import (
     FRICTION_V,
     Block,
     Dynamics,
@@ -49,7 +46,10 @@ from bench.calibrate.idim import (
     prior_scale,
     windows_of,
 )
-from bench.calibrate.inertial import STD_NAMES
+from bench.calibrate.arm.inertial import STD_NAMES
+from bench.calibrate.arm.model import ArmModel, build, check_positions, check_torques, group_std, realise
+from bench.calibrate.arm.spec import ArmSpec
+from bench.calibrate.fit import information
 
 STRIBECK_VS = (0.01, 0.03, 0.1, 0.3)  # rad/s: Stribeck velocities tried (the best on training data is kept)
 WINDOW_S = 0.5  # bootstrap window length (seconds of training data resampled together)

@@ -1,7 +1,7 @@
 """The entries of an arm calibration's result: each fitted parameter with its interval and status, each link's
 mass and centre of mass, found effects in their own units, and the warnings a user must not miss.
 
-What `bench.calibrate.arm.calibrate_arm` writes into calibration.json from its fits (`bench.calibrate.idim`).
+What `bench.calibrate.arm.loop.calibrate_arm` writes into calibration.json from its fits (`bench.calibrate.arm.idim`).
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from bench.calibrate.arm_model import ArmModel, group_std
-from bench.calibrate.arm_spec import ArmSpec
-from bench.calibrate.idim import Fit
-from bench.calibrate.inertial import feasible
+from bench.calibrate.arm.idim import Fit
+from bench.calibrate.arm.inertial import feasible
+from bench.calibrate.arm.model import ArmModel, group_std
+from bench.calibrate.arm.spec import ArmSpec
 
 
 def effect_terms(entry: dict[str, Any], f: Fit, draws: np.ndarray) -> dict[str, Any]:

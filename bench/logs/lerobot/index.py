@@ -3,7 +3,7 @@
 `load_index` reads everything a reader needs before touching frames (one `Index`, cached while
 the metadata files are unchanged); `info` summarises a dataset from it. The parquet helpers here
 (`open_parquet`, `read_arrow`, `location`) turn pyarrow's errors into one-line `DataError`s
-naming the file, for the frame reader (`bench.logs.lerobot_read`) as well.
+naming the file, for the frame reader (`bench.logs.lerobot.read`) as well.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from bench.core.errors import DataError
 from bench.logs.dataset import DEFAULT_FEATURES, first_bad_row
-from bench.logs.lerobot_info import check_info
+from bench.logs.lerobot.validate import check_info
 
 CODEBASE_VERSION = "v3.0"
 INFO_PATH = "meta/info.json"

@@ -2,8 +2,8 @@
 
 `VisualScene` holds one episode's perturbation of one rig (lights, camera poses, colours,
 textures, distractors) with draws from the episode's generator; `clear()` puts the nominal scene
-back. `clear`, `apply` and `validate` are the per-episode flow `bench.sims.perturb` calls. What the
-axes are, and the checks of a model against them, are `bench.sims.perturb_visual`'s.
+back. `clear`, `apply` and `validate` are the per-episode flow `bench.sims.perturb.reset` calls. What the
+axes are, and the checks of a model against them, are `bench.sims.perturb.visual`'s.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 from bench.core.errors import ConfigError
 from bench.protocols import EnvAdapter, option_keys, registry
 from bench.sims.camera_env import CameraEnv
-from bench.sims.perturb_visual import AXES, TEXTURES, check, model_names, surface, target_geoms, textures_of
+from bench.sims.perturb.visual import AXES, TEXTURES, check, model_names, surface, target_geoms, textures_of
 
 
 def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:

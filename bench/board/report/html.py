@@ -1,6 +1,6 @@
 """HTML building blocks of `bench report`: the page's CSS, escaping, estimates with their intervals, tables, images.
 
-Every section of the page (bench.board.report, bench.board.report_remote) writes its HTML through these.
+Every section of the page (bench.board.report.page, bench.board.report.remote) writes its HTML through these.
 """
 
 from __future__ import annotations
@@ -24,32 +24,32 @@ figure{display:inline-block;margin:2px 4px} figcaption{font-size:11px}
 """
 
 
-def _e(x: Any) -> str:
+def esc(x: Any) -> str:
     return html.escape(str(x))
 
 
 def _estimate(est: dict | None, pct: bool, signed: bool = True) -> str:
     """`summary.fmt_estimate`, or n/a with the reason (escaped) when there is no value."""
     if not est or est.get("value") is None:
-        return f"n/a{' (' + _e(est.get('reason')) + ')' if est and est.get('reason') else ''}"
+        return f"n/a{' (' + esc(est.get('reason')) + ')' if est and est.get('reason') else ''}"
     return fmt_estimate(est, pct, signed)
 
 
-def _return(est: dict | None) -> str:
+def return_cell(est: dict | None) -> str:
     """A mean return with its interval, in the env's units (`-274.6 [-325.5, -233.9]`), never as a percentage."""
     return _estimate(est, pct=False, signed=False)
 
 
-def _pct(est: dict | None) -> str:
+def rate_cell(est: dict | None) -> str:
     return _estimate(est, pct=True)
 
 
-def _signed(est: dict | None) -> str:
+def signed_cell(est: dict | None) -> str:
     return _estimate(est, pct=False)
 
 
-def _table(header: list[str], rows: list[list[str]], num: Collection[int] = frozenset()) -> str:
-    th = "".join(f"<th>{_e(h)}</th>" for h in header)
+def table_html(header: list[str], rows: list[list[str]], num: Collection[int] = frozenset()) -> str:
+    th = "".join(f"<th>{esc(h)}</th>" for h in header)
     body = "".join(
         "<tr>"
         + "".join(f"<td class='num'>{c}</td>" if i in num else f"<td>{c}</td>" for i, c in enumerate(r))
@@ -59,5 +59,5 @@ def _table(header: list[str], rows: list[list[str]], num: Collection[int] = froz
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def _img(name: str, alt: str) -> str:
-    return f"<img src='{_e(name)}' alt='{_e(alt)}'>"
+def img_tag(name: str, alt: str) -> str:
+    return f"<img src='{esc(name)}' alt='{esc(alt)}'>"

@@ -1,7 +1,7 @@
 """Statistics of the regression gate (`bench regress`): paired tests pooled, per split and per cell.
 
-Pure functions over paired outcome counts: no records, files or simulators. `bench.board.gate_pairs`
-pairs the episodes and `bench.cli.regress` calls `evaluate_look` after each batch; `bench.board.gate_power`
+Pure functions over paired outcome counts: no records, files or simulators. `bench.board.gate.pairs`
+pairs the episodes and `bench.cli.regress` calls `evaluate_look` after each batch; `bench.board.gate.power`
 computes the budget a power target needs with the same thresholds; `benchmarks/bench_gate.py`
 drives these functions on synthetic outcomes to measure the error rates.
 

@@ -29,12 +29,12 @@ import mujoco
 import numpy as np
 import yaml
 
-from bench.calibrate.inertial import point_mass, set_std, std_params
+from bench.calibrate.arm.inertial import point_mass, set_std, std_params
 from bench.core.errors import ConfigError, valid_choices
 from bench.core.io import write_atomic
 from bench.logs import from_arrays, write_dataset
 
-MODEL = Path(__file__).resolve().parent / "models" / "arm6.xml"
+MODEL = Path(__file__).resolve().parents[1] / "models" / "arm6.xml"
 JOINTS = tuple(f"joint{i}" for i in range(1, 7))
 CASES = ("payload", "actuator_gain", "none")
 COULOMB = np.array([0.3, 0.5, 0.3, 0.1, 0.1, 0.05])

@@ -17,8 +17,8 @@ import mujoco
 import numpy as np
 
 from bench.calibrate.apply import fixed_to
-from bench.calibrate.arm_spec import ArmSpec
-from bench.calibrate.inertial import inertia_at_com, point_mass, set_std, std_params
+from bench.calibrate.arm.inertial import inertia_at_com, point_mass, set_std, std_params
+from bench.calibrate.arm.spec import ArmSpec
 from bench.core import config as config_mod
 from bench.core.errors import DataError, SpecError, did_you_mean
 from bench.protocols import registry

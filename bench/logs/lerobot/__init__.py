@@ -19,7 +19,7 @@ request, lerobot's own default). Per-episode metadata of ours (`Episode.meta`) t
 string column `bench/meta` in the episodes file, which lerobot ignores.
 """
 
-from bench.logs.lerobot_index import (
+from bench.logs.lerobot.index import (
     CHUNKS_SIZE,
     CODEBASE_VERSION,
     DATA_FILES_SIZE_IN_MB,
@@ -38,10 +38,10 @@ from bench.logs.lerobot_index import (
     VIDEO_PATH,
     info,
 )
-from bench.logs.lerobot_info import MAX_FPS
-from bench.logs.lerobot_read import check_files, iter_episodes, read_dataset, read_episode, verify
-from bench.logs.lerobot_stats import QUANTILES, STAT_NAMES
-from bench.logs.lerobot_write import write_dataset
+from bench.logs.lerobot.read import check_files, iter_episodes, read_dataset, read_episode, verify
+from bench.logs.lerobot.stats import QUANTILES, STAT_NAMES
+from bench.logs.lerobot.validate import MAX_FPS
+from bench.logs.lerobot.write import write_dataset
 
 __all__ = [
     "CHUNKS_SIZE",

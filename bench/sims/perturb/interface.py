@@ -1,6 +1,6 @@
 """The interface axes' wrapper: the env seen through a held, delayed and noisy command and a noisy observation.
 
-`bench.sims.perturb.apply` wraps an env in it for a condition on `latency`, `action_noise`, `obs_noise` or
+`bench.sims.perturb.reset.apply` wraps an env in it for a condition on `latency`, `action_noise`, `obs_noise` or
 `action_hold`; every draw comes from the episode's generator.
 """
 

@@ -7,7 +7,7 @@ candidate r' = r − drop; the two outcomes of a pair taken as independent, whic
 conservative case: a shared initial state only adds agreement). The distribution of (b, c) is
 carried from look to look by convolving with the trinomial law of the next batch; at each
 look the region where the test rejects (p < its threshold, the very thresholds
-`bench.board.gate` uses: alpha / L per look, the test's Holm weight after Tarone's rule) is
+`bench.board.gate.sequential` uses: alpha / L per look, the test's Holm weight after Tarone's rule) is
 added to the power and removed (the gate stops there).
 
 Two scenarios:
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.board import gate
+from bench.board.gate import sequential
 from bench.scoring import stats as scoring
 
 MAX_EPISODES = 2000  # per cell: the search gives up beyond (a CI budget this large is not a plan)
@@ -93,7 +93,7 @@ def _crop(dist: np.ndarray, b0: int, c0: int, eps: float = 1e-15) -> tuple[np.nd
     return dist[r0:r1, k0:k1], b0 + int(r0), c0 + int(k0)
 
 
-def _cells(n_cells: int, splits: Sequence[str] | None) -> list[gate.CellKey]:
+def _cells(n_cells: int, splits: Sequence[str] | None) -> list[sequential.CellKey]:
     splits = list(splits) if splits else ["seen"] * n_cells
     return [("task", f"cell{i}", "env", "nominal", splits[i]) for i in range(n_cells)]
 
@@ -101,11 +101,11 @@ def _cells(n_cells: int, splits: Sequence[str] | None) -> list[gate.CellKey]:
 def scenario_power(scenario: str, episodes: int, b: Budget, splits: Sequence[str] | None = None) -> float:
     """Power of the gate's test for `scenario` ("cell" or "all") with up to `episodes` per cell in looks of `b.batch`
     (the budget's own `episodes` and `power` are not used)."""
-    schedule = gate.looks_schedule(episodes, b.batch)
+    schedule = sequential.looks_schedule(episodes, b.batch)
     keys = _cells(b.n_cells, splits)
-    d = gate.Design(b.design.margin, b.design.alpha, b.design.cell_alpha, tuple(schedule), tuple(keys))
+    d = sequential.Design(b.design.margin, b.design.alpha, b.design.cell_alpha, tuple(schedule), tuple(keys))
     # the collapsed cell is the first; with one cell its test is the pooled one
-    target = gate.cell_id(keys[0]) if scenario == "cell" and b.n_cells >= 2 else "pooled"
+    target = sequential.cell_id(keys[0]) if scenario == "cell" and b.n_cells >= 2 else "pooled"
     thresholds = [t.get(target, 0.0) for t in d.thresholds]
     pairs = [n if target != "pooled" else n * b.n_cells for n in schedule]
     r2 = b.rate - b.drop
@@ -149,7 +149,7 @@ class Budget:
     drop: float  # the drop in that rate the gate should catch
     n_cells: int  # cells (x conditions) compared; 0 = count those the forwarded bench run keys select
     batch: int  # episodes per cell between looks; 0 = one look at the end
-    design: gate.Design  # margin, alpha and its per-cell share
+    design: sequential.Design  # margin, alpha and its per-cell share
     episodes: int  # the budget the user has in mind (power is also printed at this many episodes per cell)
 
 
@@ -179,7 +179,7 @@ def plan_text(b: Budget, splits: Sequence[str] | None = None, cells_from: str = 
             lines.append(f"  {label:<34} {'> ' + str(MAX_EPISODES):>13} {'':>5} {got:>6.3f}   {at:.3f}")
         else:
             lines.append(
-                f"  {label:<34} {need:>13} {len(gate.looks_schedule(need, b.batch)):>5} {got:>6.3f}   {at:.3f}"
+                f"  {label:<34} {need:>13} {len(sequential.looks_schedule(need, b.batch)):>5} {got:>6.3f}   {at:.3f}"
             )
     lines.append("")
     lines.append(

@@ -12,8 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from bench.board.report_figures import _plt, _save
-from bench.board.report_html import _e, _img, _table
+from bench.board.report.figures import pyplot, save_figure
+from bench.board.report.html import esc, img_tag, table_html
 from bench.remote import latency
 
 
@@ -22,7 +22,7 @@ def fig_latency(block: dict[str, Any], path: Path) -> bool:
     bins = block.get("bins") or []
     if not bins:
         return False
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.0))
     total = sum(n for _, n in bins)
     lo, hi = min(b for b, _ in bins), max(b for b, _ in bins) + 1
@@ -59,7 +59,7 @@ def fig_latency(block: dict[str, Any], path: Path) -> bool:
     ax.set_ylabel("fraction of requests")
     ax.set_title("policy round-trip latency", fontsize=9, loc="left")
     ax.legend(fontsize=7, frameon=False)
-    _save(fig, path)
+    save_figure(fig, path)
     return True
 
 
@@ -70,14 +70,14 @@ def latency_section(summary: dict[str, Any], tmp: Path) -> str:
         return ""
     parts = ["<h2>Policy latency (remote policy)</h2>"]
     if fig_latency(block, tmp / "latency.png"):
-        parts.append(_img("latency.png", "policy round-trip latency"))
+        parts.append(img_tag("latency.png", "policy round-trip latency"))
     fmt = lambda q: f"{q['p50']:.3g} / {q['p90']:.3g} / {q['p99']:.3g} / {q['max']:.3g}"  # noqa: E731
     rows = []
     for c in block.get("conditions", []):
         steps, eff = c.get("rtt_steps"), c.get("effective_steps")
         rows.append(
             [
-                _e(c["condition"]),
+                esc(c["condition"]),
                 str(c["requests"]),
                 fmt(c["rtt_ms"]),
                 fmt(steps) if steps else "n/a",
@@ -86,7 +86,7 @@ def latency_section(summary: dict[str, Any], tmp: Path) -> str:
             ]
         )
     parts.append(
-        _table(
+        table_html(
             [
                 "condition",
                 "requests",
