@@ -10,6 +10,7 @@ file for another suite, robot or model version is refused with one line naming w
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 from pathlib import Path
@@ -19,7 +20,7 @@ import mujoco
 import numpy as np
 
 from bench.core.errors import ConfigError, DataError
-from bench.protocols import Cell, Suite
+from bench.protocols import Cell, MujocoHandle, Suite
 from bench.sims.perturb.reset import write_fields
 
 # the MjModel fields whose values fingerprint a robot's nominal model (`model_hash`): fixed, so a
@@ -253,3 +254,12 @@ def apply(mj: Any, cal: dict[str, Any]) -> None:
     """Check a loaded calibration against an env's MuJoCo model and write its edits into it."""
     check(mj, cal)
     write_fields(mj, cal["edits"])
+
+
+def edited_model(nominal: mujoco.MjModel, model_edits: list[dict[str, Any]]) -> mujoco.MjModel:
+    """A copy of `nominal` with `model_edits` written in by the runner's own `write_fields`: the model a run with
+    this calibration simulates (what the calibration's forward check steps)."""
+    model = copy.copy(nominal)
+    handle = MujocoHandle(model, mujoco.MjData(model))
+    write_fields(handle, model_edits)
+    return handle.model

@@ -10,7 +10,11 @@ The stated processing, per episode:
    the filtered velocities' central difference;
 4. everything is decimated to `rate` Hz (the filter is the anti-aliasing filter) and `margin`
    samples at each end (filter edge effects) are dropped.
-Held out: the last `holdout` share of time when there is one episode, else a seeded share of episodes.
+
+Held out (`bench.calibrate.novelty`): by default the `holdout` share that repeats the rest least (a
+window of time in a one-episode log, else whole episodes), with a guard band of `GUARD_PERIODS` filter
+periods on either side that no fitted sample uses (the zero-phase filter spans the split); `holdout_at:
+end` holds out the last share of time (or a seeded share of episodes), `holdout: [t0, t1]` a window.
 """
 
 from __future__ import annotations
@@ -20,12 +24,14 @@ from typing import Any
 
 import numpy as np
 
+from bench.calibrate import novelty
 from bench.calibrate.arm.spec import ArmSpec
 from bench.core.errors import DataError, SpecError
 from bench.logs.resample import is_regular, resample
-from bench.replay.data import column, split
+from bench.replay.data import Window, column, split
 
 EDGE_S = 0.1  # seconds dropped at each end of an episode after filtering
+GUARD_PERIODS = 4.0  # guard band around held-out data, in periods of the filter's cut-off (0.2 s at 20 Hz)
 
 
 @dataclass
@@ -38,7 +44,8 @@ class ArmLog:
     dq: np.ndarray
     ddq: np.ndarray
     tau: np.ndarray  # (N, n) the torque signal (measured torque, command or current)
-    train: np.ndarray  # (N,) bool
+    train: np.ndarray  # (N,) bool: fitted rows
+    hold: np.ndarray  # (N,) bool: held-out rows (neither: the guard bands between them)
     rate: float
     source_fps: float  # the log's (uniform or resampled) rate before decimation
     qvel_logged: bool
@@ -47,6 +54,7 @@ class ArmLog:
     dense_offsets: np.ndarray  # (E + 1,) episode offsets of `dense`
     dense_train: list[tuple[int, int, int]]  # (episode, start, stop) training windows of `dense`
     dense_hold: list[tuple[int, int, int]]
+    heldout: novelty.Heldout  # where the held-out data are and how much of them repeats the fitted
 
 
 def _clock(ep: dict[str, np.ndarray], fps: float) -> np.ndarray:
@@ -99,7 +107,7 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
         tau = _filter(cols["torque"], src, spec.filter_hz)
         ddq = np.gradient(dq, 1.0 / src, axis=0)
         keep = np.arange(margin, len(t) - margin, step)
-        parts["t"].append(t[keep] - t[keep[0]])
+        parts["t"].append(t[keep] - t[0])  # the episode's own clock
         parts["ep"].append(np.full(len(keep), i))
         for k, v in (("q", q), ("dq", dq), ("ddq", ddq), ("tau", tau)):
             parts[k].append(v[keep])
@@ -109,11 +117,15 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
     if len(set(round(r, 6) for r in source_rates)) != 1:
         raise DataError(f"episodes are logged at different rates ({sorted(set(source_rates))} Hz); import them apart")
     t_all, ep_all = np.concatenate(parts["t"]), np.concatenate(parts["ep"])
-    train_w, hold_w = split(lengths, spec.holdout, seed)
+    rate = float(source_rates[0] / max(1, int(round(source_rates[0] / spec.rate))))
+    states = [np.hstack([q, dq]) for q, dq in zip(parts["q"], parts["dq"])]
+    train_w, hold_w, heldout = choose_split(spec, states, parts["t"], rate, seed)
     train = np.zeros(len(t_all), bool)
     offsets = np.concatenate([[0], np.cumsum(lengths)])
-    for w in train_w:
-        train[offsets[w.episode] + w.start : offsets[w.episode] + w.stop] = True
+    hold = np.zeros(len(t_all), bool)
+    for ws, mask in ((train_w, train), (hold_w, hold)):
+        for w in ws:
+            mask[offsets[w.episode] + w.start : offsets[w.episode] + w.stop] = True
     dense_len = [len(x) for x in dense["q"]]
     dense_off = np.concatenate([[0], np.cumsum(dense_len)])
 
@@ -133,7 +145,8 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
         ddq=np.concatenate(parts["ddq"]),
         tau=np.concatenate(parts["tau"]),
         train=train,
-        rate=float(source_rates[0] / max(1, int(round(source_rates[0] / spec.rate)))),
+        hold=hold,
+        rate=rate,
         source_fps=float(source_rates[0]),
         qvel_logged="qvel" in spec.signals,
         resampled=resampled,
@@ -141,4 +154,103 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
         dense_offsets=dense_off,
         dense_train=dense_windows(train_w),
         dense_hold=dense_windows(hold_w),
+        heldout=heldout,
     )
+
+
+def choose_split(
+    spec: ArmSpec, states: list[np.ndarray], clocks: list[np.ndarray], rate: float, seed: int
+) -> tuple[list[Window], list[Window], novelty.Heldout]:
+    """Fitted and held-out windows (rows at the identification rate) and how new the held-out ones are.
+
+    `states` are each episode's [q, dq]; bad choices are one line naming the spec field: a window that
+    leaves no fitted data, a log shorter than one period of its declared excitation.
+    """
+    lengths = [len(x) for x in states]
+    guard = int(round(GUARD_PERIODS / spec.filter_hz * rate))
+    all_x = np.concatenate(states)
+    scale = novelty.spread(all_x)
+    longest = int(np.argmax(lengths))
+    if spec.period is not None:
+        short = [i for i, t in enumerate(clocks) if t[-1] - t[0] < spec.period]
+        if short:
+            i = short[0]
+            raise DataError(
+                f"episode {i} holds {clocks[i][-1] - clocks[i][0]:.3g} s, less than one period of its excitation "
+                f"(spec field 'period': {spec.period:g} s): a log must hold at least one whole period"
+            )
+        period: float | None = spec.period
+        r: float | None = None
+        source = "declared"
+    else:
+        found, r = novelty.period_of(states[longest], rate)
+        period, source = found, "detected"
+    placement = "window" if spec.holdout_window else spec.holdout_at
+    end_share = None
+    if len(states) == 1:
+        x, n = states[0], lengths[0]
+        if spec.holdout_window:
+            t0, t1 = spec.holdout_window
+            t = clocks[0]
+            rows = np.flatnonzero((t >= t0) & (t < t1))
+            if rows.size == 0:
+                raise SpecError(
+                    f"spec field 'holdout': the window [{t0:g}, {t1:g}] s holds no sample of the log "
+                    f"({t[0]:.3g}-{t[-1]:.3g} s)"
+                )
+            start, stop = int(rows[0]), int(rows[-1]) + 1
+        else:
+            length = int(round(spec.holdout * n))
+            if spec.holdout_at == "least_repeated":
+                start, stop, _ = novelty.least_repeated_window(x, length, guard, scale=scale)
+            else:
+                start, stop = n - length, n
+        fit_rows = [(0, max(0, start - guard)), (min(n, stop + guard), n)]
+        train = [Window(0, a, b) for a, b in fit_rows if b - a > 0]
+        if sum(len(w) for w in train) < 10:
+            raise SpecError(
+                f"spec field 'holdout': holding out {clocks[0][start]:.3g}-{clocks[0][stop - 1]:.3g} s (with "
+                f"{guard / rate:.2g} s guards) leaves no fitted data in a {clocks[0][-1]:.3g} s log"
+            )
+        hold = [Window(0, start, stop)]
+        end_len = stop - start
+        end_keep = np.ones(n, bool)
+        end_keep[max(0, n - end_len - guard) :] = False
+        end_share = (
+            novelty.repeat_share(novelty.nearest(x[end_keep], x[n - end_len :], scale)[0]) if end_keep.any() else None
+        )
+    else:
+        if spec.holdout_window:
+            raise SpecError(
+                "spec field 'holdout': a time window needs a one-episode log; this one has "
+                f"{len(states)} episodes (give a share instead)"
+            )
+        if spec.holdout_at == "least_repeated":
+            n_hold = min(len(states) - 1, max(1, int(round(spec.holdout * len(states)))))
+            held = set(novelty.least_repeated_episodes(states, n_hold, seed))
+            train = [Window(i, 0, n) for i, n in enumerate(lengths) if i not in held]
+            hold = [Window(i, 0, n) for i, n in enumerate(lengths) if i in held]
+        else:
+            train, hold = split(lengths, spec.holdout, seed)
+            placement = "episodes"
+    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
+    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
+    share = novelty.repeat_share(novelty.nearest(fit_x, held_x, scale)[0])
+    heldout = novelty.Heldout(
+        placement=placement,
+        repeat_share=share,
+        period_s=period,
+        periodicity=r,
+        period_source=source,
+        guard_s=guard / rate if len(states) == 1 else 0.0,
+        windows=[
+            {
+                "episode": w.episode,
+                "start_s": float(clocks[w.episode][w.start]),
+                "stop_s": float(clocks[w.episode][w.stop - 1]),
+            }
+            for w in hold
+        ],
+        end_share=end_share,
+    )
+    return train, hold, heldout

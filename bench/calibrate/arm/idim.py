@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from bench.calibrate.arm.inertial import LOG_DIAG, factor_of, physical, set_std, std_of_factor, std_params
+from bench.calibrate.arm.inertial import LOG_DIAG, factor_of, physical, std_of_factor
 from bench.core.errors import DataError
 
 FRICTION_V = 0.02  # rad/s: the Coulomb sign is smoothed as tanh(dq / FRICTION_V)
@@ -39,7 +39,6 @@ def prior_scale(p: np.ndarray) -> np.ndarray:
     return np.array([mass, first, first, first, *([inertia] * 6)])
 
 
-STD_STEP = np.array([0.1, 0.01, 0.01, 0.01, 0.001, 0.001, 0.001, 0.001, 0.001, 0.001])
 NULL_TOL = 1e-6  # singular values below this share of the largest span the unexcited directions
 LAMBDA = 10.0  # the pull toward the declared values weighs as much as this many weighted residuals
 MIN_MASS = 0.05  # kg: a link lighter than this is not a link
@@ -87,28 +86,77 @@ class Dynamics:
         self.evaluations += len(q)
         return out
 
-    def body_columns(self, body: int, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, base: np.ndarray) -> np.ndarray:
-        """(N, n, 10): the torque per unit of each standard parameter of `body`.
+    def body_columns(self, bodies: list[int], q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> dict[int, np.ndarray]:
+        """Per body, (N, n, 10): the torque per unit of each of its standard parameters (in its own frame).
 
-        The torque is linear in a body's standard parameters only while they describe a physical
-        body (MuJoCo stores principal inertias), so every difference is taken around a *reference*
-        body: the declared one with 1 kg m^2 of isotropic inertia added about its frame origin, far
-        inside the physical set, where a step of any parameter stays physical. The result does not
-        depend on the reference (linearity); `base` is unused and kept for the call's shape.
+        The classical regressor (Atkeson et al. 1986), computed from MuJoCo's own kinematics: for each
+        sample one pass of `mj_kinematics`, `mj_comPos`, `mj_comVel` and `mj_rnePostConstraint` gives every
+        body's spatial velocity and acceleration (gravity as an upward acceleration of the world) and the
+        joints' motion axes; the rest is vectorised. The body's wrench about its frame origin is linear in
+        [m, m c, I_origin]: f = m a + w' x h + w x (w x h), n = I w' + w x (I w) + h x a (body frame), and
+        the joint torques are J' [f; n]. Exact (it matches differences of `mj_inverse` to 1e-12).
         """
-        p0 = std_params(self.m, body)
-        ref = p0.copy()
-        ref[[4, 7, 9]] += 1.0  # + 1 kg m^2 about each axis: a step of m or m c keeps it positive definite
-        set_std(self.m, body, ref)
-        at_ref = self.torques(q, dq, ddq)
-        cols = np.empty((*q.shape, 10))
-        for k in range(10):
-            p = ref.copy()
-            p[k] += STD_STEP[k]
-            set_std(self.m, body, p)
-            cols[..., k] = (self.torques(q, dq, ddq) - at_ref) / STD_STEP[k]
-        set_std(self.m, body, p0)
-        return cols
+        m, d = self.m, self.d
+        bodies = [int(b) for b in bodies]
+        nb, nd, n_rows = len(bodies), len(self.dadr), len(q)
+        anc = np.zeros((nb, nd), bool)  # dof j moves body b
+        for k, b in enumerate(bodies):
+            chain, x = set(), b
+            while x > 0:
+                chain.add(x)
+                x = int(m.body_parentid[x])
+            anc[k] = [int(m.dof_bodyid[dof]) in chain for dof in self.dadr]
+        roots = m.body_rootid[bodies]
+        xpos, xmat = np.empty((n_rows, nb, 3)), np.empty((n_rows, nb, 9))
+        cvel, cacc = np.empty((n_rows, nb, 6)), np.empty((n_rows, nb, 6))
+        cdof, com = np.empty((n_rows, nd, 6)), np.empty((n_rows, nb, 3))
+        for i in range(n_rows):
+            d.qpos[:] = self.qpos0
+            d.qpos[self.qadr] = q[i]
+            d.qvel[:] = 0.0
+            d.qvel[self.dadr] = dq[i]
+            d.qacc[:] = 0.0
+            d.qacc[self.dadr] = ddq[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            mujoco.mj_rnePostConstraint(m, d)
+            xpos[i], xmat[i], cvel[i], cacc[i] = d.xpos[bodies], d.xmat[bodies], d.cvel[bodies], d.cacc[bodies]
+            cdof[i], com[i] = d.cdof[self.dadr], d.subtree_com[roots]
+        self.evaluations += n_rows
+        rt = np.swapaxes(xmat.reshape(n_rows, nb, 3, 3), -1, -2)  # world -> body
+        r = xpos - com  # body origin from the point MuJoCo's spatial vectors refer to
+        w, al = cvel[..., :3], cacc[..., :3]
+        v_o = cvel[..., 3:] + np.cross(w, r)
+        a_o = cacc[..., 3:] + np.cross(al, r) + np.cross(w, v_o)  # classical, gravity included
+        wb, alb, ab = (np.einsum("nkij,nkj->nki", rt, v) for v in (w, al, a_o))
+        ang = np.broadcast_to(cdof[:, None, :, :3], (n_rows, nb, nd, 3))
+        lin = cdof[:, None, :, 3:] + np.cross(ang, r[:, :, None, :])
+        jac = (
+            np.concatenate([np.einsum("nkij,nkdj->nkdi", rt, lin), np.einsum("nkij,nkdj->nkdi", rt, ang)], axis=-1)
+            * anc[None, :, :, None]
+        )  # (N, nb, n, 6): [linear; angular] per dof, body frame
+        cols = np.einsum("nkdi,nkip->nkdp", jac, _wrench_regressor(wb, alb, ab))
+        return {b: np.ascontiguousarray(cols[:, k]) for k, b in enumerate(bodies)}
+
+
+_SYM = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]  # the six inertia entries, in STD_NAMES order
+
+
+def _wrench_regressor(w: np.ndarray, wd: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """(..., 6, 10): a body's wrench [f; n] about its origin per unit of each standard parameter."""
+    out = np.zeros(w.shape[:-1] + (6, 10))
+    out[..., :3, 0] = a
+    eye = np.eye(3)
+    for k in range(3):
+        e = np.broadcast_to(eye[k], w.shape)
+        out[..., :3, 1 + k] = np.cross(wd, e) + np.cross(w, np.cross(w, e))
+        out[..., 3:, 1 + k] = np.cross(e, a)
+    for j, (r, c) in enumerate(_SYM):
+        basis = np.zeros((3, 3))
+        basis[r, c] = basis[c, r] = 1.0
+        out[..., 3:, 4 + j] = wd @ basis + np.cross(w, w @ basis)
+    return out
 
 
 @dataclass
@@ -124,6 +172,7 @@ class Block:
     scale: np.ndarray  # (k,) prior spread; np.inf = no pull
     kind: str = "declared"  # declared | effect
     pseudo: bool = False  # a link's standard parameters, kept physical (log-Cholesky of its pseudo-inertia)
+    region: tuple[np.ndarray, float] | None = None  # [mass, m c (3)] block: its centre of mass within (centre, radius)
 
     @property
     def size(self) -> int:
@@ -177,7 +226,7 @@ def predict(blocks: list[Block], x: np.ndarray, fixed: np.ndarray) -> np.ndarray
     return fixed + np.einsum("njk,k->nj", np.concatenate([b.cols for b in blocks], axis=-1), x)
 
 
-def _bounds(blocks: list[Block]) -> tuple[np.ndarray, np.ndarray]:
+def bounds_of(blocks: list[Block]) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([b.lo for b in blocks]), np.concatenate([b.hi for b in blocks])
 
 
@@ -234,6 +283,7 @@ def _solve(
     max_it: int = 300,
     hold_links: bool = False,
     one_step: bool = False,
+    fences: bool = True,
 ) -> np.ndarray:
     """Bounded least squares of the compressed problem; link blocks through their log-Cholesky factor
     (always a physical body), every parameter with a prior scale pulled faintly toward its prior."""
@@ -241,7 +291,7 @@ def _solve(
     offs = np.concatenate([[0], np.cumsum(sizes)])
     prior = np.concatenate([b.prior for b in blocks])
     scale = np.concatenate([b.scale for b in blocks])
-    lo, hi = _bounds(blocks)
+    lo, hi = bounds_of(blocks)
     pulled = np.flatnonzero(np.isfinite(scale))
     links = [i for i, b in enumerate(blocks) if b.pseudo]
     if hold_links and x0 is not None and links:  # links as they are: the rest is a convex problem
@@ -281,6 +331,7 @@ def _solve(
     sq = np.sqrt(lam)
 
     link_idx = np.array([np.arange(offs[i], offs[i + 1]) for i in links], dtype=np.int64).reshape(len(links), 10)
+    regions = [(int(offs[i]), b.region) for i, b in enumerate(blocks) if b.region is not None]
 
     def params(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         x, dx = z.copy(), np.eye(len(z))
@@ -310,6 +361,17 @@ def _solve(
                     g_c[idx[0]] = -FENCE_WEIGHT / COM_TOL * dist / mm
             rows.append(FENCE_WEIGHT * max(0.0, dist - COM_RADIUS) / COM_TOL)
             grads.append(g_c)
+        for lo_i, (centre, radius) in regions if fences else []:
+            m, h = x[lo_i], x[lo_i + 1 : lo_i + 4]
+            u = h - m * centre  # |u| <= radius m: the centre of mass h / m within the region (a convex cone)
+            dist = float(np.linalg.norm(u))
+            scale = FENCE_WEIGHT / (COM_TOL * max(m, MIN_MASS))
+            rows.append(scale * max(0.0, dist - radius * m))
+            g = np.zeros(len(x))
+            if dist > radius * m and dist > 0:
+                g[lo_i + 1 : lo_i + 4] = scale * u / dist
+                g[lo_i] = scale * (-(u @ centre) / dist - radius)
+            grads.append(g)
         if not rows:
             return np.zeros(0), np.zeros((0, len(x)))
         return np.array(rows), np.array(grads)
@@ -342,6 +404,7 @@ def fit(
     lam: float = LAMBDA,
     x0: np.ndarray | None = None,
     hold_links: bool = False,
+    fences: bool = True,
 ) -> Fit:
     """Weighted bounded least squares of `signal - fixed` on `blocks` over the `train` rows.
 
@@ -349,8 +412,6 @@ def fit(
     with 1 / spread per joint (the usual two-step weighted IDIM). `lam` weighs the pull toward the
     declared values (each parameter with a finite prior scale), in weighted residuals (LAMBDA).
     """
-    from bench.calibrate.fit import autocorrelation_time  # scipy via fit: loaded only when a fit is computed
-
     rows = np.flatnonzero(train)
     n_j = signal.shape[1]
     if weights is None:
@@ -358,14 +419,36 @@ def fit(
         r1 = (signal - fixed)[rows] - np.einsum("njk,k->nj", design(blocks, rows), x1)
         weights = 1.0 / np.maximum(r1.std(axis=0), 1e-9)
     pb = compress(blocks, signal, fixed, rows, weights)
-    x = _solve(pb, blocks, lam, x0, hold_links=hold_links)
+    x = _solve(pb, blocks, lam, x0, hold_links=hold_links, fences=fences)
+    return fit_at(blocks, x, signal, fixed, train, weights, gram=pb.r.T @ pb.r)
+
+
+def fit_at(
+    blocks: list[Block],
+    x: np.ndarray,
+    signal: np.ndarray,
+    fixed: np.ndarray,
+    train: np.ndarray,
+    weights: np.ndarray,
+    gram: np.ndarray | None = None,
+) -> Fit:
+    """The `Fit` of parameters `x` on these rows: residual sum of squares, autocorrelation time, covariance.
+
+    What `fit` returns for its solution, and how an estimate found on other samples (the forward
+    refinement's simulated ones) is stated on the logged training rows.
+    """
+    from bench.calibrate.fit import autocorrelation_time  # scipy via fit: loaded only when a fit is computed
+
+    rows = np.flatnonzero(train)
     a3 = design(blocks, rows)
+    if gram is None:
+        a = (a3 * weights[None, :, None]).reshape(-1, len(x))
+        gram = a.T @ a
     r = ((signal - fixed)[rows] - np.einsum("njk,k->nj", a3, x)) * weights[None, :]
     tau = autocorrelation_time(r[None, :, :])
     ssr = float(np.sum(r**2))
     dof = max(r.size - len(x), 1)
-    gram = pb.r.T @ pb.r
-    lo, hi = _bounds(blocks)
+    lo, hi = bounds_of(blocks)
     free = ~(np.isclose(x, lo, rtol=0, atol=1e-12) | np.isclose(x, hi, rtol=0, atol=1e-12))
     cov = np.zeros((len(x), len(x)))
     if free.any():
@@ -436,7 +519,7 @@ def _linear(pb: Problem, blocks: list[Block], lam: float) -> np.ndarray:
 
     prior = np.concatenate([b.prior for b in blocks])
     scale = np.concatenate([b.scale for b in blocks])
-    lo, hi = _bounds(blocks)
+    lo, hi = bounds_of(blocks)
     pulled = np.flatnonzero(np.isfinite(scale))
     pen = np.zeros((len(pulled), len(prior)))
     pen[np.arange(len(pulled)), pulled] = np.sqrt(lam) / scale[pulled]
@@ -478,7 +561,7 @@ def bootstrap(
         ns.append(y.size)
     g_all, ay_all, yy_all, n_all = np.stack(grams), np.stack(ays), np.array(yys), np.array(ns)
     base = _linear(from_gram(g_all.sum(0), ay_all.sum(0), float(yy_all.sum()), int(n_all.sum())), blocks, lam)
-    lo, hi = _bounds(blocks)
+    lo, hi = bounds_of(blocks)
     offs = np.concatenate([[0], np.cumsum([b.size for b in blocks])])
     rng = np.random.default_rng(seed)
     out = np.empty((draws, k))

@@ -1,24 +1,26 @@
-"""Calibrate a real arm from its own logs: inverse-dynamics identification, effects traced, forward check.
+"""Calibrate a real arm from its own logs: inverse-dynamics identification, effects traced, forward checks.
 
     bench calibrate spec=bench/calibrate/models/panda_gaz.yaml logs=DIR out=DIR   # `method: idim`
 
-1. **Data** (`bench.calibrate.arm.data`): a uniform clock (resampled when the log's is not), the
-   same zero-phase low-pass on every signal, derived velocities where none are logged, derived
-   accelerations, a held-out time split.
-2. **Declared fit**: the torque signal against the declared model's rigid-body torque plus, per
-   joint, Coulomb and viscous friction, an offset and a rotor inertia, and corrections to the ten
-   inertial parameters of every link (`bench.calibrate.arm.idim`): weighted, bounded least squares.
-   What the data cannot identify stays at its declared value and is reported as such.
-3. **Trace**: candidate effects (a payload at the flange or tool frame with its centre of mass, a
-   gain error per drive for logs of commands or currents, Stribeck and asymmetric friction, a joint
-   spring) are each refitted with everything else; one is added only if the held-out error drops by
-   the margin, BIC agrees and its interval excludes zero; repeat.
-4. **Honesty**: parameters that end at a bound, links whose fitted inertia is not a physical body,
-   and any held-out error (per joint, torque or forward k-step) that rises are said in the report
-   and in the command's last line.
-5. **Forward check**: the declared and the calibrated model are both driven by the logged torque
-   from logged states over short horizons (`horizon` seconds), and the per-joint position errors
-   compared; this is the simulator a suite would run.
+1. **Data** (`bench.calibrate.arm.data`): a uniform clock, the same zero-phase low-pass on every signal,
+   derived accelerations, and held-out data that are *new*: by default the stretch (or episodes) that
+   repeat the fitted data least, with its repeat share measured (`bench.calibrate.novelty`).
+2. **Declared fit** (`bench.calibrate.arm.blocks`, `.idim`): the torque signal against the declared
+   model's rigid-body torque plus, per joint, Coulomb and viscous friction, an offset and a rotor
+   inertia, and the ten inertial parameters of every link: weighted, bounded, physically consistent
+   least squares.
+3. **Trace**: candidate effects (a payload at the flange or tool frame, its centre of mass held inside
+   the spec's `payload_region`; a gain error per drive for logs of commands or currents; Stribeck and
+   asymmetric friction; a joint spring) are each refitted with everything else; one is added only if
+   the held-out error drops by the margin, BIC agrees and its interval excludes zero; repeat.
+4. **What the data identify** (`bench.calibrate.arm.identifiability`): parameters alone, combinations,
+   and unbounded intervals along what they leave open.
+5. **Repeat baseline**: memory (the torque of the nearest fitted state, or of one period earlier) scored
+   on the same held-out samples; a model is better only if it beats it.
+6. **Forward** (`bench.calibrate.arm.forward`, `.didim`): the declared model and each calibrated estimate,
+   built from the model edits a run writes, simulated on the held-out data (closed loop: the criterion;
+   open loop beside its baselines); the IDIM estimate refined by DIDIM; `estimate: auto` carries the one
+   the held-out simulation supports.
 """
 
 from __future__ import annotations
@@ -31,41 +33,33 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from bench.calibrate import novelty
+from bench.calibrate.apply import edited_model, edits
+from bench.calibrate.arm import forward
+from bench.calibrate.arm.blocks import Fitter, nominal_torque, regression, values_of
 from bench.calibrate.arm.data import ArmLog, load_arm_log
+from bench.calibrate.arm.didim import refine
 from bench.calibrate.arm.entries import effect_terms, link_entries, param_entries, uncarried_effects, warnings_of
-from bench.calibrate.arm.forward import forward_errors
-from bench.calibrate.arm.idim import (
-    FRICTION_V,
-    Block,
-    Dynamics,
-    Fit,
-    bootstrap,
-    fit,
-    identifiability,
-    predict,
-    prior_scale,
-    windows_of,
-)
-from bench.calibrate.arm.inertial import STD_NAMES
-from bench.calibrate.arm.model import ArmModel, build, check_positions, check_torques, group_std, realise
+from bench.calibrate.arm.identifiability import Identifiability, analyse, payload_sentence
+from bench.calibrate.arm.idim import Dynamics, Fit, bootstrap, fit_at, predict, windows_of
+from bench.calibrate.arm.model import ArmModel, build, check_positions, check_torques, realise
 from bench.calibrate.arm.spec import ArmSpec
-from bench.calibrate.fit import information
 
-STRIBECK_VS = (0.01, 0.03, 0.1, 0.3)  # rad/s: Stribeck velocities tried (the best on training data is kept)
 WINDOW_S = 0.5  # bootstrap window length (seconds of training data resampled together)
-PULL_TRIES = 3  # times a link's pull toward its declared inertia is strengthened before it is left declared
 
 
 @dataclass
-class Candidate:
-    """One effect on one target, as regressor blocks."""
+class Estimate:
+    """One calibrated estimate (IDIM, or its DIDIM refinement) as a run would carry it."""
 
     name: str
-    target: str
-    blocks: list[Block]
-    amplitude: list[str]  # labels whose interval must exclude zero
-    payload: bool = False
-    note: dict[str, Any] = field(default_factory=dict)
+    fit: Fit
+    fixed: np.ndarray  # (N, n) fixed torque on the logged rows
+    values: dict[str, Any]  # what `realise` writes
+    edits: list[dict[str, Any]]  # the model edits a run writes (`bench.calibrate.apply`)
+    model: mujoco.MjModel  # the declared model with those edits, as a run has it
+    torque_rmse: np.ndarray  # (n,) held-out torque RMSE on the logged states
+    torque_nrmse: float
 
 
 @dataclass
@@ -76,230 +70,25 @@ class ArmCalibration:
     am: ArmModel
     log: ArmLog
     declared: Fit
-    final: Fit
+    final: Fit  # the carried estimate's fit
     added: list[dict]
     rejected: list[dict]
     params: list[dict]
     links: list[dict]
     errors: dict[str, Any]
     warnings: list[str]
-    values: dict[str, Any]  # what `realise` writes: joints, links, payload
+    values: dict[str, Any]  # what `realise` writes for the carried estimate: joints, links, payload
     not_carried: list[str]
     draws: list[dict[str, Any]]  # bootstrap replicates of `values`
     searched: list[str]
     wall: dict[str, float]
     fitted_model: mujoco.MjModel | None = None
     torques: dict[str, np.ndarray] = field(default_factory=dict)  # (N, n) modelled signal: nominal, final
-
-
-def _joint_cols(n_rows: int, n: int, j: int, col: np.ndarray) -> np.ndarray:
-    out = np.zeros((n_rows, n, 1))
-    out[:, j, 0] = col
-    return out
-
-
-def _declared_blocks(spec: ArmSpec, am: ArmModel, log: ArmLog, dyn: Dynamics, base: np.ndarray) -> list[Block]:
-    n_rows, n = log.q.shape
-    m = am.model
-    blocks: list[Block] = []
-    wanted = None if spec.inertia is None else set(spec.inertia)
-    for name, b in zip(am.links, am.link_ids):
-        if wanted is not None and name not in wanted and not any(name.endswith(w) for w in wanted):
-            continue
-        cols = dyn.body_columns(int(b), log.q, log.dq, log.ddq, base)
-        blocks.append(
-            Block(
-                f"link:{name}",
-                [f"{name}.{s}" for s in STD_NAMES],
-                cols,
-                np.full(10, -np.inf),
-                np.full(10, np.inf),
-                p0 := group_std(m, am.groups[am.links.index(name)]),  # the link and what is fixed to it
-                prior_scale(p0),
-                pseudo=True,
-            )
-        )
-    for j in range(n):
-        jn, d = am.joints[j], int(am.dadr[j])
-        dq, ddq = log.dq[:, j], log.ddq[:, j]
-        terms = []
-        if "coulomb" in spec.friction:
-            terms.append(("coulomb", np.tanh(dq / FRICTION_V), 0.0, float(m.dof_frictionloss[d])))
-        if "viscous" in spec.friction:
-            terms.append(("viscous", dq, 0.0, float(m.dof_damping[d])))
-        if "offset" in spec.friction:
-            terms.append(("offset", np.ones(n_rows), -np.inf, 0.0))
-        if spec.armature:
-            terms.append(("armature", ddq, 0.0, float(m.dof_armature[d])))
-        if not terms:
-            continue
-        cols = np.concatenate([_joint_cols(n_rows, n, j, c) for _, c, _, _ in terms], axis=-1)
-        blocks.append(
-            Block(
-                f"joint:{jn}",
-                [f"{jn}.{t}" for t, *_ in terms],
-                cols,
-                np.array([lo for _, _, lo, _ in terms]),
-                np.full(len(terms), np.inf),
-                np.array([p for *_, p in terms]),
-                np.full(len(terms), np.inf),
-            )
-        )
-    return blocks
-
-
-def _payload_block(am: ArmModel, log: ArmLog, dyn: Dynamics, base: np.ndarray) -> tuple[Block, np.ndarray]:
-    p = dyn.body_columns(am.payload_body, log.q, log.dq, log.ddq, base)
-    col_m = p[..., 0] + p[..., 1:4] @ am.payload_pos
-    col_h = p[..., 1:4] @ am.payload_rot
-    cols = np.concatenate([col_m[..., None], col_h], axis=-1)
-    name = am.payload_name
-    lo = np.array([0.0, -np.inf, -np.inf, -np.inf])
-    blk = Block(
-        "payload",
-        [f"payload@{name}.mass", f"payload@{name}.mx", f"payload@{name}.my", f"payload@{name}.mz"],
-        cols,
-        lo,
-        np.full(4, np.inf),
-        np.zeros(4),
-        np.full(4, np.inf),
-        kind="effect",
-    )
-    return blk, p[..., 4:]
-
-
-def _candidates(
-    spec: ArmSpec, am: ArmModel, log: ArmLog, dyn: Dynamics, base: np.ndarray, signal: np.ndarray, train: np.ndarray
-) -> tuple[list[Candidate], list[str], np.ndarray | None]:
-    n_rows, n = log.q.shape
-    out: list[Candidate] = []
-    searched: list[str] = []
-    payload_inertia = None
-    if "payload" in spec.effects:
-        blk, payload_inertia = _payload_block(am, log, dyn, base)
-        out.append(Candidate("payload", am.payload_name, [blk], [blk.labels[0]], payload=True))
-        searched.append(f"payload at {am.payload_name} (mass and centre of mass)")
-    for j, jn in enumerate(am.joints):
-        dq, sgn = log.dq[:, j], np.tanh(log.dq[:, j] / FRICTION_V)
-        if "actuator_gain" in spec.effects and spec.torque != "measured":
-            blk = Block(
-                f"gain:{jn}",
-                [f"{jn}.gain_error"],
-                _joint_cols(n_rows, n, j, -signal[:, j]),
-                np.array([-0.9]),
-                np.array([5.0]),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
-            out.append(Candidate("actuator_gain", jn, [blk], blk.labels))
-        if "stribeck_friction" in spec.effects:
-            best = None
-            for vs in STRIBECK_VS:
-                col = _joint_cols(n_rows, n, j, sgn * np.exp(-((dq / vs) ** 2)))
-                c = col[train, j, 0]
-                r = signal[train, j] - base[train, j]
-                score = float(abs(c @ r) / max(np.linalg.norm(c), 1e-12))
-                if best is None or score > best[0]:
-                    best = (score, vs, col)
-            assert best is not None
-            blk = Block(
-                f"stribeck:{jn}",
-                [f"{jn}.stribeck_excess"],
-                best[2],
-                np.zeros(1),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
-            out.append(Candidate("stribeck_friction", jn, [blk], blk.labels, note={"stribeck_velocity": best[1]}))
-        if "asymmetric_friction" in spec.effects:
-            blk = Block(
-                f"asym:{jn}",
-                [f"{jn}.asymmetry"],
-                _joint_cols(n_rows, n, j, np.abs(sgn)),
-                np.full(1, -np.inf),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
-            out.append(Candidate("asymmetric_friction", jn, [blk], blk.labels))
-        if "joint_spring" in spec.effects:
-            q0 = float(am.model.qpos_spring[am.qadr[j]])
-            blk = Block(
-                f"spring:{jn}",
-                [f"{jn}.stiffness"],
-                _joint_cols(n_rows, n, j, -(log.q[:, j] - q0)),
-                np.zeros(1),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
-            out.append(Candidate("joint_spring", jn, [blk], blk.labels))
-    if "actuator_gain" in spec.effects:
-        searched.append(
-            "actuator gain per drive"
-            if spec.torque != "measured"
-            else "actuator gain: not searched (the log measures the applied torque, not a command)"
-        )
-    for fam in ("stribeck_friction", "asymmetric_friction", "joint_spring"):
-        if fam in spec.effects:
-            searched.append(f"{fam.replace('_', ' ')} per joint")
-    return out, searched, payload_inertia
-
-
-class _Fitter:
-    """Fits with a fixed signal, base torque, split and weights; knows the payload's inertia fixed point."""
-
-    def __init__(
-        self,
-        am: ArmModel,
-        signal: np.ndarray,
-        base: np.ndarray,
-        train: np.ndarray,
-        hold: np.ndarray,
-        payload_inertia: np.ndarray | None,
-        criterion: str,
-    ) -> None:
-        self.am, self.signal, self.base, self.train, self.hold = am, signal, base, train, hold
-        self.payload_inertia, self.criterion = payload_inertia, criterion
-        self.spread = np.maximum(signal[hold].std(axis=0), 1e-9)
-        self.weights: np.ndarray | None = None
-
-    def fixed(self, f: Fit | None, blocks: list[Block]) -> np.ndarray:
-        """The base torque plus, with a payload, its point-mass inertia at the current estimate."""
-        if f is None or self.payload_inertia is None or not any(b.name == "payload" for b in blocks):
-            return self.base
-        m, hx, hy, hz = f.values("payload")
-        if m <= 1e-9:
-            return self.base
-        c_body = self.am.payload_pos + self.am.payload_rot @ (np.array([hx, hy, hz]) / m)
-        io = m * (c_body @ c_body * np.eye(3) - np.outer(c_body, c_body))
-        vec = np.array([io[0, 0], io[0, 1], io[0, 2], io[1, 1], io[1, 2], io[2, 2]])
-        return self.base + self.payload_inertia @ vec
-
-    def __call__(
-        self, blocks: list[Block], x0: np.ndarray | None = None, hold_links: bool = False
-    ) -> tuple[Fit, np.ndarray]:
-        f = fit(blocks, self.signal, self.base, self.train, weights=self.weights, x0=x0, hold_links=hold_links)
-        fixed = self.base
-        if any(b.name == "payload" for b in blocks):
-            for _ in range(4):  # the payload's own inertia: a fixed point in its mass and centre
-                fixed = self.fixed(f, blocks)
-                f = fit(blocks, self.signal, fixed, self.train, weights=self.weights, x0=f.x, hold_links=hold_links)
-        return f, fixed
-
-    def error(self, f: Fit, fixed: np.ndarray) -> tuple[float, np.ndarray]:
-        """Held-out normalised error (mean over joints of RMSE / spread) and per-joint RMSE."""
-        pred = predict(f.blocks, f.x, fixed)[self.hold]
-        rmse = np.sqrt(np.mean((self.signal[self.hold] - pred) ** 2, axis=0))
-        return float(np.mean(rmse / self.spread)), rmse
-
-    def ic(self, f: Fit, n_eff: float) -> float:
-        return information(f.ssr * n_eff / max(f.n, 1), len(f.x), n_eff, self.criterion)
+    estimates: dict[str, Estimate] = field(default_factory=dict)
+    chosen: str = "idim"
+    identifiability: Identifiability | None = None
+    trust: dict[str, Any] = field(default_factory=dict)
+    didim_history: list[dict[str, Any]] = field(default_factory=list)
 
 
 def _excludes_zero(f: Fit, labels: list[str]) -> bool:
@@ -308,71 +97,60 @@ def _excludes_zero(f: Fit, labels: list[str]) -> bool:
     return all(sd[i] > 0 and abs(f.x[i]) > 1.96 * sd[i] for i in idx)
 
 
-def _values(am: ArmModel, f: Fit) -> dict[str, Any]:
-    """What `realise` writes, from a fit's parameter vector."""
-    out: dict[str, Any] = {"joints": {}, "links": {}}
-    off = 0
-    for b in f.blocks:
-        x = f.x[off : off + b.size]
-        off += b.size
-        if b.name.startswith("link:"):
-            out["links"][b.name.split(":", 1)[1]] = np.asarray(x, dtype=np.float64).copy()  # absolute values
-        elif b.name.startswith("joint:"):
-            jn = b.name.split(":", 1)[1]
-            for lab, v in zip(b.labels, x):
-                out["joints"].setdefault(jn, {})[lab.rsplit(".", 1)[1]] = float(v)
-        elif b.name == "payload" and x[0] > 1e-9:
-            out["payload"] = {"mass": float(x[0]), "com": (x[1:4] / x[0]).tolist()}
-        elif b.name.startswith("gain:"):
-            out["joints"].setdefault(b.name.split(":", 1)[1], {})["gain"] = float(1.0 + x[0])
-        elif b.name.startswith("spring:"):
-            out["joints"].setdefault(b.name.split(":", 1)[1], {})["stiffness"] = float(x[0])
+def _repeat_baseline(data: ArmLog, signal: np.ndarray, spread: np.ndarray) -> dict[str, Any]:
+    """Memory on the held-out rows: the signal of the nearest fitted state (q, dq, ddq), and of one period earlier."""
+    feats = np.hstack([data.q, data.dq, data.ddq])
+    hold = data.hold
+    pred, _ = novelty.nearest_signal(feats[data.train], signal[data.train], feats[hold], novelty.spread(feats))
+    out: dict[str, Any] = {}
+
+    def score(p: np.ndarray) -> dict[str, Any]:
+        rmse = np.sqrt(np.mean((signal[hold] - p) ** 2, axis=0))
+        return {"rmse": rmse.tolist(), "nrmse": float(np.mean(rmse / spread))}
+
+    out["nearest"] = {**score(pred), "what": "the measured torque of the nearest fitted state (q, dq, ddq)"}
+    period = data.heldout.period_s
+    if period:
+        rows = np.flatnonzero(hold)
+        p = np.full((len(rows), signal.shape[1]), np.nan)
+        for e in np.unique(data.episode[rows]):
+            ep = np.flatnonzero(data.episode == e)
+            sel = data.episode[rows] == e
+            local = np.searchsorted(ep, rows[sel])
+            p[sel] = novelty.period_signal(signal[ep], data.t[ep], period, data.train[ep], local)
+        ok = np.all(np.isfinite(p), axis=1)
+        if ok.mean() >= 0.5:
+            rmse = np.sqrt(np.mean((signal[rows[ok]] - p[ok]) ** 2, axis=0))
+            out["period"] = {
+                "rmse": rmse.tolist(),
+                "nrmse": float(np.mean(rmse / spread)),
+                "covered_share": float(ok.mean()),
+                "what": f"the measured torque one period ({period:.4g} s) earlier, where that instant was fitted",
+            }
+    best = min(("nearest", "period"), key=lambda k: out[k]["nrmse"] if k in out else np.inf)
+    out["best"] = best
     return out
 
 
-def calibrate_arm(
-    spec: ArmSpec,
-    episodes: list[dict[str, np.ndarray]],
-    fps: float,
-    *,
-    seed: int = 0,
-    threads: int = 1,
-    log: Callable[[str], None] = lambda msg: None,
-) -> ArmCalibration:
-    """The whole real-arm loop of the module docstring; bad data or a bad spec is one line, before any fit."""
-    t0 = time.perf_counter()
-    wall: dict[str, float] = {}
-    am = build(spec)
-    data = load_arm_log(spec, episodes, fps, seed)
-    for r in data.resampled:
-        log(
-            f"episode {r['episode']}: irregular clock (periods {r['source_period_s']['min'] * 1e3:.2f}-"
-            f"{r['source_period_s']['max'] * 1e3:.2f} ms) resampled to {r['fps']:g} Hz by linear interpolation"
-        )
-    check_positions(am, data.q, spec.signals["qpos"].column)
-    signal = data.tau.copy() * (np.asarray(spec.gains) if spec.gains else 1.0)  # currents in torque units
-    n_rows, n = signal.shape
-    dyn = Dynamics(am.model, am.qadr, am.dadr, am.qpos0)
-    base = dyn.torques(data.q, data.dq, data.ddq)
-    check_torques(am, signal, base, spec.signals["torque"].column)
-    hold = ~data.train
-    log(
-        f"{len(am.joints)} joints, {n_rows} samples at {data.rate:g} Hz ({int(data.train.sum())} to fit, "
-        f"{int(hold.sum())} held out); torque signal: {spec.torque}"
-    )
-    wall["data"] = time.perf_counter() - t0
-    declared = _declared_blocks(spec, am, data, dyn, base)
-    cands, searched, payload_inertia = _candidates(spec, am, data, dyn, base, signal, data.train)
-    wall["regressor"] = time.perf_counter() - t0 - wall["data"]
-    log(
-        f"regressor: {sum(b.size for b in declared)} declared parameters, {len(cands)} candidate effects "
-        f"({dyn.evaluations:,} inverse-dynamics evaluations, {wall['regressor']:.1f} s)"
-    )
-    # link blocks hold absolute parameters: the declared links' own torque leaves the fixed part
-    links0 = [b for b in declared if b.pseudo]
-    base_free = base - sum((np.einsum("njk,k->nj", b.cols, b.prior) for b in links0), np.zeros_like(base))
-    fitter = _Fitter(am, signal, base_free, data.train, hold, payload_inertia, spec.trace.criterion)
-    blocks, warnings = declared, []
+def _estimate(name: str, am: ArmModel, f: Fit, fixed: np.ndarray, fitter: Fitter) -> Estimate:
+    values = values_of(am, f)
+    model_edits = edits(am.model, realise(am, values))
+    nrmse, rmse = fitter.error(f, fixed)
+    return Estimate(name, f, fixed, values, model_edits, edited_model(am.model, model_edits), rmse, nrmse)
+
+
+def _drive(am: ArmModel, values: dict[str, Any], model: mujoco.MjModel) -> forward.Drive:
+    joints = values.get("joints", {})
+    offset = np.array([joints.get(jn, {}).get("offset", 0.0) for jn in am.joints])
+    gain = np.array([joints.get(jn, {}).get("gain", 1.0) for jn in am.joints])
+    return forward.Drive(model, offset, gain)
+
+
+def _trace(
+    spec: ArmSpec, fitter: Fitter, reg: Any, log: Callable[[str], None]
+) -> tuple[Fit, np.ndarray, list[dict], list[dict], Fit, float, np.ndarray]:
+    """The declared fit, then effects added round by round (module docstring, step 3)."""
+    blocks = list(reg.declared)
     f_decl, fixed = fitter(blocks)
     fitter.weights = f_decl.weights
     err_decl, rmse_decl = fitter.error(f_decl, fixed)
@@ -385,7 +163,7 @@ def calibrate_arm(
         # screen every candidate with the links held where they are (a convex refit), then refit the
         # most promising `max_tries` with everything free; only those full refits can be accepted
         screened = []
-        for c in cands:
+        for c in reg.candidates:
             if any(a["name"] == c.name and a["target"] == c.target for a in added):
                 continue
             fc, fx = fitter(cur_blocks + c.blocks, np.concatenate([cur.x, *(b.prior for b in c.blocks)]), True)
@@ -414,45 +192,138 @@ def calibrate_arm(
         if not results:
             break
         drop, c, fc, fx, err = max(results, key=lambda r: r[0])
-        entry = {"name": c.name, "target": c.target, "round": rnd, "heldout_drop": round(drop, 4), **c.note}
-        added.append(entry)
+        added.append({"name": c.name, "target": c.target, "round": rnd, "heldout_drop": round(drop, 4), **c.note})
         log(f"round {rnd}: added {c.name} at {c.target} (held-out error -{100 * drop:.1f}%)")
         cur, cur_blocks, cur_err, cur_fixed = fc, cur_blocks + c.blocks, err, fx
     rejected = [v for k, v in tried.items() if not any(f"{a['name']}@{a['target']}" == k for a in added)]
-    wall["trace"] = time.perf_counter() - t0 - wall["data"] - wall["regressor"]
-    final, fixed = cur, cur_fixed
-    ident = identifiability(final.blocks, data.train, final.weights)
+    return cur, cur_fixed, added, rejected, f_decl, err_decl, rmse_decl
+
+
+def calibrate_arm(
+    spec: ArmSpec,
+    episodes: list[dict[str, np.ndarray]],
+    fps: float,
+    *,
+    seed: int = 0,
+    threads: int = 1,
+    log: Callable[[str], None] = lambda msg: None,
+) -> ArmCalibration:
+    """The whole real-arm loop of the module docstring; bad data or a bad spec is one line, before any fit."""
+    t0 = time.perf_counter()
+    wall: dict[str, float] = {}
+
+    def lap(name: str) -> None:
+        wall[name] = time.perf_counter() - t0 - sum(wall.values())
+
+    am = build(spec)
+    data = load_arm_log(spec, episodes, fps, seed)
+    for r in data.resampled:
+        log(
+            f"episode {r['episode']}: irregular clock (periods {r['source_period_s']['min'] * 1e3:.2f}-"
+            f"{r['source_period_s']['max'] * 1e3:.2f} ms) resampled to {r['fps']:g} Hz by linear interpolation"
+        )
+    check_positions(am, data.q, spec.signals["qpos"].column)
+    signal = data.tau.copy() * (np.asarray(spec.gains) if spec.gains else 1.0)  # currents in torque units
+    n_rows = len(signal)
+    log(
+        f"{len(am.joints)} joints, {n_rows} samples at {data.rate:g} Hz ({int(data.train.sum())} to fit, "
+        f"{int(data.hold.sum())} held out); torque signal: {spec.torque}"
+    )
+    log(data.heldout.sentence())
+    lap("data")
+    dyn = Dynamics(am.model, am.qadr, am.dadr, am.qpos0)
+    reg = regression(spec, am, data, dyn, signal, data.train)
+    check_torques(am, signal, reg.base, spec.signals["torque"].column)
+    lap("regressor")
+    log(
+        f"regressor: {sum(b.size for b in reg.declared)} declared parameters, {len(reg.candidates)} candidate "
+        f"effects ({dyn.evaluations:,} samples through MuJoCo's kinematics, {wall['regressor']:.1f} s)"
+    )
+    fitter = Fitter(am, signal, reg.base_free, data.train, data.hold, reg.payload_inertia, spec.trace.criterion)
+    idim_fit, fixed, added, rejected, f_decl, err_decl, rmse_decl = _trace(spec, fitter, reg, log)
+    lap("trace")
+    warnings: list[str] = []
+    if any(a["name"] == "payload" for a in added):
+        warnings += _payload_region_check(spec, am, fitter, idim_fit)
+    estimates = {"idim": _estimate("idim", am, idim_fit, fixed, fitter)}
+    # forward: the declared model and each estimate simulated on the held-out data
+    bench = forward.bench_of(am, spec, data, threads)
+    loop = forward.loop_for(am, spec, data) if not isinstance(bench, str) else None
+    history: list[dict[str, Any]] = []
+    if not isinstance(bench, str) and loop is not None and spec.didim > 0:
+
+        def drive_of(f: Fit) -> forward.Drive:
+            v = values_of(am, f)
+            return _drive(am, v, edited_model(am.model, edits(am.model, realise(am, v))))
+
+        f_didim, _, history = refine(spec, am, dyn, bench, loop, idim_fit, added, drive_of, log)
+        if f_didim is not None:  # the same blocks on the logged rows: the DIDIM parameters stated there
+            probe = Fit(idim_fit.blocks, f_didim.x, idim_fit.weights, idim_fit.cov, 1.0, 0.0, 0)
+            fixed_log = fitter.fixed(probe, idim_fit.blocks)
+            f_log = fit_at(idim_fit.blocks, f_didim.x, signal, fixed_log, data.train, idim_fit.weights)
+            estimates["didim"] = _estimate("didim", am, f_log, fixed_log, fitter)
+    lap("didim")
+    fw: dict[str, Any]
+    if isinstance(bench, str):
+        fw = {"skipped": bench}
+    else:
+        assert loop is not None
+        drives = {"nominal": forward.Drive(am.model, np.zeros(len(am.joints)), np.ones(len(am.joints)))}
+        drives.update({k: _drive(am, e.values, e.model) for k, e in estimates.items()})
+        fw = forward.forward_errors(bench, drives, loop)
+    lap("forward")
+    chosen, why = _choose(spec, fw, estimates)
+    est = estimates[chosen]
+    log(f"estimate carried: {chosen} ({why})")
+    final = est.fit
+    rows = np.flatnonzero(data.train)
+    dof = max(final.n - len(final.x), 1)
+    ident = analyse(final.blocks, final.x, rows, final.weights, final.tau * final.ssr / dof, fitter.spread)
     windows = windows_of(data.t + 1e4 * data.episode, data.train, WINDOW_S)
-    draws_x = bootstrap(final.blocks, signal, fixed, windows, final.weights, spec.bootstrap, seed, final.x)
-    wall["bootstrap"] = time.perf_counter() - t0 - sum(wall.values())
-    values = _values(am, final)
+    draws_x = bootstrap(final.blocks, signal, est.fixed, windows, final.weights, spec.bootstrap, seed, final.x)
+    lap("bootstrap")
     draws = [
-        _values(am, Fit(final.blocks, x, final.weights, final.cov, final.tau, final.ssr, final.n)) for x in draws_x
+        values_of(am, Fit(final.blocks, x, final.weights, final.cov, final.tau, final.ssr, final.n)) for x in draws_x
     ]
     params = param_entries(final, f_decl, ident, draws_x, spec)
     for entry in added:  # the physical quantities of what was added, with intervals
-        entry.update(effect_terms(entry, final, draws_x))
-    links = link_entries(am, values, ident)
-    err_final, rmse_final = fitter.error(final, fixed)
-    nominal = _nominal_torque(am, data, base)
+        entry.update(effect_terms(entry, final, draws_x, ident))
+    links = link_entries(am, est.values, ident.status)
+    nominal = nominal_torque(am, data, reg.base)
+    hold = data.hold
     rmse_nom = np.sqrt(np.mean((signal[hold] - nominal[hold]) ** 2, axis=0))
-    torques = {"nominal": nominal, "final": predict(final.blocks, final.x, fixed)}
-    offsets = {jn: v.get("offset", 0.0) for jn, v in values["joints"].items()}
-    errors: dict[str, Any] = {
-        "torque": {
-            "unit": "N·m (N for slide joints)",
-            "joints": am.joints,
-            "spread": fitter.spread.tolist(),
-            "nominal": {"rmse": rmse_nom.tolist(), "nrmse": float(np.mean(rmse_nom / fitter.spread))},
-            "declared": {"rmse": rmse_decl.tolist(), "nrmse": err_decl},
-            "final": {"rmse": rmse_final.tolist(), "nrmse": err_final},
-        }
+    repeat = _repeat_baseline(data, signal, fitter.spread)
+    best_repeat = repeat[repeat["best"]]["nrmse"]
+    torque: dict[str, Any] = {
+        "unit": "N·m (N for slide joints)",
+        "joints": am.joints,
+        "spread": fitter.spread.tolist(),
+        "nominal": {"rmse": rmse_nom.tolist(), "nrmse": float(np.mean(rmse_nom / fitter.spread))},
+        "declared": {"rmse": rmse_decl.tolist(), "nrmse": err_decl},
+        **{k: {"rmse": e.torque_rmse.tolist(), "nrmse": e.torque_nrmse} for k, e in estimates.items()},
+        "final": {"rmse": est.torque_rmse.tolist(), "nrmse": est.torque_nrmse},
+        "repeat": repeat,
+        "beats_repeat": bool(est.torque_nrmse < best_repeat),
     }
-    fitted = realise(am, values)
-    errors["forward"] = forward_errors(am, spec, data, fitted, values, offsets, threads)
-    wall["forward"] = time.perf_counter() - t0 - sum(wall.values())
+    errors: dict[str, Any] = {"torque": torque, "forward": fw}
+    verdict = forward.verdict(fw, chosen) if "skipped" not in fw else {"simulates_better": None, "why": fw["skipped"]}
+    trust = {
+        "heldout": data.heldout.to_json(),
+        "estimate": chosen,
+        "estimate_why": why,
+        "torque_beats_repeat": torque["beats_repeat"],
+        "repeat_baseline_nrmse": best_repeat,
+        "forward": verdict,
+        "simulates_better": verdict.get("simulates_better"),
+    }
+    warnings += _trust_warnings(data, torque, verdict, repeat)
     warnings += warnings_of(final, params, errors, am)
-    not_carried = uncarried_effects(values, added, spec)
+    sentence = (
+        payload_sentence(ident, f"payload@{am.payload_name}") if any(a["name"] == "payload" for a in added) else None
+    )
+    if sentence:
+        warnings.append(sentence)
+    not_carried = uncarried_effects(est.values, added, spec)
     wall["total"] = time.perf_counter() - t0
     return ArmCalibration(
         spec,
@@ -466,44 +337,100 @@ def calibrate_arm(
         links,
         errors,
         warnings,
-        values,
+        est.values,
         not_carried,
         draws,
-        searched,
+        reg.searched,
         wall,
-        fitted,
-        torques,
+        est.model,
+        {"nominal": nominal, "final": predict(final.blocks, final.x, est.fixed)},
+        estimates,
+        chosen,
+        ident,
+        trust,
+        history,
     )
 
 
-def _nominal_torque(am: ArmModel, data: ArmLog, base: np.ndarray) -> np.ndarray:
-    """The declared model's torque as given: rigid body plus its own rotor inertia, damping and friction loss."""
-    m, d = am.model, am.dadr
-    return (
-        base
-        + m.dof_armature[d] * data.ddq
-        + m.dof_damping[d] * data.dq
-        + m.dof_frictionloss[d] * np.tanh(data.dq / FRICTION_V)
+def _choose(spec: ArmSpec, fw: dict[str, Any], estimates: dict[str, Estimate]) -> tuple[str, str]:
+    """Which estimate runs carry, and why: the spec's choice, else the one the held-out closed-loop free run supports."""
+    if spec.estimate != "auto":
+        if spec.estimate not in estimates:
+            return "idim", f"the spec asks for {spec.estimate}, which did not improve on IDIM: IDIM"
+        return spec.estimate, "the spec's choice (estimate: " + spec.estimate + ")"
+    if "didim" not in estimates:
+        return "idim", "the only estimate (no forward refinement ran)"
+    if "skipped" in fw:
+        return "idim", "no forward check to compare the two"
+    free = fw["closed_loop"]["free_run"]
+    a, b = free["idim"]["nrmse"], free["didim"]["nrmse"]
+    if b is not None and (a is None or b < a * 0.98):
+        return "didim", f"it simulates the held-out data better in closed loop (free-run NRMSE {b:.4g} against {a:.4g})"
+    return "idim", (
+        f"DIDIM does not simulate the held-out data clearly better (free-run NRMSE {b if b is None else f'{b:.4g}'} "
+        f"against {a if a is None else f'{a:.4g}'}): the torque fit's estimate is kept"
     )
+
+
+def _payload_region_check(spec: ArmSpec, am: ArmModel, fitter: Fitter, f: Fit) -> list[str]:
+    """A warning when the fit, unfenced, wants the payload's centre of mass outside the declared region."""
+    free, _ = fitter(f.blocks, x0=f.x, fences=False)
+    m, *h = free.values("payload")
+    if m <= 1e-9:
+        return []
+    centre, radius = np.asarray(spec.payload_region[0]), spec.payload_region[1]
+    com = np.asarray(h) / m
+    dist = float(np.linalg.norm(com - centre))
+    if dist <= radius * 1.001:
+        return []
+    return [
+        f"the fit wants the payload's centre of mass at {np.round(com, 3).tolist()} m in {am.payload_name!r} "
+        f"({dist:.3g} m from the region's centre), outside the declared region (radius {radius:g} m, spec field "
+        f"'payload_region'); it is held at the region's edge (unfenced mass {m:.4g} kg)"
+    ]
+
+
+def _trust_warnings(data: ArmLog, torque: dict[str, Any], verdict: dict[str, Any], repeat: dict[str, Any]) -> list[str]:
+    out = []
+    if data.heldout.nothing_new:
+        out.append(data.heldout.sentence())
+    best = repeat["best"]
+    if not torque["beats_repeat"]:
+        out.append(
+            f"the calibrated model does not beat the repeat baseline on the held-out data (torque NRMSE "
+            f"{torque['final']['nrmse']:.4g} against {repeat[best]['nrmse']:.4g} for {repeat[best]['what']}): "
+            "its held-out error says nothing a memory of the log would not"
+        )
+    if verdict.get("simulates_better") is False:
+        out.append(
+            "the calibrated model simulates the held-out data worse than the declared one in closed loop ("
+            + "; ".join(verdict.get("rose", []))
+            + "): bench run ... calibration= warns, strict=true refuses it"
+        )
+    return out
 
 
 def summary_line(cal: ArmCalibration) -> str:
-    """The command's last line: what improved, what did not, and what to look at."""
+    """The command's last line: what improved against what, what did not, and what to look at."""
     tq = cal.errors["torque"]
-    parts = [f"held-out torque NRMSE {tq['nominal']['nrmse']:.3g} (declared model) -> {tq['final']['nrmse']:.3g}"]
+    rep = tq["repeat"][tq["repeat"]["best"]]["nrmse"]
+    parts = [
+        f"held-out torque NRMSE {tq['nominal']['nrmse']:.3g} (declared model) -> {tq['final']['nrmse']:.3g} "
+        f"(repeat baseline {rep:.3g}; {100 * cal.log.heldout.repeat_share:.0f}% of the held-out data repeat fitted states)"
+    ]
     fw = cal.errors.get("forward", {})
-    if "k_step" in fw:
+    if "closed_loop" in fw and fw["closed_loop"]["free_run"]:
+        free = fw["closed_loop"]["free_run"]
         parts.append(
-            f"forward {fw['horizon_s'] * 1e3:.0f} ms k-step NRMSE {fw['k_step']['nominal']['nrmse']:.3g} -> "
-            f"{fw['k_step']['final']['nrmse']:.3g}"
+            f"closed-loop free-run NRMSE {free['nominal']['nrmse']:.3g} -> {free[cal.chosen]['nrmse']:.3g} ({cal.chosen})"
         )
     added = ", ".join(f"{a['name']}@{a['target']}" for a in cal.added) or "none"
     parts.append(f"effects added: {added}")
     at = [p["name"] for p in cal.params if p.get("at_bound")]
     if at:
         parts.append(f"AT A BOUND: {', '.join(at)}")
-    rose = [w for w in cal.warnings if "rose" in w]
-    if rose:
-        parts.append("ROSE: " + "; ".join(rose))
+    flags = [w for w in cal.warnings if "rose" in w or "worse" in w or "NOTHING NEW" in w or "repeat baseline" in w]
+    if flags:
+        parts.append("CHECK: " + "; ".join(flags))
     parts.append(f"{cal.wall['total']:.1f} s")
     return "; ".join(parts)

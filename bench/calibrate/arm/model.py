@@ -124,6 +124,14 @@ def build(spec: ArmSpec) -> ArmModel:
             f"spec field 'payload': {pname!r} is not fixed to the last link {model.body(links[-1]).name!r} "
             "(a payload sits at the flange or a tool frame on it)"
         )
+    centre, radius = np.asarray(spec.payload_region[0]), spec.payload_region[1]
+    reach = float(model.stat.extent)
+    if float(np.linalg.norm(centre)) - radius > reach:
+        raise SpecError(
+            f"spec field 'payload_region': centre {np.round(centre, 3).tolist()} m from {pname!r} with radius "
+            f"{radius:g} m lies outside the model (its extent is {reach:.3g} m): the region must hold points the arm "
+            "can carry"
+        )
     motors = np.full(len(jids), -1)
     for a in range(model.nu):
         if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and model.actuator_biastype[a] == 0:

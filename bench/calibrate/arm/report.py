@@ -47,8 +47,8 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
     import scipy  # scipy: loaded only when a fit is computed
 
     am, log = cal.am, cal.log
-    fitted = cal.fitted_model if cal.fitted_model is not None else realise(am, cal.values)
-    final_edits = edits(am.model, fitted)
+    chosen = cal.estimates.get(cal.chosen)
+    final_edits = chosen.edits if chosen is not None else edits(am.model, realise(am, cal.values))
     doc: dict[str, Any] = {
         "schema": SCHEMA,
         "method": "idim",
@@ -70,12 +70,29 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
             "filter": f"4th-order zero-phase Butterworth low-pass at {cal.spec.filter_hz:g} Hz on every signal",
             "resampled": log.resampled,
         },
+        "heldout": log.heldout.to_json(),
+        "trust": cal.trust,
         "parameters": cal.params,
         "links": cal.links,
         "effects_searched": cal.searched,
         "effects_added": cal.added,
         "effects_rejected": cal.rejected,
         "errors": cal.errors,
+        "estimates": {
+            name: {
+                "carried": name == cal.chosen,
+                "torque_nrmse": e.torque_nrmse,
+                "values": e.values,
+                "edits": e.edits,
+            }
+            for name, e in cal.estimates.items()
+        },
+        "didim": {
+            "method": "closed-loop output error (Gautier, Janot and Vandanjon 2013): refits on the states of the "
+            "forward check's closed-loop simulation of the training data, from IDIM's estimate",
+            "iterations": cal.didim_history,
+        },
+        "identifiability": cal.identifiability.to_json() if cal.identifiability is not None else None,
         "warnings": cal.warnings,
         "not_carried": cal.not_carried,
         "summary": summary_line(cal),
@@ -113,8 +130,13 @@ def _fmt(v: Any, digits: int = 4) -> str:
 def _what(a: dict) -> str:
     """A found effect's physical values with their intervals, for the report."""
     if a["name"] == "payload":
-        mi = a["mass_interval"]
-        com = ", ".join(f"{c:.4f} [{lo:.4f}, {hi:.4f}]" for c, (lo, hi) in zip(a["com"], a["com_interval"]))
+        mi, ci = a.get("mass_interval"), a.get("com_interval")
+        if mi is None:
+            com = ", ".join(f"{c:.4f}" for c in a["com"])
+            return f": {a['mass']:.4g} kg, centre of mass [{com}] m in its frame (not identified apart: intervals unbounded)"
+        com = ", ".join(
+            f"{c:.4f} [{iv[0]:.4f}, {iv[1]:.4f}]" if iv else f"{c:.4f} [unbounded]" for c, iv in zip(a["com"], ci or [])
+        )
         return f": {a['mass']:.4g} kg [{mi[0]:.4g}, {mi[1]:.4g}], centre of mass {com} m in its frame"
     if a["name"] == "actuator_gain":
         gi = a["gain_interval"]
@@ -122,50 +144,100 @@ def _what(a: dict) -> str:
     return ""
 
 
-def markdown(doc: dict[str, Any], plot: str | None) -> str:
-    """report.md: errors per joint before and after, parameters with status and interval, effects, warnings."""
+def _nr(v: dict[str, Any] | None) -> str:
+    return "-" if not v or v.get("nrmse") is None else _fmt(v["nrmse"])
+
+
+def _verdict(doc: dict[str, Any]) -> list[str]:
+    """The report's first lines: what the calibration earned, against what."""
+    t = doc.get("trust", {})
+    fw = t.get("forward", {})
     tq = doc["errors"]["torque"]
+    better = fw.get("simulates_better")
     lines = [
-        "# Real-arm calibration (inverse dynamics)",
+        f"**Verdict.** {doc['summary']}",
         "",
+        f"- Held-out data: {t.get('heldout', {}).get('sentence', '-')}.",
+        f"- Torque: the carried estimate scores {_fmt(tq['final']['nrmse'])} (mean NRMSE) where the declared model "
+        f"scores {_fmt(tq['nominal']['nrmse'])} and memory (the repeat baseline) {_fmt(t.get('repeat_baseline_nrmse'))}: "
+        + (
+            "it beats the repeat baseline."
+            if t.get("torque_beats_repeat")
+            else "**it does not beat the repeat baseline**."
+        ),
+    ]
+    if better is None:
+        lines.append(f"- Simulation: {fw.get('why', 'no forward check')}.")
+    else:
+        lines.append(
+            f"- Simulation ({fw.get('criterion', '')}): declared {_fmt(fw.get('declared'))} -> calibrated "
+            f"{_fmt(fw.get('calibrated'))}: "
+            + (
+                "the calibrated model simulates better."
+                if better
+                else "**the calibrated model simulates worse** (" + "; ".join(fw.get("rose", [])) + ")."
+            )
+        )
+    lines.append(f"- Carried into runs: the {t.get('estimate', 'idim')} estimate ({t.get('estimate_why', '')}).")
+    return lines
+
+
+def markdown(doc: dict[str, Any], plot: str | None) -> str:
+    """report.md: the verdict first; held-out data; errors before and after beside the repeat baseline; forward
+    simulation; both estimates; what the data identify; parameters, links, effects, warnings."""
+    tq = doc["errors"]["torque"]
+    est = [k for k in ("idim", "didim") if k in tq]
+    lines = ["# Real-arm calibration (inverse dynamics)", "", *_verdict(doc), ""]
+    lines.append(
         f"Model: {doc['model']['source']}. Data: {doc['data']['samples']} samples at {doc['data']['rate_hz']:g} Hz "
         f"({doc['data']['train_samples']} fitted, {doc['data']['holdout_samples']} held out); "
-        f"{doc['data']['filter']}; velocity: {doc['data']['velocity']}.",
-    ]
+        f"{doc['data']['filter']}; velocity: {doc['data']['velocity']}."
+    )
     for r in doc["data"]["resampled"]:
         lines.append(
             f"Episode {r['episode']}: irregular clock (periods {1e3 * r['source_period_s']['min']:.2f}-"
             f"{1e3 * r['source_period_s']['max']:.2f} ms), resampled to {r['fps']:g} Hz: {r['method']}."
         )
-    lines += ["", "## Held-out error per joint", "", "| joint | torque RMSE nominal | declared fit | final |"]
-    lines.append("|---|---|---|---|")
+    h = doc.get("heldout", {})
+    if h:
+        wins = ", ".join(f"episode {w['episode']} {w['start_s']:.3g}-{w['stop_s']:.3g} s" for w in h["windows"][:6])
+        lines += ["", "## Held-out data", "", f"{h['sentence']}. Held out: {wins}; {h['method']}."]
+    rep = tq.get("repeat", {})
+    head = ["nominal", "declared fit", *est, "repeat baseline"]
+    lines += ["", "## Held-out torque error per joint (RMSE)", "", "| joint | " + " | ".join(head) + " |"]
+    lines.append("|---" * (len(head) + 1) + "|")
+    best = rep.get(rep.get("best", ""), {})
     for i, j in enumerate(tq["joints"]):
-        lines.append(
-            f"| {j} | {_fmt(tq['nominal']['rmse'][i])} | {_fmt(tq['declared']['rmse'][i])} | "
-            f"{_fmt(tq['final']['rmse'][i])} |"
-        )
-    lines.append(
-        f"| mean NRMSE | {_fmt(tq['nominal']['nrmse'])} | {_fmt(tq['declared']['nrmse'])} | "
-        f"{_fmt(tq['final']['nrmse'])} |"
-    )
-    fw = doc["errors"].get("forward", {})
-    if "k_step" in fw:
-        lines += [
-            "",
-            f"Forward check: both models driven by the logged torque from logged states, "
-            f"{1e3 * fw['horizon_s']:.0f} ms horizons, contacts and air drag off (position RMSE, rad or m):",
-            "",
-            "| joint | nominal | final |",
-            "|---|---|---|",
-        ]
-        k0, k1 = fw["k_step"]["nominal"], fw["k_step"]["final"]
-        for i, j in enumerate(tq["joints"]):
-            lines.append(f"| {j} | {_fmt(k0['rmse'][i])} | {_fmt(k1['rmse'][i])} |")
-        lines.append(f"| mean NRMSE | {_fmt(k0['nrmse'])} | {_fmt(k1['nrmse'])} |")
-    elif "skipped" in fw:
-        lines += ["", f"Forward check: {fw['skipped']}."]
+        cells = [tq["nominal"]["rmse"][i], tq["declared"]["rmse"][i], *(tq[k]["rmse"][i] for k in est)]
+        cells.append(best["rmse"][i] if best else None)
+        lines.append(f"| {j} | " + " | ".join(_fmt(c) for c in cells) + " |")
+    means = [tq["nominal"]["nrmse"], tq["declared"]["nrmse"], *(tq[k]["nrmse"] for k in est), best.get("nrmse")]
+    lines.append("| mean NRMSE | " + " | ".join(_fmt(c) for c in means) + " |")
+    if best:
+        lines.append(f"\nRepeat baseline: {best['what']}.")
+    lines += _forward_md(doc["errors"].get("forward", {}))
     if plot:
         lines += ["", f"![held-out torque]({plot})"]
+    if len(est) > 1:
+        lines += _estimates_md(doc)
+    idn = doc.get("identifiability")
+    if idn:
+        lines += [
+            "",
+            "## What the data identify",
+            "",
+            f"{idn['identified_directions']} of {idn['parameters']} parameter directions are identified ({idn['method']}); "
+            f"{idn['unidentified_directions']} are not, and a parameter with a share of them has no interval (unbounded).",
+        ]
+        if idn["combinations"]:
+            lines += ["", "Identified only in combination (value [95% interval]):", ""]
+            for c in idn["combinations"][:12]:
+                lo, hi = c["interval"]
+                lines.append(f"- {c['combination']} = {_fmt(c['value'])} [{_fmt(lo)}, {_fmt(hi)}] {c['unit']}")
+            if len(idn["combinations"]) > 12:
+                lines.append(
+                    f"- ... {len(idn['combinations']) - 12} more in calibration.json (identifiability.combinations)"
+                )
     lines += [
         "",
         "## Parameters",
@@ -178,8 +250,10 @@ def markdown(doc: dict[str, Any], plot: str | None) -> str:
         status = p["status"] + (f" (with {', '.join(p['with'])})" if p.get("with") else "")
         if p.get("at_bound"):
             status += "; **at a bound**"
+        if p.get("moved"):
+            status += "; moved with the parameters it is tied to"
         lines.append(
-            f"| {p['name']} | {_fmt(p['value'])} | {'-' if not iv else f'[{_fmt(iv[0])}, {_fmt(iv[1])}]'} | "
+            f"| {p['name']} | {_fmt(p['value'])} | {'unbounded' if not iv else f'[{_fmt(iv[0])}, {_fmt(iv[1])}]'} | "
             f"{_fmt(p['declared'])} | {status} |"
         )
     lines += [
@@ -205,8 +279,70 @@ def markdown(doc: dict[str, Any], plot: str | None) -> str:
         lines += ["", "Not carried into runs: " + "; ".join(doc["not_carried"]) + "."]
     if doc["warnings"]:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in doc["warnings"]]
-    lines += ["", f"Summary: {doc['summary']}", ""]
+    lines.append("")
     return "\n".join(lines)
+
+
+def _forward_md(fw: dict[str, Any]) -> list[str]:
+    if "skipped" in fw or "closed_loop" not in fw:
+        return ["", f"Forward check: {fw.get('skipped', 'none')}."]
+    cl, ol = fw["closed_loop"], fw["open_loop"]
+    labels = [k for k in ("nominal", "idim", "didim") if k in cl["free_run"]]
+    loop = fw["loop"]
+    lines = [
+        "",
+        "## Forward simulation on the held-out data (position NRMSE, mean over joints)",
+        "",
+        f"Input: {fw['input']}; contacts and air drag off; integrator {fw['integrator']}. Closed loop: {loop['why']}.",
+        "",
+        "| closed loop | " + " | ".join(labels) + " |",
+        "|---" * (len(labels) + 1) + "|",
+    ]
+    for h, row in cl["k_step"].items():
+        lines.append(f"| k-step {h} s | " + " | ".join(_nr(row.get(k)) for k in labels) + " |")
+    lines.append("| free run | " + " | ".join(_nr(cl["free_run"].get(k)) for k in labels) + " |")
+    base = ["constant_velocity", "repeat"]
+    lines += ["", "| open loop | " + " | ".join(labels + ["constant velocity", "repeat baseline"]) + " |"]
+    lines.append("|---" * (len(labels) + 3) + "|")
+    for h, row in ol["k_step"].items():
+        lines.append(f"| k-step {h} s | " + " | ".join(_nr(row.get(k)) for k in labels + base) + " |")
+    lines += ["", f"Open loop {'is' if ol.get('informative') else 'is not'} informative here: {ol.get('why', '')}."]
+    return lines
+
+
+def _estimates_md(doc: dict[str, Any]) -> list[str]:
+    """IDIM and DIDIM side by side: errors, and the parameters that differ most between them."""
+    e = doc["estimates"]
+    fw = doc["errors"].get("forward", {})
+    free = fw.get("closed_loop", {}).get("free_run", {})
+    lines = [
+        "",
+        "## Two estimates: inverse dynamics (IDIM) and its forward refinement (DIDIM)",
+        "",
+        "| estimate | held-out torque NRMSE | held-out closed-loop free-run NRMSE | carried |",
+        "|---|---|---|---|",
+    ]
+    for k, v in e.items():
+        lines.append(f"| {k} | {_fmt(v['torque_nrmse'])} | {_nr(free.get(k))} | {'yes' if v['carried'] else ''} |")
+    a, b = e.get("idim", {}).get("values", {}), e.get("didim", {}).get("values", {})
+    diffs = []
+    for jn, vals in a.get("joints", {}).items():
+        for key, va in vals.items():
+            vb = b.get("joints", {}).get(jn, {}).get(key)
+            if vb is not None:
+                diffs.append((abs(vb - va) / max(abs(va), 1e-3), f"{jn}.{key}", va, vb))
+    for ln, pa in a.get("links", {}).items():
+        pb = b.get("links", {}).get(ln)
+        if pb is not None:
+            diffs.append((abs(pb[0] - pa[0]) / max(abs(pa[0]), 1e-3), f"{ln}.mass", float(pa[0]), float(pb[0])))
+    if diffs:
+        lines += [
+            "",
+            "Largest relative differences (IDIM -> DIDIM): "
+            + "; ".join(f"{n} {_fmt(va)} -> {_fmt(vb)}" for _, n, va, vb in sorted(diffs, reverse=True)[:6])
+            + ".",
+        ]
+    return lines
 
 
 def plot(cal: ArmCalibration, out: Path) -> str | None:
@@ -216,7 +352,7 @@ def plot(cal: ArmCalibration, out: Path) -> str | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
 
-    hold = ~cal.log.train
+    hold = cal.log.hold
     t = cal.log.t[hold]
     meas, nom, fin = cal.log.tau[hold], cal.torques["nominal"][hold], cal.torques["final"][hold]
     n = meas.shape[1]

@@ -39,7 +39,14 @@ ARM_KEYS = (
     "payload",
     "effects",
     "holdout",
+    "holdout_at",
+    "period",
     "horizon",
+    "horizons",
+    "loop_gain",
+    "estimate",
+    "didim",
+    "payload_region",
     "bootstrap",
     "controller",
     "gains",
@@ -49,6 +56,9 @@ SIGNALS = ("qpos", "qvel", "torque")
 TORQUE_KINDS = ("measured", "command", "current")
 FRICTION = ("coulomb", "viscous", "offset")
 ARM_EFFECTS = ("payload", "actuator_gain", "stribeck_friction", "asymmetric_friction", "joint_spring")
+ESTIMATES = ("auto", "idim", "didim")
+HOLDOUT_AT = ("least_repeated", "end", "episodes")
+PAYLOAD_RADIUS = 0.15  # m: by default a payload's centre of mass lies within this distance of its frame's origin
 
 
 @dataclass(frozen=True)
@@ -68,8 +78,15 @@ class ArmSpec:
     inertia: tuple[str, ...] | None = None  # None: every link moved by the joints; () none
     payload: str | None = None  # body or site of the flange / tool frame (default: the last link's last fixed body)
     effects: tuple[str, ...] = ARM_EFFECTS
-    holdout: float = 0.3
-    horizon: float = 0.05  # seconds of the forward-simulation (k-step) check
+    holdout: float = 0.3  # share of the log held out
+    holdout_window: tuple[float, float] | None = None  # or these seconds of a one-episode log
+    holdout_at: str = "least_repeated"  # where the share sits (bench.calibrate.novelty)
+    period: float | None = None  # seconds: the excitation's period, when known (else detected)
+    horizons: tuple[float, ...] = (0.05, 0.2, 1.0)  # seconds of the forward check's k-step horizons
+    loop_gain: float = 20.0  # stiffness of the forward check's virtual loop, in torque spreads per position spread
+    estimate: str = "auto"  # which estimate runs carry: auto (the one the held-out simulation supports) | idim | didim
+    didim: int = 3  # refinement iterations of the forward (DIDIM) estimate; 0: none
+    payload_region: tuple[tuple[float, float, float], float] = ((0.0, 0.0, 0.0), PAYLOAD_RADIUS)  # centre, radius
     bootstrap: int = 200
     controller: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (kp, kd) per joint: the log's loop
     gains: tuple[float, ...] | None = None  # torque per unit of a `current` signal (torque constant x gear)
@@ -91,8 +108,14 @@ class ArmSpec:
             "inertia": "all" if self.inertia is None else list(self.inertia),
             "payload": self.payload,
             "effects": list(self.effects),
-            "holdout": self.holdout,
-            "horizon": self.horizon,
+            "holdout": list(self.holdout_window) if self.holdout_window else self.holdout,
+            "holdout_at": "window" if self.holdout_window else self.holdout_at,
+            "period": self.period,
+            "horizons": list(self.horizons),
+            "loop_gain": self.loop_gain,
+            "estimate": self.estimate,
+            "didim": self.didim,
+            "payload_region": {"center": list(self.payload_region[0]), "radius": self.payload_region[1]},
             "bootstrap": self.bootstrap,
             "controller": None
             if self.controller is None
@@ -160,6 +183,45 @@ def _controller(raw: Any, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]
     return kp, kd
 
 
+def _holdout(raw: Any) -> tuple[float, tuple[float, float] | None]:
+    if isinstance(raw, (list, tuple)):
+        if len(raw) != 2:
+            raise SpecError(
+                f"spec field 'holdout' must be a share (0.05-0.9) or a window [t0, t1] in seconds; got {raw!r}"
+            )
+        t0, t1 = (number(v, "holdout", lo=0.0) for v in raw)
+        if t1 <= t0:
+            raise SpecError(f"spec field 'holdout': the window [{t0:g}, {t1:g}] s is empty (t1 must exceed t0)")
+        return 0.0, (t0, t1)
+    return number(raw, "holdout", lo=0.05, hi=0.9), None
+
+
+def _horizons(raw: dict[str, Any]) -> tuple[float, ...]:
+    if "horizon" in raw and "horizons" in raw:
+        raise SpecError("spec fields 'horizon' and 'horizons' both given; 'horizons' lists every one")
+    if "horizon" in raw:
+        return (number(raw["horizon"], "horizon", lo=1e-3, hi=3600.0),)
+    v = raw.get("horizons", [0.05, 0.2, 1.0])
+    if not isinstance(v, (list, tuple)) or not v or len(v) > 6:
+        raise SpecError(f"spec field 'horizons' must list 1 to 6 durations in seconds; got {v!r}")
+    return tuple(sorted(number(x, "horizons", lo=1e-3, hi=3600.0) for x in v))
+
+
+def _region(raw: Any) -> tuple[tuple[float, float, float], float]:
+    if raw is None:
+        return (0.0, 0.0, 0.0), PAYLOAD_RADIUS
+    raw = check_keys(raw, ("center", "radius"), "payload_region")
+    c = raw.get("center", [0.0, 0.0, 0.0])
+    if not isinstance(c, (list, tuple)) or len(c) != 3:
+        raise SpecError(f"spec field 'payload_region.center' must be [x, y, z] in metres (payload frame); got {c!r}")
+    r = raw.get("radius", PAYLOAD_RADIUS)
+    if not isinstance(r, (int, float)) or isinstance(r, bool) or r <= 0:
+        raise SpecError(
+            f"spec field 'payload_region.radius' must be a positive distance in metres; got {r!r} (the region is empty)"
+        )
+    return (float(c[0]), float(c[1]), float(c[2])), number(r, "payload_region.radius", lo=1e-6, hi=100.0)
+
+
 def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> ArmSpec:
     """Check a raw arm spec mapping and build an ArmSpec (one SpecError naming the field otherwise)."""
     raw = check_keys(raw, ARM_KEYS, "")
@@ -207,6 +269,13 @@ def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = N
             f"spec field 'filter_hz' ({filter_hz:g}) must be below half of 'rate' ({rate:g} Hz): the signals are "
             "decimated to 'rate' after filtering"
         )
+    share, window = _holdout(raw.get("holdout", 0.3))
+    holdout_at = raw.get("holdout_at", "least_repeated")
+    if holdout_at not in HOLDOUT_AT:
+        raise SpecError(f"spec field 'holdout_at': {holdout_at!r}; {valid_choices(str(holdout_at), HOLDOUT_AT)}")
+    estimate = raw.get("estimate", "auto")
+    if estimate not in ESTIMATES:
+        raise SpecError(f"spec field 'estimate': {estimate!r}; {valid_choices(str(estimate), ESTIMATES)}")
     return ArmSpec(
         model=model,
         suite=suite,
@@ -221,8 +290,15 @@ def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = N
         inertia=inertia,
         payload=payload,
         effects=_choice_list(raw.get("effects", "all"), "effects", ARM_EFFECTS),
-        holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
-        horizon=number(raw.get("horizon", 0.05), "horizon", lo=1e-3, hi=10.0),
+        holdout=share,
+        holdout_window=window,
+        holdout_at=holdout_at,
+        period=None if raw.get("period") is None else number(raw["period"], "period", lo=1e-3, hi=1e6),
+        horizons=_horizons(raw),
+        loop_gain=number(raw.get("loop_gain", 20.0), "loop_gain", lo=0.1, hi=1e4),
+        estimate=estimate,
+        didim=number(raw.get("didim", 3), "didim", lo=0, hi=50, integer=True),
+        payload_region=_region(raw.get("payload_region")),
         bootstrap=number(raw.get("bootstrap", 200), "bootstrap", lo=0, hi=10_000, integer=True),
         controller=_controller(raw.get("controller"), len(joints)),
         gains=gains,
