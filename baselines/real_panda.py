@@ -5,8 +5,11 @@
 1. Imports Gaz et al.'s excitation log (`../shared/data/real/panda_gaz`, irregular clock: resampled to
    1 kHz by linear interpolation) and calibrates robosuite's Panda, as held_out_robots builds it, by
    inverse dynamics (`bench/calibrate/models/panda_gaz.yaml`): OUT/calibration/.
-2. Compares the fitted friction with the model the log's authors identified (Gaz et al., RA-L 2019:
-   tau_f = A / (1 + exp(-a (dq + s))) - A / (1 + exp(-a s)) per joint), on the held-out velocities.
+2. Compares the calibrated model with the one the log's authors identified (Gaz et al., RA-L 2019), on
+   the never-repeated stretch the calibration holds out: their predicted torque on the same samples
+   (results/references/gaz_panda.json, made by benchmarks/gaz_reference.py from their own code) scored
+   by the same code as ours; and their friction law, tau_f = A / (1 + exp(-a (dq + s))) - A / (1 + exp(-a s))
+   per joint, against ours on the held-out velocities.
 3. Runs a population of policies (scripted expert, noisy, timid and weak-grip experts, the committed
    behaviour-cloning checkpoint and a smaller one trained here on 8 demonstrations per seen arm, random) on the nominal and on the calibrated Panda, the same seeds on
    both, and reports per-policy success with paired intervals and the change in rank order.
@@ -34,7 +37,7 @@ import numpy as np
 
 from baselines import bc
 from bench import api
-from bench.api.calibration import calibrate_arm, load_arm_spec, write_arm_report
+from bench.api.calibration import calibrate_arm, load_arm_spec, score_reference, write_arm_report
 from bench.api.data import outputs, portable, write_atomic
 from bench.api.datasets import import_csv, read_dataset, write_dataset
 from bench.api.scripts import build_from_argv, command_help, guarded
@@ -66,6 +69,7 @@ POLICIES: list[tuple[str, str, dict[str, Any]]] = [
     ("random", "random", {}),
 ]
 SWEEP_AXES = ("damping", "frictionloss", "link_mass")
+REFERENCE = ROOT / "results" / "references" / "gaz_panda.json"  # Gaz et al.'s model on the held-out samples
 
 
 @dataclass(frozen=True)
@@ -276,8 +280,13 @@ def main_args(a: Args) -> int:
         shutil.rmtree(staging)
     cal_json = write_arm_report(cal, staging)
     doc = json.loads(cal_json.read_text())
-    hold = ~cal.log.train
-    friction = friction_table(doc, cal.log.dq[hold])
+    friction = friction_table(doc, cal.log.dq[cal.log.hold])
+    reference = (
+        score_reference(cal, json.loads(REFERENCE.read_text()))
+        if REFERENCE.is_file()
+        else {"why": f"{portable(REFERENCE)} is missing (python benchmarks/gaz_reference.py gaz=CLONE makes it)"}
+    )
+    friction["gaz_model_heldout"] = reference
     small_bc = train_small_bc(a, work)
     rows = run_population(a, work, staging, small_bc)
     ranks = rank_change(rows, a.seed)
@@ -293,7 +302,8 @@ def main_args(a: Args) -> int:
         write_atomic(tmp / "population.json", {"policies": rows, **ranks, "episodes": a.episodes, "seed": a.seed})
         write_atomic(tmp / "friction.json", friction)
         write_atomic(tmp / "sweep.json", sweep)
-        (tmp / "README.md").write_text(readme(a, doc, friction, rows, ranks, sweep, t_cal, time.perf_counter() - t0))
+        text = readme(a, doc, friction, rows, ranks, sweep, t_cal, time.perf_counter() - t0)
+        (tmp / "README.md").write_text(text)
 
     outputs.replace_dir(out, write)
     print(f"wrote {out}: calibration in {t_cal['wall']:.1f} s, {len(rows)} policies x 2 robots x {a.episodes} episodes")
@@ -323,8 +333,12 @@ def readme(
     a: Args, doc: dict, fr: dict, rows: dict, ranks: dict, sweep: dict, t_cal: dict[str, Any], total: float
 ) -> str:
     tq = doc["errors"]["torque"]
-    fw = doc["errors"].get("forward", {}).get("k_step", {})
+    fw = doc["errors"].get("forward", {})
+    trust, held = doc.get("trust", {}), doc.get("heldout", {})
+    ref = fr.get("gaz_model_heldout", {})
+    rep = tq["repeat"][tq["repeat"]["best"]]
     joints = [j.split("_")[-1] for j in tq["joints"]]
+    win = ", ".join(f"{w['start_s']:.2f}-{w['stop_s']:.2f} s" for w in held.get("windows", []))
     lines = [
         "# A real Franka Panda's log in the loop: calibrated robot, moved predictions",
         "",
@@ -332,33 +346,71 @@ def readme(
         f"episodes={a.episodes} seed={a.seed} workers={a.workers}` (this invocation: {total / 60:.0f} min on 2 "
         f"cores; runs already recorded in WORK resumed where nominal or fitted by the same calibration file; the calibration alone: {t_cal['cpu']:.1f} s of CPU, "
         f"{t_cal['wall']:.1f} s of wall time on a machine at load {t_cal['load'][0]:.1f} -> {t_cal['load'][1]:.1f}: "
-        "`benchmarks/bench_arm_calibrate.py` times it on one core).",
+        "`benchmarks/bench_arm_calibrate.py` times it).",
         "",
         "Data: Gaz et al.'s excitation trajectory (`../shared/data/real/panda_gaz`, 21 s, irregular clock "
         "resampled to 1 kHz by linear interpolation, measured link-side joint torque with gravity). Declared "
         "model: robosuite's Panda as held_out_robots builds it (placeholder inertials, armature 5/i kg m^2, "
         "damping 0.1, friction loss 0.1). Method: inverse dynamics (`bench/calibrate/models/panda_gaz.yaml`, "
-        'docs/calibration.md "Real arms"); held out: the last 30% of the trajectory.',
+        'docs/calibration.md "Real arms").',
+        "",
+        f"Held out: {win} of the log, the stretch its excitation never repeats ({held.get('sentence', '')}). "
+        "Everything below is scored there: data the fit has not seen in any period.",
         "",
         "## The calibration (calibration/report.md has every parameter)",
         "",
-        "| joint | " + " | ".join(joints) + " | mean NRMSE |",
+        "Held-out torque RMSE (N·m) on the same samples, scored by the same code:",
+        "",
+        "| model | " + " | ".join(joints) + " | mean NRMSE |",
         "|---|" + "---|" * (len(joints) + 1),
-        "| torque RMSE, declared model (N·m) | "
+        "| declared (robosuite's Panda) | "
         + " | ".join(f"{v:.3g}" for v in tq["nominal"]["rmse"])
         + f" | {tq['nominal']['nrmse']:.3g} |",
-        "| torque RMSE, calibrated (N·m) | "
+        "| repeat baseline (memory of the fitted data) | "
+        + " | ".join(f"{v:.3g}" for v in rep["rmse"])
+        + f" | {rep['nrmse']:.3g} |",
+        f"| calibrated ({trust.get('estimate', 'idim')}, carried into runs) | "
         + " | ".join(f"{v:.3g}" for v in tq["final"]["rmse"])
         + f" | {tq['final']['nrmse']:.3g} |",
     ]
-    if fw:
+    if "nrmse" in ref:
+        lines.append(
+            "| Gaz et al.'s identified model | "
+            + " | ".join(f"{v:.3g}" for v in ref["rmse"])
+            + f" | {ref['nrmse']:.3g} |"
+        )
+    else:
+        lines.append(f"| Gaz et al.'s identified model | {ref.get('why', 'not available')} |" + " |" * len(joints))
+    cl = fw.get("closed_loop", {})
+    if cl.get("free_run"):
+        labels = [k for k in ("nominal", "idim", "didim") if k in cl["free_run"]]
         lines += [
-            f"| forward {1e3 * doc['errors']['forward']['horizon_s']:.0f} ms position RMSE, declared (mrad) | "
-            + " | ".join(f"{1e3 * v:.3g}" for v in fw["nominal"]["rmse"])
-            + f" | {fw['nominal']['nrmse']:.3g} |",
-            f"| forward {1e3 * doc['errors']['forward']['horizon_s']:.0f} ms position RMSE, calibrated (mrad) | "
-            + " | ".join(f"{1e3 * v:.3g}" for v in fw["final"]["rmse"])
-            + f" | {fw['final']['nrmse']:.3g} |",
+            "",
+            "Held-out simulation (position NRMSE, mean over joints) of the model each run carries, built from its "
+            f"model edits: closed loop ({fw['loop']['why']}), the link side driven by the logged torque:",
+            "",
+            "| closed loop | " + " | ".join(labels) + " |",
+            "|---|" + "---|" * len(labels),
+        ]
+        for h, row in cl["k_step"].items():
+            lines.append(f"| k-step {h} s | " + " | ".join(f"{row[k]['nrmse']:.3g}" for k in labels) + " |")
+        lines.append("| free run | " + " | ".join(f"{cl['free_run'][k]['nrmse']:.3g}" for k in labels) + " |")
+        lines += ["", f"Open loop: {fw['open_loop'].get('why', '')}."]
+    verdict = trust.get("forward", {})
+    lines += [
+        "",
+        f"Verdict: the calibrated model {'beats' if tq['beats_repeat'] else 'does NOT beat'} the repeat baseline on "
+        f"torque, and it simulates the held-out data {'better' if verdict.get('simulates_better') else 'NOT better'} "
+        f"than the declared model ({verdict.get('declared', float('nan')):.3g} -> {verdict.get('calibrated', float('nan')):.3g}, "
+        f"closed-loop free run). Estimate carried: {trust.get('estimate')} ({trust.get('estimate_why', '')}).",
+    ]
+    idn = doc.get("identifiability") or {}
+    if idn:
+        lines += [
+            "",
+            f"What the log identifies: {idn['identified_directions']} of {idn['parameters']} parameter directions; "
+            f"the other {idn['unidentified_directions']} are not identified, and a parameter with a share of them "
+            "has an unbounded interval (calibration/report.md lists the combinations the data do identify).",
         ]
     added = ", ".join(f"{e['name']} at {e['target']}" for e in doc["effects_added"]) or "none"
     lines += ["", f"Effects added: {added}. Searched: " + "; ".join(doc["effects_searched"]) + "."]

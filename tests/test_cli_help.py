@@ -21,7 +21,7 @@ def _keys(*schemas: type) -> list[str]:
 
 def _table() -> dict[tuple[str, ...], list[str]]:
     from bench.cli.actions import ActionsConfig
-    from bench.cli.calibrate import CalibrateConfig, GenerateConfig, SuiteCalibrateConfig
+    from bench.cli.calibrate import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.cli.check import CheckConfig
     from bench.cli.correlate import CorrelateConfig
     from bench.cli.coverage import CoverageConfig
@@ -58,6 +58,7 @@ def _table() -> dict[tuple[str, ...], list[str]]:
         ("correlate",): _keys(CorrelateConfig),
         ("calibrate",): _keys(CalibrateConfig, SuiteCalibrateConfig, GenerateConfig),
         ("calibrate", "generate"): _keys(GenerateConfig),
+        ("calibrate", "design"): _keys(DesignConfig),
         ("calibrate", "effects"): [],
         ("regress",): _keys(RegressConfig),
         ("report",): _keys(ReportConfig),

@@ -79,6 +79,7 @@ __all__ = [
     "Plan",
     "RunConfig",
     "RunResult",
+    "calibration_notes",
     "config_from_argv",
     "context",
     "finish",
@@ -103,7 +104,7 @@ class Plan:
     suite_options: Any  # an instance of the suite's Options
     policy_options: Any  # an instance of the policy plugin's Options
     identity: PolicyIdentity
-    calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load), or None
+    calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load: edits, trust), or None
     cells: list[Cell]
     conditions: list[Condition]
     jobs: list[Job]
@@ -115,6 +116,8 @@ class Plan:
         cfg = {k: getattr(self.config, k) for k in RUNNER_KEYS}
         if cfg["seed_scheme"] == "hashed":  # the default, left out: runs written before the key existed resume
             del cfg["seed_scheme"]
+        if not cfg["strict"]:  # the default, left out: run.json of a run without it is as before the key existed
+            del cfg["strict"]
         for opts in (self.suite_options, self.policy_options):
             if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
                 cfg.update(dataclasses.asdict(opts))
@@ -226,9 +229,11 @@ def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
     plugin.preflight(policy_options, suite, cells, horizon)
     calibration = None
     if cfg.calibration:
-        from bench.calibrate.apply import load, verify  # mujoco and pyarrow: only calibration= runs need them
+        from bench.calibrate.apply import load, refuse, verify  # mujoco and pyarrow: only calibration= runs need them
 
         calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
+        if cfg.strict:  # before its env is built: a model that simulates worse, or unchecked, is refused
+            refuse(calibration)
         verify(suite, cells, horizon, calibration)
     check_work(cfg, n_jobs, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
@@ -270,6 +275,18 @@ def _calibration_sha(meta: dict[str, Any]) -> str | None:
     return ((meta.get("provenance") or {}).get("calibration") or {}).get("sha256")
 
 
+def calibration_notes(p: Plan) -> list[str]:
+    """What a run's calibration is, for the user before its episodes: one line naming it and its verdict, and a
+    `warning: ...` line when its model simulates the held-out data worse than the declared one or was never
+    checked (strict=true refuses those in `plan`). Empty without calibration=."""
+    if p.calibration is None:
+        return []
+    from bench.calibrate.apply import describe, warning  # mujoco: only calibration= runs need it
+
+    warned = warning(p.calibration)
+    return [describe(p.calibration), *([f"warning: {warned}"] if warned else [])]
+
+
 def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
     """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
     cfg = p.config
@@ -300,7 +317,7 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
                 {
                     "calibration": {
                         k: provenance.portable(p.calibration[k]) if k == "path" else p.calibration[k]
-                        for k in ("path", "sha256", "robot", "model_hash")
+                        for k in ("path", "sha256", "robot", "model_hash", "trust")
                     }
                 }
                 if p.calibration

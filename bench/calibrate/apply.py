@@ -6,6 +6,12 @@ the robot, a fingerprint of the nominal model it was fitted on (`model_hash`), a
 (`load`), and each worker writes the edits into the env of that robot's cells right after building
 it (`apply`), so perturbations scale the calibrated values and every episode starts from them. A
 file for another suite, robot or model version is refused with one line naming what differs.
+
+`load` also reads the file's `trust` section (`trust_of`): whether the calibrated model simulates the
+held-out data better than the declared one (the forward verdict) and how new that held-out data is
+(its repeat share). A run records it in `provenance.calibration`, says it before its episodes
+(`describe`) and warns (`warning`) or, with `strict=true`, refuses (`refuse`) a calibration whose
+model simulates worse or was never checked (a file without `trust`: unchecked).
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -207,7 +214,120 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
         **({"robot_hash": section["robot_hash"]} if portable else {}),
         "joints": section["joints"],
         "edits": section["edits"],
+        "trust": trust_of(doc, p),
     }
+
+
+def _number(v: Any) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
+
+
+def _text(v: Any) -> str | None:
+    """A string of the file on one line (a message quoting it stays one line), or None."""
+    return " ".join(v.split()) if isinstance(v, str) else None
+
+
+def trust_of(doc: dict[str, Any], p: Path) -> dict[str, Any] | None:
+    """The facts of a calibration's `trust` section a run records (None: a file written before it existed).
+
+    {simulates_better: true|false|null (null: no forward check), forward: {criterion, declared, calibrated,
+    rose[, why]}, heldout: {placement, repeat_share, nothing_new}, estimate, torque_beats_repeat}; a
+    value of the wrong type is recorded as null, so it reads as unchecked."""
+    t = doc.get("trust")
+    if t is None:
+        return None
+    if not isinstance(t, dict):
+        raise DataError(f"calibration={str(p)!r}: 'trust' is not an object (as `bench calibrate` writes it)")
+    fw: dict[str, Any] = t["forward"] if isinstance(t.get("forward"), dict) else {}
+    held: dict[str, Any] = t["heldout"] if isinstance(t.get("heldout"), dict) else {}
+    better = t.get("simulates_better", fw.get("simulates_better"))
+    rose = fw.get("rose")
+    forward = {
+        "criterion": _text(fw.get("criterion")),
+        "declared": _number(fw.get("declared")),
+        "calibrated": _number(fw.get("calibrated")),
+        "rose": [" ".join(str(r).split()) for r in rose] if isinstance(rose, list) else [],
+    }
+    if _text(fw.get("why")):
+        forward["why"] = _text(fw["why"])
+    return {
+        "simulates_better": better if isinstance(better, bool) else None,
+        "forward": forward,
+        "heldout": {
+            "placement": _text(held.get("placement")),
+            "repeat_share": _number(held.get("repeat_share")),
+            "nothing_new": held.get("nothing_new") if isinstance(held.get("nothing_new"), bool) else None,
+        },
+        "estimate": _text(t.get("estimate")),
+        "torque_beats_repeat": t.get("torque_beats_repeat") if isinstance(t.get("torque_beats_repeat"), bool) else None,
+    }
+
+
+def _detail(fw: dict[str, Any], worse: bool) -> str:
+    """' (closed-loop free run 0.06 -> 0.0076)', or for a worse model what rose (at most two horizons named)."""
+    rose = fw["rose"] if worse else []
+    loop = "closed-loop " if "closed-loop" in (fw.get("criterion") or "") else ""  # an arm's check closes a loop
+    if rose:
+        more = f"; and {len(rose) - 2} more" if len(rose) > 2 else ""
+        return f" ({loop}{'; '.join(rose[:2])}{more})"
+    a, b = fw.get("declared"), fw.get("calibrated")
+    return "" if a is None or b is None else f" ({loop}free run {a:.3g} -> {b:.3g})"
+
+
+WORSE = "simulates the held-out data worse than the declared model"
+BETTER = "simulates the held-out data better than the declared model"
+
+
+def verdict(cal: dict[str, Any]) -> str:
+    """The trust verdict in a few words: `simulates ... better (...)`, `... worse (...)` or `unchecked (...)`."""
+    t = cal.get("trust")
+    if t is None:
+        return "unchecked (the file has no trust section: written before `bench calibrate` checked its model)"
+    fw = t["forward"]
+    if t["simulates_better"] is None:
+        return f"unchecked ({fw.get('why') or 'no forward check on held-out data'})"
+    worse = not t["simulates_better"]
+    return (WORSE if worse else BETTER) + _detail(fw, worse)
+
+
+def describe(cal: dict[str, Any]) -> str:
+    """One line a run prints before its episodes: robot, file, edits, trust verdict, repeat share."""
+    t = cal.get("trust")
+    share = None if t is None else t["heldout"]["repeat_share"]
+    n = len(cal["edits"])
+    return (
+        f"calibration: the {cal['robot']} cells run the calibrated model of {cal['path']} ({n} model edit"
+        f"{'' if n == 1 else 's'}); {verdict(cal)}; held-out repeat share "
+        + ("unknown" if share is None else f"{share:.0%}")
+    )
+
+
+def _untrusted(cal: dict[str, Any]) -> str | None:
+    """What is wrong with a calibration's trust, naming the file (None: it simulates better)."""
+    t = cal.get("trust")
+    if t is not None and t["simulates_better"]:
+        return None
+    head = f"calibration={cal['path']}: the calibrated {cal['robot']}"
+    if t is not None and t["simulates_better"] is False:
+        return f"{head} {WORSE}{_detail(t['forward'], True)}"
+    return f"{head} was never checked against held-out data {verdict(cal).removeprefix('unchecked ')}"
+
+
+def warning(cal: dict[str, Any]) -> str | None:
+    """The warning line (without 'warning: ') for a calibration whose model simulates worse or was never
+    checked; None when its forward check found it simulates better."""
+    bad = _untrusted(cal)
+    return None if bad is None else f"{bad}; strict=true refuses it"
+
+
+def refuse(cal: dict[str, Any]) -> None:
+    """`strict=true`: refuse a calibration whose model simulates worse or was never checked (one line)."""
+    bad = _untrusted(cal)
+    if bad is not None:
+        raise ConfigError(
+            f"{bad}; strict=true runs only a calibration whose model simulates the held-out data better than the "
+            "declared one (leave strict out to run it with a warning)"
+        )
 
 
 def check(mj: Any, cal: dict[str, Any]) -> None:

@@ -12,7 +12,8 @@ period earlier beats any model. So every calibration
 2. detects the excitation's **period** (`period_of`: the first autocorrelation peak of at least
    `PERIOD_MIN_R` after the signal has decorrelated);
 3. holds out, by default, the **least repeated** stretch (`least_repeated_window` for one episode,
-   `least_repeated_episodes` for several), with a guard band around it that no fitted sample may use
+   `least_repeated_episodes` for several: bands of share counted from the least repeated episode's), with a
+   guard band around it that no fitted sample may use
    (a zero-phase filter spans the split by about its own length), and says when even that stretch
    repeats more than `NOTHING_NEW` of what was fitted;
 4. scores a **repeat baseline** on the same held-out samples (`nearest_signal`, `period_signal`,
@@ -58,7 +59,7 @@ def repeat_share(dist: np.ndarray, tol: float = REPEAT_TOL) -> float:
     return float(np.mean(dist <= tol)) if len(dist) else 0.0
 
 
-def period_of(x: np.ndarray, rate: float, min_lag_s: float = 1.0) -> tuple[float | None, float]:
+def period_of(x: np.ndarray, rate: float, min_lag_s: float = 0.05) -> tuple[float | None, float]:
     """(period in seconds, autocorrelation there) of a multichannel signal, or (None, best r) when it has none.
 
     The autocorrelation at lag L is the normalised inner product of x[t] and x[t + L] over their overlap
@@ -119,17 +120,30 @@ def least_repeated_window(
     return best[1], best[1] + length, best[0]
 
 
-def least_repeated_episodes(xs: list[np.ndarray], n_hold: int, seed: int, tol: float = REPEAT_TOL) -> list[int]:
-    """The `n_hold` episodes whose states repeat the other episodes least (shares compared to 0.1; within
-    a tenth, the seeded order decides, as a plain seeded split would)."""
+def episode_shares(xs: list[np.ndarray], tol: float = REPEAT_TOL) -> list[float]:
+    """Each episode's repeat share against all the other episodes (states over the spread of them all)."""
     scale = spread(np.concatenate(xs))
-    order = np.random.default_rng(seed).permutation(len(xs))
-    rank = {int(e): i for i, e in enumerate(order)}
-    shares = []
+    out = []
     for i, x in enumerate(xs):
         rest = np.concatenate([y for j, y in enumerate(xs) if j != i])
-        shares.append(repeat_share(nearest(rest, x, scale)[0], tol))
-    return sorted(range(len(xs)), key=lambda i: (round(shares[i], 1), rank[i]))[:n_hold]
+        out.append(repeat_share(nearest(rest, x, scale)[0], tol))
+    return out
+
+
+def least_repeated_episodes(
+    xs: list[np.ndarray], n_hold: int, seed: int, tol: float = REPEAT_TOL, band: float = 0.1
+) -> list[int]:
+    """The `n_hold` episodes whose states repeat the other episodes least, in bands of `band` counted up from the
+    least repeated episode's share; within a band the seeded order decides (as a plain seeded split would).
+
+    Bands, not fixed tenths (where 0.045 and 0.065 would fall either side of 0.05 and rank apart): episodes
+    whose shares differ by less than `band` from the lowest are all equally new, so a log whose episodes are
+    all new keeps the plain seeded split (`bench.replay.data.split`)."""
+    shares = episode_shares(xs, tol)
+    low = min(shares)
+    order = np.random.default_rng(seed).permutation(len(xs))
+    rank = {int(e): i for i, e in enumerate(order)}
+    return sorted(range(len(xs)), key=lambda i: (int((shares[i] - low) / band + 1e-9), rank[i]))[:n_hold]
 
 
 def nearest_signal(

@@ -73,6 +73,7 @@ def to_json(cal: Calibration) -> dict:
             }
             for k in ("nominal", "declared", "final")
         },
+        "repeat_baseline": cal.errors.get("repeat"),  # memory of the fitted log on the same held-out horizons
         "free_run_nrmse_cut": {
             "declared_to_final": (1.0 - f / d) if d else None,
             "nominal_to_final": (1.0 - f / n) if n else None,
@@ -88,6 +89,8 @@ def to_json(cal: Calibration) -> dict:
                 "x": final.x,
             },
         },
+        "heldout": cal.heldout.to_json() if cal.heldout else None,
+        "trust": cal.trust,
         "learned_residual": cal.learned,
         "warnings": cal.warnings,
         "notes": cal.notes,
@@ -215,6 +218,7 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         f"{_fmt(None if cut is None else 100 * cut)}%.",
         "",
     ]
+    lines += _trust(doc.get("heldout"), doc.get("repeat_baseline"), doc["errors"]["final"], doc.get("trust"))
     lines += ["## Effects added", ""]
     if doc["effects_added"]:
         lines += ["| effect | target | parameters (95% interval) | held-out drop | ΔIC |", "|---|---|---|---|---|"]
@@ -257,6 +261,30 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         if key in files:
             lines += [f"![{caption}]({files[key]})", "", f"*{caption}.*", ""]
     return "\n".join(lines) + "\n"
+
+
+def _trust(heldout: dict | None, repeat: dict | None, final: dict, trust: dict | None) -> list[str]:
+    """How new the held-out data are, what memory scores on them, and whether the model beats both."""
+    if not heldout or not trust:
+        return []
+    lines = ["## How far the held-out errors can be trusted", "", heldout["sentence"] + ".", ""]
+    final_k = final["k_step_nrmse"]
+    if repeat and repeat.get("k_step_nrmse") is not None:
+        verdict = "beats it" if trust["beats_repeat"] else "does NOT beat it"
+        lines += [
+            f"Repeat baseline, memory of the fitted log (k-step NRMSE {_fmt(repeat['k_step_nrmse'])}): "
+            f"{repeat[repeat['best']]['what']}. The final model (k-step NRMSE "
+            f"{_fmt(final_k)}) {verdict}.",
+            "",
+        ]
+    fw = trust["forward"]
+    lines += [
+        f"Simulates the held-out data at least as well as the model as given ({fw['criterion']}): "
+        + ("yes" if trust["simulates_better"] else "no (" + "; ".join(fw["rose"]) + ")")
+        + ".",
+        "",
+    ]
+    return lines
 
 
 def _apply(suite: dict | None, apply: dict | None) -> list[str]:

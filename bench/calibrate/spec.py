@@ -2,7 +2,9 @@
 
 A spec is YAML or JSON (see docs/calibration.md). Its `model`, `substeps` and `signals` are the
 signal map that replay reads (`bench.replay.spec`); this module adds `params`, `effects`,
-`holdout`, `horizon`, `trace` and `threads`. Parsing checks the spec on its own; the names it
+`holdout` (a share, or a window [t0, t1] in seconds of a one-episode log), `holdout_at` (where the
+share sits: least_repeated, end or episodes; `bench.calibrate.novelty`), `period` (the excitation's,
+in seconds, when known), `horizon`, `trace` and `threads`. Parsing checks the spec on its own; the names it
 uses are checked against the model in `bench.calibrate.model` and against the data in
 `bench.replay.data.extract`. Every problem is a one-line `SpecError` that names the field.
 """
@@ -15,11 +17,23 @@ from typing import Any
 
 from bench.calibrate.effects import EFFECTS
 from bench.calibrate.feedback import gains
-from bench.core.errors import SpecError, did_you_mean
+from bench.core.errors import SpecError, did_you_mean, valid_choices
 from bench.replay.spec import MAP_KEYS, SignalMap, check_keys, map_fields, number, read_spec_file
 
 MAX_HORIZON_S = 3600.0  # seconds per truncated horizon: longer is a typo (a free run is the whole episode anyway)
-SPEC_KEYS = (*MAP_KEYS, "params", "effects", "holdout", "horizon", "trace", "threads", "controller")
+SPEC_KEYS = (
+    *MAP_KEYS,
+    "params",
+    "effects",
+    "holdout",
+    "holdout_at",
+    "period",
+    "horizon",
+    "trace",
+    "threads",
+    "controller",
+)
+HOLDOUT_AT = ("least_repeated", "end", "episodes")  # where the held-out share sits (bench.calibrate.novelty)
 PARAM_KEYS = ("name", "field", "elements", "bounds", "column", "init", "scale")
 EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
@@ -107,11 +121,14 @@ class CalibrationSpec(SignalMap):
 
     params: tuple[ParamSpec, ...] = ()
     effects: tuple[EffectRequest, ...] | None = None  # None = all
-    holdout: float = 0.3
+    holdout: float = 0.3  # share of the log held out
     horizon: float = 0.2  # seconds per truncated horizon (the k of k-step errors)
     trace: TraceSpec = field(default_factory=TraceSpec)
     threads: int = 1
     controller: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (kp, kd) per actuator: the log's loop
+    holdout_window: tuple[float, float] | None = None  # or these seconds (from its first frame) of a one-episode log
+    holdout_at: str = "least_repeated"  # where the share sits: least_repeated | end | episodes
+    period: float | None = None  # seconds: the excitation's period, when known (else detected)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form, for embedding the exact spec in a result file."""
@@ -141,7 +158,9 @@ class CalibrationSpec(SignalMap):
                 }
                 for e in self.effects
             ],
-            "holdout": self.holdout,
+            "holdout": list(self.holdout_window) if self.holdout_window else self.holdout,
+            "holdout_at": self.holdout_at,
+            "period": self.period,
             "horizon": self.horizon,
             "trace": dict(self.trace.__dict__),
             **(
@@ -223,6 +242,20 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
     return tuple(out)
 
 
+def parse_holdout(raw: Any) -> tuple[float, tuple[float, float] | None]:
+    """The `holdout` of a spec: a share of the log, or a window [t0, t1] in seconds (share 0 then)."""
+    if isinstance(raw, (list, tuple)):
+        if len(raw) != 2:
+            raise SpecError(
+                f"spec field 'holdout' must be a share (0.05-0.9) or a window [t0, t1] in seconds; got {raw!r}"
+            )
+        t0, t1 = (number(v, "holdout", lo=0.0) for v in raw)
+        if t1 <= t0:
+            raise SpecError(f"spec field 'holdout': the window [{t0:g}, {t1:g}] s is empty (t1 must exceed t0)")
+        return 0.0, (t0, t1)
+    return number(raw, "holdout", lo=0.05, hi=0.9), None
+
+
 def parse_trace(raw: Any) -> TraceSpec:
     """The `trace` mapping of a spec (the loop's knobs; defaults for what it leaves out)."""
     trace_raw = check_keys(raw or {}, TRACE_KEYS, "trace")
@@ -280,11 +313,18 @@ def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None)
                 scale=scale,
             )
         )
+    share, window = parse_holdout(raw.get("holdout", 0.3))
+    holdout_at = raw.get("holdout_at", "least_repeated")
+    if holdout_at not in HOLDOUT_AT:
+        raise SpecError(f"spec field 'holdout_at': {holdout_at!r}; {valid_choices(str(holdout_at), HOLDOUT_AT)}")
     return CalibrationSpec(
         **base,
         params=tuple(params),
         effects=_effects(raw.get("effects", "all")),
-        holdout=number(raw.get("holdout", 0.3), "holdout", lo=0.05, hi=0.9),
+        holdout=share,
+        holdout_window=window,
+        holdout_at=holdout_at,
+        period=None if raw.get("period") is None else number(raw["period"], "period", lo=1e-3, hi=1e6),
         horizon=number(raw.get("horizon", 0.2), "horizon", lo=1e-6, hi=MAX_HORIZON_S),
         trace=parse_trace(raw.get("trace")),
         threads=number(raw.get("threads", 1), "threads", lo=1, hi=64, integer=True),

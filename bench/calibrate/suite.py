@@ -12,8 +12,10 @@ steps, so the controller's output is taken from the log (replay's `commands=ctrl
 
 Declared free: a damping scale and an armature scale over the robot's joints (one factor each on
 the model's own values); searched: the effects a run can carry in the model itself (Coulomb
-friction per joint, a payload per link, a gain error per motor). The result can be applied to runs
-(`bench.calibrate.apply`).
+friction per joint, a payload per link, a gain error per motor). Held out: the 30% of episodes that
+repeat the others least (`bench.calibrate.data.choose_split`; the seeded share when all are equally
+new), scored beside a repeat baseline (`calibration.json`'s `heldout` and `trust`). The result can be
+applied to runs (`bench.calibrate.apply`).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import mujoco
 import numpy as np
 
 from bench.calibrate.apply import edits, model_hash
+from bench.calibrate.data import with_split
 from bench.calibrate.model import Plant, Scene
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec, TraceSpec
 from bench.calibrate.trace import Calibration, calibrate
@@ -34,7 +37,7 @@ from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.logs import read_dataset
 from bench.protocols import registry
 from bench.replay.common import CTRL, ReplayConfig
-from bench.replay.data import Recording, split
+from bench.replay.data import Recording, Window
 from bench.replay.simulate import Coordinates
 from bench.replay.spec import SignalSpec
 from bench.replay.suite import load_suite_logs
@@ -118,7 +121,6 @@ def suite_plant(
     assert sl.ctrl is not None  # need_ctrl
     lengths = [int(sl.offsets[i + 1] - sl.offsets[i]) for i in range(len(sl.eps))]
     ctrl = sl.ctrl.reshape(len(full) * sl.substeps, model.nu)
-    train, hold = split(lengths, HOLDOUT, seed)
     rec = Recording(
         fps=float(ds.fps),
         qpos=full[:, qadr],
@@ -126,8 +128,8 @@ def suite_plant(
         ctrl=ctrl[:: sl.substeps].copy(),
         inputs=None,
         offsets=sl.offsets,
-        train=train,
-        holdout=hold,
+        train=[Window(i, 0, n) for i, n in enumerate(lengths)],
+        holdout=[],
         qvel_logged=True,
     )
 
@@ -167,6 +169,7 @@ def suite_plant(
         "joints": names,
         "model_hash": model_hash(model, names),
     }
+    rec = with_split(rec, spec, seed)  # the least repeated episodes held out (bench.calibrate.novelty)
     return Plant(spec, model, rec, scene), info
 
 

@@ -23,12 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.calibrate.data import extract
+from bench.calibrate.data import extract, heldout_of
 from bench.calibrate.effects import EFFECTS, MERGES
 from bench.calibrate.feedback import close_loop
 from bench.calibrate.fit import FitResult, Objective, autocorrelation_time, fit, information
-from bench.calibrate.metrics import evaluate, heldout_errors
+from bench.calibrate.metrics import against_memory, evaluate, heldout_errors, repeat_baseline, trust, trust_warnings
 from bench.calibrate.model import Candidate, Layout, Plant
+from bench.calibrate.novelty import Heldout
 from bench.calibrate.residual import learn
 from bench.calibrate.signature import Score, scan, score_candidates, trial_starts
 from bench.calibrate.spec import CalibrationSpec, EffectRequest
@@ -64,6 +65,8 @@ class Calibration:
     k: int = 1
     residual: dict[str, np.ndarray] = field(default_factory=dict)
     learned: dict | None = None  # the learned residual (`bench.calibrate.residual`), apart from the physics
+    heldout: Heldout | None = None  # where the held-out data sit and how much of them repeats the fitted
+    trust: dict[str, Any] = field(default_factory=dict)  # calibration.json's `trust` (`metrics.trust`)
 
     @property
     def rec(self) -> Recording:
@@ -367,8 +370,8 @@ def calibrate(
     finally:
         sim.close()
     log(
-        f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE "
-        f"{cal.errors['final']['free_run_nrmse']:.4g} ({cal.wall['total']:.1f} s)"
+        f"final: {len(cal.added)} effect(s) added; held-out free-run NRMSE {cal.errors['final']['free_run_nrmse']:.4g}, "
+        f"{against_memory(cal.errors, cal.trust)} ({cal.wall['total']:.1f} s)"
     )
     return cal
 
@@ -434,6 +437,8 @@ def _calibrate(
     train = horizons(rec, rec.train, k, limit=spec.trace.max_segments, seed=seed)
     hold = horizons(rec, rec.holdout, k)
     loop = _Loop(plant, sim, train, hold, scale, channels, log, seed, fitter)
+    heldout = heldout_of(rec)
+    log(heldout.sentence())
     names = [n or f"q{i}" for i, n in enumerate(plant.joint_names)]
 
     layout = Layout(plant, [])
@@ -484,7 +489,10 @@ def _calibrate(
         "final": loop.objective(layout, hold).residual_grid(cur.x[None])[0],
         "start": hold.start,
     }
+    errors["repeat"] = repeat_baseline(rec, hold, heldout.period_s)
+    cal.heldout, cal.trust = heldout, trust(heldout, errors)
     cal.warnings = sorted(set(declared.warnings) | set(cur.warnings)) + honesty(layout, cur.x, errors)
+    cal.warnings += trust_warnings(heldout, errors, cal.trust)
     t3 = time.perf_counter()
     cal.wall = {"total": t3 - t0, "declared_fit": t2 - t1, "trace": t3 - t2, "sim_steps": sim.steps}
     return cal

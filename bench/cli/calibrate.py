@@ -9,7 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+from bench.calibrate.arm.design import limits_of, run_design, samples_of_log, write_design
 from bench.calibrate.arm.loop import calibrate_arm, summary_line
+from bench.calibrate.arm.model import build
 from bench.calibrate.arm.report import write_arm_report
 from bench.calibrate.arm.spec import ARM_EFFECTS, ArmSpec, is_arm_spec, parse_arm_spec
 from bench.calibrate.effects import EFFECTS
@@ -20,8 +22,9 @@ from bench.calibrate.spec import EffectRequest, load_spec
 from bench.calibrate.suite import calibrate_suite
 from bench.calibrate.trace import run
 from bench.core import config, outputs
-from bench.core.config import ranged
-from bench.core.errors import ConfigError, DataError, did_you_mean
+from bench.core.config import Range, ranged
+from bench.core.errors import ConfigError, DataError, SpecError, did_you_mean
+from bench.core.threads import one_blas_thread
 from bench.logs import read_dataset
 from bench.replay.spec import load_model, read_spec_file
 from bench.sims.mjx import check_model
@@ -80,6 +83,44 @@ class GenerateConfig:
     overwrite: bool = False  # replace an existing out folder that bench wrote
 
 
+def _limits(hi: float) -> Any:
+    """A list of positive limits that also takes one bare value (`velocity=2` is `velocity=[2]`: every joint)."""
+    return dataclasses.field(default=None, metadata={"range": Range(0, hi, lo_open=True), "bare": True})
+
+
+@dataclass(frozen=True)
+class DesignConfig:
+    """Keys of `bench calibrate design`: an excitation that makes an arm spec's parameters identifiable."""
+
+    spec: Optional[str] = None  # arm spec (method: idim) whose parameters the excitation must identify (required)
+    out: Optional[str] = None  # folder for design.json and trajectory.csv (required)
+    logs: Optional[str] = None  # a log of the arm (LeRobot v3): its excitation is the "before", checked for gaps
+    period: float = ranged(10.0, 1.0, 120.0)  # seconds of one period of the trajectory (it repeats)
+    harmonics: int = ranged(5, 2, 20)  # Fourier harmonics per joint (the highest at harmonics/period Hz)
+    seed: int = ranged(0, 0)  # seed of the random starts and of the search (the same seed, the same design)
+    margin: float = ranged(0.05, 0.0, 0.5)  # share of each joint's range kept clear at either end
+    velocity: Optional[list[float]] = _limits(1e3)  # velocity limit per joint, or one for all, rad/s (required)
+    torque: Optional[list[float]] = _limits(1e6)  # torque limit per joint or one for all, N·m (default: the actuators')
+    overwrite: bool = False  # replace an existing out folder that bench wrote
+    quiet: bool = False  # no progress lines on stderr
+
+
+DESIGN_USAGE = (
+    "usage: bench calibrate design spec=SPEC out=DIR [logs=DIR] [period=10] [harmonics=5] [seed=0] [margin=0.05]\n"
+    "                              [velocity=[...]] [torque=[...]] [overwrite=false] [quiet=false]"
+)
+DESIGN_ABOUT = (
+    "design proposes what to record for an arm spec (method: idim): a periodic Fourier trajectory per joint\n"
+    "(Swevers et al. 1997, Gaz et al. 2019) that starts and ends at rest, stays within the joint ranges less the\n"
+    "margin, the velocity limits and the torque limits (the declared model's torque with its friction), and\n"
+    "minimises the condition number of the regressor the calibration fits (parameters in their plausible\n"
+    "sizes, over the directions a motion identifies at all). It prints the condition number before (the log's\n"
+    "excitation with logs=, else a random trajectory) and after, warns when the log leaves parameters\n"
+    "unidentified that the design identifies, and writes OUT/design.json (coefficients, limits, condition\n"
+    "numbers, what each identifies) and OUT/trajectory.csv (t, q, dq, ddq per joint over one period at 1 kHz)."
+)
+
+
 GENERATE_USAGE = (
     "usage: bench calibrate generate effect=NAME|none out=DIR [episodes=8] [duration=6] [fps=100] [seed=0]\n"
     "                                [target=NAME] [disturbance=cogging]"
@@ -90,6 +131,7 @@ USAGE = (
     "       bench calibrate suite=NAME robot=NAME logs=DIR out=DIR [condition=NAME] [seed=0] [threads=1] [quiet=false]\n"
     "                       [residual=true]\n"
     f"       {GENERATE_USAGE.removeprefix('usage: ')}\n"
+    f"       {DESIGN_USAGE.removeprefix('usage: ')}\n"
     "       bench calibrate effects"
 )
 GENERATE_ABOUT = (
@@ -119,6 +161,7 @@ def help_text() -> str:
         "that robot's cells with the calibrated model (a file for another suite, robot or model is refused).\n\n"
         f"suite keys:\n{config.key_help(SuiteCalibrateConfig)}\n\n"
         f"{GENERATE_ABOUT}\n\ngenerate keys (bench calibrate generate --help):\n{config.key_help(GenerateConfig)}\n\n"
+        f"{DESIGN_ABOUT}\n\ndesign keys (bench calibrate design --help):\n{config.key_help(DesignConfig)}\n\n"
         "effects lists the effect library (bench calibrate effects).",
         examples=[
             "bench calibrate generate effect=coulomb_friction out=/tmp/case",
@@ -136,6 +179,24 @@ def generate_help() -> str:
         GENERATE_ABOUT,
         GenerateConfig,
         examples=["bench calibrate generate effect=coulomb_friction out=/tmp/case"],
+    )
+
+
+def design_help() -> str:
+    """`bench calibrate design --help`."""
+    return config.command_help(
+        DESIGN_USAGE,
+        DESIGN_ABOUT,
+        DesignConfig,
+        notes="Velocity limits are required (a MuJoCo model holds none); torque limits default to the actuators'\n"
+        "forcerange (or ctrlrange x gain x gear); slides take m/s and N. The Franka Panda's published limits:\n"
+        "  velocity=[2.175,2.175,2.175,2.175,2.61,2.61,2.61] torque=[87,87,87,87,12,12,12]\n"
+        "Record whole periods of trajectory.csv and give the calibration spec `period:` (docs/calibration.md,\n"
+        '"Real arms").',
+        examples=[
+            "bench calibrate design spec=bench/calibrate/models/panda_gaz.yaml logs=logs/panda_gaz out=runs/panda_design "
+            "velocity=[2.175,2.175,2.175,2.175,2.61,2.61,2.61] torque=[87,87,87,87,12,12,12]",
+        ],
     )
 
 
@@ -346,6 +407,63 @@ def cmd_generate(cfg: GenerateConfig) -> int:
     return 0
 
 
+def cmd_design(cfg: DesignConfig) -> int:
+    """An excitation for an arm spec: OUT/design.json and OUT/trajectory.csv (nothing written on bad input)."""
+    spec_file, out_dir = _require(cfg, "spec", "out", command="bench calibrate design")
+    raw, spec_path = read_spec_file(Path(spec_file).expanduser())
+    if not is_arm_spec(raw):
+        got = raw.get("method") if isinstance(raw, dict) else None
+        raise SpecError(
+            f"spec field 'method': bench calibrate design needs an arm spec (method: idim); {spec_file!r} has "
+            + (f"method: {got}" if got is not None else "no method (a forward spec)")
+        )
+    spec = parse_arm_spec(raw, spec_path.parent, spec_path)
+    if cfg.harmonics / cfg.period >= spec.filter_hz / 2:
+        raise ConfigError(
+            f"key 'harmonics': {cfg.harmonics} harmonics of a {cfg.period:g} s period reach "
+            f"{cfg.harmonics / cfg.period:g} Hz, not below {spec.filter_hz / 2:g} Hz (half the spec's filter_hz): "
+            "the calibration's filter would damp them; give fewer harmonics or a longer period"
+        )
+    inputs = {"spec": spec_file, "logs": cfg.logs, **({"model": str(spec.model)} if spec.model else {})}
+    out = _out(out_dir, cfg.overwrite, inputs)
+    am = build(spec)
+    lim = limits_of(am, cfg.margin, cfg.velocity, cfg.torque)
+    log_samples = None
+    if cfg.logs is not None:
+        episodes, fps = _load_logs(Path(cfg.logs).expanduser())
+        log_samples = (*samples_of_log(spec, am, episodes, fps), cfg.logs)
+    with one_blas_thread():
+        d = run_design(
+            spec,
+            am,
+            lim,
+            period=cfg.period,
+            harmonics=cfg.harmonics,
+            seed=cfg.seed,
+            log_samples=log_samples,
+            progress=_log(cfg.quiet),
+        )
+    outputs.replace_dir(out, lambda tmp: write_design(d, tmp, spec, am, cfg.seed, inputs))
+    b, a = d.before, d.after
+    print(
+        f"condition number ({d.parameters} parameters, {d.rank} directions a motion identifies): "
+        f"{b['condition']:.4g} ({b['of']}) -> {a['condition']:.4g} (the design)"
+    )
+    print(
+        f"identified directions: {d.parameters - b['ident'].unidentified} -> {d.parameters - a['ident'].unidentified} "
+        f"of the {d.rank} a motion can identify; limits: velocity from {lim.source['velocity']}, torque from "
+        f"{lim.source['torque']}"
+    )
+    for w in d.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(
+        f"wrote {out / 'design.json'} and {out / 'trajectory.csv'} ({cfg.period:g} s period at 1 kHz, starting and "
+        f"ending at rest: move to its first row first; record whole periods, spec `period: {cfg.period:g}`; "
+        f"{d.evaluations} trajectories evaluated, {d.wall:.1f} s)"
+    )
+    return 0
+
+
 def cmd_effects(argv: list[str]) -> int:
     """List the effect library (`bench calibrate effects`, no arguments)."""
     if argv:
@@ -363,6 +481,10 @@ SUBCOMMANDS: dict[str, tuple[Callable[[list[str]], int], Callable[[], str]]] = {
         generate_help,
     ),
     "effects": (cmd_effects, effects_help),
+    "design": (
+        lambda argv: cmd_design(config.build_from_argv(DesignConfig, argv, "bench calibrate design")),
+        design_help,
+    ),
 }
 
 

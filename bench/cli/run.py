@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from bench import api
@@ -77,6 +78,8 @@ def main(argv: list[str]) -> int:
         return 0
 
     p, executor = api.plan_with_workers(api.config_from_argv(argv), own_process=True)
+    for line in api.calibration_notes(p):  # what the run's robot is, before its episodes
+        print(line, file=sys.stderr, flush=True)
     result = api.run(p, progress=True, executor=executor)
     if result.summary is not None:
         render(result.summary)

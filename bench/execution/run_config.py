@@ -62,6 +62,7 @@ class RunConfig:
     record: Optional[str] = None  # also write rollouts as a LeRobot v3 dataset here (camera images as video)
     video: int = ranged(0, 0, MAX_EPISODES)  # MP4 of the first N episodes of every cell and condition (RUN_DIR/videos)
     calibration: Optional[str] = None  # a `bench calibrate suite=` result: its robot's cells run the calibrated model
+    strict: bool = False  # refuse a calibration= whose model simulates the held-out data worse than the declared one, or was never checked
     allow_split_violation: bool = False  # run even if `bench check` finds a split problem
     executor: str = "local"  # where episodes run: local (processes on this machine) or ray (docs/ray.md)
     ray_address: str = "auto"  # executor=ray: auto (the cluster here), HOST:PORT, or local (a private one)
@@ -85,6 +86,7 @@ RESUMABLE_KEYS = {
     "actor_cpus",
     "actor_gpus",
     "ray_env",
+    "strict",  # a gate on the calibration before the run, not part of what its episodes compute
 }
 EXECUTORS = ("local", "ray")
 RAY_KEYS = {"ray_address": "auto", "actors": 0, "actor_cpus": 1.0, "actor_gpus": 0.0, "ray_env": "code"}
@@ -145,6 +147,11 @@ def check_runner(cfg: RunConfig) -> None:
         twice = next((v for i, v in enumerate(given) if v in given[:i]), None)
         if twice is not None:
             raise ConfigError(f"{key}: {twice!r} is listed twice; list each once")
+    if cfg.strict and not cfg.calibration:
+        raise ConfigError(
+            "strict=true applies to calibration= (it refuses a calibration whose model simulates the held-out data "
+            "worse than the declared one, or was never checked); add calibration=FILE or leave strict out"
+        )
     _check_executor(cfg)
     check_run_id(cfg.run_id)
 

@@ -193,8 +193,11 @@ def render(summary: dict[str, Any], console=None) -> None:
     console = console or Console(width=None if Console().is_terminal else 120)
     conf = int(round(summary.get("confidence", 0.95) * 100))
     by_return = summary.get("metric") == "return"
+    cal = (summary.get("provenance") or {}).get("calibration") or {}
+    calibrated = cal.get("robot")  # its cells ran the calibrated model: the leaderboard's key, on their rows
     t = Table(
-        title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}",
+        title=f"{summary['suite']['name']} · policy {summary['policy']['name']} · run {summary['run_id']}"
+        + (f" · calibration={calibrated}:{str(cal.get('sha256'))[:12]}" if calibrated else ""),
         title_justify="left",
     )
     show_env = len({c.get("env") for c in summary["cells"]}) > 1  # e.g. scenes: rows differ only by env
@@ -216,7 +219,7 @@ def render(summary: dict[str, Any], console=None) -> None:
             c["robot"],
             *((str(c.get("env")),) if show_env else ()),
             c["split"],
-            c["condition"],
+            c["condition"] + (" (calibrated)" if calibrated and c["robot"] == calibrated else ""),
             str(c["n"]),
             *values,
             str(c["errors"]) if c["errors"] else "",

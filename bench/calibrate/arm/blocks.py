@@ -14,7 +14,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from bench.calibrate.arm.idim import FRICTION_V, Block, Dynamics, Fit, fit, predict, prior_scale
+from bench.calibrate.arm.dynamics import Dynamics
+from bench.calibrate.arm.idim import FRICTION_V, Block, Fit, fit, predict, prior_scale
 from bench.calibrate.arm.inertial import STD_NAMES
 from bench.calibrate.arm.model import ArmModel, group_std
 from bench.calibrate.arm.spec import ArmSpec
@@ -277,6 +278,13 @@ def regression(
     return Regression(declared, cands, searched, base, base_free, payload_inertia)
 
 
+def torque_error(measured: np.ndarray, predicted: np.ndarray, spread: np.ndarray) -> tuple[float, np.ndarray]:
+    """(mean over joints of RMSE / spread, per-joint RMSE) of predicted against measured torque rows: the one
+    score of every model on held-out torque (ours, the declared one, a repeat baseline, a reference's table)."""
+    rmse = np.sqrt(np.mean((measured - predicted) ** 2, axis=0))
+    return float(np.mean(rmse / spread)), rmse
+
+
 class Fitter:
     """Fits with a fixed signal, base torque, split and weights; knows the payload's inertia fixed point."""
 
@@ -321,9 +329,7 @@ class Fitter:
 
     def error(self, f: Fit, fixed: np.ndarray) -> tuple[float, np.ndarray]:
         """Held-out normalised error (mean over joints of RMSE / spread) and per-joint RMSE."""
-        pred = predict(f.blocks, f.x, fixed)[self.hold]
-        rmse = np.sqrt(np.mean((self.signal[self.hold] - pred) ** 2, axis=0))
-        return float(np.mean(rmse / self.spread)), rmse
+        return torque_error(self.signal[self.hold], predict(f.blocks, f.x, fixed)[self.hold], self.spread)
 
     def ic(self, f: Fit, n_eff: float) -> float:
         return information(f.ssr * n_eff / max(f.n, 1), len(f.x), n_eff, self.criterion)

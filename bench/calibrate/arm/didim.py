@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from bench.calibrate.arm.blocks import Fitter, regression
+from bench.calibrate.arm.dynamics import Dynamics
 from bench.calibrate.arm.forward import Bench, Drive, Loop
-from bench.calibrate.arm.idim import Dynamics, Fit
+from bench.calibrate.arm.idim import Fit
 from bench.calibrate.arm.model import ArmModel
 from bench.calibrate.arm.spec import ArmSpec
 from bench.replay.simulate import free_runs

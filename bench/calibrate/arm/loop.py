@@ -36,14 +36,16 @@ import numpy as np
 from bench.calibrate import novelty
 from bench.calibrate.apply import edited_model, edits
 from bench.calibrate.arm import forward
-from bench.calibrate.arm.blocks import Fitter, nominal_torque, regression, values_of
+from bench.calibrate.arm.blocks import Fitter, nominal_torque, regression, torque_error, values_of
 from bench.calibrate.arm.data import ArmLog, load_arm_log
 from bench.calibrate.arm.didim import refine
+from bench.calibrate.arm.dynamics import Dynamics
 from bench.calibrate.arm.entries import effect_terms, link_entries, param_entries, uncarried_effects, warnings_of
 from bench.calibrate.arm.identifiability import Identifiability, analyse, payload_sentence
-from bench.calibrate.arm.idim import Dynamics, Fit, bootstrap, fit_at, predict, windows_of
+from bench.calibrate.arm.idim import Fit, bootstrap, fit_at, predict, windows_of
 from bench.calibrate.arm.model import ArmModel, build, check_positions, check_torques, realise
 from bench.calibrate.arm.spec import ArmSpec
+from bench.core.threads import one_blas_thread
 
 WINDOW_S = 0.5  # bootstrap window length (seconds of training data resampled together)
 
@@ -105,8 +107,8 @@ def _repeat_baseline(data: ArmLog, signal: np.ndarray, spread: np.ndarray) -> di
     out: dict[str, Any] = {}
 
     def score(p: np.ndarray) -> dict[str, Any]:
-        rmse = np.sqrt(np.mean((signal[hold] - p) ** 2, axis=0))
-        return {"rmse": rmse.tolist(), "nrmse": float(np.mean(rmse / spread))}
+        nrmse, rmse = torque_error(signal[hold], p, spread)
+        return {"rmse": rmse.tolist(), "nrmse": nrmse}
 
     out["nearest"] = {**score(pred), "what": "the measured torque of the nearest fitted state (q, dq, ddq)"}
     period = data.heldout.period_s
@@ -120,10 +122,10 @@ def _repeat_baseline(data: ArmLog, signal: np.ndarray, spread: np.ndarray) -> di
             p[sel] = novelty.period_signal(signal[ep], data.t[ep], period, data.train[ep], local)
         ok = np.all(np.isfinite(p), axis=1)
         if ok.mean() >= 0.5:
-            rmse = np.sqrt(np.mean((signal[rows[ok]] - p[ok]) ** 2, axis=0))
+            nrmse, rmse = torque_error(signal[rows[ok]], p[ok], spread)
             out["period"] = {
                 "rmse": rmse.tolist(),
-                "nrmse": float(np.mean(rmse / spread)),
+                "nrmse": nrmse,
                 "covered_share": float(ok.mean()),
                 "what": f"the measured torque one period ({period:.4g} s) earlier, where that instant was fitted",
             }
@@ -208,7 +210,22 @@ def calibrate_arm(
     threads: int = 1,
     log: Callable[[str], None] = lambda msg: None,
 ) -> ArmCalibration:
-    """The whole real-arm loop of the module docstring; bad data or a bad spec is one line, before any fit."""
+    """The whole real-arm loop of the module docstring; bad data or a bad spec is one line, before any fit.
+
+    One thread: numpy's and scipy's BLAS are held to one (`bench.core.threads`), MuJoCo rollouts use `threads`.
+    """
+    with one_blas_thread():
+        return _calibrate_arm(spec, episodes, fps, seed, threads, log)
+
+
+def _calibrate_arm(
+    spec: ArmSpec,
+    episodes: list[dict[str, np.ndarray]],
+    fps: float,
+    seed: int,
+    threads: int,
+    log: Callable[[str], None],
+) -> ArmCalibration:
     t0 = time.perf_counter()
     wall: dict[str, float] = {}
 
@@ -291,14 +308,14 @@ def calibrate_arm(
     links = link_entries(am, est.values, ident.status)
     nominal = nominal_torque(am, data, reg.base)
     hold = data.hold
-    rmse_nom = np.sqrt(np.mean((signal[hold] - nominal[hold]) ** 2, axis=0))
+    nrmse_nom, rmse_nom = torque_error(signal[hold], nominal[hold], fitter.spread)
     repeat = _repeat_baseline(data, signal, fitter.spread)
     best_repeat = repeat[repeat["best"]]["nrmse"]
     torque: dict[str, Any] = {
         "unit": "N·m (N for slide joints)",
         "joints": am.joints,
         "spread": fitter.spread.tolist(),
-        "nominal": {"rmse": rmse_nom.tolist(), "nrmse": float(np.mean(rmse_nom / fitter.spread))},
+        "nominal": {"rmse": rmse_nom.tolist(), "nrmse": nrmse_nom},
         "declared": {"rmse": rmse_decl.tolist(), "nrmse": err_decl},
         **{k: {"rmse": e.torque_rmse.tolist(), "nrmse": e.torque_nrmse} for k, e in estimates.items()},
         "final": {"rmse": est.torque_rmse.tolist(), "nrmse": est.torque_nrmse},
@@ -434,3 +451,22 @@ def summary_line(cal: ArmCalibration) -> str:
         parts.append("CHECK: " + "; ".join(flags))
     parts.append(f"{cal.wall['total']:.1f} s")
     return "; ".join(parts)
+
+
+def score_reference(cal: ArmCalibration, table: dict[str, Any]) -> dict[str, Any]:
+    """Another model's predicted torque on this calibration's held-out rows (a table with `t` and `tau`, e.g.
+    results/references/gaz_panda.json), scored by the same code as ours: {nrmse, rmse}, or {why} when the table
+    was made for other rows (another processing or split): then it must be made anew."""
+    rows = np.flatnonzero(cal.log.hold)
+    t, tau = np.asarray(table.get("t", []), dtype=float), np.asarray(table.get("tau", []), dtype=float)
+    if (
+        len(t) != len(rows)
+        or not np.allclose(t, cal.log.t[rows], atol=1e-5)
+        or tau.shape != (len(rows), len(cal.am.joints))
+    ):
+        return {
+            "why": f"the table holds {len(t)} rows; this calibration holds out {len(rows)} other ones: make it anew"
+        }
+    signal = cal.log.tau * (np.asarray(cal.spec.gains) if cal.spec.gains else 1.0)
+    nrmse, rmse = torque_error(signal[rows], tau, np.asarray(cal.errors["torque"]["spread"]))
+    return {"nrmse": nrmse, "rmse": rmse.tolist()}

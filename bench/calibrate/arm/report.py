@@ -64,7 +64,7 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
             "source_fps": log.source_fps,
             "samples": int(len(log.t)),
             "train_samples": int(log.train.sum()),
-            "holdout_samples": int((~log.train).sum()),
+            "holdout_samples": int(log.hold.sum()),
             "velocity": "logged" if log.qvel_logged else "central difference of the filtered positions",
             "acceleration": "central difference of the filtered velocities",
             "filter": f"4th-order zero-phase Butterworth low-pass at {cal.spec.filter_hz:g} Hz on every signal",
