@@ -73,12 +73,14 @@ def main() -> int:
             try:
                 time.sleep(1.0 if busy else 0.0)
                 l0 = os.getloadavg()[0]
-                wall, cpu, doc = _run(bench, work, f"cal{i}", prefix)
-                results[name].append((wall, cpu, l0, os.getloadavg()[0]))
+                wall, cpu, doc = _run(bench, work, f"cal{i}", prefix)  # the command's own CPU (its wait alone)
+                l1 = os.getloadavg()[0]
             finally:
-                for h in hogs:
+                for h in hogs:  # reaped now, so that no busy process's CPU is counted as a later run's
                     h.kill()
-            print(f"run {i + 1}, {name}: wall {wall:.1f} s, CPU {cpu:.1f} s, load {l0:.1f} -> {os.getloadavg()[0]:.1f}")
+                    h.wait()
+            results[name].append((wall, cpu, l0, l1))
+            print(f"run {i + 1}, {name}: wall {wall:.1f} s, CPU {cpu:.1f} s, load {l0:.1f} -> {l1:.1f}")
     stages = ", ".join(f"{k} {v:.1f}" for k, v in doc.get("timing", {}).items())
     print(f"stages of the last run (s): {stages}")
     for name, rows in results.items():

@@ -247,14 +247,34 @@ def check_torques(am: ArmModel, tau: np.ndarray, model_tau: np.ndarray, column: 
         )
 
 
-def realise(am: ArmModel, values: dict[str, Any]) -> mujoco.MjModel:
-    """A copy of the declared model carrying fitted values.
+REALISED = (  # the fields `realise` writes (a scratch copy is reset to the declared model's values of these)
+    "dof_frictionloss",
+    "dof_damping",
+    "dof_armature",
+    "jnt_stiffness",
+    "actuator_gainprm",
+    "body_mass",
+    "body_ipos",
+    "body_iquat",
+    "body_inertia",
+    "body_sameframe",
+)
+
+
+def realise(am: ArmModel, values: dict[str, Any], into: mujoco.MjModel | None = None) -> mujoco.MjModel:
+    """A copy of the declared model carrying fitted values (or `into`, a copy made before, reset and rewritten:
+    a suite's scene is costly to copy, and the bootstrap's draws realise hundreds of value sets).
 
     `values` holds per joint (full names) `coulomb`, `viscous`, `armature`, `stiffness`, `gain`
     (actuator gain factor), per link `std` (standard inertial parameters), and `payload`
     ({mass, com (3)} in the payload frame), each optional.
     """
-    m = copy.copy(am.model)
+    if into is None:
+        m = copy.copy(am.model)
+    else:
+        m = into
+        for name in REALISED:
+            getattr(m, name)[:] = getattr(am.model, name)
     for i, j in enumerate(am.jids):
         v = values.get("joints", {}).get(am.joints[i], {})
         d = int(am.dadr[i])
@@ -278,8 +298,8 @@ def realise(am: ArmModel, values: dict[str, Any]) -> mujoco.MjModel:
         com_body = am.payload_pos + am.payload_rot @ np.asarray(pay["com"], dtype=np.float64)
         b = am.payload_body
         set_std(m, b, std_params(m, b) + point_mass(float(pay["mass"]), com_body))
-    data = mujoco.MjData(m)
-    mujoco.mj_setConst(m, data)
+    if into is None:  # a scratch copy only holds values; a model that will be stepped gets its derived constants
+        mujoco.mj_setConst(m, mujoco.MjData(m))
     return m
 
 

@@ -29,10 +29,12 @@ def _key(e: dict[str, Any]) -> str:
 def draws_section(cal: ArmCalibration, final_edits: list[dict[str, Any]]) -> dict[str, Any]:
     """Every bootstrap replicate as the values of the final edits (same fields, elements and columns)."""
     keys = [_key(e) for e in final_edits]
+    nominal = {_key(e): e["nominal"] for e in final_edits}
     rows = []
+    scratch = None
     for values in cal.draws:
-        by_key = {_key(e): e["value"] for e in edits(cal.am.model, realise(cal.am, values))}
-        nominal = {_key(e): e["nominal"] for e in final_edits}
+        scratch = realise(cal.am, values, into=scratch)
+        by_key = {_key(e): e["value"] for e in edits(cal.am.model, scratch)}
         rows.append([by_key.get(k, nominal[k]) for k in keys])
     return {
         "method": "window bootstrap of the training data (0.5 s windows), one Gauss-Newton step per replicate",
