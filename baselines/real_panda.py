@@ -471,16 +471,47 @@ def readme(
         "",
         "## What this shows and what it does not",
         "",
+        _bc_sentence(rows, doc),
+        "",
         "It shows how far robosuite's Panda is from a real one where a torque log can see it (the held-out torque "
-        "error above), which parameters the log identifies and which it cannot, and how much the suite's "
-        "predictions move when the suite runs the calibrated arm instead: per policy, and in the order it "
-        "ranks policies. It does not show that the calibrated suite predicts real task success better: the "
-        "log has no task and no success, no gripper and no object; the calibration moves the arm's dynamics "
-        "only (friction, damping and link inertia), and the suite's controller (OSC) compensates much of "
-        "them. A sim-real agreement study needs success measured on the real robot.",
+        "error above, on data the fit has not seen in any period, beside memory and the log's authors' own model), "
+        "which parameters the log identifies and which it cannot, whether the calibrated arm simulates the robot "
+        "better (in closed loop, where the declared model's heavier placeholder links only looked better open loop), "
+        "and how much the suite's predictions move when the suite runs the calibrated arm instead: per policy, and "
+        "in the order it ranks policies. It does not show that the calibrated suite predicts real task success "
+        "better: the log has no task and no success, no gripper and no object; the calibration moves the arm's "
+        "link-side dynamics only (friction, damping and link inertia; the rotor inertia behind the torque sensor "
+        "stays robosuite's), and the suite's controller (OSC) compensates much of them. A sim-real agreement "
+        "study needs success measured on the real robot.",
         "",
     ]
     return "\n".join(lines)
+
+
+def _bc_sentence(rows: dict, doc: dict) -> str:
+    """Whether the behaviour-cloning policy's drop on the calibrated Panda survives this calibration."""
+    r = rows.get("bc")
+    if not r:
+        return ""
+    ch = r["change_calibrated_minus_nominal"]
+    lo, hi = ch.get("ci") or (None, None)
+    t = doc.get("trust", {})
+    fw = t.get("forward", {})
+    holds = hi is not None and hi < 0
+    earned = bool(t.get("simulates_better")) and bool(t.get("torque_beats_repeat"))
+    return (
+        f"bc on the calibrated Panda: {r['nominal']['successes']}/{r['nominal']['n']} -> "
+        f"{r['calibrated']['successes']}/{r['calibrated']['n']} ({_iv(ch)}): the drop "
+        + ("survives" if holds else "does not survive")
+        + " this calibration, "
+        + (
+            f"whose model beats memory on held-out torque and simulates the held-out stretch better than the "
+            f"declared one (closed-loop free run {fw.get('declared', float('nan')):.3g} -> "
+            f"{fw.get('calibrated', float('nan')):.3g})."
+            if earned
+            else "whose model did NOT earn its place (see the verdict above): read the change with that in mind."
+        )
+    )
 
 
 def _pt(v: dict) -> str:

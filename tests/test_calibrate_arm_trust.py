@@ -91,7 +91,7 @@ def test_a_payload_whose_centre_of_mass_leaves_the_region_is_flagged_and_found_i
     [
         ({"payload_region": {"radius": 0}}, SpecError, r"'payload_region\.radius' .*the region is empty"),
         ({"payload_region": {"center": [40, 0, 0], "radius": 0.1}}, SpecError, r"'payload_region'.*outside the model"),
-        ({"holdout": [0, 100]}, SpecError, r"'holdout'.*leaves no fitted data"),
+        ({"holdout": [0, 100]}, SpecError, r"'holdout'.*leaves 0 samples to fit"),
         ({"holdout": [50, 60]}, SpecError, r"'holdout'.*holds no sample of the log"),
         ({"period": 30.0}, DataError, r"less than one period of its excitation \(spec field 'period': 30 s\)"),
         ({"holdout_at": "middle"}, SpecError, r"'holdout_at': 'middle'; valid: least_repeated, end, episodes"),

@@ -135,7 +135,8 @@ def test_bad_splits_are_one_line_naming_the_field(short_log, extra, error, patte
 
 def test_a_window_that_leaves_nothing_to_fit_is_refused(short_log):
     with pytest.raises(
-        SpecError, match=r"spec field 'holdout': holding out 0-0.99 s of a 0.99 s log leaves 0 frames to fit"
+        SpecError,
+        match=r"spec field 'holdout': holding out 0-0.99 s of a 0.99 s log \(guards of 0 samples\) leaves 0 samples to fit",
     ):
         extract(parse_spec(_raw(holdout=[0.0, 5.0])), short_log[:1], FPS, nq=3, nv=3, nu=3)
     rec = extract(parse_spec(_raw(holdout=[0.3, 0.6])), short_log[:1], FPS, nq=3, nv=3, nu=3)

@@ -111,7 +111,7 @@ def test_a_good_calibration_runs_without_warning_and_is_named_and_recorded(base,
         f"calibration: the Panda cells run the calibrated model of {cal} (7 model edits); simulates the held-out "
         "data better than the declared model (closed-loop free run 0.06 -> 0.0076); held-out repeat share 0%"
     )
-    assert err.index("calibration: ") < err.index("run r: 1 episodes")  # before the episodes
+    assert err.index("calibration: ") < err.index("run r: 1 episode on")  # before the episodes
     prov = _provenance(tmp_path)
     assert prov["robot"] == "Panda" and len(prov["sha256"]) == 64
     assert prov["trust"] == {

@@ -435,7 +435,9 @@ def run(
 
         path = assemble(records, p.run_dir / "trajectories", Path(c.record))
         bar.note(f"recorded {sum(r.error is None for r in records)} episodes as a LeRobot v3 dataset: {path}")
-    bar.note(f"{len(todo)} episodes in {time.time() - t0:.1f} s; records: {episodes_path}")
+    bar.note(
+        f"{len(todo)} episode{'' if len(todo) == 1 else 's'} in {time.time() - t0:.1f} s; records: {episodes_path}"
+    )
     return RunResult(p.run_dir, summary, records, len(todo), len(done_ids))
 
 

@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.core.errors import DataError
+from bench.core.errors import DataError, SpecError
+from bench.replay.data import Window, split
 
 REPEAT_TOL = 0.05  # a held-out state within 5% of every coordinate's spread (RMS) of a fitted one repeats it
 PERIOD_MIN_R = 0.9  # autocorrelation at a lag above which the excitation repeats itself with that period
@@ -246,3 +247,111 @@ class Heldout:
             ),
             "sentence": self.sentence(),
         }
+
+
+def choose(
+    states: list[np.ndarray],
+    clocks: list[np.ndarray],
+    *,
+    share: float,
+    window: tuple[float, float] | None,
+    at: str,
+    guard: int,
+    seed: int,
+    period: float | None,
+    min_fit: int = 2,
+) -> tuple[list[Window], list[Window], Heldout]:
+    """Fitted and held-out windows (rows of each episode) and how new the held-out ones are: the one split of
+    every calibration (the arm path's rows are filtered samples, `guard` > 0; the forward path's raw frames).
+
+    `states` are each episode's [q, dq] rows and `clocks` their times (s). One episode: the `window` of time
+    when given, else `share` of it where it repeats the rest least (`at: least_repeated`) or at the end
+    (`at: end`), the fitted windows before and after it less `guard` rows; several episodes: the least
+    repeated ones (`least_repeated_episodes`), or a seeded share (`at: episodes`/`end`, `bench.replay.data.split`).
+    `period` (declared, s): every episode must hold one; else it is detected. Bad choices are one line naming
+    the spec field: a window without samples, one that leaves fewer than `min_fit` rows to fit, a window in a
+    log of several episodes, an episode shorter than its declared period.
+    """
+    lengths = [len(x) for x in states]
+    scale = spread(np.concatenate(states))
+    longest = int(np.argmax(lengths))
+    step = float(np.median(np.diff(clocks[longest]))) if lengths[longest] > 1 else 1.0
+    if period is not None:
+        short = [i for i, t in enumerate(clocks) if t[-1] - t[0] < period]
+        if short:
+            i = short[0]
+            raise DataError(
+                f"episode {i} holds {clocks[i][-1] - clocks[i][0]:.3g} s, less than one period of its excitation "
+                f"(spec field 'period': {period:g} s): a log must hold at least one whole period"
+            )
+        r: float | None = None
+        source = "declared"
+    else:
+        period, r = period_of(states[longest], 1.0 / step)
+        source = "detected"
+    end_share = None
+    if len(states) == 1:
+        x, t, n = states[0], clocks[0], lengths[0]
+        if window:
+            rows = np.flatnonzero((t >= window[0]) & (t < window[1]))
+            if rows.size == 0:
+                raise SpecError(
+                    f"spec field 'holdout': the window [{window[0]:g}, {window[1]:g}] s holds no sample of the log "
+                    f"({t[0]:.3g}-{t[-1]:.3g} s)"
+                )
+            start, stop, placement = int(rows[0]), int(rows[-1]) + 1, "window"
+        else:
+            length = n - int(round((1.0 - share) * n))  # as `bench.replay.data.split` cuts the end
+            if 0 < length < n and at == "least_repeated":
+                start, stop, _ = least_repeated_window(x, length, guard, scale=scale)
+                placement = "least_repeated"
+            else:
+                start, stop, placement = n - length, n, "end"
+        train = [Window(0, a, b) for a, b in ((0, max(0, start - guard)), (min(n, stop + guard), n)) if b - a >= 2]
+        fitted = sum(len(w) for w in train)
+        if fitted < min_fit or stop - start < 2:
+            what = f"leaves {fitted} samples to fit" if fitted < min_fit else f"holds out {stop - start} sample(s)"
+            raise SpecError(
+                f"spec field 'holdout': holding out {t[start]:.3g}-{t[stop - 1]:.3g} s of a {t[-1]:.3g} s log "
+                f"(guards of {guard} samples) {what}; hold out at least 2 samples and leave at least {min_fit} to fit"
+            )
+        hold = [Window(0, start, stop)]
+        end_keep = np.ones(n, bool)
+        end_keep[max(0, n - (stop - start) - guard) :] = False
+        if end_keep.any():
+            end_share = repeat_share(nearest(x[end_keep], x[n - (stop - start) :], scale)[0])
+    else:
+        if window:
+            raise SpecError(
+                "spec field 'holdout': a time window needs a one-episode log; this one has "
+                f"{len(states)} episodes (give a share instead)"
+            )
+        if at == "least_repeated":
+            n_hold = min(len(states) - 1, max(1, int(round(share * len(states)))))
+            held = set(least_repeated_episodes(states, n_hold, seed))
+            train = [Window(i, 0, n) for i, n in enumerate(lengths) if i not in held]
+            hold = [Window(i, 0, n) for i, n in enumerate(lengths) if i in held]
+            placement = "least_repeated"
+        else:
+            train, hold = split(lengths, share, seed)
+            placement = "episodes"
+    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
+    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
+    heldout = Heldout(
+        placement=placement,
+        repeat_share=repeat_share(nearest(fit_x, held_x, scale)[0]),
+        period_s=period,
+        periodicity=r,
+        period_source=source,
+        guard_s=guard * step if len(states) == 1 else 0.0,
+        windows=[
+            {
+                "episode": w.episode,
+                "start_s": float(clocks[w.episode][w.start]),
+                "stop_s": float(clocks[w.episode][w.stop - 1]),
+            }
+            for w in hold
+        ],
+        end_share=end_share,
+    )
+    return train, hold, heldout

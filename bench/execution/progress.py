@@ -47,7 +47,9 @@ class RunProgress:
         if done:
             self.console.print(f"resuming {run_dir}: {done} of {total} episodes already recorded", soft_wrap=True)
         where = f"{workers} Ray actor(s)" if cfg.executor == "ray" else f"{workers} worker(s)"
-        self.console.print(f"run {cfg.run_id}: {todo} episodes on {where} -> {run_dir}", soft_wrap=True)
+        self.console.print(
+            f"run {cfg.run_id}: {todo} episode{'' if todo == 1 else 's'} on {where} -> {run_dir}", soft_wrap=True
+        )
         if not self.console.is_terminal:
             return
         from rich.progress import (  # rich: loaded only when something is drawn on the terminal

@@ -28,7 +28,7 @@ from bench.calibrate import novelty
 from bench.calibrate.arm.spec import ArmSpec
 from bench.core.errors import DataError, SpecError
 from bench.logs.resample import is_regular, resample
-from bench.replay.data import Window, column, split
+from bench.replay.data import Window, column
 
 EDGE_S = 0.1  # seconds dropped at each end of an episode after filtering
 GUARD_PERIODS = 4.0  # guard band around held-out data, in periods of the filter's cut-off (0.2 s at 20 Hz)
@@ -161,96 +161,17 @@ def load_arm_log(spec: ArmSpec, episodes: list[dict[str, np.ndarray]], fps: floa
 def choose_split(
     spec: ArmSpec, states: list[np.ndarray], clocks: list[np.ndarray], rate: float, seed: int
 ) -> tuple[list[Window], list[Window], novelty.Heldout]:
-    """Fitted and held-out windows (rows at the identification rate) and how new the held-out ones are.
-
-    `states` are each episode's [q, dq]; bad choices are one line naming the spec field: a window that
-    leaves no fitted data, a log shorter than one period of its declared excitation.
-    """
-    lengths = [len(x) for x in states]
-    guard = int(round(GUARD_PERIODS / spec.filter_hz * rate))
-    all_x = np.concatenate(states)
-    scale = novelty.spread(all_x)
-    longest = int(np.argmax(lengths))
-    if spec.period is not None:
-        short = [i for i, t in enumerate(clocks) if t[-1] - t[0] < spec.period]
-        if short:
-            i = short[0]
-            raise DataError(
-                f"episode {i} holds {clocks[i][-1] - clocks[i][0]:.3g} s, less than one period of its excitation "
-                f"(spec field 'period': {spec.period:g} s): a log must hold at least one whole period"
-            )
-        period: float | None = spec.period
-        r: float | None = None
-        source = "declared"
-    else:
-        found, r = novelty.period_of(states[longest], rate)
-        period, source = found, "detected"
-    placement = "window" if spec.holdout_window else spec.holdout_at
-    end_share = None
-    if len(states) == 1:
-        x, n = states[0], lengths[0]
-        if spec.holdout_window:
-            t0, t1 = spec.holdout_window
-            t = clocks[0]
-            rows = np.flatnonzero((t >= t0) & (t < t1))
-            if rows.size == 0:
-                raise SpecError(
-                    f"spec field 'holdout': the window [{t0:g}, {t1:g}] s holds no sample of the log "
-                    f"({t[0]:.3g}-{t[-1]:.3g} s)"
-                )
-            start, stop = int(rows[0]), int(rows[-1]) + 1
-        else:
-            length = int(round(spec.holdout * n))
-            if spec.holdout_at == "least_repeated":
-                start, stop, _ = novelty.least_repeated_window(x, length, guard, scale=scale)
-            else:
-                start, stop = n - length, n
-        fit_rows = [(0, max(0, start - guard)), (min(n, stop + guard), n)]
-        train = [Window(0, a, b) for a, b in fit_rows if b - a > 0]
-        if sum(len(w) for w in train) < 10:
-            raise SpecError(
-                f"spec field 'holdout': holding out {clocks[0][start]:.3g}-{clocks[0][stop - 1]:.3g} s (with "
-                f"{guard / rate:.2g} s guards) leaves no fitted data in a {clocks[0][-1]:.3g} s log"
-            )
-        hold = [Window(0, start, stop)]
-        end_len = stop - start
-        end_keep = np.ones(n, bool)
-        end_keep[max(0, n - end_len - guard) :] = False
-        end_share = (
-            novelty.repeat_share(novelty.nearest(x[end_keep], x[n - end_len :], scale)[0]) if end_keep.any() else None
-        )
-    else:
-        if spec.holdout_window:
-            raise SpecError(
-                "spec field 'holdout': a time window needs a one-episode log; this one has "
-                f"{len(states)} episodes (give a share instead)"
-            )
-        if spec.holdout_at == "least_repeated":
-            n_hold = min(len(states) - 1, max(1, int(round(spec.holdout * len(states)))))
-            held = set(novelty.least_repeated_episodes(states, n_hold, seed))
-            train = [Window(i, 0, n) for i, n in enumerate(lengths) if i not in held]
-            hold = [Window(i, 0, n) for i, n in enumerate(lengths) if i in held]
-        else:
-            train, hold = split(lengths, spec.holdout, seed)
-            placement = "episodes"
-    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
-    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
-    share = novelty.repeat_share(novelty.nearest(fit_x, held_x, scale)[0])
-    heldout = novelty.Heldout(
-        placement=placement,
-        repeat_share=share,
-        period_s=period,
-        periodicity=r,
-        period_source=source,
-        guard_s=guard / rate if len(states) == 1 else 0.0,
-        windows=[
-            {
-                "episode": w.episode,
-                "start_s": float(clocks[w.episode][w.start]),
-                "stop_s": float(clocks[w.episode][w.stop - 1]),
-            }
-            for w in hold
-        ],
-        end_share=end_share,
+    """Fitted and held-out windows (rows at the identification rate) and how new the held-out ones are
+    (`bench.calibrate.novelty.choose`, with a guard band of GUARD_PERIODS filter periods and at least 10
+    fitted rows)."""
+    return novelty.choose(
+        states,
+        clocks,
+        share=spec.holdout,
+        window=spec.holdout_window,
+        at=spec.holdout_at,
+        guard=int(round(GUARD_PERIODS / spec.filter_hz * rate)),
+        seed=seed,
+        period=spec.period,
+        min_fit=10,
     )
-    return train, hold, heldout

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.calibrate.feedback import gains
-from bench.calibrate.spec import TraceSpec, parse_trace
+from bench.calibrate.spec import HOLDOUT_AT, TraceSpec, parse_holdout, parse_trace
 from bench.core.errors import SpecError, valid_choices
 from bench.core.provenance import portable
 from bench.replay.spec import SignalSpec, check_keys, number, parse_signal, read_spec_file
@@ -57,7 +57,6 @@ TORQUE_KINDS = ("measured", "command", "current")
 FRICTION = ("coulomb", "viscous", "offset")
 ARM_EFFECTS = ("payload", "actuator_gain", "stribeck_friction", "asymmetric_friction", "joint_spring")
 ESTIMATES = ("auto", "idim", "didim")
-HOLDOUT_AT = ("least_repeated", "end", "episodes")
 PAYLOAD_RADIUS = 0.15  # m: by default a payload's centre of mass lies within this distance of its frame's origin
 
 
@@ -183,19 +182,6 @@ def _controller(raw: Any, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]
     return kp, kd
 
 
-def _holdout(raw: Any) -> tuple[float, tuple[float, float] | None]:
-    if isinstance(raw, (list, tuple)):
-        if len(raw) != 2:
-            raise SpecError(
-                f"spec field 'holdout' must be a share (0.05-0.9) or a window [t0, t1] in seconds; got {raw!r}"
-            )
-        t0, t1 = (number(v, "holdout", lo=0.0) for v in raw)
-        if t1 <= t0:
-            raise SpecError(f"spec field 'holdout': the window [{t0:g}, {t1:g}] s is empty (t1 must exceed t0)")
-        return 0.0, (t0, t1)
-    return number(raw, "holdout", lo=0.05, hi=0.9), None
-
-
 def _horizons(raw: dict[str, Any]) -> tuple[float, ...]:
     if "horizon" in raw and "horizons" in raw:
         raise SpecError("spec fields 'horizon' and 'horizons' both given; 'horizons' lists every one")
@@ -269,7 +255,7 @@ def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = N
             f"spec field 'filter_hz' ({filter_hz:g}) must be below half of 'rate' ({rate:g} Hz): the signals are "
             "decimated to 'rate' after filtering"
         )
-    share, window = _holdout(raw.get("holdout", 0.3))
+    share, window = parse_holdout(raw.get("holdout", 0.3))
     holdout_at = raw.get("holdout_at", "least_repeated")
     if holdout_at not in HOLDOUT_AT:
         raise SpecError(f"spec field 'holdout_at': {holdout_at!r}; {valid_choices(str(holdout_at), HOLDOUT_AT)}")
