@@ -78,24 +78,6 @@ def choose_split(
     )
 
 
-def describe(
-    states: list[np.ndarray],
-    train: list[Window],
-    hold: list[Window],
-    scale: np.ndarray,
-    placement: str,
-    fps: float,
-) -> novelty.Heldout:
-    """The `Heldout` of a split: its repeat share and windows (period and end share left to the caller)."""
-    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
-    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
-    return novelty.Heldout(
-        placement=placement,
-        repeat_share=novelty.repeat_share(novelty.nearest(fit_x, held_x, scale)[0]),
-        windows=[{"episode": w.episode, "start_s": w.start / fps, "stop_s": (w.stop - 1) / fps} for w in hold],
-    )
-
-
 def heldout_of(rec: Recording) -> novelty.Heldout:
     """The recording's `Heldout`: the one its split was chosen with, else one measured from its windows
     (a plant built by hand: placement 'end' or 'episodes', as `bench.replay.data.split` places them)."""
@@ -105,6 +87,9 @@ def heldout_of(rec: Recording) -> novelty.Heldout:
     if not rec.holdout or not rec.train:
         return novelty.Heldout(placement="none", repeat_share=0.0)
     placement = "end" if rec.n_episodes == 1 else "episodes"
-    heldout = describe(states, rec.train, rec.holdout, novelty.spread(np.concatenate(states)), placement, rec.fps)
+    clocks = [np.arange(len(x)) / rec.fps for x in states]
+    heldout = novelty.measured(
+        states, clocks, rec.train, rec.holdout, placement, novelty.spread(np.concatenate(states))
+    )
     period, r = novelty.period_of(states[int(np.argmax([len(x) for x in states]))], rec.fps)
     return replace(heldout, period_s=period, periodicity=r)

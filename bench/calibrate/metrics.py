@@ -78,10 +78,7 @@ def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dic
     length = hold.length
     feats = np.concatenate([rec.qpos, rec.qvel], axis=1)
     scale = novelty.spread(feats)
-    fit_starts = np.concatenate(
-        [np.arange(rec.offsets[w.episode] + w.start, rec.offsets[w.episode] + w.stop - length) for w in rec.train]
-        + [np.zeros(0, dtype=np.int64)]
-    ).astype(np.int64)
+    fit_starts = novelty.horizon_starts(rec.offsets, rec.train, length)
     if len(hold) == 0 or len(fit_starts) == 0:
         return {"k_step_nrmse": None, "best": None, "what": f"no fitted stretch of {length} frames to remember"}
     spread = np.maximum(rec.qpos[rec.frames(rec.holdout)].std(axis=0), 1e-12)

@@ -23,7 +23,7 @@ period earlier beats any model. So every calibration
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -335,15 +335,32 @@ def choose(
         else:
             train, hold = split(lengths, share, seed)
             placement = "episodes"
-    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
-    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
-    heldout = Heldout(
-        placement=placement,
-        repeat_share=repeat_share(nearest(fit_x, held_x, scale)[0]),
+    heldout = replace(
+        measured(states, clocks, train, hold, placement, scale),
         period_s=period,
         periodicity=r,
         period_source=source,
         guard_s=guard * step if len(states) == 1 else 0.0,
+        end_share=end_share,
+    )
+    return train, hold, heldout
+
+
+def measured(
+    states: list[np.ndarray],
+    clocks: list[np.ndarray],
+    train: list[Window],
+    hold: list[Window],
+    placement: str,
+    scale: np.ndarray,
+) -> Heldout:
+    """The `Heldout` of a split already made: its repeat share and its windows in seconds (period, guard and
+    the end split's share left at their defaults, for `choose` or a caller that knows them)."""
+    fit_x = np.concatenate([states[w.episode][w.start : w.stop] for w in train])
+    held_x = np.concatenate([states[w.episode][w.start : w.stop] for w in hold])
+    return Heldout(
+        placement=placement,
+        repeat_share=repeat_share(nearest(fit_x, held_x, scale)[0]),
         windows=[
             {
                 "episode": w.episode,
@@ -352,6 +369,11 @@ def choose(
             }
             for w in hold
         ],
-        end_share=end_share,
     )
-    return train, hold, heldout
+
+
+def horizon_starts(offsets: np.ndarray, windows: list[Window], k: int) -> np.ndarray:
+    """Global start frames of every k-frame horizon that fits inside one of `windows` (its k frames after the
+    start included): where memory may look up a fitted motion (`nearest_motion`)."""
+    parts = [np.arange(offsets[w.episode] + w.start, offsets[w.episode] + w.stop - k) for w in windows]
+    return np.concatenate([*parts, np.zeros(0, dtype=np.int64)]).astype(np.int64)

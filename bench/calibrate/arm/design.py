@@ -148,7 +148,7 @@ def limits_of(am: ArmModel, margin: float, velocity: list[float] | None, torque:
     return Limits(rng, lo, hi, given["velocity"], tq, margin, source)
 
 
-class Problem:
+class DesignProblem:
     """A spec's regressor and limits on a time grid: evaluates trajectories."""
 
     def __init__(self, spec: ArmSpec, am: ArmModel, lim: Limits, period: float, harmonics: int) -> None:
@@ -220,7 +220,7 @@ class Problem:
         self.rank = int(np.sum(sv > RANK_TOL * sv[0]))
 
 
-def check_rest(p: Problem, rng: np.random.Generator) -> None:
+def check_rest(p: DesignProblem, rng: np.random.Generator) -> None:
     """Refuse torque limits that gravity alone exceeds at every pose tried (the range's centre first)."""
     lim, n = p.lim, len(p.am.joints)
     poses = np.vstack([(lim.lo + lim.hi) / 2, lim.lo + rng.uniform(size=(REST_POSES - 1, n)) * (lim.hi - lim.lo)])
@@ -235,7 +235,9 @@ def check_rest(p: Problem, rng: np.random.Generator) -> None:
         )
 
 
-def search(p: Problem, rng: np.random.Generator, tries: int, log: Callable[[str], None]) -> tuple[Fourier, Fourier]:
+def search(
+    p: DesignProblem, rng: np.random.Generator, tries: int, log: Callable[[str], None]
+) -> tuple[Fourier, Fourier]:
     """The first feasible random start, and the design: the best start improved by a (1+1) evolution strategy."""
     n, L = len(p.am.joints), p.harmonics
     ell, first, best, worst = np.arange(1, L + 1), None, None, np.inf
@@ -273,7 +275,7 @@ def search(p: Problem, rng: np.random.Generator, tries: int, log: Callable[[str]
     return first, fr
 
 
-def finalise(p: Problem, fr: Fourier) -> tuple[Fourier, dict[str, Any]]:
+def finalise(p: DesignProblem, fr: Fourier) -> tuple[Fourier, dict[str, Any]]:
     """The design shrunk until it meets every limit on the 1 kHz grid; what it reaches there."""
     t = np.arange(int(round(p.period * CSV_RATE))) / CSV_RATE
     for _ in range(40):
@@ -308,7 +310,7 @@ class Design:
     wall: float
 
 
-def identify(p: Problem, blocks: list[Block], rate: float, duration: float) -> Identifiability:
+def identify(p: DesignProblem, blocks: list[Block], rate: float, duration: float) -> Identifiability:
     """`identifiability.analyse` of samples at `rate` as if recorded for `duration` s (NOISE_SHARE noise)."""
     rows = np.arange(len(blocks[0].cols))
     x = np.concatenate([b.prior for b in blocks])
@@ -353,7 +355,7 @@ def run_design(
     """The design of the module docstring; `log_samples` (samples, rate, name) is the log it is compared with."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    p = Problem(spec, am, lim, period, harmonics)
+    p = DesignProblem(spec, am, lim, period, harmonics)
     check_rest(p, rng)
     p.reference(rng)
     k, structural = len(p.size), len(p.size) - p.rank

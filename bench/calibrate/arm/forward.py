@@ -39,7 +39,7 @@ import numpy as np
 from bench.calibrate.arm.data import ArmLog
 from bench.calibrate.arm.model import ArmModel, require_motors
 from bench.calibrate.arm.spec import ArmSpec
-from bench.calibrate.novelty import nearest_motion, spread
+from bench.calibrate.novelty import horizon_starts, nearest_motion, spread
 from bench.replay.data import Recording, Window
 from bench.replay.metrics import segment_errors
 from bench.replay.simulate import Coordinates, Segments, Simulator, Variant, free_runs, horizons
@@ -225,13 +225,10 @@ def _baselines(bench: Bench, segs: Segments) -> dict[str, dict[str, Any]]:
     cv = rec.qpos[segs.start][:, None, :] + rec.qvel[segs.start][:, None, :] * steps[None, :, None]
     out = {"constant_velocity": bench.score(np.concatenate([cv, np.zeros_like(cv)], axis=-1), segs)}
     k = segs.length
-    fit_starts = np.concatenate(
-        [np.arange(rec.offsets[w.episode] + w.start, rec.offsets[w.episode] + w.stop - k) for w in bench.train]
-        or [np.zeros(0, int)]
-    ).astype(np.int64)
+    fit_starts = horizon_starts(rec.offsets, bench.train, k)
     if fit_starts.size:
         feats = np.hstack([rec.qpos, rec.qvel])
-        q_next = nearest_motion(rec.qpos, feats, segs.start + 0, fit_starts, k + 1, spread(feats))[:, 1:, :n]
+        q_next = nearest_motion(rec.qpos, feats, segs.start, fit_starts, k + 1, spread(feats))[:, 1:, :n]
         out["repeat"] = bench.score(np.concatenate([q_next, np.zeros_like(q_next)], axis=-1), segs)
     return out
 
