@@ -1,6 +1,6 @@
 """Gaz et al.'s own identified Panda model, evaluated on our processed samples of the never-repeated stretch.
 
-    python benchmarks/gaz_reference.py gaz=PATH [out=results/references/gaz_panda.json]
+    python benchmarks/gaz_reference.py gaz=PATH [out=results/references/gaz_panda.json] [overwrite=false]
 
 PATH is a clone of github.com/marcocognetti/FrankaEmikaPandaDynModel (GPL-3.0) at commit COMMIT. Their
 model is their C++ code (mass matrix, Coriolis matrix, gravity vector and friction, with their identified
@@ -30,7 +30,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.api import ConfigError  # noqa: E402
 from bench.api.calibration import load_arm_log, load_arm_spec  # noqa: E402  (the checkout's bench, run as a script)
+from bench.api.data import outputs, write_text_atomic  # noqa: E402
 from bench.logs import import_csv  # noqa: E402
 
 REPO = "https://github.com/marcocognetti/FrankaEmikaPandaDynModel"
@@ -98,10 +100,20 @@ def main() -> int:
     if "gaz" not in args:
         print(__doc__)
         return 2
-    out = Path(args.get("out", ROOT / "results" / "references" / "gaz_panda.json"))
     if not LOG.is_file():
         print(f"the Panda log is missing ({LOG}); nothing written", file=sys.stderr)
         return 1
+    try:  # checked before anything is built: never over or inside an input, a bench table replaced only on request
+        out = outputs.check(
+            "out",
+            args.get("out", ROOT / "results" / "references" / "gaz_panda.json"),
+            {"gaz": args["gaz"], "log": str(LOG), "spec": str(SPEC)},
+            kind="file",
+            overwrite=args.get("overwrite", "false") == "true",
+        )
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     spec = load_arm_spec(SPEC)
     cols = {
         "state": [f"q{i}" for i in range(1, 8)],
@@ -118,6 +130,7 @@ def main() -> int:
     tau = np.array([[float(x) for x in ln.split()] for ln in res.stdout.strip().splitlines()])
     assert tau.shape == (len(rows), 7), tau.shape
     doc = {
+        "schema": "bench.reference/1",
         "what": "Gaz et al.'s identified Panda model (RA-L 2019): predicted joint torque on the held-out rows of "
         "bench calibrate's processing of ../shared/data/real/panda_gaz/trajectory_1.csv",
         "provenance": {
@@ -143,8 +156,7 @@ def main() -> int:
         "t": np.round(data.t[rows], 6).tolist(),
         "tau": np.round(tau, 6).tolist(),
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(doc) + "\n")
+    write_text_atomic(out, json.dumps(doc) + "\n")  # compact: two long arrays
     print(f"wrote {out}: {len(rows)} rows, t {doc['samples']['t_first']:.3f}-{doc['samples']['t_last']:.3f} s")
     return 0
 
