@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-from bench.calibrate.arm.design import limits_of, run_design, samples_of_log, write_design
+from bench.calibrate.arm.design import design_spec, limits_of, run_design, samples_of_log, write_design
 from bench.calibrate.arm.loop import calibrate_arm, summary_line
 from bench.calibrate.arm.model import build
 from bench.calibrate.arm.report import write_arm_report
@@ -23,8 +23,7 @@ from bench.calibrate.suite import calibrate_suite
 from bench.calibrate.trace import run
 from bench.core import config, outputs
 from bench.core.config import Range, ranged
-from bench.core.errors import ConfigError, DataError, SpecError, did_you_mean
-from bench.core.threads import one_blas_thread
+from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.logs import read_dataset
 from bench.replay.spec import load_model, read_spec_file
 from bench.sims.mjx import check_model
@@ -410,20 +409,7 @@ def cmd_generate(cfg: GenerateConfig) -> int:
 def cmd_design(cfg: DesignConfig) -> int:
     """An excitation for an arm spec: OUT/design.json and OUT/trajectory.csv (nothing written on bad input)."""
     spec_file, out_dir = _require(cfg, "spec", "out", command="bench calibrate design")
-    raw, spec_path = read_spec_file(Path(spec_file).expanduser())
-    if not is_arm_spec(raw):
-        got = raw.get("method") if isinstance(raw, dict) else None
-        raise SpecError(
-            f"spec field 'method': bench calibrate design needs an arm spec (method: idim); {spec_file!r} has "
-            + (f"method: {got}" if got is not None else "no method (a forward spec)")
-        )
-    spec = parse_arm_spec(raw, spec_path.parent, spec_path)
-    if cfg.harmonics / cfg.period >= spec.filter_hz / 2:
-        raise ConfigError(
-            f"key 'harmonics': {cfg.harmonics} harmonics of a {cfg.period:g} s period reach "
-            f"{cfg.harmonics / cfg.period:g} Hz, not below {spec.filter_hz / 2:g} Hz (half the spec's filter_hz): "
-            "the calibration's filter would damp them; give fewer harmonics or a longer period"
-        )
+    spec = design_spec(spec_file, cfg.harmonics, cfg.period)
     inputs = {"spec": spec_file, "logs": cfg.logs, **({"model": str(spec.model)} if spec.model else {})}
     out = _out(out_dir, cfg.overwrite, inputs)
     am = build(spec)
@@ -432,17 +418,16 @@ def cmd_design(cfg: DesignConfig) -> int:
     if cfg.logs is not None:
         episodes, fps = _load_logs(Path(cfg.logs).expanduser())
         log_samples = (*samples_of_log(spec, am, episodes, fps), cfg.logs)
-    with one_blas_thread():
-        d = run_design(
-            spec,
-            am,
-            lim,
-            period=cfg.period,
-            harmonics=cfg.harmonics,
-            seed=cfg.seed,
-            log_samples=log_samples,
-            progress=_log(cfg.quiet),
-        )
+    d = run_design(
+        spec,
+        am,
+        lim,
+        period=cfg.period,
+        harmonics=cfg.harmonics,
+        seed=cfg.seed,
+        log_samples=log_samples,
+        progress=_log(cfg.quiet),
+    )
     outputs.replace_dir(out, lambda tmp: write_design(d, tmp, spec, am, cfg.seed, inputs))
     b, a = d.before, d.after
     print(

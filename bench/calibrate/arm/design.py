@@ -37,10 +37,12 @@ from bench.calibrate.arm.dynamics import Dynamics
 from bench.calibrate.arm.identifiability import Identifiability, analyse, plausible_sizes
 from bench.calibrate.arm.idim import FRICTION_V, Block, design
 from bench.calibrate.arm.model import ArmModel, check_positions
-from bench.calibrate.arm.spec import ArmSpec
+from bench.calibrate.arm.spec import ArmSpec, is_arm_spec, parse_arm_spec
 from bench.core.errors import ConfigError, SpecError
 from bench.core.io import finite_or_none, write_atomic
 from bench.core.provenance import git_sha, package_versions, portable
+from bench.core.threads import one_blas_thread
+from bench.replay.spec import read_spec_file
 
 GRID_MIN, GRID_PER_HARMONIC = 100, 20  # optimisation grid: points per period, per cycle of the highest harmonic
 STARTS = 16  # random starting trajectories
@@ -340,6 +342,26 @@ def _phrase(entry: dict[str, Any]) -> str:
     return f"link {who} ({len(params)} of 10 inertial parameters)" if kind == "link" else f"{who}'s {names}"
 
 
+def design_spec(spec_file: str, harmonics: int, period: float) -> ArmSpec:
+    """The arm spec a design is for, refused with one line naming the field when it is not `method: idim` or when
+    the harmonics reach half its filter's cut-off (the calibration's own filter would damp them)."""
+    raw, spec_path = read_spec_file(Path(spec_file).expanduser())
+    if not is_arm_spec(raw):
+        got = raw.get("method") if isinstance(raw, dict) else None
+        raise SpecError(
+            f"spec field 'method': bench calibrate design needs an arm spec (method: idim); {spec_file!r} has "
+            + (f"method: {got}" if got is not None else "no method (a forward spec)")
+        )
+    spec = parse_arm_spec(raw, spec_path.parent, spec_path)
+    if harmonics / period >= spec.filter_hz / 2:
+        raise ConfigError(
+            f"key 'harmonics': {harmonics} harmonics of a {period:g} s period reach "
+            f"{harmonics / period:g} Hz, not below {spec.filter_hz / 2:g} Hz (half the spec's filter_hz): "
+            "the calibration's filter would damp them; give fewer harmonics or a longer period"
+        )
+    return spec
+
+
 def run_design(
     spec: ArmSpec,
     am: ArmModel,
@@ -352,7 +374,23 @@ def run_design(
     evaluations: int = EVALUATIONS,
     progress: Callable[[str], None] = lambda msg: None,
 ) -> Design:
-    """The design of the module docstring; `log_samples` (samples, rate, name) is the log it is compared with."""
+    """The design of the module docstring; `log_samples` (samples, rate, name) is the log it is compared with.
+    One thread, as a calibration (`bench.core.threads`)."""
+    with one_blas_thread():
+        return _run_design(spec, am, lim, period, harmonics, seed, log_samples, evaluations, progress)
+
+
+def _run_design(
+    spec: ArmSpec,
+    am: ArmModel,
+    lim: Limits,
+    period: float,
+    harmonics: int,
+    seed: int,
+    log_samples: tuple[Samples, float, str] | None,
+    evaluations: int,
+    progress: Callable[[str], None],
+) -> Design:
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     p = DesignProblem(spec, am, lim, period, harmonics)
