@@ -80,6 +80,9 @@ def test_a_payload_whose_centre_of_mass_leaves_the_region_is_flagged_and_found_i
     case = write_arm_case(tmp_path, "payload", duration=12.0, payload_com=com)
     narrow = _calibrate(case)
     assert any("outside the declared region" in w and "payload_region" in w for w in narrow.warnings)
+    p = narrow.added[0]  # held at the edge: no interval that would exclude the true 1.2 kg with confidence
+    assert p["mass_interval"] is None and p["com_interval"] is None
+    assert all(q["interval"] is None for q in narrow.params if q["name"].startswith("payload@"))
     wide = _calibrate(case, payload_region={"center": [0, 0, 0.2], "radius": 0.15})
     assert not any("outside the declared region" in w for w in wide.warnings)
     p = wide.added[0]

@@ -260,8 +260,11 @@ def _calibrate_arm(
     idim_fit, fixed, added, rejected, f_decl, err_decl, rmse_decl = _trace(spec, fitter, reg, log)
     lap("trace")
     warnings: list[str] = []
+    fenced = False  # the payload held at its region's edge: the region, not the data, sets it
     if any(a["name"] == "payload" for a in added):
-        warnings += _payload_region_check(spec, am, fitter, idim_fit)
+        region = _payload_region_check(spec, am, fitter, idim_fit)
+        warnings += region
+        fenced = bool(region)
     estimates = {"idim": _estimate("idim", am, idim_fit, fixed, fitter)}
     # forward: the declared model and each estimate simulated on the held-out data
     bench = forward.bench_of(am, spec, data, threads)
@@ -305,6 +308,8 @@ def _calibrate_arm(
     params = param_entries(final, f_decl, ident, draws_x, spec)
     for entry in added:  # the physical quantities of what was added, with intervals
         entry.update(effect_terms(entry, final, draws_x, ident))
+    if fenced:
+        held_at_edge(added, params)
     links = link_entries(am, est.values, ident.status)
     nominal = nominal_torque(am, data, reg.base)
     hold = data.hold
@@ -387,6 +392,20 @@ def _choose(spec: ArmSpec, fw: dict[str, Any], estimates: dict[str, Estimate]) -
         f"DIDIM does not simulate the held-out data clearly better (free-run NRMSE {b if b is None else f'{b:.4g}'} "
         f"against {a if a is None else f'{a:.4g}'}): the torque fit's estimate is kept"
     )
+
+
+HELD = "none: held at the edge of the declared payload_region, so the region, not the data, sets it"
+
+
+def held_at_edge(added: list[dict[str, Any]], params: list[dict[str, Any]]) -> None:
+    """No interval for a payload whose centre of mass the fit held at its region's edge (its mass and centre of
+    mass are then the region's consequence: an interval around them would exclude the truth with confidence)."""
+    for a in added:
+        if a["name"] == "payload":
+            a.update(mass_interval=None, com_interval=None, interval_note=HELD)
+    for q in params:
+        if q["name"].startswith("payload@"):
+            q.update(interval=None, interval_method=HELD)
 
 
 def _payload_region_check(spec: ArmSpec, am: ArmModel, fitter: Fitter, f: Fit) -> list[str]:

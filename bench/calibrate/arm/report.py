@@ -135,7 +135,8 @@ def _what(a: dict) -> str:
         mi, ci = a.get("mass_interval"), a.get("com_interval")
         if mi is None:
             com = ", ".join(f"{c:.4f}" for c in a["com"])
-            return f": {a['mass']:.4g} kg, centre of mass [{com}] m in its frame (not identified apart: intervals unbounded)"
+            why = a.get("interval_note") or "not identified apart: intervals unbounded"
+            return f": {a['mass']:.4g} kg, centre of mass [{com}] m in its frame (intervals {why})"
         com = ", ".join(
             f"{c:.4f} [{iv[0]:.4f}, {iv[1]:.4f}]" if iv else f"{c:.4f} [unbounded]" for c, iv in zip(a["com"], ci or [])
         )
