@@ -21,25 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from bench.api.sims import quat_mul
+
 STEPS = 400  # ACT's episode length for both tasks
 EE_XML = {
     "transfer_cube": "bimanual_viperx_end_effector_transfer_cube.xml",
     "insertion": "bimanual_viperx_end_effector_insertion.xml",
 }
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of two quaternions (w, x, y, z)."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
 
 
 def axis_angle(axis: tuple[float, float, float], degrees: float) -> np.ndarray:

@@ -41,6 +41,7 @@ from typing import Any, Optional
 import numpy as np
 
 from bench.api import ConfigError, DataError
+from bench.api.data import portable
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,18 @@ def run_name(args: Args) -> str:
     """`DATASET__bc__sSEED`, the dataset part joined from the data folders' names."""
     data = "+".join(Path(p).name for p in args.data) or "nodata"
     return f"{data}__bc__s{args.seed}"
+
+
+def recorded_data(paths: Sequence[str]) -> list[str]:
+    """The data folders as a checkpoint records them: relative to the checkout when inside it (`portable`), else
+    by the folder's name alone, so a checkpoint names no folder of the machine that trained it (a scratch folder's
+    absolute path would also change its sha256 from one machine to the next)."""
+    out = []
+    for given in paths:
+        where = Path(given).resolve()
+        rel = portable(where)
+        out.append(where.name if rel is None or Path(rel).is_absolute() else rel)
+    return out
 
 
 def seed_everything(seed: int, threads: int = 1) -> None:
@@ -351,7 +364,8 @@ def fit(demos: Demos, args: Args) -> tuple[Any, dict[str, Any], dict[str, Any]]:
             "algorithm": "bc",
             "run_name": run_name(args),
             "seed": args.seed,
-            "args": {k: v for k, v in asdict(args).items() if k != "out"},  # where it is saved is not what it is
+            # where it is saved is not what it is; where its data lay, only as a portable name (`recorded_data`)
+            "args": {k: recorded_data(v) if k == "data" else v for k, v in asdict(args).items() if k != "out"},
             "episodes": len(demos.episodes),
             "frames": n,
             "robots": robots,

@@ -115,7 +115,7 @@ def real_robot(path: Path) -> Path:
     return path
 
 
-def run(
+def run_policy(
     work: Path,
     run_id: str,
     policy: str,
@@ -211,7 +211,7 @@ def main(argv: list[str]) -> int:
     if not logs.exists():
         print("2. logs from the real robot", flush=True)
         policy, options = POLICIES["expert-noise0.3"]
-        run(work, "logs", policy, options, log_eps, 100, workers, str(real), str(logs))
+        run_policy(work, "logs", policy, options, log_eps, 100, workers, str(real), str(logs))
     cal_dir = out / "calibration"
     if not (cal_dir / "calibration.json").exists():
         print("3. calibration", flush=True)
@@ -224,7 +224,9 @@ def main(argv: list[str]) -> int:
     table: dict[str, dict[str, dict]] = {s: {} for s in SIMS}
     for name, (policy, options) in POLICIES.items():
         for sim in SIMS:
-            table[sim][name] = run(work, f"{sim}-{name}", policy, options, episodes, seed, workers, calibrations[sim])
+            table[sim][name] = run_policy(
+                work, f"{sim}-{name}", policy, options, episodes, seed, workers, calibrations[sim]
+            )
     outcomes = {s: {p: Outcome(v["trials"], v["successes"]) for p, v in table[s].items()} for s in SIMS}
     report = {
         "setup": {

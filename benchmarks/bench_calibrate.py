@@ -11,8 +11,8 @@ hits both alike:
     3-joint case, ~18 s on EMPS), extracted with `git archive` into a temporary folder;
   - after:  this checkout.
 
-Timed is `bench.calibrate.trace.run` alone (declared fit, trace rounds, refits, held-out errors):
-reading the logs and importing happen before the clock starts. Cases:
+Timed is `bench.calibrate.trace.calibrate_episodes` alone (`run` in older revisions): declared fit, trace
+rounds, refits, held-out errors; reading the logs and importing happen before the clock starts. Cases:
 
   - emps: the EMPS estimation run (24,841 frames at 1 kHz, last 30% held out), imported from
     ../shared/data/real/emps/DATA_EMPS.mat; target < 5 s.
@@ -51,14 +51,17 @@ import json, os, sys, time
 os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[-1]})
 sys.path.insert(0, sys.argv[1])
 from bench.calibrate.spec import load_spec
-from bench.calibrate.trace import run
+try:
+    from bench.calibrate.trace import calibrate_episodes
+except ImportError:  # a revision from before the rename
+    from bench.calibrate.trace import run as calibrate_episodes
 from bench.logs import read_dataset
 assert sys.modules["bench"].__file__.startswith(sys.argv[1]), sys.modules["bench"].__file__
 spec = load_spec(sys.argv[2])
 ds = read_dataset(sys.argv[3])
 episodes = [ep.data for ep in ds.episodes]
 w0, c0 = time.perf_counter(), time.process_time()
-cal = run(spec, episodes, float(ds.fps), seed=0, threads=1)
+cal = calibrate_episodes(spec, episodes, float(ds.fps), seed=0, threads=1)
 wall, cpu = time.perf_counter() - w0, time.process_time() - c0
 e = cal.errors
 print(json.dumps({"wall": wall, "cpu": cpu, "added": [a["name"] + "@" + a["target"] for a in cal.added],
@@ -140,13 +143,8 @@ class Args:
 def main(argv: list[str]) -> int:
     from bench.calibrate.effects import EFFECTS
     from bench.core.config import build_from_argv
-    from bench.core.errors import BenchError
 
-    try:
-        args: Args = build_from_argv(Args, argv, "python benchmarks/bench_calibrate.py")
-    except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    args: Args = build_from_argv(Args, argv, "python benchmarks/bench_calibrate.py")
     kind = args.case
     if kind not in ("all", "emps", "arm"):
         print(f"error: case is {kind!r}; valid: all, emps, arm", file=sys.stderr)
@@ -200,4 +198,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    from bench.core.guard import guarded  # bad keys: one line, exit 2, as bench's commands
+
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

@@ -120,7 +120,7 @@ def calibrate(spec: Path, logs: Path, method: str) -> dict:
     """One calibration by `method`: wall time, effects, held-out errors and the interval."""
     from bench.calibrate.gradient import GradientFitter
     from bench.calibrate.spec import load_spec
-    from bench.calibrate.trace import run
+    from bench.calibrate.trace import calibrate_episodes
     from bench.logs import read_dataset
 
     s = load_spec(spec)
@@ -131,7 +131,7 @@ def calibrate(spec: Path, logs: Path, method: str) -> dict:
         fitter = GradientFitter()
         kw["fitter"] = fitter
     t0 = time.perf_counter()
-    cal = run(s, [ep.data for ep in ds.episodes], float(ds.fps), seed=0, threads=1, **kw)
+    cal = calibrate_episodes(s, [ep.data for ep in ds.episodes], float(ds.fps), seed=0, threads=1, **kw)
     wall = time.perf_counter() - t0
     err, lo, hi = kstep_interval(cal)
     return {
@@ -204,10 +204,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    from bench.core.errors import BenchError
+    from bench.core.guard import guarded  # bad keys or a bad spec (panda_effects=[nosuch]): one line, exit 2
 
-    try:
-        sys.exit(main(sys.argv[1:]))
-    except BenchError as exc:  # bad keys or a bad spec (panda_effects=[nosuch]): one line, as bench's commands
-        print(f"error: {exc}", file=sys.stderr)
-        sys.exit(2)
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

@@ -56,6 +56,18 @@ def serve(*keys: str):
         proc.wait(timeout=30)
 
 
+def seconds_per_call(call, requests: int, warmup: int = 50) -> np.ndarray:
+    """Seconds of each of `requests` calls of `call`, after `warmup` untimed ones."""
+    for _ in range(warmup):
+        call()
+    t = np.empty(requests)
+    for i in range(requests):
+        t0 = time.perf_counter()
+        call()
+        t[i] = time.perf_counter() - t0
+    return t
+
+
 def round_trips(images: bool, requests: int) -> tuple[np.ndarray, np.ndarray, str]:
     """(bench client, openpi-client) round-trip seconds against `bench serve`; and the observation's layout."""
     from bench import api
@@ -82,26 +94,14 @@ def round_trips(images: bool, requests: int) -> tuple[np.ndarray, np.ndarray, st
         obs = env.reset(plan.jobs[0].seed)
         layout = describe_spec(env.obs_spec)
         policy.reset(plan.jobs[0].seed)  # the server builds the cell's env and policy here (not timed)
-        for _ in range(50):
-            policy.act(obs)
-        t = np.empty(requests)
-        for i in range(requests):
-            t0 = time.perf_counter()
-            policy.act(obs)
-            t[i] = time.perf_counter() - t0
+        t = seconds_per_call(lambda: policy.act(obs), requests)
         policy.close()
         worker.close()
         from openpi_client.websocket_client_policy import WebsocketClientPolicy
 
         client = WebsocketClientPolicy("127.0.0.1", port)
         msg = {**obs, "task": "Lift"}
-        for _ in range(50):
-            client.infer(msg)
-        o = np.empty(requests)
-        for i in range(requests):
-            t0 = time.perf_counter()
-            client.infer(msg)
-            o[i] = time.perf_counter() - t0
+        o = seconds_per_call(lambda: client.infer(msg), requests)
         client._ws.close()
     return t, o, layout
 

@@ -226,13 +226,8 @@ class Args:
 
 def main(argv: list[str]) -> int:
     from bench.core.config import build_from_argv
-    from bench.core.errors import BenchError
 
-    try:
-        args: Args = build_from_argv(Args, argv, "python benchmarks/bench_replay.py")
-    except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    args: Args = build_from_argv(Args, argv, "python benchmarks/bench_replay.py")
     if args.case not in ("both", "arm", "suite"):
         print(f"error: case is {args.case!r}; valid: both, arm, suite", file=sys.stderr)
         return 2
@@ -293,4 +288,6 @@ def arm_case(args: Args, k: int, repeats: int, threads: list[int]) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    from bench.core.guard import guarded  # bad keys: one line, exit 2, as bench's commands
+
+    raise SystemExit(guarded(lambda: main(sys.argv[1:])))

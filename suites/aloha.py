@@ -59,17 +59,16 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass, field
-from importlib import metadata
 from typing import Any, Optional
 
 import numpy as np
 
-from bench.api import ConfigError
 from bench.api.sims import (
     RENDERER_DEFAULTS,
     CameraOptions,
     camera_spec,
     check_options,
+    installed_version,
     set_nominal,
     unwrap,
     with_cameras,
@@ -126,14 +125,6 @@ def in_seen_region(levels: dict[str, float]) -> bool:
     """Whether every level of a scene lies in `SEEN_REGION` (the split's declared rule)."""
     lo, hi = SEEN_REGION
     return all(lo <= v <= hi for v in levels.values())
-
-
-def missing_extra() -> str | None:
-    """Why gym-aloha cannot run here (one line), or None."""
-    for module in ("gym_aloha", "dm_control"):
-        if importlib.util.find_spec(module) is None:
-            return f"suite aloha needs gym-aloha and dm-control: pip install -e '.[{EXTRA}]' ({module} is missing)"
-    return None
 
 
 @dataclass(frozen=True)
@@ -194,7 +185,8 @@ class AlohaEnv:
         self.inputs = None
         self.model_axes = None
         self.backend = (
-            f"gym-aloha-{_version('gym-aloha', gym_aloha)}/dm-control-{_version('dm-control', dm_control)}"
+            f"gym-aloha-{installed_version('gym-aloha', gym_aloha)}"
+            f"/dm-control-{installed_version('dm-control', dm_control)}"
             f"/mujoco-{mujoco.__version__}"
         )
         set_nominal(self.mujoco, scene, where or task)
@@ -250,13 +242,6 @@ def _without_images(base: type) -> type:
     return Task
 
 
-def _version(dist: str, module: Any) -> str:
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return str(getattr(module, "__version__", "?"))
-
-
 class Aloha(SuiteBase):
     """gym-aloha's transfer-cube and insertion (lerobot's ALOHA sim); 3 seen, 4 held-out physics scenes."""
 
@@ -270,13 +255,14 @@ class Aloha(SuiteBase):
 
     @classmethod
     def unavailable(cls) -> str | None:
-        return missing_extra()
+        """Why gym-aloha cannot run here (one line), or None."""
+        for module in ("gym_aloha", "dm_control"):
+            if importlib.util.find_spec(module) is None:
+                return f"suite aloha needs gym-aloha and dm-control: pip install -e '.[{EXTRA}]' ({module} is missing)"
+        return None
 
     def __init__(self, options: Any = None) -> None:
-        why = missing_extra()
-        if why:
-            raise ConfigError(why)
-        super().__init__(options)
+        super().__init__(options)  # refused here while `unavailable()`
         check_options(self.options, CAMERAS, "gym-aloha")
 
     def all_cells(self) -> list[Cell]:

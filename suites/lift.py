@@ -20,6 +20,8 @@ from bench.api.sims import (
     camera_spec,
     check_options,
     import_robosuite,
+    quat_conj,
+    quat_mul,
     remembered,
     unwrap,
 )
@@ -41,24 +43,6 @@ OBJECT = {"Lift": "cube", "Stack": "cubeA"}
 # robosuite's cameras on every single-arm table task (the same six on all 7 arms)
 CAMERAS = ("frontview", "birdview", "agentview", "sideview", "robot0_robotview", "robot0_eye_in_hand")
 DEFAULT_CAMERAS = ("agentview", "robot0_eye_in_hand")  # a front view of the table and the wrist camera
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (x, y, z, w) quaternions (robosuite's convention)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return np.array([-q[0], -q[1], -q[2], q[3]])
 
 
 class LiftObserver:
@@ -121,13 +105,13 @@ class LiftObserver:
         return min(1.0, max(0.0, frac))
 
     def reset(self, raw: dict) -> None:
-        self._quat0_conj = _quat_conj(np.asarray(raw["robot0_eef_quat"], dtype=np.float64))
+        self._quat0_conj = quat_conj(np.asarray(raw["robot0_eef_quat"], dtype=np.float64), w_first=False)
 
     def observe(self, raw: dict) -> Obs:
         obj = self._object
         out = np.empty(18, dtype=np.float32)  # layout: OBS_FIELDS
         eef, pos = raw["robot0_eef_pos"], raw[f"{obj}_pos"]
-        quat_rel = _quat_mul(self._quat0_conj, raw["robot0_eef_quat"])
+        quat_rel = quat_mul(self._quat0_conj, raw["robot0_eef_quat"], w_first=False)  # robosuite: (x, y, z, w)
         out[0:3] = eef
         out[3:7] = quat_rel if quat_rel[3] >= 0 else -quat_rel  # one hemisphere: same rotation, same numbers
         out[7] = self._opening()

@@ -1,4 +1,5 @@
-"""Embodiment-agnostic observation and action for ManiSkill robots (the `Interface` of maniskill_held_out_robots).
+"""Embodiment-agnostic observation and action for ManiSkill robots (the `ManiSkillInterface` of
+maniskill_held_out_robots).
 
 Observation (the same 24 numbers on every robot, `STATE_FIELDS`): tool-centre-point position
 (world; the point between the fingertips when the gripper is closed), its orientation relative to
@@ -26,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.api.sims import quat_conj, quat_mul
 from bench.protocols import ActionSpec
 from suites.lift import OBS_FIELDS
 
@@ -41,26 +43,8 @@ BASE_COST = 4.0  # how much more a metre of base motion costs than a radian/metr
 ROBOTS = CARTESIAN + tuple(JOINT_DLS)
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (w, x, y, z) quaternions (SAPIEN's convention)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
-
-
-def _conj(q: np.ndarray) -> np.ndarray:
-    return np.array([q[0], -q[1], -q[2], -q[3]])
-
-
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return _quat_mul(_quat_mul(q, np.append(0.0, v)), _conj(q))[1:]
+    return quat_mul(quat_mul(q, np.append(0.0, v)), quat_conj(q))[1:]
 
 
 def _np(x: Any) -> np.ndarray:
@@ -81,7 +65,7 @@ class AgnosticInterface:
         self.control_mode: str | None = "pd_ee_delta_pos" if robot in CARTESIAN else "pd_joint_pos"
         self._quat0_conj = np.array([1.0, 0.0, 0.0, 0.0])
 
-    # -- Interface ---------------------------------------------------------------------------
+    # -- ManiSkillInterface ----------------------------------------------------------------
     def bind(self, env: Any) -> None:
         base = env.base
         self.base, self.agent = base, base.agent
@@ -102,13 +86,13 @@ class AgnosticInterface:
             self._bind_dls(limits)
 
     def on_reset(self) -> None:
-        self._quat0_conj = _conj(self._tcp_quat())
+        self._quat0_conj = quat_conj(self._tcp_quat())
         if self.robot in JOINT_DLS:
             self._R0 = self._fk(self._qpos())[1]
 
     def state(self, ms_state: np.ndarray | None) -> np.ndarray:
         eef = self._tcp_pos()
-        rel = _quat_mul(self._quat0_conj, self._tcp_quat())
+        rel = quat_mul(self._quat0_conj, self._tcp_quat())
         obj_pose = _np(self.obj.pose.raw_pose)
         goal = _np(self.goal.pose.p)
         q = self._qpos()[self._grip_idx]
@@ -134,7 +118,7 @@ class AgnosticInterface:
         for name, ctrl in self._parts.items():
             if name == "arm" and self.robot in CARTESIAN:  # root-frame translation, normalised to +-0.1 m
                 root_q = _np(ctrl.root_link.pose.q)
-                out.append(_rotate(_conj(root_q), delta) / STEP_M)
+                out.append(_rotate(quat_conj(root_q), delta) / STEP_M)
             elif name == "arm":
                 arm, base_v = self._dls_targets(delta)
                 out.append(arm)

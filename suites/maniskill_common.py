@@ -138,8 +138,8 @@ class ManiSkillSuite(SuiteBase):
         return sim_maniskill.missing_extra()
 
     def __init__(self, options: Any = None) -> None:
+        require_extra()  # before SuiteBase's own refusal: this one says "ManiSkill suites needs ..."
         super().__init__(options)
-        require_extra()
         check_common(**self._common())
 
     def _common(self) -> dict[str, Any]:

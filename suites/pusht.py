@@ -41,13 +41,14 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
-from importlib import metadata
 from typing import Any
 
 import numpy as np
 
 from bench.api import ConfigError, did_you_mean
+from bench.api.sims import installed_version
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, Obs, ObsSpec
+from bench.protocols.env import CachedStateAdapter
 from bench.protocols.suite import Cell, SuiteBase
 
 TASK_ID = "PushT-v0"
@@ -93,13 +94,6 @@ def in_seen_region(params: dict[str, Any]) -> bool:
     )
 
 
-def missing_extra() -> str | None:
-    """Why gym-pusht cannot run here (one line), or None."""
-    if importlib.util.find_spec("gym_pusht") is None:
-        return f"suite pusht needs gym-pusht: pip install -e '.[{EXTRA}]' (gym_pusht is missing)"
-    return None
-
-
 @dataclass(frozen=True)
 class PushTOptions:
     """Keys of suite=pusht."""
@@ -108,7 +102,7 @@ class PushTOptions:
     image_size: int = 96  # image height and width in pixels (gym-pusht's observation size), in [16, 1024]
 
 
-class PushTEnv:
+class PushTEnv(CachedStateAdapter):
     """gym-pusht's PushTEnv (a subclass that draws the scene's goal and colours) behind the EnvAdapter contract."""
 
     def __init__(self, params: dict[str, Any], horizon: int, obs: str, image_size: int):
@@ -117,7 +111,7 @@ class PushTEnv:
 
         self.horizon, self.fps, self.mode = int(horizon), 10.0, obs
         self._env = _scene_env_class()(params, image_size)
-        self.backend = f"gym-pusht-{_version('gym-pusht', gym_pusht)}/pymunk-{pymunk.version}"
+        self.backend = f"gym-pusht-{installed_version('gym-pusht', gym_pusht)}/pymunk-{pymunk.version}"
         spec: dict[str, Feature] = {}
         if obs != "rgb":
             spec[STATE] = Feature.state([("agent_pos", 2), ("env_state", 16)])
@@ -125,12 +119,7 @@ class PushTEnv:
             spec[f"{RGB}top"] = Feature.rgb(image_size, image_size)
         spec[TASK] = Feature.text()
         self.obs_spec: ObsSpec = spec
-        self.action_spec = ActionSpec.box(["x", "y"], 0.0, 512.0)
-        self.mujoco = None
-        self.inputs = None
-        self.model_axes = None
-        self._success = False
-        self._init = np.zeros(0)
+        self.action_spec = ActionSpec.box(["x", "y"], 0.0, 512.0)  # no MuJoCo model, input log or model axes
 
     @property
     def local_keypoints(self) -> np.ndarray:
@@ -157,7 +146,7 @@ class PushTEnv:
     def reset(self, seed: int) -> Obs:
         raw, _ = self._env.reset(seed=int(seed))
         self._success = False
-        self._init = self._state()
+        self._init_state = self._state()
         return self._obs(raw)
 
     def _state(self) -> np.ndarray:
@@ -174,12 +163,6 @@ class PushTEnv:
         raw, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32).ravel())
         self._success = bool(info["is_success"])
         return self._obs(raw), float(reward), bool(terminated), bool(truncated), {"coverage": float(info["coverage"])}
-
-    def success(self) -> bool:
-        return self._success
-
-    def init_state(self) -> np.ndarray:
-        return self._init
 
     def close(self) -> None:
         self._env.close()
@@ -235,13 +218,6 @@ def _scene_env_class() -> type:
     return SceneEnv
 
 
-def _version(dist: str, module: Any) -> str:
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return str(getattr(module, "__version__", "?"))
-
-
 class PushT(SuiteBase):
     """gym-pusht's PushT (lerobot's PushT sim); 2 seen, 4 held-out scenes (goal, block size, mass centre, colours)."""
 
@@ -256,13 +232,13 @@ class PushT(SuiteBase):
 
     @classmethod
     def unavailable(cls) -> str | None:
-        return missing_extra()
+        """Why gym-pusht cannot run here (one line), or None."""
+        if importlib.util.find_spec("gym_pusht") is None:
+            return f"suite pusht needs gym-pusht: pip install -e '.[{EXTRA}]' (gym_pusht is missing)"
+        return None
 
     def __init__(self, options: Any = None) -> None:
-        why = missing_extra()
-        if why:
-            raise ConfigError(why)
-        super().__init__(options)
+        super().__init__(options)  # refused here while `unavailable()`
         if self.options.obs not in OBS_MODES:
             raise ConfigError(
                 f"obs: {self.options.obs!r} is not an observation mode; valid: {', '.join(OBS_MODES)}."

@@ -15,6 +15,20 @@ def shared_dir() -> Path:
     return SHARED
 
 
+@pytest.fixture(scope="session")
+def lerobot_python() -> str:
+    """The python of lerobot's side venv (BENCH_LEROBOT_PYTHON); skip when unset (tests/lerobot_side.py)."""
+    py = os.environ.get("BENCH_LEROBOT_PYTHON", "")
+    if not py:
+        pytest.skip(
+            "BENCH_LEROBOT_PYTHON is not set: lerobot lives in a side venv (it brings pandas and a CUDA "
+            "torch); build it with `bash .ci/lerobot-venv.sh` and set BENCH_LEROBOT_PYTHON=.lerobot-venv/bin/python"
+        )
+    if not Path(py).exists():
+        pytest.fail(f"BENCH_LEROBOT_PYTHON={py} does not exist")
+    return py
+
+
 @pytest.fixture(autouse=True)
 def _quiet_env(monkeypatch):
     monkeypatch.setenv("MUJOCO_GL", os.environ.get("MUJOCO_GL", "disable"))

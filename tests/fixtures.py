@@ -1,9 +1,13 @@
-"""Shared test data: an episode record and a run's provenance with plain defaults, for tests of what reads them."""
+"""Shared test data: an episode record and a run's provenance with plain defaults, for tests of what reads them;
+and what `bench run record=` and `bench calibrate` write, for tests of what reads those."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
+from bench.cli import main
 from bench.records import EpisodeRecord
 
 DEFAULTS: dict[str, Any] = dict(
@@ -70,3 +74,28 @@ def provenance(**fields: Any) -> dict[str, Any]:
     }
     values.update(fields)
     return values
+
+
+def recorded(tmp: Path, *keys: str, into: str = "rec") -> Path:
+    """The dataset `bench run KEYS record=tmp/INTO` records (its run in tmp/runs; asserts the run exits 0)."""
+    rec = tmp / into
+    assert main(["run", *keys, "run_id=r", f"out={tmp / 'runs'}", f"record={rec}"]) == 0
+    return rec
+
+
+def calibrated(case: Path, out: Path, *keys: str, spec: Path | None = None) -> Path:
+    """`bench calibrate spec=SPEC logs=CASE/logs out=OUT quiet=true KEYS` of a generated case (SPEC: the case's
+    spec.yaml unless given), asserted to exit 0: the calibration.json it wrote."""
+    argv = [f"spec={spec or case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={out}", "quiet=true", *keys]
+    assert main(["calibrate", *argv]) == 0
+    return out / "calibration.json"
+
+
+def each_env(suite: Any, horizon: int = 10) -> Iterator[tuple[Any, Any]]:
+    """(cell, env) for every cell of `suite`, its env built for the turn and closed after it."""
+    for cell in suite.all_cells():
+        env = suite.make_env(cell, horizon)
+        try:
+            yield cell, env
+        finally:
+            env.close()

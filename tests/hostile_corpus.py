@@ -12,16 +12,9 @@ import json
 import struct
 from pathlib import Path
 
-from hostile import SPEC_YAML, TOY, Case, copy, edit_json, write
+from hostile import FAMILIES, SPEC_YAML, TOY, Case, copy, edit_json, write
 
-DL, TB, SA, UW, LB, UO = (
-    "data loss",
-    "traceback",
-    "silent acceptance",
-    "unbounded work",
-    "left behind",
-    "unreadable output",
-)
+DL, TB, SA, UW, LB, UO = FAMILIES[:6]  # the issue's six families
 CASES: list[Case] = []
 
 
@@ -29,26 +22,29 @@ def add(family: str, name: str, argv: list[str], match: str, **kw) -> None:
     CASES.append(Case(family, name, argv, match, **kw))
 
 
+def _parent(doc, path: str):
+    """(the container holding the item at `path`, its key): a dotted (or /-separated) path; integers index lists."""
+    keys = [int(k) if k.lstrip("-").isdigit() else k for k in path.split("/" if "/" in path else ".")]
+    node = doc
+    for k in keys[:-1]:
+        node = node[k]
+    return node, keys[-1]
+
+
 def _set(path: str, value):
     """fn(doc) setting doc[a][b]... (a dotted path; integers index lists) to `value`."""
 
     def fn(doc):
-        keys = [int(k) if k.lstrip("-").isdigit() else k for k in path.split("/" if "/" in path else ".")]
-        node = doc
-        for k in keys[:-1]:
-            node = node[k]
-        node[keys[-1]] = value
+        node, key = _parent(doc, path)
+        node[key] = value
 
     return fn
 
 
 def _del(path: str):
     def fn(doc):
-        keys = [int(k) if k.lstrip("-").isdigit() else k for k in path.split("/" if "/" in path else ".")]
-        node = doc
-        for k in keys[:-1]:
-            node = node[k]
-        del node[keys[-1]]
+        node, key = _parent(doc, path)
+        del node[key]
 
     return fn
 

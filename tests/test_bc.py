@@ -119,6 +119,21 @@ def test_same_seed_same_weights_other_seed_other_weights(tmp_path: Path):
     assert _sha(a) != _sha(c)
 
 
+def test_the_checkpoint_names_its_data_portably(tmp_path: Path):
+    """A checkpoint names no folder of the machine that trained it: data outside the checkout by its folder's name
+    (the same data in two scratch folders give the same sha256), data inside it relative to the checkout."""
+    kw = dict(epochs=1, hidden=[8], batch_size=16)
+    one = _toy_dataset(tmp_path / "one" / "d", episodes=1, frames=20)
+    two = _toy_dataset(tmp_path / "two" / "d", episodes=1, frames=20)
+    a, _ = bc.train(bc.Args(data=[str(one)], out=str(tmp_path / "a" / "p.safetensors"), **kw))
+    b, _ = bc.train(bc.Args(data=[str(two)], out=str(tmp_path / "b" / "p.safetensors"), **kw))
+    assert json.loads(spec_path(a).read_text())["meta"]["args"]["data"] == ["d"]
+    assert str(tmp_path).encode() not in a.read_bytes()  # nor in the spec embedded in the safetensors header
+    assert _sha(a) == _sha(b)
+    repo = Path(bc.__file__).resolve().parents[1]
+    assert bc.recorded_data([str(repo / "results" / "x"), "/elsewhere/demos/"]) == ["results/x", "demos"]
+
+
 def test_gripper_sign_refuses_zero_commands(tmp_path: Path):
     data = _toy_dataset(tmp_path / "d", episodes=1, frames=10)
     d = bc.load_demos([data])

@@ -17,6 +17,7 @@ from bench.cli import main
 from bench.core.errors import DataError, SpecError
 from bench.logs import from_arrays, import_csv, read_dataset, write_dataset
 from bench.logs.resample import METHOD, resample
+from tests.fixtures import calibrated
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "panda_gaz" / "trajectory_1.csv"
 needs_panda = pytest.mark.skipif(
@@ -119,19 +120,7 @@ def test_a_measured_torque_log_never_searches_drive_gains(payload_case):
 
 def test_report_and_apply_sections_are_written(payload_case, tmp_path):
     out = tmp_path / "cal"
-    assert (
-        main(
-            [
-                "calibrate",
-                f"spec={payload_case / 'spec.yaml'}",
-                f"logs={payload_case / 'logs'}",
-                f"out={out}",
-                "quiet=true",
-            ]
-        )
-        == 0
-    )
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = json.loads(calibrated(payload_case, out).read_text())
     assert doc["schema"] == "bench.calibration/1" and doc["method"] == "idim"
     assert "apply" not in doc  # an MJCF, not a suite's robot: nothing to carry into a suite
     assert len(doc["draws"]["values"]) == 100 and doc["draws"]["keys"]

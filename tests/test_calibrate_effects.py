@@ -1,6 +1,8 @@
 """The effect library: every effect is nested (zero = absent) and realised in the simulation itself."""
 
 import json
+from dataclasses import replace
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -82,8 +84,8 @@ def test_stepped_and_batched_rollouts_agree_without_stribeck(plant):
     sim = plant.simulator()
     v = Layout(plant, []).realise(plant.declared_init())
     segs = free_runs(plant.rec, plant.rec.train[:1])
-    a = sim._rollout([v], segs)
-    b = sim._stepped([type(v)(v.model, v.ctrl, v.qfrc_const, v.input_gain, lambda q, qd, u: np.zeros_like(qd))], segs)
+    a = sim.run([replace(v, force=None)], segs)  # no force hook: one rollout call
+    b = sim.run([replace(v, force=lambda q, qd, u: np.zeros_like(qd))], segs)  # a (zero) force: stepped
     assert np.allclose(a, b, atol=1e-9)
 
 
@@ -235,3 +237,22 @@ def test_spring_reports_its_rest_position_with_a_delta_method_interval(plant):
     assert iv["stiffness"] == pytest.approx([4 - 1.96 * 0.1, 4 + 1.96 * 0.1])
     assert eff.intervals(np.array([0.0, 1.0]), cov, plant.scales, t)["reference"] is None  # no stiffness, no rest
     assert eff.gated == (0,) and "bias" in eff.extends and eff.standalone
+
+
+def test_an_effect_is_one_row_the_generator_and_the_spec_read():
+    """Each effect carries what the generator plants (a target of arm3.xml and physical parameters) and which
+    of its parameters stop being physical below zero; no other table is keyed by effect name."""
+    arm = mujoco.MjModel.from_xml_path(str(Path(__file__).resolve().parents[1] / "bench/calibrate/models/arm3.xml"))
+    kinds = {
+        "joint": mujoco.mjtObj.mjOBJ_JOINT,
+        "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+        "body": mujoco.mjtObj.mjOBJ_BODY,
+    }
+    for name, eff in EFFECTS.items():
+        target, params = eff.example
+        assert mujoco.mj_name2id(arm, kinds[eff.kind], target) >= 0, name
+        assert params and (eff.plant is not None or set(params) == set(eff.params)), name
+        assert set(eff.limits) <= set(eff.params), name
+    import bench.calibrate.generate as generate
+
+    assert not hasattr(generate, "DEFAULTS") and not hasattr(generate, "GEARED")

@@ -14,7 +14,7 @@ import yaml
 
 from bench.calibrate import play
 from bench.calibrate.generate import write_case
-from bench.cli import main
+from tests.fixtures import calibrated
 
 EXTRA = (
     '<tendon><fixed name="couple"><joint joint="j1" coef="1"/><joint joint="j3" coef="0.5"/></fixed></tendon>'
@@ -27,6 +27,11 @@ def _with_extras(xml: str) -> str:
     """An MJCF as a user brings it: a site, a tendon, an equality constraint and a keyframe."""
     xml = xml.replace("</worldbody>", "</worldbody>" + EXTRA, 1)
     return re.sub(r'(<body name="link3"[^>]*>)', r'\1<site name="tool" pos="0 0 -0.25"/>', xml, count=1)
+
+
+def calibrate(spec: Path, case: Path, out: Path, effect: str) -> dict:
+    """`bench calibrate` of the case's logs under `spec`, searching `effect` alone; its calibration.json."""
+    return json.loads(calibrated(case, out, f"effects=[{effect}]", "residual=false", spec=spec).read_text())
 
 
 def test_play_rebuild_keeps_keyframes_sites_tendons_and_equalities():
@@ -48,21 +53,9 @@ def backlash_case(tmp_path_factory):
     return out
 
 
-def test_a_model_with_a_keyframe_goes_through_the_backlash_candidate(backlash_case, tmp_path, capsys):
+def test_a_model_with_a_keyframe_goes_through_the_backlash_candidate(backlash_case, tmp_path):
     out = tmp_path / "cal"
-    code = main(
-        [
-            "calibrate",
-            f"spec={backlash_case / 'spec.yaml'}",
-            f"logs={backlash_case / 'logs'}",
-            f"out={out}",
-            "effects=[backlash_link]",
-            "residual=false",
-            "quiet=true",
-        ]
-    )
-    assert code == 0, capsys.readouterr().err
-    doc = json.loads((out / "calibration.json").read_text())
+    doc = calibrate(backlash_case / "spec.yaml", backlash_case, out, "backlash_link")
     assert [e["name"] for e in doc["effects_added"]] == ["backlash_link"]
 
 
@@ -79,23 +72,9 @@ def test_a_parameter_left_on_a_bound_is_said_in_the_report_and_the_last_line(cou
     spec = coulomb_case / "bounded.yaml"
     spec.write_text(yaml.safe_dump(raw))
     out = tmp_path / "cal"
-    assert (
-        main(
-            [
-                "calibrate",
-                f"spec={spec}",
-                f"logs={coulomb_case / 'logs'}",
-                f"out={out}",
-                "effects=[coulomb_friction]",
-                "residual=false",
-                "quiet=true",
-            ]
-        )
-        == 0
-    )
+    doc = calibrate(spec, coulomb_case, out, "coulomb_friction")
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert "to check:" in last and "damping[j3]" in last and "at its lower bound" in last
-    doc = json.loads((out / "calibration.json").read_text())
     assert any("at its lower bound" in w for w in doc["warnings"])
     assert "at its lower bound" in (out / "report.md").read_text()
 
@@ -126,22 +105,7 @@ def test_a_declared_feedback_loop_keeps_free_runs_bounded_and_the_effect_found(c
             raw["controller"] = controller
         spec = coulomb_case / f"{name}.yaml"
         spec.write_text(yaml.safe_dump(raw))
-        out = tmp_path / name
-        assert (
-            main(
-                [
-                    "calibrate",
-                    f"spec={spec}",
-                    f"logs={coulomb_case / 'logs'}",
-                    f"out={out}",
-                    "effects=[coulomb_friction]",
-                    "residual=false",
-                    "quiet=true",
-                ]
-            )
-            == 0
-        )
-        docs[name] = json.loads((out / "calibration.json").read_text())
+        docs[name] = calibrate(spec, coulomb_case, tmp_path / name, "coulomb_friction")
     # open loop, the declared model's replay drifts; the loop the log was recorded under holds it near the log
     assert (
         docs["loop"]["errors"]["nominal"]["free_run_nrmse"] < 0.2 * docs["open"]["errors"]["nominal"]["free_run_nrmse"]

@@ -14,9 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from bench.calibrate.generate import DEFAULTS, MODELS, declared_files, simulate_arm
+from bench.calibrate.effects import EFFECTS
+from bench.calibrate.generate import MODELS, declared_files, simulate_arm
 from bench.calibrate.spec import load_spec
-from bench.calibrate.trace import run
+from bench.calibrate.trace import calibrate_episodes
+from tests.fixtures import calibrated
 
 FAST = {"coulomb_friction", "actuator_delay", "payload_mass", "joint_spring", "backlash_motor"}  # the rest: -m slow
 # more cases of the families that compete: (effect, target, true parameters)
@@ -29,10 +31,10 @@ COMPETING = {
 def _calibrate(tmp_path, effect, target=None, params=None):
     episodes, truth = simulate_arm(effect, episodes=5, duration=4.0, seed=0, target=target, params=params)
     spec = load_spec(declared_files(tmp_path, effect, target))
-    return run(spec, episodes, 100.0, seed=0), truth
+    return calibrate_episodes(spec, episodes, 100.0, seed=0), truth
 
 
-CASES = [pytest.param(e, None, None, marks=() if e in FAST else pytest.mark.slow, id=e) for e in DEFAULTS] + [
+CASES = [pytest.param(e, None, None, marks=() if e in FAST else pytest.mark.slow, id=e) for e in EFFECTS] + [
     pytest.param(*case, marks=pytest.mark.slow, id=name) for name, case in COMPETING.items()
 ]
 
@@ -67,23 +69,10 @@ def _no_nan(text: str) -> dict:
 
 def test_cli_end_to_end_report(tmp_path, capsys):
     from bench.calibrate.generate import write_case
-    from bench.cli import main
 
     case = write_case(tmp_path / "case", "bias", episodes=4, duration=3.0, seed=1)
-    assert (
-        main(
-            [
-                "calibrate",
-                f"spec={case / 'spec.yaml'}",
-                f"logs={case / 'logs'}",
-                f"out={tmp_path / 'out'}",
-                "quiet=true",
-            ]
-        )
-        == 0
-    )
+    doc = _no_nan(calibrated(case, tmp_path / "out").read_text())
     assert "effects added: bias@j2" in capsys.readouterr().out
-    doc = _no_nan((tmp_path / "out" / "calibration.json").read_text())
     assert doc["schema"] == "bench.calibration/1"
     assert set(doc["errors"]) == {"nominal", "declared", "final"}
     for entry in doc["errors"].values():
@@ -102,7 +91,7 @@ def test_cli_end_to_end_report(tmp_path, capsys):
 
 def test_effects_override_none_keeps_declared_fit(tmp_path):
     episodes, _ = simulate_arm("bias", episodes=3, duration=2.0, seed=0)
-    cal = run(load_spec(declared_files(tmp_path, "bias")), episodes, 100.0, effects=())
+    cal = calibrate_episodes(load_spec(declared_files(tmp_path, "bias")), episodes, 100.0, effects=())
     assert cal.added == [] and cal.rounds == []
     assert np.all(np.isfinite(cal.declared_fit.sd))
 
@@ -110,7 +99,6 @@ def test_effects_override_none_keeps_declared_fit(tmp_path):
 def test_pendulum_smoke(shared_dir, tmp_path):
     """Real measured pendulum logs (noisy torque): the loop runs and reports; no precision claim."""
     from bench.calibrate.report import write_report
-    from bench.calibrate.trace import run as run_loop
     from bench.logs import import_csv
 
     ds = import_csv(
@@ -120,7 +108,7 @@ def test_pendulum_smoke(shared_dir, tmp_path):
         action=["torque"],
     )
     spec = load_spec(MODELS / "pendulum.yaml")
-    cal = run_loop(spec, [e.data for e in ds.episodes], ds.fps)
+    cal = calibrate_episodes(spec, [e.data for e in ds.episodes], ds.fps)
     doc = _no_nan(write_report(cal, tmp_path).read_text())
     assert doc["data"]["holdout"][0]["start"] > 0  # one run: held out in time
     assert 0.05 <= doc["declared"]["mass"]["value"] <= 5
@@ -132,7 +120,7 @@ def test_emps_real_data(shared_dir, tmp_path):
     from bench.logs import import_mat
 
     ds = import_mat(shared_dir / "data/real/emps/DATA_EMPS.mat", {"observation.state": ["qm"], "action": ["vir"]})
-    cal = run(load_spec(MODELS / "emps.yaml"), [e.data for e in ds.episodes], ds.fps)
+    cal = calibrate_episodes(load_spec(MODELS / "emps.yaml"), [e.data for e in ds.episodes], ds.fps)
     names = {a["name"] for a in cal.added}
     assert names & {"coulomb_friction", "asymmetric_friction", "stribeck_friction"}, names
     before, after = cal.errors["declared"]["free_run_rmse"], cal.errors["final"]["free_run_rmse"]

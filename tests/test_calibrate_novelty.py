@@ -14,7 +14,7 @@ from bench.calibrate import generate, novelty
 from bench.calibrate.data import extract
 from bench.calibrate.generate import declared_files, simulate_arm, spec_dict, write_case
 from bench.calibrate.spec import load_spec, parse_spec
-from bench.calibrate.trace import run
+from bench.calibrate.trace import calibrate_episodes
 from bench.cli import main
 from bench.core.errors import DataError, SpecError
 
@@ -167,6 +167,9 @@ def test_forward_calibration_reports_heldout_trust_and_beats_memory(tmp_path, ca
     assert doc["spec"]["holdout_at"] == "least_repeated"
     report = (out / "report.md").read_text()
     assert "## How far the held-out errors can be trusted" in report and "The final model" in report
+    head = report.split("\n## ", 1)[0]  # the verdict comes before every section and table
+    assert "|" not in head and "**Verdict.** The calibrated model simulates the held-out data better than" in head
+    assert "for the repeat baseline (beats it). Effects added: bias@" in head
 
 
 def _periodic_multisine(period: float):
@@ -200,7 +203,7 @@ def test_a_periodic_log_holds_out_its_least_repeated_stretch(tmp_path, monkeypat
         nu=3,
     )
     assert end.heldout.placement == "end" and end.heldout.repeat_share > 0.6 and end.heldout.nothing_new
-    cal = run(spec, episodes, FPS, effects=(), residual=False)
+    cal = calibrate_episodes(spec, episodes, FPS, effects=(), residual=False)
     held = cal.heldout
     assert held is not None and held.placement == "least_repeated"
     assert held.period_s == pytest.approx(period, abs=0.05) and held.period_source == "detected"

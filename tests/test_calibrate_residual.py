@@ -9,12 +9,13 @@ import pytest
 
 from bench.calibrate.generate import declared_files, simulate_arm
 from bench.calibrate.spec import load_spec
-from bench.calibrate.trace import run
+from bench.calibrate.trace import calibrate_episodes
+from tests.fixtures import calibrated
 
 
 def _run(tmp_path, disturbance, residual=True, seed=0):
     eps, _ = simulate_arm(None, episodes=5, duration=4.0, seed=0, disturbance=disturbance)
-    return run(load_spec(declared_files(tmp_path, None)), eps, 100.0, seed=seed, residual=residual)
+    return calibrate_episodes(load_spec(declared_files(tmp_path, None)), eps, 100.0, seed=seed, residual=residual)
 
 
 @pytest.fixture(scope="module")
@@ -66,28 +67,14 @@ def test_cli_reports_it_in_its_own_section(tmp_path, capsys):
     case = write_case(tmp_path / "case", None, episodes=3, duration=2.0, seed=1, disturbance="cogging")
     assert json.loads((case / "truth.json").read_text())["disturbance"] == "cogging"
     out = tmp_path / "out"
-    assert main(["calibrate", f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", f"out={out}", "quiet=true"]) == 0
+    doc = json.loads(calibrated(case, out).read_text())
     assert "learned residual, apart from the physics" in capsys.readouterr().out
-    doc = json.loads((out / "calibration.json").read_text())
     res = doc["learned_residual"]
     assert set(res["heldout"]) == {"physics", "physics_plus_residual", "nrmse_cut", "k"}
     assert "not part of the physical model" in res["note"]
     assert all(np.isfinite(v) for v in res["heldout"]["physics_plus_residual"].values())
     assert "## Learned residual (not part of the physical model)" in (out / "report.md").read_text()
-    assert (
-        main(
-            [
-                "calibrate",
-                f"spec={case / 'spec.yaml'}",
-                f"logs={case / 'logs'}",
-                f"out={tmp_path / 'o2'}",
-                "quiet=true",
-                "residual=false",
-            ]
-        )
-        == 0
-    )
-    assert json.loads((tmp_path / "o2" / "calibration.json").read_text())["learned_residual"] is None
+    assert json.loads(calibrated(case, tmp_path / "o2", "residual=false").read_text())["learned_residual"] is None
     capsys.readouterr()
     assert (
         main(

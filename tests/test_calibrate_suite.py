@@ -3,11 +3,13 @@ the result carried into runs (`calibration=`), refused for another suite, robot 
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bench.cli import main
+from tests.fixtures import recorded
 
 DAMPING = 5.0  # the "real" Panda: every joint damped 5x (perturb.damping)
 
@@ -16,25 +18,8 @@ DAMPING = 5.0  # the "real" Panda: every joint damped 5x (perturb.damping)
 def logs(tmp_path_factory):
     """Scripted Panda Lift, recorded nominal and with 5x joint damping: 3 + 3 episodes x 40 frames (~20 s)."""
     tmp = tmp_path_factory.mktemp("suitecal")
-    rec = tmp / "rec"
-    assert (
-        main(
-            [
-                "run",
-                "robots=[Panda]",
-                "episodes=3",
-                "horizon=40",
-                "workers=2",
-                "run_id=r",
-                "policy=scripted",
-                f"out={tmp / 'runs'}",
-                f"record={rec}",
-                f"perturb.damping=[{DAMPING:g}]",
-            ]
-        )
-        == 0
-    )
-    return rec
+    keys = ["robots=[Panda]", "episodes=3", "horizon=40", "workers=2", "policy=scripted"]
+    return recorded(tmp, *keys, f"perturb.damping=[{DAMPING:g}]")
 
 
 @pytest.fixture(scope="module")
@@ -80,20 +65,27 @@ def test_suite_calibration_recovers_the_real_robot(calibrated):
     )
 
 
-def test_run_with_the_calibration_uses_the_calibrated_model(calibrated, tmp_path):
+def one_episode(out: Path, calibration: Path):
+    """A run of one 5-step scripted Panda episode (run id c in `out`) with the calibration in `calibration`."""
     from bench import api
-    from bench.board.leaderboard import entry_from_summary
 
-    cfg = api.RunConfig(
+    return api.RunConfig(
         robots=["Panda"],
         policy="scripted",
         episodes=1,
         horizon=5,
         workers=1,
         run_id="c",
-        out=str(tmp_path),
-        calibration=str(calibrated.parent),
+        out=str(out),
+        calibration=str(calibration),
     )
+
+
+def test_run_with_the_calibration_uses_the_calibrated_model(calibrated, tmp_path):
+    from bench import api
+    from bench.board.leaderboard import entry_from_summary
+
+    cfg = one_episode(tmp_path, calibrated.parent)
     p = api.plan(cfg)
     worker = api.worker(p)
     try:
@@ -121,16 +113,7 @@ def test_resume_refuses_a_calibration_that_changed_under_the_same_path(calibrate
 
     cal = tmp_path / "cal"
     shutil.copytree(calibrated.parent, cal)
-    cfg = api.RunConfig(
-        robots=["Panda"],
-        policy="scripted",
-        episodes=1,
-        horizon=5,
-        workers=1,
-        run_id="c",
-        out=str(tmp_path / "runs"),
-        calibration=str(cal),
-    )
+    cfg = one_episode(tmp_path / "runs", cal)
     api.run(cfg)
     assert api.run(cfg).resumed == 1  # the same calibration resumes
     doc = json.loads((cal / "calibration.json").read_text())

@@ -1,4 +1,4 @@
-"""Offscreen cameras (bench.sims.camera) and visual perturbation axes (bench.sims.perturb.visual, bench.sims.perturb.scene) on a
+"""Offscreen cameras (bench.sims.camera) and visual perturbation axes (bench.sims.perturb.scene, bench.sims.perturb.visual) on a
 real MuJoCo scene rendered with EGL (software rendering on CPU machines): a table with a textured top, a cube, a
 floor, a wall, a light, a fixed front camera and a camera on a moving body."""
 
@@ -13,8 +13,16 @@ import pytest
 
 from bench.core.errors import ConfigError
 from bench.sims.camera import CameraRig, check_cameras, parse_image_size
-from bench.sims.perturb.scene import VisualScene
-from bench.sims.perturb.visual import AXES, check
+from bench.sims.perturb.scene import ROWS, VisualScene
+
+
+def check(model, objects, axis, named, cameras, where):
+    """A visual row's model check (rows without one apply to any model)."""
+    if ROWS[axis].check is not None:
+        ROWS[axis].check(model, objects, named, cameras, where)
+
+
+AXES = tuple(ROWS)
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -135,6 +143,7 @@ def test_no_renderer_is_one_line_naming_mujoco_gl():
         ("light_dir", 40),
         ("camera_pos", 0.1),
         ("camera_rot", 8),
+        ("camera_fov", 1.5),
         ("object_color", 1.0),
         ("table_color", 0.8),
         ("background", 0.9),
@@ -161,10 +170,33 @@ def test_each_visual_axis_changes_the_image_and_clears_exactly(scene, axis, leve
     vs.apply(axis, level, {}, np.random.default_rng(3))
     np.testing.assert_array_equal(rig.render(vs)["rgb.front"], seen["rgb.front"])
     vs.clear()
-    if axis not in ("light",):
+    if axis not in ("light", "camera_fov"):  # these draw nothing
         vs.apply(axis, level, {}, np.random.default_rng(4))
         assert not np.array_equal(rig.render(vs)["rgb.front"], seen["rgb.front"]), axis
         vs.clear()
+
+
+def test_camera_fov_zooms_the_named_cameras_and_records_degrees(scene):
+    model, data, rig = scene
+    vs = VisualScene(rig, object_bodies=["cube"], where="scene")
+
+    def red(img):  # pixels of the red cube
+        return int(((img[..., 0] > 150) & (img[..., 1] < 80)).sum())
+
+    nominal = rig.render(vs)
+    assert red(nominal["rgb.front"]) > 0
+    params = vs.apply("camera_fov", 0.8, {"cameras": ["front"]}, np.random.default_rng(0))
+    assert params == {"camera_fov": 0.8, "camera_fov.deg": 36.0}  # 0.8 x MuJoCo's default 45 degrees
+    narrow = rig.render(vs)
+    assert red(narrow["rgb.front"]) > red(nominal["rgb.front"])  # a narrower view: the cube looks bigger
+    np.testing.assert_array_equal(narrow["rgb.wrist"], nominal["rgb.wrist"])  # only the named camera
+    vs.clear()
+    vs.apply("camera_fov", 1.5, {}, np.random.default_rng(0))
+    assert red(rig.render(vs)["rgb.front"]) < red(nominal["rgb.front"])  # wider: smaller
+    vs.clear()
+    np.testing.assert_array_equal(rig.render(vs)["rgb.front"], nominal["rgb.front"])
+    with pytest.raises(ConfigError, match=r"perturb.camera_fov.cameras: 'top' is not a rendered camera"):
+        check(model, ["cube"], "camera_fov", {"cameras": ["top"]}, ["front", "wrist"], "scene")
 
 
 def test_physics_untouched_and_camera_targets(scene):

@@ -19,6 +19,7 @@ from bench.core.errors import ConfigError, SpecError
 from bench.protocols import STATE, ActionSpec, Feature
 from bench.sims.robosuite import ACTION_NAMES
 from suites.lift import OBS_FIELDS as OBS_NAMES
+from tests.fixtures import each_env
 
 
 def _spec(**extra) -> dict:
@@ -241,9 +242,5 @@ def test_declared_action_names_equal_the_built_env_for_every_cell(name):
     from bench.api import load_suite
 
     suite = load_suite(name)
-    for cell in suite.all_cells():
-        env = suite.make_env(cell, 10)
-        try:
-            assert list(env.action_spec.names) == list(suite.action_names(cell)), cell.key
-        finally:
-            env.close()
+    for cell, env in each_env(suite):
+        assert list(env.action_spec.names) == list(suite.action_names(cell)), cell.key

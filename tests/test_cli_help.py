@@ -99,3 +99,30 @@ def test_list_names_the_policy_bench_run_uses_by_default(capsys):
         cls = registry.suite_class(name)
         used = cls.default_policy or cls.reference_policy  # as bench.execution.run_config.config_from_argv picks it
         assert re.search(rf"^  {re.escape(name)} \(v\S+, default policy: {re.escape(used)}[,)]", out, re.M), name
+
+
+def _registered_suites() -> list[str]:
+    from bench.protocols import registry
+
+    return registry.names(registry.SUITES)
+
+
+@pytest.mark.parametrize("suite", _registered_suites())
+def test_run_help_lists_the_suite_keys_bench_list_shows(suite, capsys):
+    """`bench run suite=NAME --help` and `bench list` list a suite's keys from one owner (`option_keys`: every field
+    of its Options, inherited ones too, e.g. the camera keys of the robosuite suites' RobosuiteOptions)."""
+    from bench.core.errors import RegistryError
+    from bench.protocols import option_keys, registry
+
+    try:
+        keys = option_keys(registry.suite_class(suite).Options)
+    except RegistryError as exc:
+        pytest.skip(f"suite {suite} cannot be loaded here: {exc}")
+    assert main(["run", f"suite={suite}", "--help"]) == 0
+    out = capsys.readouterr().out
+    section = out.split(f"keys of suite {suite}:\n", 1)[1].split("\n\n", 1)[0]
+    in_help = [] if section.strip() == "(none)" else [re.match(r"  (\w+)", ln).group(1) for ln in section.splitlines()]
+    assert main(["list"]) == 0
+    listed = re.search(rf"^  {re.escape(suite)} \(.*?(?:\[keys: (.*)\])?$", capsys.readouterr().out, re.M)
+    assert listed, suite
+    assert in_help == keys == (listed.group(1).split(", ") if listed.group(1) else [])

@@ -11,7 +11,6 @@ any episode, and so is an unknown task. Budget: 3 recorded episodes, 60 training
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -20,37 +19,25 @@ import pytest
 
 from bench.cli import main
 from bench.records import read_records
-from tests.test_lerobot_parity import ADAPTER, ONE_COMMAND, lerobot_python, side, train  # noqa: F401
-from tests.test_lerobot_remote import wait_for_line
+from tests.lerobot_side import ONE_COMMAND, REPO, SIDE_ENV, as_lerobot_sims, served, train
 
-REPO = Path(__file__).resolve().parents[1]
 TASK = "AlohaTransferCube-v0"
 OBS_MAP = "obs_map=[observation.state:state.agent_pos,observation.environment_state:state.env_state]"
 
 
 @pytest.mark.slow
-def test_act_trained_on_aloha_runs_through_policy_remote(lerobot_python, tmp_path, capsys):  # noqa: F811
-    policy = train(
+def test_act_trained_on_aloha_runs_through_policy_remote(lerobot_python, tmp_path, capsys):
+    policy, _ = train(
         lerobot_python,
         tmp_path,
         ["run", "suite=aloha", f"tasks=[{TASK}]", "envs=[nominal]", "policy=scripted", "episodes=3"],
-        "env_state",
+        as_lerobot_sims("env_state"),
         steps=60,
         batch=8,
+        mujoco_gl="egl",
     )
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
     err_log = tmp_path / "adapter.err"
-    proc = subprocess.Popen(
-        [lerobot_python, str(ADAPTER), "serve", str(policy), "--port", "0"],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=err_log.open("w"),
-        text=True,
-        env=env,
-    )
-    try:
-        line = wait_for_line(proc, "lerobot adapter: act policy", timeout=300)
-        port = int(line.split("ws://127.0.0.1:")[1].split(" ")[0])
+    with served(lerobot_python, policy, err_log) as (proc, port):
         base = ["run", "suite=aloha", f"tasks=[{TASK}]", "policy=remote", f"port={port}", "timeout_s=120", "workers=1"]
         base += [f"out={tmp_path}"]
         argv = [*base, "envs=[nominal,slippery]", "episodes=1", "horizon=40", "replan_every=8"]
@@ -79,9 +66,6 @@ def test_act_trained_on_aloha_runs_through_policy_remote(lerobot_python, tmp_pat
         err = capsys.readouterr().err
         assert "input feature 'observation.environment_state'" in err and "is not in the observation" in err, err
         assert not (tmp_path / "bad").exists()
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=60)
     log = err_log.read_text()
     assert proc.returncode == 0 and "Traceback" not in log, log[-2000:]
 
@@ -98,7 +82,7 @@ def test_act_trained_on_aloha_runs_through_policy_remote(lerobot_python, tmp_pat
         cwd=REPO,
         capture_output=True,
         text=True,
-        env=env,
+        env={**os.environ, **SIDE_ENV},
         timeout=300,
     )
     assert res.returncode == 2, res.stderr[-2000:]

@@ -15,7 +15,6 @@ the frames written by the codec's loss, held to `video_frames.MAE` per frame and
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 from pathlib import Path
 
@@ -27,24 +26,12 @@ from bench.cli import main
 from bench.logs import from_arrays, lerobot, read_dataset, read_episode, write_dataset
 from bench.logs.dataset import is_image
 from bench.logs.lerobot import write as lerobot_write
+from tests.fixtures import recorded
 
 REPO = Path(__file__).resolve().parents[1]
 LOADER = REPO / "tests" / "lerobot_load.py"
 WRITER = REPO / "tests" / "lerobot_write.py"
 SHARED = REPO.parent / "shared" / "data"
-
-
-@pytest.fixture(scope="module")
-def lerobot_python() -> str:
-    py = os.environ.get("BENCH_LEROBOT_PYTHON", "")
-    if not py:
-        pytest.skip(
-            "BENCH_LEROBOT_PYTHON is not set: lerobot lives in a side venv (it brings pandas and a CUDA "
-            "torch); build it with `bash .ci/lerobot-venv.sh` and set BENCH_LEROBOT_PYTHON=.lerobot-venv/bin/python"
-        )
-    if not Path(py).exists():
-        pytest.fail(f"BENCH_LEROBOT_PYTHON={py} does not exist")
-    return py
 
 
 def _lerobot_read(py: str, root: Path, tmp: Path, episode: int | None = None) -> tuple[dict, dict]:
@@ -228,48 +215,16 @@ def test_lerobot_loads_rlds_import(lerobot_python, tmp_path):
 
 def test_lerobot_loads_bench_run_recording(lerobot_python, tmp_path):
     """`bench run record=` (robosuite rollouts, nominal and perturbed, success per episode)."""
-    root = tmp_path / "rec"
-    assert (
-        main(
-            [
-                "run",
-                "policy=scripted",
-                "robots=[Panda]",
-                "episodes=1",
-                "horizon=15",
-                "workers=1",
-                "run_id=r",
-                f"out={tmp_path / 'runs'}",
-                f"record={root}",
-                "perturb.link_mass=[3]",
-            ]
-        )
-        == 0
-    )
+    keys = ["policy=scripted", "robots=[Panda]", "episodes=1", "horizon=15", "workers=1"]
+    root = recorded(tmp_path, *keys, "perturb.link_mass=[3]")
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert doc["total_episodes"] == 2
 
 
 def test_lerobot_loads_bench_run_recording_with_cameras(lerobot_python, tmp_path):
     """`bench run obs=state+rgb record=`: both cameras become video features lerobot decodes like bench."""
-    root = tmp_path / "rec_cam"
-    assert (
-        main(
-            [
-                "run",
-                "robots=[Panda]",
-                "episodes=2",
-                "horizon=12",
-                "workers=1",
-                "run_id=rc",
-                "obs=state+rgb",
-                "image_size=48",
-                f"out={tmp_path / 'runs'}",
-                f"record={root}",
-            ]
-        )
-        == 0
-    )
+    keys = ["robots=[Panda]", "episodes=2", "horizon=12", "workers=1", "obs=state+rgb", "image_size=48"]
+    root = recorded(tmp_path, *keys, into="rec_cam")
     doc = _assert_lerobot_reads_as_bench(lerobot_python, root, tmp_path, episode=1)
     assert {k for k, v in doc["features"].items() if v["dtype"] == "video"} == {
         "observation.images.agentview",

@@ -4,6 +4,7 @@ gym-pusht themselves, declared held-out scenes, the scripted experts, and bench'
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,25 +147,19 @@ def test_aloha_unknown_task_lists_the_valid_ones():
         select_cells(suite, RunConfig(tasks=["AlohaTransferCub-v0"]))
 
 
+def run_records(out: Path, run_id: str, *keys: str) -> list:
+    """The records of `bench run KEYS` (run `run_id` in `out`; asserts it exits 0)."""
+    assert main(["run", *keys, f"out={out}", f"run_id={run_id}"]) == 0
+    return read_records(out / run_id / "episodes.jsonl")
+
+
 def test_aloha_expert_and_perturbed_run_through_bench(tmp_path, capsys):
     """policy=scripted on transfer-cube, nominal and one held-out scene, plus a mass perturbation: all succeed;
     `bench check` finds nothing wrong with the suite."""
     assert main(["check", "suite=aloha"]) == 0
     out = tmp_path / "runs"
-    argv = [
-        "run",
-        "suite=aloha",
-        f"tasks=[{TRANSFER}]",
-        "envs=[nominal,slippery]",
-        "policy=scripted",
-        "episodes=2",
-        "workers=1",
-        "perturb.mass=[2]",
-        f"out={out}",
-        "run_id=x",
-    ]
-    assert main(argv) == 0
-    records = read_records(out / "x" / "episodes.jsonl")
+    keys = ["suite=aloha", f"tasks=[{TRANSFER}]", "envs=[nominal,slippery]", "policy=scripted", "episodes=2"]
+    records = run_records(out, "x", *keys, "workers=1", "perturb.mass=[2]")
     assert len(records) == 8 and all(r.error is None for r in records)
     assert all(r.success_once for r in records), [(r.env, r.condition, r.success_once) for r in records]
     assert {r.split for r in records} == {"seen", "unseen"}
@@ -177,12 +172,10 @@ def test_consecutive_seeds_are_lerobot_evals(tmp_path):
     """seed_scheme=consecutive: episode i of seed=S starts from seed S + i (lerobot-eval's --seed)."""
     out = tmp_path / "runs"
     base = ["run", "suite=pusht", "envs=[nominal]", "policy=random", "episodes=3", "horizon=5", "workers=1"]
-    assert main([*base, "seed=1000", "seed_scheme=consecutive", f"out={out}", "run_id=c"]) == 0
-    assert sorted(r.seed for r in read_records(out / "c" / "episodes.jsonl")) == [1000, 1001, 1002]
-    assert main([*base, "seed=1000", f"out={out}", "run_id=h"]) == 0
-    assert sorted(r.seed for r in read_records(out / "h" / "episodes.jsonl")) == sorted(
-        episode_seed(1000, e) for e in range(3)
-    )
+    consecutive = run_records(out, "c", *base[1:], "seed=1000", "seed_scheme=consecutive")
+    assert sorted(r.seed for r in consecutive) == [1000, 1001, 1002]
+    hashed = run_records(out, "h", *base[1:], "seed=1000")
+    assert sorted(r.seed for r in hashed) == sorted(episode_seed(1000, e) for e in range(3))
     assert main([*base, "seed_scheme=lerobot", f"out={out}", "run_id=bad"]) == 2
     assert main([*base, f"seed={2**32 - 2}", "seed_scheme=consecutive", f"out={out}", "run_id=bad"]) == 2
     assert not (out / "bad").exists()
@@ -241,18 +234,8 @@ def test_pusht_images_and_recolouring():
 
 def test_pusht_expert_moves_the_block_towards_the_goal(tmp_path):
     """The pushing controller covers part of the goal zone (its success rate is measured in the README)."""
-    out = tmp_path / "runs"
-    argv = [
-        "run",
-        "suite=pusht",
-        "envs=[nominal]",
-        "policy=scripted",
-        "episodes=4",
-        "workers=1",
-        f"out={out}",
-        "run_id=p",
-    ]
-    assert main(argv) == 0
-    records = read_records(out / "p" / "episodes.jsonl")
+    records = run_records(
+        tmp_path / "runs", "p", "suite=pusht", "envs=[nominal]", "policy=scripted", "episodes=4", "workers=1"
+    )
     assert all(r.error is None for r in records)
     assert max(r.return_ for r in records) > 30  # summed coverage / 0.95 over 300 steps; a still agent scores ~0

@@ -20,6 +20,7 @@ from bench.execution import run_config
 from bench.execution.scheduling import JobQueue, given_up_message
 from bench.protocols.suite import Cell, Condition, expand_jobs
 from bench.records import comparable
+from tests.ray_scenarios import session_processes
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -176,21 +177,6 @@ def test_executor_keys_may_change_on_resume():
     assert where_and_how <= run_config.RESUMABLE_KEYS
 
 
-def _session(sid: int) -> list[str]:
-    """`pid state command` of every process in session `sid` (from /proc)."""
-    out = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()  # state ppid pgrp session ...
-            if int(fields[3]) == sid:
-                out.append(f"{entry.name} {fields[0]} {(entry / 'cmdline').read_bytes()[:120]!r}")
-        except (OSError, IndexError, ValueError):
-            continue
-    return out
-
-
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="lists processes from /proc (Linux)")
 def test_a_run_with_workers_leaves_no_process_behind(tmp_path):
     """The moment `bench run workers=2` has exited, nothing of it is left in its session: no child, and no
@@ -217,5 +203,5 @@ def test_a_run_with_workers_leaves_no_process_behind(tmp_path):
                 start_new_session=True,
             )
             assert proc.wait(timeout=300) == 0, (tmp_path / "err").read_text()[-2000:]
-        assert _session(proc.pid) == []
+        assert session_processes(proc.pid) == []
         assert "12 episodes in" in (tmp_path / "err").read_text()

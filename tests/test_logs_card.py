@@ -10,6 +10,7 @@ import pytest
 from bench.cli import main
 from bench.logs import from_arrays, write_dataset
 from bench.logs.card import card, noise_share
+from tests.fixtures import calibrated
 
 
 def _episodes(n: int, noise: float = 0.0, seed: int = 0) -> list[dict]:
@@ -59,20 +60,7 @@ def arm_case(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("rank")
     case = write_case(root / "case", "coulomb_friction", episodes=3, duration=2.0, seed=0)
-    assert (
-        main(
-            [
-                "calibrate",
-                f"spec={case / 'spec.yaml'}",
-                f"logs={case / 'logs'}",
-                f"out={root / 'cal'}",
-                "quiet=true",
-                "residual=false",
-            ]
-        )
-        == 0
-    )
-    return case, root / "cal"
+    return case, calibrated(case, root / "cal", "residual=false").parent
 
 
 def test_rank_puts_the_episodes_the_calibration_does_not_explain_first(arm_case, tmp_path, capsys):

@@ -13,6 +13,7 @@ import pytest
 
 from bench.core.errors import DataError
 from bench.logs import import_csv, import_mat, import_rlds, read_dataset, tfrecord, write_dataset
+from tests.tfrecord_write import enc_field, enc_varint, encode_example, write_records
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 RLDS = SHARED / "formats" / "rlds_toy"
@@ -215,12 +216,12 @@ def test_crc32c_known_values():
 def test_records_round_trip(tmp_path):
     path = tmp_path / "x.tfrecord"
     records = [b"", b"abc", bytes(range(256)) * 200]
-    tfrecord.write_records(path, records)
+    write_records(path, records)
     assert [bytes(r) for r in tfrecord.iter_records(path)] == records
 
 
 def test_example_wire_format():
-    buf = tfrecord.encode_example({"f": np.float32([1.5, -2.0]), "i": np.array([3, -7, 2**40]), "b": [b"x", "y"]})
+    buf = encode_example({"f": np.float32([1.5, -2.0]), "i": np.array([3, -7, 2**40]), "b": [b"x", "y"]})
     features, lists = tfrecord.parse_example(buf)
     assert lists == {}
     np.testing.assert_array_equal(features["f"], np.float32([1.5, -2.0]))
@@ -231,12 +232,12 @@ def test_example_wire_format():
 def test_unpacked_repeated_fields():
     # Int64List / FloatList written element by element (not packed) must decode the same.
     def field(number: int, wire: int, payload: bytes) -> bytes:
-        return tfrecord._enc_varint((number << 3) | wire) + payload
+        return enc_varint((number << 3) | wire) + payload
 
-    ints = b"".join(field(1, 0, tfrecord._enc_varint(v)) for v in (5, 1 << 63 | 1))
+    ints = b"".join(field(1, 0, enc_varint(v)) for v in (5, 1 << 63 | 1))
     floats = b"".join(field(1, 5, struct.pack("<f", v)) for v in (0.25, 8.0))
-    feat_i = tfrecord._enc_field(3, ints)
-    feat_f = tfrecord._enc_field(2, floats)
+    feat_i = enc_field(3, ints)
+    feat_f = enc_field(2, floats)
     np.testing.assert_array_equal(tfrecord.parse_feature(memoryview(feat_i)), [5, -(2**63) + 1])
     np.testing.assert_array_equal(tfrecord.parse_feature(memoryview(feat_f)), np.float32([0.25, 8.0]))
 
@@ -297,7 +298,7 @@ def test_sequence_example_rlds(tmp_path):
         state, action = rng.standard_normal((t, 3)).astype(np.float32), rng.standard_normal((t, 2)).astype(np.float32)
         truth[eid] = (state, action)
         records.append(
-            tfrecord.encode_example(
+            encode_example(
                 {"episode_metadata/episode_id": np.array([eid])},
                 {
                     "steps/observation/state": list(state),
@@ -307,7 +308,7 @@ def test_sequence_example_rlds(tmp_path):
                 },
             )
         )
-    tfrecord.write_records(folder / "seq-train.tfrecord-00000-of-00001", records)
+    write_records(folder / "seq-train.tfrecord-00000-of-00001", records)
     ds = import_rlds(tmp_path / "seq", fps=10)
     assert [e.meta["episode_id"] for e in ds.episodes] == [3, 7]
     for ep in ds.episodes:

@@ -200,17 +200,27 @@ def test_stand_ins_never_change_physics(vulkan_icd):
 
 
 # -- bad input -----------------------------------------------------------------------------------
-def test_robot_needing_download_is_one_line_and_never_prompts(monkeypatch, tmp_path):
-    from bench.sims.maniskill import ManiSkillEnv
-
-    with pytest.raises(ConfigError, match=r"PickCube-v1 with robot xarm6_robotiq: needs an asset download \(xarm6\)"):
-        ManiSkillEnv("PickCube-v1", "xarm6_robotiq", 10)
-    with pytest.raises(
-        ConfigError,
-        match=r"TurnFaucet-v1 with robot panda: needs an asset download "
-        r"\(partnet_mobility_faucet \(\d+ of \d+ parts\)\)",
-    ):
-        ManiSkillEnv("TurnFaucet-v1", "panda", 10)
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"robot": "xarm6_robotiq"}, r"PickCube-v1 with robot xarm6_robotiq: needs an asset download \(xarm6\)"),
+        (
+            {"task": "TurnFaucet-v1"},
+            r"TurnFaucet-v1 with robot panda: needs an asset download \(partnet_mobility_faucet \(\d+ of \d+ parts\)\)",
+        ),
+        ({"task": "PickCube"}, r"task 'PickCube' is not a ManiSkill task\. Did you mean 'PickCube-v1'\?"),
+        ({"robot": "pandas"}, r"robot 'pandas' is not a ManiSkill robot\. Did you mean 'panda'"),
+        (
+            {"control_mode": "pd_ee_velocity"},
+            r"control_mode='pd_ee_velocity': panda supports pd_joint_delta_pos, pd_joint_pos, pd_ee_delta_pos",
+        ),
+    ],
+    ids=["robot-assets", "task-assets", "unknown-task", "unknown-robot", "unknown-control-mode"],
+)
+def test_refused_in_one_line_and_never_prompts(kw, match):
+    """An unknown task, robot or control mode, or one whose assets are not on disk: one line, no download prompt."""
+    with pytest.raises(ConfigError, match=match):
+        make(**kw)
     assert os.environ["MS_SKIP_ASSET_DOWNLOAD_PROMPT"] == "1"
 
 
@@ -224,21 +234,6 @@ def test_empty_folder_of_a_failed_download_counts_as_missing(monkeypatch, tmp_pa
     (tmp_path / src.target_path).mkdir(parents=True)  # what an interrupted download leaves
     assert assets.is_data_source_downloaded("ycb")  # ManiSkill's own check is fooled
     assert missing_assets("PickSingleYCB-v1", "panda") == ["ycb"]
-
-
-def test_unknown_task_robot_and_control_mode():
-    from bench.sims.maniskill import ManiSkillEnv
-
-    with pytest.raises(ConfigError, match=r"task 'PickCube' is not a ManiSkill task\. Did you mean 'PickCube-v1'\?"):
-        ManiSkillEnv("PickCube", "panda", 10)
-    with pytest.raises(ConfigError, match=r"robot 'pandas' is not a ManiSkill robot\. Did you mean 'panda'"):
-        ManiSkillEnv("PickCube-v1", "pandas", 10)
-    with pytest.raises(
-        ConfigError,
-        match=r"control_mode='pd_ee_velocity': panda supports pd_joint_delta_pos, "
-        r"pd_joint_pos, pd_ee_delta_pos",
-    ):
-        make(control_mode="pd_ee_velocity")
 
 
 def test_gpu_backend_refused_without_cuda():

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from bench.core.errors import ConfigError
+from tests.fixtures import each_env
 
 REPO = Path(__file__).resolve().parents[1]
 HAS_MS = True
@@ -61,17 +62,13 @@ def test_without_the_extra_list_says_what_is_missing_and_check_skips(monkeypatch
 @needs_ms
 @pytest.mark.parametrize("name", ["maniskill_tasks", "maniskill_held_out_robots"])
 def test_declared_obs_spec_equals_the_built_env_for_every_cell(name):
-    s = suite(name)
-    for cell in s.all_cells():
-        env = s.make_env(cell, 10)
-        try:
-            assert dict(env.obs_spec) == dict(s.obs_spec(cell)), cell.key
-            from suites.maniskill_common import TASKS
+    from suites.maniskill_common import TASKS
 
-            for obj in TASKS[cell.task].objects:  # perturb.mass's default targets exist
-                assert obj in env.base.scene.actors, (cell.key, obj, list(env.base.scene.actors))
-        finally:
-            env.close()
+    s = suite(name)
+    for cell, env in each_env(s):
+        assert dict(env.obs_spec) == dict(s.obs_spec(cell)), cell.key
+        for obj in TASKS[cell.task].objects:  # perturb.mass's default targets exist
+            assert obj in env.base.scene.actors, (cell.key, obj, list(env.base.scene.actors))
 
 
 @needs_ms

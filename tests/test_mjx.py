@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -187,35 +188,57 @@ def test_mjx_simulator_equals_cpu_for_perturbed_variants():
     assert gpu.steps == cpu.steps == 4 * 6 * 10 * substeps
 
 
+def sweep_differences(a: list[dict], b: list[dict], tol: float) -> list[str]:
+    """Where two sweeps' records differ: structure and parameters exactly, numbers beyond `tol`."""
+    diffs: list[str] = []
+
+    def walk(x: Any, y: Any, path: str) -> None:
+        if isinstance(x, dict) and isinstance(y, dict):
+            if set(x) != set(y):
+                diffs.append(f"{path}: keys {sorted(x)} != {sorted(y)}")
+                return
+            for key in x:
+                walk(x[key], y[key], f"{path}.{key}")
+        elif isinstance(x, list) and isinstance(y, list):
+            if len(x) != len(y):
+                diffs.append(f"{path}: {len(x)} != {len(y)} items")
+                return
+            for i, (u, v) in enumerate(zip(x, y)):
+                walk(u, v, f"{path}[{i}]")
+        elif isinstance(x, float) and isinstance(y, float) and ".horizons." in path:
+            if abs(x - y) > tol:
+                diffs.append(f"{path}: {x!r} vs {y!r} (|diff| {abs(x - y):.3g} > {tol:g})")
+        elif x != y:
+            diffs.append(f"{path}: {x!r} != {y!r}")
+
+    walk(a, b, "records")
+    return diffs
+
+
+def each_way(tmp_path: Path, key: str, values: tuple[str, ...], written: str, *args: str) -> dict[str, dict]:
+    """`bench ARGS KEY=V out=tmp_path/V` once for each V (each asserted to exit 0): the JSON file `written` of each."""
+    docs = {}
+    for value in values:
+        r = bench(*args, f"{key}={value}", f"out={tmp_path / value}")
+        assert r.returncode == 0, r.stderr
+        docs[value] = json.loads((tmp_path / value / written).read_text())
+    return docs
+
+
 # --- slow: the commands end to end ------------------------------------------------------------------------
 @needs_mjx
 @pytest.mark.slow
 def test_replay_sweep_mjx_records_equal_cpu(case, tmp_path):
     """`bench replay ... perturb.*` gives the same records with backend=mjx as with mujoco (within TOLERANCE)."""
-    from bench.replay.sweep import TOLERANCE, compare
+    from bench.replay.sweep import TOLERANCE
 
-    docs = {}
-    for backend in ("mujoco", "mjx"):
-        out = tmp_path / backend
-        r = bench(
-            "replay",
-            f"logs={case / 'logs'}",
-            f"spec={case / 'spec.yaml'}",
-            "k=10",
-            f"backend={backend}",
-            "perturb.damping=[0.5,2]",
-            "perturb.link_mass=uniform(0.8,1.2)",
-            "worlds=2",
-            "seed=3",
-            "plot=0",
-            f"out={out}",
-        )
-        assert r.returncode == 0, r.stderr
-        docs[backend] = json.loads((out / "replay.json").read_text())
+    args = [f"logs={case / 'logs'}", f"spec={case / 'spec.yaml'}", "k=10", "worlds=2", "seed=3", "plot=0"]
+    sweep = ["perturb.damping=[0.5,2]", "perturb.link_mass=uniform(0.8,1.2)"]
+    docs = each_way(tmp_path, "backend", ("mujoco", "mjx"), "replay.json", "replay", *args, *sweep)
     a, b = docs["mujoco"]["sweep"], docs["mjx"]["sweep"]
     assert a["worlds"] == b["worlds"] == 5  # nominal, two damping levels, two draws of the mass range
     assert [r["params"] for r in a["records"]] == [r["params"] for r in b["records"]]
-    assert compare(a["records"], b["records"], TOLERANCE) == []
+    assert sweep_differences(a["records"], b["records"], TOLERANCE) == []
     assert docs["mjx"]["backend"] == "mjx" and docs["mjx"]["mjx"]["device"]
     assert docs["mujoco"]["horizons"]["k_step"]["rmse"] == pytest.approx(
         docs["mjx"]["horizons"]["k_step"]["rmse"], abs=TOLERANCE
@@ -226,21 +249,9 @@ def test_replay_sweep_mjx_records_equal_cpu(case, tmp_path):
 @pytest.mark.slow
 def test_gradient_calibration_matches_least_squares(case, tmp_path):
     """method=gradient finds the hidden damping like least squares, to the same held-out error."""
-    res = {}
-    for method in ("least_squares", "gradient"):
-        out = tmp_path / method
-        r = bench(
-            "calibrate",
-            f"spec={case / 'spec.yaml'}",
-            f"logs={case / 'logs'}",
-            f"out={out}",
-            f"method={method}",
-            "effects=[viscous_damping,coulomb_friction]",
-            "residual=false",
-            "quiet=true",
-        )
-        assert r.returncode == 0, r.stderr
-        res[method] = json.loads((out / "calibration.json").read_text())
+    args = [f"spec={case / 'spec.yaml'}", f"logs={case / 'logs'}", "effects=[viscous_damping,coulomb_friction]"]
+    methods = ("least_squares", "gradient")
+    res = each_way(tmp_path, "method", methods, "calibration.json", "calibrate", *args, "residual=false", "quiet=true")
     ls, gd = res["least_squares"], res["gradient"]
     assert [e["name"] + "@" + e["target"] for e in gd["effects_added"]] == ["viscous_damping@j2"]
     assert [e["name"] for e in ls["effects_added"]] == [e["name"] for e in gd["effects_added"]]

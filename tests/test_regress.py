@@ -72,6 +72,14 @@ def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bench", *args], capture_output=True, text=True, cwd=cwd, timeout=600)
 
 
+def _regress_against_base(tmp_path: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """`bench regress` of the scripted candidate against the recorded run tmp_path/base: gate run g, verdict v.json."""
+    baseline, verdict = f"baseline={tmp_path / 'base'}", f"out={tmp_path / 'v.json'}"
+    return _bench(
+        "regress", "candidate=scripted", baseline, "workers=1", f"runs={tmp_path}", "run_id=g", verdict, *args, cwd=cwd
+    )
+
+
 def _one_line_error(res: subprocess.CompletedProcess, match: str) -> None:
     assert res.returncode == 2, res.stderr[-1500:]
     lines = res.stderr.strip().splitlines()
@@ -212,16 +220,7 @@ def test_gate_reuses_a_recorded_baseline_run(tmp_path: Path):
     )
     assert base.returncode == 0, base.stderr[-2000:]
     before = (tmp_path / "base" / "episodes.jsonl").read_bytes()
-    res = _bench(
-        "regress",
-        "candidate=scripted",
-        f"baseline={tmp_path / 'base'}",
-        "workers=1",
-        f"runs={tmp_path}",
-        "run_id=g",
-        f"out={tmp_path / 'v.json'}",
-        cwd=tmp_path,
-    )
+    res = _regress_against_base(tmp_path, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-2000:]  # 2 identical pairs: inconclusive, passes (not strict)
     v = json.loads((tmp_path / "v.json").read_text())
     assert v["baseline"]["reused"] is True and v["seed"] == 3 and v["verdict"] == "inconclusive"
@@ -348,17 +347,8 @@ def test_a_side_that_measured_nothing_fails_the_gate_with_exit_3(tmp_path: Path)
     assert "nothing measured: run base" in base.stderr and "1 of 3 cells completed no episode (reach/c/line)" in (
         base.stderr
     )
-    res = _bench(
-        "regress",
-        "candidate=scripted",
-        f"baseline={tmp_path / 'base'}",
-        "workers=1",
-        f"runs={tmp_path}",
-        "run_id=g",
-        f"out={tmp_path / 'v.json'}",
-        "allow_spec_change=true",  # the baseline's suite faulted on purpose (fault=raise); the candidate's does not
-        cwd=REPO,
-    )
+    # the baseline's suite faulted on purpose (fault=raise); the candidate's does not
+    res = _regress_against_base(tmp_path, "allow_spec_change=true", cwd=REPO)
     assert res.returncode == 3, res.stderr[-2000:]
     last = res.stderr.strip().splitlines()[-1]
     assert last.startswith("nothing measured: regress g: the baseline completed no episode in 1 of 3 cells")

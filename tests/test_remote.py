@@ -86,7 +86,7 @@ def greedy(obs, key="state"):
 
 
 def run_cfg(tmp_path, run_id, policy, **kw):
-    keys = ("host", "port", "timeout_s", "replan_every", "obs_map", "overlap")
+    keys = ("host", "port", "timeout_s", "replan_every", "obs_map", "overlap", "checkpoint")  # the policy's own
     policy_options = {k: kw.pop(k) for k in keys if k in kw}
     return api.RunConfig(
         suite=TOY,
@@ -174,17 +174,7 @@ def test_checkpoint_identity_travels(tmp_path):
     model = build("mlp", 2, 1, {"hidden": [8]})
     path = tmp_path / "toy.safetensors"
     save_checkpoint(path, model, spec)
-    local = api.run(
-        api.RunConfig(
-            suite=TOY,
-            policy="checkpoint",
-            episodes=2,
-            workers=1,
-            out=str(tmp_path),
-            run_id="local",
-            policy_options={"checkpoint": str(path)},
-        )
-    )
+    local = api.run(run_cfg(tmp_path, "local", "checkpoint", checkpoint=str(path), episodes=2))
     with bench_server("checkpoint", checkpoint=str(path)) as port:
         remote = api.run(run_cfg(tmp_path, "remote", "remote", port=port, episodes=2))
     assert same(local.records, remote.records)

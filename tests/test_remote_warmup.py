@@ -57,33 +57,26 @@ def outcomes(records: list) -> list[tuple]:
     return sorted((r.job_id, r.success_once, r.success_at_end, r.length, r.init_state_hash) for r in records)
 
 
+def two_robots(tmp_path, policy: str, **keys) -> api.RunConfig:
+    """Two episodes on each of the toy suite's robots a and b with `policy` (the run is named after it)."""
+    return api.RunConfig(
+        suite=TOY,
+        policy=policy,
+        robots=["a", "b"],
+        episodes=2,
+        workers=1,
+        n_boot=200,
+        out=str(tmp_path),
+        run_id=policy,
+        **keys,
+    )
+
+
 def test_set_up_is_bounded_by_warmup_s_not_by_timeout_s(tmp_path):
     """A server whose set-up (2 s per connection, 2 s more per new cell) exceeds timeout_s=0.5 passes."""
     with slow_server("--first", "2", "--change", "2") as port:
-        cfg = api.RunConfig(
-            suite=TOY,
-            policy="remote",
-            robots=["a", "b"],
-            episodes=2,
-            workers=1,
-            n_boot=200,
-            out=str(tmp_path),
-            run_id="remote",
-            policy_options={"port": port, "timeout_s": 0.5},
-        )
-        res = api.run(cfg)
-    local = api.run(
-        api.RunConfig(
-            suite=TOY,
-            policy="scripted",
-            robots=["a", "b"],
-            episodes=2,
-            workers=1,
-            n_boot=200,
-            out=str(tmp_path),
-            run_id="local",
-        )
-    )
+        res = api.run(two_robots(tmp_path, "remote", policy_options={"port": port, "timeout_s": 0.5}))
+    local = api.run(two_robots(tmp_path, "scripted"))
     assert [r.error for r in res.records] == [None] * 4
     assert outcomes(res.records) == outcomes(local.records)
     assert all(r.extras["policy"]["requests"] > 0 for r in res.records)

@@ -16,7 +16,8 @@ import yaml
 from bench.calibrate.generate import ARM, simulate_arm, spec_dict, write_case
 from bench.cli import main
 from bench.logs import from_arrays, write_dataset
-from bench.replay import ReplayConfig, run
+from bench.replay import ReplayConfig, replay_logs
+from tests.fixtures import recorded
 
 HORIZONS = ("one_step", "k_step", "free_run")
 
@@ -98,17 +99,25 @@ def _step_loop(model, qpos, qvel, ctrl, start, length, substeps):
     return out
 
 
-def test_batched_replay_equals_a_python_step_loop(nominal_spec):
-    from bench.replay.data import Window, extract
-    from bench.replay.metrics import horizon_errors
-    from bench.replay.simulate import Simulator, as_given, prepare_model
+def _arm_simulator(spec_path, episodes: int, duration: float):
+    """The nominal arm's model, a recording of Coulomb-friction episodes, substeps, and a `Simulator` of them."""
+    from bench.replay.data import extract
+    from bench.replay.simulate import Simulator, prepare_model
     from bench.replay.spec import load_model, load_signal_map
 
-    spec, _ = load_signal_map(nominal_spec)
-    eps, _ = simulate_arm("coulomb_friction", episodes=2, duration=0.5, seed=1)
+    spec, _ = load_signal_map(spec_path)
+    eps, _ = simulate_arm("coulomb_friction", episodes=episodes, duration=duration, seed=1)
     rec = extract(spec, eps, 100.0, nq=3, nv=3, nu=3)
     model, substeps = prepare_model(load_model(spec.model), rec.fps, spec.substeps)
-    sim = Simulator(model, rec, substeps)
+    return model, rec, substeps, Simulator(model, rec, substeps)
+
+
+def test_batched_replay_equals_a_python_step_loop(nominal_spec):
+    from bench.replay.data import Window
+    from bench.replay.metrics import horizon_errors
+    from bench.replay.simulate import as_given
+
+    model, rec, substeps, sim = _arm_simulator(nominal_spec, episodes=2, duration=0.5)
     errors = horizon_errors(sim, as_given(model, rec, substeps), rec, [Window(0, 0, 50), Window(1, 0, 50)], 7)
     sim.close()
     for h, e in errors.items():
@@ -120,15 +129,9 @@ def test_batched_replay_equals_a_python_step_loop(nominal_spec):
 
 def test_no_segment_simulates_to_an_empty_batch(nominal_spec):
     """An empty set of segments (a split that held nothing out) is an empty result, not a crash in MuJoCo's rollout."""
-    from bench.replay.data import extract
-    from bench.replay.simulate import Segments, Simulator, as_given, prepare_model
-    from bench.replay.spec import load_model, load_signal_map
+    from bench.replay.simulate import Segments, as_given
 
-    spec, _ = load_signal_map(nominal_spec)
-    eps, _ = simulate_arm("coulomb_friction", episodes=1, duration=0.2, seed=1)
-    rec = extract(spec, eps, 100.0, nq=3, nv=3, nu=3)
-    model, substeps = prepare_model(load_model(spec.model), rec.fps, spec.substeps)
-    sim = Simulator(model, rec, substeps)
+    model, rec, substeps, sim = _arm_simulator(nominal_spec, episodes=1, duration=0.2)
     try:
         out = sim.run([as_given(model, rec, substeps)], Segments(np.zeros(0, np.int64), 5))
     finally:
@@ -137,7 +140,7 @@ def test_no_segment_simulates_to_an_empty_batch(nominal_spec):
 
 
 def test_k_of_one_is_the_one_step_error(cases, nominal_spec):
-    doc = run(ReplayConfig(logs=str(cases["None"]), spec=str(nominal_spec), k=1, episodes=[1])).doc
+    doc = replay_logs(ReplayConfig(logs=str(cases["None"]), spec=str(nominal_spec), k=1, episodes=[1])).doc
     assert doc["episodes"] == [1]
     assert doc["horizons"]["k_step"]["per_joint"] == doc["horizons"]["one_step"]["per_joint"]
 
@@ -158,7 +161,7 @@ def test_episodes_shorter_than_k_replay_to_their_end_and_plot(cases, nominal_spe
     a, _ = simulate_arm(None, episodes=1, duration=0.1, seed=1)  # 10 frames
     b, _ = simulate_arm(None, episodes=1, duration=0.5, seed=2)  # 50 frames
     write_dataset(tmp_path / "mixed", from_arrays([a[0], b[0]], fps=100))
-    rep = run(ReplayConfig(logs=str(tmp_path / "mixed"), spec=str(nominal_spec), k=20))
+    rep = replay_logs(ReplayConfig(logs=str(tmp_path / "mixed"), spec=str(nominal_spec), k=20))
     k = rep.errors["k_step"]
     assert k.mask[0].sum() == 9 and k.mask[1:].all()  # the 10-frame episode: 9 frames ahead of its start
     assert rep.doc["horizons"]["k_step"]["frames"] == 9 + 3 * 20  # 50 frames: horizons from 0, 20 and 29
@@ -170,7 +173,7 @@ def test_a_joint_that_never_moves_has_no_nrmse(tmp_path, nominal_spec):
     state = eps[0]["observation.state"].copy()
     state[:, 2] = 0.0  # j3 logged as constant
     write_dataset(tmp_path / "logs", from_arrays([{"observation.state": state, "action": eps[0]["action"]}], fps=100))
-    doc = run(ReplayConfig(logs=str(tmp_path / "logs"), spec=str(nominal_spec))).doc
+    doc = replay_logs(ReplayConfig(logs=str(tmp_path / "logs"), spec=str(nominal_spec))).doc
     j3 = doc["horizons"]["free_run"]["per_joint"]["j3"]
     assert j3["nrmse"] is None and "does not move" in j3["nrmse_reason"] and j3["rmse"] > 0
     assert doc["horizons"]["free_run"]["nrmse"] is not None  # the mean of the joints that move
@@ -266,7 +269,7 @@ def test_a_calibration_spec_is_a_signal_map_with_more_fields(cases, tmp_path):
     raw["params"][0]["elements"] = ["no_such_joint"]  # calibration would refuse it; replay does not use it
     path = tmp_path / "calib.yaml"
     path.write_text(yaml.safe_dump(raw))
-    doc = run(ReplayConfig(logs=str(cases["None"]), spec=str(path))).doc
+    doc = replay_logs(ReplayConfig(logs=str(cases["None"]), spec=str(path))).doc
     assert doc["spec"]["ignored"] == ["effects", "holdout", "horizon", "params"]
     assert doc["spec"]["substeps"] == 5 and set(doc["spec"]["signals"]) == {"qpos", "qvel", "ctrl", "inputs"}
     assert any("free parameters keep the model's values" in n for n in doc["notes"])
@@ -304,24 +307,7 @@ def test_help_names_every_key(capsys):
 def robosuite_rec(tmp_path_factory):
     """`bench run record=` logs of Panda Lift: one nominal episode, one with 3x heavier links (~5 s)."""
     tmp = tmp_path_factory.mktemp("rec")
-    rec = tmp / "rec"
-    assert (
-        main(
-            [
-                "run",
-                "robots=[Panda]",
-                "episodes=1",
-                "horizon=30",
-                "workers=1",
-                "run_id=r",
-                f"out={tmp / 'runs'}",
-                f"record={rec}",
-                "perturb.link_mass=[3]",
-            ]
-        )
-        == 0
-    )
-    return rec
+    return recorded(tmp, "robots=[Panda]", "episodes=1", "horizon=30", "workers=1", "perturb.link_mass=[3]")
 
 
 def _by_condition(doc):
@@ -331,7 +317,7 @@ def _by_condition(doc):
 @pytest.mark.parametrize("commands", ["ctrl", "action"])
 def test_robosuite_recording_replays_in_the_nominal_env(robosuite_rec, commands):
     """Nominal episodes replay exactly, a heavier-link episode does not, with either kind of command."""
-    doc = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, commands=commands)).doc
+    doc = replay_logs(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, commands=commands)).doc
     assert doc["commands"] == commands
     assert doc["backend"] == (
         "held_out_robots ctrl, mujoco.rollout (1 thread)" if commands == "ctrl" else "held_out_robots step loop"
@@ -346,8 +332,8 @@ def test_robosuite_recording_replays_in_the_nominal_env(robosuite_rec, commands)
 
 
 def test_ctrl_is_the_default_and_threads_do_not_change_it(robosuite_rec):
-    one = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5)).doc
-    two = run(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, threads=2)).doc
+    one = replay_logs(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5)).doc
+    two = replay_logs(ReplayConfig(logs=str(robosuite_rec), suite="held_out_robots", k=5, threads=2)).doc
     assert one["commands"] == two["commands"] == "ctrl"
     # 25 physics steps per frame; 2 episodes x (29 one-step + 6 k-step segments of 5 + 29 free-run frames)
     assert one["sim_steps"] == two["sim_steps"] == 25 * 2 * (29 + 30 + 29)
@@ -415,7 +401,7 @@ def test_suite_replay_bad_commands(robosuite_rec, tmp_path, capsys):
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and re.search(pattern, err), err
         assert not out.exists()
-    doc = run(ReplayConfig(logs=str(plain), suite="held_out_robots", k=5)).doc  # falls back to the action loop
+    doc = replay_logs(ReplayConfig(logs=str(plain), suite="held_out_robots", k=5)).doc  # falls back to the action loop
     assert doc["commands"] == "action"
 
 
@@ -423,24 +409,8 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
     """Meta-World drives a mocap body: `action.ctrl` holds ctrl and the mocap pose of every physics step."""
     from bench.logs import read_dataset
 
-    rec = tmp_path / "rec"
-    assert (
-        main(
-            [
-                "run",
-                "suite=held_out_envs",
-                "tasks=[reach-v3]",
-                "episodes=1",
-                "horizon=40",
-                "workers=1",
-                "run_id=m",
-                f"out={tmp_path / 'runs'}",
-                f"record={rec}",
-                "perturb.link_mass=[3]",
-            ]
-        )
-        == 0
-    )
+    keys = ["suite=held_out_envs", "tasks=[reach-v3]", "episodes=1", "horizon=40", "workers=1"]
+    rec = recorded(tmp_path, *keys, "perturb.link_mass=[3]")
     ds = read_dataset(rec)
     names = ds.features["action.ctrl"]["names"]
     assert names[:4] == ["actuator0@0", "actuator1@0", "mocap.mocap_x@0", "mocap.mocap_y@0"]
@@ -448,8 +418,8 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
     assert {ep.meta["ctrl_spec"] for ep in ds.episodes} == {
         int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT)
     }
-    batched = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5)).doc
-    loop = run(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5, commands="action")).doc
+    batched = replay_logs(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5)).doc
+    loop = replay_logs(ReplayConfig(logs=str(rec), suite="held_out_envs", k=5, commands="action")).doc
     assert batched["commands"] == "ctrl" and loop["commands"] == "action"
     for doc in (batched, loop):
         by = _by_condition(doc)
@@ -463,24 +433,9 @@ def test_metaworld_recording_replays_batched_with_its_mocap_inputs(tmp_path):
 
 def test_recordings_from_several_scenes_replay_batched_per_model(tmp_path):
     """Two robosuite scenes (two models, same joints) in one log: one rollout per model, both replay exactly."""
-    rec = tmp_path / "rec"
-    assert (
-        main(
-            [
-                "run",
-                "suite=held_out_scenes",
-                "envs=[nominal,table_up_12cm]",
-                "episodes=1",
-                "horizon=20",
-                "workers=1",
-                "run_id=s",
-                f"out={tmp_path / 'runs'}",
-                f"record={rec}",
-            ]
-        )
-        == 0
-    )
-    doc = run(ReplayConfig(logs=str(rec), suite="held_out_scenes", k=5, threads=2)).doc
+    keys = ["suite=held_out_scenes", "envs=[nominal,table_up_12cm]", "episodes=1", "horizon=20", "workers=1"]
+    rec = recorded(tmp_path, *keys)
+    doc = replay_logs(ReplayConfig(logs=str(rec), suite="held_out_scenes", k=5, threads=2)).doc
     assert doc["commands"] == "ctrl" and len(doc["per_episode"]) == 2
     for row in doc["per_episode"]:  # a wrong model (the other scene's table) would put the cube elsewhere
         for h in HORIZONS:

@@ -74,6 +74,28 @@ def test_run_report_with_sensitivity(tmp_path: Path, capsys):
     assert "seen" in page and "unseen" in page
 
 
+def test_run_report_reads_the_gap_and_aggregates_as_the_console_does(tmp_path: Path):
+    """The page holds what `bench run` ends with: the aggregates table and the sentence on how to read the gap,
+    from their owner in bench.scoring.summary (the same text, HTML-escaped)."""
+    import html
+
+    from bench.scoring.summary import aggregates, gap_sentence
+
+    run = Path(__file__).resolve().parents[1] / "results" / "runs" / "held_out_robots-bc-s0"
+    doc = json.loads((run / "summary.json").read_text())
+    out = tmp_path / "report"
+    assert cli.main(["report", str(run / "summary.json"), f"out={out}"]) == 0
+    page = html.unescape((out / "index.html").read_text())
+    sentence = gap_sentence(doc)
+    assert sentence and sentence.startswith("How to read this: ") and f"<p><b>{sentence}</b></p>" in page
+    assert page.index(sentence) < page.index("<h2>")  # the page's first word on the run
+    title, header, rows = aggregates(doc)
+    assert title.capitalize() in page
+    assert "<tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr>" in page
+    for row in rows:
+        assert "<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" in page, row
+
+
 def test_leaderboard_report_with_calibration_and_verdict(tmp_path: Path):
     board = merge([("a", summary("a", "expert", ALL)), ("b", summary("b", "random", {k: 0.1 for k in ALL}))])
     (tmp_path / "lb.json").write_text(json.dumps(board))

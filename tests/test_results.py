@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 
 import pytest
 
 from bench.board.leaderboard import merge, read_input
+from bench.core.provenance import safetensors_metadata
 from bench.core.schema import load_json, validate
 from bench.records import EPISODES, read_records
 from bench.scoring.summary import build
@@ -55,14 +57,6 @@ def test_leaderboard_is_the_merge_of_the_committed_runs(monkeypatch):
     )
 
 
-# Checkpoint specs that mirror the spec inside their .safetensors header: their training metadata names the
-# scratch folder the demonstrations were read from, and rewriting the header would change the sha256 that every
-# committed record carries (the records must stay byte-identical).
-MIRRORED_SPECS = {"coverage/bc/policy.json", "real_panda/bc_small/policy.json"}
-# Written by lerobot's own training script beside the weights (its record of what it trained on), kept as written.
-WRITTEN_BY_LEROBOT = {"aloha_act/pretrained_model/train_config.json"}
-
-
 def _absolute_paths(node, where: str = ""):
     if isinstance(node, dict):
         for k, v in node.items():
@@ -74,19 +68,35 @@ def _absolute_paths(node, where: str = ""):
         yield f"{where}={node}"
 
 
+def _json_or_text(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+# a machine's folder in running text; an argument of a command the reader types (`work=/tmp/x`) is their choice
+MACHINE_FOLDER = re.compile(r"(?<![\w.=~-])/(?:tmp|work|home|root|Users)/\S*")
+
+
 def test_committed_results_hold_no_absolute_path():
-    """Results and their provenance name files relative to the checkout, never a folder of the machine
-    that made them (bench writes paths inside the checkout relative to it: bench.core.provenance.portable)."""
+    """Results and their provenance name files relative to the checkout, never a folder of the machine that made
+    them: JSON documents and records, the metadata in every safetensors header (a checkpoint's spec records its
+    training data: baselines.bc writes it portable), and any other text file (bench.core.provenance.portable)."""
     found = []
-    for path in sorted(RESULTS.rglob("*.json")) + sorted(RESULTS.rglob("*.jsonl")):
+    for path in sorted(p for p in RESULTS.rglob("*") if p.is_file()):
         rel = path.relative_to(RESULTS).as_posix()
-        if rel in MIRRORED_SPECS or rel in WRITTEN_BY_LEROBOT:
-            continue
-        text = path.read_text()
-        docs = (
-            [json.loads(text)] if path.suffix == ".json" else [json.loads(ln) for ln in text.splitlines() if ln.strip()]
-        )
-        found += [f"{rel}: {hit}" for doc in docs for hit in _absolute_paths(doc)]
+        if path.suffix in (".json", ".jsonl"):
+            text = path.read_text()
+            lines = [text] if path.suffix == ".json" else [ln for ln in text.splitlines() if ln.strip()]
+            found += [f"{rel}: {hit}" for line in lines for hit in _absolute_paths(json.loads(line))]
+        elif path.suffix == ".safetensors":
+            meta = safetensors_metadata(path) or {}
+            found += [
+                f"{rel} (header): {hit}" for hit in _absolute_paths({k: _json_or_text(v) for k, v in meta.items()})
+            ]
+        elif path.suffix not in (".png", ".mp4", ".parquet"):
+            found += [f"{rel}: {m.group(0)}" for m in MACHINE_FOLDER.finditer(path.read_text())]
     assert not found, found[:10]
 
 

@@ -224,3 +224,22 @@ def test_a_log_that_is_not_a_terminal_gets_a_progress_line_while_nothing_finishe
     assert len(lines) >= 10, lines  # 2 episodes x 30 steps x 50 ms = 3 s
     assert any(": 0/2 episodes, successes 0, errors 0, elapsed " in ln for ln in lines)
     assert lines[-1].endswith("eta 0:00:00") and ": 2/2 episodes" in lines[-1]
+
+
+def test_until_the_first_episode_ends_the_progress_says_the_workers_are_starting(tmp_path, capsys, monkeypatch):
+    """A newcomer's first run spends its first seconds importing and building envs: the progress says so
+    (at once, and in each plain line until an episode ends), not only `0/N ... eta ?`."""
+    from bench.execution import progress
+
+    monkeypatch.setattr(progress, "PERIOD_S", 0.2)
+    assert run(tmp_path, "st", "robots=[a]", "episodes=1", "horizon=30", "step_delay=0.05") == 0
+    err = capsys.readouterr().err.splitlines()
+    starting = progress.starting_text(1)
+    assert starting == "starting 1 worker: importing the simulator and the policy, building envs"
+    head = next(i for i, ln in enumerate(err) if ln.startswith("run st: "))
+    assert err[head + 1] == starting, err
+    lines = [ln for ln in err if f"] {TOY[6:]}: " in ln]
+    before = [ln for ln in lines if ": 0/1 episodes" in ln]  # 1.5 s of episode, a line every 0.2 s
+    assert before and all(ln.endswith(f"eta ?; {starting}") for ln in before), lines
+    assert lines[-1].endswith("eta 0:00:00"), lines  # the first record ended the start
+    assert progress.starting_text(3, ray=True).startswith("starting 3 Ray actors: ")

@@ -81,7 +81,7 @@ def test_background_writer_bounded_queue_and_output(tmp_path):
     seen = []
     for f in want:
         w.write(f)
-        seen.append(w.frames_queued)
+        seen.append(w._queue.qsize())  # frames waiting to be encoded
     assert max(seen) <= 3
     f = want[0].copy()
     assert w.close() == tmp_path / "v.mp4"

@@ -142,10 +142,9 @@ def chunk_policy(cell, env, ctx):
 
     class Chunked:
         def reset(self, seed: int) -> None:
-            self.calls = 0
+            """Nothing to reset: every answer is the greedy step towards the goal, 4 times."""
 
         def act(self, obs: dict) -> np.ndarray:
-            self.calls += 1
             pos, goal = obs[STATE]
             return np.repeat(np.array([[np.clip(10 * (goal - pos), -1, 1)]], np.float32), 4, axis=0)
 

@@ -13,7 +13,7 @@ from bench.calibrate.arm.loop import ArmCalibration, calibrate_arm, score_refere
 from bench.calibrate.arm.report import write_arm_report
 from bench.calibrate.arm.spec import load_arm_spec
 from bench.calibrate.report import write_report
-from bench.calibrate.suite import calibrate_suite, torque_joints
+from bench.calibrate.suite_robot import calibrate_suite, torque_joints
 
 __all__ = [
     "ArmCalibration",

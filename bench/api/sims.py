@@ -7,6 +7,7 @@ imports its simulator only when an env is made, so importing this module stays c
 
 from __future__ import annotations
 
+from bench.core.provenance import installed_version
 from bench.protocols.env import unwrap
 from bench.sims import maniskill  # the module: suites call `maniskill.missing_extra()` (tests replace it)
 from bench.sims.build_memo import remembered
@@ -17,6 +18,7 @@ from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterfac
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
 from bench.sims.perturb.axes import AXES, conditions_from_config
 from bench.sims.perturb.reset import set_nominal
+from bench.sims.quaternion import quat_conj, quat_mul
 from bench.sims.robosuite import ACTION_NAMES as ROBOSUITE_ACTION_NAMES
 from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions, import_robosuite
 
@@ -40,9 +42,12 @@ __all__ = [
     "cameras_of",
     "check_backend",
     "import_robosuite",
+    "installed_version",
     "check_options",
     "conditions_from_config",
     "maniskill",
+    "quat_conj",
+    "quat_mul",
     "remembered",
     "set_nominal",
     "unwrap",

@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from bench.core.console import table_console
 from bench.core.errors import DataError
 from bench.core.schema import load_json, validate
 from bench.protocols.suite import SuiteSpec
@@ -230,10 +231,9 @@ def rank(entries: list[dict]) -> list[dict]:
 
 def render(board: dict, console=None) -> None:
     """Terminal tables, one per group, ranked by the score's lower bound."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console(width=None if Console().is_terminal else 140)
+    console = console or table_console()
     groups: dict[str, list[dict]] = {}
     for e in board["entries"]:
         groups.setdefault(e["group"], []).append(e)

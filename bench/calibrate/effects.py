@@ -108,6 +108,16 @@ class Effect:
     fd_step: float | None = None
     # amplitudes (shares of the bound) simulated as starting points for a landscape with several basins
     scan: tuple[float, ...] = ()
+    # parameters that stop being physical outside [0, top] (top None: no upper limit), as a spec's bounds
+    # are checked: {param: (what it is, top)}
+    limits: dict[str, tuple[str, float | None]] = field(default_factory=dict)
+    # the ground truth the synthetic-data generator (`bench.calibrate.generate`) hides in its arm
+    # (models/arm3.xml): a target there and physical parameters
+    example: tuple[str, dict[str, float]] = ("", {})
+    # how the generator plants `example`'s parameters where they are not the effect's own (physical units,
+    # another target): (builder, target, parameters, the true model); default: `apply` with them in order
+    plant: Callable[[Builder, Target, dict[str, float], Any], None] | None = None
+    reads_input: bool = False  # acts through a logged extra input (`signals.inputs`): one target per input column
 
     @property
     def n_nested(self) -> int:
@@ -267,6 +277,23 @@ def _input_gain_max(s: Scales, t: Target) -> float:
 PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
 
+def _plant_saturation(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+    b.ctrl_op("saturation", t.index, p["limit"] / float(model.actuator_gear[t.index, 0]))
+
+
+def _plant_deadband(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+    b.ctrl_op("deadband", t.index, p["deadband"] / float(model.actuator_gear[t.index, 0]))
+
+
+def _plant_spring(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+    # the preload that puts the rest position at `reference`
+    k = p["stiffness"]
+    _apply_spring(b, t, np.array([k, k * (p["reference"] - float(model.qpos_spring[t.dof]))]), None)  # type: ignore[arg-type]
+
+
+FRICTION = ("a friction", None)
+
+
 def _backlash(side: str, doc: str) -> Effect:
     """Backlash as position play of up to 0.2 of the joint's half range, as the log measures it on `side`.
 
@@ -285,6 +312,8 @@ def _backlash(side: str, doc: str) -> Effect:
         play_side=side,
         fd_step=0.02,
         scan=PLAY_SCAN,
+        limits={"play": ("a play width", None)},
+        example=("m2", {"play": 0.05}),
     )
 
 
@@ -300,6 +329,8 @@ EFFECTS: dict[str, Effect] = {
             _apply_coulomb,
             "dry friction of constant magnitude opposing motion (MuJoCo friction loss)",
             fields=("dof_frictionloss",),
+            limits={"friction": FRICTION},
+            example=("j2", {"friction": 0.6}),
         ),
         Effect(
             "asymmetric_friction",
@@ -312,6 +343,8 @@ EFFECTS: dict[str, Effect] = {
             fields=("dof_frictionloss",),
             extends={"coulomb_friction": lambda x, b: np.array([x[0], x[0]])},
             contrast=(1.0, -1.0),
+            limits={"friction_pos": FRICTION, "friction_neg": FRICTION},
+            example=("j2", {"friction_pos": 0.9, "friction_neg": 0.3}),
         ),
         Effect(
             "stribeck_friction",
@@ -329,6 +362,12 @@ EFFECTS: dict[str, Effect] = {
             shape=(0.15,),
             extends={"coulomb_friction": lambda x, b: np.array([x[0], 0.0, b[2][0] + 0.15 * (b[2][1] - b[2][0])])},
             contrast=(0.0, 1.0, 0.0),
+            limits={
+                "friction": FRICTION,
+                "static_excess": ("a static friction excess", None),
+                "stribeck_velocity": ("a Stribeck velocity", None),
+            },
+            example=("j2", {"friction": 0.3, "static_excess": 0.5, "stribeck_velocity": 0.3}),
         ),
         Effect(
             "viscous_damping",
@@ -339,6 +378,8 @@ EFFECTS: dict[str, Effect] = {
             _apply_viscous,
             "force proportional to velocity (MuJoCo dof damping)",
             fields=("dof_damping",),
+            limits={"damping": ("a damping", None)},
+            example=("j2", {"damping": 1.2}),
         ),
         Effect(
             "armature",
@@ -349,6 +390,8 @@ EFFECTS: dict[str, Effect] = {
             _apply_armature,
             "reflected rotor inertia added to the joint (MuJoCo armature)",
             fields=("dof_armature",),
+            limits={"armature": ("an armature", None)},
+            example=("j2", {"armature": 0.15}),
         ),
         Effect(
             "actuator_delay",
@@ -358,6 +401,8 @@ EFFECTS: dict[str, Effect] = {
             lambda s, t: [(0.0, max(0.1, 10 * s.dt))],
             _apply_delay,
             "transport delay between the logged command and the force applied",
+            limits={"delay": ("a delay", None)},
+            example=("m2", {"delay": 0.015}),  # 20 ms and more make this PD loop unstable
         ),
         Effect(
             "torque_saturation",
@@ -369,6 +414,9 @@ EFFECTS: dict[str, Effect] = {
             "drive force clipped at a limit (parameter: the share of logged commands above it; 0 = no clipping)",
             report=_report_saturation,
             threshold=True,
+            limits={"clipped_share": ("a share of commands", 1.0)},
+            example=("m2", {"limit": 5.0}),
+            plant=_plant_saturation,
         ),
         Effect(
             "deadband",
@@ -379,6 +427,9 @@ EFFECTS: dict[str, Effect] = {
             _apply_deadband,
             "dead band on the drive force: small commands are lost (stiction in the drive, an amplifier's dead zone)",
             threshold=True,
+            limits={"deadband": ("a dead band", None)},
+            example=("m2", {"deadband": 0.6}),
+            plant=_plant_deadband,
         ),
         _backlash(
             "link",
@@ -399,6 +450,8 @@ EFFECTS: dict[str, Effect] = {
             _apply_payload,
             "extra point mass at the body's centre of mass",
             fields=("body_mass",),
+            limits={"mass": ("a mass", None)},
+            example=("link3", {"mass": 0.6}),
         ),
         Effect(
             "joint_spring",
@@ -416,6 +469,9 @@ EFFECTS: dict[str, Effect] = {
             standalone=True,
             extends={"bias": lambda x, b: np.array([0.0, x[0]])},
             contrast=(1.0, 0.0),
+            limits={"stiffness": ("a stiffness", None)},
+            example=("j2", {"stiffness": 4.0, "reference": 0.4}),
+            plant=_plant_spring,
         ),
         Effect(
             "actuator_gain",
@@ -426,6 +482,7 @@ EFFECTS: dict[str, Effect] = {
             _apply_gain,
             "relative error of the drive gain (force = (1 + e) x nominal)",
             fields=("actuator_gainprm",),
+            example=("m2", {"gain_error": -0.25}),
         ),
         Effect(
             "bias",
@@ -435,6 +492,7 @@ EFFECTS: dict[str, Effect] = {
             lambda s, t: [(-0.5 * _f(s, t), 0.5 * _f(s, t))],
             _apply_bias,
             "constant generalised force (offset of the drive or of the force measurement)",
+            example=("j2", {"force": 0.8}),
         ),
         Effect(
             "input_channel",
@@ -444,6 +502,8 @@ EFFECTS: dict[str, Effect] = {
             lambda s, t: [(-_input_gain_max(s, t), _input_gain_max(s, t))],
             _apply_input,
             "a known extra logged signal acting on the joint with an unknown gain",
+            example=("j2", {"gain": 1.5}),
+            reads_input=True,
         ),
     ]
 }

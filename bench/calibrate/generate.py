@@ -33,10 +33,11 @@ KP = np.array([60.0, 40.0, 15.0])
 KD = np.array([6.0, 4.0, 1.5])
 INPUT_COLUMN = "observation.extra"
 
-# a drive with play is a geared one: its reflected rotor inertia (armature, kg·m²) on the driven joint,
-# in the plant and in the declared model (with arm3's 0.01 the PD loop, closed on the motor alone
-# while it crosses the gap, would be unstable at 100 Hz)
-GEARED = {"backlash_link": 0.1, "backlash_motor": 0.1}
+# a drive with play (an effect with a `play_side`) is a geared one: its reflected rotor inertia
+# (armature, kg·m²) on the driven joint, in the plant and in the declared model (with arm3's 0.01 the PD
+# loop, closed on the motor alone while it crosses the gap, would be unstable at 100 Hz)
+GEARED_ARMATURE = 0.1
+FREE_FIELD = "dof_damping"  # what the generated spec declares free (but where the hidden effect edits it)
 
 # forces no family of the library describes (what the learned residual is for): name -> (joint, doc)
 DISTURBANCES = {
@@ -54,24 +55,12 @@ def _disturbance(name: str | None, model: mujoco.MjModel) -> np.ndarray | None:
     return np.array([dof, 0.8, 6.0])
 
 
-# hidden effect -> (target name, true physical parameters)
-DEFAULTS: dict[str, tuple[str, dict[str, float]]] = {
-    "coulomb_friction": ("j2", {"friction": 0.6}),
-    "asymmetric_friction": ("j2", {"friction_pos": 0.9, "friction_neg": 0.3}),
-    "stribeck_friction": ("j2", {"friction": 0.3, "static_excess": 0.5, "stribeck_velocity": 0.3}),
-    "viscous_damping": ("j2", {"damping": 1.2}),
-    "armature": ("j2", {"armature": 0.15}),
-    "actuator_delay": ("m2", {"delay": 0.015}),  # 20 ms and more make this PD loop unstable
-    "torque_saturation": ("m2", {"limit": 5.0}),
-    "deadband": ("m2", {"deadband": 0.6}),
-    "backlash_link": ("m2", {"play": 0.05}),
-    "backlash_motor": ("m2", {"play": 0.05}),
-    "payload_mass": ("link3", {"mass": 0.6}),
-    "joint_spring": ("j2", {"stiffness": 4.0, "reference": 0.4}),
-    "actuator_gain": ("m2", {"gain_error": -0.25}),
-    "bias": ("j2", {"force": 0.8}),
-    "input_channel": ("j2", {"gain": 1.5}),
-}
+def example(effect: str) -> tuple[str, dict[str, float]]:
+    """The hidden effect's default target in arm3.xml and its true physical parameters (the effect's row)."""
+    target, params = EFFECTS[effect].example
+    if not target:
+        raise ConfigError(f"effect {effect!r} declares no example (Effect.example) for the generator to plant")
+    return target, params
 
 
 def _target(model: mujoco.MjModel, kind: str, name: str) -> Target:
@@ -157,24 +146,18 @@ def simulate_arm(
     truth = Truth(None, None, None, {})
     if effect is not None:
         eff = EFFECTS[effect]
-        name, default = DEFAULTS[effect]
+        name, default = example(effect)
         name = target or name
         p = {**default, **(params or {})}
         tgt = _target(true, eff.kind, name)
-        if effect == "input_channel":
+        if eff.reads_input:  # the generator logs one extra input column
             tgt = Target(tgt.kind, tgt.name, tgt.index, tgt.dof, tgt.joint, 0, f"{INPUT_COLUMN}[0]")
-        gain = float(true.actuator_gear[tgt.index, 0]) if eff.kind == "actuator" else 1.0
         if eff.play_side is not None:  # the plant rebuilt with a rotor behind the play
             pm = build(xml, ((tgt.index, eff.play_side),), true)
             b = Edits(pm.model, 1, pm)
             b.set_play(tgt.index, p["play"], 0.0)
-        elif effect == "torque_saturation":
-            b.ctrl_op("saturation", tgt.index, p["limit"] / gain)
-        elif effect == "deadband":
-            b.ctrl_op("deadband", tgt.index, p["deadband"] / gain)
-        elif effect == "joint_spring":  # the preload that puts the rest position at `reference`
-            k = p["stiffness"]
-            eff.apply(b, tgt, np.array([k, k * (p["reference"] - true.qpos_spring[tgt.dof])]), None)  # type: ignore[arg-type]
+        elif eff.plant is not None:
+            eff.plant(b, tgt, p, true)
         else:
             eff.apply(b, tgt, np.array([p[k] for k in eff.params], dtype=float), None)  # type: ignore[arg-type]
         truth = Truth(effect, tgt.label, tgt.joint or None, p)
@@ -254,12 +237,12 @@ def _episode(
 def arm_xml(effect: str | None, target: str | None = None) -> str:
     """arm3.xml as the plant of a case is built (geared drive where the hidden effect is play)."""
     text = ARM.read_text()
-    if effect in GEARED:
-        act = target or DEFAULTS[effect][0]
+    if effect is not None and EFFECTS[effect].play_side is not None:
+        act = target or example(effect)[0]
         motor = re.search(rf'<motor name="{act}" joint="(\w+)"', text)
         assert motor is not None, f"arm3.xml has no motor {act}"
         joint = motor.group(1)
-        text = re.sub(rf'(<joint name="{joint}"[^/]*)/>', rf'\1 armature="{GEARED[effect]}"/>', text)
+        text = re.sub(rf'(<joint name="{joint}"[^/]*)/>', rf'\1 armature="{GEARED_ARMATURE}"/>', text)
     return text
 
 
@@ -272,8 +255,8 @@ def declared_xml(damping: float = DECLARED_DAMPING, text: str | None = None) -> 
 def spec_dict(effect: str | None, target: str | None = None, model_file: str = "arm3_declared.xml") -> dict:
     """The spec that goes with the declared model: joint damping free (except where the effect is damping)."""
     damped = list(JOINTS)
-    if effect == "viscous_damping":
-        damped.remove(target or DEFAULTS[effect][0])
+    if effect is not None and FREE_FIELD in EFFECTS[effect].fields:
+        damped.remove(target or example(effect)[0])
     return {
         "model": model_file,
         "substeps": 5,
@@ -295,8 +278,8 @@ def declared_files(out: str | Path, effect: str | None, target: str | None = Non
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     xml = declared_xml(text=arm_xml(effect, target))
-    if effect == "viscous_damping":  # the damping that is not declared free keeps its true value
-        joint = target or DEFAULTS[effect][0]
+    if effect is not None and FREE_FIELD in EFFECTS[effect].fields:  # not declared free: keeps its true value
+        joint = target or example(effect)[0]
         found = re.search(rf'<joint name="{joint}" damping="([0-9.]+)"', ARM.read_text())
         assert found is not None, f"arm3.xml declares no damping of joint {joint}"
         true = found.group(1)

@@ -213,7 +213,7 @@ class GradientFitter:
         p = len(lo)
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         base = plant.realise(plant.declared_nominal(), [])
-        inputs = plant.rec.inputs is not None and any(c.effect.name == "input_channel" for c in layout.active)
+        inputs = plant.rec.inputs is not None and any(c.effect.reads_input for c in layout.active)
         self._n_inputs = 0 if plant.rec.inputs is None else plant.rec.inputs.shape[1]
         rows = _friction_rows(layout)
         key = (id(plant), rows)

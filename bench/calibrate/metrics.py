@@ -54,19 +54,6 @@ def heldout_errors(
     return [float(np.sqrt(np.mean(ri**2))) for ri in r]
 
 
-def kstep_error(
-    sim: Simulator,
-    layout: Layout,
-    x: np.ndarray,
-    segs: Segments,
-    rec: Recording,
-    scale: np.ndarray,
-    channels: np.ndarray,
-) -> float:
-    """RMS of the normalised k-step residual of one parameter vector."""
-    return heldout_errors(sim, [(layout, x)], segs, rec, scale, channels)[0]
-
-
 def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dict[str, Any]:
     """Memory on the held-out k-step horizons `hold`, scored like the models (`segment_errors`, the same spread).
 

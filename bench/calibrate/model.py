@@ -398,9 +398,9 @@ class Plant:
         for i, req in enumerate(reqs):
             eff = EFFECTS[req.name]
             targets = self.targets(eff.kind)
-            if req.name == "input_channel":
+            if eff.reads_input:
                 if self.rec.inputs is None:
-                    notes.append("input_channel: no signals.inputs declared in the spec; skipped")
+                    notes.append(f"{eff.name}: no signals.inputs declared in the spec; skipped")
                     continue
                 targets = [
                     Target("joint", t.name, t.index, t.dof, t.joint, c, self.rec.input_names[c])

@@ -23,7 +23,7 @@ from bench.calibrate.data import extract
 from bench.calibrate.feedback import close_loop
 from bench.calibrate.model import Candidate, Layout, Plant
 from bench.calibrate.spec import parse_spec
-from bench.calibrate.suite import suite_plant
+from bench.calibrate.suite_robot import suite_plant
 from bench.core.errors import DataError
 from bench.logs import read_dataset
 from bench.replay.simulate import free_runs, horizons, logged

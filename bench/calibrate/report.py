@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
+from bench.calibrate.apply import verdict
+from bench.calibrate.metrics import against_memory
 from bench.calibrate.trace import Calibration
 from bench.core.io import json_safe, write_atomic, write_text_atomic
 
@@ -194,7 +196,7 @@ def _fmt(v: Any) -> str:
 
 def markdown(doc: dict, files: dict[str, str]) -> str:
     """report.md: errors before / after, what was added and why, what was rejected, plots."""
-    lines = [f"# Calibration report: {Path(doc['model']['file']).name}", ""]
+    lines = [f"# Calibration report: {Path(doc['model']['file']).name}", "", verdict_line(doc), ""]
     data = doc["data"]
     lines += [
         f"{data['episodes']} episode(s), {data['frames']} frames at {data['fps']:g} Hz; "
@@ -261,6 +263,25 @@ def markdown(doc: dict, files: dict[str, str]) -> str:
         if key in files:
             lines += [f"![{caption}]({files[key]})", "", f"*{caption}.*", ""]
     return "\n".join(lines) + "\n"
+
+
+def verdict_line(doc: dict) -> str:
+    """The report's first line, before any table: whether the calibrated model simulates the held-out data better
+    than the declared one (`bench.calibrate.apply.verdict`, what a run prints), its k-step error against memory
+    (`bench.calibrate.metrics.against_memory`, what the loop logs last), the effects added."""
+    e = doc["errors"]
+    said = verdict(doc)
+    if said.startswith("unchecked"):  # no forward check to quote: the free-run errors instead
+        sim = (
+            f"Simulation: {said}. Held-out free-run NRMSE: declared fit {_fmt(e['declared']['free_run_nrmse'])} -> "
+            f"final {_fmt(e['final']['free_run_nrmse'])}"
+        )
+    else:
+        sim = f"The calibrated model {said}"
+    if doc.get("trust") and doc.get("repeat_baseline"):
+        sim += f"; {against_memory({**e, 'repeat': doc['repeat_baseline']}, doc['trust'])}"
+    added = ", ".join(f"{a['name']}@{a['target']}" for a in doc["effects_added"]) or "none"
+    return f"**Verdict.** {sim}. Effects added: {added}."
 
 
 def _trust(heldout: dict | None, repeat: dict | None, final: dict, trust: dict | None) -> list[str]:

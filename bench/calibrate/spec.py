@@ -39,8 +39,8 @@ EFFECT_KEYS = ("name", "targets", "bounds")
 TRACE_KEYS = ("margin", "max_effects", "max_tries", "min_score", "criterion", "max_segments")
 
 
-# What a bound may not cross: MjModel fields, and effect parameters (by name), that are physically
-# non-negative, with the quantity's name for the message and an upper limit where there is one.
+# What a bound may not cross: MjModel fields that are physically non-negative, with the quantity's name
+# for the message (an effect's parameters carry theirs: `Effect.limits`).
 PHYSICAL_FIELDS = {
     "body_mass": "a mass",
     "body_inertia": "an inertia",
@@ -52,21 +52,6 @@ PHYSICAL_FIELDS = {
     "tendon_damping": "a tendon damping",
     "tendon_stiffness": "a tendon stiffness",
     "tendon_frictionloss": "a tendon friction loss",
-}
-PHYSICAL_EFFECT_PARAMS: dict[str, tuple[str, float | None]] = {
-    "friction": ("a friction", None),
-    "friction_pos": ("a friction", None),
-    "friction_neg": ("a friction", None),
-    "static_excess": ("a static friction excess", None),
-    "stribeck_velocity": ("a Stribeck velocity", None),
-    "damping": ("a damping", None),
-    "armature": ("an armature", None),
-    "delay": ("a delay", None),
-    "clipped_share": ("a share of commands", 1.0),
-    "deadband": ("a dead band", None),
-    "play": ("a play width", None),
-    "mass": ("a mass", None),
-    "stiffness": ("a stiffness", None),
 }
 
 
@@ -235,8 +220,8 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
                 )
             bounds = tuple(_bounds(x, where + ".bounds") for x in b)
             for param, pair in zip(EFFECTS[name].params, bounds):
-                if param in PHYSICAL_EFFECT_PARAMS:
-                    what, top = PHYSICAL_EFFECT_PARAMS[param]
+                if param in EFFECTS[name].limits:
+                    what, top = EFFECTS[name].limits[param]
                     _physical(pair, what, top, f"{name}'s {param}", where + ".bounds")
         out.append(EffectRequest(name=name, targets=targets, bounds=bounds))
     return tuple(out)

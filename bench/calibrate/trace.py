@@ -317,7 +317,7 @@ def _rejected(scores: list[Score], tried: dict[str, dict], added: list[dict], mi
     return sorted(out, key=lambda e: -e.get("score", 0.0))
 
 
-def run(
+def calibrate_episodes(
     spec: CalibrationSpec, episodes: list[dict[str, np.ndarray]], fps: float, *, seed: int = 0, **loop: Any
 ) -> Calibration:
     """Run the whole loop on logged episodes (arrays keyed by column) and return what it found.
@@ -345,7 +345,7 @@ def calibrate(
     t0: float | None = None,
     fitter: Callable[..., FitResult] = fit,
 ) -> Calibration:
-    """The loop on a plant built by the caller (`run` for a spec and logs, `bench.calibrate.suite` for a
+    """The loop on a plant built by the caller (`calibrate_episodes` for a spec and logs, `bench.calibrate.suite_robot` for a
     suite's robot in its scene). `effects`: "spec" (the spec's list), None (all), () (none) or explicit
     requests; with `residual`, a learned residual is fitted after the loop and reported apart from the
     physics (`Calibration.learned`); `fitter` fits a layout's parameters (`fit`, or a gradient fitter)."""

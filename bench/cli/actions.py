@@ -24,6 +24,7 @@ import numpy as np
 from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.config import MAX_N_BOOT, MAX_SEED, ranged
+from bench.core.console import table_console
 from bench.core.errors import ConfigError, DataError
 from bench.core.io import write_atomic
 from bench.execution.recording import episode_cell
@@ -206,7 +207,6 @@ def main(argv: list[str]) -> int:
             overwrite=cfg.overwrite,
         )
     result = evaluate(cfg, policy_options)
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
     conf = int(round(cfg.confidence * 100))
@@ -219,7 +219,7 @@ def main(argv: list[str]) -> int:
     fmt = lambda e: f"{e['value']:.4f}" + (f" [{e['ci'][0]:.4f}, {e['ci'][1]:.4f}]" if e["ci"] else "")  # noqa: E731
     for row in result["per_dim"]:
         t.add_row(row["dim"], fmt(row["mae"]), fmt(row["rmse"]))
-    Console().print(t)
+    table_console().print(t)
     lat = result.get("policy_latency")
     if lat:  # a remote policy: its round trips, one per logged frame
         ms = lat["rtt_ms"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -19,8 +19,8 @@ from bench.calibrate.generate import write_case
 from bench.calibrate.gradient import METHODS, GradientFitter
 from bench.calibrate.report import write_report
 from bench.calibrate.spec import EffectRequest, load_spec
-from bench.calibrate.suite import calibrate_suite
-from bench.calibrate.trace import run
+from bench.calibrate.suite_robot import calibrate_suite
+from bench.calibrate.trace import calibrate_episodes
 from bench.core import config, outputs
 from bench.core.config import Range, ranged
 from bench.core.errors import ConfigError, DataError, did_you_mean
@@ -215,6 +215,18 @@ def _require(cfg: Any, *keys: str, command: str = "bench calibrate") -> list[str
     return [getattr(cfg, key) for key in keys]
 
 
+def _effect_names(value: Any, valid: Sequence[str], of: str = "") -> tuple[str, ...]:
+    """The effects key's list (or one name), each checked against `valid` (`of`: what they are effects of)."""
+    names = value if isinstance(value, list) else [value]
+    for n in names:
+        if n not in valid:
+            raise ConfigError(
+                f"key 'effects': unknown effect {n!r}{of}; valid: all, none, {', '.join(valid)}."
+                f"{did_you_mean(str(n), valid)}"
+            )
+    return tuple(str(n) for n in names)
+
+
 def _effects(value: Any):
     if value is None:
         return "spec"
@@ -222,14 +234,7 @@ def _effects(value: Any):
         return None
     if value == "none":
         return ()
-    names = value if isinstance(value, list) else [value]
-    for n in names:
-        if n not in EFFECTS:
-            raise ConfigError(
-                f"key 'effects': unknown effect {n!r}; valid: all, none, {', '.join(EFFECTS)}."
-                f"{did_you_mean(str(n), EFFECTS)}"
-            )
-    return tuple(EffectRequest(str(n)) for n in names)
+    return tuple(EffectRequest(n) for n in _effect_names(value, list(EFFECTS)))
 
 
 def _load_logs(path: Path) -> tuple[list[dict], float]:
@@ -265,14 +270,7 @@ def _arm_effects(value: Any) -> tuple[str, ...]:
         return ARM_EFFECTS
     if value == "none":
         return ()
-    names = value if isinstance(value, list) else [value]
-    for n in names:
-        if n not in ARM_EFFECTS:
-            raise ConfigError(
-                f"key 'effects': unknown effect {n!r} for an arm spec; valid: all, none, {', '.join(ARM_EFFECTS)}."
-                f"{did_you_mean(str(n), ARM_EFFECTS)}"
-            )
-    return tuple(str(n) for n in names)
+    return _effect_names(value, ARM_EFFECTS, " for an arm spec")
 
 
 def cmd_run(cfg: CalibrateConfig) -> int:
@@ -295,7 +293,7 @@ def cmd_run(cfg: CalibrateConfig) -> int:
     fitter = _gradient_fitter(spec, cfg.quiet) if cfg.method == "gradient" else None
     out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})
     episodes, fps = _load_logs(Path(logs).expanduser())
-    cal = run(
+    cal = calibrate_episodes(
         spec,
         episodes,
         fps,

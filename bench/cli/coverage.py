@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+import bench.sims.perturb.axes as axes
 from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.config import MAX_HORIZON, MAX_SEED, command_help, one_or_more, ranged
+from bench.core.console import table_console
 from bench.core.errors import ConfigError
 from bench.core.io import write_atomic
 from bench.protocols import Suite, registry
@@ -25,7 +27,6 @@ from bench.scoring.coverage import (
     initial_states_from_suite,
     read_training,
 )
-from bench.sims.perturb import axes
 
 
 @dataclass(frozen=True)
@@ -140,10 +141,9 @@ def main(argv: list[str]) -> int:
 
 def render(doc: dict[str, Any], console=None) -> None:
     """Print the support, state-coverage and parameter-coverage tables of a coverage report."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console(width=None if Console().is_terminal else 120)
+    console = console or table_console()
     t = Table(title=f"support: training data vs evaluated ({doc['suite']['name']})", title_justify="left")
     for col in ("axis", "evaluated", "covered", "missing", "held-out values in training"):
         t.add_column(col)

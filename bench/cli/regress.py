@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+import bench.sims.perturb.axes as axes
 from bench import api
 from bench.api import config_from_argv, finish, load_suite, start
 from bench.board.gate import outputs, power, sequential
@@ -62,7 +63,6 @@ from bench.core.errors import ConfigError, NothingMeasured
 from bench.core.provenance import checkpoint_provenance, portable
 from bench.execution.local import LocalExecutor
 from bench.protocols.suite import SuiteSpec, select_cells
-from bench.sims.perturb import axes
 
 SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"

@@ -9,17 +9,17 @@ import numpy as np
 
 from bench.core import config as config_mod
 from bench.core import outputs
+from bench.core.console import table_console
 from bench.core.io import write_atomic
-from bench.replay import run
+from bench.replay import replay_logs
 from bench.replay.common import HORIZON_LABELS, Replay, ReplayConfig, episode_of
 
 
 def render(doc: dict, console=None) -> None:
     """Per-joint RMSE / NRMSE table, one column pair per horizon."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console()
+    console = console or table_console()
     hz = doc["horizons"]
     t = Table(
         title=f"replay of {len(doc['episodes'])} episode(s), {doc['frames']} frames at {doc['fps']:g} Hz "
@@ -153,7 +153,7 @@ def main(argv: list[str]) -> int:
     out = None
     if cfg.out:
         out = outputs.check("out", cfg.out, {"logs": cfg.logs, "spec": cfg.spec}, overwrite=cfg.overwrite)
-    rep = run(cfg)
+    rep = replay_logs(cfg)
     render(rep.doc)
     if out is not None:
         outputs.replace_dir(out, lambda tmp: write(rep, tmp, cfg.plot))

@@ -10,6 +10,7 @@ from bench.api import RunConfig, score
 from bench.core import config as config_mod
 from bench.core.config import command_help
 from bench.core.errors import BenchError, ConfigError, NothingMeasured
+from bench.execution.run_config import RUNNER_KEYS
 from bench.protocols import Suite, option_keys, registry
 from bench.protocols.suite import policy_ref
 from bench.records import EPISODES, read_records
@@ -32,7 +33,7 @@ def help_text(argv: list[str] | None = None) -> str:
         policy = policy_ref(suite_cls, policy)
         plugin = registry.load_policy(policy)
         for owner, schema in ((f"suite {suite}", suite_cls.Options), (f"policy {policy}", plugin.Options)):
-            keys = config_mod.key_help(schema) if option_keys(schema) else "  (none)"
+            keys = config_mod.key_help(schema, option_keys(schema)) if option_keys(schema) else "  (none)"
             plugin_keys += f"\nkeys of {owner}:\n{keys}\n"
     except BenchError as exc:
         plugin_keys = f"\n(keys of suite {suite} / policy {policy}: {exc})\n"
@@ -48,7 +49,7 @@ def help_text(argv: list[str] | None = None) -> str:
         "none while others do (records and summary are kept; docs/guarantees.md).\n"
         "Each key belongs to the runner, to the suite or to the policy; `bench run suite=NAME\n"
         "policy=NAME --help` lists the keys of that suite and policy.\n\n"
-        f"runner keys:\n{config_mod.key_help(RunConfig)}\n{plugin_keys}\n"
+        f"runner keys:\n{config_mod.key_help(RunConfig, RUNNER_KEYS)}\n{plugin_keys}\n"
         "examples:\n"
         "  bench run suite=held_out_robots\n"
         "  bench run suite=held_out_robots policy=random episodes=10 workers=2\n"

@@ -320,47 +320,66 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
 
 
 def _field_lines(source: str) -> list[str]:
-    """The source's lines, a field wrapped over several lines (`x: int = ranged(\n ...\n)  # doc`) joined into one."""
-    out: list[str] = []
+    """The source's lines, a field wrapped over several lines (`x: int = ranged(\n ...\n)  # doc`) joined into one:
+    its code, then its comments (`  # ...`)."""
+    out: list[tuple[str, list[str]]] = []
     depth = 0
     for raw in source.splitlines():
-        line = raw.strip()
-        code = line.split("#", 1)[0]
+        code, hash_, comment = raw.strip().partition("#")
         if depth > 0:
-            out[-1] = f"{out[-1]} {line}"
+            out[-1] = (f"{out[-1][0]} {code.strip()}", out[-1][1])
         else:
-            out.append(line)
+            out.append((code.strip(), []))
+        if hash_ and comment.strip():
+            out[-1][1].append(comment.strip())
         depth += code.count("(") + code.count("[") - code.count(")") - code.count("]")
         depth = max(depth, 0)
-    return out
+    return [f"{code}  # {' '.join(comments)}" if comments else code for code, comments in out]
 
 
-def key_help(schema: type) -> str:
-    """One line per field of `schema`: its name and the comment beside it in the source.
+def key_help(schema: type, keys: Iterable[str] | None = None) -> str:
+    """One line per key of `schema`: its name, its default, and the comment beside it in the source of the class
+    that declares it (inherited fields included).
 
-    Commands build their `--help` key list from their config dataclass with this, so the
-    help cannot drift from the keys that are actually accepted.
+    Commands build their `--help` key list from their config dataclass with this, so the help cannot drift from
+    the keys that are actually accepted. `keys`: the keys to list, from their owner (e.g.
+    `bench.protocols.option_keys`, which `bench list` prints too); default every field, in declaration order.
     """
-    defaults: dict[str, Any] = {}
-    required = set()
-    for f in dataclasses.fields(schema):
-        if f.default is not dataclasses.MISSING:
-            defaults[f.name] = f.default
-        elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
-            defaults[f.name] = f.default_factory()  # type: ignore[misc]
-        else:
-            required.add(f.name)
+    docs = field_docs(schema)
+    fields = {f.name: f for f in dataclasses.fields(schema)}
     rows = []
-    for line in _field_lines(inspect.getsource(schema)):
-        m = re.match(r"^(\w+)\s*:[^#]*#\s*(.*)$", line)
-        if m and m.group(1) in required:
-            rows.append((m.group(1) + " (required)", m.group(2)))
-        elif m and m.group(1) in defaults:
-            d = defaults[m.group(1)]
-            shown = "" if d is None or d == {} else f"={str(d).lower() if isinstance(d, bool) else d}"
-            rows.append((m.group(1) + shown, m.group(2)))
+    for name in fields if keys is None else keys:
+        f = fields[name]
+        if f.default is not dataclasses.MISSING:
+            d = f.default
+        elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+            d = f.default_factory()  # type: ignore[misc]
+        else:
+            rows.append((f.name + " (required)", docs.get(f.name, "")))
+            continue
+        shown = "" if d is None or d == {} else f"={str(d).lower() if isinstance(d, bool) else d}"
+        rows.append((f.name + shown, docs.get(f.name, "")))
     width = max((len(k) for k, _ in rows), default=0) + 2
-    return "\n".join(f"  {k:<{width}}{doc}" for k, doc in rows)
+    return "\n".join(f"  {k:<{width}}{doc}".rstrip() for k, doc in rows)
+
+
+def field_docs(schema: type) -> dict[str, str]:
+    """Field name -> the comment beside it, read from the source of `schema` and of the dataclasses it extends
+    (a subclass's comment wins); a class whose source cannot be read (made at run time) gives none."""
+    docs: dict[str, str] = {}
+    for cls in reversed(schema.__mro__):
+        if not dataclasses.is_dataclass(cls):
+            continue
+        names = {f.name for f in dataclasses.fields(cls)}
+        try:
+            source = inspect.getsource(cls)
+        except (OSError, TypeError):
+            continue
+        for line in _field_lines(source):
+            m = re.match(r"^(\w+)\s*:[^#]*#\s*(.*)$", line)
+            if m and m.group(1) in names:
+                docs[m.group(1)] = m.group(2)
+    return docs
 
 
 def command_help(

@@ -10,6 +10,7 @@ import sys
 from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Any
 
 from bench.core.errors import DataError
 from bench.core.io import sha256_file
@@ -40,6 +41,14 @@ def package_versions() -> dict[str, str]:
         except PackageNotFoundError:
             pass
     return out
+
+
+def installed_version(dist: str, module: Any = None) -> str:
+    """The installed version of distribution `dist`; without its metadata, `module.__version__` ("?" when absent)."""
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return str(getattr(module, "__version__", "?"))
 
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout (or install root) holding bench/ and baselines/

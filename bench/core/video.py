@@ -31,6 +31,7 @@ import os
 import queue
 import threading
 import uuid
+from abc import ABC, abstractmethod
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, TypeVar
@@ -89,14 +90,16 @@ def check_size(codec: str, height: int, width: int, pad_odd: bool = False) -> No
 _W = TypeVar("_W", bound="_Finishes")
 
 
-class _Finishes:
+class _Finishes(ABC):
     """`with writer:` closes the file on success and aborts it (nothing left behind) on an exception."""
 
+    @abstractmethod
     def close(self) -> Path:
-        raise NotImplementedError
+        """Finish the file and return its path."""
 
+    @abstractmethod
     def abort(self) -> None:
-        raise NotImplementedError
+        """Remove what was written."""
 
     def __enter__(self: _W) -> _W:
         return self
@@ -313,11 +316,6 @@ class BackgroundMp4Writer(_Finishes):
                 return
             except queue.Full:
                 continue
-
-    @property
-    def frames_queued(self) -> int:
-        """Frames waiting to be encoded."""
-        return self._queue.qsize()
 
     def write(self, frame: np.ndarray) -> None:
         """Queue a copy of one (H, W, 3) uint8 frame (blocks only while the queue is full)."""

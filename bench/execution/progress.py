@@ -1,5 +1,6 @@
 """The progress of `bench.api.run` on stderr: done/total, successes (or the mean return, for a run scored by
-return), errors, elapsed, ETA, and what the workers are waiting for (e.g. a policy server warming up).
+return), errors, elapsed, ETA, and what the workers are waiting for (e.g. a policy server warming up) or, until
+the first episode ends, that they are starting (imports and env builds take seconds to a minute).
 
 On a terminal it is a rich progress bar. When stderr is not a terminal (a CI log, a file) a bar would draw
 nothing until the end, so the same numbers are printed as one plain line at least every `PERIOD_S`
@@ -19,6 +20,15 @@ from bench.records import EpisodeRecord
 PERIOD_S = 20.0  # stderr not a terminal: a progress line at least this often (CI logs show a job is alive)
 
 
+def starting_text(workers: int, ray: bool = False) -> str:
+    """What the progress says until the first episode ends: the workers import the suite's simulator and the
+    policy (robosuite, torch: seconds each; a first run also compiles robosuite's numba kernels), then build envs."""
+    unit = "Ray actor" if ray else "worker"
+    return (
+        f"starting {workers} {unit}{'' if workers == 1 else 's'}: importing the simulator and the policy, building envs"
+    )
+
+
 def _clock(seconds: float) -> str:
     s = int(max(seconds, 0))
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
@@ -35,6 +45,7 @@ class RunProgress:
         self.total_return, self.completed = 0.0, 0
         self.todo, self.name = todo, cfg.suite
         self.waits: dict[Any, str] = {}  # worker -> what it waits for (`waiting`)
+        self.starting = starting_text(workers, cfg.executor == "ray") if todo else ""  # until the first record
         self.console = self.progress = None
         self.t0 = time.monotonic()
         self._stop = threading.Event()
@@ -51,6 +62,8 @@ class RunProgress:
             f"run {cfg.run_id}: {todo} episode{'' if todo == 1 else 's'} on {where} -> {run_dir}", soft_wrap=True
         )
         if not self.console.is_terminal:
+            if self.starting:  # a log says at once why no episode ends for a while
+                self.console.print(self.starting, soft_wrap=True, highlight=False)
             return
         from rich.progress import (  # rich: loaded only when something is drawn on the terminal
             BarColumn,
@@ -73,7 +86,9 @@ class RunProgress:
             TextColumn("[yellow]{task.fields[status]}"),
         ]
         self.progress = Progress(*columns, console=self.console, transient=False)
-        self.task = self.progress.add_task(cfg.suite, total=todo, succ="-" if self.by_return else 0, err=0, status="")
+        self.task = self.progress.add_task(
+            cfg.suite, total=todo, succ="-" if self.by_return else 0, err=0, status=self._status()
+        )
 
     def __enter__(self) -> RunProgress:
         self.t0 = time.monotonic()
@@ -100,8 +115,11 @@ class RunProgress:
             self.total_return += record.return_
             self.completed += 1
         self.counts["succ"] += int(record.error is None and bool(getattr(record, self.metric, False)))
+        self.starting = ""  # an episode ended: the workers have started
         if self.progress is not None:
-            self.progress.update(self.task, advance=1, succ=self._shown(), err=self.counts["err"])
+            self.progress.update(
+                self.task, advance=1, succ=self._shown(), err=self.counts["err"], status=self._status()
+            )
 
     def note(self, text: str) -> None:
         if self.console is not None:
@@ -132,7 +150,7 @@ class RunProgress:
     def _status(self) -> str:
         waits = list(self.waits.values())
         if not waits:
-            return ""
+            return self.starting
         more = f" (and {len(waits) - 1} more worker(s))" if len(waits) > 1 else ""
         return f"waiting for {waits[0]}{more}"
 

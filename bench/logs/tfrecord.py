@@ -182,14 +182,6 @@ def iter_records(path: str | os.PathLike, verify: bool = True) -> Iterator[memor
         pos, k = end + 4, k + 1
 
 
-def write_records(path: str | os.PathLike, records: list[bytes]) -> None:
-    """Write records as a TFRecord file (for tests and fixtures)."""
-    with open(path, "wb") as f:
-        for rec in records:
-            head = struct.pack("<Q", len(rec))
-            f.write(head + struct.pack("<I", masked_crc32c(head)) + rec + struct.pack("<I", masked_crc32c(rec)))
-
-
 # ----------------------------------------------------------------------------- protobuf wire format
 
 
@@ -321,47 +313,3 @@ def parse_example(buf: bytes | memoryview) -> tuple[dict[str, Value], dict[str, 
         elif number == 2 and wire == 2:
             lists.update(_parse_map(value, _parse_feature_list))
     return features, lists
-
-
-# ----------------------------------------------------------------------------- encoding (fixtures)
-
-
-def _enc_varint(v: int) -> bytes:
-    v &= (1 << 64) - 1
-    out = bytearray()
-    while True:
-        b = v & 0x7F
-        v >>= 7
-        if v:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
-
-
-def _enc_field(number: int, payload: bytes) -> bytes:
-    return _enc_varint((number << 3) | 2) + _enc_varint(len(payload)) + payload
-
-
-def encode_feature(value: Value) -> bytes:
-    """Encode a tf.train.Feature from list[bytes|str], a float array or an int array."""
-    if isinstance(value, list) and (not value or isinstance(value[0], (bytes, str))):
-        items = [v.encode() if isinstance(v, str) else v for v in value]
-        return _enc_field(1, b"".join(_enc_field(1, v) for v in items))
-    arr = np.asarray(value)
-    if arr.dtype.kind == "f":
-        return _enc_field(2, _enc_field(1, arr.astype("<f4").tobytes()))
-    return _enc_field(3, _enc_field(1, b"".join(_enc_varint(int(v)) for v in arr.reshape(-1))))
-
-
-def encode_example(features: dict[str, Value], feature_lists: dict[str, list[Value]] | None = None) -> bytes:
-    """Encode an Example (or a SequenceExample when `feature_lists` is given)."""
-
-    def entry(key: str, value: bytes) -> bytes:  # one map<string, M> entry
-        return _enc_field(1, _enc_field(1, key.encode()) + _enc_field(2, value))
-
-    out = _enc_field(1, b"".join(entry(k, encode_feature(v)) for k, v in features.items()))
-    if feature_lists is not None:
-        lists = {k: b"".join(_enc_field(1, encode_feature(f)) for f in v) for k, v in feature_lists.items()}
-        out += _enc_field(2, b"".join(entry(k, v) for k, v in lists.items()))
-    return out

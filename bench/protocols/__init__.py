@@ -20,6 +20,7 @@ executes a chunk open loop, one row per step, and asks again when it is used up.
 from __future__ import annotations
 
 import dataclasses
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, runtime_checkable
@@ -355,7 +356,7 @@ class NoOptions:
     """A plugin that takes no keys of its own."""
 
 
-class PolicyPlugin:
+class PolicyPlugin(ABC):
     """Base of policy plugins (entry points `bench.policies`, or `policy=module:Class`).
 
     Override what differs: `Options` (the policy's own keys, e.g. `checkpoint=`), `obs_keys`
@@ -381,13 +382,15 @@ class PolicyPlugin:
 
     def preflight(self, options: Any, suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
         """Raise a BenchError (exit 2) for anything that would fail every episode."""
+        return None  # a hook: nothing to check by default
 
-    def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy:
-        raise NotImplementedError
+    @abstractmethod
+    def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy: ...
 
     def preload(self) -> None:
         """Import what `make` needs (torch, say), in a worker process started while the parent still plans;
         nothing by default. Errors are the build's to report: a worker ignores them here."""
+        return None  # a hook
 
 
 class FactoryPlugin(PolicyPlugin):

@@ -10,6 +10,7 @@ records.
 from __future__ import annotations
 
 import hashlib
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from bench.protocols import ActionSpec, InputLog, ModelAxes, MujocoHandle, Obs, 
 ATTRIBUTES = ("backend", "horizon", "fps", "obs_spec", "action_spec", "mujoco", "inputs", "model_axes")
 
 
-class AdapterBase:
+class AdapterBase(ABC):
     """Defaults of the `EnvAdapter` contract: an adapter sets `backend`, `horizon`, `obs_spec` and
     `action_spec` and implements `reset`, `step` and `success`; the rest has a default here (no
     notion of time, no MuJoCo model, no input log, no non-MuJoCo model axes, the MuJoCo state as
@@ -35,14 +36,14 @@ class AdapterBase:
     inputs: InputLog | None = None
     model_axes: ModelAxes | None = None
 
-    def reset(self, seed: int) -> Obs:
-        raise NotImplementedError
+    @abstractmethod
+    def reset(self, seed: int) -> Obs: ...
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
-        raise NotImplementedError
+    @abstractmethod
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]: ...
 
-    def success(self) -> bool:
-        raise NotImplementedError
+    @abstractmethod
+    def success(self) -> bool: ...
 
     def init_state(self) -> np.ndarray:
         """The MuJoCo state after reset (qpos, qvel); an adapter without MuJoCo overrides it."""
@@ -52,6 +53,22 @@ class AdapterBase:
 
     def close(self) -> None:
         """Nothing to release."""
+        return None  # a hook
+
+
+class CachedStateAdapter(AdapterBase):
+    """An adapter that works out success in `step` and its initial state in `reset`, and keeps them for
+    `success()` and `init_state()`: `reset` sets `_init_state` (and `_success` back to False), `step`
+    sets `_success`."""
+
+    _success: bool = False
+    _init_state: np.ndarray = np.zeros(0)
+
+    def success(self) -> bool:
+        return self._success
+
+    def init_state(self) -> np.ndarray:
+        return self._init_state
 
 
 class AdapterWrapper(AdapterBase):

@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import json
 import zlib
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -170,7 +171,7 @@ class SuiteSpec:
         return None
 
 
-class SuiteBase:
+class SuiteBase(ABC):
     """Defaults of the `Suite` contract; a suite sets the class attributes and implements
     `all_cells`, `obs_spec` and `make_env` (and `make_expert` with the "expert" capability)."""
 
@@ -186,6 +187,9 @@ class SuiteBase:
     capabilities: frozenset[str] = frozenset()
 
     def __init__(self, options: Any = None) -> None:
+        why = self.unavailable()
+        if why:  # refused with the line `bench list` shows
+            raise ConfigError(why)
         self.options = self.Options() if options is None else options
         if not self.default_policy:
             self.default_policy = self.reference_policy
@@ -199,14 +203,14 @@ class SuiteBase:
         """
         return None
 
-    def all_cells(self) -> list[Cell]:
-        raise NotImplementedError
+    @abstractmethod
+    def all_cells(self) -> list[Cell]: ...
 
-    def obs_spec(self, cell: Cell) -> ObsSpec:
-        raise NotImplementedError
+    @abstractmethod
+    def obs_spec(self, cell: Cell) -> ObsSpec: ...
 
-    def make_env(self, cell: Cell, horizon: int) -> EnvAdapter:
-        raise NotImplementedError
+    @abstractmethod
+    def make_env(self, cell: Cell, horizon: int) -> EnvAdapter: ...
 
     def action_names(self, cell: Cell) -> Sequence[str] | None:
         """The action names a cell's env will take, declared without building it; None (this default) when
@@ -220,6 +224,7 @@ class SuiteBase:
     def preload(cls) -> None:
         """Import what building the suite's envs needs, in a worker started while the parent plans (the
         simulator: robosuite takes ~0.5 s); nothing by default. Errors are the build's to report."""
+        return None  # a hook
 
     def describe(self) -> dict[str, Any]:
         """JSON-able identity of the suite: name, version, split manifest and its options.

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from bench.replay.common import COMMANDS, CTRL, SCHEMA, Replay, ReplayConfig, check_config, summarise
 from bench.replay.mjcf import replay_mjcf
-from bench.replay.suite import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
+from bench.replay.suite_env import SuiteLogs, load_suite_logs, replay_actions, replay_ctrl, replay_suite, suite_segments
 
 __all__ = [
     "COMMANDS",
@@ -50,14 +50,14 @@ __all__ = [
     "replay_actions",
     "replay_ctrl",
     "replay_mjcf",
+    "replay_logs",
     "replay_suite",
-    "run",
     "suite_segments",
     "summarise",
 ]
 
 
-def run(cfg: ReplayConfig) -> Replay:
+def replay_logs(cfg: ReplayConfig) -> Replay:
     """Validate the config and replay with the backend it names (`suite=` or `spec=`)."""
     check_config(cfg)
     if cfg.suite:

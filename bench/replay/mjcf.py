@@ -13,13 +13,13 @@ from typing import Any
 
 import mujoco
 
-from bench.replay import sweep
 from bench.replay.common import Replay, ReplayConfig, measured, read_logs
 from bench.replay.data import extract
 from bench.replay.metrics import horizon_errors
 from bench.replay.mjx import MjxSimulator
 from bench.replay.simulate import Simulator, as_given, prepare_model
 from bench.replay.spec import load_model, load_signal_map
+from bench.replay.sweep import conditions, sweep, worlds
 from bench.sims import mjx as mjx_backend
 
 
@@ -28,7 +28,7 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     t0 = time.perf_counter()
     given, ignored = load_signal_map(Path(str(cfg.spec)).expanduser())
     model = load_model(given.model)
-    conds = sweep.conditions(cfg.perturb) if cfg.perturb else []
+    conds = conditions(cfg.perturb) if cfg.perturb else []
     if cfg.backend == "mjx":  # refused before the logs are read: no JAX, or a model MJX cannot simulate
         mjx_backend.require()
         mjx_backend.check_model(model, where=given.model.name)
@@ -38,12 +38,12 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     rec = extract(smap, [ep.data for ep in eps], float(ds.fps), nq=model.nq, nv=model.nv, nu=model.nu)
     model, substeps = prepare_model(model, rec.fps, given.substeps)
     mujoco.mj_setConst(model, mujoco.MjData(model))
-    rows, models = sweep.worlds(model, conds, cfg.worlds, cfg.seed) if conds else ([], [])
+    rows, models = worlds(model, conds, cfg.worlds, cfg.seed) if conds else ([], [])
     sim = (MjxSimulator if cfg.backend == "mjx" else Simulator)(model, rec, substeps, cfg.threads)
     joints = [model.joint(j).name or f"q{j}" for j in range(model.njnt)]
     try:
         errors = horizon_errors(sim, as_given(model, rec, substeps), rec, rec.episodes(), cfg.k)
-        records = sweep.sweep(sim, models, rows, rec, cfg.k, joints) if rows else None
+        records = sweep(sim, models, rows, rec, cfg.k, joints) if rows else None
         steps = sim.steps
     finally:
         sim.close()

@@ -259,14 +259,6 @@ class Simulator:
             return frames
         return np.stack([self._readout(v, f) for v, f in zip(variants, frames)])
 
-    # the two paths of `_full`, by name (the stepped one is compared with the plain one in tests)
-    def _rollout(self, variants: list[Variant], segs: Segments) -> np.ndarray:
-        return self._logged([replace(v, force=None) for v in variants], segs)
-
-    def _stepped(self, variants: list[Variant], segs: Segments) -> np.ndarray:
-        assert all(v.force is not None for v in variants)
-        return self._logged(variants, segs)
-
     def _full(self, variants: list[Variant], segs: Segments, init: np.ndarray) -> np.ndarray:
         """Full [qpos, qvel] of the variants' models after each frame: (V * n, length, nq + nv).
 

@@ -87,30 +87,3 @@ def sweep(sim: Simulator, models: list[Any], rows: list[dict], rec: Recording, k
                 **({"final_qpos": [[finite(float(v)) for v in q] for q in last]} if last is not None else {}),
             }
     return out
-
-
-def compare(a: list[dict], b: list[dict], tol: float = TOLERANCE) -> list[str]:
-    """Where two sweeps' records differ: structure and parameters exactly, numbers beyond `tol`."""
-    diffs: list[str] = []
-
-    def walk(x: Any, y: Any, path: str) -> None:
-        if isinstance(x, dict) and isinstance(y, dict):
-            if set(x) != set(y):
-                diffs.append(f"{path}: keys {sorted(x)} != {sorted(y)}")
-                return
-            for key in x:
-                walk(x[key], y[key], f"{path}.{key}")
-        elif isinstance(x, list) and isinstance(y, list):
-            if len(x) != len(y):
-                diffs.append(f"{path}: {len(x)} != {len(y)} items")
-                return
-            for i, (u, v) in enumerate(zip(x, y)):
-                walk(u, v, f"{path}[{i}]")
-        elif isinstance(x, float) and isinstance(y, float) and ".horizons." in path:
-            if abs(x - y) > tol:
-                diffs.append(f"{path}: {x!r} vs {y!r} (|diff| {abs(x - y):.3g} > {tol:g})")
-        elif x != y:
-            diffs.append(f"{path}: {x!r} != {y!r}")
-
-    walk(a, b, "records")
-    return diffs

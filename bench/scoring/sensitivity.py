@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.core.console import table_console
 from bench.records import SUCCESS_METRICS, EpisodeRecord, dedupe
 from bench.scoring import stats as scoring
 from bench.scoring.rows import cell_row
@@ -213,10 +214,9 @@ def _sampled(params: dict[str, Any]) -> str:
 def render(entries: Sequence[dict[str, Any]], console=None) -> None:
     """Print the sensitivity table: per condition, success with Wilson intervals and the paired drop
     from nominal (percentage points, bootstrap interval, McNemar p); per-cell rows follow when present."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console()
+    console = console or table_console()
     if not entries:
         return
     t = Table(

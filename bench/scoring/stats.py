@@ -208,16 +208,6 @@ def paired_gap(
     return Estimate(point, lo, hi)
 
 
-def one_sided_lower(samples: np.ndarray, confidence: float = 0.95) -> float:
-    """Lower confidence bound at `confidence` (one-sided) from bootstrap samples."""
-    return float(np.quantile(np.asarray(samples, float), 1.0 - confidence))
-
-
-def one_sided_upper(samples: np.ndarray, confidence: float = 0.95) -> float:
-    """Upper confidence bound at `confidence` (one-sided) from bootstrap samples."""
-    return float(np.quantile(np.asarray(samples, float), confidence))
-
-
 def paired_score_z(b, c, n, delta) -> np.ndarray:
     """Tango's score statistic for H0: p10 - p01 = delta over n paired binary outcomes (vectorised).
 
@@ -275,45 +265,18 @@ def paired_score_bound(b: int, c: int, n: int, confidence: float = 0.95, side: s
     return float(brentq(f, -1.0 + eps, est)) if f(est) < 0 else est
 
 
-def paired_stat_samples(
-    reference: Sequence[np.ndarray],
-    target: Sequence[np.ndarray],
-    rng: np.random.Generator,
-    statistic: str = "mean",
-    n_boot: int = 2000,
-) -> tuple[float, np.ndarray]:
-    """Point value and bootstrap samples of stat(reference cell rates) - stat(target cell rates), paired.
-
-    Cell j of `reference` and `target` hold outcomes of the same episodes (same seeds);
-    each resample draws episode indices within every cell and applies them to both sides.
-    """
-    stat = STATISTICS[statistic]
-    pairs = [(np.asarray(r, float), np.asarray(t, float)) for r, t in zip(reference, target)]
-    for r, t in pairs:
-        if r.shape != t.shape:
-            raise ValueError(f"paired cells differ in shape: {r.shape} vs {t.shape}")
-    pairs = [(r, t) for r, t in pairs if len(r)]
-    if not pairs:
-        raise ValueError("no paired episodes")
-    point = float(stat(np.array([r.mean() for r, _ in pairs])) - stat(np.array([t.mean() for _, t in pairs])))
-    ref_b, tgt_b = np.empty((n_boot, len(pairs))), np.empty((n_boot, len(pairs)))
-    for j, (r, t) in enumerate(pairs):
-        idx = rng.integers(0, len(r), size=(n_boot, len(r)))
-        ref_b[:, j], tgt_b[:, j] = r[idx].mean(axis=1), t[idx].mean(axis=1)
-    return point, stat(ref_b) - stat(tgt_b)
-
-
 def paired_binary_stat_samples(
     counts: np.ndarray,
     rng: np.random.Generator,
     statistic: str = "mean",
     n_boot: int = 2000,
 ) -> tuple[float, np.ndarray]:
-    """`paired_stat_samples` for 0/1 outcomes, from counts: same distribution, O(n_boot) per cell.
+    """Point value and bootstrap samples of stat(reference cell rates) - stat(target cell rates) for
+    paired 0/1 outcomes, from counts: O(n_boot) per cell.
 
-    Resampling n pairs of 0/1 outcomes with replacement is drawing multinomial counts of the four
-    pair types, so nothing needs the episodes themselves (the regression gate's simulations
-    run it thousands of times).
+    Resampling a cell's n pairs with replacement (the same episode indices on both sides) is drawing
+    multinomial counts of the four pair types, so nothing needs the episodes themselves (the
+    regression gate's simulations run it thousands of times).
 
     Args:
         counts: (n_cells, 4) pairs per cell that are (1, 1), (1, 0), (0, 1), (0, 0) as

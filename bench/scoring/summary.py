@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.config import MAX_N_BOOT
+from bench.core.console import table_console
 from bench.core.errors import DataError
 from bench.protocols.suite import METRICS as ALL_METRICS
 from bench.records import (
@@ -187,10 +188,9 @@ def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str
 
 def render(summary: dict[str, Any], console=None) -> None:
     """Print the per-cell table, the split aggregates, the gaps and one sentence on how to read the gap."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console(width=None if Console().is_terminal else 120)
+    console = console or table_console()
     conf = int(round(summary.get("confidence", 0.95) * 100))
     by_return = summary.get("metric") == "return"
     cal = (summary.get("provenance") or {}).get("calibration") or {}
@@ -225,25 +225,14 @@ def render(summary: dict[str, Any], console=None) -> None:
             str(c["errors"]) if c["errors"] else "",
         )
     console.print(t)
-    if summary["splits"]:
-        what = "mean return of cells" if by_return else "mean of cell rates"
-        a = Table(title=f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)", title_justify="left")
-        cols = (
-            (("return", "return", "mean"), ("IQM return", "return", "iqm"))
-            if by_return
-            else (
-                ("success once", "success_once", "mean"),
-                ("success at end", "success_at_end", "mean"),
-                ("IQM once", "success_once", "iqm"),
-            )
-        )
-        a.add_column("split")
-        for name, _, _ in cols:
+    agg = aggregates(summary)
+    if agg is not None:
+        title, header, rows = agg
+        a = Table(title=title, title_justify="left")
+        for name in header:
             a.add_column(name)
-        for s, v in summary["splits"].items():
-            a.add_row(
-                s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols]
-            )
+        for row in rows:
+            a.add_row(*row)
         console.print(a)
     gaps = [g for g in summary["gaps"] if (g["metric"] == "return") == by_return]
     if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
@@ -267,6 +256,35 @@ def render(summary: dict[str, Any], console=None) -> None:
     errored = errored_line(summary)
     if errored:
         console.print(f"[yellow]{errored}[/]", soft_wrap=True)
+
+
+def aggregates(summary: dict[str, Any]) -> tuple[str, list[str], list[list[str]]] | None:
+    """The aggregates table `bench run` prints and `bench report` shows: (title, header, rows of text), one row per
+    split: the mean (and IQM) of its nominal cells' rates, or returns, with stratified bootstrap intervals; None
+    when no split was scored."""
+    if not summary["splits"]:
+        return None
+    conf = int(round(summary.get("confidence", 0.95) * 100))
+    by_return = summary.get("metric") == "return"
+    what = "mean return of cells" if by_return else "mean of cell rates"
+    cols = (
+        (("return", "return", "mean"), ("IQM return", "return", "iqm"))
+        if by_return
+        else (
+            ("success once", "success_once", "mean"),
+            ("success at end", "success_at_end", "mean"),
+            ("IQM once", "success_once", "iqm"),
+        )
+    )
+    rows = [
+        [s, *[fmt_estimate(v.get(m, {}).get(stat), pct=not by_return, signed=False) for _, m, stat in cols]]
+        for s, v in summary["splits"].items()
+    ]
+    return (
+        f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)",
+        ["split", *[name for name, _, _ in cols]],
+        rows,
+    )
 
 
 def _cell_label(c: dict[str, Any]) -> str:
@@ -337,11 +355,15 @@ def gap_sentence(summary: dict[str, Any]) -> str | None:
     held = _HELD_OUT_WORDS.get(axes[0], axes[0]) if axes else "cells"
     conf = int(round(summary.get("confidence", 0.95) * 100))
     v, (lo, hi) = g["value"], g["ci"]
-    if metric == "return":
-        size = f"mean return is {abs(v):.3g} {'lower' if v > 0 else 'higher'}"
+    what = "mean return" if metric == "return" else "success rate"
+    amount = f"{abs(v):.3g}" if metric == "return" else f"{abs(v) * 100:.0f} points"
+    if v == 0:
+        size = f"{what} is the same as"
+    elif amount == "0 points":  # under half a point: "0 points higher" would read as no difference
+        size = f"{what} is less than 1 point {'lower' if v > 0 else 'higher'} than"
     else:
-        size = f"success rate is {abs(v) * 100:.0f} points {'lower' if v > 0 else 'higher'}"
-    where = f"on {held} it never saw, the policy's {size} than on the seen ones (gap {fmt_estimate(g, pct=False)})"
+        size = f"{what} is {amount} {'lower' if v > 0 else 'higher'} than"
+    where = f"on {held} it never saw, the policy's {size} on the seen ones (gap {fmt_estimate(g, pct=False)})"
     if lo > 0:
         return f"How to read this: {where}; the {conf}% interval excludes 0, so it transfers worse to unseen {held}."
     if hi < 0:

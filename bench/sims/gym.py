@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs
-from bench.protocols.env import AdapterBase
+from bench.protocols.env import CachedStateAdapter
 
 
-class GymEnv(AdapterBase):
+class GymEnv(CachedStateAdapter):
     """One Gymnasium env, built once and reset with a seed per episode."""
 
     def __init__(self, env_id: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
@@ -106,12 +106,6 @@ class GymEnv(AdapterBase):
         info = dict(info)
         self._success = bool(info.get("success", info.get("is_success", False)))
         return {STATE: self._flat_obs(obs)}, float(reward), bool(terminated), bool(truncated), info
-
-    def success(self) -> bool:
-        return self._success
-
-    def init_state(self) -> np.ndarray:
-        return self._init_state
 
     def close(self) -> None:
         self._env.close()

@@ -5,7 +5,7 @@ a Vulkan device `bench.sims.sapien_novulkan` installs inert visual materials so 
 observation is state only. With a Vulkan device (a GPU, or lavapipe from
 `scripts/fetch_lavapipe.sh`) camera images come as `rgb.<camera>` uint8 (H, W, 3).
 
-What the policy sees and commands is the suite's `Interface` (task code lives in suites/):
+What the policy sees and commands is the suite's `ManiSkillInterface` (task code lives in suites/):
 `NativeInterface` hands over ManiSkill's own flattened state (fields named after its state dict)
 and the control mode's own action. Episodes run the full horizon: `terminated` is never set (a
 ManiSkill task that succeeds keeps simulating, as robosuite's `ignore_done`), `truncated` is set at
@@ -39,7 +39,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
-from bench.protocols.env import AdapterBase
+from bench.protocols.env import CachedStateAdapter
 from bench.sims.perturb.physx import PhysxAxes
 from bench.sims.sapien_novulkan import CHECKED, check_cameras, prepare
 
@@ -185,7 +185,7 @@ def reward_mode(env_id: str) -> str:
     return next(m for m in ("normalized_dense", "dense", "sparse", "none") if m in supported)
 
 
-class Interface(Protocol):
+class ManiSkillInterface(Protocol):
     """What a suite's policy sees and commands, computed from the built ManiSkill env.
 
     `uses_ms_state`: whether `state()` reads ManiSkill's own flattened state observation (then
@@ -278,7 +278,7 @@ def _freeze_imports() -> None:
         _FROZEN["done"] = True
 
 
-class ManiSkillEnv(AdapterBase):
+class ManiSkillEnv(CachedStateAdapter):
     """One ManiSkill3 env behind the `EnvAdapter` contract (built once per worker and cell)."""
 
     mujoco: MujocoHandle | None = None
@@ -294,7 +294,7 @@ class ManiSkillEnv(AdapterBase):
         robot: str,
         horizon: int,
         *,
-        interface: Interface | None = None,
+        interface: ManiSkillInterface | None = None,
         obs: str = "state",
         cameras: Sequence[str] | None = None,
         image_size: int | None = None,
@@ -312,7 +312,7 @@ class ManiSkillEnv(AdapterBase):
         check_backend(sim_backend)
         check_buildable(env_id, robot)
         self.env_id, self.robot, self.horizon = env_id, robot, int(horizon)
-        self.interface: Interface = interface or NativeInterface()
+        self.interface: ManiSkillInterface = interface or NativeInterface()
         self.obs_mode, self.object_names, self.instruction = obs, tuple(object_names), instruction
         self.want_state, want_rgb = "state" in obs, "rgb" in obs
         valid_cams = cameras_of(robot)
@@ -418,12 +418,6 @@ class ManiSkillEnv(AdapterBase):
         self._t += 1
         self._success = bool(info["success"][0])
         return self._obs(raw), float(reward[0]), False, self._t >= self.horizon, {"success": self._success}
-
-    def success(self) -> bool:
-        return self._success
-
-    def init_state(self) -> np.ndarray:
-        return self._init_state
 
     def close(self) -> None:
         self._gym.close()

@@ -5,7 +5,7 @@ the harness's seed semantics: env i is reset alone (ManiSkill's partial reset, `
 with its episode's seed, which fixes its initial state by that seed only (ManiSkill seeds the
 torch generator of a reset with its first seed, so one batched reset with N seeds would make
 every env's start depend on the batch). Observations, rewards and success come back per env as
-the one-env adapter gives them, through the same `Interface` (`bench.sims.maniskill`).
+the one-env adapter gives them, through the same `ManiSkillInterface` (`bench.sims.maniskill`).
 
 Not yet wired into the runner (it runs one episode per `EnvAdapter`); what the runner needs is in
 docs/maniskill.md. ManiSkill's CPU backend holds one env, so on CPU this runs with N=1 (the tests
@@ -22,7 +22,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.protocols import STATE, Obs
-from bench.sims.maniskill import Interface, NativeInterface, check_backend, check_buildable
+from bench.sims.maniskill import ManiSkillInterface, NativeInterface, check_backend, check_buildable
 from bench.sims.sapien_novulkan import prepare
 
 
@@ -37,7 +37,7 @@ class ManiSkillVecEnv:
         robot: str,
         num_envs: int,
         *,
-        interface: Interface | None = None,
+        interface: ManiSkillInterface | None = None,
         sim_backend: str = "physx_cuda",
         env_kwargs: dict | None = None,
     ):
@@ -53,7 +53,7 @@ class ManiSkillVecEnv:
         import mani_skill.envs  # noqa: F401
 
         self.render = prepare(cameras=False)
-        self.interface: Interface = interface or NativeInterface()
+        self.interface: ManiSkillInterface = interface or NativeInterface()
         if not self.interface.uses_ms_state:
             raise ConfigError(
                 "ManiSkillVecEnv reads ManiSkill's batched state observation; "

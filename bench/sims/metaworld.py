@@ -41,7 +41,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import STATE, ActionSpec, Feature, InputLog, MujocoHandle, Obs
-from bench.protocols.env import AdapterBase
+from bench.protocols.env import CachedStateAdapter
 
 MAX_PATH_LENGTH = 500  # Meta-World's truncation: one more step raises
 BENCHMARKS = ("ML10", "ML25", "ML45")
@@ -134,7 +134,7 @@ def _parse_env_dict(name: str) -> dict[str, list[str]] | None:
     return None
 
 
-class MetaWorldEnv(AdapterBase):
+class MetaWorldEnv(CachedStateAdapter):
     """One Meta-World v3 task with the goal hidden; see the module docstring for seeding."""
 
     mujoco: MujocoHandle  # always: a MuJoCo backend
@@ -203,6 +203,7 @@ class MetaWorldEnv(AdapterBase):
         self._t = 0
         self._success = False
         data = self.mujoco.data
+        # init_state(): qpos, qvel, mocap position and the (hidden) goal right after reset
         self._init_state = np.concatenate([data.qpos, data.qvel, data.mocap_pos.ravel(), self.true_goal()]).copy()
         return {STATE: np.asarray(obs, dtype=np.float32)}
 
@@ -215,13 +216,6 @@ class MetaWorldEnv(AdapterBase):
         self._success = bool(info.get("success", 0.0))
         truncated = bool(truncated or self._t >= self.horizon)
         return {STATE: np.asarray(obs, dtype=np.float32)}, float(reward), bool(terminated), truncated, dict(info)
-
-    def success(self) -> bool:
-        return self._success
-
-    def init_state(self) -> np.ndarray:
-        """qpos, qvel, mocap position and the (hidden) goal right after reset."""
-        return self._init_state
 
     def true_goal(self) -> np.ndarray:
         """The goal position the observation hides (for privileged code such as the scripted expert)."""

@@ -63,15 +63,6 @@ def xla_cpu_flags() -> str | None:
     return CPU_FLAG
 
 
-def available() -> bool:
-    """Whether JAX and mujoco-mjx import here."""
-    try:
-        require()
-    except ConfigError:
-        return False
-    return True
-
-
 def require(x64: bool | None = None) -> tuple[Any, Any, Any]:
     """(jax, jax.numpy, mujoco.mjx), imported once; a one-line ConfigError naming the extra when missing.
 

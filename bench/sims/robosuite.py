@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
-from bench.protocols.env import AdapterBase
+from bench.protocols.env import CachedStateAdapter
 from bench.sims import robosuite_fast
 from bench.sims.camera_env import CameraOptions
 
@@ -182,7 +182,7 @@ class Observer(Protocol):
 # reads after a step: the fast path (bench.sims.robosuite_fast) then polls only those observables.
 
 
-class RobosuiteEnv(AdapterBase):
+class RobosuiteEnv(CachedStateAdapter):
     """A robosuite manipulation env behind the `bench.protocols.EnvAdapter` contract."""
 
     mujoco: MujocoHandle  # always: bench.sims.perturb.reset edits the model through it (no `model_axes`)
@@ -287,12 +287,6 @@ class RobosuiteEnv(AdapterBase):
         raw, reward, done, info = self.raw_step(action)
         self._success = bool(self.raw._check_success())
         return self.observer.observe(raw), float(reward), False, bool(done), dict(info)
-
-    def success(self) -> bool:
-        return self._success
-
-    def init_state(self) -> np.ndarray:
-        return self._init_state
 
     def close(self) -> None:
         self.raw.close()

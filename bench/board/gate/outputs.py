@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
+from bench.core.console import table_console
 from bench.core.io import write_atomic, write_text_atomic
 from bench.core.schema import validate
 
@@ -66,10 +67,9 @@ def look_line(look: dict[str, Any], n_looks: int) -> str:
 
 def render(doc: dict[str, Any], console: Any = None) -> None:
     """The per-cell and per-split tables, the looks and the verdict, in the terminal."""
-    from rich.console import Console  # rich: loaded only when something is drawn on the terminal
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
-    console = console or Console(width=None if Console().is_terminal else 120)
+    console = console or table_console()
     if doc.get("identical"):
         console.print(f"[bold green]NO REGRESSION[/] (exit {doc['exit_code']}): {doc['note']}")
         return

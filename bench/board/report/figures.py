@@ -4,11 +4,28 @@ leaderboard, calibration errors. Each `fig_*` writes one PNG and says whether it
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 SEEN, UNSEEN = "#3b6fb6", "#e07b28"
 COLOURS = {"seen": SEEN, "unseen": UNSEEN}
+
+
+def labelled_bar(ax: Any, x: float, est: Sequence[float], colour: str, width: float, by_return: bool) -> None:
+    """One bar with its interval (`est` = value, minus, plus) and its value written above (below, if negative)."""
+    ax.bar(x, est[0], width=width, color=colour, alpha=0.85)
+    ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
+    top = est[0] + est[2] if est[0] >= 0 else est[0] - est[1]
+    ax.annotate(
+        f"{est[0]:.4g}" if by_return else f"{est[0] * 100:.0f}%",
+        (x, top),
+        xytext=(0, 2 if est[0] >= 0 else -2),
+        textcoords="offset points",
+        ha="center",
+        va="bottom" if est[0] >= 0 else "top",
+        fontsize=7,
+    )
 
 
 def pyplot():
@@ -73,19 +90,7 @@ def fig_cells(summary: dict, path: Path) -> bool:
         for x, c in zip(xs, rows):
             e = _err(_score(c, metric))
             if e:
-                ax.bar(x, e[0], color=COLOURS[c["split"]], alpha=0.85, width=0.65)
-                ax.errorbar(x, e[0], yerr=[[e[1]], [e[2]]], color="black", capsize=3, lw=1)
-                label = f"{e[0]:.4g}" if by_return else f"{e[0] * 100:.0f}%"
-                top = e[0] + e[2] if e[0] >= 0 else e[0] - e[1]
-                ax.annotate(
-                    label,
-                    (x, top),
-                    xytext=(0, 2 if e[0] >= 0 else -2),
-                    textcoords="offset points",
-                    ha="center",
-                    va="bottom" if e[0] >= 0 else "top",
-                    fontsize=7,
-                )
+                labelled_bar(ax, x, e, COLOURS[c["split"]], 0.65, by_return)
             o = None if by_return else _err(c[other])
             if o:
                 ax.plot(x, o[0], marker="_", ms=16, mew=2, color="black", alpha=0.6)
@@ -282,19 +287,7 @@ def fig_leaderboard(board: dict, path: Path) -> bool:
                 est = _err(e["splits"].get(split, {}).get(m, {}).get("mean"))
                 if est:
                     x = i + (j - 0.5) * width
-                    ax.bar(x, est[0], width=width, color=COLOURS[split], alpha=0.85)
-                    ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
-                    text = f"{est[0]:.4g}" if kind == "return" else f"{est[0] * 100:.0f}%"
-                    top = est[0] + est[2] if est[0] >= 0 else est[0] - est[1]
-                    ax.annotate(
-                        text,
-                        (x, top),
-                        xytext=(0, 2 if est[0] >= 0 else -2),
-                        textcoords="offset points",
-                        ha="center",
-                        va="bottom" if est[0] >= 0 else "top",
-                        fontsize=7,
-                    )
+                    labelled_bar(ax, x, est, COLOURS[split], width, kind == "return")
             sha = e["policy"].get("checkpoint_sha256")
             labels.append(
                 f"#{e['rank'] or '–'} {e['policy']['name']}"

@@ -1,7 +1,8 @@
 """`bench report RUN|LEADERBOARD out=DIR`: a static HTML page with matplotlib figures.
 
-For a run (a run directory or its summary.json): success per task and robot/env with
-Wilson intervals, seen and unseen cells side by side; split means and the transfer
+For a run (a run directory or its summary.json): the sentence `bench run` ends with on how to
+read the transfer gap; success per task and robot/env with Wilson intervals, seen and unseen
+cells side by side; the aggregates table `bench run` prints (split means and IQMs) and the transfer
 gaps with their intervals; per-axis sensitivity curves (success against the
 perturbation level, pooled and per cell) when the run has perturbed conditions; for a
 remote policy (`policy=remote`), the distribution of its round-trip latency per condition.
@@ -32,6 +33,7 @@ from bench.core.io import first_nonfinite
 from bench.core.schema import load_json, validate
 from bench.records import EPISODES, read_records
 from bench.scoring.robustness import table
+from bench.scoring.summary import aggregates, gap_sentence
 
 
 # -- inputs -------------------------------------------------------------------------------------
@@ -148,7 +150,8 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     metric = summary["metric"]
     records = _records(run_dir)
     videos = _videos(records, run_dir, tmp)
-    parts = []
+    sentence = gap_sentence(summary)  # how to read the gap: the console's last line, the page's first
+    parts = [f"<p><b>{esc(sentence)}</b></p>"] if sentence else []
     if fig_cells(summary, tmp / "cells.png"):
         what = "mean return with bootstrap intervals" if metric == "return" else f"{esc(metric)} with Wilson intervals"
         parts.append(
@@ -157,7 +160,9 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
             + f"<p class='note'>Nominal cells; bars are {what}, "
             "<span class='seen'>seen</span> then <span class='unseen'>unseen</span>.</p>"
         )
-    if fig_splits_gaps(summary, tmp / "gaps.png"):
+    figure = fig_splits_gaps(summary, tmp / "gaps.png")
+    agg = aggregates(summary)  # the table `bench run` prints, from its owner
+    if figure or agg:
         rows = [
             [
                 f"{esc(g['reference'])} → {esc(g['target'])}",
@@ -169,8 +174,14 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
         ]
         parts.append(
             "<h2>Splits and transfer gaps</h2>"
-            + img_tag("gaps.png", "splits and gaps")
-            + table_html(["gap", "metric", "statistic", "value [CI]"], rows)
+            + (img_tag("gaps.png", "splits and gaps") if figure else "")
+            + (
+                f"<p class='note'>{esc(agg[0].capitalize())}</p>"
+                + table_html(agg[1], [[esc(c) for c in r] for r in agg[2]])
+                if agg
+                else ""
+            )
+            + (table_html(["gap", "metric", "statistic", "value [CI]"], rows) if rows else "")
         )
     axes = fig_sensitivity(summary, tmp / "sensitivity.png")
     if axes:

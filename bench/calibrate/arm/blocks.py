@@ -123,6 +123,11 @@ def payload_block(
     return blk, p[..., 4:]
 
 
+def effect_block(name: str, label: str, cols: np.ndarray, lo: float, hi: float = np.inf) -> Block:
+    """A searched effect of one parameter in [lo, hi], absent in the declared model (prior 0, no pull toward it)."""
+    return Block(name, [label], cols, np.array([lo]), np.array([hi]), np.zeros(1), np.full(1, np.inf), kind="effect")
+
+
 def candidates(
     spec: ArmSpec,
     am: ArmModel,
@@ -143,16 +148,7 @@ def candidates(
     for j, jn in enumerate(am.joints):
         dq, sgn = log.dq[:, j], np.tanh(log.dq[:, j] / FRICTION_V)
         if "actuator_gain" in spec.effects and spec.torque != "measured":
-            blk = Block(
-                f"gain:{jn}",
-                [f"{jn}.gain_error"],
-                joint_cols(n_rows, n, j, -signal[:, j]),
-                np.array([-0.9]),
-                np.array([5.0]),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
+            blk = effect_block(f"gain:{jn}", f"{jn}.gain_error", joint_cols(n_rows, n, j, -signal[:, j]), -0.9, 5.0)
             out.append(Candidate("actuator_gain", jn, [blk], blk.labels))
         if "stribeck_friction" in spec.effects:
             best = None
@@ -164,41 +160,14 @@ def candidates(
                 if best is None or score > best[0]:
                     best = (score, vs, col)
             assert best is not None
-            blk = Block(
-                f"stribeck:{jn}",
-                [f"{jn}.stribeck_excess"],
-                best[2],
-                np.zeros(1),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
+            blk = effect_block(f"stribeck:{jn}", f"{jn}.stribeck_excess", best[2], 0.0)
             out.append(Candidate("stribeck_friction", jn, [blk], blk.labels, note={"stribeck_velocity": best[1]}))
         if "asymmetric_friction" in spec.effects:
-            blk = Block(
-                f"asym:{jn}",
-                [f"{jn}.asymmetry"],
-                joint_cols(n_rows, n, j, np.abs(sgn)),
-                np.full(1, -np.inf),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
+            blk = effect_block(f"asym:{jn}", f"{jn}.asymmetry", joint_cols(n_rows, n, j, np.abs(sgn)), -np.inf)
             out.append(Candidate("asymmetric_friction", jn, [blk], blk.labels))
         if "joint_spring" in spec.effects:
             q0 = float(am.model.qpos_spring[am.qadr[j]])
-            blk = Block(
-                f"spring:{jn}",
-                [f"{jn}.stiffness"],
-                joint_cols(n_rows, n, j, -(log.q[:, j] - q0)),
-                np.zeros(1),
-                np.full(1, np.inf),
-                np.zeros(1),
-                np.full(1, np.inf),
-                kind="effect",
-            )
+            blk = effect_block(f"spring:{jn}", f"{jn}.stiffness", joint_cols(n_rows, n, j, -(log.q[:, j] - q0)), 0.0)
             out.append(Candidate("joint_spring", jn, [blk], blk.labels))
     if "actuator_gain" in spec.effects:
         searched.append(

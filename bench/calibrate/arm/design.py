@@ -362,6 +362,7 @@ def design_spec(spec_file: str, harmonics: int, period: float) -> ArmSpec:
     return spec
 
 
+@one_blas_thread()
 def run_design(
     spec: ArmSpec,
     am: ArmModel,
@@ -376,21 +377,6 @@ def run_design(
 ) -> Design:
     """The design of the module docstring; `log_samples` (samples, rate, name) is the log it is compared with.
     One thread, as a calibration (`bench.core.threads`)."""
-    with one_blas_thread():
-        return _run_design(spec, am, lim, period, harmonics, seed, log_samples, evaluations, progress)
-
-
-def _run_design(
-    spec: ArmSpec,
-    am: ArmModel,
-    lim: Limits,
-    period: float,
-    harmonics: int,
-    seed: int,
-    log_samples: tuple[Samples, float, str] | None,
-    evaluations: int,
-    progress: Callable[[str], None],
-) -> Design:
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     p = DesignProblem(spec, am, lim, period, harmonics)

@@ -346,12 +346,6 @@ def fit_at(
     return Fit(blocks, x, weights, cov, tau, ssr, int(r.size), at_bound)
 
 
-def heldout_rmse(f: Fit, signal: np.ndarray, fixed: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(n,) per-joint RMSE of the fitted model on `rows` (in the signal's units)."""
-    pred = predict(f.blocks, f.x, fixed)[rows]
-    return np.sqrt(np.mean((signal[rows] - pred) ** 2, axis=0))
-
-
 def identifiability(blocks: list[Block], train: np.ndarray, weights: np.ndarray) -> dict[str, dict]:
     """Per parameter: identified alone, only in combination with others (named), or not at all.
 

@@ -201,6 +201,7 @@ def _trace(
     return cur, cur_fixed, added, rejected, f_decl, err_decl, rmse_decl
 
 
+@one_blas_thread()
 def calibrate_arm(
     spec: ArmSpec,
     episodes: list[dict[str, np.ndarray]],
@@ -214,18 +215,6 @@ def calibrate_arm(
 
     One thread: numpy's and scipy's BLAS are held to one (`bench.core.threads`), MuJoCo rollouts use `threads`.
     """
-    with one_blas_thread():
-        return _calibrate_arm(spec, episodes, fps, seed, threads, log)
-
-
-def _calibrate_arm(
-    spec: ArmSpec,
-    episodes: list[dict[str, np.ndarray]],
-    fps: float,
-    seed: int,
-    threads: int,
-    log: Callable[[str], None],
-) -> ArmCalibration:
     t0 = time.perf_counter()
     wall: dict[str, float] = {}
 

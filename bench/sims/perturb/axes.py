@@ -8,8 +8,8 @@ Command-line grammar (`perturb.AXIS=...`, see docs/perturbations.md):
     perturb.mass.uniform=[0.8,1.2]            dict form of a range
     perturb.damping=from(runs/panda_cal)      a calibration's bootstrap draws: one condition, a draw per episode
 
-Applying a condition to an env is `bench.sims.perturb.reset`'s (model and interface axes) and
-`bench.sims.perturb.visual`'s (visual axes).
+The rows themselves (what each axis is and how a level is applied) live with their implementation
+(`bench.sims.perturb.axis` says where); applying a condition to an env is `bench.sims.perturb.reset`'s.
 """
 
 from __future__ import annotations
@@ -18,178 +18,32 @@ import hashlib
 import json
 import math
 import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.protocols import RGB
 from bench.protocols.suite import NOMINAL, Condition
-from bench.sims.perturb import visual
+from bench.sims.perturb.axis import MAX_SCALE, MAX_STEPS, RGB_IMAGES, Axis
+from bench.sims.perturb.frames import ROWS as FRAME_ROWS
+from bench.sims.perturb.interface import ROWS as INTERFACE_ROWS
+from bench.sims.perturb.model import ROWS as MODEL_ROWS
+from bench.sims.perturb.scene import ROWS as SCENE_ROWS
+
+__all__ = ["AXES", "MAX_SCALE", "MAX_STEPS", "Axis"]  # with the grammar's functions below
 
 
-@dataclass(frozen=True)
-class Axis:
-    """One perturbation axis: what it changes, its unit and the levels it accepts (the one table of axes)."""
-
-    name: str
-    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env) or "visual"
-    unit: str  # what a level means
-    short: str  # a few words for `bench run --help`
-    doc: str
-    minimum: float = 0.0  # smallest valid level
-    strict: bool = False  # level must be > minimum (not >=)
-    integer: bool = False  # levels are whole numbers
-    targets: tuple[str, ...] = ()  # optional name lists: "bodies", "joints", "geoms", "actuators"
-    field: str | None = None  # the MjModel field a model axis scales (gravity: model.opt.gravity)
-    setconst: bool = False  # derived constants depend on it: mj_setConst after editing
-    nominal: float = 1.0  # the level that means "unperturbed"
-    maximum: float = math.inf  # largest valid level
-
-
-MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
-# mass and link_mass scale body_mass (and inertia) of different bodies, the same way
-_BODY_MASS: dict[str, Any] = dict(strict=True, targets=("bodies",), field="body_mass", setconst=True, maximum=MAX_SCALE)
-MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
-
-
+# the one table: every module that implements axes contributes its rows (`bench.sims.perturb.axis`)
 AXES: dict[str, Axis] = {
-    a.name: a
-    for a in (
-        Axis(
-            "friction",
-            "model",
-            "scale of nominal",
-            "friction of every geom",
-            "sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
-            "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
-            targets=("geoms", "bodies"),
-            field="geom_friction",
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "mass",
-            "model",
-            "scale of nominal",
-            "mass + inertia of the manipulated object",
-            "mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
-            **_BODY_MASS,
-        ),
-        Axis(
-            "link_mass",
-            "model",
-            "scale of nominal",
-            "mass + inertia of the robot's links",
-            "mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
-            "or of the named bodies",
-            **_BODY_MASS,
-        ),
-        Axis(
-            "damping",
-            "model",
-            "scale of nominal",
-            "joint damping",
-            "joint damping of the robot's joints or of the named joints",
-            targets=("joints",),
-            field="dof_damping",
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "armature",
-            "model",
-            "scale of nominal",
-            "joint armature",
-            "joint armature (rotor inertia) of the robot's joints or the named ones",
-            targets=("joints",),
-            field="dof_armature",
-            setconst=True,
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "frictionloss",
-            "model",
-            "scale of nominal",
-            "joint dry friction",
-            "joint dry friction (frictionloss) of the robot's joints or the named ones",
-            targets=("joints",),
-            field="dof_frictionloss",
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "gain",
-            "model",
-            "scale of nominal",
-            "actuator gain (servo stiffness)",
-            "actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
-            "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
-            targets=("actuators",),
-            field="actuator_gainprm",
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "gravity",
-            "model",
-            "scale of nominal",
-            "gravity vector",
-            "the gravity vector (1 = nominal, 0 = weightless)",
-            maximum=MAX_SCALE,
-        ),
-        Axis(
-            "latency",
-            "interface",
-            "control steps",
-            "action delay",
-            "the env executes the action commanded this many control steps ago (neutral action at the start)",
-            integer=True,
-            nominal=0.0,
-            maximum=MAX_STEPS,
-        ),
-        Axis(
-            "action_noise",
-            "interface",
-            "std as a fraction of the action half-range",
-            "Gaussian action noise",
-            "Gaussian noise added to every executed action, then clipped to the bounds",
-            nominal=0.0,
-            maximum=10.0,
-        ),
-        Axis(
-            "obs_noise",
-            "interface",
-            "std in observation units",
-            "Gaussian observation noise",
-            "Gaussian noise added to every state observation the policy sees",
-            nominal=0.0,
-            maximum=1e6,
-        ),
-        Axis(
-            "action_hold",
-            "interface",
-            "control steps",
-            "command held k steps (control rate / k)",
-            "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
-            minimum=1.0,
-            integer=True,
-            maximum=MAX_STEPS,
-        ),
-    )
+    a.name: a for rows in (MODEL_ROWS, INTERFACE_ROWS, SCENE_ROWS.values(), FRAME_ROWS) for a in rows
 }
-AXES.update(
-    {a["name"]: Axis(kind="visual", **{"maximum": MAX_SCALE, **a}) for a in visual.AXIS_TABLE}
-)  # bench.sims.perturb.visual
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
 VISUAL_AXES = tuple(n for n, a in AXES.items() if a.kind == "visual")
+# the model fields a calibration's draws (`bench calibrate`'s `draws` section) carry, per axis that samples them
+FROM_FIELDS = {n: a.from_fields for n, a in AXES.items() if a.from_fields}
 DISTRIBUTIONS = ("uniform", "loguniform")
 _SHORT = {"uniform": "U", "loguniform": "logU"}
-# the model fields a calibration's draws (`bench calibrate`'s `draws` section) carry, per axis that samples them
-FROM_FIELDS = {
-    "damping": ("dof_damping",),
-    "armature": ("dof_armature",),
-    "frictionloss": ("dof_frictionloss",),
-    "link_mass": ("body_mass", "body_ipos", "body_inertia", "body_iquat"),
-    "gain": ("actuator_gainprm",),
-}
 _FROM_RE = re.compile(r"^\s*from\s*\(\s*(.+?)\s*\)\s*$", re.IGNORECASE)
 _DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*([^,()]+)\s*\)\s*$", re.IGNORECASE)
 
@@ -401,7 +255,7 @@ def check_policy_sees(conditions: list[Condition], needs: tuple[str, ...], spec:
     remote policy without `obs_map` gets it) and `spec` a cell's declared observation. Without this, a
     state-only policy would report a drop of +0 [0, 0] that reads as robustness.
     """
-    visual = [c for c in conditions if c.axis in VISUAL_AXES]
+    visual = [c for c in conditions if c.axis in AXES and AXES[c.axis].sees == RGB_IMAGES]
     if not visual:
         return
     seen = [k for k in (needs or tuple(spec)) if str(k).startswith(RGB)]

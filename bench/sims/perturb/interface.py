@@ -1,20 +1,23 @@
-"""The interface axes' wrapper: the env seen through a held, delayed and noisy command and a noisy observation.
+"""The interface axes, one row each, and their wrapper: the env seen through a held, delayed and noisy
+command and a noisy observation.
 
-`bench.sims.perturb.reset.apply` wraps an env in it for a condition on `latency`, `action_noise`, `obs_noise` or
-`action_hold`; every draw comes from the episode's generator.
+`bench.sims.perturb.reset.apply` wraps an env with a row's `wrap` for a condition on `latency`,
+`action_noise`, `obs_noise` or `action_hold`; every draw comes from the episode's generator.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from typing import Any
 
 import numpy as np
 
 from bench.protocols import STATE, EnvAdapter, Obs
 from bench.protocols.env import AdapterWrapper
+from bench.sims.perturb.axis import MAX_STEPS, Axis
 
 
-class Interface(AdapterWrapper):
+class PerturbedInterface(AdapterWrapper):
     """The env seen through a perturbed interface: command hold, latency, action and observation noise.
 
     Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
@@ -71,3 +74,58 @@ class Interface(AdapterWrapper):
             executed = np.clip(executed, self.low, self.high)
         obs, reward, terminated, truncated, info = self.env.step(executed.astype(np.float32))
         return self._obs(obs), reward, terminated, truncated, info
+
+
+def _wrap(name: str) -> Any:
+    """The row's hook: the env behind an interface perturbed on `name` alone (the others at their defaults)."""
+
+    def wrap(env: EnvAdapter, rng: np.random.Generator, level: Any) -> tuple[EnvAdapter, dict[str, Any]]:
+        return PerturbedInterface(env, rng, **{name: level}), {}
+
+    return wrap
+
+
+ROWS: tuple[Axis, ...] = (
+    Axis(
+        "latency",
+        "interface",
+        "control steps",
+        "action delay",
+        "the env executes the action commanded this many control steps ago (neutral action at the start)",
+        integer=True,
+        nominal=0.0,
+        maximum=MAX_STEPS,
+        wrap=_wrap("latency"),
+    ),
+    Axis(
+        "action_noise",
+        "interface",
+        "std as a fraction of the action half-range",
+        "Gaussian action noise",
+        "Gaussian noise added to every executed action, then clipped to the bounds",
+        nominal=0.0,
+        maximum=10.0,
+        wrap=_wrap("action_noise"),
+    ),
+    Axis(
+        "obs_noise",
+        "interface",
+        "std in observation units",
+        "Gaussian observation noise",
+        "Gaussian noise added to every state observation the policy sees",
+        nominal=0.0,
+        maximum=1e6,
+        wrap=_wrap("obs_noise"),
+    ),
+    Axis(
+        "action_hold",
+        "interface",
+        "control steps",
+        "command held k steps (control rate / k)",
+        "control-rate change: the policy's command is sampled every k steps and held (rate / k)",
+        minimum=1.0,
+        integer=True,
+        maximum=MAX_STEPS,
+        wrap=_wrap("action_hold"),
+    ),
+)

@@ -33,16 +33,10 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
+from bench.sims.perturb.axes import AXES
+from bench.sims.perturb.axis import Axis
 
-AXES = frozenset({"friction", "mass", "link_mass", "damping", "gain", "gravity"})
-TARGET_KEYS = {
-    "friction": ("bodies",),
-    "mass": ("bodies",),
-    "link_mass": ("bodies",),
-    "damping": ("joints",),
-    "gain": ("actuators", "joints"),
-    "gravity": (),
-}
+ROWS: dict[str, Axis] = {a.name: a for a in AXES.values() if a.physx is not None}  # the axes PhysX applies
 
 
 @dataclass
@@ -61,7 +55,7 @@ class _Nominal:
 class PhysxAxes:
     """Scales PhysX model parameters of one `ManiSkillEnv` relative to their nominal values."""
 
-    axes: frozenset[str] = AXES
+    axes: frozenset[str] = frozenset(ROWS)
 
     def __init__(self, env: Any):
         self.env = env
@@ -110,22 +104,19 @@ class PhysxAxes:
 
     def apply(self, axis: str, scale: float, targets: Mapping[str, Sequence[str]]) -> None:
         """Scale `axis` by `scale` on `targets` (empty: the axis' default targets); call before reset."""
-        if axis not in AXES:
+        row = ROWS.get(axis)
+        if row is None or row.physx is None:
             raise ConfigError(
                 f"perturb.{axis}: not available on ManiSkill/PhysX; model axes there: "
-                f"{', '.join(sorted(AXES))} (interface axes work on every env)"
+                f"{', '.join(sorted(ROWS))} (interface axes work on every env)"
             )
         named = {k: [str(n) for n in v] for k, v in (targets or {}).items() if v}
         for key in named:
-            if key not in TARGET_KEYS[axis]:
-                valid = ", ".join(TARGET_KEYS[axis]) or "none"
+            if key not in row.physx_targets:
+                valid = ", ".join(row.physx_targets) or "none"
                 raise ConfigError(f"perturb.{axis}.{key}: {axis} takes no {key} on ManiSkill/PhysX; targets: {valid}")
-        scale = float(scale)
-        if axis == "gravity":
-            self._gravity = self._gravity0 * scale
-        else:
-            self._edit(self._nominal(), axis, scale, named)
-        self._active.append((axis, scale, named))
+        row.physx(self, float(scale), named, f"perturb.{axis}")
+        self._active.append((axis, float(scale), named))
 
     # -- hooks for the adapter's reset -------------------------------------------------------
     def needs_reconfigure(self) -> bool:
@@ -138,10 +129,11 @@ class PhysxAxes:
 
     def after_reconfigure(self) -> None:
         """Re-apply the episode's edits to the rebuilt scene (it was created with nominal values)."""
-        nom = self._nominal()
         for axis, scale, named in self._active:
             if axis != "gravity":
-                self._edit(nom, axis, scale, named)
+                physx = ROWS[axis].physx
+                assert physx is not None  # only rows with a PhysX edit are applied (apply)
+                physx(self, scale, named, f"perturb.{axis}")
 
     # -- edits -------------------------------------------------------------------------------
     def _write_nominal(self, nom: _Nominal) -> None:
@@ -158,61 +150,66 @@ class PhysxAxes:
     def _set_drive(joint: Any, stiffness: float, damping: float) -> None:
         joint.set_drive_properties(stiffness, damping, joint.force_limit, joint.drive_mode)
 
-    def _resolve(self, names: Sequence[str], valid: Sequence[str], what: str, field: str) -> list[str]:
+    # -- what the rows' PhysX edits use (`bench.sims.perturb.model`) ---------------------------
+    def where(self) -> str:
+        return f"{self.env.env_id} with {self.env.robot}"
+
+    def body_names(self) -> list[str]:
+        return list(self._nominal().bodies)
+
+    def joint_names(self) -> list[str]:
+        return list(self._nominal().joints)
+
+    def robot_links(self) -> list[str]:
+        return list(self._nominal().robot_links)
+
+    def object_names(self) -> list[str]:
+        return list(self.env.object_names)
+
+    def resolve(self, names: Sequence[str], valid: Sequence[str], what: str, field: str) -> list[str]:
+        """`names`, each checked against `valid` (ConfigError naming the first unknown one and the valid ones)."""
         for n in names:
             if n not in valid:
                 listing = ", ".join(list(valid)[:15]) + (f", ... ({len(valid)} in all)" if len(valid) > 15 else "")
                 raise ConfigError(
-                    f"{field}: {n!r} is not a {what} of {self.env.env_id} with {self.env.robot}; "
-                    f"valid: {listing}.{did_you_mean(n, valid)}"
+                    f"{field}: {n!r} is not a {what} of {self.where()}; valid: {listing}.{did_you_mean(n, valid)}"
                 )
         return list(names)
 
-    def _edit(self, nom: _Nominal, axis: str, s: float, named: dict[str, list[str]]) -> None:
-        field = f"perturb.{axis}"
-        if axis == "friction":
-            self._friction(nom, s, named.get("bodies"), field)
-        elif axis in ("mass", "link_mass"):
-            if "bodies" in named:
-                bodies = self._resolve(named["bodies"], list(nom.bodies), "body", f"{field}.bodies")
-            elif axis == "mass":
-                bodies = list(self.env.object_names)
-                if not bodies:
-                    raise ConfigError(
-                        f"{field}: {self.env.env_id} declares no manipulated object; "
-                        f"name the bodies with {field}.bodies=[...]"
-                    )
-            else:
-                bodies = nom.robot_links
-            comps = [c for b in bodies for c in nom.bodies[b] if id(c) in nom.mass]
-            self._check_nonzero(field, [nom.mass[id(c)][1] for c in comps])
-            for c in comps:
-                _, mass, inertia = nom.mass[id(c)]
-                c.set_mass(mass * s)
-                c.set_inertia(inertia * s)
-        else:  # damping, gain: joint drives
-            key = "actuators" if "actuators" in named else "joints"
-            joints = (
-                self._resolve(named[key], list(nom.joints), "joint", f"{field}.{key}")
-                if key in named
-                else list(nom.joints)
-            )
-            col = 0 if axis == "gain" else 1
-            self._check_nonzero(field, [nom.drives[j][col] for j in joints])
-            for j in joints:  # the other drive parameter keeps its current value: axes compose
-                joint, (stiffness, damping) = nom.joints[j], nom.drives[j]
-                if axis == "gain":
-                    self._set_drive(joint, stiffness * s, float(joint.damping))
-                else:
-                    self._set_drive(joint, float(joint.stiffness), damping * s)
+    def scale_gravity(self, s: float) -> None:
+        """The scene's gravity for the next reset (PhysX fixes it when the scene is created)."""
+        self._gravity = self._gravity0 * s
 
-    def _friction(self, nom: _Nominal, s: float, bodies: list[str] | None, field: str) -> None:
+    def scale_mass(self, bodies: Sequence[str], s: float, field: str) -> None:
+        """Mass and inertia of the bodies' dynamic components times `s`."""
+        nom = self._nominal()
+        comps = [c for b in bodies for c in nom.bodies[b] if id(c) in nom.mass]
+        self._check_nonzero(field, [nom.mass[id(c)][1] for c in comps])
+        for c in comps:
+            _, mass, inertia = nom.mass[id(c)]
+            c.set_mass(mass * s)
+            c.set_inertia(inertia * s)
+
+    def scale_drive(self, joints: Sequence[str], column: int, s: float, field: str) -> None:
+        """Drive stiffness (column 0) or damping (1) of the joints times `s`; the other keeps its current value."""
+        nom = self._nominal()
+        self._check_nonzero(field, [nom.drives[j][column] for j in joints])
+        for j in joints:  # axes compose
+            joint, (stiffness, damping) = nom.joints[j], nom.drives[j]
+            if column == 0:
+                self._set_drive(joint, stiffness * s, float(joint.damping))
+            else:
+                self._set_drive(joint, float(joint.stiffness), damping * s)
+
+    def scale_friction(self, s: float, bodies: list[str] | None, field: str) -> None:
+        """Static and dynamic friction of every shape's material (or of the named bodies' shapes) times `s`."""
         import sapien.physx as physx  # the maniskill extra: loaded only for ManiSkill suites
 
+        nom = self._nominal()
         if bodies is None:
             mats = list(nom.materials.values())
         else:
-            self._resolve(bodies, list(nom.bodies), "body", f"{field}.bodies")
+            self.resolve(bodies, list(nom.bodies), "body", f"{field}.bodies")
             targets = {id(sh) for b in bodies for c in nom.bodies[b] for sh in c.collision_shapes}
             users: dict[int, set[int]] = {}
             for comps in nom.bodies.values():
@@ -239,7 +236,6 @@ class PhysxAxes:
     def _check_nonzero(self, field: str, values: list[float]) -> None:
         if not values or not any(v != 0 for v in values):
             raise ConfigError(
-                f"{field}: the nominal value of every targeted element of {self.env.env_id} with "
-                f"{self.env.robot} is 0 ({len(values)} targeted), so scaling it changes nothing; "
+                f"{field}: the nominal value of every targeted element of {self.where()} is 0 ({len(values)} targeted), so scaling it changes nothing; "
                 "target others or drop the axis"
             )

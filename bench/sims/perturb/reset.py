@@ -11,12 +11,12 @@ implementation serves every MuJoCo backend (robosuite, Meta-World, Gymnasium MuJ
 MJCF); other backends apply them through their `model_axes` capability (PhysX). Their
 levels are scales of the nominal values, which are cached once per env the first
 time `apply` sees it and restored before every episode: a reused env never
-drifts. Interface axes wrap the env (`bench.sims.perturb.interface.Interface`): action latency, action noise,
-observation noise and a slower control rate (action hold). Visual axes (kind "visual":
-light, camera pose, colours, textures, background, distractors) change only what the
-env's cameras render; `bench.sims.perturb.scene` applies them, called from here (the catalogue
-and its checks are `bench.sims.perturb.visual`'s).
-The axes and the `perturb.*` grammar that makes conditions are `bench.sims.perturb.axes`'.
+drifts. Interface and frame axes wrap the env (a row's `wrap`: action latency, action noise,
+observation noise, a slower control rate; noise on camera images). Visual axes (kind "visual":
+light, camera pose and field of view, colours, textures, background, distractors) change only
+what the env's cameras render; `bench.sims.perturb.scene` applies them, called from here.
+This module dispatches on the hooks a row carries (`bench.sims.perturb.axis`), never on an axis' name;
+the axes and the `perturb.*` grammar that makes conditions are `bench.sims.perturb.axes`'.
 """
 
 from __future__ import annotations
@@ -27,49 +27,14 @@ from typing import Any
 
 import numpy as np
 
-from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import Cell, EnvAdapter, MujocoHandle, Suite
+from bench.core.errors import ConfigError
+from bench.protocols import RGB, Cell, EnvAdapter, MujocoHandle, Suite
 from bench.protocols.suite import Condition
-from bench.sims.perturb import scene
-from bench.sims.perturb.axes import AXES, FROM_FIELDS, INTERFACE_AXES, MODEL_AXES, VISUAL_AXES, axis_named
-from bench.sims.perturb.interface import Interface
-
-
-# -- names in the model --------------------------------------------------------------------
-def _names(model, objtype: str, count: int) -> list[str]:
-    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
-
-    kind = getattr(mujoco.mjtObj, f"mjOBJ_{objtype.upper()}")
-    return [mujoco.mj_id2name(model, kind, i) or "" for i in range(count)]
-
-
-def _moving_bodies(model) -> list[int]:
-    return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
-
-
-def _object_body_ids(mj: MujocoHandle, model) -> list[int]:
-    names = list(mj.object_bodies)
-    all_names = _names(model, "body", model.nbody)
-    return [all_names.index(n) for n in names if n in all_names]
-
-
-def _robot_body_ids(mj: MujocoHandle, model) -> list[int]:
-    objects = set(_object_body_ids(mj, model))
-    return [b for b in _moving_bodies(model) if b not in objects and model.body_mass[b] > 0]
-
-
-def _resolve(names: Sequence[str], valid: list[str], what: str, field: str, where: str) -> list[int]:
-    out = []
-    for n in names:
-        if n not in valid:
-            shown = [v for v in valid if v]
-            listing = ", ".join(shown[:15]) + (f", ... ({len(shown)} in all)" if len(shown) > 15 else "")
-            article = "an" if what[0] in "aeiou" else "a"
-            raise ConfigError(
-                f"{field}: {n!r} is not {article} {what} of {where}; valid: {listing}.{did_you_mean(n, shown)}"
-            )
-        out.append(valid.index(n))
-    return out
+from bench.sims.perturb.axes import AXES, INTERFACE_AXES, MODEL_AXES, axis_named
+from bench.sims.perturb.axis import RGB_IMAGES
+from bench.sims.perturb.scene import apply as paint_scene
+from bench.sims.perturb.scene import clear as clear_scene
+from bench.sims.perturb.scene import validate as validate_scene
 
 
 def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> np.ndarray:
@@ -77,52 +42,11 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
 
     Raises ConfigError when a named target does not exist or the default target set is empty.
     """
-    model, axis = mj.model, condition.axis
+    axis = AXES.get(condition.axis or "")
+    if axis is None or axis.select is None:
+        return np.arange(0)
     named = (condition.spec or {}).get("targets") or {}
-    field = f"perturb.{axis}"
-    if axis == "friction":
-        if not named:
-            return np.arange(model.ngeom)
-        ids: list[int] = []
-        if "geoms" in named:
-            ids += _resolve(named["geoms"], _names(model, "geom", model.ngeom), "geom", f"{field}.geoms", where)
-        if "bodies" in named:
-            bodies = set(
-                _resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where)
-            )
-            ids += [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
-        return np.array(sorted(set(ids)), dtype=int)
-    if axis in ("mass", "link_mass"):
-        if "bodies" in named:
-            ids = _resolve(named["bodies"], _names(model, "body", model.nbody), "body", f"{field}.bodies", where)
-        elif axis == "mass":
-            ids = _object_body_ids(mj, model)
-            if not ids:
-                raise ConfigError(
-                    f"{field}: {where} declares no manipulated object (object bodies); "
-                    f"name the bodies with {field}.bodies=[...]"
-                )
-        else:
-            ids = _robot_body_ids(mj, model)
-        return np.array(ids, dtype=int)
-    if axis in ("damping", "armature", "frictionloss"):
-        if "joints" in named:
-            jids = _resolve(named["joints"], _names(model, "joint", model.njnt), "joint", f"{field}.joints", where)
-        else:
-            robot = set(_robot_body_ids(mj, model))
-            jids = [j for j in range(model.njnt) if model.jnt_bodyid[j] in robot]
-        dofs = [d for d in range(model.nv) if model.dof_jntid[d] in set(jids)]
-        return np.array(dofs, dtype=int)
-    if axis == "gain":
-        if "actuators" in named:
-            return np.array(
-                _resolve(
-                    named["actuators"], _names(model, "actuator", model.nu), "actuator", f"{field}.actuators", where
-                ),
-                dtype=int,
-            )
-        return np.arange(model.nu)
-    return np.arange(0)
+    return axis.select(mj, named, f"perturb.{axis.name}", where)
 
 
 def _check_from(mj: MujocoHandle, cond: Condition, where: str) -> None:
@@ -147,10 +71,17 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     Raises ConfigError (exit 2) with the field, the bad value and what is valid.
     """
     for cond in conditions:
-        if cond.axis in VISUAL_AXES:
-            scene.validate(env, cond.axis, (cond.spec or {}).get("targets") or {}, where)
+        axis = AXES.get(cond.axis or "")
+        if axis is not None and axis.paint is not None:
+            validate_scene(env, axis.name, (cond.spec or {}).get("targets") or {}, where)
             continue
-        if cond.axis not in MODEL_AXES:
+        if axis is not None and axis.sees == RGB_IMAGES and not any(str(k).startswith(RGB) for k in env.obs_spec):
+            raise ConfigError(
+                f"perturb.{axis.name} changes only camera images, and {where} ({env.backend}) gives the policy "
+                f"none (it observes {', '.join(map(str, env.obs_spec))}); use obs=rgb or obs=state+rgb where the "
+                "suite takes it, or leave the image axes out"
+            )
+        if axis is None or axis.kind != "model":
             continue
         mj = env.mujoco
         if mj is None:
@@ -176,9 +107,8 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
             _check_from(mj, cond, where)
             continue
         idx = targets(mj, cond, where)
-        nominal = nominal_of(mj)
-        values = nominal.gravity if cond.axis == "gravity" else getattr(nominal, str(AXES[cond.axis].field))[idx]
-        if cond.axis == "gain":
+        values = nominal_of(mj)[axis.fields[0]][idx]
+        if values.ndim == 2:  # of a per-element row (friction, gain), its first entry
             values = values[:, 0]
         if values.size == 0 or not np.any(values != 0):
             raise ConfigError(
@@ -194,7 +124,7 @@ def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condi
     (names differ between robots). Nothing is built when only interface axes are used.
     An env that cannot be built here is left to the workers, which record the error.
     """
-    model_conds = [c for c in conditions if c.axis in MODEL_AXES or c.axis in VISUAL_AXES]
+    model_conds = [c for c in conditions if c.axis in AXES and AXES[c.axis].kind in ("model", "visual")]
     if not model_conds or not cells:
         return
     named = any((c.spec or {}).get("targets") for c in model_conds)
@@ -213,58 +143,49 @@ def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condi
 
 
 # -- nominal cache and model edits ---------------------------------------------------------
-class _Nominal:
-    """Copies of every model field a model axis edits, taken from an unperturbed model."""
+def _fields() -> tuple[str, ...]:
+    """Every model field a model axis edits or a calibration's draws write (a dotted name: `opt.gravity`)."""
+    out: dict[str, None] = {}
+    for axis in AXES.values():
+        out.update(dict.fromkeys(axis.fields + axis.from_fields))
+    return tuple(out)
 
-    FIELDS = (
-        "geom_friction",
-        "pair_friction",
-        "body_mass",
-        "body_inertia",
-        "body_ipos",
-        "body_iquat",
-        "dof_damping",
-        "dof_armature",
-        "dof_frictionloss",
-        "actuator_gainprm",
-        "actuator_biasprm",
-    )
-    # one copy per name in FIELDS, set in __init__
-    geom_friction: np.ndarray
-    pair_friction: np.ndarray
-    body_mass: np.ndarray
-    body_inertia: np.ndarray
-    body_ipos: np.ndarray
-    body_iquat: np.ndarray
-    dof_damping: np.ndarray
-    dof_armature: np.ndarray
-    dof_frictionloss: np.ndarray
-    actuator_gainprm: np.ndarray
-    actuator_biasprm: np.ndarray
 
-    def __init__(self, model):
+def _field(model: Any, name: str) -> np.ndarray:
+    obj = model
+    for part in name.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+class Nominal(dict[str, np.ndarray]):
+    """Copies of every model field an axis edits, taken from an unperturbed model: {field: values}."""
+
+    def __init__(self, model: Any):
+        super().__init__({f: np.array(_field(model, f), copy=True) for f in _fields()})
         self.model = model
-        for f in self.FIELDS:
-            setattr(self, f, np.array(getattr(model, f), copy=True))
-        self.gravity = np.array(model.opt.gravity, copy=True)
         self.const_dirty = False  # derived constants computed from perturbed masses/armature
 
+    def __missing__(self, name: str) -> np.ndarray:
+        # a field no row declared when this env was first seen (a row added since): still nominal, as
+        # nothing edits a field before reading its nominal values here
+        self[name] = values = np.array(_field(self.model, name), copy=True)
+        return values
+
     def restore(self) -> None:
-        m = self.model
-        for f in self.FIELDS:
-            getattr(m, f)[...] = getattr(self, f)
-        m.opt.gravity[:] = self.gravity
+        for f, values in self.items():
+            _field(self.model, f)[...] = values
 
 
-_CACHE: weakref.WeakKeyDictionary[MujocoHandle, _Nominal] = weakref.WeakKeyDictionary()
+_CACHE: weakref.WeakKeyDictionary[MujocoHandle, Nominal] = weakref.WeakKeyDictionary()
 
 
-def nominal_of(mj: MujocoHandle) -> _Nominal:
+def nominal_of(mj: MujocoHandle) -> Nominal:
     """The model's nominal values, cached the first time they are asked for (and again if the
     handle's model object was replaced, e.g. by a hard reset that rebuilt it from XML)."""
     entry = _CACHE.get(mj)
     if entry is None or entry.model is not mj.model:
-        entry = _CACHE[mj] = _Nominal(mj.model)
+        entry = _CACHE[mj] = Nominal(mj.model)
     return entry
 
 
@@ -312,32 +233,13 @@ def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
     mj.forward()
 
 
-def _scale_model(mj: MujocoHandle, nom: _Nominal, axis: str, idx: np.ndarray, s: float) -> None:
-    m = mj.model
-    if axis == "friction":
-        m.geom_friction[idx] = nom.geom_friction[idx] * s
-        if m.npair and len(idx) == m.ngeom:  # explicit contact pairs override geom friction
-            m.pair_friction[:] = nom.pair_friction * s
-    elif axis in ("mass", "link_mass"):
-        m.body_mass[idx] = nom.body_mass[idx] * s
-        m.body_inertia[idx] = nom.body_inertia[idx] * s  # same shape, scaled density
-    elif axis == "damping":
-        m.dof_damping[idx] = nom.dof_damping[idx] * s
-    elif axis == "armature":
-        m.dof_armature[idx] = nom.dof_armature[idx] * s
-    elif axis == "frictionloss":
-        m.dof_frictionloss[idx] = nom.dof_frictionloss[idx] * s
-    elif axis == "gain":
-        g0 = nom.actuator_gainprm[idx, 0]
-        m.actuator_gainprm[idx, 0] = g0 * s
-        for k in (1, 2):  # position servo: biasprm[1] = -kp; velocity servo: biasprm[2] = -kv
-            mirror = np.isclose(nom.actuator_biasprm[idx, k], -g0) & (g0 != 0)
-            m.actuator_biasprm[idx[mirror], k] = nom.actuator_biasprm[idx[mirror], k] * s
-    elif axis == "gravity":
-        m.opt.gravity[:] = nom.gravity * s
+def _scale_model(mj: MujocoHandle, nom: Nominal, axis: str, idx: np.ndarray, s: float) -> None:
+    scale = AXES[axis].scale
+    assert scale is not None, f"{axis} is a model axis with an edit"
+    scale(mj.model, nom, idx, s)
 
 
-def _from_draw(mj: MujocoHandle, nom: _Nominal, axis: str, condition: Condition, rng: np.random.Generator) -> dict:
+def _from_draw(mj: MujocoHandle, nom: Nominal, axis: str, condition: Condition, rng: np.random.Generator) -> dict:
     """One bootstrap draw of a calibration written into the model; the record gets the draw and the
     mean ratio of the drawn values to the nominal ones of the axis' first field."""
     spec = condition.spec or {}
@@ -347,7 +249,7 @@ def _from_draw(mj: MujocoHandle, nom: _Nominal, axis: str, condition: Condition,
     for key, value in zip(spec["keys"], spec["values"][k]):
         field, element, *col = key.split(":")
         edits.append({"field": field, "element": element, "value": value, **({"column": int(col[0])} if col else {})})
-        if field == FROM_FIELDS[axis][0]:
+        if field == AXES[axis].from_fields[0]:
             current = _value(mj, field, element, int(col[0]) if col else 0)
             if current:
                 ratios.append(value / current)
@@ -389,7 +291,7 @@ def set_nominal(mj: MujocoHandle, levels: dict[str, float], where: str = "the en
                 f"scene of {where}: {name!r} is a {axis.kind} axis; a scene scales model axes: {', '.join(MODEL_AXES)}"
             )
         condition = Condition(name=f"{name}={level:g}", axis=name, level=float(level))
-        _scale_model(mj, _Nominal(mj.model), name, targets(mj, condition, where), float(level))
+        _scale_model(mj, Nominal(mj.model), name, targets(mj, condition, where), float(level))
         if axis.setconst:
             _set_const(mj)
     mj.forward()
@@ -414,8 +316,8 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
 
     Restores the nominal model first (the env may have run another condition), draws
     the episode's value from `rng` for a range, and returns `(stepper, params)`:
-    the env itself for model axes and nominal, an `Interface` wrapper for interface
-    axes; `params` = {axis: value applied} for the episode record.
+    the env itself for model and visual axes and nominal, the row's wrapper for interface
+    and frame axes; `params` = {axis: value applied} for the episode record.
     """
     mj = env.mujoco
     nom = nominal_of(mj) if mj is not None else None
@@ -423,16 +325,9 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         nom.restore()
     if env.model_axes is not None:
         env.model_axes.restore()
-    scene.clear(env)
+    clear_scene(env)
     axis = axis_named(condition.axis) if condition.axis is not None else None
-    if axis is not None and axis.kind == "visual":
-        if mj is not None and nom is not None and nom.const_dirty:
-            _set_const(mj)
-            nom.const_dirty = False
-            mj.forward()
-        value = _draw(condition, rng)
-        return env, scene.apply(env, axis.name, value, (condition.spec or {}).get("targets") or {}, rng)
-    if axis is None or axis.kind == "interface":
+    if axis is None or axis.scale is None:  # the model stays nominal this episode
         if mj is not None and nom is not None and nom.const_dirty:
             _set_const(mj)
             nom.const_dirty = False
@@ -440,9 +335,12 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         if axis is None:
             return env, {}
         value = _draw(condition, rng)
-        kw: dict[str, Any] = {"latency": 0, "action_noise": 0.0, "obs_noise": 0.0, "action_hold": 1}
-        kw[axis.name] = value
-        return Interface(env, rng, **kw), {axis.name: value}
+        named = (condition.spec or {}).get("targets") or {}
+        if axis.paint is not None:
+            return env, paint_scene(env, axis.name, value, named, rng)
+        assert axis.wrap is not None, f"axis {axis.name} has no hook (axis.py: select+scale, wrap or paint)"
+        stepper, extra = axis.wrap(env, rng, value)
+        return stepper, {axis.name: value, **extra}
     if (condition.spec or {}).get("kind") == "from":
         if mj is None or nom is None:
             raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")

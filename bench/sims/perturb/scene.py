@@ -1,9 +1,14 @@
-"""The visual axes applied: a camera rig's render hook edits the scene MuJoCo builds for each camera.
+"""The visual axes, one row each, applied by a camera rig's render hook to the scene MuJoCo builds per camera.
 
-`VisualScene` holds one episode's perturbation of one rig (lights, camera poses, colours,
-textures, distractors) with draws from the episode's generator; `clear()` puts the nominal scene
-back. `clear`, `apply` and `validate` are the per-episode flow `bench.sims.perturb.reset` calls. What the
-axes are, and the checks of a model against them, are `bench.sims.perturb.visual`'s.
+What the cameras see changes, the physics does not: every axis acts on the rendered scene of a
+`bench.sims.camera.CameraRig`, relative to the nominal scene, with draws from the episode's own
+generator (textures are the one model field edited: `tex_data`, which only the renderer reads, restored
+and re-uploaded before the next episode). A row's `paint` sets one episode's perturbation on the
+rig's `VisualScene`, whose `__call__` edits each camera's scene before it is drawn; its `check` refuses
+a model the axis cannot act on (the targets, textures and surfaces are `bench.sims.perturb.visual`'s).
+`clear`, `apply` and `validate` are the per-episode flow `bench.sims.perturb.reset` calls. Visual axes
+need the env's camera rig (`env.mujoco.cameras`, suites built on `bench.sims.camera_env`) and a
+policy that sees images (`obs=rgb` or `obs=state+rgb`).
 """
 
 from __future__ import annotations
@@ -18,7 +23,15 @@ import numpy as np
 from bench.core.errors import ConfigError
 from bench.protocols import EnvAdapter, option_keys, registry
 from bench.sims.camera_env import CameraEnv
-from bench.sims.perturb.visual import AXES, TEXTURES, check, model_names, surface, target_geoms, textures_of
+from bench.sims.perturb.axis import MAX_SCALE, RGB_IMAGES, Axis, Named
+from bench.sims.perturb.visual import (
+    TEXTURES,
+    check_cameras,
+    model_names,
+    surface,
+    target_geoms,
+    textures_of,
+)
 
 
 def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
@@ -75,25 +88,28 @@ class VisualScene:
     cam_cameras: tuple[str, ...] = ()
     cam_offset: np.ndarray | None = None
     cam_rot: np.ndarray | None = None
+    fov_cameras: tuple[str, ...] = ()
+    fov_scale: float = 1.0  # tan(half field of view) of the perturbed camera over the nominal one's
     colors: dict[int, tuple[float, np.ndarray]] = field(default_factory=dict)  # geom -> (blend, rgb in 0..1)
     n_distractors: int = 0
-    _distractor_seed: int = 0
-    _distractors: list[tuple] | None = None
-    _nominal_tex: dict[int, np.ndarray] = field(default_factory=dict)
-    _dirty_tex: set[int] = field(default_factory=set)
+    distractor_seed: int = 0
+    distractors: list[tuple] | None = None
+    nominal_tex: dict[int, np.ndarray] = field(default_factory=dict)
+    dirty_tex: set[int] = field(default_factory=set)
 
     def clear(self) -> None:
         """Back to the nominal scene (restores edited textures in the model and on the GPU)."""
         self.light_scale, self.light_rot = 1.0, None
         self.cam_cameras, self.cam_offset, self.cam_rot = (), None, None
-        self.colors, self.n_distractors, self._distractors = {}, 0, None
-        if self._dirty_tex:
+        self.fov_cameras, self.fov_scale = (), 1.0
+        self.colors, self.n_distractors, self.distractors = {}, 0, None
+        if self.dirty_tex:
             model = self.rig.model
-            for t in sorted(self._dirty_tex):
+            for t in sorted(self.dirty_tex):
                 adr = int(model.tex_adr[t])
-                model.tex_data[adr : adr + self._nominal_tex[t].size] = self._nominal_tex[t]
-                self._upload(t)
-            self._dirty_tex.clear()
+                model.tex_data[adr : adr + self.nominal_tex[t].size] = self.nominal_tex[t]
+                self.upload(t)
+            self.dirty_tex.clear()
 
     @property
     def active(self) -> bool:
@@ -102,74 +118,31 @@ class VisualScene:
             or self.light_rot is not None
             or self.cam_offset is not None
             or self.cam_rot is not None
+            or self.fov_scale != 1.0
             or self.colors
             or self.n_distractors
-            or self._dirty_tex
+            or self.dirty_tex
         )
 
-    def _upload(self, texid: int) -> None:
+    def upload(self, texid: int) -> None:
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
         self.rig.make_current()
         mujoco.mjr_uploadTexture(self.rig.model, self.rig.context, texid)
 
-    def apply(self, axis: str, value: float, named: dict[str, list[str]], rng: np.random.Generator) -> dict[str, Any]:
+    def apply(self, axis: str, value: float, named: Named, rng: np.random.Generator) -> dict[str, Any]:
         """Perturb the scene along `axis` at level `value` (drawn already); returns the params to record."""
-        model = self.rig.model
-        field = f"perturb.{axis}"
-        params: dict[str, Any] = {axis: value}
-        if axis == "light":
-            self.light_scale = float(value)
-        elif axis == "light_dir":
-            azimuth = float(rng.uniform(0.0, 360.0))
-            a = math.radians(azimuth)
-            self.light_rot = _rotation(np.array([math.cos(a), math.sin(a), 0.0]), float(value))
-            params[f"{axis}.azimuth_deg"] = round(azimuth, 3)
-        elif axis in ("camera_pos", "camera_rot"):
-            direction = _unit(rng)
-            self.cam_cameras = tuple(named.get("cameras") or self.rig.cameras)
-            if axis == "camera_pos":
-                self.cam_offset = float(value) * direction
-            else:
-                self.cam_rot = _rotation(direction, float(value))
-            params[f"{axis}.{'direction' if axis == 'camera_pos' else 'axis'}"] = [
-                round(float(v), 6) for v in direction
-            ]
-        elif axis in ("object_color", "table_color", "background"):
-            rgb = rng.uniform(0.0, 1.0, size=3)
-            for g in target_geoms(model, axis, self.object_bodies, named, self.where):
-                self.colors[g] = (float(value), rgb)
-            params[f"{axis}.rgb"] = [round(float(v), 4) for v in rgb]
-        elif axis == "texture":
-            kind = int(value)
-            for t in textures_of(
-                model, target_geoms(model, axis, self.object_bodies, named, self.where), field, self.where
-            ):
-                h, w, nc = int(model.tex_height[t]), int(model.tex_width[t]), int(model.tex_nchannel[t])
-                adr = int(model.tex_adr[t])
-                if t not in self._nominal_tex:
-                    self._nominal_tex[t] = np.array(model.tex_data[adr : adr + h * w * nc], copy=True)
-                img = _pattern(kind, h, w, rng)
-                if nc == 4:
-                    img = np.concatenate([img, np.full((h, w, 1), 255, np.uint8)], axis=-1)
-                model.tex_data[adr : adr + h * w * nc] = img[..., :nc].reshape(-1)
-                self._dirty_tex.add(t)
-                self._upload(t)
-            params[f"{axis}.name"] = TEXTURES[kind - 1]
-        elif axis == "distractors":
-            self.n_distractors = int(value)
-            self._distractor_seed = int(rng.integers(0, 2**31 - 1))
-            self._distractors = None
-        else:
-            raise ConfigError(f"{field}: not a visual axis; valid: {', '.join(AXES)}")
-        return params
+        row = ROWS.get(axis)
+        if row is None or row.paint is None:
+            raise ConfigError(f"perturb.{axis}: not a visual axis; valid: {', '.join(ROWS)}")
+        return {axis: value, **row.paint(self, value, named, rng)}
 
     def _place_distractors(self) -> list[tuple]:
         """Distractors for this episode, placed at the first render (the object has its initial position then)."""
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
         model, data = self.rig.model, self.rig.data
-        rng = np.random.default_rng(self._distractor_seed)
+        rng = np.random.default_rng(self.distractor_seed)
         lo, hi, z = surface(model, data, self.object_bodies, self.where)
         bodies = model_names(model, "body", model.nbody)
         avoid = [np.asarray(data.xpos[bodies.index(b)][:2]) for b in self.object_bodies if b in bodies]
@@ -212,6 +185,12 @@ class VisualScene:
                 if self.light_rot is not None and not light.headlight:
                     light.dir[:] = self.light_rot @ light.dir
                     light.pos[:] = center + self.light_rot @ (light.pos - center)
+        if camera in self.fov_cameras and self.fov_scale != 1.0:
+            for cam in scene.camera:  # a perspective frustum: its half-extents at the near plane
+                cam.frustum_bottom *= self.fov_scale
+                cam.frustum_top *= self.fov_scale
+                cam.frustum_center *= self.fov_scale
+                cam.frustum_width *= self.fov_scale
         if camera in self.cam_cameras:
             for cam in scene.camera:
                 if self.cam_offset is not None:
@@ -228,9 +207,9 @@ class VisualScene:
                     blend, rgb = hit
                     g.rgba[:3] = (1.0 - blend) * g.rgba[:3] + blend * rgb
         if self.n_distractors:
-            if self._distractors is None:
-                self._distractors = self._place_distractors()
-            for kind, size, pos, mat, rgba in self._distractors:
+            if self.distractors is None:
+                self.distractors = self._place_distractors()
+            for kind, size, pos, mat, rgba in self.distractors:
                 if scene.ngeom >= scene.maxgeom:
                     break
                 mujoco.mjv_initGeom(scene.geoms[scene.ngeom], kind, size, pos, mat, rgba)
@@ -249,9 +228,7 @@ def clear(env: EnvAdapter) -> None:
         rig.hook.clear()
 
 
-def apply(
-    env: EnvAdapter, axis: str, value: float, named: dict[str, list[str]], rng: np.random.Generator
-) -> dict[str, Any]:
+def apply(env: EnvAdapter, axis: str, value: float, named: Named, rng: np.random.Generator) -> dict[str, Any]:
     """Apply one visual axis at `value` for this episode; returns the params to record."""
     rig = _rig(env)
     if rig is None:
@@ -275,7 +252,7 @@ def suites_with_cameras() -> list[str]:
     return out
 
 
-def validate(env: EnvAdapter, axis: str, named: dict[str, list[str]], where: str) -> None:
+def validate(env: EnvAdapter, axis: str, named: Named, where: str) -> None:
     """ConfigError naming the axis (and the suites that can apply it) unless `env` can apply it this run."""
     rig = _rig(env)
     if rig is None:
@@ -289,4 +266,198 @@ def validate(env: EnvAdapter, axis: str, named: dict[str, list[str]], where: str
             f"image; use obs=rgb or obs=state+rgb"
         )
     assert env.mujoco is not None  # a rig exists only on a MuJoCo handle (_rig)
-    check(env.mujoco.model, tuple(env.mujoco.object_bodies), axis, named, list(rig.cameras), where)
+    row = ROWS[axis]
+    if row.check is not None:
+        row.check(env.mujoco.model, tuple(env.mujoco.object_bodies), named, list(rig.cameras), where)
+
+
+# -- the rows: (scene, level, named targets, generator) -> params to record beside the level ----
+def _light(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    vs.light_scale = float(value)
+    return {}
+
+
+def _light_dir(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    azimuth = float(rng.uniform(0.0, 360.0))
+    a = math.radians(azimuth)
+    vs.light_rot = _rotation(np.array([math.cos(a), math.sin(a), 0.0]), float(value))
+    return {"light_dir.azimuth_deg": round(azimuth, 3)}
+
+
+def _camera_pos(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    direction = _unit(rng)
+    vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
+    vs.cam_offset = float(value) * direction
+    return {"camera_pos.direction": [round(float(v), 6) for v in direction]}
+
+
+def _camera_rot(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    direction = _unit(rng)
+    vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
+    vs.cam_rot = _rotation(direction, float(value))
+    return {"camera_rot.axis": [round(float(v), 6) for v in direction]}
+
+
+MAX_FOV_DEG = 170.0  # a wider perspective frustum is degenerate
+
+
+def _camera_fov(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    """The vertical field of view of every (or the named) camera times the level (capped at 170 degrees)."""
+    model = vs.rig.model
+    vs.fov_cameras = tuple(named.get("cameras") or vs.rig.cameras)
+    cams = model_names(model, "camera", model.ncam)
+    fovy = {c: float(model.cam_fovy[cams.index(c)]) for c in vs.fov_cameras if c in cams}
+    base = next(iter(fovy.values()), 45.0)
+    wanted = min(base * float(value), MAX_FOV_DEG)
+    # every camera's frustum scales by the same ratio of tangents (cameras of one rig share a fovy in our suites)
+    vs.fov_scale = math.tan(math.radians(wanted) / 2) / math.tan(math.radians(base) / 2)
+    return {"camera_fov.deg": round(wanted, 4)}
+
+
+def _color(axis: str) -> Any:
+    def paint(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+        rgb = rng.uniform(0.0, 1.0, size=3)
+        for g in target_geoms(vs.rig.model, axis, vs.object_bodies, named, vs.where):
+            vs.colors[g] = (float(value), rgb)
+        return {f"{axis}.rgb": [round(float(v), 4) for v in rgb]}
+
+    return paint
+
+
+def _texture(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    model, kind = vs.rig.model, int(value)
+    geoms = target_geoms(model, "texture", vs.object_bodies, named, vs.where)
+    for t in textures_of(model, geoms, "perturb.texture", vs.where):
+        h, w, nc = int(model.tex_height[t]), int(model.tex_width[t]), int(model.tex_nchannel[t])
+        adr = int(model.tex_adr[t])
+        if t not in vs.nominal_tex:
+            vs.nominal_tex[t] = np.array(model.tex_data[adr : adr + h * w * nc], copy=True)
+        img = _pattern(kind, h, w, rng)
+        if nc == 4:
+            img = np.concatenate([img, np.full((h, w, 1), 255, np.uint8)], axis=-1)
+        model.tex_data[adr : adr + h * w * nc] = img[..., :nc].reshape(-1)
+        vs.dirty_tex.add(t)
+        vs.upload(t)
+    return {"texture.name": TEXTURES[kind - 1]}
+
+
+def _distractors(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    vs.n_distractors = int(value)
+    vs.distractor_seed = int(rng.integers(0, 2**31 - 1))
+    vs.distractors = None
+    return {}
+
+
+def _check_cameras(axis: str) -> Any:
+    def check(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+        check_cameras(axis, named, cameras, where)
+
+    return check
+
+
+def _check_geoms(axis: str) -> Any:
+    def check(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+        target_geoms(model, axis, objects, named, where)
+
+    return check
+
+
+def _check_texture(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+    textures_of(model, target_geoms(model, "texture", objects, named, where), "perturb.texture", where)
+
+
+def _check_surface(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+    surface(model, None, objects, where)
+
+
+_VISUAL: dict[str, Any] = dict(kind="visual", sees=RGB_IMAGES, maximum=MAX_SCALE)
+_CAMERA: dict[str, Any] = dict(targets=("cameras",), nominal=0.0, **_VISUAL)  # offsets of every (or the named) camera
+_BLEND: dict[str, Any] = dict(
+    unit="blend 0..1", targets=("geoms", "bodies"), nominal=0.0, **{**_VISUAL, "maximum": 1.0}
+)  # colour blends toward a colour drawn per episode
+
+
+def _blend_row(name: str, short: str, what: str) -> Axis:
+    """A colour axis: the default (or the named) geoms' colour blended toward a colour drawn per episode."""
+    doc = f"{what} blended toward a colour drawn per episode"
+    return Axis(name, short=short, doc=doc, paint=_color(name), check=_check_geoms(name), **_BLEND)
+
+
+ROWS: dict[str, Axis] = {
+    a.name: a
+    for a in (
+        Axis(
+            "light",
+            unit="scale of nominal",
+            short="light intensity",
+            doc="ambient, diffuse and specular intensity of every light, headlight included",
+            paint=_light,
+            **_VISUAL,
+        ),
+        Axis(
+            "light_dir",
+            unit="degrees",
+            short="light direction tilt",
+            doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)",
+            nominal=0.0,
+            paint=_light_dir,
+            **{**_VISUAL, "maximum": 90.0},
+        ),
+        Axis(
+            "camera_pos",
+            unit="metres",
+            short="camera position offset",
+            doc="every (or the named) camera moved this far in a direction drawn per episode",
+            paint=_camera_pos,
+            check=_check_cameras("camera_pos"),
+            **{**_CAMERA, "maximum": 1.0},
+        ),
+        Axis(
+            "camera_rot",
+            unit="degrees",
+            short="camera orientation offset",
+            doc="every (or the named) camera rotated this much about an axis drawn per episode",
+            paint=_camera_rot,
+            check=_check_cameras("camera_rot"),
+            **{**_CAMERA, "maximum": 90.0},
+        ),
+        Axis(
+            "camera_fov",
+            unit="scale of nominal field of view",
+            short="camera field of view",
+            doc="the vertical field of view of every (or the named) camera times the level (0.5 zooms in, "
+            f"2 widens; at most {MAX_FOV_DEG:g} degrees), the image size unchanged",
+            strict=True,
+            paint=_camera_fov,
+            check=_check_cameras("camera_fov"),
+            **{**_CAMERA, "nominal": 1.0, "maximum": 4.0},
+        ),
+        _blend_row("object_color", "object colour", "the manipulated object's colour"),
+        _blend_row("table_color", "table colour", "the table's colour (geoms/bodies named like 'table')"),
+        _blend_row("background", "floor and wall colour", "floor and walls (world-body geoms other than the table)"),
+        Axis(
+            "texture",
+            unit=f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})",
+            short="unseen table texture",
+            doc="the table's texture replaced by a procedural one in colours drawn per episode",
+            minimum=1.0,
+            integer=True,
+            targets=("geoms", "bodies"),
+            nominal=0.0,
+            paint=_texture,
+            check=_check_texture,
+            **{**_VISUAL, "maximum": float(len(TEXTURES))},
+        ),
+        Axis(
+            "distractors",
+            unit="objects",
+            short="distractor objects on the table",
+            doc="boxes, spheres, cylinders and capsules of random size and colour on the table (visual only)",
+            integer=True,
+            nominal=0.0,
+            paint=_distractors,
+            check=_check_surface,
+            **{**_VISUAL, "maximum": 20.0},
+        ),
+    )
+}

@@ -40,7 +40,7 @@ from bench.replay.common import CTRL, ReplayConfig
 from bench.replay.data import Recording, Window
 from bench.replay.simulate import Coordinates
 from bench.replay.spec import SignalSpec
-from bench.replay.suite import load_suite_logs
+from bench.replay.suite_env import load_suite_logs
 
 # effects realised in MjModel fields (a run's env carries them without any change to its step loop)
 EFFECTS = ("coulomb_friction", "payload_mass", "actuator_gain")

@@ -1,0 +1,69 @@
+"""One perturbation axis as one row: what it is (name, unit, valid levels, targets) and how a level is applied.
+
+A row is declared once, in the module that implements it — `model` (MuJoCo model fields, and the same
+axes on PhysX), `interface` (held, delayed and noisy commands and observations), `frames` (noise on the
+images the policy sees), `scene` (what the cameras render) — and `bench.sims.perturb.axes` gathers the
+rows into the one table the grammar, `--help` and the docs read. Adding an axis is one row in one of
+those modules (plus its docs row and a test); nothing else dispatches on its name.
+
+The hooks a row carries say how a level is applied; `bench.sims.perturb.reset` calls whichever the row has:
+- `select` + `scale` (model axes): the indices of the model elements edited (default targets, or the
+  named ones) and the edit itself, as a scale of the nominal values of `fields`, which are saved the
+  first time an env is seen and restored before every episode;
+- `physx` (model axes on ManiSkill/SAPIEN): the same edit through PhysX's scene API;
+- `wrap` (interface and frame axes): the env seen through a wrapper for the episode;
+- `paint` + `check` (visual axes): one episode's edit of the rendered scene, and the model checks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
+MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
+
+RGB_IMAGES = "rgb"  # `Axis.sees` of an axis that changes only camera images
+Named = Mapping[str, Sequence[str]]  # targets named on the command line: {"bodies": [...], "joints": [...]}
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One perturbation axis: what it changes, its unit, the levels it accepts and how a level is applied."""
+
+    name: str
+    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env) or "visual" (images)
+    unit: str  # what a level means
+    short: str  # a few words for `bench run --help`
+    doc: str
+    minimum: float = 0.0  # smallest valid level
+    strict: bool = False  # level must be > minimum (not >=)
+    integer: bool = False  # levels are whole numbers
+    targets: tuple[str, ...] = ()  # optional name lists: "bodies", "joints", "geoms", "actuators", "cameras"
+    nominal: float = 1.0  # the level that means "unperturbed"
+    maximum: float = math.inf  # largest valid level
+    # -- model axes (MuJoCo) ------------------------------------------------------------------
+    # MjModel fields it edits (saved on first sight, restored before every episode); the first one's
+    # nominal values at the selected indices must not all be zero (column 0 of a 2-D field)
+    fields: tuple[str, ...] = ()
+    # (handle, named targets, field name for errors, where) -> indices into `fields`' first dimension
+    select: Callable[[Any, Named, str, str], np.ndarray] | None = None
+    # (model, nominal values by field, indices, scale) -> edits the model
+    scale: Callable[[Any, Mapping[str, np.ndarray], np.ndarray, float], None] | None = None
+    setconst: bool = False  # derived constants depend on it: mj_setConst after editing
+    from_fields: tuple[str, ...] = ()  # model fields a calibration's draws carry for `from(CALIBRATION)`
+    # -- model axes (ManiSkill / PhysX): (PhysxAxes, scale, named targets, field) -> edits the scene
+    physx: Callable[[Any, float, dict[str, list[str]], str], None] | None = None
+    physx_targets: tuple[str, ...] = ()  # target keys the PhysX edit takes
+    # -- interface and frame axes: (env, episode generator, level) -> (the env to reset and step,
+    # params to record beside the level)
+    wrap: Callable[[Any, np.random.Generator, Any], tuple[Any, dict[str, Any]]] | None = None
+    # -- visual axes: (VisualScene, level, named targets, generator) -> params to record; and the check
+    # of a model and rig against the axis: (model, object bodies, named, cameras, where)
+    paint: Callable[[Any, Any, Named, np.random.Generator], dict[str, Any]] | None = None
+    check: Callable[[Any, Sequence[str], Named, Sequence[str], str], None] | None = None
+    sees: str = ""  # "rgb": changes only camera images (a policy that reads none is refused)
