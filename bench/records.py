@@ -11,10 +11,9 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 from bench.core.errors import DataError
 
@@ -37,8 +36,8 @@ class EpisodeRecord:
     split: str
     condition: str
     axis: str | None
-    level: Any
-    params: dict[str, Any]  # sampled perturbation values actually applied
+    level: float | list[float] | None  # the condition's level: a value, a [low, high] range, or None (nominal)
+    params: dict[str, object]  # sampled perturbation values actually applied (JSON: numbers, strings, lists)
     episode: int
     seed: int
     init_state_hash: str | None
@@ -55,7 +54,7 @@ class EpisodeRecord:
     finished_at: float
     worker_pid: int
     versions: dict[str, str] = field(default_factory=dict)
-    extras: dict[str, Any] = field(default_factory=dict)  # e.g. {"policy": policy stats}; omitted when empty
+    extras: dict[str, object] = field(default_factory=dict)  # e.g. {"policy": policy stats}; omitted when empty
 
     def to_json(self) -> str:
         d = asdict(self)
@@ -65,7 +64,8 @@ class EpisodeRecord:
         return json.dumps(d, sort_keys=True, allow_nan=False)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> EpisodeRecord:
+    def from_dict(cls, d: object) -> EpisodeRecord:
+        """The record a parsed JSON line holds (TypeError naming the first field that is not a record's)."""
         if not isinstance(d, dict):
             raise TypeError(f"a record is a JSON object, not {type(d).__name__}")
         d = dict(d)
@@ -109,7 +109,7 @@ _FIELD_TYPES: dict[str, tuple[tuple[type, ...], bool]] = {  # field -> (types, m
 }
 
 
-def check_fields(d: dict[str, Any]) -> str | None:
+def check_fields(d: Mapping[str, object]) -> str | None:
     """What is wrong with a record's fields (type, sign, finiteness), or None."""
     for name, (types, nullable) in _FIELD_TYPES.items():
         if name not in d:
@@ -151,7 +151,7 @@ class RecordWriter:
     def __enter__(self) -> RecordWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
@@ -197,9 +197,9 @@ def dedupe(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
     return out
 
 
-def comparable(record: EpisodeRecord) -> dict[str, Any]:
+def comparable(record: EpisodeRecord) -> dict[str, object]:
     """The record without timing fields and run id: two runs with the same seed must agree on this."""
-    d = json.loads(record.to_json())
+    d: dict[str, object] = json.loads(record.to_json())
     for k in (*TIMING_FIELDS, "run_id"):
         d.pop(k, None)
     return d

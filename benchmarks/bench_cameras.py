@@ -31,7 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import api
-from bench.cli import perf  # noqa: E402
+from bench.api import throughput as perf  # noqa: E402
 from bench.sims.camera import SCENE_FLAGS  # noqa: E402
 
 

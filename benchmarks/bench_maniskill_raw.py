@@ -54,7 +54,7 @@ class Bare:
 def measure(task: str, episodes: int, horizon: int, seed: int, mode: str) -> None:
     import gymnasium as gym
 
-    from bench.cli.perf import PerfConfig, harness_vs_bare, make_plan
+    from bench.api.throughput import PerfConfig, harness_vs_bare, make_plan
     from bench.sims.maniskill import reward_mode
     from suites.maniskill_common import TASKS
 

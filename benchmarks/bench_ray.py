@@ -37,7 +37,7 @@ INSIDE = "BENCH_RAY_SANDBOXED"
 
 
 def timed(executor, jobs, spec) -> dict:
-    from bench.cli.perf import per_worker, steady_rate
+    from bench.api.throughput import per_worker, steady_rate
 
     records: list = []
     arrivals: list[float] = []
@@ -78,7 +78,7 @@ def overhead(run: dict, workers: int) -> float:
 
 def main(argv: list[str]) -> int:
     from bench import api
-    from bench.cli import perf
+    from bench.api import throughput as perf
     from bench.execution.local import LocalExecutor
     from bench.execution.ray_executor import RayExecutor
     from bench.records import RecordWriter, comparable

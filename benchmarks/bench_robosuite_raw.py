@@ -63,7 +63,7 @@ def plan(robot: str, episodes: int, horizon: int, seed: int = 0, run_id: str = "
 
 
 def main(argv: list[str]) -> int:
-    from bench.cli.perf import harness_vs_bare
+    from bench.api.throughput import harness_vs_bare
 
     kv = dict(a.split("=", 1) for a in argv)
     robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))

@@ -6,12 +6,12 @@
 Parts (each printed with the machine's load, /proc/loadavg, before and after):
   fast     held_out_robots, random policy, Panda: the harness on bench's robosuite fast path ÷ a bare
            robosuite loop (`robosuite.make` + soft reset + `env.step`, nothing else), episodes
-           interleaved (`bench.cli.perf.harness_vs_bare`), and the same with `fast_path=false` as a
+           interleaved (`bench.api.throughput.harness_vs_bare`), and the same with `fast_path=false` as a
            control; then the fast path ÷ robosuite's `env.step` at the adapter, per arm (all 7), with
            the records' equality checked on the way. `profile=true` adds where a step's time goes,
            by cProfile, with and without the fast path.
   workers  held_out_robots (Panda, random policy, `scaling_episodes` episodes): 2 workers ÷ 1, end to end
-           (worker start-up, imports and env builds included) and in steady state (`bench.cli.perf`).
+           (worker start-up, imports and env builds included) and in steady state (`bench.api.throughput`).
   suite    the main job as a command, `bench run suite=held_out_robots episodes=<scaling_episodes>`
            (all 7 arms, the default policy bc, or `suite_policy=`, e.g. scripted) with workers=1 and
            workers=2, alternating `repeats` times (default 1): wall time from the command's start to its
@@ -46,7 +46,7 @@ def load() -> str:
 
 
 def part_fast(episodes: int, horizon: int, profile: bool) -> None:
-    from bench.cli.perf import harness_vs_bare
+    from bench.api.throughput import harness_vs_bare
 
     for fast in (True, False):
         res = harness_vs_bare(
@@ -123,7 +123,7 @@ def _profile(fast: bool, horizon: int) -> str:
 
 
 def part_workers(episodes: int, horizon: int) -> None:
-    from bench.cli.perf import workers_scaling
+    from bench.api.throughput import workers_scaling
 
     p = plan("Panda", episodes, horizon, run_id="throughput-bench")
     p = dataclasses.replace(p, cells=p.cells[:1], jobs=[j for j in p.jobs if j.cell == p.cells[0]])

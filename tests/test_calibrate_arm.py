@@ -282,7 +282,7 @@ def test_the_calibration_runs_in_every_suite_whose_panda_matches_and_nowhere_els
                 **extra,
             )
         )
-        assert p.calibration is not None and p.calibration["robot"] == "Panda"
+        assert p.calibration is not None and p.calibration.robot == "Panda"
     with pytest.raises(api.ConfigError, match=r"is for robot 'Panda', which no selected cell has \(robots: UR5e\)"):
         api.plan(
             api.RunConfig(

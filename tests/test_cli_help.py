@@ -20,8 +20,8 @@ def _keys(*schemas: type) -> list[str]:
 
 
 def _table() -> dict[tuple[str, ...], list[str]]:
+    from bench.api.calibration import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.cli.actions import ActionsConfig
-    from bench.cli.calibrate import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.cli.check import CheckConfig
     from bench.cli.correlate import CorrelateConfig
     from bench.cli.coverage import CoverageConfig

@@ -28,7 +28,7 @@ SETTINGS = dict(
 
 
 def _schemas() -> list[type]:
-    from bench.cli.calibrate import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
+    from bench.api.calibration import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.cli.check import CheckConfig
     from bench.cli.correlate import CorrelateConfig
     from bench.cli.coverage import CoverageConfig

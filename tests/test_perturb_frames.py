@@ -61,6 +61,8 @@ def test_levels_mean_what_the_docs_say(cheetah):
     white = np.full((64, 64, 3), 255, np.uint8)
     rng = np.random.default_rng(0)
     assert abs(frames._gaussian(0.1)(gray, rng).astype(float).std() - 25.5) < 2.0  # std 0.1 of full scale
+    dark = np.full((64, 64, 3), 64, np.uint8)  # Poisson: variance = mean, so std = level * sqrt(x * 255)
+    assert abs(frames._shot(0.1)(dark, rng).astype(float).std() - 0.1 * np.sqrt(64 * 255)) < 0.5
     shot = frames._shot(0.1)(white, rng).astype(float)
     assert abs(shot[shot < 255].size / shot.size - 0.5) < 0.1  # clipped above white: half the pixels below it
     hit = frames._salt_pepper(0.2)(gray, rng)

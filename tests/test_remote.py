@@ -468,7 +468,7 @@ def test_serve_listens_on_loopback_by_default():
 # -- policy on logs -----------------------------------------------------------------------------------
 def test_bench_actions_accepts_a_remote_policy(tmp_path):
     """`bench actions` with policy=remote gives the in-process scripted policy's numbers, plus latency."""
-    from bench.cli.actions import ActionsConfig, evaluate
+    from bench.api.policy_on_logs import ActionsConfig, evaluate
     from bench.remote.client import RemoteOptions
 
     api.run(

@@ -115,7 +115,7 @@ def test_record_writes_lerobot_dataset(tmp_path):
     assert _run(tmp_path, "rec2", f"record={out}") == 2
 
     # policy on logs: the expert that produced the log reproduces its actions; random does not
-    from bench.cli.actions import ActionsConfig, evaluate
+    from bench.api.policy_on_logs import ActionsConfig, evaluate
 
     same = evaluate(ActionsConfig(logs=str(out), policy="scripted"))
     assert same["episodes"] == 2 and same["frames"] == 500

@@ -1,4 +1,4 @@
-"""The typed Python API: plan and run a suite, score a run, load plugins (docs/api.md).
+"""The typed Python API: one function per `bench` command, and the run itself (docs/api.md).
 
     from bench import api
 
@@ -7,22 +7,25 @@
 
 `plan` checks everything a run needs (the key checks are `bench.execution.run_config`'s) and writes
 nothing; `run` executes a plan (or a config) into OUT/RUN_ID (episodes.jsonl, run.json,
-summary.json), resuming recorded episodes. The CLI (`bench run`), the regression gate, benchmarks and experiments all go
-through these functions.
+summary.json), resuming recorded episodes. Every other command has its function here too, in a
+module by topic (`bench.api.checks`, `bench.api.board`, `bench.api.logs`, ...), re-exported below
+and imported only when first used, so `import bench.api` loads no simulator, pyarrow or plotting.
+The CLI (`bench.cli`) only parses `key=value` arguments, calls these functions and prints.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 from bench import __version__
 from bench.core import config as config_mod
@@ -31,6 +34,7 @@ from bench.core.errors import (
     BenchError,
     ConfigError,
     DataError,
+    NothingMeasured,
     RegistryError,
     SpecError,
     SplitError,
@@ -53,31 +57,77 @@ from bench.execution.run_config import (
     check_outputs,
     check_runner,
     check_work,
-    config_from_argv,
     observation_bytes,
 )
 from bench.execution.runner import Worker, WorkerSpec, memo_folder
-from bench.protocols import PolicyIdentity, PolicyPlugin, describe_spec, registry
+from bench.protocols import PolicyIdentity, PolicyPlugin, Suite, describe_spec, option_keys, registry
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
-from bench.scoring.summary import build, load_run
+from bench.scoring.summary import build, load_run, nothing_measured
+from bench.scoring.summary import render as render_summary
 from bench.scoring.typed import RunMeta
 from bench.sims import perturb
 from bench.sims.perturb import axes
+from bench.sims.perturb.reset import ModelEdit
 
-# the public face (docs/api.md): the config and its parsing live in bench.execution.run_config
+if TYPE_CHECKING:  # the command functions, imported on first use (`__getattr__` below)
+    from bench.api.agreement import CorrelateConfig, correlate
+    from bench.api.board import (
+        MergeConfig,
+        ReportConfig,
+        leaderboard_merge,
+        leaderboard_show,
+        leaderboard_validate,
+        report,
+    )
+    from bench.api.calibration import (
+        CalibrateConfig,
+        DesignConfig,
+        GenerateConfig,
+        SuiteCalibrateConfig,
+        calibrate,
+        calibrate_robot,
+        design_excitation,
+        effects,
+        generate_case,
+    )
+    from bench.api.checks import CheckConfig, check
+    from bench.api.data_coverage import CoverageConfig, coverage
+    from bench.api.gate import RegressConfig, regress, regress_budget
+    from bench.api.logs import (
+        CardConfig,
+        ImportConfig,
+        RankConfig,
+        import_log,
+        log_card,
+        log_info,
+        rank_log,
+        verify_log,
+    )
+    from bench.api.plugins import list_plugins, plugin_keys
+    from bench.api.policy_on_logs import ActionsConfig, actions
+    from bench.api.replays import ReplayConfig, replay
+    from bench.api.serving import ServeConfig, serve
+    from bench.api.throughput import PerfConfig, perf
+
+# the public face (docs/api.md): the config and its checks live in bench.execution.run_config
 __all__ = [
     "BenchError",
     "ConfigError",
     "DataError",
+    "NothingMeasured",
     "RegistryError",
     "SpecError",
     "SplitError",
     "did_you_mean",
     "valid_choices",
+    "Calibration",
+    "ParsedRun",
     "Plan",
+    "RUNNER_KEYS",
     "RunConfig",
+    "RunContext",
     "RunResult",
     "calibration_notes",
     "config_from_argv",
@@ -86,12 +136,172 @@ __all__ = [
     "load_policy",
     "load_suite",
     "make_executor",
+    "nothing_measured",
+    "parse_run",
     "plan",
+    "plan_with_workers",
+    "render_summary",
     "run",
     "score",
     "start",
     "worker",
+    "workers_for",
+    # the other commands (one function each), from the modules named in `_LAZY`
+    "ActionsConfig",
+    "CalibrateConfig",
+    "CardConfig",
+    "CheckConfig",
+    "CorrelateConfig",
+    "CoverageConfig",
+    "DesignConfig",
+    "GenerateConfig",
+    "ImportConfig",
+    "MergeConfig",
+    "PerfConfig",
+    "RankConfig",
+    "RegressConfig",
+    "ReplayConfig",
+    "ReportConfig",
+    "ServeConfig",
+    "SuiteCalibrateConfig",
+    "actions",
+    "calibrate",
+    "calibrate_robot",
+    "check",
+    "correlate",
+    "coverage",
+    "design_excitation",
+    "effects",
+    "generate_case",
+    "import_log",
+    "leaderboard_merge",
+    "leaderboard_show",
+    "leaderboard_validate",
+    "list_plugins",
+    "log_card",
+    "log_info",
+    "perf",
+    "plugin_keys",
+    "rank_log",
+    "regress",
+    "regress_budget",
+    "replay",
+    "report",
+    "serve",
+    "verify_log",
 ]
+
+# name -> the module of bench.api that defines it; imported when the name is first used, so that `import
+# bench.api` (every plugin and command pays it) loads no simulator, pyarrow or matplotlib
+_LAZY: dict[str, str] = {
+    **dict.fromkeys(["ActionsConfig", "actions"], "policy_on_logs"),
+    **dict.fromkeys(["CorrelateConfig", "correlate"], "agreement"),
+    **dict.fromkeys(
+        ["MergeConfig", "ReportConfig", "leaderboard_merge", "leaderboard_show", "leaderboard_validate", "report"],
+        "board",
+    ),
+    **dict.fromkeys(
+        [
+            "CalibrateConfig",
+            "DesignConfig",
+            "GenerateConfig",
+            "SuiteCalibrateConfig",
+            "calibrate",
+            "calibrate_robot",
+            "design_excitation",
+            "effects",
+            "generate_case",
+        ],
+        "calibration",
+    ),
+    **dict.fromkeys(["CheckConfig", "check"], "checks"),
+    **dict.fromkeys(["CoverageConfig", "coverage"], "data_coverage"),
+    **dict.fromkeys(
+        ["CardConfig", "ImportConfig", "RankConfig", "import_log", "log_card", "log_info", "rank_log", "verify_log"],
+        "logs",
+    ),
+    **dict.fromkeys(["PerfConfig", "perf"], "throughput"),
+    **dict.fromkeys(["list_plugins", "plugin_keys"], "plugins"),
+    **dict.fromkeys(["RegressConfig", "regress", "regress_budget"], "gate"),
+    **dict.fromkeys(["ReplayConfig", "replay"], "replays"),
+    **dict.fromkeys(["ServeConfig", "serve"], "serving"),
+}
+
+
+def __getattr__(name: str) -> object:
+    """A command's function or config, from its module (imported now: the first use of one of its names)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'bench.api' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"bench.api.{module}"), name)
+    globals()[name] = value  # the next use is a plain lookup
+    return value
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A suite calibration loaded for a run (`calibration=`, `bench.calibrate.apply.load`): its robot's cells run
+    the model with `edits` written in."""
+
+    path: str  # the calibration.json, absolute
+    sha256: str  # of that file
+    robot: str  # the robot of the suite it was fitted for
+    model_hash: str  # the fingerprint of the model it was fitted on
+    joints: tuple[str, ...]  # the joints the fingerprint covers
+    edits: tuple[ModelEdit, ...]  # model values by name ({field, element, value[, column]})
+    trust: Mapping[str, Any] | None  # the forward check on held-out data (None: never checked)
+    robot_hash: str | None = None  # a portable calibration's robot fingerprint (any suite with that robot)
+
+    @classmethod
+    def of(cls, loaded: Mapping[str, Any]) -> Calibration:
+        """From what `bench.calibrate.apply.load` returns."""
+        return cls(
+            path=str(loaded["path"]),
+            sha256=str(loaded["sha256"]),
+            robot=str(loaded["robot"]),
+            model_hash=str(loaded["model_hash"]),
+            joints=tuple(loaded["joints"]),
+            edits=tuple(loaded["edits"]),
+            trust=loaded.get("trust"),
+            robot_hash=loaded.get("robot_hash"),
+        )
+
+    def loaded(self) -> dict[str, Any]:
+        """The mapping `bench.calibrate.apply`'s checks and descriptions read (what `load` returned)."""
+        out = {
+            "path": self.path,
+            "sha256": self.sha256,
+            "robot": self.robot,
+            "model_hash": self.model_hash,
+            **({"robot_hash": self.robot_hash} if self.robot_hash is not None else {}),
+            "joints": list(self.joints),
+            "edits": list(self.edits),
+            "trust": self.trust,
+        }
+        return out
+
+    def provenance(self) -> dict[str, Any]:
+        """What run.json records of it: where it is (portable), its sha256, robot, model fingerprint and trust."""
+        return {
+            "path": provenance.portable(self.path),
+            "sha256": self.sha256,
+            "robot": self.robot,
+            "model_hash": self.model_hash,
+            "trust": self.trust,
+        }
+
+
+@dataclass(frozen=True)
+class ParsedRun:
+    """`bench run`'s arguments parsed once: the config, and the plugins and typed options the parse resolved
+    (`plan` builds the run from these instead of looking them up and validating them again)."""
+
+    config: RunConfig
+    suite_cls: type[Suite]
+    suite_options: Any  # an instance of the suite's Options
+    policy: str  # the policy's reference: policy=, else the suite's default
+    plugin: PolicyPlugin
+    policy_options: Any  # an instance of the policy plugin's Options
 
 
 @dataclass(frozen=True)
@@ -99,17 +309,18 @@ class Plan:
     """A checked run: everything `run` needs, resolved; nothing has been written yet."""
 
     config: RunConfig  # with run_id, policy and metric resolved
-    suite: Any  # the Suite, built with `suite_options`
+    suite: Suite  # built with `suite_options`
     plugin: PolicyPlugin
     suite_options: Any  # an instance of the suite's Options
     policy_options: Any  # an instance of the policy plugin's Options
     identity: PolicyIdentity
-    calibration: dict[str, Any] | None  # a loaded suite calibration (bench.calibrate.apply.load: edits, trust), or None
+    calibration: Calibration | None  # the loaded suite calibration (calibration=), or None
     cells: list[Cell]
     conditions: list[Condition]
     jobs: list[Job]
     horizon: int
     run_dir: Path
+    workers: int  # executor=local: the worker processes asked for (`workers_for`: workers=, 0 = all cores)
 
     def config_dict(self) -> dict[str, Any]:
         """The flat config stored in run.json and the summary: runner keys, then the suite's and policy's."""
@@ -121,9 +332,11 @@ class Plan:
         for opts in (self.suite_options, self.policy_options):
             if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
                 cfg.update(dataclasses.asdict(opts))
-        return json.loads(json.dumps(cfg))
+        out: dict[str, Any] = json.loads(json.dumps(cfg))
+        return out
 
-    def worker_spec(self, ctx: Any, build_memo: str | None = None) -> WorkerSpec:
+    def worker_spec(self, ctx: RunContext, build_memo: str | None = None) -> WorkerSpec:
+        cal = self.calibration
         return WorkerSpec(
             self.config.suite,
             self.suite_options,
@@ -131,7 +344,7 @@ class Plan:
             self.policy_options,
             self.config.seed,
             ctx,
-            self.calibration,
+            (cal.robot, cal.edits) if cal is not None else None,
             build_memo,
         )
 
@@ -147,7 +360,7 @@ class RunResult:
     resumed: int  # episodes found already recorded
 
 
-def load_suite(ref: str, **options: Any) -> Any:
+def load_suite(ref: str, **options: Any) -> Suite:
     """The suite `ref` (registered name or package.module:Class) built with typed `options`."""
     cls = registry.suite_class(ref)
     return cls(build_options(cls.Options, options, f"suite {ref}"))
@@ -158,6 +371,11 @@ def load_policy(ref: str) -> PolicyPlugin:
     return registry.load_policy(ref)
 
 
+def workers_for(cfg: RunConfig) -> int:
+    """The worker processes a run asks for: `workers=`, or every core with workers=0 (executor=local)."""
+    return cfg.workers or os.cpu_count() or 1
+
+
 def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | None = None) -> Executor:
     """The executor `cfg` asks for: local processes, or actors on a Ray cluster."""
     if cfg.executor == "ray":
@@ -165,7 +383,69 @@ def make_executor(cfg: RunConfig, workers: int, note: Callable[[str], None] | No
     return LocalExecutor(workers)
 
 
-def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, Executor]:
+def _route(argv: Sequence[str]) -> tuple[RunConfig, type[Suite], str, PolicyPlugin, list[list[str]]]:
+    """`bench run`'s arguments routed: the runner's keys built into a RunConfig, the suite class and the policy
+    plugin they name, and the `key=value` overrides of [runner, suite, policy]."""
+    positional, overrides = config_mod.split_args(argv)
+    if positional:
+        raise ConfigError(f"unexpected argument {positional[0]!r}; bench run takes key=value only (bench run --help)")
+    head = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) in ("suite", "policy")])
+    suite_cls = registry.suite_class(head.suite)
+    ref = policy_ref(suite_cls, head.policy)
+    plugin = registry.load_policy(ref)
+    owners = {
+        "runner": RUNNER_KEYS,
+        f"suite {head.suite}": option_keys(suite_cls.Options),
+        f"policy {ref}": option_keys(plugin.Options),
+    }
+    parts = list(config_mod.partition(overrides, owners, f"suite={head.suite} policy={ref}").values())
+    return config_mod.build(RunConfig, parts[0]), suite_cls, ref, plugin, parts
+
+
+def parse_run(argv: Sequence[str]) -> ParsedRun:
+    """`key=value` arguments of `bench run` parsed once: each key routed to the runner, the suite or the policy,
+    each owner's keys typed, the plugins looked up once; `plan` takes the result as it is (`bench run` does).
+
+    A key that none of them declares is refused with every owner's keys listed (e.g.
+    `checkpoint=` without a policy that takes one, or `env_id=` for a suite other than gym).
+    """
+    cfg, suite_cls, ref, plugin, (_, suite_keys, policy_keys) = _route(argv)
+    suite_options: Any = config_mod.build(suite_cls.Options, suite_keys)  # an instance of the suite's Options
+    policy_options: Any = config_mod.build(plugin.Options, policy_keys)
+    cfg = dataclasses.replace(
+        cfg,
+        suite_options=dataclasses.asdict(suite_options) if suite_keys else {},
+        policy_options=dataclasses.asdict(policy_options) if policy_keys else {},
+    )
+    return ParsedRun(cfg, suite_cls, suite_options, ref, plugin, policy_options)
+
+
+def config_from_argv(argv: Sequence[str]) -> RunConfig:
+    """`key=value` arguments of `bench run` -> a RunConfig (the suite's and policy's keys given as dicts, checked
+    against their Options); `parse_run` also keeps the plugins and typed options for `plan`."""
+    cfg, suite_cls, _, plugin, (_, suite_keys, policy_keys) = _route(argv)
+    suite_opts: dict[str, Any] = (
+        dataclasses.asdict(config_mod.build(suite_cls.Options, suite_keys)) if suite_keys else {}
+    )
+    policy_opts: dict[str, Any] = (
+        dataclasses.asdict(config_mod.build(plugin.Options, policy_keys)) if policy_keys else {}
+    )
+    return dataclasses.replace(cfg, suite_options=suite_opts, policy_options=policy_opts)
+
+
+def _resolve(cfg: RunConfig) -> tuple[Suite, ParsedRun]:
+    """A config built in Python: its plugins looked up and its suite's and policy's keys typed (what `parse_run`
+    does for `key=value` arguments), and the suite built."""
+    suite_cls = registry.suite_class(cfg.suite)
+    suite_options = build_options(suite_cls.Options, cfg.suite_options, f"suite {cfg.suite}")
+    suite = suite_cls(suite_options)
+    ref = policy_ref(suite, cfg.policy)
+    plugin = registry.load_policy(ref)
+    policy_options = build_options(plugin.Options, cfg.policy_options, f"policy {ref}")
+    return suite, ParsedRun(cfg, suite_cls, suite_options, ref, plugin, policy_options)
+
+
+def plan_with_workers(cfg: RunConfig | ParsedRun, own_process: bool = False) -> tuple[Plan, Executor]:
     """`plan(cfg)` and the executor `run` should use, its local worker processes already starting.
 
     The children start as soon as the job count is known and import what the suite and policy `preload`
@@ -174,39 +454,46 @@ def plan_with_workers(cfg: RunConfig, own_process: bool = False) -> tuple[Plan, 
     (its children are killed; they wrote nothing); otherwise pass both to `run`, which closes it.
     `own_process`: this process exists for the run (the `bench run` command; see `LocalExecutor`).
     """
-    workers = cfg.workers or os.cpu_count() or 1
-    if cfg.executor != "local":  # a cluster's workers are reached in `run`
-        p = plan(cfg)
-        return p, make_executor(cfg, workers)
+    config = cfg.config if isinstance(cfg, ParsedRun) else cfg
+    workers = workers_for(config)
+    if config.executor != "local":  # a cluster's workers are reached in `run`
+        p = plan(cfg, workers=workers)
+        return p, make_executor(config, workers)
     executor = LocalExecutor(workers, own_process)
     try:
-        p = plan(cfg, on_jobs=functools.partial(executor.prestart, cfg.suite, cfg.policy))
+        p = plan(cfg, on_jobs=functools.partial(executor.prestart, config.suite, config.policy), workers=workers)
     except BaseException:
         executor.close()
         raise
     return p, executor
 
 
-def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
+def plan(
+    cfg: RunConfig | ParsedRun, on_jobs: Callable[[int], None] | None = None, *, workers: int | None = None
+) -> Plan:
     """Check everything a run needs (keys, plugins, cells, observation keys, perturbations, splits); write nothing.
 
-    `on_jobs` is called with the number of jobs as soon as it is known, before the policy's preflight (which
-    may import torch, ~1 s): `bench run` starts its worker processes there (`LocalExecutor.prestart`).
+    `cfg`: a RunConfig (its plugins are looked up and its options typed here), or `parse_run`'s result (used as
+    parsed). `on_jobs` is called with the number of jobs as soon as it is known, before the policy's preflight
+    (which may import torch, ~1 s): `bench run` starts its worker processes there (`LocalExecutor.prestart`).
+    `workers`: what `workers_for(config)` gave, when the caller already has it.
     """
-    check_runner(cfg)
-    suite_cls = registry.suite_class(cfg.suite)
-    suite_options = build_options(suite_cls.Options, cfg.suite_options, f"suite {cfg.suite}")
-    suite = suite_cls(suite_options)
-    policy_name = policy_ref(suite, cfg.policy)
-    plugin = registry.load_policy(policy_name)
-    policy_options = build_options(plugin.Options, cfg.policy_options, f"policy {policy_name}")
-    horizon = cfg.horizon or suite.default_horizon
+    config = cfg.config if isinstance(cfg, ParsedRun) else cfg
+    check_runner(config)
+    if isinstance(cfg, ParsedRun):
+        parsed = cfg
+        suite = cfg.suite_cls(cfg.suite_options)
+    else:
+        suite, parsed = _resolve(cfg)
+    plugin, policy_name, policy_options = parsed.plugin, parsed.policy, parsed.policy_options
+    workers = workers_for(config) if workers is None else workers
+    horizon = config.horizon or suite.default_horizon
     if suite.max_horizon is not None and horizon > suite.max_horizon:
         raise ConfigError(
             f"horizon={horizon}: suite {suite.name!r} episodes last at most {suite.max_horizon} steps "
             f"(0 = the suite default, {suite.default_horizon})"
         )
-    cells = select_cells(suite, cfg)
+    cells = select_cells(suite, config)
     if not cells:
         raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to run")
     needs = tuple(plugin.obs_keys(policy_options))
@@ -220,42 +507,45 @@ def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
                 f"policy {policy_name!r} needs observation keys {missing}; suite {suite.name!r} cell "
                 f"{cell.key} provides {describe_spec(spec)}"
             )
-    conditions = axes.conditions_from_config(cfg.perturb)
+    conditions = axes.conditions_from_config(config.perturb)
     axes.check_horizon(conditions, horizon)
-    n_jobs = len(cells) * len(conditions) * cfg.episodes
+    n_jobs = len(cells) * len(conditions) * config.episodes
     if on_jobs is not None:
         on_jobs(n_jobs)
     identity = plugin.identity(policy_options)
     plugin.preflight(policy_options, suite, cells, horizon)
     calibration = None
-    if cfg.calibration:
+    if config.calibration:
         from bench.calibrate.apply import load, refuse, verify  # mujoco and pyarrow: only calibration= runs need them
 
-        calibration = load(cfg.calibration, suite.name, suite.version, [c.robot for c in cells])
-        if cfg.strict:  # before its env is built: a model that simulates worse, or unchecked, is refused
-            refuse(calibration)
-        verify(suite, cells, horizon, calibration)
-    check_work(cfg, n_jobs, horizon, step_bytes)
+        loaded = load(config.calibration, suite.name, suite.version, [c.robot for c in cells])
+        if config.strict:  # before its env is built: a model that simulates worse, or unchecked, is refused
+            refuse(loaded)
+        verify(suite, cells, horizon, loaded)
+        calibration = Calibration.of(loaded)
+    check_work(config, n_jobs, horizon, step_bytes)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
         axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_name)
-    if cfg.video:
+    if config.video:
         check_run(suite, cells, horizon)
-    jobs = expand_jobs(cells, conditions, cfg.episodes, cfg.seed, cfg.seed_scheme)
+    jobs = expand_jobs(cells, conditions, config.episodes, config.seed, config.seed_scheme)
     problems = fast_check(suite, cells, jobs)
-    if problems and not cfg.allow_split_violation:
+    if problems and not config.allow_split_violation:
         raise SplitError(
-            f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={cfg.suite}` "
+            f"{problems[0].message} ({len(problems)} split problem(s); `bench check suite={config.suite}` "
             "lists them; allow_split_violation=true runs anyway)"
         )
-    run_id = cfg.run_id or f"{suite.name}-{policy_name.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    resolved = dataclasses.replace(cfg, run_id=run_id, policy=policy_name, metric=cfg.metric or suite.default_metric)
-    run_dir = check_outputs(cfg, run_id, identity.checkpoint)
+    run_id = config.run_id or f"{suite.name}-{policy_name.replace(':', '.')}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    resolved = dataclasses.replace(
+        config, run_id=run_id, policy=policy_name, metric=config.metric or suite.default_metric
+    )
+    run_dir = check_outputs(config, run_id, identity.checkpoint)
     return Plan(
         resolved,
         suite,
         plugin,
-        suite_options,
+        parsed.suite_options,
         policy_options,
         identity,
         calibration,
@@ -264,6 +554,7 @@ def plan(cfg: RunConfig, on_jobs: Callable[[int], None] | None = None) -> Plan:
         jobs,
         horizon,
         run_dir,
+        workers,
     )
 
 
@@ -283,11 +574,12 @@ def calibration_notes(p: Plan) -> list[str]:
         return []
     from bench.calibrate.apply import describe, warning  # mujoco: only calibration= runs need it
 
-    warned = warning(p.calibration)
-    return [describe(p.calibration), *([f"warning: {warned}"] if warned else [])]
+    loaded = p.calibration.loaded()
+    warned = warning(loaded)
+    return [describe(loaded), *([f"warning: {warned}"] if warned else [])]
 
 
-def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
+def start(p: Plan, workers: int) -> tuple[dict[str, Any], RunContext]:
     """Open (or resume) the run directory: writes run.json; returns (run metadata, RunContext)."""
     cfg = p.config
     packages = provenance.package_versions()
@@ -313,16 +605,7 @@ def start(p: Plan, workers: int) -> tuple[dict[str, Any], Any]:
             "episode_seeds": sorted({j.seed for j in p.jobs}),
             "started_at": _now(),
             "finished_at": None,
-            **(
-                {
-                    "calibration": {
-                        k: provenance.portable(p.calibration[k]) if k == "path" else p.calibration[k]
-                        for k in ("path", "sha256", "robot", "model_hash", "trust")
-                    }
-                }
-                if p.calibration
-                else {}
-            ),
+            **({"calibration": p.calibration.provenance()} if p.calibration else {}),
         },
     ).to_json()
     meta_path = p.run_dir / "run.json"
@@ -398,7 +681,7 @@ def run(
     episodes_path = p.run_dir / EPISODES
     done_ids = {r.job_id for r in read_records(episodes_path)}
     todo = [j for j in p.jobs if j.job_id not in done_ids and (only is None or only(j))]
-    workers = min(c.workers or os.cpu_count() or 1, max(1, len(todo)))
+    workers = min(p.workers, max(1, len(todo)))  # no more workers than episodes to run
     executor = executor or make_executor(c, workers)
     caps = capabilities(executor)  # what it declares (bench.protocols.executor), never probed
     try:
@@ -453,7 +736,7 @@ def score(run_dir: str | os.PathLike[str]) -> dict[str, Any]:
     return summary
 
 
-def context(p: Plan, run_id: str | None = None) -> Any:
+def context(p: Plan, run_id: str | None = None) -> RunContext:
     """The RunContext workers of plan `p` share, for runs that write no run directory (benchmarks)."""
     return RunContext(
         run_id=run_id or str(p.config.run_id),
@@ -467,6 +750,6 @@ def context(p: Plan, run_id: str | None = None) -> Any:
     )
 
 
-def worker(p: Plan, ctx: Any = None) -> Worker:
+def worker(p: Plan, ctx: RunContext | None = None) -> Worker:
     """An in-process worker of a plan (benchmarks time episodes with it; nothing is written)."""
     return Worker(p.worker_spec(ctx or context(p)))

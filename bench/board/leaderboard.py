@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 from bench.core.console import table_console
 from bench.core.errors import DataError
@@ -32,7 +31,7 @@ LEADERBOARD_ID = "bench.leaderboard/1"
 SELECTION_KEYS = ("robots", "tasks", "envs", "splits", "perturb", "env_id", "horizon")
 
 
-def _canonical(obj: Any) -> str:
+def _canonical(obj: object) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"))
 
 

@@ -20,15 +20,53 @@ import copy
 import hashlib
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import mujoco
 import numpy as np
 
 from bench.core.errors import ConfigError, DataError
 from bench.protocols import Cell, MujocoHandle, Suite
-from bench.sims.perturb.reset import write_fields
+from bench.sims.perturb.reset import ModelEdit, write_fields
+
+# What `load` returns and the checks below read: {path, sha256, robot, model_hash, [robot_hash], joints, edits
+# (`CalibrationEdit`s), trust (`Trust` or None)}. A plain dict: bench.api's `Calibration` builds it (`loaded()`).
+Loaded = dict[str, Any]
+
+
+class CalibrationEdit(ModelEdit):
+    """One edit of a calibration's `apply` section: a `ModelEdit` and the nominal value it replaces."""
+
+    nominal: float
+
+
+class Forward(TypedDict, total=False):
+    """What a run records of a calibration's forward check (`Trust.forward`); `why` only when it says why."""
+
+    criterion: str | None
+    declared: float | None
+    calibrated: float | None
+    rose: list[str]
+    why: str | None
+
+
+class Heldout(TypedDict):
+    placement: str | None
+    repeat_share: float | None
+    nothing_new: bool | None
+
+
+class Trust(TypedDict):
+    """The facts of a calibration's `trust` section a run records (`trust_of`)."""
+
+    simulates_better: bool | None
+    forward: Forward
+    heldout: Heldout
+    estimate: str | None
+    torque_beats_repeat: bool | None
+
 
 # the MjModel fields whose values fingerprint a robot's nominal model (`model_hash`): fixed, so a
 # calibration written before more fields became editable still matches its model
@@ -106,7 +144,7 @@ def robot_hash(model: mujoco.MjModel, joints: list[str]) -> str:
     """Fingerprint of a robot alone, whatever scene holds it: its joints (kind, axis, range and the
     calibrated fields), the bodies they move with what is fixed to them (names and inertial values)
     and the motors that drive them. Two suites that put the same arm in different scenes share it."""
-    rows: list[Any] = []
+    rows: list[list[object]] = []
     for name in joints:
         j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         if j < 0:
@@ -145,9 +183,9 @@ def robot_hash(model: mujoco.MjModel, joints: list[str]) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any]]:
+def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[CalibrationEdit]:
     """What the calibrated model changes in the editable fields: [{field, element, nominal, value[, column]}]."""
-    out = []
+    out: list[CalibrationEdit] = []
     for field, obj in FIELDS.items():
         full_a, full_b = getattr(nominal, field), getattr(fitted, field)
         for col in range(COLUMNS.get(field, 1)):
@@ -157,19 +195,15 @@ def edits(nominal: mujoco.MjModel, fitted: mujoco.MjModel) -> list[dict[str, Any
                 changed = np.any(~np.isclose(full_a, full_b, rtol=1e-12, atol=0.0), axis=1)
             for row in np.flatnonzero(changed):
                 idx = int(nominal.dof_jntid[row]) if field.startswith("dof_") else int(row)
-                out.append(
-                    {
-                        "field": field,
-                        "element": mujoco.mj_id2name(nominal, obj, idx),
-                        **({"column": col} if field in COLUMNS else {}),
-                        "nominal": float(a[row]),
-                        "value": float(b[row]),
-                    }
-                )
+                element, was, now = mujoco.mj_id2name(nominal, obj, idx), float(a[row]), float(b[row])
+                if field in COLUMNS:
+                    out.append({"field": field, "element": element, "column": col, "nominal": was, "value": now})
+                else:
+                    out.append({"field": field, "element": element, "nominal": was, "value": now})
     return out
 
 
-def read_calibration(path: str | Path) -> tuple[Path, bytes, Any]:
+def read_calibration(path: str | Path) -> tuple[Path, bytes, object]:
     """A `bench calibrate` output folder or its calibration.json -> (file, its bytes, the parsed JSON)."""
     p = Path(path).expanduser()
     if p.is_dir():
@@ -185,7 +219,7 @@ def read_calibration(path: str | Path) -> tuple[Path, bytes, Any]:
         raise DataError(f"calibration={str(p)!r} is not JSON: {exc}") from None
 
 
-def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) -> dict[str, Any]:
+def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) -> Loaded:
     """A calibration to carry into a run of `suite` whose selected cells have `robots`; refused otherwise."""
     p, raw, doc = read_calibration(path)
     section = doc.get("apply") if isinstance(doc, dict) else None
@@ -218,16 +252,16 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
     }
 
 
-def _number(v: Any) -> float | None:
+def _number(v: object) -> float | None:
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
 
 
-def _text(v: Any) -> str | None:
+def _text(v: object) -> str | None:
     """A string of the file on one line (a message quoting it stays one line), or None."""
     return " ".join(v.split()) if isinstance(v, str) else None
 
 
-def trust_of(doc: dict[str, Any], p: Path) -> dict[str, Any] | None:
+def trust_of(doc: Mapping[str, object], p: Path) -> Trust | None:
     """The facts of a calibration's `trust` section a run records (None: a file written before it existed).
 
     {simulates_better: true|false|null (null: no forward check), forward: {criterion, declared, calibrated,
@@ -238,11 +272,11 @@ def trust_of(doc: dict[str, Any], p: Path) -> dict[str, Any] | None:
         return None
     if not isinstance(t, dict):
         raise DataError(f"calibration={str(p)!r}: 'trust' is not an object (as `bench calibrate` writes it)")
-    fw: dict[str, Any] = t["forward"] if isinstance(t.get("forward"), dict) else {}
-    held: dict[str, Any] = t["heldout"] if isinstance(t.get("heldout"), dict) else {}
+    fw: Mapping[str, object] = t["forward"] if isinstance(t.get("forward"), dict) else {}
+    held: Mapping[str, object] = t["heldout"] if isinstance(t.get("heldout"), dict) else {}
     better = t.get("simulates_better", fw.get("simulates_better"))
     rose = fw.get("rose")
-    forward = {
+    forward: Forward = {
         "criterion": _text(fw.get("criterion")),
         "declared": _number(fw.get("declared")),
         "calibrated": _number(fw.get("calibrated")),
@@ -250,20 +284,21 @@ def trust_of(doc: dict[str, Any], p: Path) -> dict[str, Any] | None:
     }
     if _text(fw.get("why")):
         forward["why"] = _text(fw["why"])
+    nothing_new = held.get("nothing_new")
     return {
         "simulates_better": better if isinstance(better, bool) else None,
         "forward": forward,
         "heldout": {
             "placement": _text(held.get("placement")),
             "repeat_share": _number(held.get("repeat_share")),
-            "nothing_new": held.get("nothing_new") if isinstance(held.get("nothing_new"), bool) else None,
+            "nothing_new": nothing_new if isinstance(nothing_new, bool) else None,
         },
         "estimate": _text(t.get("estimate")),
         "torque_beats_repeat": t.get("torque_beats_repeat") if isinstance(t.get("torque_beats_repeat"), bool) else None,
     }
 
 
-def _detail(fw: dict[str, Any], worse: bool) -> str:
+def _detail(fw: Forward, worse: bool) -> str:
     """' (closed-loop free run 0.06 -> 0.0076)', or for a worse model what rose (at most two horizons named)."""
     rose = fw["rose"] if worse else []
     loop = "closed-loop " if "closed-loop" in (fw.get("criterion") or "") else ""  # an arm's check closes a loop
@@ -278,7 +313,7 @@ WORSE = "simulates the held-out data worse than the declared model"
 BETTER = "simulates the held-out data better than the declared model"
 
 
-def verdict(cal: dict[str, Any]) -> str:
+def verdict(cal: Loaded) -> str:
     """The trust verdict in a few words: `simulates ... better (...)`, `... worse (...)` or `unchecked (...)`."""
     t = cal.get("trust")
     if t is None:
@@ -290,7 +325,7 @@ def verdict(cal: dict[str, Any]) -> str:
     return (WORSE if worse else BETTER) + _detail(fw, worse)
 
 
-def describe(cal: dict[str, Any]) -> str:
+def describe(cal: Loaded) -> str:
     """One line a run prints before its episodes: robot, file, edits, trust verdict, repeat share."""
     t = cal.get("trust")
     share = None if t is None else t["heldout"]["repeat_share"]
@@ -302,7 +337,7 @@ def describe(cal: dict[str, Any]) -> str:
     )
 
 
-def _untrusted(cal: dict[str, Any]) -> str | None:
+def _untrusted(cal: Loaded) -> str | None:
     """What is wrong with a calibration's trust, naming the file (None: it simulates better)."""
     t = cal.get("trust")
     if t is not None and t["simulates_better"]:
@@ -313,14 +348,14 @@ def _untrusted(cal: dict[str, Any]) -> str | None:
     return f"{head} was never checked against held-out data {verdict(cal).removeprefix('unchecked ')}"
 
 
-def warning(cal: dict[str, Any]) -> str | None:
+def warning(cal: Loaded) -> str | None:
     """The warning line (without 'warning: ') for a calibration whose model simulates worse or was never
     checked; None when its forward check found it simulates better."""
     bad = _untrusted(cal)
     return None if bad is None else f"{bad}; strict=true refuses it"
 
 
-def refuse(cal: dict[str, Any]) -> None:
+def refuse(cal: Loaded) -> None:
     """`strict=true`: refuse a calibration whose model simulates worse or was never checked (one line)."""
     bad = _untrusted(cal)
     if bad is not None:
@@ -330,7 +365,7 @@ def refuse(cal: dict[str, Any]) -> None:
         )
 
 
-def check(mj: Any, cal: dict[str, Any]) -> None:
+def check(mj: MujocoHandle | None, cal: Loaded) -> None:
     """Refuse a calibration fitted on another model of its robot (one line naming both fingerprints)."""
     if mj is None:
         raise ConfigError(
@@ -359,7 +394,7 @@ def check(mj: Any, cal: dict[str, Any]) -> None:
         )
 
 
-def verify(suite: Suite, cells: list[Cell], horizon: int, cal: dict[str, Any]) -> None:
+def verify(suite: Suite, cells: list[Cell], horizon: int, cal: Loaded) -> None:
     """Build the env of the calibration's robot once and check the calibration fits its model (before a run
     writes anything)."""
     cell = next(c for c in cells if c.robot == cal["robot"])
@@ -370,13 +405,14 @@ def verify(suite: Suite, cells: list[Cell], horizon: int, cal: dict[str, Any]) -
         env.close()
 
 
-def apply(mj: Any, cal: dict[str, Any]) -> None:
+def apply(mj: MujocoHandle | None, cal: Loaded) -> None:
     """Check a loaded calibration against an env's MuJoCo model and write its edits into it."""
     check(mj, cal)
+    assert mj is not None  # refused by check
     write_fields(mj, cal["edits"])
 
 
-def edited_model(nominal: mujoco.MjModel, model_edits: list[dict[str, Any]]) -> mujoco.MjModel:
+def edited_model(nominal: mujoco.MjModel, model_edits: Sequence[ModelEdit]) -> mujoco.MjModel:
     """A copy of `nominal` with `model_edits` written in by the runner's own `write_fields`: the model a run with
     this calibration simulates (what the calibration's forward check steps)."""
     model = copy.copy(nominal)

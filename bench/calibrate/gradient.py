@@ -35,16 +35,21 @@ and suggesting method=least_squares.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.calibrate.fit import FitResult, Objective, fd_jacobian, fit, optimum
-from bench.calibrate.model import Layout
+from bench.calibrate.model import Layout, Plant
 from bench.core.errors import DataError
 from bench.replay.simulate import Variant, hold
 from bench.sims import mjx as mjx_backend
+from bench.sims.mjx import Params
+
+if TYPE_CHECKING:
+    import mujoco
 
 METHODS = ("least_squares", "gradient")
 DIFF_STEP = 1e-6  # finite-difference step of `realise` (normalised units; its edits are affine or smooth)
@@ -94,17 +99,17 @@ class Stats:
     compile_s: float = 0.0
     window_steps: int = 0  # physics steps simulated for losses and gradients (windows x steps)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {k: getattr(self, k) for k in ("fits", "fallbacks", "evaluations", "wall_s", "compile_s")} | {
             "window_steps": self.window_steps
         }
 
 
-def _float_fields(model: Any, names: tuple[str, ...]) -> list[str]:
+def _float_fields(model: mujoco.MjModel, names: tuple[str, ...]) -> list[str]:
     return [n for n in names if isinstance(getattr(model, n, None), np.ndarray)]
 
 
-def _declared_fields(plant: Any) -> set[str]:
+def _declared_fields(plant: Plant) -> set[str]:
     """Model fields the declared slots change (their own, and constants derived from them), found by
     realising a changed value of each slot."""
     x0 = plant.declared_nominal()
@@ -130,7 +135,7 @@ def _declared_fields(plant: Any) -> set[str]:
 class GradientFitter:
     """`fit`'s signature, by gradient through MJX; one per calibration (it keeps compiled rollouts)."""
 
-    def __init__(self, log: Any = None) -> None:
+    def __init__(self, log: Callable[[str], None] | None = None) -> None:
         self.stats = Stats()
         self.log = log or (lambda msg: None)
         self._rollouts: dict[tuple[int, bool], mjx_backend.Rollouts] = {}
@@ -165,8 +170,8 @@ class GradientFitter:
                 f"{', '.join(ops) or 'an effect'} transforms the command (delay, dead band, saturation)"
             )
 
-    def _theta(self, v: Variant, fields: list[str], with_inputs: bool) -> dict[str, Any]:
-        p: dict[str, Any] = {
+    def _theta(self, v: Variant, fields: list[str], with_inputs: bool) -> Params:
+        p: Params = {
             "model": {f: np.array(getattr(v.model, f), dtype=float) for f in fields},
             "qfrc": np.array(v.qfrc_const, dtype=float),
         }
@@ -176,29 +181,30 @@ class GradientFitter:
         return p
 
     @staticmethod
-    def _unflat(rows: np.ndarray, like: dict[str, Any]) -> dict[str, Any]:
+    def _unflat(rows: np.ndarray, like: Params) -> Params:
         """Rows of flat vectors (K, size) as `like`'s structure with a leading axis of K (tangents)."""
         k, i = len(rows), 0
-        out: dict[str, Any] = {"model": {}}
-        for f in sorted(like["model"]):
-            a = like["model"][f]
-            out["model"][f] = rows[:, i : i + a.size].reshape((k, *a.shape))
+
+        def take(a: np.ndarray) -> np.ndarray:
+            nonlocal i
+            out = rows[:, i : i + a.size].reshape((k, *a.shape))
             i += a.size
-        for name in ("qfrc", "input_gain"):
-            if name in like:
-                a = like[name]
-                out[name] = rows[:, i : i + a.size].reshape((k, *a.shape))
-                i += a.size
+            return out
+
+        model = {f: take(like["model"][f]) for f in sorted(like["model"])}
+        out: Params = {"model": model, "qfrc": take(like["qfrc"])}
+        if "input_gain" in like:
+            out["input_gain"] = take(like["input_gain"])
         return out
 
     @staticmethod
-    def _flat(p: dict[str, Any]) -> np.ndarray:
+    def _flat(p: Params) -> np.ndarray:
         parts = [p["model"][f].ravel() for f in sorted(p["model"])] + [p["qfrc"].ravel()]
         if "input_gain" in p:
             parts.append(p["input_gain"].ravel())
         return np.concatenate(parts)
 
-    def _realise(self, layout: Layout, x: np.ndarray, fields: list[str], base: Variant, inputs: bool):
+    def _realise(self, layout: Layout, x: np.ndarray, fields: list[str], base: Variant, inputs: bool) -> Params:
         v = layout.realise(x)
         self._check(layout, v, base)
         return self._theta(v, fields, inputs)

@@ -6,7 +6,8 @@ The per-joint errors themselves (one-step, k-step, free run) are replay's (`benc
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import TypedDict
 
 import numpy as np
 
@@ -54,7 +55,34 @@ def heldout_errors(
     return [float(np.sqrt(np.mean(ri**2))) for ri in r]
 
 
-def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dict[str, Any]:
+class Memory(TypedDict, total=False):
+    """One repeat baseline scored on the held-out horizons; `covered_share` for the period one."""
+
+    k_step_nrmse: float
+    k_step_rmse: float
+    what: str
+    covered_share: float
+
+
+class ForwardCheck(TypedDict):
+    criterion: str
+    declared: float | None
+    calibrated: float | None
+    simulates_better: bool
+    rose: list[str]
+
+
+class Trust(TypedDict):
+    """calibration.json's `trust` section of a suite or MJCF calibration (`trust`)."""
+
+    heldout: dict[str, object]
+    repeat_baseline_nrmse: float | None
+    beats_repeat: bool
+    forward: ForwardCheck
+    simulates_better: bool
+
+
+def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dict[str, object]:
     """Memory on the held-out k-step horizons `hold`, scored like the models (`segment_errors`, the same spread).
 
     `nearest`: each horizon continues like the fitted horizon whose start state ([qpos, qvel] over their
@@ -70,11 +98,14 @@ def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dic
         return {"k_step_nrmse": None, "best": None, "what": f"no fitted stretch of {length} frames to remember"}
     spread = np.maximum(rec.qpos[rec.frames(rec.holdout)].std(axis=0), 1e-12)
     near = novelty.nearest_motion(rec.qpos, feats, hold.start, fit_starts, length + 1, scale)[:, 1:]
-    out: dict[str, Any] = {"k": length}
+    out: dict[str, Memory] = {}
 
-    def score(pred: np.ndarray, what: str, **more: Any) -> dict[str, Any]:
+    def score(pred: np.ndarray, what: str, covered_share: float | None = None) -> Memory:
         e = segment_errors(pred, rec, hold, spread)
-        return {"k_step_nrmse": float(e.nrmse.mean()), "k_step_rmse": float(e.rmse.mean()), "what": what, **more}
+        m: Memory = {"k_step_nrmse": float(e.nrmse.mean()), "k_step_rmse": float(e.rmse.mean()), "what": what}
+        if covered_share is not None:
+            m["covered_share"] = covered_share
+        return m
 
     out["nearest"] = score(near, "positions continue like the fitted horizon of the nearest logged state")
     if period:
@@ -92,6 +123,7 @@ def repeat_baseline(rec: Recording, hold: Segments, period: float | None) -> dic
         "k_step_rmse": out[best]["k_step_rmse"],
         "best": best,
         "what": "the repeat baseline (memory of the fitted log): " + out[best]["what"],
+        "k": length,
         **out,
     }
 
@@ -120,7 +152,7 @@ def _period_motion(rec: Recording, hold: Segments, period: float) -> tuple[np.nd
     return pred, covered
 
 
-def trust(heldout: novelty.Heldout, errors: dict[str, dict]) -> dict[str, Any]:
+def trust(heldout: novelty.Heldout, errors: dict[str, dict]) -> Trust:
     """calibration.json's `trust` section (shaped like the arm calibration's): how new the held-out data are,
     whether the final model beats memory (the repeat baseline) and simulates them at least as well as the model
     as given on every horizon (`bench run ... calibration=` reads `simulates_better` and `heldout.repeat_share`)."""
@@ -131,7 +163,7 @@ def trust(heldout: novelty.Heldout, errors: dict[str, dict]) -> dict[str, Any]:
         if b is None or (a is not None and b > a * 1.001):
             rose.append(f"{name}: {a if a is None else round(a, 5)} -> {b if b is None else round(b, 5)}")
     base, k1 = repeat.get("k_step_nrmse"), final.get("k_step_nrmse")
-    forward = {
+    forward: ForwardCheck = {
         "criterion": "held-out free-run and k-step position NRMSE",
         "declared": nominal.get("free_run_nrmse"),
         "calibrated": final.get("free_run_nrmse"),
@@ -147,7 +179,7 @@ def trust(heldout: novelty.Heldout, errors: dict[str, dict]) -> dict[str, Any]:
     }
 
 
-def against_memory(errors: dict[str, dict], verdict: dict[str, Any]) -> str:
+def against_memory(errors: dict[str, dict], verdict: Mapping[str, object]) -> str:
     """'k-step 0.0042 against 0.42 for the repeat baseline (beats it)': the final model beside memory, for the log."""
     fmt = lambda v: "n/a" if v is None else f"{v:.4g}"  # noqa: E731
     rep = errors.get("repeat", {}).get("k_step_nrmse")
@@ -155,7 +187,7 @@ def against_memory(errors: dict[str, dict], verdict: dict[str, Any]) -> str:
     return f"k-step {fmt(errors['final'].get('k_step_nrmse'))} against {fmt(rep)} for the repeat baseline ({beats})"
 
 
-def trust_warnings(heldout: novelty.Heldout, errors: dict[str, dict], verdict: dict[str, Any]) -> list[str]:
+def trust_warnings(heldout: novelty.Heldout, errors: dict[str, dict], verdict: Trust) -> list[str]:
     """What the `trust` section says that a user must not miss: nothing new held out, memory as good as the
     model, a model that simulates worse than the one given."""
     out = [heldout.sentence()] if heldout.nothing_new else []

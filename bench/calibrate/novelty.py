@@ -24,7 +24,7 @@ period earlier beats any model. So every calibration
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -188,6 +188,14 @@ def nearest_motion(
     return q[hold_starts][:, None, :] + q[src[:, None] + steps] - q[src][:, None, :]
 
 
+class HeldWindow(TypedDict):
+    """One held-out stretch of an episode, in seconds of its clock."""
+
+    episode: int
+    start_s: float
+    stop_s: float
+
+
 @dataclass
 class Heldout:
     """Where the held-out data came from and how new they are (calibration.json's `heldout` section)."""
@@ -199,7 +207,7 @@ class Heldout:
     periodicity: float | None = None  # autocorrelation at that period
     period_source: str = "detected"  # detected | declared (spec field 'period')
     guard_s: float = 0.0  # seconds around the held-out data that no fitted sample uses
-    windows: list[dict[str, Any]] = field(default_factory=list)  # [{episode, start_s, stop_s}]
+    windows: list[HeldWindow] = field(default_factory=list)
     end_share: float | None = None  # the repeat share a plain time split (the last share of time) would have had
 
     @property
@@ -229,7 +237,7 @@ class Heldout:
             head += "; THE LOG HOLDS NOTHING NEW: held-out errors measure memory, not generalisation"
         return head
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {
             "placement": self.placement,
             "repeat_share": self.repeat_share,

@@ -14,7 +14,7 @@ still parts from the robot, which is what to replay, inspect or collect more of 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -30,6 +30,15 @@ from bench.replay.simulate import free_runs, horizons, logged
 from bench.replay.spec import load_model
 
 HORIZONS = ("free_run", "k_step")
+
+
+class Surprise(TypedDict):
+    """One episode under the calibrated model: its position NRMSE over the logged spread, mean and per joint."""
+
+    episode: int  # dataset index
+    frames: int
+    surprise: float
+    per_joint: dict[str, float]
 
 
 def _plant(doc: dict, logs: Path) -> tuple[Plant, list[int]]:
@@ -72,7 +81,7 @@ def _layout(plant: Plant, labels: list[str]) -> Layout:
     return layout
 
 
-def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -> dict[str, Any]:
+def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -> dict[str, object]:
     """Every episode of `logs` with its surprise under the calibrated model, most surprising first."""
     if horizon not in HORIZONS:
         raise DataError(f"horizon={horizon!r}; valid: {', '.join(HORIZONS)}")
@@ -100,7 +109,7 @@ def rank(calibration: str | Path, logs: str | Path, horizon: str = "free_run") -
     err = np.where(mask[..., None], pred[..., :nq] - logged(rec, segs)[..., :nq], 0.0)  # (n, length, nq)
     spread = np.maximum(rec.qpos.std(axis=0), 1e-12)
     episode = np.searchsorted(rec.offsets, segs.start, side="right") - 1
-    rows: list[dict[str, Any]] = []
+    rows: list[Surprise] = []
     for e in range(rec.n_episodes):
         sel = episode == e
         rmse = np.sqrt(np.sum(err[sel] ** 2, axis=(0, 1)) / max(int(mask[sel].sum()), 1))

@@ -20,7 +20,7 @@ SCHEMA = "bench.calibration/1"
 ERROR_KEYS = ("one_step_nrmse", "k_step_nrmse", "free_run_nrmse", "free_run_rmse", "r2")
 
 
-def clean(value: Any) -> Any:
+def clean(value: object) -> Any:
     """JSON-safe copy (NaN / inf to None): `bench.core.io.json_safe`, the one owner of that rule."""
     return json_safe(value)
 
@@ -186,7 +186,7 @@ def plots(cal: Calibration, out: Path) -> dict[str, str]:
     return files
 
 
-def _fmt(v: Any) -> str:
+def _fmt(v: object) -> str:
     if v is None:
         return "–"
     if isinstance(v, float):

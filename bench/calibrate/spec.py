@@ -115,7 +115,7 @@ class CalibrationSpec(SignalMap):
     holdout_at: str = "least_repeated"  # where the share sits: least_repeated | end | episodes
     period: float | None = None  # seconds: the excitation's period, when known (else detected)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         """JSON-able form, for embedding the exact spec in a result file."""
         head = super().to_json()
         source = head.pop("source")
@@ -168,7 +168,7 @@ def load_spec(path: str | Path) -> CalibrationSpec:
     return parse_spec(raw, base_dir=path.parent, source=path)
 
 
-def _bounds(value: Any, where: str) -> tuple[float, float]:
+def _bounds(value: object, where: str) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise SpecError(f"spec field {where!r} must be [low, high]; got {value!r}")
     lo, hi = (number(v, where) for v in value)
@@ -177,7 +177,7 @@ def _bounds(value: Any, where: str) -> tuple[float, float]:
     return lo, hi
 
 
-def _names(value: Any, where: str) -> tuple[str, ...]:
+def _names(value: object, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [value]
     if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, str) for v in value):
@@ -185,7 +185,7 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
+def _effects(raw: object) -> tuple[EffectRequest, ...] | None:
     if raw is None or raw == "all":
         return None
     if raw == "none":
@@ -227,7 +227,7 @@ def _effects(raw: Any) -> tuple[EffectRequest, ...] | None:
     return tuple(out)
 
 
-def parse_holdout(raw: Any) -> tuple[float, tuple[float, float] | None]:
+def parse_holdout(raw: object) -> tuple[float, tuple[float, float] | None]:
     """The `holdout` of a spec: a share of the log, or a window [t0, t1] in seconds (share 0 then)."""
     if isinstance(raw, (list, tuple)):
         if len(raw) != 2:
@@ -241,10 +241,10 @@ def parse_holdout(raw: Any) -> tuple[float, tuple[float, float] | None]:
     return number(raw, "holdout", lo=0.05, hi=0.9), None
 
 
-def parse_trace(raw: Any) -> TraceSpec:
+def parse_trace(raw: object) -> TraceSpec:
     """The `trace` mapping of a spec (the loop's knobs; defaults for what it leaves out)."""
     trace_raw = check_keys(raw or {}, TRACE_KEYS, "trace")
-    trace_kw: dict[str, Any] = {}
+    trace_kw: dict[str, Any] = {}  # TraceSpec keywords of several types
     for key, value in trace_raw.items():
         if key == "criterion":
             if value not in ("bic", "aic"):
@@ -257,7 +257,7 @@ def parse_trace(raw: Any) -> TraceSpec:
     return TraceSpec(**trace_kw)
 
 
-def parse_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> CalibrationSpec:
+def parse_spec(raw: object, base_dir: str | Path = ".", source: Path | None = None) -> CalibrationSpec:
     """Validate a spec mapping (as loaded from YAML/JSON) and return a `CalibrationSpec`."""
     raw = check_keys(raw, SPEC_KEYS, "")
     base = map_fields(raw, base_dir)

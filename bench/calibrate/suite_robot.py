@@ -23,7 +23,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import mujoco
 import numpy as np
@@ -34,7 +34,7 @@ from bench.calibrate.model import Plant, Scene
 from bench.calibrate.spec import CalibrationSpec, EffectRequest, ParamSpec, TraceSpec
 from bench.calibrate.trace import Calibration, calibrate
 from bench.core.errors import ConfigError, DataError, did_you_mean
-from bench.logs import read_dataset
+from bench.logs import Episode, LogDataset, read_dataset
 from bench.protocols import registry
 from bench.replay.common import CTRL, ReplayConfig
 from bench.replay.data import Recording, Window
@@ -48,6 +48,26 @@ HOLDOUT, HORIZON = 0.3, 0.25  # share of episodes held out; seconds per truncate
 MAX_EFFECTS = 6  # a robot has several joints: room for an effect on each of a few
 
 
+class SuiteLogs(TypedDict):
+    """calibration.json's `suite` section: the suite, its robot and the logs fitted."""
+
+    name: str
+    version: str
+    robot: str
+    logs: str
+    condition: str | None
+    episodes: list[int]  # dataset index of each episode used
+
+
+class PlantInfo(TypedDict):
+    """What identifies a suite's plant (`suite_plant`)."""
+
+    suite: SuiteLogs
+    nominal: mujoco.MjModel  # the robot's model in its nominal scene
+    joints: list[str]  # the motor-driven joints calibrated
+    model_hash: str  # `bench.calibrate.apply.model_hash` of `nominal`
+
+
 def torque_joints(model: mujoco.MjModel) -> list[int]:
     """Joints driven by a motor (joint transmission, no bias term): the robot's arm, not its servo gripper."""
     out = []
@@ -59,7 +79,7 @@ def torque_joints(model: mujoco.MjModel) -> list[int]:
     return sorted(set(out))
 
 
-def _episodes(ds: Any, logs: Path, robot: str, condition: str | None) -> list:
+def _episodes(ds: LogDataset, logs: Path, robot: str, condition: str | None) -> list[Episode]:
     meta = [ep.meta if isinstance(ep.meta, dict) else {} for ep in ds.episodes]
     robots = sorted({str(m.get("robot")) for m in meta})
     eps = [ep for ep, m in zip(ds.episodes, meta) if m.get("robot") == robot]
@@ -86,12 +106,12 @@ def _episodes(ds: Any, logs: Path, robot: str, condition: str | None) -> list:
 
 def suite_plant(
     suite: str, robot: str, logs: str | Path, seed: int = 0, threads: int = 1, condition: str | None = None
-) -> tuple[Plant, dict[str, Any]]:
+) -> tuple[Plant, PlantInfo]:
     """The plant of a suite's robot in its nominal scene, with the logs of that robot; and what identifies it."""
     path = Path(logs).expanduser()
     if not path.exists():
         raise DataError(f"logs folder {str(path)!r} does not exist")
-    cls: Any = registry.suite_class(suite)
+    cls = registry.suite_class(suite)
     ds = read_dataset(path)
     eps = _episodes(ds, path, robot, condition)
     sl = load_suite_logs(ReplayConfig(logs=str(path), suite=suite, threads=threads), ds, eps, need_ctrl=True)
@@ -156,7 +176,7 @@ def suite_plant(
         threads=threads,
         source=path,
     )
-    info = {
+    info: PlantInfo = {
         "suite": {
             "name": cls.name,
             "version": cls.version,
@@ -183,7 +203,7 @@ def calibrate_suite(
     log: Callable[[str], None] = lambda msg: None,
     residual: bool = False,
     condition: str | None = None,
-) -> tuple[Calibration, dict[str, Any]]:
+) -> tuple[Calibration, dict[str, object]]:
     """The loop on a suite's robot; the calibration and the `suite` and `apply` sections of its JSON.
 
     `condition` keeps only the episodes recorded under it (a log that mixes conditions)."""
@@ -194,7 +214,7 @@ def calibrate_suite(
     )
     cal = calibrate(plant, seed=seed, threads=threads, log=log, residual=residual)
     fitted = cal.layout.realise(cal.final_fit.x).model
-    extra = {
+    extra: dict[str, object] = {
         "suite": info["suite"],
         "apply": {
             "robot": robot,

@@ -17,7 +17,7 @@ no candidate passes or `trace.max_effects` are in.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,7 +66,7 @@ class Calibration:
     residual: dict[str, np.ndarray] = field(default_factory=dict)
     learned: dict | None = None  # the learned residual (`bench.calibrate.residual`), apart from the physics
     heldout: Heldout | None = None  # where the held-out data sit and how much of them repeats the fitted
-    trust: dict[str, Any] = field(default_factory=dict)  # calibration.json's `trust` (`metrics.trust`)
+    trust: Mapping[str, object] = field(default_factory=dict)  # calibration.json's `trust` (`metrics.trust`)
 
     @property
     def rec(self) -> Recording:
@@ -490,9 +490,10 @@ def _calibrate(
         "start": hold.start,
     }
     errors["repeat"] = repeat_baseline(rec, hold, heldout.period_s)
-    cal.heldout, cal.trust = heldout, trust(heldout, errors)
+    verdict = trust(heldout, errors)
+    cal.heldout, cal.trust = heldout, verdict
     cal.warnings = sorted(set(declared.warnings) | set(cur.warnings)) + honesty(layout, cur.x, errors)
-    cal.warnings += trust_warnings(heldout, errors, cal.trust)
+    cal.warnings += trust_warnings(heldout, errors, verdict)
     t3 = time.perf_counter()
     cal.wall = {"total": t3 - t0, "declared_fit": t2 - t1, "trace": t3 - t2, "sim_steps": sim.steps}
     return cal

@@ -1,8 +1,10 @@
 """`bench` command line: a thin dispatcher onto one handler per subcommand.
 
-Each subcommand lives in the module that owns its concept and exposes
-`main(argv: list[str]) -> int`; it is imported only when called, so `bench list`
-and `bench --help` stay fast (no simulator is imported).
+Each subcommand's module (`bench/cli/<command>.py`) exposes `main(argv: list[str]) -> int`:
+it parses the arguments into the command's config, calls the command's function in `bench.api`
+(which does the work) and prints what it returns. A module is imported only when its command
+runs, so `bench list` and `bench --help` stay fast (no simulator is imported). bench.cli imports
+only bench.api, bench.cli and bench.core (import-linter's `cli-uses-the-api` contract).
 
 Arguments are Hydra-style `key=value` overrides (nested keys with dots, lists as
 `[a,b]`); a few commands also take positional paths. Bad input raises a

@@ -1,32 +1,12 @@
-"""`bench correlate sim=FILE real=FILE`: its keys, its help, the printed report and the command."""
+"""`bench correlate sim=FILE real=FILE`: its help, the printed report and the command over `bench.api.correlate`."""
 
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Optional
+from typing import Any
 
-from bench.core import outputs
-from bench.core.config import MAX_N_BOOT, MAX_SEED, build_from_argv, command_help, ranged
-from bench.core.errors import ConfigError, DataError
-from bench.core.io import write_atomic
-from bench.scoring.agreement import agreement, load_outcomes
-
-
-@dataclass(frozen=True)
-class CorrelateConfig:
-    """Keys of `bench correlate`."""
-
-    sim: Optional[str] = (
-        None  # outcome table from simulation: JSON rows {policy, trials, successes} or CSV policy,trials,successes
-    )
-    real: Optional[str] = None  # outcome table from the real robot, same format and the same policies
-    seed: int = ranged(0, 0, MAX_SEED)  # seed of the bootstrap generator
-    n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates
-    level: float = ranged(0.95, 0, 1, lo_open=True, hi_open=True)  # interval coverage
-    out: Optional[str] = None  # also write the report as JSON (undefined values are null with a reason)
-    overwrite: bool = False  # replace an existing out= file that bench wrote
+from bench.api.agreement import CorrelateConfig, correlate
+from bench.core.config import build_from_argv, command_help
 
 
 def help_text() -> str:
@@ -42,7 +22,7 @@ def help_text() -> str:
     )
 
 
-def format_report(report: dict) -> str:
+def format_report(report: dict[str, Any]) -> str:
     """Plain aligned text: the per-policy rates, then one line per statistic."""
     lines = []
     width = max(6, *(len(p["policy"]) for p in report["policies"]))
@@ -71,30 +51,8 @@ def main(argv: list[str]) -> int:
         print(help_text(), end="")
         return 0
     cfg: CorrelateConfig = build_from_argv(CorrelateConfig, argv, "bench correlate")
-    for key in ("sim", "real"):
-        if not getattr(cfg, key):
-            raise ConfigError(f"missing key {key!r}: bench correlate sim=FILE real=FILE")
-    sim_path, real_path = str(cfg.sim), str(cfg.real)
-    if cfg.out:
-        outputs.check("out", cfg.out, {"sim": sim_path, "real": real_path}, kind="file", overwrite=cfg.overwrite)
-    tables = {}
-    for key, path in (("sim", sim_path), ("real", real_path)):
-        try:
-            tables[key] = load_outcomes(path)
-        except DataError as exc:
-            raise DataError(f"{key}={path}: {str(exc).removeprefix(str(path) + ': ')}") from None
-    report = agreement(
-        tables["sim"],
-        tables["real"],
-        n_boot=cfg.n_boot,
-        seed=cfg.seed,
-        level=cfg.level,
-        sim_name=sim_path,
-        real_name=real_path,
-    )
-    report = {"schema": "bench.agreement/1", "sim": sim_path, "real": real_path, **report}
+    report = correlate(cfg)
     print(format_report(report))
     if cfg.out:
-        write_atomic(Path(cfg.out), report)
         print(f"wrote {cfg.out}", file=sys.stderr)
     return 0

@@ -1,4 +1,4 @@
-"""`bench coverage`: its keys, the evaluation it compares with, and the tables it prints.
+"""`bench coverage`: its help, its command line over `bench.api.coverage`, and the tables it prints.
 
 The metrics (support, state coverage, parameter-range coverage) and the reading of training
 data and evaluation initial states are `bench.scoring.coverage`'; docs/coverage.md has the
@@ -7,48 +7,13 @@ method, and `python -m baselines.coverage_sweep` measures what coverage buys.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
-import bench.sims.perturb.axes as axes
+from bench.api.data_coverage import SPLIT_AXES, CoverageConfig, coverage, fmt_pct
 from bench.core import config as config_mod
-from bench.core import outputs
-from bench.core.config import MAX_HORIZON, MAX_SEED, command_help, one_or_more, ranged
+from bench.core.config import command_help
 from bench.core.console import table_console
 from bench.core.errors import ConfigError
-from bench.core.io import write_atomic
-from bench.protocols import Suite, registry
-from bench.protocols.suite import SPLIT_AXES, select_cells
-from bench.scoring.coverage import (
-    coverage_report,
-    fmt_pct,
-    initial_states_from_dataset,
-    initial_states_from_suite,
-    read_training,
-)
-
-
-@dataclass(frozen=True)
-class CoverageConfig:
-    """Keys of `bench coverage` (see `bench coverage --help`)."""
-
-    data: Optional[list[str]] = one_or_more()  # training dataset folder(s) (LeRobot v3), e.g. data=demos/seen
-    suite: str = "held_out_robots"  # the suite whose evaluation the data is compared with
-    robots: Optional[list[str]] = None  # evaluated robots (default: every robot of the suite)
-    tasks: Optional[list[str]] = None  # evaluated tasks
-    envs: Optional[list[str]] = None  # evaluated environments/scenes
-    splits: Optional[list[str]] = None  # evaluated splits: seen, unseen
-    seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed: the initial states are its episode seeds'
-    episodes: int = ranged(10, 1, 10_000)  # evaluation episodes per cell (initial states per cell)
-    horizon: int = ranged(0, 0, MAX_HORIZON)  # env horizon when building envs (0 = suite default)
-    eval_data: Optional[str] = None  # recorded evaluation dataset: initial states = first frames (no env built)
-    perturb: dict[str, Any] = field(default_factory=dict)  # evaluated perturbation axes, grammar of bench run
-    quantile: float = ranged(
-        0.95, 0, 1, lo_open=True
-    )  # reference radius quantile (training initial states, leave-one-episode-out)
-    out: Optional[str] = None  # write the JSON report here
-    overwrite: bool = False  # replace an existing out= file that bench wrote
 
 
 def help_text() -> str:
@@ -69,23 +34,6 @@ def help_text() -> str:
     )
 
 
-def _check_common(suite_name: str, quantile: float) -> Any:
-    if not 0 < quantile < 1:
-        raise ConfigError(f"quantile={quantile}: must be in (0, 1)")
-    return registry.make_suite(suite_name)
-
-
-def _eval_cells(suite: Suite, cfg: Any) -> list:
-    for s in cfg.splits or []:
-        if s not in ("seen", "unseen"):
-            raise ConfigError(f"splits: {s!r} is not a split; valid: seen, unseen")
-
-    cells = select_cells(suite, cfg)
-    if not cells:
-        raise ConfigError("the selection (robots/tasks/envs/splits) leaves no cell to evaluate")
-    return cells
-
-
 def main(argv: list[str]) -> int:
     """`bench coverage ...`."""
     if argv and argv[0] == "sweep":
@@ -104,42 +52,14 @@ def main(argv: list[str]) -> int:
             "(the sweep: python -m baselines.coverage_sweep)"
         )
     cfg: CoverageConfig = config_mod.build(CoverageConfig, overrides)
-    if not cfg.data:
-        raise ConfigError("data: give the training dataset folder(s), e.g. data=demos/seen")
-    if cfg.episodes < 1:
-        raise ConfigError(f"episodes={cfg.episodes}: must be >= 1")
-    if cfg.out:
-        outputs.check(
-            "out", cfg.out, {"data": list(cfg.data), "eval_data": cfg.eval_data}, kind="file", overwrite=cfg.overwrite
-        )
-    suite = _check_common(cfg.suite, cfg.quantile)
-    cells = _eval_cells(suite, cfg)
-    conditions = axes.conditions_from_config(cfg.perturb)
-    if cfg.eval_data and not Path(cfg.eval_data).is_dir():
-        raise ConfigError(f"eval_data={cfg.eval_data!r}: not a dataset folder")
-    train = read_training(cfg.data)
-    if cfg.eval_data:
-        states, groups = initial_states_from_dataset(cfg.eval_data, cells)
-        source: dict[str, Any] = {"eval_data": cfg.eval_data}
-    else:
-        states, groups = initial_states_from_suite(suite, cells, cfg.seed, cfg.episodes, cfg.horizon)
-        source = {"seed": cfg.seed, "episodes": cfg.episodes}
-    report = coverage_report(train, cells, suite.manifest, conditions, states, groups, cfg.quantile)
-    doc = {
-        "schema": "bench.coverage/1",
-        "suite": suite.describe(),
-        "data": list(cfg.data),
-        "evaluation": {"cells": [c.key for c in cells], **source, "conditions": [c.name for c in conditions]},
-        **report,
-    }
+    doc = coverage(cfg)
     render(doc)
     if cfg.out:
-        write_atomic(Path(cfg.out), doc)
         print(f"wrote {cfg.out}")
     return 0
 
 
-def render(doc: dict[str, Any], console=None) -> None:
+def render(doc: dict[str, Any], console: Any = None) -> None:
     """Print the support, state-coverage and parameter-coverage tables of a coverage report."""
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 

@@ -1,28 +1,13 @@
-"""`bench leaderboard`: validate result files, merge runs into a leaderboard, show one."""
+"""`bench leaderboard`: validate result files, merge runs into a leaderboard, show one (over `bench.api.board`)."""
 
 from __future__ import annotations
 
 import textwrap
 from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Optional
 
-from bench.board.leaderboard import LEADERBOARD_ID, merge, read_input, render
-from bench.core import config, outputs
-from bench.core.errors import ConfigError, DataError, valid_choices
-from bench.core.io import write_atomic
-from bench.core.schema import load_json, validate
-
-
-@dataclass(frozen=True)
-class MergeConfig:
-    """Keys of `bench leaderboard merge` (the inputs RUN... are positional)."""
-
-    out: Optional[str] = None  # the merged leaderboard, a new .json file (required; never an input)
-    overwrite: bool = False  # replace an existing out file that bench wrote
-    allow_spec_change: bool = False  # rank runs whose suite options or simulator versions differ (refused by default)
-
+from bench.api.board import MergeConfig, leaderboard_merge, leaderboard_show, leaderboard_validate, render_leaderboard
+from bench.core import config
+from bench.core.errors import ConfigError, valid_choices
 
 USAGE = "usage: bench leaderboard validate FILE... | merge RUN... out=FILE | show FILE"
 VALIDATE_USAGE = "usage: bench leaderboard validate FILE..."
@@ -74,17 +59,8 @@ def help_text() -> str:
 def _merge(argv: list[str]) -> int:
     inputs, overrides = config.split_args(argv)
     cfg: MergeConfig = config.build(MergeConfig, overrides)
-    if not cfg.out:
-        raise ConfigError("leaderboard merge: out=FILE is required (e.g. out=results/leaderboard.json)")
-    if not inputs:
-        raise ConfigError("leaderboard merge: give at least one RUN directory, summary.json or leaderboard.json")
-    if not cfg.out.endswith(".json"):
-        raise ConfigError(f"leaderboard merge: out={cfg.out!r} must end in .json")
-    board = merge([read_input(a) for a in inputs], cfg.allow_spec_change)  # every input validated before writing
-    validate(board, "merged leaderboard")
-    outputs.check("out", cfg.out, {"input": inputs}, kind="file", overwrite=cfg.overwrite)
-    write_atomic(Path(cfg.out), board)
-    render(board)
+    board = leaderboard_merge(inputs, cfg)
+    render_leaderboard(board)
     print(f"{len(board['entries'])} entries from {len(inputs)} input(s) -> {cfg.out}")
     return 0
 
@@ -93,21 +69,14 @@ def _validate(files: list[str]) -> int:
     if not files:
         raise ConfigError("leaderboard validate: give at least one FILE")
     for f in files:
-        sid = validate(load_json(Path(f)), str(f))
-        print(f"{f}: valid ({sid})")
+        print(f"{f}: valid ({leaderboard_validate(f)})")
     return 0
 
 
 def _show(files: list[str]) -> int:
     if len(files) != 1:
         raise ConfigError("leaderboard show: give exactly one FILE")
-    board = load_json(Path(files[0]))
-    sid = validate(board, files[0])
-    if sid != LEADERBOARD_ID:
-        raise DataError(
-            f"{files[0]}: schema {sid} is not a leaderboard ({LEADERBOARD_ID}); make one with bench leaderboard merge"
-        )
-    render(board)
+    render_leaderboard(leaderboard_show(files[0]))
     return 0
 
 

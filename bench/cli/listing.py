@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import time
 
+from bench.api import RegistryError
+from bench.api.plugins import list_plugins
 from bench.core.config import command_help
-from bench.core.errors import RegistryError
-from bench.protocols import option_keys
-from bench.protocols.registry import POLICIES, SUITES, group_entry_points, names, suite_class
-from bench.protocols.suite import summary_line
 
 
 def main_list(argv: list[str]) -> int:
@@ -29,34 +27,29 @@ def main_list(argv: list[str]) -> int:
         return 0
 
     t0 = time.perf_counter()
+    found = list_plugins()
     print("suites:")
-    for name in names(SUITES):
-        try:
-            cls = suite_class(name)
-        except RegistryError as exc:
-            print(f"  {name}: unavailable — {exc}")
+    for s in found.suites:
+        if s.error is not None:
+            print(f"  {s.name}: unavailable — {s.error}")
             continue
-        keys = option_keys(cls.Options)
-        unavailable = getattr(cls, "unavailable", None)  # SuiteBase's hook; other suites may lack it
-        why = unavailable() if unavailable is not None else None
-        default = getattr(cls, "default_policy", "") or cls.reference_policy  # what `bench run` runs without policy=
         policies = (
-            f"default policy: {default}"
-            if default == cls.reference_policy
-            else f"default policy: {default}, reference policy: {cls.reference_policy}"
+            f"default policy: {s.default_policy}"
+            if s.default_policy == s.reference_policy
+            else f"default policy: {s.default_policy}, reference policy: {s.reference_policy}"
         )
         print(
-            f"  {name} (v{cls.version}, {policies}) — {summary_line(cls)}"
-            + (f" [keys: {', '.join(keys)}]" if keys else "")
-            + (f"\n      unavailable: {why}" if why else "")
+            f"  {s.name} (v{s.version}, {policies}) — {s.summary}"
+            + (f" [keys: {', '.join(s.keys)}]" if s.keys else "")
+            + (f"\n      unavailable: {s.unavailable}" if s.unavailable else "")
         )
-        for axis, split in cls.manifest.items():
+        for axis, split in s.manifest.items():
             for side in ("seen", "unseen"):
                 vals = split.get(side, [])
                 if vals:
                     print(f"      {axis:<7} {side:<6} {', '.join(map(str, vals))}")
     print("policies:")
-    for name, ep in sorted(group_entry_points(POLICIES).items()):
-        print(f"  {name:<11} {ep.value}")
+    for name, value in found.policies:
+        print(f"  {name:<11} {value}")
     print(f"({(time.perf_counter() - t0) * 1000:.0f} ms)")
     return 0

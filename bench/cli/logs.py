@@ -1,104 +1,31 @@
-"""`bench logs`: inspect LeRobot v3.0 datasets and import CSV / MAT / RLDS logs into one."""
+"""`bench logs`: inspect LeRobot v3.0 datasets and import CSV / MAT / RLDS logs into one (the command lines and
+printed text over `bench.api.logs`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Optional, TypeVar
+from typing import Any, TypeVar
 
-import numpy as np
-
-from bench import api
-from bench.core import config, outputs
-from bench.core.config import MAX_SEED, one_or_more, ranged
-from bench.core.errors import ConfigError, DataError, did_you_mean
-from bench.core.io import write_atomic
-from bench.logs import check_files, import_csv, import_mat, import_rlds, info, read_dataset, verify, write_dataset
-from bench.logs.card import card, format_card
-from bench.logs.lerobot.validate import MAX_FPS
-from bench.protocols import STATE
-from bench.protocols.suite import episode_seed
+from bench.api.logs import (
+    FORMATS,
+    CardConfig,
+    ImportConfig,
+    RankConfig,
+    format_card,
+    format_for,
+    import_log,
+    log_card,
+    log_info,
+    rank_log,
+    verify_log,
+)
+from bench.core import config
+from bench.core.errors import ConfigError, did_you_mean
 
 T = TypeVar("T")
-MAX_CARD_EPISODES = 10_000  # evaluation initial states per cell a card compares the log with
-
-
-@dataclass(frozen=True)
-class ImportConfig:
-    """Keys of `bench logs import` for every format (SRC is positional)."""
-
-    out: Optional[str] = None  # target folder (required; must be new or empty unless overwrite=true)
-    format: Optional[str] = None  # csv | mat | rlds (default: from SRC: .csv, .mat, a folder or .tfrecord file)
-    fps: Optional[float] = ranged(
-        None, 0, MAX_FPS, lo_open=True
-    )  # frame rate in Hz (csv/mat: default 1/median time step; rlds: required)
-    task: Optional[str] = None  # task string of the episodes (rlds: where an episode has no instruction)
-    robot_type: Optional[str] = None  # robot type written to info.json
-    overwrite: bool = False  # replace a non-empty out folder
-
-
-@dataclass(frozen=True)
-class CsvKeys:
-    """Keys of `bench logs import` for a CSV file."""
-
-    state: Optional[list[str]] = one_or_more()  # columns of observation.state (default: every numeric column not used)
-    action: Optional[list[str]] = one_or_more()  # columns of action (default: none)
-    time: Optional[str] = None  # time column in seconds (without it, fps is required)
-    episode: Optional[str] = None  # column whose values split the rows into episodes
-    delimiter: str = ","  # field separator, one character
-    velocity: Optional[list[str]] = one_or_more()  # columns of observation.velocity (joint velocities as logged)
-    effort: Optional[list[str]] = one_or_more()  # columns of observation.effort (measured joint torques or currents)
-    resample: Optional[float] = ranged(
-        None, 0, MAX_FPS, lo_open=True
-    )  # put an irregular clock on a uniform grid at this rate (Hz; linear interpolation, needs time=)
-
-
-@dataclass(frozen=True)
-class MatKeys:
-    """Keys of `bench logs import` for a MATLAB .mat file (one episode)."""
-
-    state: Optional[list[str]] = one_or_more()  # variables of observation.state (default: every vector but time)
-    action: Optional[list[str]] = one_or_more()  # variables of action
-    time: Optional[str] = None  # time variable in seconds (default: t or time)
-    velocity: bool = False  # append d/dt of each state variable as <var>_dot
-
-
-@dataclass(frozen=True)
-class RldsKeys:
-    """Keys of `bench logs import` for RLDS tfrecord shards."""
-
-    split: str = "train"  # shards to read
-    state: str = "observation/state"  # step field of observation.state
-    action: str = "action"  # step field of action
-    instruction: str = "language_instruction"  # step field with the task text
-
-
-FORMATS: dict[str, type] = {"csv": CsvKeys, "mat": MatKeys, "rlds": RldsKeys}
-
-
-@dataclass(frozen=True)
-class CardConfig:
-    """Keys of `bench logs card` (DIR is positional)."""
-
-    suite: Optional[str] = None  # suite whose evaluation the log must not overlap (builds its envs once per cell)
-    episodes: int = ranged(10, 0, MAX_CARD_EPISODES)  # evaluation episodes per cell (at least 1 with suite=)
-    seed: int = ranged(0, 0, MAX_SEED)  # evaluation run seed
-    dup_tol: float = ranged(0.05, 0)  # near-duplicate threshold, RMS in standardised units
-    overlap_tol: float = ranged(0.01, 0)  # overlap threshold, RMS in standardised units
-    out: Optional[str] = None  # also write the card as JSON (bench.logs_card/1) to this new file
-
-
-@dataclass(frozen=True)
-class RankConfig:
-    """Keys of `bench logs rank` (DIR is positional)."""
-
-    calibration: Optional[str] = None  # calibration.json of `bench calibrate`, or its folder (required)
-    horizon: str = "free_run"  # free_run | k_step (see below)
-    top: int = ranged(10, 0)  # rows printed (out= holds all)
-    out: Optional[str] = None  # also write the ranking as JSON (bench.logs_rank/1) to this new file
 
 
 INFO_USAGE = "usage: bench logs info DIR"
@@ -208,21 +135,6 @@ def rank_help() -> str:
     )
 
 
-def _format_for(src: Path, given: Optional[str]) -> str:
-    if given is not None:
-        fmt = given.lower()
-        if fmt not in FORMATS:
-            raise ConfigError(f"format is {given!r}; valid: {', '.join(FORMATS)}.{did_you_mean(fmt, FORMATS)}")
-        return fmt
-    if src.suffix.lower() == ".csv":
-        return "csv"
-    if src.suffix.lower() == ".mat":
-        return "mat"
-    if src.is_dir() or ".tfrecord" in src.name:
-        return "rlds"
-    raise ConfigError(f"cannot tell the format of {str(src)!r}; pass format=csv|mat|rlds")
-
-
 def _names(schema: type) -> list[str]:
     return [f.name for f in dataclasses.fields(schema)]
 
@@ -235,50 +147,16 @@ def cmd_import(argv: list[str]) -> int:
     src = Path(positional[0]).expanduser()
     common = _names(ImportConfig)
     cfg: ImportConfig = config.build(ImportConfig, [o for o in overrides if config.top_key(o) in common])
-    fmt = _format_for(src, cfg.format)
+    fmt = format_for(src, cfg.format)
     parts = config.partition(overrides, {"all formats": common, fmt: _names(FORMATS[fmt])}, f"for format={fmt}")
-    keys: Any = config.build(FORMATS[fmt], parts[fmt])
-    if not cfg.out:
-        raise ConfigError("missing key 'out': bench logs import SRC out=DIR")
-    task = cfg.task or "default"
-    meta: dict[str, Any] = {"task": task, "fps": cfg.fps, "robot_type": cfg.robot_type}  # what every format takes
-    if fmt == "csv":
-        if len(keys.delimiter) != 1:
-            raise ConfigError(f"delimiter is {keys.delimiter!r}; expected one character (e.g. , or ; or a tab)")
-        ds = import_csv(
-            src,
-            state=keys.state,
-            action=keys.action,
-            time=keys.time,
-            episode=keys.episode,
-            delimiter=keys.delimiter,
-            velocity=keys.velocity,
-            effort=keys.effort,
-            resample=keys.resample,
-            **meta,
-        )
-    elif fmt == "mat":
-        pairs = (("observation.state", keys.state), ("action", keys.action))
-        mapping: dict[str, str | Sequence[str]] = {feature: names for feature, names in pairs if names}
-        ds = import_mat(src, mapping or None, time=keys.time, velocity=keys.velocity, **meta)
-    else:
-        ds = import_rlds(
-            src, split=keys.split, state=keys.state, action=keys.action, instruction=keys.instruction, **meta
-        )
-    out = write_dataset(Path(cfg.out).expanduser(), ds, overwrite=cfg.overwrite, inputs={"SRC": src})
-    print(f"wrote {out}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
-    print(format_info(_info(out)))
+    done = import_log(src, cfg, config.build(FORMATS[fmt], parts[fmt]))
+    ds = done.dataset
+    print(f"wrote {done.path}: {len(ds.episodes)} episodes, {ds.num_frames} frames at {ds.fps:g} fps from {fmt} {src}")
+    print(format_info(done.info))
     return 0
 
 
-def _info(root: Path | str) -> dict:
-    """The metadata summary, after every data file's footer is read (`check_files`: no frames)."""
-    summary = info(root)
-    summary["files"] = check_files(root)
-    return summary
-
-
-def format_info(summary: dict) -> str:
+def format_info(summary: dict[str, Any]) -> str:
     """Plain aligned text for `bench logs info`."""
     lengths = summary["lengths"]
     lines = [
@@ -323,7 +201,7 @@ def cmd_info(argv: list[str]) -> int:
     """`bench logs info DIR` (no keys)."""
     if len(argv) != 1 or "=" in argv[0]:
         raise ConfigError(f"expected one dataset folder: {INFO_USAGE.removeprefix('usage: ')}")
-    print(format_info(_info(Path(argv[0]).expanduser())))
+    print(format_info(log_info(Path(argv[0]).expanduser())))
     return 0
 
 
@@ -332,42 +210,12 @@ def cmd_verify(argv: list[str]) -> int:
     if len(argv) != 1 or "=" in argv[0]:
         raise ConfigError(f"expected one dataset folder: {VERIFY_USAGE.removeprefix('usage: ')}")
     t0 = time.perf_counter()
-    got = verify(Path(argv[0]).expanduser())
+    got = verify_log(argv[0])
     print(
         f"{argv[0]}: ok: {got['episodes']} episodes, {got['frames']} frames; {got['data_files']} data file(s) and "
         f"{got['video_files']} video file(s) read in full ({time.perf_counter() - t0:.1f} s)"
     )
     return 0
-
-
-def _eval_starts(suite_name: str, ds: Any, episodes: int, seed: int) -> dict:
-    """Initial observations of a suite's evaluation for the cells the log's episodes name (task strings)."""
-    suite = api.load_suite(suite_name)
-    cells = {c.key: c for c in suite.all_cells()}
-    named = sorted({ep.tasks[0] for ep in ds.episodes if ep.tasks} & set(cells))
-    if not named:
-        raise DataError(
-            f"no episode of the log names a cell of suite {suite_name!r} in its task string (cells: "
-            f"{', '.join(sorted(cells)[:5])}...); was it recorded with `bench run suite={suite_name} "
-            "record=`?"
-        )
-    out = {}
-    for key in named:
-        env = suite.make_env(cells[key], suite.default_horizon)
-        try:
-            out[key] = np.stack(
-                [np.asarray(env.reset(episode_seed(seed, e))[STATE], dtype=np.float64).ravel() for e in range(episodes)]
-            )
-        finally:
-            env.close()
-    return out
-
-
-def _new_file(value: Any, key: str, inputs: dict[str, Any]) -> Path | None:
-    """A new output file (`bench.core.outputs`' rule: never an input or inside one; never over an existing file)."""
-    if value is None:
-        return None
-    return outputs.check(key, str(value), inputs, kind="file", can_overwrite=False)
 
 
 def _dir_and_config(argv: list[str], schema: type[T], usage: str) -> tuple[Path, T]:
@@ -381,43 +229,25 @@ def _dir_and_config(argv: list[str], schema: type[T], usage: str) -> tuple[Path,
 def cmd_card(argv: list[str]) -> int:
     """`bench logs card DIR ...`."""
     root, cfg = _dir_and_config(argv, CardConfig, CARD_USAGE)
-    out = _new_file(cfg.out, "out", {"DIR": root})
-    if not root.exists():
-        raise ConfigError(f"logs folder {str(root)!r} does not exist")
-    ds = read_dataset(root)
-    starts, where = None, ""
-    if cfg.suite is not None:
-        if cfg.episodes < 1:
-            raise ConfigError("key 'episodes' must be at least 1 with suite=")
-        starts = _eval_starts(cfg.suite, ds, cfg.episodes, cfg.seed)
-        where = (
-            f"suite {cfg.suite}: {cfg.episodes} evaluation episode(s) of run seed {cfg.seed} in {len(starts)} cell(s)"
-        )
-    doc = card(ds, starts=starts, where=where, dup_tol=cfg.dup_tol, overlap_tol=cfg.overlap_tol)
-    print(format_card(doc))
-    if out is not None:
-        write_atomic(out, doc)
-        print(f"wrote {out}")
+    done = log_card(root, cfg)
+    print(format_card(done.doc))
+    if done.path is not None:
+        print(f"wrote {done.path}")
     return 0
 
 
 def cmd_rank(argv: list[str]) -> int:
     """`bench logs rank DIR calibration=FILE ...`."""
-    from bench.calibrate.rank import rank  # mujoco and scipy: only `bench logs rank` needs them
-
     root, cfg = _dir_and_config(argv, RankConfig, RANK_USAGE)
-    if cfg.calibration is None:
-        raise ConfigError("missing key 'calibration' (a `bench calibrate` output folder or its calibration.json)")
-    out = _new_file(cfg.out, "out", {"DIR": root, "calibration": cfg.calibration})
-    doc = rank(cfg.calibration, root, cfg.horizon)
+    done = rank_log(root, cfg)
+    doc = done.doc
     print(f"surprise = {doc['statistic']}; {len(doc['episodes'])} episodes, most first")
     print(f"{'rank':>4}  {'episode':>7}  {'frames':>6}  {'surprise':>9}  worst joint")
     for i, row in enumerate(doc["episodes"][: cfg.top]):
         joint, value = max(row["per_joint"].items(), key=lambda kv_: kv_[1])
         print(f"{i + 1:>4}  {row['episode']:>7}  {row['frames']:>6}  {row['surprise']:>9.4g}  {joint} ({value:.3g})")
-    if out is not None:
-        write_atomic(out, doc)
-        print(f"wrote {out}")
+    if done.path is not None:
+        print(f"wrote {done.path}")
     return 0
 
 

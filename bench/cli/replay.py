@@ -1,21 +1,16 @@
-"""`bench replay`: the table, the plot, replay.json and the command."""
+"""`bench replay`: its help, the table it prints and the command line over `bench.api.replay`."""
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
+from typing import Any
 
-import numpy as np
-
+from bench.api.replays import HORIZON_LABELS, ReplayConfig, replay
 from bench.core import config as config_mod
-from bench.core import outputs
 from bench.core.console import table_console
-from bench.core.io import write_atomic
-from bench.replay import replay_logs
-from bench.replay.common import HORIZON_LABELS, Replay, ReplayConfig, episode_of
 
 
-def render(doc: dict, console=None) -> None:
+def render(doc: dict[str, Any], console: Any = None) -> None:
     """Per-joint RMSE / NRMSE table, one column pair per horizon."""
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
@@ -38,72 +33,6 @@ def render(doc: dict, console=None) -> None:
     console.print(t)
     for note in doc.get("notes", []):
         console.print(f"note: {note}")
-
-
-def plot(rep: Replay, path: Path, n_episodes: int) -> Path | None:
-    """Logged vs replayed (free run and k-step) positions per joint for the first `n_episodes` episodes."""
-    import matplotlib  # matplotlib: loaded only when a figure is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
-
-    n_ep = min(n_episodes, len(rep.episodes))
-    if n_ep == 0:
-        return None
-    nj = len(rep.joints)
-    fig, axes = plt.subplots(
-        nj, n_ep, figsize=(6.0 * n_ep, 1.9 * nj + 0.8), sharex="col", squeeze=False, layout="constrained"
-    )
-    free, kst = rep.errors["free_run"], rep.errors["k_step"]
-    for c in range(n_ep):
-        a, b = int(rep.offsets[c]), int(rep.offsets[c + 1])
-        t = np.arange(b - a) / rep.fps
-        fsel = np.flatnonzero(episode_of(rep.offsets, free.start) == c)
-        ksel = np.flatnonzero(episode_of(rep.offsets, kst.start) == c)
-        for j in range(nj):
-            ax = axes[j, c]
-            ax.plot(t, rep.qpos[a:b, j], color="black", lw=1.4, label="logged")
-            for s in ksel:  # each k-step segment starts from the logged state
-                f0 = int(kst.start[s]) - a
-                m = kst.mask[s]
-                ax.plot(
-                    t[f0 : f0 + 1 + int(m.sum())],
-                    np.r_[rep.qpos[a + f0, j], kst.pred[s, m, j]],
-                    color="tab:orange",
-                    lw=1.0,
-                    label="k-step" if s == ksel[0] else None,
-                )
-                ax.plot(t[f0], rep.qpos[a + f0, j], ".", color="tab:orange", ms=3)
-            for s in fsel:
-                m = free.mask[s]
-                ax.plot(
-                    t[: 1 + int(m.sum())],
-                    np.r_[rep.qpos[a, j], free.pred[s, m, j]],
-                    color="tab:blue",
-                    lw=1.2,
-                    ls="--",
-                    label="free run",
-                )
-            if c == 0:
-                ax.set_ylabel(rep.joints[j])
-            if j == 0:
-                ax.set_title(f"episode {rep.episodes[c]}")
-        axes[-1, c].set_xlabel("time [s]")
-    axes[0, 0].legend(loc="best", fontsize=8)
-    fig.suptitle(f"logged vs replayed joint positions (k = {rep.doc['k']} frames)")
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
-def write(rep: Replay, out: Path, n_plot: int) -> Path:
-    """OUT/replay.json (atomically, no NaN) and OUT/replay.png."""
-    out.mkdir(parents=True, exist_ok=True)
-    png = plot(rep, out / "replay.png", n_plot)
-    rep.doc["plot"] = png.name if png else None
-    path = out / "replay.json"
-    write_atomic(path, rep.doc)
-    return path
 
 
 def help_text() -> str:
@@ -150,14 +79,10 @@ def main(argv: list[str]) -> int:
         print(help_text(), end="")
         return 0
     cfg: ReplayConfig = config_mod.build_from_argv(ReplayConfig, argv, "bench replay")
-    out = None
-    if cfg.out:
-        out = outputs.check("out", cfg.out, {"logs": cfg.logs, "spec": cfg.spec}, overwrite=cfg.overwrite)
-    rep = replay_logs(cfg)
-    render(rep.doc)
-    if out is not None:
-        outputs.replace_dir(out, lambda tmp: write(rep, tmp, cfg.plot))
-        path = out / "replay.json"
-        extra = f" and {path.parent / rep.doc['plot']}" if rep.doc.get("plot") else ""
-        print(f"wrote {path}{extra} ({rep.doc['wall_s']:.2f} s)", file=sys.stderr)
+    done = replay(cfg)
+    doc = done.replay.doc
+    render(doc)
+    if done.path is not None:
+        extra = f" and {done.path.parent / doc['plot']}" if doc.get("plot") else ""
+        print(f"wrote {done.path}{extra} ({doc['wall_s']:.2f} s)", file=sys.stderr)
     return 0

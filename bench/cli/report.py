@@ -1,26 +1,10 @@
-"""`bench report RUN|LEADERBOARD out=DIR`: its keys, its help and the command."""
+"""`bench report RUN|LEADERBOARD out=DIR`: its help and the command over `bench.api.report`."""
 
 from __future__ import annotations
 
-import warnings
-from dataclasses import dataclass
-from typing import Optional
-
-from bench.board.report.page import build_page, load_calibration, load_input, load_verdict
+from bench.api.board import ReportConfig, report
 from bench.core import config as config_mod
-from bench.core import outputs
 from bench.core.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class ReportConfig:
-    """Keys of `bench report` (the input RUN|LEADERBOARD is positional)."""
-
-    out: Optional[str] = None  # output folder (index.html + PNG figures); never an input or inside one
-    overwrite: bool = False  # replace an existing report folder (only one bench wrote)
-    calibration: Optional[str] = None  # a calibrate output dir or its calibration.json: errors before/after
-    verdict: Optional[str] = None  # a `bench regress` verdict.json to include
-    title: Optional[str] = None  # page title; default from the input
 
 
 def help_text() -> str:
@@ -56,27 +40,6 @@ def main(argv: list[str]) -> int:
     cfg: ReportConfig = config_mod.build(ReportConfig, overrides)
     if len(positional) != 1:
         raise ConfigError(f"report takes one RUN|LEADERBOARD, got {len(positional)}: {positional}")
-    if not cfg.out:
-        raise ConfigError("report: out=DIR is required")
-    kind, doc, src = load_input(positional[0])
-    cal = load_calibration(cfg.calibration) if cfg.calibration else None
-    verdict = load_verdict(cfg.verdict) if cfg.verdict else None
-    # a run's records and videos are read from the folder of its summary.json
-    run_dir = src.parent if kind == "run" and (src.parent / "episodes.jsonl").exists() else None
-    out = outputs.check(
-        "out",
-        cfg.out,
-        {"input": positional[0], "run": run_dir, "calibration": cfg.calibration, "verdict": cfg.verdict},
-        overwrite=cfg.overwrite,
-    )
-    with warnings.catch_warnings():  # matplotlib's layout notes are not the reader's concern: stderr stays clean
-        warnings.simplefilter("ignore")
-        outputs.replace_dir(
-            out,
-            lambda tmp: (tmp / "index.html").write_text(
-                build_page(kind, doc, tmp, cal, verdict, cfg.title, run_dir), encoding="utf-8"
-            ),
-        )
-    figs = sorted(p.name for p in out.glob("*.png"))
-    print(f"report of {src} -> {out / 'index.html'} ({', '.join(figs) or 'no figures'})")
+    done = report(positional[0], cfg)
+    print(f"report of {done.source} -> {done.index} ({', '.join(done.figures) or 'no figures'})")
     return 0

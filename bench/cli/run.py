@@ -6,16 +6,12 @@ import sys
 from pathlib import Path
 
 from bench import api
-from bench.api import RunConfig, score
+from bench.api import RUNNER_KEYS, BenchError, RunConfig, nothing_measured, render_summary, score
+from bench.api.data import EPISODES, read_records
+from bench.api.plugins import axes_help, plugin_keys, policy_for
 from bench.core import config as config_mod
 from bench.core.config import command_help
-from bench.core.errors import BenchError, ConfigError, NothingMeasured
-from bench.execution.run_config import RUNNER_KEYS
-from bench.protocols import Suite, option_keys, registry
-from bench.protocols.suite import policy_ref
-from bench.records import EPISODES, read_records
-from bench.scoring.summary import nothing_measured, render
-from bench.sims.perturb.axes import axes_help
+from bench.core.errors import ConfigError, NothingMeasured
 
 
 def help_text(argv: list[str] | None = None) -> str:
@@ -27,16 +23,14 @@ def help_text(argv: list[str] | None = None) -> str:
             suite = value
         elif key == "policy":
             policy = value
-    plugin_keys = ""
+    plugin_keys_text = ""
     try:
-        suite_cls: type[Suite] = registry.suite_class(suite)
-        policy = policy_ref(suite_cls, policy)
-        plugin = registry.load_policy(policy)
-        for owner, schema in ((f"suite {suite}", suite_cls.Options), (f"policy {policy}", plugin.Options)):
-            keys = config_mod.key_help(schema, option_keys(schema)) if option_keys(schema) else "  (none)"
-            plugin_keys += f"\nkeys of {owner}:\n{keys}\n"
+        policy = policy_for(suite, policy)
+        for own in plugin_keys(suite, policy):
+            keys = config_mod.key_help(own.schema, own.keys) if own.keys else "  (none)"
+            plugin_keys_text += f"\nkeys of {own.owner}:\n{keys}\n"
     except BenchError as exc:
-        plugin_keys = f"\n(keys of suite {suite} / policy {policy}: {exc})\n"
+        plugin_keys_text = f"\n(keys of suite {suite} / policy {policy}: {exc})\n"
     return (
         "usage: bench run [key=value ...]\n\n"
         "Runs a policy on every cell (task x robot x env) and condition of a suite, appends one\n"
@@ -49,7 +43,7 @@ def help_text(argv: list[str] | None = None) -> str:
         "none while others do (records and summary are kept; docs/guarantees.md).\n"
         "Each key belongs to the runner, to the suite or to the policy; `bench run suite=NAME\n"
         "policy=NAME --help` lists the keys of that suite and policy.\n\n"
-        f"runner keys:\n{config_mod.key_help(RunConfig, RUNNER_KEYS)}\n{plugin_keys}\n"
+        f"runner keys:\n{config_mod.key_help(RunConfig, RUNNER_KEYS)}\n{plugin_keys_text}\n"
         "examples:\n"
         "  bench run suite=held_out_robots\n"
         "  bench run suite=held_out_robots policy=random episodes=10 workers=2\n"
@@ -78,12 +72,12 @@ def main(argv: list[str]) -> int:
         print(help_text([a for a in argv if a not in ("-h", "--help")]))
         return 0
 
-    p, executor = api.plan_with_workers(api.config_from_argv(argv), own_process=True)
+    p, executor = api.plan_with_workers(api.parse_run(argv), own_process=True)  # parsed once, planned once
     for line in api.calibration_notes(p):  # what the run's robot is, before its episodes
         print(line, file=sys.stderr, flush=True)
     result = api.run(p, progress=True, executor=executor)
     if result.summary is not None:
-        render(result.summary)
+        render_summary(result.summary)
         why = nothing_measured(result.summary, result.records)
         if why:
             raise NothingMeasured(f"run {p.config.run_id} ({result.run_dir}): {why}")
@@ -108,7 +102,7 @@ def main_score(argv: list[str]) -> int:
     if len(argv) != 1:
         raise ConfigError(f"score takes one RUN_DIR, got {argv}")
     summary = score(argv[0])
-    render(summary)
+    render_summary(summary)
     why = nothing_measured(summary, read_records(Path(argv[0]) / EPISODES))
     if why:
         raise NothingMeasured(f"{argv[0]}: {why}")

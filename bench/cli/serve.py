@@ -1,18 +1,16 @@
-"""`bench serve`: its help, its command line and the command that starts `bench.remote.server.PolicyServer`."""
+"""`bench serve`: its help and command line over `bench.api.serve` (a policy served over openpi's protocol)."""
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 from typing import Any
 
+from bench.api.plugins import option_keys, policy_options_type, suite_options_type
+from bench.api.serving import ServeConfig, check_serve, serve
 from bench.core import config as config_mod
 from bench.core.errors import ConfigError
-from bench.protocols import option_keys, registry
-from bench.remote.server import MAX_HORIZON, PolicyServer, ServeConfig
-from bench.remote.serving import AddressInUse
 
 
 def help_text() -> str:
@@ -41,29 +39,18 @@ def parse_args(argv: list[str]) -> tuple[ServeConfig, Any, Any]:
             f"unexpected argument {positional[0]!r}; bench serve takes key=value only (bench serve --help)"
         )
     head = config_mod.build(ServeConfig, [o for o in overrides if config_mod.top_key(o) in ("policy", "suite")])
-    plugin = registry.load_policy(head.policy)
-    suite_cls: Any = registry.suite_class(head.suite)
+    policy_options = policy_options_type(head.policy)
+    suite_options = suite_options_type(head.suite)
     owners = {
         "serve": [f.name for f in dataclasses.fields(ServeConfig)],
-        f"suite {head.suite}": option_keys(suite_cls.Options),
-        f"policy {head.policy}": option_keys(plugin.Options),
+        f"suite {head.suite}": option_keys(suite_options),
+        f"policy {head.policy}": option_keys(policy_options),
     }
     context = f"bench serve policy={head.policy} suite={head.suite}"
     parts = list(config_mod.partition(overrides, owners, context).values())
     cfg = config_mod.build(ServeConfig, parts[0])
-    if not 0 <= cfg.port <= 65535:
-        raise ConfigError(f"port={cfg.port}: must be in [0, 65535] (0 = any free port)")
-    if not (math.isfinite(cfg.max_message_mb) and 0 < cfg.max_message_mb <= 4096):
-        raise ConfigError(f"max_message_mb={cfg.max_message_mb}: must be in (0, 4096]")
-    if not 1 <= cfg.batch <= 1024:
-        raise ConfigError(f"batch={cfg.batch}: must be in [1, 1024] (1 = answer each request alone)")
-    if not (math.isfinite(cfg.batch_wait_ms) and 0 <= cfg.batch_wait_ms <= 1000):
-        raise ConfigError(f"batch_wait_ms={cfg.batch_wait_ms}: must be in [0, 1000]")
-    if not 0 <= cfg.prepare <= 1024:
-        raise ConfigError(f"prepare={cfg.prepare}: must be in [0, 1024] (0 = build envs on first reset only)")
-    if not 0 <= cfg.horizon <= MAX_HORIZON or cfg.seed < 0:
-        raise ConfigError(f"horizon={cfg.horizon} seed={cfg.seed}: horizon in [0, {MAX_HORIZON}], seed >= 0")
-    return cfg, config_mod.build(suite_cls.Options, parts[1]), config_mod.build(plugin.Options, parts[2])
+    check_serve(cfg)
+    return cfg, config_mod.build(suite_options, parts[1]), config_mod.build(policy_options, parts[2])
 
 
 def main(argv: list[str]) -> int:
@@ -75,26 +62,5 @@ def main(argv: list[str]) -> int:
     def log(text: str) -> None:
         print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
-    server = PolicyServer(cfg, suite_options, policy_options, log)
-    suite = server.suite_cls(suite_options)
-    cell = next(c for c in suite.all_cells() if c.key == server.default_cell)
-    server.plugin.preflight(policy_options, suite, [cell], server.default_horizon)  # e.g. checkpoint names
-    ws = server.websocket()
-    try:
-        port = ws.bind()
-    except AddressInUse as exc:
-        raise ConfigError(
-            f"host={cfg.host} port={cfg.port}: cannot listen there ({exc.strerror}); pick another "
-            "port (port=0 = any free one)"
-        ) from None
-    where = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
-
-    try:
-        ws.serve_until_stopped(
-            f"bench serve: policy {cfg.policy} on ws://{where}:{port} (suite {suite.name}, "
-            f"default cell {server.default_cell}); Ctrl-C stops",
-            "bench serve",
-        )
-    finally:
-        server.close()
+    serve(cfg, suite_options, policy_options, log)
     return 0

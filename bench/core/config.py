@@ -13,8 +13,8 @@ import inspect
 import math
 import re
 import typing
-from collections.abc import Iterable
-from typing import Any, TypeVar
+from collections.abc import Iterable, Mapping
+from typing import TypeVar
 
 from bench.core.errors import ConfigError, did_you_mean
 
@@ -58,7 +58,7 @@ def _num_text(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
 
 
-def check_stored(schema: type, values: Any, where: str) -> None:
+def check_stored(schema: type, values: object, where: str) -> None:
     """The ranged keys of `schema` in a stored config (run.json's `config`): numbers of the right kind inside
     their range, so a hand-edited file cannot ask for 10**12 bootstrap resamples (ConfigError naming file and key)."""
     if not isinstance(values, dict):
@@ -81,8 +81,8 @@ def check_stored(schema: type, values: Any, where: str) -> None:
 
 
 def ranged(
-    default: Any, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False
-) -> Any:
+    default: T, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False
+) -> T:
     """A dataclass field with a default and a valid range that `build` checks (the message names the range).
 
     `n_boot: int = ranged(2000, 1, MAX_N_BOOT)  # bootstrap replicates`
@@ -90,7 +90,7 @@ def ranged(
     return dataclasses.field(default=default, metadata={"range": Range(lo, hi, lo_open, hi_open)})
 
 
-def one_or_more(default: Any = None) -> Any:
+def one_or_more(default: T | None = None) -> T | None:
     """A list field that also takes one bare value, which `build` reads as a list of one (`state=q` is `state=[q]`).
 
     `state: Optional[list[str]] = one_or_more()  # columns of observation.state`
@@ -98,7 +98,7 @@ def one_or_more(default: Any = None) -> Any:
     return dataclasses.field(default=default, metadata={"bare": True})
 
 
-def check_number(key: str, value: Any, rng: Range | None = None) -> None:
+def check_number(key: str, value: object, rng: Range | None = None) -> None:
     """One numeric value of `key`: finite, inside the int64 range, inside `rng` (ConfigError naming the key)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
@@ -117,7 +117,7 @@ def check_number(key: str, value: Any, rng: Range | None = None) -> None:
         )
 
 
-def check_values(key: str, value: Any, rng: Range | None = None, depth: int = 0) -> None:
+def check_values(key: str, value: object, rng: Range | None = None, depth: int = 0) -> None:
     """Every number inside `value` (lists, dicts) finite and in range; strings free of control characters."""
     if depth > 20:
         raise ConfigError(f"{key}: nested too deeply")
@@ -134,7 +134,7 @@ def check_values(key: str, value: Any, rng: Range | None = None, depth: int = 0)
         check_number(key, value, rng)
 
 
-def _is_selection(f: dataclasses.Field) -> bool:
+def _is_selection(f: dataclasses.Field[object]) -> bool:
     """An `Optional[list[...]] = None` key: None means "all", so an empty list is a mistake, not "none"."""
     if f.default is not None:
         return False
@@ -145,9 +145,11 @@ def _is_selection(f: dataclasses.Field) -> bool:
     return any(typing.get_origin(a) is list for a in args)
 
 
-def validate(obj: Any, prefix: str = "") -> None:
-    """Check a built config: numbers finite and inside their field's range, no control characters,
-    no empty selection list (`robots=[]`). ConfigError naming the key on the first problem."""
+def validate(obj: object, prefix: str = "") -> None:
+    """Check a built config (a dataclass instance): numbers finite and inside their field's range, no control
+    characters, no empty selection list (`robots=[]`). ConfigError naming the key on the first problem."""
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        raise TypeError(f"validate: a {type(obj).__name__} is not a dataclass instance")
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         key = prefix + f.name
@@ -170,7 +172,7 @@ def split_args(argv: Iterable[str]) -> tuple[list[str], list[str]]:
     return positional, overrides
 
 
-def build_from_argv(cls: type, argv: Iterable[str], command: str):
+def build_from_argv(cls: type[T], argv: Iterable[str], command: str) -> T:
     """`key=value` arguments of a command that takes no positional ones -> a frozen `cls` (ConfigError if not)."""
     positional, overrides = split_args(argv)
     if positional:
@@ -265,7 +267,7 @@ def _fields(schema: type) -> list[str]:
     return [f.name for f in dataclasses.fields(schema)]
 
 
-def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None) -> T:
+def build(schema: type[T], overrides: Iterable[str], *, base: Mapping[str, object] | None = None) -> T:
     """Merge `key=value` overrides onto the dataclass `schema` and return a frozen instance.
 
     Args:
@@ -315,8 +317,10 @@ def build(schema: type[T], overrides: Iterable[str], *, base: dict | None = None
         raise ConfigError(f"cannot parse overrides: {_first_line(exc)}") from None
     except (ValueError, TypeError) as exc:  # a value OmegaConf's own converters refuse
         raise ConfigError(f"bad value in {' '.join(given) or 'the options'}: {_first_line(exc)}") from None
+    if not isinstance(out, schema):  # OmegaConf builds the structured config's own class
+        raise TypeError(f"build: OmegaConf returned a {type(out).__name__}, not a {schema.__name__}")
     validate(out)
-    return out  # type: ignore[return-value]
+    return out
 
 
 def _field_lines(source: str) -> list[str]:
@@ -352,8 +356,8 @@ def key_help(schema: type, keys: Iterable[str] | None = None) -> str:
         f = fields[name]
         if f.default is not dataclasses.MISSING:
             d = f.default
-        elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
-            d = f.default_factory()  # type: ignore[misc]
+        elif f.default_factory is not dataclasses.MISSING:
+            d = f.default_factory()
         else:
             rows.append((f.name + " (required)", docs.get(f.name, "")))
             continue

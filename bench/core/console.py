@@ -7,12 +7,15 @@ interval is wrapped over two lines, and a sentence stays on one line for whoever
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 PLAIN_WIDTH = 100_000  # not a terminal: wider than any table or line bench prints
 
 
-def table_console(stderr: bool = False) -> Any:
+def table_console(stderr: bool = False) -> Console:
     """A rich Console on stdout (stderr with `stderr`): the terminal's width, or `PLAIN_WIDTH` when not a terminal."""
     from rich.console import Console  # rich: loaded only when something is printed
 

@@ -15,7 +15,7 @@ import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, SupportsFloat
 
 import numpy as np
 
@@ -46,18 +46,18 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
-def write_atomic(path: str | os.PathLike[str], obj: Any) -> None:
+def write_atomic(path: str | os.PathLike[str], obj: object) -> None:
     """Write `obj` as indented JSON (no NaN allowed) to `path` atomically."""
     write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n")
 
 
-def finite_or_none(value: Any) -> float | None:
+def finite_or_none(value: SupportsFloat) -> float | None:
     """`value` as a float, or None when it is NaN or infinite (JSON has no such numbers)."""
     v = float(value)
     return v if math.isfinite(v) else None
 
 
-def jsonable(x: Any, digits: int | None = None) -> Any:
+def jsonable(x: object, digits: int | None = None) -> Any:  # JSON out
     """numpy scalars/arrays, tuples and nested containers -> plain Python, floats rounded to `digits`."""
     if isinstance(x, dict):
         return {str(k): jsonable(v, digits) for k, v in x.items()}
@@ -72,7 +72,7 @@ def jsonable(x: Any, digits: int | None = None) -> Any:
     return x
 
 
-def json_safe(x: Any) -> Any:
+def json_safe(x: object) -> Any:  # JSON out
     """`jsonable(x)` with NaN / inf numbers as None and paths as strings: a document every JSON reader takes."""
     x = jsonable(x)
     if isinstance(x, dict):
@@ -86,7 +86,7 @@ def json_safe(x: Any) -> Any:
     return x
 
 
-def first_nonfinite(obj: Any, path: str = "$") -> str | None:
+def first_nonfinite(obj: object, path: str = "$") -> str | None:
     """The JSON path of the first NaN/inf number inside `obj`, or None."""
     if isinstance(obj, float) and not math.isfinite(obj):
         return path

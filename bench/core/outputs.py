@@ -22,9 +22,9 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from bench.core.errors import ConfigError
 
@@ -32,6 +32,7 @@ MARKER = ".bench-outputs.json"
 MAX_NAME_BYTES = 255
 
 Kind = Literal["dir", "file"]
+InputPath = str | os.PathLike[str] | None  # an input a command reads (None: not given)
 
 
 def resolved(path: str | os.PathLike[str]) -> Path:
@@ -101,7 +102,7 @@ def _writable(key: str, shown: str, path: Path) -> None:
 def check(
     key: str,
     path: str | os.PathLike[str],
-    inputs: Mapping[str, Any],
+    inputs: Mapping[str, InputPath | Sequence[InputPath]],
     *,
     kind: Kind = "dir",
     overwrite: bool = False,
@@ -125,7 +126,7 @@ def check(
     names_fit(key, shown, Path(path).expanduser().absolute())
     out = resolved(path)
     for in_key, value in inputs.items():
-        values = value if isinstance(value, (list, tuple)) else [value]
+        values = [value] if value is None or isinstance(value, (str, os.PathLike)) else value
         for v in values:
             if v is None or v == "":
                 continue

@@ -7,10 +7,10 @@ import os
 import platform
 import subprocess
 import sys
+from collections.abc import Mapping
 from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
 
 from bench.core.errors import DataError
 from bench.core.io import sha256_file
@@ -43,7 +43,7 @@ def package_versions() -> dict[str, str]:
     return out
 
 
-def installed_version(dist: str, module: Any = None) -> str:
+def installed_version(dist: str, module: object = None) -> str:
     """The installed version of distribution `dist`; without its metadata, `module.__version__` ("?" when absent)."""
     try:
         return version(dist)
@@ -79,7 +79,7 @@ def local(path: str | os.PathLike[str]) -> Path:
     return inside if inside.exists() else p
 
 
-def portable_config(config: dict) -> dict:
+def portable_config(config: Mapping[str, object]) -> dict[str, object]:
     """A run's flat config with its path keys (`PATH_KEYS`) made `portable`."""
     return {k: portable(v) if k in PATH_KEYS and isinstance(v, str) else v for k, v in config.items()}
 
@@ -103,7 +103,7 @@ def git_sha() -> str | None:
         return None
 
 
-def machine() -> dict:
+def machine() -> dict[str, object]:
     """Python, platform and core count of this machine."""
     return {
         "python": sys.version.split()[0],
@@ -142,7 +142,9 @@ def safetensors_metadata(path: str | Path) -> dict[str, str] | None:
     return {str(k): str(v) for k, v in meta.items()} if isinstance(meta, dict) else None
 
 
-def checkpoint_provenance(path: str | Path, recorded_sha256: str | None = None, hash_file: bool = True) -> dict:
+def checkpoint_provenance(
+    path: str | Path, recorded_sha256: str | None = None, hash_file: bool = True
+) -> dict[str, object]:
     """What identifies a checkpoint file: sha256, size, and the training metadata stored in it.
 
     Training metadata: the `meta` of the bench policy spec, read from the safetensors header
@@ -152,7 +154,7 @@ def checkpoint_provenance(path: str | Path, recorded_sha256: str | None = None, 
     taken to be `recorded_sha256` (the caller has just hashed it; checkpoints can be large).
     """
     p = local(path)
-    out: dict = {
+    out: dict[str, object] = {
         "path": str(path),
         "format": p.suffix.lstrip(".") or None,
         "sha256": recorded_sha256,

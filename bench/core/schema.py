@@ -25,14 +25,15 @@ SCHEMAS = {
 
 
 @cache
-def schema(schema_id: str) -> dict:
+def schema(schema_id: str) -> dict[str, object]:
     """The JSON Schema for `schema_id` (e.g. "bench.summary/1")."""
     if schema_id not in SCHEMAS:
         raise DataError(f"unknown schema {schema_id!r}; known: {', '.join(SCHEMAS)}")
-    return json.loads(files("bench.core").joinpath("schemas", SCHEMAS[schema_id]).read_text())
+    doc: dict[str, object] = json.loads(files("bench.core").joinpath("schemas", SCHEMAS[schema_id]).read_text())
+    return doc
 
 
-def validate(doc: Any, source: str = "document") -> str:
+def validate(doc: object, source: str = "document") -> str:
     """Validate `doc` against the schema its `"schema"` field names; return that id.
 
     Raises DataError with one line naming the failing field.
@@ -64,7 +65,7 @@ _TOL = 1e-6
 _DIFFERENCES = ("drop", "gap", "diff", "vs_", "change", "delta", "slope")  # differences of rates lie in [-1, 1]
 
 
-def semantic_problem(obj: Any, path: str = "$", rate: bool = False, n: int | None = None) -> str | None:
+def semantic_problem(obj: object, path: str = "$", rate: bool = False, n: int | None = None) -> str | None:
     """What a JSON Schema cannot say about a result, or None: every estimate's interval is ordered and holds
     its value; success rates and their intervals lie in [0, 1]; counts and seeds are non-negative integers;
     successes never exceed episodes."""

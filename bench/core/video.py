@@ -34,11 +34,20 @@ import uuid
 from abc import ABC, abstractmethod
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, TypeVar
+from types import ModuleType, TracebackType
+from typing import TYPE_CHECKING, TypedDict, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from bench.core.errors import BenchError
+
+if TYPE_CHECKING:
+    from av.container import OutputContainer
+    from av.video.stream import VideoStream
+    from typing_extensions import Unpack  # typing's own from Python 3.11
+
+Frame = npt.NDArray[np.uint8]  # (H, W, 3) RGB
 
 CODECS = {"h264": "libx264", "av1": "libsvtav1"}
 DEFAULT_CRF = {"h264": 20, "av1": 30}
@@ -49,7 +58,7 @@ class VideoError(BenchError):
     """A video that cannot be encoded or decoded: unknown codec, bad frames, unwritable or corrupt file."""
 
 
-def _av():
+def _av() -> ModuleType:
     try:
         import av  # PyAV: loaded only when video is encoded or decoded
     except ImportError:  # pragma: no cover - av is a core dependency
@@ -104,7 +113,9 @@ class _Finishes(ABC):
     def __enter__(self: _W) -> _W:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         if exc_type is None:
             self.close()
         else:
@@ -128,7 +139,7 @@ class Mp4Writer(_Finishes):
 
     def __init__(
         self,
-        path: str | os.PathLike,
+        path: str | os.PathLike[str],
         fps: float,
         codec: str = "h264",
         crf: int | None = None,
@@ -147,12 +158,12 @@ class Mp4Writer(_Finishes):
         self.frames = 0
         self.shape: tuple[int, int, int] | None = None
         self.pix_fmt = "yuv420p"
-        self._container: Any = None
-        self._stream: Any = None
+        self._container: OutputContainer | None = None
+        self._stream: VideoStream | None = None
         self._tmp = self.path.parent / f".{self.path.name}.{uuid.uuid4().hex[:8]}.tmp.mp4"
         self._closed = False
 
-    def _open(self, frame: np.ndarray) -> None:
+    def _open(self, frame: Frame) -> None:
         av = _av()
         height, width = frame.shape[:2]
         check_size(self.codec, height, width, self.pad_odd)
@@ -169,18 +180,18 @@ class Mp4Writer(_Finishes):
             os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration to stderr otherwise
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._container = av.open(str(self._tmp), "w", format="mp4")
-            self._stream = self._container.add_stream(CODECS[self.codec], rate=self.rate, options=options)
-            self._stream.width, self._stream.height = width, height
-            self._stream.pix_fmt = self.pix_fmt
-            self._stream.time_base = 1 / self.rate
+            self._container = container = av.open(str(self._tmp), "w", format="mp4")
+            self._stream = stream = container.add_stream(CODECS[self.codec], rate=self.rate, options=options)
+            stream.width, stream.height = width, height
+            stream.pix_fmt = self.pix_fmt
+            stream.time_base = 1 / self.rate
         except Exception as exc:
             self._discard()
             raise VideoError(
                 f"{self.path}: cannot start {self.codec} video {width}x{height}: {_first_line(exc)}"
             ) from None
 
-    def write(self, frame: np.ndarray) -> None:
+    def write(self, frame: Frame) -> None:
         """Append one (H, W, 3) uint8 frame; every frame must have the first one's size."""
         if self._closed:
             raise VideoError(f"{self.path}: write after close")
@@ -195,17 +206,20 @@ class Mp4Writer(_Finishes):
         if self.pad_odd and (arr.shape[0] % 2 or arr.shape[1] % 2):
             arr = np.pad(arr, ((0, arr.shape[0] % 2), (0, arr.shape[1] % 2), (0, 0)), mode="edge")
         av = _av()
+        container, stream = self._container, self._stream
+        if container is None or stream is None:  # its first frame could not start the file
+            raise VideoError(f"{self.path}: cannot encode frame {self.frames}: the video could not be started")
         try:
             vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(arr), format="rgb24")
             vf.pts = self.frames  # in the codec's time base 1/fps (the muxer may change the stream's)
-            for packet in self._stream.encode(vf):
-                self._container.mux(packet)
+            for packet in stream.encode(vf):
+                container.mux(packet)
         except Exception as exc:
             self.abort()
             raise VideoError(f"{self.path}: cannot encode frame {self.frames}: {_first_line(exc)}") from None
         self.frames += 1
 
-    def write_many(self, frames: np.ndarray) -> None:
+    def write_many(self, frames: npt.NDArray[np.uint8]) -> None:
         """Append (T, H, W, 3) uint8 frames."""
         for frame in frames:
             self.write(frame)
@@ -222,13 +236,14 @@ class Mp4Writer(_Finishes):
         """Flush the encoder, finish the file and move it into place; returns its path."""
         if self._closed:
             return self.path
-        if self._container is None:
+        container, stream = self._container, self._stream
+        if container is None or stream is None:
             self._closed = True
             raise VideoError(f"{self.path}: no frames were written")
         try:
-            for packet in self._stream.encode():
-                self._container.mux(packet)
-            self._container.close()
+            for packet in stream.encode():
+                container.mux(packet)
+            container.close()
             self._container = None
             os.replace(self._tmp, self.path)
         except Exception as exc:
@@ -252,7 +267,14 @@ class Mp4Writer(_Finishes):
         self._tmp.unlink(missing_ok=True)
 
 
-_STOP = object()
+class Mp4Options(TypedDict, total=False):
+    """`Mp4Writer`'s options by keyword (what `BackgroundMp4Writer` passes on)."""
+
+    codec: str
+    crf: int | None
+    gop: int
+    pad_odd: bool
+    threads: int
 
 
 class BackgroundMp4Writer(_Finishes):
@@ -268,10 +290,12 @@ class BackgroundMp4Writer(_Finishes):
     plus `queue_size` (frames waiting at most).
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float, *, queue_size: int = 64, **options: Any):
+    def __init__(
+        self, path: str | os.PathLike[str], fps: float, *, queue_size: int = 64, **options: Unpack[Mp4Options]
+    ):
         self._writer = Mp4Writer(path, fps, **options)
         self.path = self._writer.path
-        self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(queue_size)))
+        self._queue: queue.Queue[Frame | None] = queue.Queue(maxsize=max(1, int(queue_size)))
         self._error: BaseException | None = None
         self._aborted = threading.Event()
         self._done = False
@@ -281,7 +305,7 @@ class BackgroundMp4Writer(_Finishes):
     def _run(self) -> None:
         while True:
             item = self._queue.get()
-            if item is _STOP or self._aborted.is_set():
+            if item is None or self._aborted.is_set():  # None: stop
                 break
             try:
                 self._writer.write(item)
@@ -306,7 +330,7 @@ class BackgroundMp4Writer(_Finishes):
                 raise err
             raise VideoError(f"{self.path}: video encoder failed: {_first_line(err)}") from err
 
-    def _put(self, item: Any) -> None:
+    def _put(self, item: Frame | None) -> None:
         while True:
             self._raise()
             if not self._thread.is_alive():
@@ -317,7 +341,7 @@ class BackgroundMp4Writer(_Finishes):
             except queue.Full:
                 continue
 
-    def write(self, frame: np.ndarray) -> None:
+    def write(self, frame: Frame) -> None:
         """Queue a copy of one (H, W, 3) uint8 frame (blocks only while the queue is full)."""
         if self._done:
             raise VideoError(f"{self.path}: write after close")
@@ -328,7 +352,7 @@ class BackgroundMp4Writer(_Finishes):
         if not self._done:
             self._done = True
             if self._thread.is_alive():
-                self._put(_STOP)
+                self._put(None)
         self._thread.join(timeout)
         if self._thread.is_alive():
             raise VideoError(f"{self.path}: the video encoder did not finish within {timeout} s")
@@ -342,14 +366,14 @@ class BackgroundMp4Writer(_Finishes):
         self._done = True
         self._aborted.set()
         try:
-            self._queue.put_nowait(_STOP)
+            self._queue.put_nowait(None)
         except queue.Full:
             pass
         self._thread.join()
         self._error = None
 
 
-def probe(path: str | os.PathLike) -> dict:
+def probe(path: str | os.PathLike[str]) -> dict[str, object]:
     """The `info` LeRobot stores for a video feature: size, codec, pixel format, fps, channels, audio."""
     av = _av()
     try:
@@ -376,8 +400,11 @@ def probe(path: str | os.PathLike) -> dict:
 
 
 def decode_frames(
-    path: str | os.PathLike, times: np.ndarray, shape: tuple[int, ...] | None = None, tolerance_s: float = TOLERANCE_S
-) -> np.ndarray:
+    path: str | os.PathLike[str],
+    times: npt.ArrayLike,
+    shape: tuple[int, ...] | None = None,
+    tolerance_s: float = TOLERANCE_S,
+) -> npt.NDArray[np.uint8]:
     """Decode the frames shown at `times` (seconds from the start of the file) as (N, H, W, 3) uint8.
 
     Seeks to the keyframe before the earliest time and decodes forward once; each requested time
@@ -389,7 +416,7 @@ def decode_frames(
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     order = np.argsort(times, kind="stable")
     wanted = times[order]
-    out: np.ndarray | None = None
+    out: npt.NDArray[np.uint8] | None = None
     if shape is not None:
         out = np.empty((len(times),) + tuple(shape), dtype=np.uint8)
     if not len(times):

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -67,7 +66,7 @@ class EpisodeVideo:
             self.error = f"{type(exc).__name__}: {exc}"
             self.writer.abort()
 
-    def close(self, run_dir: str | Path) -> dict[str, Any]:
+    def close(self, run_dir: str | Path) -> dict[str, object]:
         """Finish the file; what the episode record keeps under `extras["video"]`."""
         if self.error is None:
             try:

@@ -15,10 +15,9 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from multiprocessing import resource_tracker
 from multiprocessing.connection import Connection, wait
-from typing import Any
 
 from bench.core.errors import BenchError, ExecutorError
 from bench.execution.runner import Worker, WorkerSpec, given_up_record, with_retries
@@ -123,7 +122,7 @@ class _Children:
         queue: JobQueue,
         cond: threading.Condition,
         emit: Callable[[EpisodeRecord], None],
-        status: Callable[[str | None, Any], None] | None = None,
+        status: Callable[[str | None, Hashable], None] | None = None,
         started: Sequence[_Child] = (),
     ):
         self.spec, self.queue, self.cond, self.emit = spec, queue, cond, emit
@@ -271,7 +270,7 @@ class LocalExecutor:
     def __init__(self, workers: int, own_process: bool = False):
         self.workers = max(1, int(workers))
         self.own_process = own_process  # this process exists for the run (`bench run`): its worker freezes too
-        self.status: Callable[[str | None, Any], None] | None = None  # (what a worker waits for, which worker)
+        self.status: Callable[[str | None, Hashable], None] | None = None  # (what a worker waits for, which worker)
         self.started: list[_Child] = []
 
     def prestart(self, suite_ref: str, policy: str | None, jobs: int) -> None:

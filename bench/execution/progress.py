@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Hashable
 from pathlib import Path
-from typing import Any
 
 from bench.execution.run_config import RunConfig
 from bench.records import EpisodeRecord
@@ -44,7 +44,7 @@ class RunProgress:
         self.counts = {"succ": 0, "err": 0, "done": 0}
         self.total_return, self.completed = 0.0, 0
         self.todo, self.name = todo, cfg.suite
-        self.waits: dict[Any, str] = {}  # worker -> what it waits for (`waiting`)
+        self.waits: dict[Hashable, str] = {}  # worker (its pid, say) -> what it waits for (`waiting`)
         self.starting = starting_text(workers, cfg.executor == "ray") if todo else ""  # until the first record
         self.console = self.progress = None
         self.t0 = time.monotonic()
@@ -99,7 +99,7 @@ class RunProgress:
             self._ticker.start()
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self.progress is not None:
             self.progress.stop()
         elif self._ticker is not None:
@@ -125,7 +125,7 @@ class RunProgress:
         if self.console is not None:
             self.console.print(text, soft_wrap=True)
 
-    def waiting(self, text: str | None, who: Any = None) -> None:
+    def waiting(self, text: str | None, who: Hashable = None) -> None:
         """Worker `who` waits for `text` (e.g. "the policy server at HOST:PORT to warm up"); None: it no longer waits.
 
         The bar shows it beside the counts; a plain (non-terminal) progress line ends with it, and the
@@ -142,7 +142,7 @@ class RunProgress:
             self.progress.update(self.task, status=self._status())
 
     # -- text ------------------------------------------------------------------------------------
-    def _shown(self) -> Any:
+    def _shown(self) -> str | int:
         if self.by_return:
             return f"{self.total_return / self.completed:.2f}" if self.completed else "-"
         return self.counts["succ"]

@@ -22,9 +22,11 @@ import os
 import socket
 import subprocess
 import sys
+from collections.abc import Mapping
 from importlib.metadata import PackageNotFoundError, distribution, entry_points, requires
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TypedDict
 
 from packaging.requirements import Requirement
 
@@ -41,7 +43,7 @@ PROBE_TIMEOUT_S = 5.0  # TCP connect to the head
 GCS_PROBE_S = 20.0  # the head's GCS answering (so a wrong address costs at most ~25 s, not minutes)
 
 
-def import_ray() -> Any:
+def import_ray() -> ModuleType:
     """The `ray` module, or a one-line error with the install command."""
     try:
         import ray  # the ray extra: loaded only for executor=ray
@@ -66,7 +68,7 @@ def check_address(address: str) -> None:
         )
 
 
-def _bootstrap(ray: Any, address: str) -> str:
+def _bootstrap(ray: ModuleType, address: str) -> str:
     """host:port Ray will dial for `address` (auto: RAY_ADDRESS or the cluster `ray start` made here)."""
     from ray._private import services  # the same resolution ray.init does
 
@@ -124,7 +126,7 @@ def _probe_gcs(address: str, given: str) -> None:
         )
 
 
-def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | None = None) -> bool:
+def connect(address: str, env: Mapping[str, object] | None = None, num_cpus: int | None = None) -> bool:
     """Join the cluster at `address` with the job's runtime `env`; True when this call connected.
 
     A process that already called `ray.init` keeps its connection and its runtime env (False):
@@ -134,7 +136,7 @@ def connect(address: str, env: dict[str, Any] | None = None, num_cpus: int | Non
     if ray.is_initialized():
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    quiet: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False, "runtime_env": env or None}
+    quiet: dict[str, object] = {"logging_level": logging.ERROR, "log_to_driver": False, "runtime_env": env or None}
     try:
         if address == "local":
             ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1", include_dashboard=False, **quiet)
@@ -211,11 +213,13 @@ def pins() -> list[str]:
     return sorted(out.values())
 
 
-def runtime_env(mode: str, suite_ref: str, policy_ref: str, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+def runtime_env(
+    mode: str, suite_ref: str, policy_ref: str, extra: Mapping[str, object] | None = None
+) -> dict[str, object]:
     """The runtime env each actor starts in (see the module docstring for the modes)."""
     if mode not in RAY_ENVS:
         raise ConfigError(f"ray_env={mode!r}: valid: {', '.join(RAY_ENVS)}")
-    env: dict[str, Any] = {}
+    env: dict[str, object] = {}
     if mode in ("code", "pip"):
         env["py_modules"] = code_paths(suite_ref, policy_ref)
         env["excludes"] = ["__pycache__", "*.pyc"]
@@ -225,21 +229,29 @@ def runtime_env(mode: str, suite_ref: str, policy_ref: str, extra: dict[str, Any
     if env_vars:
         env["env_vars"] = env_vars
     for key, value in (extra or {}).items():
-        if isinstance(value, dict) and isinstance(env.get(key), dict):
-            env[key] = {**env[key], **value}
-        elif isinstance(value, list) and isinstance(env.get(key), list):
-            env[key] = [*env[key], *value]
+        current = env.get(key)
+        if isinstance(value, dict) and isinstance(current, dict):
+            env[key] = {**current, **value}
+        elif isinstance(value, list) and isinstance(current, list):
+            env[key] = [*current, *value]
         else:
             env[key] = value
     return env
 
 
-def report() -> dict[str, Any]:
+class NodeReport(TypedDict):
+    """What a process runs (`report`): Python major.minor and the result-changing package versions."""
+
+    python: str
+    packages: dict[str, str]
+
+
+def report() -> NodeReport:
     """What this process runs: Python major.minor and the result-changing package versions."""
     return {"python": f"{sys.version_info[0]}.{sys.version_info[1]}", "packages": provenance.package_versions()}
 
 
-def version_mismatch(driver: dict[str, Any], worker: dict[str, Any], where: str) -> str | None:
+def version_mismatch(driver: NodeReport, worker: NodeReport, where: str) -> str | None:
     """One line naming the first difference between a worker's `report()` and the driver's, or None."""
     if driver["python"] != worker["python"]:
         return (

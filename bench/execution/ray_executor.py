@@ -25,9 +25,9 @@ import os
 import tempfile
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 from bench.core.errors import BenchError, ConfigError, ExecutorError
 from bench.core.io import write_bytes_atomic
@@ -39,17 +39,35 @@ from bench.protocols import registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
 
+if TYPE_CHECKING:
+    from ray import ObjectRef
+    from ray.actor import ActorHandle
+
 STALL_S = 300.0  # no actor alive and none placed for this long: give up (records so far are kept)
 WAIT_NOTE_S = 20.0  # tell the user when actors are still waiting to be placed after this long
 PREFLIGHT_S = 600.0  # a node's first worker may install a runtime env (ray_env=pip) before it answers
 
 
-def probe_node(suite_ref: str, policy_ref: str) -> dict[str, Any]:
+class NodeInfo(ray_env.NodeReport):
+    """A node's answer to `probe_node` (and an actor's to `RayWorker.start`): its versions, the process and node,
+    and why it cannot load the run (None when it can)."""
+
+    pid: int
+    node: str
+    error: str | None
+
+
+if TYPE_CHECKING:  # what an actor answers: `RayWorker.start`'s node info, or `RayWorker.run`'s record and trajectory
+    Ref = ObjectRef[NodeInfo] | ObjectRef[tuple[EpisodeRecord, bytes | None]]
+
+
+def probe_node(suite_ref: str, policy_ref: str) -> NodeInfo:
     """Run on every node before anything is written: its versions, and whether it can load the suite and policy."""
     import ray  # the ray extra: loaded only for executor=ray
 
     node = f"{ray.util.get_node_ip_address()} ({ray.get_runtime_context().get_node_id()[:8]})"
-    out = {**ray_env.report(), "pid": os.getpid(), "node": node, "error": None}
+    here = ray_env.report()
+    out: NodeInfo = {**here, "pid": os.getpid(), "node": node, "error": None}
     try:
         registry.suite_class(suite_ref)
         registry.load_policy(policy_ref)
@@ -60,7 +78,7 @@ def probe_node(suite_ref: str, policy_ref: str) -> dict[str, Any]:
     return out
 
 
-def check_worker(driver: dict[str, Any], info: dict[str, Any]) -> str:
+def check_worker(driver: ray_env.NodeReport, info: NodeInfo) -> str:
     """Where a worker runs; raises ExecutorError when it differs from the driver or cannot load the run."""
     where = f"pid {info['pid']} on node {info['node']}"
     problem = ray_env.version_mismatch(driver, info, where)
@@ -82,7 +100,7 @@ class RayWorker:
             self.traj_dir = tempfile.mkdtemp(prefix="bench-traj-")
             self.spec = dataclasses.replace(spec, ctx=dataclasses.replace(spec.ctx, trajectory_dir=self.traj_dir))
 
-    def start(self) -> dict[str, Any]:
+    def start(self) -> NodeInfo:
         """Versions of this process, where it runs, and why the Worker could not be built (None if it was)."""
         out = probe_node(self.spec.suite_ref, self.spec.policy_ref)
         if out["error"] is None:
@@ -110,12 +128,12 @@ class RayWorker:
 
 @dataclass
 class _Actor:
-    handle: Any
-    start_ref: Any
+    handle: ActorHandle[RayWorker]
+    start_ref: ObjectRef[NodeInfo]
     ready: bool = False
     where: str = "not placed yet"
-    inflight: deque = field(default_factory=deque)  # (ref, job) in submission order
-    warm: set = field(default_factory=set)
+    inflight: deque[tuple[Ref, Job]] = field(default_factory=deque)  # (ref, job) in submission order
+    warm: set[str] = field(default_factory=set)  # the cells it has built
 
 
 class RayExecutor:
@@ -139,7 +157,7 @@ class RayExecutor:
         cpus: float = 1.0,
         gpus: float = 0.0,
         env: str = "code",
-        runtime_env: dict[str, Any] | None = None,
+        runtime_env: Mapping[str, object] | None = None,
         note: Callable[[str], None] | None = None,
     ):
         ray_env.check_address(address)
@@ -152,7 +170,7 @@ class RayExecutor:
         self.connected = False
         self.before: set[int] = set()  # processes below this one before `connect`
         self.size = 0
-        self.cluster: dict[str, Any] = {}
+        self.cluster: dict[str, object] = {}
 
     # -- connection ---------------------------------------------------------------------------
     def connect(self, jobs: int | None, suite_ref: str, policy_ref: str) -> int:
@@ -275,7 +293,9 @@ class _Run:
         try:
             while self.queue or any(a.inflight for a in self.actors):
                 self._feed()
-                refs = {a.start_ref: (a, None) for a in self.actors if not a.ready}
+                refs: dict[Ref, tuple[_Actor, Job | None]] = {
+                    a.start_ref: (a, None) for a in self.actors if not a.ready
+                }
                 refs.update({ref: (a, job) for a in self.actors for ref, job in a.inflight})
                 if not refs:
                     raise ExecutorError(
@@ -294,7 +314,7 @@ class _Run:
             for a in self.actors:
                 ray.kill(a.handle, no_restart=True)
 
-    def _answer(self, actor: _Actor, ref: Any, job: Job | None) -> None:
+    def _answer(self, actor: _Actor, ref: Ref, job: Job | None) -> None:
         ray = self.ray
         try:
             value = ray.get(ref)
@@ -316,7 +336,7 @@ class _Run:
             write_bytes_atomic(trajectory_path(self.spec.ctx.trajectory_dir, job.job_id), trajectory)
         self.on_record(with_retries(record, self.queue.attempts(job)))
 
-    def _started(self, actor: _Actor, info: dict[str, Any]) -> None:
+    def _started(self, actor: _Actor, info: NodeInfo) -> None:
         actor.where = check_worker(self.driver, info)  # a node that joined after the preflight is checked here
         actor.ready = True
         self.last_alive = time.time()

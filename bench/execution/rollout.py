@@ -12,20 +12,25 @@ import os
 import signal
 import time
 import traceback
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import numpy as np
 
 from bench.core.io import first_nonfinite, jsonable
 from bench.execution import episode_video
-from bench.protocols import RGB, STATE, EnvAdapter, Obs, Policy
+from bench.protocols import RGB, STATE, EnvAdapter, NumArray, Obs, Policy, ReportsStats
 from bench.protocols.env import mj_input_names, state_hash
 from bench.protocols.suite import Job, condition_rng
 from bench.records import EpisodeRecord
 from bench.sims import perturb
+
+# an episode's trajectory while it runs: per-step lists (arrays, rewards, flags) and per-episode name lists
+Trajectory = dict[str, list[object]]
 
 
 class EpisodeTimeout(Exception):
@@ -37,7 +42,7 @@ class NonFinite(Exception):
 
 
 @contextmanager
-def time_limit(seconds: float | None):
+def time_limit(seconds: float | None) -> Iterator[None]:
     """Raise EpisodeTimeout in the main thread after `seconds` (no-op when None/0 or off-main-thread)."""
     if not seconds or seconds <= 0 or not hasattr(signal, "setitimer"):
         yield
@@ -55,7 +60,7 @@ def time_limit(seconds: float | None):
         signal.signal(signal.SIGALRM, old)
 
 
-def _on_alarm(signum, frame):
+def _on_alarm(signum: int, frame: FrameType | None) -> None:
     raise EpisodeTimeout("episode timed out")
 
 
@@ -82,7 +87,7 @@ def trajectory_path(directory: str | Path, job_id: str) -> Path:
     return Path(directory) / f"{safe}.npz"
 
 
-def _save_trajectory(path: Path, traj: dict[str, Any]) -> None:
+def _save_trajectory(path: Path, traj: Trajectory) -> None:
     """Write the episode's arrays atomically (tmp + rename): a record implies its trajectory exists.
 
     Camera frames (`rgb.*`) are compressed (rendered scenes shrink several times; numbers barely do)."""
@@ -109,10 +114,10 @@ class _Actions:
 
     def __init__(self, policy: Policy, dim: int, horizon: int):
         self.policy, self.dim, self.horizon = policy, dim, horizon
-        self.queue: list[np.ndarray] = []
+        self.queue: list[NumArray] = []
         self.prefetch = getattr(policy, "prefetch", None)
 
-    def next(self, obs: Obs, t: int) -> np.ndarray:
+    def next(self, obs: Obs, t: int) -> NumArray:
         if not self.queue:
             out = np.asarray(self.policy.act(obs))
             if out.ndim == 1 and out.shape[0] == self.dim:
@@ -140,9 +145,11 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     t0 = time.perf_counter()
     success_once = success_at_end = False
     ret, length, first_success = 0.0, 0, None
-    params: dict[str, Any] = {}
-    init_hash, error, stats = None, None, {}
-    traj: dict[str, Any] | None = (
+    params: dict[str, object] = {}
+    init_hash: str | None = None
+    error: str | None = None
+    stats: dict[str, object] = {}
+    traj: Trajectory | None = (
         {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [], "ctrl": []}
         if ctx.trajectory_dir
         else None
@@ -200,7 +207,7 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     finally:
         if log is not None:
             log.stop()
-    extras: dict[str, Any] = {}
+    extras: dict[str, object] = {}
     if video is not None:
         extras["video"] = video.close(str(ctx.video_dir))
     if ctx.policy_stats:
@@ -214,7 +221,7 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
         traj["action_names"] = list(env.action_spec.names)
         traj["fps"] = [float(env.fps)]
         if log is not None and env.mujoco is not None:
-            traj["ctrl_names"] = mj_input_names(env.mujoco.model, log.spec)
+            traj["ctrl_names"] = [*mj_input_names(env.mujoco.model, log.spec)]
             traj["ctrl_spec"] = [int(log.spec)]
         _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
     record = job_record(
@@ -237,7 +244,8 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
 
 
 def job_record(job: Job, ctx: RunContext, **outcome: Any) -> EpisodeRecord:
-    """The record of `job`: which run, cell, condition, episode and policy it is, plus its `outcome` fields.
+    """The record of `job`: which run, cell, condition, episode and policy it is, plus its `outcome` fields (the
+    record's other fields, by name: `EpisodeRecord` checks them).
 
     The one place a job's identity is written into a record, for episodes that ran and for
     those that could not start (`bench.execution.runner.error_record`)."""
@@ -264,9 +272,11 @@ def job_record(job: Job, ctx: RunContext, **outcome: Any) -> EpisodeRecord:
     )
 
 
-def _policy_stats(policy: Any) -> dict[str, Any]:
+def _policy_stats(policy: Policy) -> dict[str, object]:
     """The policy's `episode_stats()`, made JSON-safe; a failure is reported in place of the stats."""
     try:
+        if not isinstance(policy, ReportsStats):
+            raise AttributeError(f"{type(policy).__name__!r} object has no attribute 'episode_stats'")
         stats = jsonable(policy.episode_stats(), 10)
     except Exception as exc:
         return {"error": f"episode_stats failed: {type(exc).__name__}: {exc}"}
@@ -278,7 +288,7 @@ def _policy_stats(policy: Any) -> dict[str, Any]:
     return stats
 
 
-def _append_frame(traj: dict[str, Any], env: EnvAdapter, obs: Obs, action: np.ndarray) -> None:
+def _append_frame(traj: Trajectory, env: EnvAdapter, obs: Obs, action: NumArray) -> None:
     if STATE in obs:
         traj["obs"].append(np.asarray(obs[STATE], np.float32))
     for key, value in obs.items():  # camera images: `record=` stores them as LeRobot video features

@@ -1,5 +1,6 @@
 """The keys of `bench run` (`RunConfig`) and every check of them made before a run starts.
 
+`bench.api.parse_run` routes `key=value` arguments to the runner, the suite and the policy;
 `bench.api.plan` builds the suite and the policy, then calls these: ranges and lists of the
 runner's own keys, the executor's keys, the run id, the estimated work and the output folders.
 Each refusal is one line naming the key, the value and what is valid (`ConfigError`).
@@ -21,7 +22,7 @@ from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.errors import ConfigError
 from bench.execution import ray_env
-from bench.protocols import option_keys, registry
+from bench.protocols import ObsSpec, option_keys
 from bench.protocols.suite import MAX_ENV_SEED, METRICS, SEED_SCHEMES, SPLITS
 
 # limits that keep a typo from starting an absurd job (the message names the limit; bench.core.config owns them)
@@ -93,37 +94,13 @@ RAY_KEYS = {"ray_address": "auto", "actors": 0, "actor_cpus": 1.0, "actor_gpus":
 RUNNER_KEYS = [f.name for f in dataclasses.fields(RunConfig) if f.name not in ("suite_options", "policy_options")]
 
 
-def build_options(schema: type, values: Mapping[str, Any], owner: str) -> Any:
-    """`values` validated into an instance of the Options dataclass `schema` (types, required keys)."""
+def build_options(schema: type, values: Mapping[str, object], owner: str) -> Any:
+    """`values` validated into an instance of the Options dataclass `schema` (types, required keys): the
+    plugin's own type, which bench passes on without reading."""
     bad = [k for k in values if k not in option_keys(schema)]
     if bad:
         raise ConfigError(f"unknown key {bad[0]!r} for {owner}; valid: {', '.join(option_keys(schema)) or '(none)'}")
     return config_mod.build(schema, [], base=dict(values))
-
-
-def config_from_argv(argv: list[str]) -> RunConfig:
-    """`key=value` arguments of `bench run` -> a RunConfig, each key routed to the runner, the suite or the policy.
-
-    A key that none of them declares is refused with every owner's keys listed (e.g.
-    `checkpoint=` without a policy that takes one, or `env_id=` for a suite other than gym).
-    """
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(f"unexpected argument {positional[0]!r}; bench run takes key=value only (bench run --help)")
-    head = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) in ("suite", "policy")])
-    suite_cls = registry.suite_class(head.suite)
-    policy_ref = head.policy or suite_cls.default_policy or suite_cls.reference_policy
-    plugin = registry.load_policy(policy_ref)
-    owners = {
-        "runner": RUNNER_KEYS,
-        f"suite {head.suite}": option_keys(suite_cls.Options),
-        f"policy {policy_ref}": option_keys(plugin.Options),
-    }
-    parts = list(config_mod.partition(overrides, owners, f"suite={head.suite} policy={policy_ref}").values())
-    cfg = config_mod.build(RunConfig, parts[0])
-    suite_opts = dataclasses.asdict(config_mod.build(suite_cls.Options, parts[1])) if parts[1] else {}
-    policy_opts = dataclasses.asdict(config_mod.build(plugin.Options, parts[2])) if parts[2] else {}
-    return dataclasses.replace(cfg, suite_options=suite_opts, policy_options=policy_opts)
 
 
 def check_runner(cfg: RunConfig) -> None:
@@ -204,7 +181,7 @@ def check_work(cfg: RunConfig, episodes: int, horizon: int, step_bytes: int) -> 
             )
 
 
-def observation_bytes(spec: Any) -> int:
+def observation_bytes(spec: ObsSpec) -> int:
     """Bytes of one observation of `spec` (strings count nothing)."""
     total = 0
     for feat in spec.values():

@@ -15,7 +15,7 @@ import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +28,7 @@ from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
 from bench.sims.build_memo import building
-from bench.sims.perturb.reset import write_fields
+from bench.sims.perturb.reset import ModelEdit, write_fields
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class WorkerSpec:
     policy_options: Any  # an instance of the policy plugin's Options
     seed: int  # the run seed
     ctx: RunContext
-    calibration: dict[str, Any] | None = None  # a loaded suite calibration, applied to its robot's envs
+    calibration: tuple[str, Sequence[ModelEdit]] | None = None  # a suite calibration's (robot, model edits)
     build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (`memo_folder`)
 
 
@@ -72,9 +72,11 @@ class Worker:
             with building(self.spec.build_memo, key):  # a cell another worker built: reuse what it measured
                 env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
             try:
-                cal = self.spec.calibration
-                if cal is not None and job.cell.robot == cal["robot"]:  # checked against this model by `plan`
-                    write_fields(env.mujoco, cal["edits"])
+                if self.spec.calibration is not None:
+                    robot, edits = self.spec.calibration
+                    if job.cell.robot == robot:  # checked against this model by `plan`
+                        assert env.mujoco is not None, f"the calibration of {robot} edits a MuJoCo model"
+                        write_fields(env.mujoco, edits)
                 missing = [k for k in self.needs if k not in env.obs_spec]
                 if missing:  # the suite declared them (checked before the run), but its env does not give them
                     raise RuntimeError(

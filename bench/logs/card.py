@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import DataError
+from bench.logs.dataset import LogDataset
 
 POINTS = 32
 STATE = "observation.state"
@@ -75,7 +76,7 @@ def noise_share(trajs: list[np.ndarray]) -> tuple[float, np.ndarray]:
 
 
 def card(
-    ds: Any,
+    ds: LogDataset,
     *,
     starts: dict[str, np.ndarray] | None = None,
     where: str = "",
@@ -94,7 +95,7 @@ def card(
     scale = np.maximum(np.concatenate(trajs).std(axis=0), 1e-9)
     dups = near_duplicates(trajs, scale, dup_tol)
     n_share, per_channel = noise_share(trajs)
-    overlap: list[dict[str, Any]] = []
+    overlap: list[dict[str, object]] = []
     c, note = 0.0, "no suite= given: overlap with an evaluation not measured (c = 0)"
     if starts is not None:
         for ep, x in zip(eps, trajs):

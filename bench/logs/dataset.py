@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from bench.core.errors import DataError
 
@@ -102,7 +102,7 @@ def _infer_feature(name: str, arr: np.ndarray, names: list[str] | None, video: b
     return {"dtype": arr.dtype.name, "shape": shape, "names": list(names) if names is not None else None}
 
 
-def _as_frame_array(name: str, value: Any, where: str) -> np.ndarray:
+def _as_frame_array(name: str, value: npt.ArrayLike, where: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.ndim == 0:
         raise DataError(f"{where}: feature {name!r} is a scalar; expected an array with a leading time axis")

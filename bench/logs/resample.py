@@ -16,8 +16,6 @@ time column every importer makes: finite, no duplicated sample, strictly increas
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from bench.core.errors import DataError
@@ -68,7 +66,7 @@ def resample(
     where: str = "log",
     column: str = "time",
     max_gap: float = MAX_GAP_S,
-) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, Any]]:
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, object]]:
     """Columns sampled at times `t` (seconds) onto a uniform grid at `fps`; and a report of what was done.
 
     Args:

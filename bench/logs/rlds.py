@@ -82,7 +82,7 @@ def _leaves(node: dict, prefix: str, stepwise: bool, out: dict[str, dict], where
         raise DataError(f"{where}: feature {prefix[:-1]!r} has unsupported kind {what!r}")
 
 
-def _decode_tensor(value: Any, spec: dict, key: str, where: str) -> np.ndarray:
+def _decode_tensor(value: object, spec: dict, key: str, where: str) -> np.ndarray:
     dtype = np.dtype(spec["dtype"])
     if spec["encoding"] in ("bytes", "zlib"):
         blobs = value if isinstance(value, list) else []
@@ -113,7 +113,7 @@ def _decode_image(blob: bytes, spec: dict, key: str, where: str) -> np.ndarray:
     return pix[:, :, None] if pix.ndim == 2 else pix
 
 
-def _record_values(features: dict, lists: dict, key: str, spec: dict) -> Any:
+def _record_values(features: dict, lists: dict, key: str, spec: dict) -> object:
     """A leaf's value in an Example (flattened steps) or a SequenceExample (one Feature per step)."""
     if not spec["stepwise"] or not lists:
         return features.get(key)
@@ -132,8 +132,8 @@ def _decode_record(buf: memoryview, leaves: dict[str, dict], where: str) -> tupl
         features, lists = tfrecord.parse_example(buf)
     except tfrecord.ProtoError as exc:
         raise DataError(f"{where}: not a tf.train.Example: {exc}") from None
-    steps: dict[str, Any] = {}
-    episode: dict[str, Any] = {}
+    steps: dict[str, object] = {}
+    episode: dict[str, object] = {}
     length: int | None = None
     first = ""
     for key, spec in leaves.items():

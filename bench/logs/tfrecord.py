@@ -23,13 +23,15 @@ from __future__ import annotations
 import functools
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, TypeVar, Union
 
 import numpy as np
 
 from bench.core.errors import DataError
+
+T = TypeVar("T")
 
 # A decoded Feature: list[bytes] for bytes_list, float32 array for float_list, int64 array for int64_list.
 Value = Union[list, np.ndarray]
@@ -277,9 +279,9 @@ def parse_feature(buf: memoryview) -> Value:
     return kind
 
 
-def _parse_map(buf: memoryview, value_parser: Any) -> dict[str, Any]:
+def _parse_map(buf: memoryview, value_parser: Callable[[memoryview], T]) -> dict[str, T]:
     """A protobuf map<string, M> (field 1 of the enclosing message) as a dict."""
-    out: dict[str, Any] = {}
+    out: dict[str, T] = {}
     for number, wire, entry in _fields(buf):
         if number != 1 or wire != 2:
             continue

@@ -23,11 +23,21 @@ import dataclasses
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
+if TYPE_CHECKING:
+    import mujoco  # MuJoCo ships no type information: its MjModel and MjData are opaque to mypy
+
+# An observation: entry name -> a numpy array, or the task instruction (str), as its `ObsSpec` declares. The
+# values are left untyped on purpose: which entry is text is the spec's to say, and a policy reads `obs["state"]`
+# as the array its spec promises without narrowing a union at every use.
 Obs = dict[str, Any]
+# numbers of any dtype: a policy's action (the rollout checks that they are finite numbers), a simulator's state
+NumArray = npt.NDArray[np.generic]
+FloatArray = npt.NDArray[np.floating[Any]]  # floats of any precision (numpy's precision parameter)
 
 STATE = "state"
 TASK = "task"
@@ -44,6 +54,7 @@ class Cell:
     robot: str
     env: str
     split: str
+    # the suite's own per-cell settings (JSON-able; `cell_to_dict` writes them), read by the suite that set them
     options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
 
     @property
@@ -81,8 +92,8 @@ class Feature:
     def text() -> Feature:
         return Feature((), "str")
 
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"shape": list(self.shape), "dtype": self.dtype}
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {"shape": list(self.shape), "dtype": self.dtype}
         if self.fields:
             out["fields"] = [list(f) for f in self.fields]
         return out
@@ -96,7 +107,7 @@ def describe_spec(spec: ObsSpec) -> str:
     return ", ".join(f"{k}({'x'.join(map(str, f.shape))}) {f.dtype}" for k, f in spec.items())
 
 
-def check_obs(spec: ObsSpec, obs: Any) -> str | None:
+def check_obs(spec: ObsSpec, obs: object) -> str | None:
     """Why `obs` does not match `spec` (one line), or None when it does."""
     if not isinstance(obs, dict):
         return f"observation is a {type(obs).__name__}, not a dict of named entries"
@@ -121,11 +132,11 @@ class ActionSpec:
     """Names and bounds of the flat action vector."""
 
     names: tuple[str, ...]
-    low: np.ndarray = field(compare=False)
-    high: np.ndarray = field(compare=False)
+    low: FloatArray = field(compare=False)  # float32 from `box`; an adapter may give float64
+    high: FloatArray = field(compare=False)
 
     @staticmethod
-    def box(names: Sequence[str], low: Any, high: Any) -> ActionSpec:
+    def box(names: Sequence[str], low: npt.ArrayLike, high: npt.ArrayLike) -> ActionSpec:
         n = len(names)
         lo = np.broadcast_to(np.asarray(low, np.float32), (n,)).copy()
         hi = np.broadcast_to(np.asarray(high, np.float32), (n,)).copy()
@@ -147,9 +158,10 @@ class MujocoHandle:
             episode videos, visual perturbations), else None. Set by `bench.sims.camera_env.CameraEnv`.
     """
 
-    model: Any
-    data: Any
+    model: mujoco.MjModel
+    data: mujoco.MjData
     object_bodies: tuple[str, ...] = ()
+    # a `bench.sims.camera.CameraRig` (sims sits above this layer, so the contract cannot name its type)
     cameras: Any = None
 
     def forward(self) -> None:
@@ -168,12 +180,12 @@ class InputLog:
     step. `record=` stores them as `action.ctrl`, and `bench replay` re-applies them batched.
     """
 
-    def __init__(self, model: Any, spec: int):
+    def __init__(self, model: mujoco.MjModel, spec: int):
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
         self.spec = int(spec)
         self.size = int(mujoco.mj_stateSize(model, self.spec))
-        self.rows: list[np.ndarray] | None = None
+        self.rows: list[npt.NDArray[np.float64]] | None = None
 
     @property
     def active(self) -> bool:
@@ -185,7 +197,7 @@ class InputLog:
     def stop(self) -> None:
         self.rows = None
 
-    def take(self) -> np.ndarray:
+    def take(self) -> npt.NDArray[np.float64]:
         """(substeps, size) inputs applied since the last call; empties the log."""
         if self.rows is None:
             raise RuntimeError("InputLog.take: call start() first")
@@ -238,7 +250,7 @@ class EnvAdapter(Protocol):
         """Reset to the initial state determined by `seed` alone; return the observation."""
         ...
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
+    def step(self, action: NumArray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         """Apply one control step: (obs, reward, terminated, truncated, info)."""
         ...
 
@@ -246,7 +258,7 @@ class EnvAdapter(Protocol):
         """The task's success predicate in the current state."""
         ...
 
-    def init_state(self) -> np.ndarray:
+    def init_state(self) -> NumArray:
         """The simulator state right after reset (hashed to check that seeds give distinct starts)."""
         ...
 
@@ -261,9 +273,16 @@ class Policy(Protocol):
 
     def reset(self, seed: int) -> None: ...
 
-    def act(self, obs: Obs) -> np.ndarray:
+    def act(self, obs: Obs) -> NumArray:
         """One action (A,) or an action chunk (T, A) executed open loop."""
         ...
+
+
+@runtime_checkable
+class ReportsStats(Protocol):
+    """A policy made by a plugin with `reports_stats = True`: JSON-able statistics after every episode."""
+
+    def episode_stats(self) -> Mapping[str, object]: ...
 
 
 CAPABILITIES = ("expert",)  # what a suite may declare in `capabilities`
@@ -292,6 +311,8 @@ class Suite(Protocol):
     default_metric: str
     manifest: Mapping[str, Mapping[str, Sequence[str]]]
     capabilities: frozenset[str]
+    # an instance of the suite's own `Options` dataclass, whose type is the plugin's: a suite declares `options:
+    # MyOptions`, which the contract's attribute must accept (a protocol's attributes are invariant)
     options: Any
 
     def __init__(self, options: Any) -> None:
@@ -334,7 +355,7 @@ class Suite(Protocol):
 class PolicyContext:
     """What a policy factory gets besides the cell and its env."""
 
-    options: Any  # an instance of the plugin's Options
+    options: Any  # an instance of the plugin's Options (its type is the plugin's, read as such by its `make`)
     suite: Suite
     seed: int  # the run seed
     horizon: int
@@ -374,6 +395,7 @@ class PolicyPlugin(ABC):
     Options: ClassVar[type] = NoOptions
     reports_stats: ClassVar[bool] = False
 
+    # `options` below is an instance of the plugin's `Options`, untyped here so a plugin's override takes it typed
     def obs_keys(self, options: Any) -> tuple[str, ...]:
         return (STATE,)
 
@@ -396,7 +418,7 @@ class PolicyPlugin(ABC):
 class FactoryPlugin(PolicyPlugin):
     """A plain factory function `f(cell, env, ctx) -> Policy` as a plugin (state observation, no keys)."""
 
-    def __init__(self, factory: Callable[..., Policy]):
+    def __init__(self, factory: Callable[[Cell, EnvAdapter, PolicyContext], Policy]):
         self.factory = factory
 
     def make(self, cell: Cell, env: EnvAdapter, ctx: PolicyContext) -> Policy:

@@ -11,11 +11,15 @@ from __future__ import annotations
 
 import hashlib
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
-from bench.protocols import ActionSpec, InputLog, ModelAxes, MujocoHandle, Obs, ObsSpec
+from bench.protocols import ActionSpec, EnvAdapter, InputLog, ModelAxes, MujocoHandle, NumArray, Obs, ObsSpec
+
+if TYPE_CHECKING:
+    import mujoco  # no type information: MjModel is opaque to mypy
 
 # the contract's attributes, which `AdapterWrapper` copies from its inner adapter
 ATTRIBUTES = ("backend", "horizon", "fps", "obs_spec", "action_spec", "mujoco", "inputs", "model_axes")
@@ -40,16 +44,18 @@ class AdapterBase(ABC):
     def reset(self, seed: int) -> Obs: ...
 
     @abstractmethod
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]: ...
+    def step(self, action: NumArray) -> tuple[Obs, float, bool, bool, dict[str, object]]: ...
 
     @abstractmethod
     def success(self) -> bool: ...
 
-    def init_state(self) -> np.ndarray:
+    def init_state(self) -> NumArray:
         """The MuJoCo state after reset (qpos, qvel); an adapter without MuJoCo overrides it."""
         if self.mujoco is None:
             raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state: implement init_state")
-        return np.concatenate([self.mujoco.data.qpos, self.mujoco.data.qvel]).copy()
+        data = self.mujoco.data
+        state: npt.NDArray[np.float64] = np.concatenate([data.qpos, data.qvel]).astype(np.float64)
+        return state
 
     def close(self) -> None:
         """Nothing to release."""
@@ -62,12 +68,12 @@ class CachedStateAdapter(AdapterBase):
     sets `_success`."""
 
     _success: bool = False
-    _init_state: np.ndarray = np.zeros(0)
+    _init_state: NumArray = np.zeros(0)
 
     def success(self) -> bool:
         return self._success
 
-    def init_state(self) -> np.ndarray:
+    def init_state(self) -> NumArray:
         return self._init_state
 
 
@@ -75,7 +81,7 @@ class AdapterWrapper(AdapterBase):
     """An adapter around another: the contract forwarded to `inner`, attributes copied once at
     construction (no `__getattr__` forwarding), methods calling through. Override what changes."""
 
-    def __init__(self, inner: Any) -> None:
+    def __init__(self, inner: EnvAdapter) -> None:
         self.inner = inner
         for name in ATTRIBUTES:
             setattr(self, name, getattr(inner, name))
@@ -83,20 +89,20 @@ class AdapterWrapper(AdapterBase):
     def reset(self, seed: int) -> Obs:
         return self.inner.reset(seed)
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, Any]]:
+    def step(self, action: NumArray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         return self.inner.step(action)
 
     def success(self) -> bool:
         return bool(self.inner.success())
 
-    def init_state(self) -> np.ndarray:
+    def init_state(self) -> NumArray:
         return self.inner.init_state()
 
     def close(self) -> None:
         self.inner.close()
 
 
-def unwrap(env: Any) -> Any:
+def unwrap(env: EnvAdapter) -> EnvAdapter:
     """The innermost adapter under any number of wrappers (an expert needs the concrete env)."""
     while isinstance(env, AdapterWrapper):
         env = env.inner
@@ -112,7 +118,7 @@ def obs_slices(obs_names: list[tuple[str, int]]) -> dict[str, slice]:
     return out
 
 
-def state_hash(state: np.ndarray, decimals: int = 6) -> str:
+def state_hash(state: npt.ArrayLike, decimals: int = 6) -> str:
     """A short, platform-stable hash of a state vector, rounded so float noise does not matter."""
     arr = np.round(np.asarray(state, dtype=np.float64), decimals) + 0.0  # +0.0 folds -0.0 into 0.0
     return hashlib.sha256(arr.tobytes()).hexdigest()[:16]
@@ -122,7 +128,7 @@ def state_hash(state: np.ndarray, decimals: int = 6) -> str:
 _INPUT_PARTS = (("CTRL", None), ("MOCAP_POS", "xyz"), ("MOCAP_QUAT", "wxyz"))
 
 
-def mj_input_names(model, spec: int) -> list[str]:
+def mj_input_names(model: mujoco.MjModel, spec: int) -> list[str]:
     """Element names of `mj_getState(model, data, out, spec)` for an input-only mask.
 
     CTRL -> actuator names; MOCAP_POS -> `<body>.mocap_x|y|z`; MOCAP_QUAT -> `<body>.mocap_qw|qx|qy|qz`.

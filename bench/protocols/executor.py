@@ -29,7 +29,8 @@ class Executor(Protocol):
 
     def execute(self, jobs: list[Job], spec: Any, on_record: Callable[[Any], None]) -> None:
         """Run `jobs` with the worker spec `spec` (a `bench.execution.runner.WorkerSpec`): build each cell's
-        env once per worker, run the episodes, call `on_record(record)` for each, in finish order."""
+        env once per worker, run the episodes, call `on_record(record)` for each (a `bench.records.EpisodeRecord`),
+        in finish order. Both types live in layers above this one, so the contract cannot name them."""
         ...
 
     def close(self) -> None:
@@ -41,14 +42,14 @@ class Executor(Protocol):
 class ClusterExecutor(Executor, Protocol):
     """An executor with the "cluster" capability."""
 
-    cluster: dict[str, Any]
+    cluster: dict[str, object]  # JSON: run.json's executor
 
     def connect(self, jobs: int | None, suite_ref: str, policy_ref: str) -> int:
         """Reach the cluster (one line on failure) and return how many workers the run gets."""
         ...
 
 
-def capabilities(executor: Any) -> frozenset[str]:
+def capabilities(executor: object) -> frozenset[str]:
     """An executor's declared capabilities (an object without the attribute declares none)."""
     caps = frozenset(getattr(executor, "capabilities", frozenset()))
     unknown = caps - EXECUTOR_CAPABILITIES

@@ -16,6 +16,7 @@ import importlib
 import os
 import sys
 from importlib.metadata import EntryPoint, entry_points
+from types import ModuleType
 from typing import Any
 
 from bench.core.errors import RegistryError, did_you_mean
@@ -49,7 +50,7 @@ def names(group: str) -> list[str]:
     return sorted(group_entry_points(group))
 
 
-def import_module(module_name: str, kind: str) -> Any:
+def import_module(module_name: str, kind: str) -> ModuleType:
     """Import `module_name`, searching the current folder too (as `python -m` does).
 
     So `suite=tests.toy_suite:ToySuite` works from the checkout; worker processes inherit the
@@ -67,7 +68,9 @@ def import_module(module_name: str, kind: str) -> Any:
 
 
 def import_ref(ref: str, kind: str) -> Any:
-    """The attribute `attr` of `package.module` for a reference `package.module:attr`."""
+    """The attribute `attr` of `package.module` for a reference `package.module:attr`.
+
+    Untyped: a plugin's object, whatever its module holds; `suite_class` and `load_policy` check what they use."""
     module_name, _, attr = ref.partition(":")
     if not module_name or not attr:
         raise RegistryError(f"{kind}={ref!r}: write package.module:attr, e.g. {kind}=my_pkg.plugins:Thing")
@@ -111,7 +114,7 @@ def suite_class(ref: str) -> type[Suite]:
     return cls
 
 
-def make_suite(ref: str, options: Any = None) -> Any:
+def make_suite(ref: str, options: Any = None) -> Suite:  # options: the suite's own Options instance
     """The suite `ref` built with `options` (an instance of its Options; None = the defaults)."""
     return suite_class(ref)(options)
 

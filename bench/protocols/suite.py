@@ -18,7 +18,7 @@ import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypedDict
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from bench.protocols import Cell, EnvAdapter, NoOptions, ObsSpec, Policy, Suite
 __all__ = [
     "Cell",
     "Condition",
+    "ConditionSpec",
     "Job",
     "NOMINAL",
     "SPLITS",
@@ -55,14 +56,44 @@ SPLIT_AXES: dict[str, str] = {"robots": "robot", "tasks": "task", "envs": "env"}
 METRICS = ("success_once", "success_at_end", "return")
 
 
+class ConditionSpec(TypedDict, total=False):
+    """How a perturbation condition takes its value (`Condition.spec`, written by `bench.sims.perturb.axes`).
+
+    kind: "grid" (the level itself), "uniform" / "loguniform" (a value drawn per episode from the [low, high]
+        level) or "from" (one of a calibration's bootstrap draws per episode); absent: "grid".
+    targets: the elements the axis acts on by kind ({"joints": ["hinge1"]}); absent or empty: its defaults.
+    source, sha256: for "from", the calibration.json drawn from and the sha256 of its bytes.
+    keys, values: for "from", the draws' columns (`field:element[:column]`) and one row of values per draw.
+    """
+
+    kind: str
+    targets: dict[str, list[str]]
+    source: str
+    sha256: str
+    keys: list[str]
+    values: list[list[float]]
+
+
 @dataclass(frozen=True)
 class Condition:
     """A physics/interface condition: `nominal`, or one perturbation setting (see bench.sims.perturb.reset)."""
 
     name: str = "nominal"
     axis: str | None = None  # e.g. "friction"; None for nominal
-    level: Any = None  # a scale/value, or a [low, high] range for randomisation
-    spec: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    # a scale/value (float or int), or a [low, high] range for randomisation (`from`: [0, draws - 1]); untyped, as
+    # the perturbation code reads it by `kind` rather than by narrowing a union
+    level: Any = None
+    spec: ConditionSpec = field(default_factory=ConditionSpec, hash=False, compare=False)
+
+    @property
+    def kind(self) -> str:
+        """`grid`, `uniform`, `loguniform` or `from` (`ConditionSpec.kind`; `grid` when unset, as for nominal)."""
+        return self.spec.get("kind", "grid")
+
+    @property
+    def targets(self) -> Mapping[str, Sequence[str]]:
+        """The named targets by kind (`ConditionSpec.targets`); empty: the axis' default targets."""
+        return self.spec.get("targets") or {}
 
 
 NOMINAL = Condition()
@@ -119,7 +150,7 @@ class SuiteSpec:
     simulators: tuple[tuple[str, str], ...]
 
     @classmethod
-    def of(cls, suite: dict[str, Any], packages: dict[str, Any] | None) -> SuiteSpec:
+    def of(cls, suite: Mapping[str, Any], packages: Mapping[str, object] | None) -> SuiteSpec:  # JSON in
         """From a suite's `describe()` (a summary's or run.json's `suite`) and a provenance's packages."""
         manifest = suite.get("manifest") or {}
         options = {k: v for k, v in suite.items() if k not in ("name", "version", "manifest")}
@@ -135,7 +166,7 @@ class SuiteSpec:
             simulators=tuple(sorted(sims.items())),
         )
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {
             "name": self.name,
             "version": self.version,
@@ -226,13 +257,13 @@ class SuiteBase(ABC):
         simulator: robosuite takes ~0.5 s); nothing by default. Errors are the build's to report."""
         return None  # a hook
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, object]:
         """JSON-able identity of the suite: name, version, split manifest and its options.
 
         An option declared with `metadata={"spec": False}` changes how the same numbers are computed,
         not what is computed (robosuite's `fast_path`): it is left out, so runs with and without it
         compare as the same suite."""
-        out: dict[str, Any] = {
+        out: dict[str, object] = {
             "name": self.name,
             "version": self.version,
             "manifest": {a: {s: list(v) for s, v in split.items()} for a, split in self.manifest.items()},
@@ -243,19 +274,20 @@ class SuiteBase(ABC):
         return out
 
 
-def policy_ref(suite: Any, policy: str | None) -> str:  # a Suite class or instance
+def policy_ref(suite: Suite | type[Suite], policy: str | None) -> str:
     """The policy a run of `suite` uses: `policy`, else the suite's `default_policy`, else its reference policy."""
     return policy or suite.default_policy or suite.reference_policy
 
 
-def summary_line(suite: Any) -> str:  # a Suite class or instance
-    """The first line of a suite's (class or instance) docstring (what `bench list` prints)."""
+def summary_line(suite: object) -> str:
+    """The first line of a suite's (class or instance) docstring (what `bench list` prints); any object's."""
     doc = (suite.__doc__ or "").strip().splitlines()
     return doc[0] if doc else ""
 
 
-def select_cells(suite: Suite, selection: Any) -> list[Cell]:
-    """The suite's cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset).
+def select_cells(suite: Suite, selection: object) -> list[Cell]:
+    """The suite's cells selected by `robots=`, `tasks=`, `envs=` and `splits=` (all when unset): the attributes
+    of that name of `selection` (a run's config), a list of values or None.
 
     An empty list selects nothing and is refused, as is a value the suite does not have.
     """
@@ -286,5 +318,5 @@ def expand_jobs(
     ]
 
 
-def cell_to_dict(cell: Cell) -> dict[str, Any]:
+def cell_to_dict(cell: Cell) -> dict[str, object]:
     return dataclasses.asdict(cell)

@@ -15,16 +15,27 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Hashable, Sequence
+from typing import Protocol, TypeGuard
 
 import numpy as np
+import numpy.typing as npt
+
+from bench.protocols import Obs
+
+
+class BatchPolicy(Protocol):
+    """A policy that answers many observations in one forward pass; equal `batch_key`s answer identically."""
+
+    batch_key: Hashable
+
+    def act_batch(self, observations: list[Obs]) -> Sequence[npt.ArrayLike]: ...
 
 
 class _Request:
     __slots__ = ("policy", "obs", "key", "done", "result", "error", "infer_ms", "batch")
 
-    def __init__(self, policy: Any, obs: Any, key: Any):
+    def __init__(self, policy: BatchPolicy, obs: Obs, key: Hashable):
         self.policy, self.obs, self.key = policy, obs, key
         self.done = threading.Event()
         self.result: np.ndarray | None = None
@@ -33,7 +44,7 @@ class _Request:
         self.batch = 1
 
 
-def batchable(policy: Any) -> bool:
+def batchable(policy: object) -> TypeGuard[BatchPolicy]:
     return callable(getattr(policy, "act_batch", None)) and getattr(policy, "batch_key", None) is not None
 
 
@@ -51,7 +62,7 @@ class Batcher:
         self._thread = threading.Thread(target=self._run, name="bench-serve-batch", daemon=True)
         self._thread.start()
 
-    def submit(self, policy: Any, obs: Any) -> tuple[np.ndarray, float, int]:
+    def submit(self, policy: BatchPolicy, obs: Obs) -> tuple[np.ndarray, float, int]:
         """(the policy's answer to `obs`, the batch's forward-pass ms, the batch's size); blocks until done."""
         req = _Request(policy, obs, policy.batch_key)
         with self._cond:
@@ -79,7 +90,7 @@ class Batcher:
                         break
                     self._cond.wait(left)
                 taken, self._waiting = self._waiting[: self.size], self._waiting[self.size :]
-            groups: dict[Any, list[_Request]] = {}
+            groups: dict[Hashable, list[_Request]] = {}
             for req in taken:
                 groups.setdefault(req.key, []).append(req)
             for group in groups.values():

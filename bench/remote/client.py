@@ -34,13 +34,13 @@ import time
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.core.io import jsonable
-from bench.protocols import Cell, EnvAdapter, Obs, PolicyContext, PolicyIdentity, PolicyPlugin, Suite
+from bench.protocols import Cell, EnvAdapter, Obs, ObsSpec, PolicyContext, PolicyIdentity, PolicyPlugin, Suite
 from bench.remote import latency, wire
 from bench.remote import obs_map as obs_map_mod
 from bench.remote.connection import Connection, RemoteError, forget_failure
@@ -48,7 +48,7 @@ from bench.remote.connection import Connection, RemoteError, forget_failure
 MAX_TIMEOUT_S = 3600.0
 
 
-def check_actions(reply: dict[str, Any], dim: int, where: str) -> np.ndarray:
+def check_actions(reply: wire.Message, dim: int, where: str) -> np.ndarray:
     """The action chunk (T, dim) of a server's answer; RemoteError naming what is wrong."""
     if wire.ACTIONS not in reply:
         raise RemoteError(f"the answer of {where} has no {wire.ACTIONS!r} entry (keys: {sorted(reply)[:8]})")
@@ -92,7 +92,7 @@ class RemotePolicy:
             self.conn.close()
             raise
 
-    def _reset_message(self, seed: int) -> dict[str, Any]:
+    def _reset_message(self, seed: int) -> wire.Message:
         suite = self.ctx.suite
         return {
             wire.CONTROL: {
@@ -162,7 +162,7 @@ class RemotePolicy:
         self._steps += len(rows)
         return rows
 
-    def _chunk(self, reply: dict[str, Any]) -> np.ndarray:
+    def _chunk(self, reply: wire.Message) -> np.ndarray:
         timing = reply.get("server_timing")
         if isinstance(timing, dict) and isinstance(timing.get("infer_ms"), (int, float)):
             self._server_ms.append(float(timing["infer_ms"]))
@@ -199,7 +199,7 @@ class RemotePolicy:
         self._steps += len(rows)
         return rows
 
-    def episode_stats(self) -> dict[str, Any]:
+    def episode_stats(self) -> dict[str, object]:
         stats = latency.episode_stats(self._rtt, self._server_ms, self.fps)
         # which observation the server saw for each chunk: the step it was taken at (overlap: one step early)
         stats["obs_steps"] = list(self._obs_steps)
@@ -210,7 +210,7 @@ class RemotePolicy:
         self.conn.close()
 
 
-def zero_observation(spec: Any, task: str) -> dict[str, Any]:
+def zero_observation(spec: ObsSpec, task: str) -> Obs:
     """An observation of `spec` made of zeros (the task name for text entries): the warm-up inference's input."""
     return {
         key: task if feat.dtype == "str" else np.zeros(feat.shape, dtype=np.dtype(feat.dtype))
@@ -218,7 +218,7 @@ def zero_observation(spec: Any, task: str) -> dict[str, Any]:
     }
 
 
-def suite_ref(suite: Any) -> dict[str, Any]:
+def suite_ref(suite: Suite) -> dict[str, object]:
     """How a client names its suite to a bench server: name, class path and options (JSON)."""
     cls = type(suite)
     opts = getattr(suite, "options", None)
@@ -231,11 +231,11 @@ def suite_ref(suite: Any) -> dict[str, Any]:
     }
 
 
-def _jsonable(x: Any) -> Any:
+def _jsonable(x: object) -> object:
     return jsonable(x)
 
 
-def _control(conn: Connection, message: dict[str, Any], warm: bool = False) -> dict[str, Any]:
+def _control(conn: Connection, message: wire.Message, warm: bool = False) -> wire.Message:
     """Send a bench control message and check the acknowledgement (`warm`: it may pay the server's set-up)."""
     reply = conn.request(message, warm=warm)
     body = reply.get(wire.CONTROL)
@@ -290,12 +290,12 @@ class RemotePlugin(PolicyPlugin):
     reports_stats = True
 
     def __init__(self) -> None:
-        self._meta: dict[tuple[str, int], dict[str, Any]] = {}
+        self._meta: dict[tuple[str, int], wire.Message] = {}
 
-    def obs_keys(self, options: Any) -> tuple[str, ...]:
+    def obs_keys(self, options: RemoteOptions) -> tuple[str, ...]:
         return obs_map_mod.env_keys(obs_map_mod.parse(options.obs_map))
 
-    def _metadata(self, options: RemoteOptions) -> dict[str, Any]:
+    def _metadata(self, options: RemoteOptions) -> wire.Message:
         key = (options.host, options.port)
         if key not in self._meta:
             validate(options)
@@ -309,7 +309,7 @@ class RemotePlugin(PolicyPlugin):
                 conn.close()
         return self._meta[key]
 
-    def identity(self, options: Any) -> PolicyIdentity:
+    def identity(self, options: RemoteOptions) -> PolicyIdentity:
         """The served checkpoint and its sha256 when the server is a bench server that reports them."""
         bench = self._metadata(options).get("bench")
         if isinstance(bench, dict) and bench.get("protocol") == wire.PROTOCOL:
@@ -317,7 +317,7 @@ class RemotePlugin(PolicyPlugin):
             return PolicyIdentity(str(ckpt) if ckpt else None, str(sha) if sha else None)
         return PolicyIdentity()
 
-    def preflight(self, options: Any, suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
+    def preflight(self, options: RemoteOptions, suite: Suite, cells: Sequence[Cell], horizon: int) -> None:
         """Reachable server, obs_map sources in every cell's observation, and a bench server able to serve them."""
         validate(options)
         entries = obs_map_mod.parse(options.obs_map)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 from bench.core.errors import BenchError
 from bench.remote import link, wire
@@ -60,7 +59,7 @@ class _Wait:
         if self.report is not None:
             self.report(self.text)
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self.timer is not None:
             self.timer.cancel()
         if self.shown and self.report is not None:
@@ -90,7 +89,7 @@ class Connection:
         self.where = address(host, port)
         self.uri = f"ws://{self.where}"
         self.ws: link.Link | None = None
-        self.metadata: dict[str, Any] = {}
+        self.metadata: wire.Message = {}
         self.cell: str | None = None  # the cell of the last acknowledged reset on this connection
         self.reached = False  # connected before: a reconnect (after a lost connection) is bounded by timeout_s
 
@@ -99,12 +98,12 @@ class Connection:
         return self.ws is not None
 
     @property
-    def bench(self) -> dict[str, Any] | None:
+    def bench(self) -> wire.Message | None:
         """The bench part of the server's metadata, when it speaks bench's protocol extension."""
         meta = self.metadata.get("bench")
         return meta if isinstance(meta, dict) and meta.get("protocol") == wire.PROTOCOL else None
 
-    def connect(self) -> dict[str, Any]:
+    def connect(self) -> wire.Message:
         """Open the socket and read the server's metadata, retrying with backoff.
 
         The first connection is bounded by `warmup_s` (a server may still be loading its model before
@@ -153,7 +152,7 @@ class Connection:
                 time.sleep(min(delay, left))
                 delay = min(delay * 2, BACKOFF_MAX_S)
 
-    def _metadata(self, ws: link.Link, deadline: float, key: str, limit: float) -> dict[str, Any]:
+    def _metadata(self, ws: link.Link, deadline: float, key: str, limit: float) -> wire.Message:
         try:
             frame = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
         except TimeoutError:
@@ -168,7 +167,7 @@ class Connection:
         except wire.WireError as exc:
             raise RemoteError(f"server at {self.where}: {exc}") from None
 
-    def request(self, message: dict[str, Any], warm: bool = False) -> dict[str, Any]:
+    def request(self, message: wire.Message, warm: bool = False) -> wire.Message:
         """Send one message and return the decoded answer; RemoteError (and a closed socket) on any failure.
 
         `warm`: the answer may pay the server's set-up (bounded by `warmup_s`, and reported if long).
@@ -181,7 +180,7 @@ class Connection:
             self.send(message)
             return self.receive(warm)
 
-    def send(self, message: dict[str, Any]) -> None:
+    def send(self, message: wire.Message) -> None:
         """Send one message without waiting for its answer (`receive` reads it): the caller works meanwhile."""
         if self.ws is None:
             raise RemoteError(f"not connected to {self.where}")
@@ -199,7 +198,7 @@ class Connection:
             if not ok:
                 self.close()
 
-    def receive(self, warm: bool = False) -> dict[str, Any]:
+    def receive(self, warm: bool = False) -> wire.Message:
         """The decoded answer to the message sent last; RemoteError (and a closed socket) on any failure."""
         if self.ws is None:
             raise RemoteError(f"the connection to {self.where} was lost")

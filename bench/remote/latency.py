@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.records import EpisodeRecord
+
 START_MS = 1e-3  # lowest bin edge: 1 microsecond
 PER_DECADE = 20
 
@@ -42,7 +44,7 @@ def _q(values: np.ndarray, q: float) -> float:
     return round(float(np.quantile(values, q)), 4)
 
 
-def episode_stats(rtt_s: Iterable[float], server_ms: Iterable[float], fps: float) -> dict[str, Any]:
+def episode_stats(rtt_s: Iterable[float], server_ms: Iterable[float], fps: float) -> dict[str, object]:
     """The JSON-able latency statistics of one episode (empty when no request was made)."""
     rtt = np.asarray(list(rtt_s), np.float64) * 1000.0
     if rtt.size == 0:
@@ -51,7 +53,7 @@ def episode_stats(rtt_s: Iterable[float], server_ms: Iterable[float], fps: float
     for ms in rtt:
         b = _bin(float(ms))
         counts[b] = counts.get(b, 0) + 1
-    out: dict[str, Any] = {
+    out: dict[str, object] = {
         "requests": int(rtt.size),
         "rtt_ms": {
             "p50": _q(rtt, 0.5),
@@ -74,7 +76,7 @@ def episode_stats(rtt_s: Iterable[float], server_ms: Iterable[float], fps: float
     return out
 
 
-def pool(stats: Iterable[dict[str, Any]]) -> dict[str, Any] | None:
+def pool(stats: Iterable[dict[str, Any]]) -> dict[str, Any] | None:  # JSON: episodes' stats, read by key
     """Pool per-episode statistics: total requests, the summed histogram and its quantiles; None if none.
 
     Quantiles are read off the histogram (the geometric middle of the bin holding the quantile);
@@ -118,7 +120,7 @@ def pool(stats: Iterable[dict[str, Any]]) -> dict[str, Any] | None:
     return out
 
 
-def run_latency(records: Iterable[Any]) -> dict[str, Any] | None:
+def run_latency(records: Iterable[EpisodeRecord]) -> dict[str, Any] | None:
     """The `policy_latency` block of a run's summary: pooled over the run and per condition; None without stats.
 
     Per condition, `injected_steps` is the mean `latency` the perturbation applied (perturb.latency,

@@ -19,7 +19,12 @@ import socket
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from websockets.http11 import Request, Response
+    from websockets.protocol import Event, Protocol
+    from websockets.server import ServerProtocol
 
 BUFSIZE = 2**18
 HANDSHAKE_TIMEOUT_S = 10.0
@@ -39,7 +44,7 @@ class Link:
     Not thread-safe: one thread uses a link (the runner's worker, or a server's connection thread).
     """
 
-    def __init__(self, sock: socket.socket, protocol: Any):
+    def __init__(self, sock: socket.socket, protocol: Protocol):
         self.sock, self.protocol = sock, protocol
         self._messages: deque[bytes | str] = deque()
         self._parts: list[bytes | bytearray | memoryview] = []
@@ -66,7 +71,7 @@ class Link:
             self.sock.settimeout(timeout)
             self._timeout = timeout
 
-    def _pump(self, deadline: float | None) -> list[Any]:
+    def _pump(self, deadline: float | None) -> list[Event]:
         """Read once from the socket (TimeoutError past `deadline`) and return the protocol's events."""
         if deadline is None:
             self._settimeout(None)
@@ -89,7 +94,7 @@ class Link:
         self._flush()
         return events
 
-    def _take(self, events: list[Any]) -> None:
+    def _take(self, events: list[Event]) -> None:
         """Queue the complete data messages among `events` (fragments joined; control frames are the protocol's)."""
         from websockets.frames import (  # websockets: loaded only when a remote policy connects or is served
             Frame,
@@ -217,7 +222,7 @@ def connect(uri: str, timeout: float, max_size: int | None) -> Link:
 def accept(
     sock: socket.socket,
     max_size: int | None,
-    respond: Callable[[Any, Any], Any] | None = None,
+    respond: Callable[[ServerProtocol, Request], Response | None] | None = None,
     timeout: float = HANDSHAKE_TIMEOUT_S,
 ) -> Link | None:
     """The server side of the opening handshake on an accepted socket.

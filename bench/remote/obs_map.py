@@ -18,14 +18,14 @@ wire key -> bench key (plain keys only; a field selection cannot be inverted).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import DEPTH, RGB, STATE, TASK, Feature, ObsSpec
+from bench.protocols import DEPTH, RGB, STATE, TASK, Feature, Obs, ObsSpec
+from bench.remote.wire import Message
 
 FIELD_PREFIX = STATE + "."
 
@@ -108,17 +108,17 @@ def check(entries: list[Entry] | None, spec: ObsSpec, where: str, key: str = "ob
                     )
 
 
-def wire_spec(entries: list[Entry] | None, spec: ObsSpec) -> dict[str, dict[str, Any]]:
+def wire_spec(entries: list[Entry] | None, spec: ObsSpec) -> dict[str, dict[str, object]]:
     """What the client sends under each wire key: {"shape": [...], "dtype": ...} ("str" for the task).
 
     Sent with the preflight "check", so a server can name an input it will not get, or one of the wrong
     shape, before any episode (the lerobot adapter compares it with its policy's input features).
     """
     if entries is None:
-        out = {k: {"shape": list(f.shape), "dtype": f.dtype} for k, f in spec.items()}
+        out: dict[str, dict[str, object]] = {k: {"shape": list(f.shape), "dtype": f.dtype} for k, f in spec.items()}
         out.setdefault(TASK, {"shape": [], "dtype": "str"})
         return out
-    sent: dict[str, dict[str, Any]] = {}
+    sent: dict[str, dict[str, object]] = {}
     for e in entries:
         if e.fields:
             widths = dict(spec[STATE].fields)
@@ -144,12 +144,12 @@ class ClientMap:
             start += width
         self._slices = {e.wire: [offsets[f] for f in e.fields] for e in entries or [] if e.fields}
 
-    def __call__(self, obs: Mapping[str, Any]) -> dict[str, Any]:
+    def __call__(self, obs: Obs) -> Message:
         if self.entries is None:
             out = dict(obs)
             out.setdefault(TASK, self.task)
             return out
-        msg: dict[str, Any] = {}
+        msg: Message = {}
         for e in self.entries:
             if e.fields:
                 state = obs[STATE]

@@ -36,7 +36,7 @@ from bench import __version__
 from bench.core import config as config_mod
 from bench.core.errors import BenchError, ConfigError, did_you_mean
 from bench.core.io import jsonable
-from bench.protocols import TASK, Feature, PolicyContext, Suite, registry
+from bench.protocols import TASK, EnvAdapter, Feature, Obs, Policy, PolicyContext, Suite, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
 from bench.remote.batching import Batcher, batchable
@@ -67,8 +67,8 @@ class ServeConfig:
 class Served:
     """One cell's env and policy in a session."""
 
-    env: Any
-    policy: Any
+    env: EnvAdapter
+    policy: Policy
     spec: dict[str, Feature]
 
 
@@ -88,7 +88,7 @@ class PolicyServer:
         if policy_options is None:
             policy_options = config_mod.build(self.plugin.Options, [])
         self.policy_options = policy_options
-        self.suite_cls: Any = registry.suite_class(cfg.suite)
+        self.suite_cls: type[Suite] = registry.suite_class(cfg.suite)
         self.suite_options = suite_options
         self.map = obs_map_mod.server_map(obs_map_mod.parse(cfg.obs_map))
         self.needs = tuple(self.plugin.obs_keys(policy_options))
@@ -116,21 +116,21 @@ class PolicyServer:
                 "bench_version": str(__version__),
             }
         }
-        self._suites: dict[str, Any] = {}  # suites clients named, by class path and options (built once)
+        self._suites: dict[str, Suite] = {}  # suites clients named, by class path and options (built once)
         self._lock = threading.Lock()
         self.prepared = Prepared(cfg.prepare, log=self.log)
         self.sessions = 0  # open connections (a batch need not wait for more requests than there are clients)
         self.batcher = Batcher(cfg.batch, cfg.batch_wait_ms / 1000.0, lambda: self.sessions) if cfg.batch > 1 else None
 
     # -- suites and cells, resolved from what a client names ------------------------------
-    def suite_for(self, name: Any, path: Any, options: Any) -> Any:
+    def suite_for(self, name: object, path: object, options: object) -> Suite:
         """The suite a client names: registered on this server, or this server's own `suite=` (never imported)."""
         if not isinstance(name, str) or not isinstance(path, str):
             raise RequestError("suite and suite_class must be strings")
         candidates = [self.suite_cls]
         if ":" not in name and name in registry.names(registry.SUITES):
             candidates.append(registry.suite_class(name))
-        cls: Any = next((c for c in candidates if class_path(c) == path), None)
+        cls = next((c for c in candidates if class_path(c) == path), None)
         if cls is None:
             raise RequestError(
                 f"suite {name!r} ({path}) is not served here: this server serves registered suites "
@@ -147,12 +147,12 @@ class PolicyServer:
                     raise RequestError(f"suite {name!r}: {exc}") from None
             return self._suites[key]
 
-    def build(self, suite: Suite, cell_key: Any, run_seed: int, horizon: int) -> Served:
+    def build(self, suite: Suite, cell_key: object, run_seed: int, horizon: int) -> Served:
         """The cell's env and policy, made as a bench worker makes them (the env prepared ahead if it was)."""
         cells = {c.key: c for c in suite.all_cells()}
         if cell_key not in cells:
             raise RequestError(f"cell {cell_key!r} is not a cell of suite {suite.name!r}")
-        cell = cells[cell_key]
+        cell = next(c for key, c in cells.items() if key == cell_key)
         env = self.prepared.take(env_key(suite, cell_key, horizon))
         if env is None:
             env = suite.make_env(cell, horizon)
@@ -210,23 +210,21 @@ class Session:
         with server._lock:
             server.sessions += 1
 
-    def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
+    def handle(self, msg: wire.Message) -> wire.Message:
         if wire.CONTROL in msg:
             if len(msg) != 1:
                 raise RequestError(f"a control request holds only the {wire.CONTROL!r} entry")
             return self.control(msg[wire.CONTROL])
         return self.infer(msg)
 
-    def _get(self, suite: Any, cell: Any, run_seed: Any, horizon: Any) -> Served:
-        for name, v, lo, hi in (("run_seed", run_seed, 0, 2**63 - 1), ("horizon", horizon, 1, MAX_HORIZON)):
-            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
-                raise RequestError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
-        key = json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, run_seed, horizon])
+    def _get(self, suite: Suite, cell: object, run_seed: object, horizon: object) -> Served:
+        seed, steps = _bounded("run_seed", run_seed, 0, 2**63 - 1), _bounded("horizon", horizon, 1, MAX_HORIZON)
+        key = json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, seed, steps])
         if key not in self.served:
-            self.served[key] = self.server.build(suite, cell, run_seed, horizon)
+            self.served[key] = self.server.build(suite, cell, seed, steps)
         return self.served[key]
 
-    def control(self, body: Any) -> dict[str, Any]:
+    def control(self, body: object) -> wire.Message:
         if not isinstance(body, dict):
             raise RequestError(f"{wire.CONTROL} must be a map with an 'op'")
         op = body.get("op")
@@ -257,12 +255,12 @@ class Session:
         served.policy.reset(srv.cfg.seed)
         return served
 
-    def infer(self, msg: dict[str, Any]) -> dict[str, Any]:
+    def infer(self, msg: wire.Message) -> wire.Message:
         if self.current is None:
             self.current = self._default()
         obs = self.observation(msg, self.current.spec)
         policy, batcher = self.current.policy, self.server.batcher
-        timing: dict[str, Any] = {}
+        timing: dict[str, object] = {}
         if batcher is not None and batchable(policy):
             actions, infer_ms, timing["batch"] = batcher.submit(policy, obs)
         else:
@@ -273,7 +271,7 @@ class Session:
             actions = actions[None, :]  # openpi clients index rows of a chunk
         return {wire.ACTIONS: actions, "server_timing": {"infer_ms": infer_ms, **timing}}
 
-    def observation(self, msg: dict[str, Any], spec: dict[str, Feature]) -> dict[str, Any]:
+    def observation(self, msg: wire.Message, spec: dict[str, Feature]) -> Obs:
         """The bench observation in a request: renamed, restricted to the cell's spec, shapes and dtypes checked."""
         mapping = self.server.map
         if mapping is not None:
@@ -286,7 +284,7 @@ class Session:
                 f"the observation lacks {missing} (policy {self.server.cfg.policy!r} needs "
                 f"{list(self.server.needs)}; the request has {sorted(msg)[:12]})"
             )
-        obs: dict[str, Any] = {}
+        obs: Obs = {}
         for key, value in named.items():
             feat = spec.get(key)
             if feat is None or feat.dtype == "str":
@@ -319,7 +317,14 @@ class Session:
         self.served.clear()
 
 
-def env_key(suite: Any, cell: Any, horizon: Any) -> str:
+def _bounded(name: str, v: object, lo: int, hi: int) -> int:
+    """`v`, an integer in [lo, hi] a client sent; else the one-line error it gets back."""
+    if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+        raise RequestError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
+    return v
+
+
+def env_key(suite: Suite, cell: object, horizon: int) -> str:
     """What makes two envs of a suite interchangeable: its class and options, the cell and the horizon."""
     return json.dumps([class_path(type(suite)), _json(getattr(suite, "options", None)), cell, horizon], default=str)
 
@@ -335,14 +340,14 @@ class Prepared:
         self.limit = max(0, int(limit))
         self.log = log or (lambda text: None)
         self._cond = threading.Condition()
-        self._todo: list[tuple[str, Callable[[], Any]]] = []
-        self._ready: dict[str, list[Any]] = {}
+        self._todo: list[tuple[str, Callable[[], EnvAdapter]]] = []
+        self._ready: dict[str, list[EnvAdapter]] = {}
         self._building: str | None = None
         self._count = 0  # asked for, not yet taken or closed
         self._closed = False
         self._thread: threading.Thread | None = None
 
-    def add(self, key: str, make: Callable[[], Any]) -> None:
+    def add(self, key: str, make: Callable[[], EnvAdapter]) -> None:
         with self._cond:
             if self._closed or self._count >= self.limit:
                 return
@@ -362,7 +367,7 @@ class Prepared:
                     return
                 key, make = self._todo.pop(0)
                 self._building = key
-            env = None
+            env: EnvAdapter | None = None
             try:
                 env = make()
             except Exception as exc:  # the client's own reset builds it again and reports the failure
@@ -377,7 +382,7 @@ class Prepared:
                         env.close()
                 self._cond.notify_all()
 
-    def take(self, key: str) -> Any:
+    def take(self, key: str) -> EnvAdapter | None:
         with self._cond:
             while self._building == key or any(k == key for k, _ in self._todo):
                 if key != self._building:  # not started yet: the caller builds it itself, now
@@ -407,7 +412,7 @@ class Prepared:
                 pass
 
 
-def _json(options: Any) -> Any:
+def _json(options: object) -> object:  # a plugin's Options instance as JSON
     if dataclasses.is_dataclass(options) and not isinstance(options, type):
         return jsonable(dataclasses.asdict(options))
     return {}

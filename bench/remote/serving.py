@@ -21,9 +21,14 @@ import threading
 import time
 from collections.abc import Callable
 from http import HTTPStatus
-from typing import Any, Protocol
+from types import FrameType
+from typing import TYPE_CHECKING, Protocol
 
 from bench.remote import link, wire
+
+if TYPE_CHECKING:
+    from websockets.http11 import Request, Response
+    from websockets.server import ServerProtocol
 
 
 class RequestError(Exception):
@@ -33,7 +38,7 @@ class RequestError(Exception):
 class Session(Protocol):
     """One connection's state."""
 
-    def handle(self, request: dict[str, Any]) -> dict[str, Any]: ...
+    def handle(self, request: wire.Message) -> wire.Message: ...
 
     def close(self) -> None: ...
 
@@ -48,7 +53,7 @@ class WebsocketServer:
     def __init__(
         self,
         open_session: Callable[[], Session],
-        metadata: dict[str, Any],
+        metadata: wire.Message,
         host: str = "127.0.0.1",
         port: int = 8000,
         max_message_bytes: int = 64 * 2**20,
@@ -102,7 +107,7 @@ class WebsocketServer:
     def serve_until_stopped(self, banner: str, label: str) -> None:
         """Print `banner`, serve until Ctrl-C or SIGTERM, shut down, and say so (`label: stopped`)."""
 
-        def stop(signum: int, frame: Any) -> None:
+        def stop(signum: int, frame: FrameType | None) -> None:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, stop)
@@ -191,7 +196,7 @@ def _peer(sock: socket.socket) -> str:
         return "?"
 
 
-def _health(protocol: Any, request: Any) -> Any:
+def _health(protocol: ServerProtocol, request: Request) -> Response | None:
     """`GET /healthz` -> 200 OK (as openpi's server); anything else goes on to the websocket handshake."""
     if request.path == "/healthz":
         return protocol.reject(HTTPStatus.OK, "OK\n")

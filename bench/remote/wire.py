@@ -36,11 +36,16 @@ ALLOWED_KINDS = frozenset("biufU")  # bool, int, uint, float, unicode: plain byt
 MAX_DIMS = 8
 
 
+# A message: a decoded msgpack map (str keys; numbers, strings, arrays, lists and maps as values). What a
+# value holds is the protocol's to say (an observation, `actions`, a control body), so values stay untyped here.
+Message = dict[str, Any]
+
+
 class WireError(ValueError):
     """A message that is not msgpack, or not what the protocol allows (one line: what and why)."""
 
 
-def _encode_default(obj: Any) -> Any:
+def _encode_default(obj: object) -> object:
     if isinstance(obj, np.ndarray):
         if obj.dtype.kind not in ALLOWED_KINDS:
             raise WireError(f"cannot send an array of dtype {obj.dtype} (allowed kinds: bool, int, uint, float, str)")
@@ -54,7 +59,7 @@ def _encode_default(obj: Any) -> Any:
     raise WireError(f"cannot send a {type(obj).__name__} (send numpy arrays, numbers, strings, lists and maps)")
 
 
-def encode(message: Any) -> bytes:
+def encode(message: Message) -> bytes:
     """A msgpack frame of `message` (maps with str keys; numpy arrays and scalars as openpi encodes them)."""
     try:
         return msgpack.packb(message, default=_encode_default, use_bin_type=True)
@@ -64,7 +69,7 @@ def encode(message: Any) -> bytes:
         raise WireError(f"cannot encode the message: {exc}") from None
 
 
-def _dtype(value: Any) -> np.dtype:
+def _dtype(value: object) -> np.dtype:
     if not isinstance(value, (str, bytes)):
         raise WireError(f"array dtype must be a string like '<f4', got {type(value).__name__}")
     try:
@@ -94,7 +99,7 @@ def _array(obj: dict) -> np.ndarray:
     return np.frombuffer(data, dtype=dt).reshape(shape).copy()
 
 
-def _decode_hook(obj: dict) -> Any:
+def _decode_hook(obj: dict) -> object:
     if b"__ndarray__" in obj:
         return _array(obj)
     if b"__npgeneric__" in obj:
@@ -109,7 +114,7 @@ def _decode_hook(obj: dict) -> Any:
     return obj
 
 
-def decode(frame: Any, what: str = "message") -> dict[str, Any]:
+def decode(frame: object, what: str = "message") -> Message:
     """The map in a binary frame, arrays rebuilt; WireError for a text frame, non-msgpack bytes or a non-map."""
     if isinstance(frame, str):
         raise WireError(f"{what} is a text frame ({_short(frame)!r}), not binary msgpack")

@@ -134,7 +134,7 @@ def summarise(
     for label, e in errors.items():
         per_joint = {}
         for j, name in enumerate(joints):
-            entry: dict[str, Any] = {"rmse": finite(e.rmse[j]), "nrmse": finite(e.nrmse[j]) if moving[j] else None}
+            entry: dict[str, object] = {"rmse": finite(e.rmse[j]), "nrmse": finite(e.nrmse[j]) if moving[j] else None}
             if not moving[j]:
                 entry["nrmse_reason"] = "the joint does not move in the replayed logs (position std 0)"
             per_joint[name] = entry
@@ -148,7 +148,7 @@ def summarise(
         }
     per_episode = []
     for i, index in enumerate(episodes):
-        row: dict[str, Any] = {"episode": int(index), "frames": int(offsets[i + 1] - offsets[i])}
+        row: dict[str, object] = {"episode": int(index), "frames": int(offsets[i + 1] - offsets[i])}
         for label, e in errors.items():
             sel = episode_of(offsets, e.start) == i
             m = e.mask[sel]
@@ -169,8 +169,8 @@ def measured(
     steps: int,
     t0: float,
     notes: list[str],
-    rows: list[dict[str, Any]] | None = None,
-    **extra: Any,
+    rows: list[dict[str, object]] | None = None,
+    **extra: object,
 ) -> Replay:
     """`traces` (its doc empty) with its replay.json document (schema bench.replay/1): the errors summarised
     (`summarise`; `rows` adds fields to the per-episode rows), fields common to both backends, then `extra`."""

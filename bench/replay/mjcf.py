@@ -53,7 +53,7 @@ def replay_mjcf(cfg: ReplayConfig) -> Replay:
     if ignored.get("params"):
         notes.append("the spec's free parameters keep the model's values (replay uses the model as given)")
     traces = Replay({}, errors, rec.qpos, rec.offsets, float(rec.fps), joints, [ep.index for ep in eps])
-    extra: dict[str, Any] = {}
+    extra: dict[str, Any] = {}  # `measured`'s keywords (a **dict of object could be taken for its `rows`)
     if isinstance(sim, MjxSimulator):
         extra["mjx"] = {"device": mjx_backend.device(), "compile_s": round(sim.compile_s, 3)}
     if records is not None:

@@ -14,7 +14,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Literal, TypedDict, TypeGuard, overload
 
 import yaml
 
@@ -63,7 +63,7 @@ class SignalMap:
     substeps: int | None = None
     source: Path | None = None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         """JSON-able form, for embedding the signal map in a result file."""
         return {
             "model": str(self.model),
@@ -73,7 +73,7 @@ class SignalMap:
         }
 
 
-def read_spec_file(path: str | Path) -> tuple[Any, Path]:
+def read_spec_file(path: str | Path) -> tuple[object, Path]:
     """The raw mapping of a YAML or JSON spec file, and its path."""
     path = Path(path)
     if not path.is_file():
@@ -91,7 +91,7 @@ def read_spec_file(path: str | Path) -> tuple[Any, Path]:
     return raw, path
 
 
-def check_keys(obj: Any, valid: tuple[str, ...], where: str) -> dict:
+def check_keys(obj: object, valid: tuple[str, ...], where: str) -> dict:
     """`obj` as a mapping whose keys are all in `valid` (else a SpecError naming the first stranger)."""
     if not isinstance(obj, dict):
         raise SpecError(f"spec field {where!r} must be a mapping with keys {', '.join(valid)}; got {obj!r}")
@@ -102,19 +102,28 @@ def check_keys(obj: Any, valid: tuple[str, ...], where: str) -> dict:
     return obj
 
 
-def number(value: Any, where: str, *, lo: float = -math.inf, hi: float = math.inf, integer: bool = False) -> Any:
+def _finite(value: object) -> TypeGuard[int | float]:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+@overload
+def number(value: object, where: str, *, lo: float = ..., hi: float = ..., integer: Literal[False] = ...) -> float: ...
+
+
+@overload
+def number(value: object, where: str, *, lo: float = ..., hi: float = ..., integer: Literal[True]) -> int: ...
+
+
+def number(value: object, where: str, *, lo: float = -math.inf, hi: float = math.inf, integer: bool = False) -> float:
     """A finite number (int when `integer`) within [lo, hi], else a SpecError naming the field."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if ok and integer:
-        ok = float(value).is_integer()
-    if not ok or not lo <= value <= hi:
+    if not _finite(value) or (integer and not float(value).is_integer()) or not lo <= value <= hi:
         kind = "an integer" if integer else "a number"
         rng = f" in [{lo}, {hi}]" if (math.isfinite(lo) or math.isfinite(hi)) else ""
         raise SpecError(f"spec field {where!r} must be {kind}{rng}; got {value!r}")
     return int(value) if integer else float(value)
 
 
-def parse_signal(raw: Any, where: str) -> SignalSpec:
+def parse_signal(raw: object, where: str) -> SignalSpec:
     """One `{column, index}` signal entry of a spec."""
     raw = check_keys(raw, SIGNAL_KEYS, where)
     if not isinstance(raw.get("column"), str) or not raw["column"]:
@@ -128,7 +137,15 @@ def parse_signal(raw: Any, where: str) -> SignalSpec:
     return SignalSpec(column=raw["column"], index=idx)
 
 
-def map_fields(raw: dict, base_dir: str | Path) -> dict[str, Any]:
+class MapFields(TypedDict):
+    """The signal-map fields of a spec (`map_fields`): a `SignalMap`'s keywords but its source."""
+
+    model: Path
+    signals: dict[str, SignalSpec]
+    substeps: int | None
+
+
+def map_fields(raw: dict, base_dir: str | Path) -> MapFields:
     """Validate the signal-map keys of a spec mapping: {'model', 'signals', 'substeps'} for a constructor."""
     if not isinstance(raw.get("model"), str) or not raw["model"]:
         raise SpecError(f"spec field 'model' must be the path of an MJCF file; got {raw.get('model')!r}")
@@ -140,13 +157,12 @@ def map_fields(raw: dict, base_dir: str | Path) -> dict[str, Any]:
         if required not in signals_raw:
             raise SpecError(f"spec field 'signals.{required}' is required (column and index of the logged {required})")
     signals = {k: parse_signal(v, f"signals.{k}") for k, v in signals_raw.items()}
-    substeps = raw.get("substeps")
-    if substeps is not None:
-        substeps = number(substeps, "substeps", lo=1, hi=MAX_SUBSTEPS, integer=True)
+    given = raw.get("substeps")
+    substeps = None if given is None else number(given, "substeps", lo=1, hi=MAX_SUBSTEPS, integer=True)
     return {"model": model, "signals": signals, "substeps": substeps}
 
 
-def load_signal_map(path: str | Path) -> tuple[SignalMap, dict[str, Any]]:
+def load_signal_map(path: str | Path) -> tuple[SignalMap, dict[str, object]]:
     """Read the signal map of a spec file; what it ignores (a calibration spec's own fields) is returned.
 
     An ignored key close to a signal-map key ('substep') is taken for a typo and refused.

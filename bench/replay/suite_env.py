@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from bench.core.errors import DataError
 from bench.execution.recording import episode_cell
-from bench.protocols import EnvAdapter, registry
+from bench.protocols import EnvAdapter, MujocoHandle, registry
 from bench.protocols.env import mj_input_names
 from bench.replay.common import CTRL, ROLLOUT_BYTES, Replay, ReplayConfig, measured, read_logs
 from bench.replay.data import Recording, Window
@@ -56,7 +55,7 @@ def _suite_envs(cfg: ReplayConfig, ds, eps) -> tuple[list, list[str], np.ndarray
     suite = registry.make_suite(cfg.suite)
     cells = {c.key: c for c in suite.all_cells()}
     width = ds.feature_shape("observation.sim_state")[0]
-    built: dict[str, Any] = {}
+    built: dict[str, EnvAdapter] = {}
     envs = []
     names: list[str] | None = None
     idx: np.ndarray | None = None
@@ -195,9 +194,9 @@ def replay_ctrl(
 
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     inputs = int(mujoco.mjtState.mjSTATE_CTRL) if ctrl_spec is None else int(ctrl_spec)
-    by_env: dict[int, Any] = {id(e): e for e in _distinct(envs)}
+    by_env: dict[int, MujocoHandle] = {id(e): e.mujoco for e in _distinct(envs)}  # each env's, by the env's id
     pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
-    datas: dict[int, list] = {k: [mujoco.MjData(e.mujoco.model) for _ in range(threads)] for k, e in by_env.items()}
+    datas: dict[int, list] = {k: [mujoco.MjData(mj.model) for _ in range(threads)] for k, mj in by_env.items()}
     out, steps = {}, 0
     try:
         for label, segs in segments.items():
@@ -205,8 +204,8 @@ def replay_ctrl(
             episode = np.searchsorted(offsets, segs.start, side="right") - 1
             pred = np.zeros((len(segs), segs.length, len(idx)))
             nstep = segs.length * substeps
-            for key, env in by_env.items():
-                m, d = env.mujoco.model, env.mujoco.data
+            for key, mj in by_env.items():
+                m, d = mj.model, mj.data
                 members = np.flatnonzero([id(envs[e]) == key for e in episode])
                 if not len(members):
                     continue
@@ -248,7 +247,7 @@ class SuiteLogs:
     ctrl_spec: int  # their mjtState mask (0 without ctrl)
     substeps: int  # physics steps per frame (0 without ctrl)
     offsets: np.ndarray  # (E + 1,)
-    rec: Any  # bench.calibrate.data.Recording of the compared positions
+    rec: Recording  # the compared positions
     windows: list
     exact: int  # episodes whose first state is the exact reset(seed) state
 

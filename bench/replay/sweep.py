@@ -12,8 +12,8 @@ give the same records (`records`), to within `TOLERANCE` (tests/test_mjx.py hold
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from types import SimpleNamespace
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -34,7 +34,7 @@ TOLERANCE = 1e-6
 MAX_WORLDS = 100_000
 
 
-def conditions(perturb_keys: dict[str, Any]) -> list[Condition]:
+def conditions(perturb_keys: Mapping[str, object]) -> list[Condition]:
     """The sweep's conditions (nominal first); only model axes can perturb a replay."""
     conds = conditions_from_config(perturb_keys)
     for c in conds:
@@ -46,15 +46,17 @@ def conditions(perturb_keys: dict[str, Any]) -> list[Condition]:
     return conds
 
 
-def worlds(model: mujoco.MjModel, conds: list[Condition], draws: int, seed: int) -> tuple[list[dict], list[Any]]:
+def worlds(
+    model: mujoco.MjModel, conds: list[Condition], draws: int, seed: int
+) -> tuple[list[dict[str, object]], list[mujoco.MjModel]]:
     """One perturbed model per (condition, draw): a grid level once, a range `draws` times."""
     env = SimpleNamespace(mujoco=MujocoHandle(copy.copy(model), None), model_axes=None, backend="mjcf")
     env.mujoco.data = mujoco.MjData(env.mujoco.model)
     perturb.validate(env, conds, where="the spec's model")
-    rows: list[dict] = []
-    models: list[Any] = []
+    rows: list[dict[str, object]] = []
+    models: list[mujoco.MjModel] = []
     for ci, cond in enumerate(conds):
-        ranged = (cond.spec or {}).get("kind", "grid") != "grid"
+        ranged = cond.kind != "grid"
         for draw in range(draws if ranged else 1):
             rng = np.random.default_rng([seed, ci, draw])
             _, params = perturb.apply(env, cond, rng)
@@ -67,20 +69,28 @@ def worlds(model: mujoco.MjModel, conds: list[Condition], draws: int, seed: int)
     return rows, models
 
 
-def sweep(sim: Simulator, models: list[Any], rows: list[dict], rec: Recording, k: int, joints: list[str]) -> list[dict]:
+def sweep(
+    sim: Simulator,
+    models: list[mujoco.MjModel],
+    rows: list[dict[str, object]],
+    rec: Recording,
+    k: int,
+    joints: list[str],
+) -> list[dict]:
     """Each world's replay errors per horizon (one batched call per horizon for all worlds): the records."""
     s = sim.substeps
     variants = [Variant(m, hold(rec.ctrl, s), np.zeros(m.nv)) for m in models]
     nq = rec.qpos.shape[1]
     windows = rec.episodes()
     spread = np.maximum(rec.qpos[rec.frames(windows)].std(axis=0), 1e-12)
-    out = [dict(r, horizons={}) for r in rows]
+    horizons: list[dict[str, object]] = [{} for _ in rows]
+    out = [dict(r, horizons=h) for r, h in zip(rows, horizons)]
     for label, segs in horizon_segments(rec, windows, k).items():
         pred = sim.run(variants, segs)
-        for w, rec_w in enumerate(out):
+        for w in range(len(out)):
             e = segment_errors(pred[w][..., :nq], rec, segs, spread)
             last = np.array([p[int(m.sum()) - 1] for p, m in zip(e.pred, e.mask)]) if label == "free_run" else None
-            rec_w["horizons"][label] = {
+            horizons[w][label] = {
                 "rmse": finite(float(e.rmse.mean())),
                 "nrmse": finite(float(e.nrmse.mean())),
                 "per_joint_rmse": {j: finite(float(v)) for j, v in zip(joints, e.rmse)},

@@ -25,9 +25,9 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from bench.core.errors import ConfigError, DataError, did_you_mean
 
@@ -49,8 +49,8 @@ class Outcome:
 # ----------------------------------------------------------------------------- tables
 
 
-def _int(value: Any, where: str, field: str) -> int:
-    if isinstance(value, bool):
+def _int(value: object, where: str, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
         raise DataError(f"{where}: field {field!r} is {value!r}; expected a non-negative integer")
     try:
         f = float(value)
@@ -130,7 +130,7 @@ def pair_tables(
 # ----------------------------------------------------------------------------- statistics
 
 
-def mmrv(*, sim: Any, real: Any) -> float:
+def mmrv(*, sim: npt.ArrayLike, real: npt.ArrayLike) -> float:
     """Mean maximum rank violation of simulated rates `sim` against real rates `real` (lower is better).
 
     Each policy i is charged the largest real gap |real_i - real_j| over the policies j that sim
@@ -239,11 +239,11 @@ def agreement(
     boot_sim = rng.binomial(n_sim, p_sim, size=(n_boot, len(names))) / n_sim
     boot_real = rng.binomial(n_real, p_real, size=(n_boot, len(names))) / n_real
     alpha = (1 - level) / 2
-    statistics: dict[str, dict] = {}
+    statistics: dict[str, dict[str, object]] = {}
     for name in STATISTICS:
         values = _batch(name, boot_sim, boot_real)
         ok = values[np.isfinite(values)]
-        entry: dict[str, Any] = {"value": point[name], "ci": None, "n_boot_defined": int(ok.size), "reason": None}
+        entry: dict[str, object] = {"value": point[name], "ci": None, "n_boot_defined": int(ok.size), "reason": None}
         if point[name] is None:
             entry["reason"] = _undefined_reason(p_sim, p_real)
         if ok.size:

@@ -24,23 +24,46 @@ slopes with intervals from `bench.scoring.trend`).
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from bench.core.errors import ConfigError, DataError
 from bench.logs import read_dataset
-from bench.protocols.suite import SPLIT_AXES, episode_seed
+from bench.protocols import Suite
+from bench.protocols.suite import SPLIT_AXES, Cell, Condition, episode_seed
 from bench.sims.perturb.axes import AXES
 
+if TYPE_CHECKING:
+    from typing_extensions import NotRequired  # typing's own from Python 3.11
+
 MIN_SCALE = 1e-3  # floor of the per-dimension std used to normalise states (observation units)
+Manifest = Mapping[str, Mapping[str, Sequence[str]]]  # a suite's split manifest: axis -> split -> values
+
+
+class StateCoverage(TypedDict):
+    """`state_coverage`'s report (distances in training-std units, RMS over dimensions)."""
+
+    metric: str
+    dims: int
+    training_states: int
+    training_episodes: int
+    quantile: float
+    reference_radius: float | None
+    reference: dict[str, object] | None
+    overall: dict[str, object]
+    groups: NotRequired[dict[str, dict[str, object]]]
+    distances: NotRequired[list[float]]  # set last (after `groups`), as the report lists it
+    splits: NotRequired[dict[str, dict[str, object]]]  # added by `coverage_report`
 
 
 # ============================================================================ metrics (pure)
-def support(train_meta: Sequence[dict], cells: Sequence, manifest: dict | None = None) -> dict[str, Any]:
+def support(
+    train_meta: Sequence[Mapping[str, object]], cells: Sequence[Cell], manifest: Manifest | None = None
+) -> dict[str, object]:
     """Robots / tasks / envs present in the training episodes vs evaluated in `cells`.
 
     Args:
@@ -50,7 +73,7 @@ def support(train_meta: Sequence[dict], cells: Sequence, manifest: dict | None =
             are reported under `unseen_in_training` (held-out data leaked into training).
     """
     manifest = manifest or {}
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for axis, attr in SPLIT_AXES.items():
         counts = Counter(str(m.get(attr)) for m in train_meta if m.get(attr) is not None)
         evaluated = sorted({getattr(c, attr) for c in cells})
@@ -86,8 +109,8 @@ def state_scale(train_states: np.ndarray, min_scale: float = MIN_SCALE) -> np.nd
     return np.maximum(np.asarray(train_states, float).std(axis=0), min_scale)
 
 
-def _distance_summary(d: np.ndarray, radius: float | None) -> dict[str, Any]:
-    out: dict[str, Any] = {"n": int(len(d))}
+def _distance_summary(d: np.ndarray, radius: float | None) -> dict[str, object]:
+    out: dict[str, object] = {"n": int(len(d))}
     if not len(d):
         return {**out, "mean": None, "median": None, "max": None, "covered": None, "reason": "no states"}
     out.update(mean=round(float(d.mean()), 6), median=round(float(np.median(d)), 6), max=round(float(d.max()), 6))
@@ -105,7 +128,7 @@ def state_coverage(
     eval_groups: Sequence[str] | None = None,
     quantile: float = 0.95,
     scale: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> StateCoverage:
     """Distance from each evaluation state to its nearest training state, normalised, and coverage.
 
     Distance = RMS over dimensions of (eval - nearest train) / scale, scale = the training
@@ -156,7 +179,7 @@ def state_coverage(
             k = min(len(x), k * 4)
         ref = ref / np.sqrt(dim)
         radius = float(np.quantile(ref, quantile))
-    out: dict[str, Any] = {
+    out: StateCoverage = {
         "metric": "RMS over dimensions of (eval - nearest training state) / training std",
         "dims": int(dim),
         "training_states": int(len(x)),
@@ -185,7 +208,9 @@ def _overlap(lo: float, hi: float, tlo: float, thi: float) -> float:
     return max(0.0, min(hi, thi) - max(lo, tlo)) / (hi - lo)
 
 
-def param_coverage(train_params: Sequence[dict], conditions: Sequence) -> dict[str, Any]:
+def param_coverage(
+    train_params: Sequence[Mapping[str, float]], conditions: Sequence[Condition]
+) -> dict[str, dict[str, object]]:
     """Fraction of each evaluated perturbation range that the training episodes' values span.
 
     The evaluated interval of an axis runs over the nominal level, every grid level and every
@@ -198,11 +223,11 @@ def param_coverage(train_params: Sequence[dict], conditions: Sequence) -> dict[s
         train_params: per training episode its `params` dict (e.g. {"gain": 1.07}) or {}.
         conditions: the evaluated `bench.protocols.suite.Condition`s (nominal is skipped).
     """
-    by_axis: dict[str, list] = {}
+    by_axis: dict[str, list[Condition]] = {}
     for c in conditions:
         if c.axis is not None:
             by_axis.setdefault(c.axis, []).append(c)
-    out: dict[str, Any] = {}
+    out: dict[str, dict[str, object]] = {}
     for axis, conds in by_axis.items():
         nominal = _nominal_level(axis)
         points = [nominal]
@@ -215,7 +240,7 @@ def param_coverage(train_params: Sequence[dict], conditions: Sequence) -> dict[s
             continue
         tlo, thi = float(values.min()), float(values.max())
         levels = sorted(set(points))
-        entry = {
+        entry: dict[str, object] = {
             "evaluated": [lo, hi],
             "nominal": nominal,
             "conditions": [c.name for c in conds],
@@ -272,7 +297,7 @@ def read_training(paths: Sequence[str | Path]) -> TrainingData:
 
 
 def initial_states_from_suite(
-    suite, cells: Sequence, seed: int, episodes: int, horizon: int = 0
+    suite: Suite, cells: Sequence[Cell], seed: int, episodes: int, horizon: int = 0
 ) -> tuple[np.ndarray, list[str]]:
     """The observation right after reset for each cell and episode seed of a run (`bench.protocols.suite.episode_seed`).
 
@@ -291,7 +316,7 @@ def initial_states_from_suite(
     return np.asarray(states), groups
 
 
-def initial_states_from_dataset(path: str | Path, cells: Sequence | None = None) -> tuple[np.ndarray, list[str]]:
+def initial_states_from_dataset(path: str | Path, cells: Sequence[Cell] | None = None) -> tuple[np.ndarray, list[str]]:
     """First frame of each episode of a recorded evaluation run, labelled by cell key (only `cells` if given)."""
     ds = read_dataset(path)
     wanted = {c.key for c in cells} if cells is not None else None
@@ -313,13 +338,13 @@ def initial_states_from_dataset(path: str | Path, cells: Sequence | None = None)
 
 def coverage_report(
     train: TrainingData,
-    cells: Sequence,
-    manifest: dict,
-    conditions: Sequence,
+    cells: Sequence[Cell],
+    manifest: Manifest,
+    conditions: Sequence[Condition],
     eval_states: np.ndarray,
     eval_groups: Sequence[str],
     quantile: float = 0.95,
-) -> dict[str, Any]:
+) -> dict[str, Any]:  # JSON: coverage.json, which its readers take apart by key
     """All three metrics for one training set, plus per-split state coverage."""
     sc = state_coverage(train.states, train.episode, eval_states, eval_groups, quantile)
     split_of = {c.key: c.split for c in cells}

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -21,13 +21,26 @@ from bench.scoring.sensitivity import paired_arrays
 from bench.sims.perturb.axes import AXES
 
 
+class AxisRow(TypedDict):
+    """One row of the robustness table (`table`)."""
+
+    axis: str
+    kind: str | None  # model / interface / visual / frame (None: an axis this bench does not know)
+    levels: list[str]  # the axis' condition names
+    pairs: int
+    nominal: float | None
+    perturbed: float | None
+    drop: scoring.EstimateJSON
+    relative_drop: float | None
+
+
 def table(
     records: Sequence[EpisodeRecord],
     metric: str,
     rng: np.random.Generator,
     n_boot: int = 2000,
     confidence: float = 0.95,
-) -> list[dict[str, Any]]:
+) -> list[AxisRow]:
     """One row per perturbation axis of the run (JSON-able, no NaN), most harmful first.
 
     Row: axis, kind (model / interface / visual), levels (condition names), pairs, nominal and
@@ -48,7 +61,7 @@ def table(
             by_axis[r.axis][key][r.episode] = r
             levels[r.axis].add(r.condition)
             cell_of[key] = cell
-    rows: list[dict[str, Any]] = []
+    rows: list[AxisRow] = []
     for axis, target in by_axis.items():
         ref_by_key = {key: nominal.get(cell_of[key], {}) for key in target}
         ref, tgt = paired_arrays(ref_by_key, target, metric)

@@ -6,8 +6,7 @@ open every row the same way; this module is the one place that does it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -16,16 +15,16 @@ from bench.scoring import stats as scoring
 
 
 def cell_row(
-    head: dict[str, Any],
+    head: Mapping[str, object],
     records: Sequence[EpisodeRecord],
     confidence: float,
-    extra: Callable[[list[EpisodeRecord]], dict[str, Any]] = lambda completed: {},
-) -> dict[str, Any]:
+    extra: Callable[[list[EpisodeRecord]], Mapping[str, object]] = lambda completed: {},
+) -> dict[str, object]:
     """One cell's summary row, in the order summaries hold it: `head` (what names the cell), the
     counts (completed episodes `n`, `errors`, the completed episodes' `mean_return`, None when there
     are none), `extra(completed)`, then per success metric its successes and Wilson interval."""
     ok = [r for r in records if r.error is None]
-    row = {
+    row: dict[str, object] = {
         **head,
         "n": len(ok),
         "errors": len(records) - len(ok),
@@ -36,10 +35,10 @@ def cell_row(
     return row
 
 
-def success_rates(completed: Sequence[EpisodeRecord], confidence: float) -> dict[str, dict[str, Any]]:
+def success_rates(completed: Sequence[EpisodeRecord], confidence: float) -> dict[str, dict[str, object]]:
     """Per success metric (`SUCCESS_METRICS`): the successes among `completed` records and the rate's
     Wilson interval, as summary rows hold them."""
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, dict[str, object]] = {}
     for m in SUCCESS_METRICS:
         k = int(sum(getattr(r, m) for r in completed))
         out[m] = {"successes": k, **scoring.wilson(k, len(completed), confidence).to_dict()}

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -24,8 +24,22 @@ from bench.records import SUCCESS_METRICS, EpisodeRecord, dedupe
 from bench.scoring import stats as scoring
 from bench.scoring.rows import cell_row
 
+if TYPE_CHECKING:
+    from rich.console import Console
 
-def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> dict[str, Any]:
+# a cell's completed episodes by their index, per cell key (`task/robot/env`)
+Indexed = dict[str, dict[int, EpisodeRecord]]
+
+
+class McNemar(TypedDict):
+    """The exact McNemar test of paired 0/1 outcomes (`mcnemar_exact`)."""
+
+    lost: int  # reference success, target failure
+    gained: int  # the reverse
+    p_value: float
+
+
+def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> McNemar:
     """Exact McNemar test on paired 0/1 outcomes.
 
     Returns {"lost": reference success & target failure, "gained": the reverse,
@@ -42,7 +56,7 @@ def mcnemar_exact(ref: np.ndarray, tgt: np.ndarray) -> dict[str, Any]:
     return {"lost": lost, "gained": gained, "p_value": round(min(1.0, p), 6)}
 
 
-def _level_key(level: Any) -> tuple:
+def _level_key(level: object) -> tuple[int, float, float]:
     if isinstance(level, (int, float)):
         return (0, float(level), 0.0)
     if isinstance(level, (list, tuple)) and len(level) == 2:
@@ -50,7 +64,7 @@ def _level_key(level: Any) -> tuple:
     return (2, 0.0, 0.0)
 
 
-def _param_summary(recs: Sequence[EpisodeRecord]) -> dict[str, Any]:
+def _param_summary(recs: Sequence[EpisodeRecord]) -> dict[str, dict[str, float]]:
     """min / mean / max of each sampled numeric parameter (what a range actually drew)."""
     values: dict[str, list[float]] = defaultdict(list)
     for r in recs:
@@ -63,7 +77,7 @@ def _param_summary(recs: Sequence[EpisodeRecord]) -> dict[str, Any]:
     }
 
 
-def paired_arrays(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray, np.ndarray]:
+def paired_arrays(nominal: Indexed, target: Indexed, metric: str) -> tuple[np.ndarray, np.ndarray]:
     """(cells, episodes) arrays over the cells and episode indices completed under both conditions.
 
     When every cell has the same set of paired episodes the arrays are rectangular and the
@@ -71,10 +85,10 @@ def paired_arrays(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray,
     """
     per_cell: dict[str, list[tuple[int, float, float]]] = {}
     for cell, eps in target.items():
-        ref = nominal.get(cell, {})
-        both = sorted(set(eps) & set(ref))
+        ref_eps = nominal.get(cell, {})
+        both = sorted(set(eps) & set(ref_eps))
         if both:
-            per_cell[cell] = [(e, float(getattr(ref[e], metric)), float(getattr(eps[e], metric))) for e in both]
+            per_cell[cell] = [(e, float(getattr(ref_eps[e], metric)), float(getattr(eps[e], metric))) for e in both]
     if not per_cell:
         return np.zeros((1, 0)), np.zeros((1, 0))
     episode_sets = {tuple(e for e, _, _ in rows) for rows in per_cell.values()}
@@ -89,19 +103,19 @@ def paired_arrays(nominal: dict, target: dict, metric: str) -> tuple[np.ndarray,
 def _entry(
     cond: str,
     axis: str | None,
-    level: Any,
+    level: float | list[float] | None,
     kind: str,
-    scope: dict[str, Any],
+    scope: dict[str, str],
     recs: list[EpisodeRecord],
-    nominal: dict,
-    target: dict,
+    nominal: Indexed,
+    target: Indexed,
     rng: np.random.Generator,
     n_boot: int,
     confidence: float,
-) -> dict[str, Any]:
+) -> dict[str, object]:
     head = {"condition": cond, "axis": axis, "level": level, "kind": kind, **scope}
     entry = cell_row(head, recs, confidence, lambda ok: {"params": _param_summary(ok)})
-    gap: dict[str, Any] = {}
+    gap: dict[str, dict[str, object]] = {}
     for m in (*SUCCESS_METRICS, "return"):
         if axis is None:
             gap[m] = {"value": None, "ci": None, "reason": "nominal is the reference", "n_pairs": 0}
@@ -119,7 +133,7 @@ def _entry(
 
 def sensitivity(
     records: Sequence[EpisodeRecord], rng: np.random.Generator, n_boot: int = 2000, confidence: float = 0.95
-) -> list[dict[str, Any]]:
+) -> list[dict[str, object]]:
     """Per-condition success and paired drop from nominal, pooled over cells and (if several) per cell.
 
     Args:
@@ -139,7 +153,7 @@ def sensitivity(
     if not by_cond:
         return []
 
-    def index(recs: list[EpisodeRecord]) -> dict[str, dict[int, EpisodeRecord]]:
+    def index(recs: list[EpisodeRecord]) -> Indexed:
         out: dict[str, dict[int, EpisodeRecord]] = defaultdict(dict)
         for r in recs:
             if r.error is None:
@@ -149,11 +163,11 @@ def sensitivity(
     nominal_idx = index(by_cond.get("nominal", []))
     cells = sorted({(r.task, r.robot, r.env) for r in records})
 
-    def order(cond: str) -> tuple:
+    def order(cond: str) -> tuple[bool, str, tuple[int, float, float], str]:
         r0 = by_cond[cond][0]
         return (cond != "nominal", r0.axis or "", _level_key(r0.level), cond)
 
-    out: list[dict[str, Any]] = []
+    out: list[dict[str, object]] = []
     for cond in sorted(by_cond, key=order):
         recs = by_cond[cond]
         r0 = recs[0]
@@ -211,7 +225,7 @@ def _sampled(params: dict[str, Any]) -> str:
     )
 
 
-def render(entries: Sequence[dict[str, Any]], console=None) -> None:
+def render(entries: Sequence[dict[str, Any]], console: Console | None = None) -> None:  # JSON: summary rows
     """Print the sensitivity table: per condition, success with Wilson intervals and the paired drop
     from nominal (percentage points, bootstrap interval, McNemar p); per-cell rows follow when present."""
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal

@@ -17,9 +17,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from typing_extensions import NotRequired  # typing's own from Python 3.11
+
+
+class EstimateJSON(TypedDict):
+    """An estimate as summaries hold it (`Estimate.to_dict`)."""
+
+    value: float | None
+    ci: list[float] | None
+    reason: NotRequired[str]
 
 
 @dataclass(frozen=True)
@@ -31,11 +42,12 @@ class Estimate:
     hi: float | None = None
     reason: str | None = None
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> EstimateJSON:
+        """As summaries hold it: {"value", "ci": [low, high]} (and "reason"), or value None with the reason."""
         if self.value is None:
             return {"value": None, "ci": None, "reason": self.reason or "not computable"}
         ci = None if self.lo is None or self.hi is None else [round(self.lo, 6), round(self.hi, 6)]
-        out: dict[str, Any] = {"value": round(self.value, 6), "ci": ci}
+        out: EstimateJSON = {"value": round(self.value, 6), "ci": ci}
         if self.reason:
             out["reason"] = self.reason
         return out

@@ -11,8 +11,9 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter, defaultdict
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,11 +35,18 @@ from bench.scoring.sensitivity import render as render_sensitivity
 from bench.scoring.sensitivity import sensitivity
 from bench.scoring.typed import Summary
 
+if TYPE_CHECKING:
+    from rich.console import Console
+
 SCHEMA_ID = "bench.summary/1"
+CellKey = tuple[str, str, str, str, str]  # task, robot, env, split, condition
+Row = Mapping[str, object]  # a row of summary.json as it is written (a cell, an estimate, a gap)
+SplitsOut = dict[str, dict[str, dict[str, Row]]]  # split -> metric -> statistic -> estimate
+EstimateDoc = Mapping[str, Any]  # an estimate as a JSON document holds it: {"value", "ci", "reason"}
 
 
-def _cells(records: list[EpisodeRecord]) -> dict[tuple, list[EpisodeRecord]]:
-    groups: dict[tuple, list[EpisodeRecord]] = defaultdict(list)
+def _cells(records: list[EpisodeRecord]) -> dict[CellKey, list[EpisodeRecord]]:
+    groups: dict[CellKey, list[EpisodeRecord]] = defaultdict(list)
     for r in records:
         groups[(r.task, r.robot, r.env, r.split, r.condition)].append(r)
     for key in groups:
@@ -54,8 +62,8 @@ def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
 
 
 def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
-    """The summary of `records`, typed (`Summary.to_json()` is summary.json); `run_meta` carries run_id,
-    suite, policy, config, provenance."""
+    """The summary of `records`, typed (`Summary.to_json()` is summary.json); `run_meta` (run.json, checked by
+    `check_run_meta`) carries run_id, suite, policy, config, provenance."""
     cfg = run_meta["config"]
     n_boot, conf = int(cfg.get("n_boot", 2000)), float(cfg.get("confidence", 0.95))
     records = dedupe(records)
@@ -71,8 +79,8 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
         cells_out.append(entry)
 
     rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919])  # scoring draws, seeded from the run seed
-    splits_out: dict[str, Any] = {}
-    gaps_out: list[dict[str, Any]] = []
+    splits_out: SplitsOut = {}
+    gaps_out: list[Row] = []
     nominal = {k: v for k, v in groups.items() if k[4] == "nominal"}
     for m in SUCCESS_METRICS:
         by_split = {s: [_outcomes(v, m) for k, v in nominal.items() if k[3] == s] for s in ("seen", "unseen")}
@@ -97,11 +105,11 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
             }
         )
     if cfg.get("metric") == "return":  # envs without a success signal are scored by their return
-        _score_returns(groups, nominal, cells_out, splits_out, gaps_out, cfg, n_boot, conf)
+        _score_returns(groups, nominal, cells_out, splits_out, gaps_out, int(cfg.get("seed", 0)), n_boot, conf)
 
     expected = run_meta.get("expected_episodes")
     n_err = sum(1 for r in records if r.error is not None)
-    summary = {
+    summary: dict[str, object] = {
         "schema": SCHEMA_ID,
         "run_id": run_meta["run_id"],
         "suite": run_meta["suite"],
@@ -130,20 +138,21 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
 
 
 def _score_returns(
-    groups: dict,
-    nominal: dict,
-    cells_out: list,
-    splits_out: dict,
-    gaps_out: list,
-    cfg: dict[str, Any],
+    groups: dict[CellKey, list[EpisodeRecord]],
+    nominal: dict[CellKey, list[EpisodeRecord]],
+    cells_out: list[dict[str, object]],
+    splits_out: SplitsOut,
+    gaps_out: list[Row],
+    seed: int,
     n_boot: int,
     conf: float,
 ) -> None:
     """Mean return per cell (bootstrap over episodes), per split and the seen-unseen gap (stratified bootstrap).
 
-    Draws from a generator of their own, so the success scores of a run are the same whatever its metric.
+    Draws from a generator of their own (from the run `seed`), so the success scores of a run are the same
+    whatever its metric.
     """
-    rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 1])
+    rng = np.random.default_rng([seed, 7919, 1])
     for entry, recs in zip(cells_out, groups.values()):
         values = _outcomes(recs, "return")
         est = (
@@ -173,7 +182,7 @@ def _score_returns(
         )
 
 
-def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str:
+def fmt_estimate(est: EstimateDoc | None, pct: bool = True, signed: bool = True) -> str:
     """An estimate {"value", "ci"} as text: `82% [70, 91]`, or `+0.120 [+0.010, +0.230]` with pct=False
     (`-1.2e+03 [...]`-style three significant digits for unsigned values such as returns)."""
     if not est or est.get("value") is None:
@@ -186,7 +195,7 @@ def fmt_estimate(est: dict | None, pct: bool = True, signed: bool = True) -> str
     return f"{v:+.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else f"{v:+.3f}"
 
 
-def render(summary: dict[str, Any], console=None) -> None:
+def render(summary: dict[str, Any], console: Console | None = None) -> None:  # summary.json, read by key
     """Print the per-cell table, the split aggregates, the gaps and one sentence on how to read the gap."""
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
@@ -410,7 +419,13 @@ def check_run_meta(meta: dict[str, Any], source: str) -> None:
     cfg = meta["config"]
 
     def number(
-        key: str, lo: float, hi: float, integer: bool, default: Any, lo_open: bool = False, hi_open: bool = False
+        key: str,
+        lo: float,
+        hi: float,
+        integer: bool,
+        default: float | None,
+        lo_open: bool = False,
+        hi_open: bool = False,
     ) -> None:
         v = cfg.get(key, default)
         if v is None and default is None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -108,7 +107,7 @@ def slope_with_interval(
     reps: Sequence[np.ndarray],
     n_outcomes: Sequence[int],
     confidence: float = 0.95,
-) -> dict[str, Any]:
+) -> dict[str, object]:
     """WLS slope of `values` against `x` with a percentile interval from bootstrap replicates.
 
     Weights are 1/variance per point: the replicates' variance, floored by the smoothed binomial

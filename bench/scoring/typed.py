@@ -10,14 +10,26 @@ description, the policy identity, the config, provenance, sensitivity rows, late
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, TypeVar, overload
 
 from bench.core.errors import DataError
 
 SUCCESS = ("success_once", "success_at_end")
+T = TypeVar("T")
 
 
-def _need(d: Any, key: str, types: type | tuple[type, ...], where: str, nullable: bool = False) -> Any:
+@overload
+def _need(d: object, key: str, types: type[T] | tuple[type[T], ...], where: str) -> T: ...
+
+
+@overload
+def _need(
+    d: object, key: str, types: type[T] | tuple[type[T], ...], where: str, nullable: Literal[True]
+) -> T | None: ...
+
+
+def _need(d: object, key: str, types: type[T] | tuple[type[T], ...], where: str, nullable: bool = False) -> T | None:
+    """`d[key]`, refused with one line (DataError) when `d` has no such field or it is not of `types`."""
     if not isinstance(d, dict) or key not in d:
         raise DataError(f"{where}: field {key!r} is missing")
     v = d[key]
@@ -30,6 +42,15 @@ def _need(d: Any, key: str, types: type | tuple[type, ...], where: str, nullable
     return v
 
 
+def _get(d: object, key: str) -> object:
+    """`d[key]` when `d` is a mapping holding it, else None."""
+    return d.get(key) if isinstance(d, dict) else None
+
+
+def _raw(d: object, key: str) -> Any:  # a JSON value passed through unread (its shape is its owner's)
+    return d.get(key) if isinstance(d, dict) else None
+
+
 @dataclass(frozen=True)
 class Interval:
     """An estimate as summaries hold it: value with its two-sided interval, or None with the reason."""
@@ -38,17 +59,17 @@ class Interval:
     ci: tuple[float, float] | None
     reason: str | None = None
 
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"value": self.value, "ci": None if self.ci is None else list(self.ci)}
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {"value": self.value, "ci": None if self.ci is None else list(self.ci)}
         if self.reason is not None:
             out["reason"] = self.reason
         return out
 
     @classmethod
-    def from_json(cls, d: Any, where: str) -> Interval:
+    def from_json(cls, d: object, where: str) -> Interval:
         value = _need(d, "value", (int, float), where, nullable=True)
         ci = _need(d, "ci", list, where, nullable=True)
-        reason = d.get("reason")
+        reason = _get(d, "reason")
         if ci is not None and len(ci) != 2:
             raise DataError(f"{where}: field 'ci' is {ci!r}; expected [low, high]")
         if reason is not None and not isinstance(reason, str):
@@ -63,11 +84,11 @@ class Rate:
     successes: int
     estimate: Interval
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {"successes": self.successes, **self.estimate.to_json()}
 
     @classmethod
-    def from_json(cls, d: Any, where: str) -> Rate:
+    def from_json(cls, d: object, where: str) -> Rate:
         return cls(_need(d, "successes", int, where), Interval.from_json(d, where))
 
 
@@ -88,8 +109,8 @@ class CellRow:
     success_at_end: Rate
     return_: Interval | None = None  # runs scored by return
 
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {
             "task": self.task,
             "robot": self.robot,
             "env": self.env,
@@ -107,17 +128,23 @@ class CellRow:
         return out
 
     @classmethod
-    def from_json(cls, d: Any, where: str) -> CellRow:
-        head = {k: _need(d, k, str, where) for k in ("task", "robot", "env", "split", "condition")}
-        ret = d.get("return")
+    def from_json(cls, d: object, where: str) -> CellRow:
+        task, robot, env, split, condition = (
+            _need(d, k, str, where) for k in ("task", "robot", "env", "split", "condition")
+        )
+        ret = _get(d, "return")
         return cls(
-            **head,
+            task=task,
+            robot=robot,
+            env=env,
+            split=split,
+            condition=condition,
             n=_need(d, "n", int, where),
             errors=_need(d, "errors", int, where),
             mean_return=_need(d, "mean_return", (int, float), where, nullable=True),
             mean_length=_need(d, "mean_length", (int, float), where, nullable=True),
-            success_once=Rate.from_json(d.get("success_once"), f"{where}.success_once"),
-            success_at_end=Rate.from_json(d.get("success_at_end"), f"{where}.success_at_end"),
+            success_once=Rate.from_json(_get(d, "success_once"), f"{where}.success_once"),
+            success_at_end=Rate.from_json(_get(d, "success_at_end"), f"{where}.success_at_end"),
             return_=None if ret is None else Interval.from_json(ret, f"{where}.return"),
         )
 
@@ -137,7 +164,7 @@ class Gap:
     target: str
     estimate: Interval
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {
             "kind": self.kind,
             "metric": self.metric,
@@ -148,9 +175,11 @@ class Gap:
         }
 
     @classmethod
-    def from_json(cls, d: Any, where: str) -> Gap:
-        head = {k: _need(d, k, str, where) for k in ("kind", "metric", "statistic", "reference", "target")}
-        return cls(**head, estimate=Interval.from_json(d, where))
+    def from_json(cls, d: object, where: str) -> Gap:
+        kind, metric, statistic, reference, target = (
+            _need(d, k, str, where) for k in ("kind", "metric", "statistic", "reference", "target")
+        )
+        return cls(kind, metric, statistic, reference, target, estimate=Interval.from_json(d, where))
 
 
 @dataclass(frozen=True)
@@ -160,11 +189,11 @@ class Counts:
     expected: int | None
     complete: bool
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {"episodes": self.episodes, "errors": self.errors, "expected": self.expected, "complete": self.complete}
 
     @classmethod
-    def from_json(cls, d: Any, where: str) -> Counts:
+    def from_json(cls, d: object, where: str) -> Counts:
         return cls(
             _need(d, "episodes", int, where),
             _need(d, "errors", int, where),
@@ -183,21 +212,21 @@ class Summary:
 
     schema: str
     run_id: str
-    suite: dict[str, Any]
-    policy: dict[str, Any]
+    suite: dict[str, object]
+    policy: dict[str, object]
     metric: str
     confidence: float
     counts: Counts
     cells: tuple[CellRow, ...]
     splits: SplitStats
     gaps: tuple[Gap, ...]
-    config: dict[str, Any]
-    provenance: dict[str, Any]
-    policy_latency: dict[str, Any] | None = None
-    sensitivity: list[dict[str, Any]] | None = field(default=None)
+    config: dict[str, object]
+    provenance: dict[str, object]
+    policy_latency: dict[str, object] | None = None
+    sensitivity: list[dict[str, object]] | None = field(default=None)
 
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {
             "schema": self.schema,
             "run_id": self.run_id,
             "suite": self.suite,
@@ -220,7 +249,7 @@ class Summary:
         return out
 
     @classmethod
-    def from_json(cls, d: Any, where: str = "summary") -> Summary:
+    def from_json(cls, d: object, where: str = "summary") -> Summary:
         """A summary document read back (one DataError naming the field when its type is wrong)."""
         splits: SplitStats = {}
         for s, ms in (_need(d, "splits", dict, where)).items():
@@ -236,7 +265,7 @@ class Summary:
             policy=_need(d, "policy", dict, where),
             metric=_need(d, "metric", str, where),
             confidence=_need(d, "confidence", (int, float), where),
-            counts=Counts.from_json(d.get("counts"), f"{where}.counts"),
+            counts=Counts.from_json(_get(d, "counts"), f"{where}.counts"),
             cells=tuple(
                 CellRow.from_json(c, f"{where}.cells[{i}]") for i, c in enumerate(_need(d, "cells", list, where))
             ),
@@ -244,8 +273,8 @@ class Summary:
             gaps=tuple(Gap.from_json(g, f"{where}.gaps[{i}]") for i, g in enumerate(_need(d, "gaps", list, where))),
             config=_need(d, "config", dict, where),
             provenance=_need(d, "provenance", dict, where),
-            policy_latency=d.get("policy_latency"),
-            sensitivity=d.get("sensitivity"),
+            policy_latency=_raw(d, "policy_latency"),
+            sensitivity=_raw(d, "sensitivity"),
         )
 
     def nominal_cells(self) -> list[CellRow]:
@@ -257,14 +286,14 @@ class RunMeta:
     """run.json: what a run was (suite, policy, config) and where it came from (provenance)."""
 
     run_id: str
-    suite: dict[str, Any]
-    policy: dict[str, Any]
-    config: dict[str, Any]
+    suite: dict[str, object]
+    policy: dict[str, object]
+    config: dict[str, object]
     expected_episodes: int | None
-    provenance: dict[str, Any]
-    suite_spec: dict[str, Any] | None = None  # bench.protocols.suite.SuiteSpec (runs before it existed lack it)
+    provenance: dict[str, object]
+    suite_spec: dict[str, object] | None = None  # bench.protocols.suite.SuiteSpec (runs before it existed lack it)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, Any]:  # JSON: run.json, which the run reads back by key and stamps
         out: dict[str, Any] = {"run_id": self.run_id, "suite": self.suite}
         if self.suite_spec is not None:
             out["suite_spec"] = self.suite_spec
@@ -277,13 +306,13 @@ class RunMeta:
         return out
 
     @classmethod
-    def from_json(cls, d: Any, where: str = "run.json") -> RunMeta:
+    def from_json(cls, d: object, where: str = "run.json") -> RunMeta:
         return cls(
             run_id=_need(d, "run_id", str, where),
             suite=_need(d, "suite", dict, where),
             policy=_need(d, "policy", dict, where),
             config=_need(d, "config", dict, where),
-            expected_episodes=d.get("expected_episodes") if isinstance(d, dict) else None,
+            expected_episodes=_raw(d, "expected_episodes"),
             provenance=_need(d, "provenance", dict, where),
-            suite_spec=d.get("suite_spec") if isinstance(d, dict) else None,
+            suite_spec=_raw(d, "suite_spec"),
         )

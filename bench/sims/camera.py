@@ -27,33 +27,44 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from bench.core.errors import BenchError, ConfigError, valid_choices
 from bench.protocols import RGB, Feature
 
+if TYPE_CHECKING:
+    import mujoco
+
 IMAGE_SIZE_RANGE = (16, 1024)
 SCENE_FLAGS = {"shadows": False, "reflections": False, "skybox": False}
 RENDERER_DEFAULTS = {"shadows": True, "reflections": True, "skybox": True}  # MuJoCo's own (dm_control renders so)
 _GL_BACKENDS = ("egl", "osmesa", "glfw")
 
-SceneHook = Callable[[Any, str], None]  # (mujoco.MjvScene, camera name) -> None, called before each render
+SceneHook = Callable[["mujoco.MjvScene", str], None]  # (scene, camera name) -> None, called before each render
+
+
+class GLContext(Protocol):
+    """An offscreen OpenGL context: `mujoco.egl`, `mujoco.osmesa` or `mujoco.glfw`'s `GLContext`."""
+
+    def make_current(self) -> None: ...
+
+    def free(self) -> None: ...
 
 
 class RendererError(BenchError):
     """No offscreen OpenGL context can be made in this process (no GPU driver, no software renderer)."""
 
 
-def camera_names(model: Any) -> list[str]:
+def camera_names(model: mujoco.MjModel) -> list[str]:
     """The model's named cameras, in id order."""
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     return [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) or f"camera{i}" for i in range(model.ncam)]
 
 
-def check_cameras(requested: Sequence[str], model: Any, where: str, field: str = "cameras") -> list[str]:
+def check_cameras(requested: Sequence[str], model: mujoco.MjModel, where: str, field: str = "cameras") -> list[str]:
     """`requested` as a list of the model's camera names; an unknown one is a ConfigError listing the valid ones."""
     valid = camera_names(model)
     if not valid:
@@ -69,7 +80,7 @@ def check_cameras(requested: Sequence[str], model: Any, where: str, field: str =
     return names
 
 
-def parse_image_size(value: Any, field: str = "image_size") -> tuple[int, int]:
+def parse_image_size(value: object, field: str = "image_size") -> tuple[int, int]:
     """`image_size=128` (square) or `[height, width]`, each within IMAGE_SIZE_RANGE."""
     parts = list(value) if isinstance(value, (list, tuple)) else [value, value]
     if len(parts) != 2:
@@ -102,7 +113,7 @@ def _no_renderer(reason: BaseException | str) -> RendererError:
     )
 
 
-def _gl_context(width: int, height: int) -> Any:
+def _gl_context(width: int, height: int) -> GLContext:
     """An OpenGL context for offscreen rendering, from the backend MUJOCO_GL names (EGL by default)."""
     backend = _backend()
     with warnings.catch_warnings(record=True) as caught:  # GLFW reports "no display" as warnings: one line instead
@@ -159,8 +170,8 @@ class CameraRig:
 
     def __init__(
         self,
-        model: Any,
-        data: Any,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
         cameras: Sequence[str],
         size: tuple[int, int],
         where: str = "the env",
@@ -175,8 +186,8 @@ class CameraRig:
         # The offscreen framebuffer is allocated from these model fields when the render context is made.
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), self.width)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), self.height)
-        self._gl: Any = None
-        self._ctx: Any = None
+        self._gl: GLContext | None = None
+        self._ctx: mujoco.MjrContext | None = None
         self._closed = False
         self.hook: SceneHook | None = None
         self.scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom + 100))
@@ -209,7 +220,7 @@ class CameraRig:
             raise _no_renderer(exc) from None
 
     @property
-    def context(self) -> Any:
+    def context(self) -> mujoco.MjrContext:
         """The `mujoco.MjrContext` (textures are uploaded to it after the model's are edited)."""
         self.start()
         return self._ctx
@@ -217,13 +228,14 @@ class CameraRig:
     def make_current(self) -> None:
         """Make this rig's OpenGL context current (before uploading textures or rendering)."""
         self.start()
+        assert self._gl is not None  # made by start()
         self._gl.make_current()
 
     def spec(self) -> dict[str, Feature]:
         """The observation entries the rig adds: `rgb.<camera>` (H, W, 3) uint8."""
         return {f"{RGB}{c}": Feature.rgb(self.height, self.width) for c in self.cameras}
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, object]:
         """What shapes the images: cameras, size, scene settings and the OpenGL backend."""
         return {
             "cameras": list(self.cameras),
@@ -245,6 +257,7 @@ class CameraRig:
         )
         if hook is not None:
             hook(self.scene, camera)
+        assert self._gl is not None  # made by start()
         self._gl.make_current()
         mujoco.mjr_render(self._rect, self.scene, self._ctx)
         mujoco.mjr_readPixels(self._rgb, None, self._rect, self._ctx)

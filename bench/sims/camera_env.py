@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Optional, Protocol
 
 import numpy as np
 
@@ -38,7 +38,20 @@ class CameraOptions:
     image_size: int = 128  # image height and width in pixels, in [16, 1024]
 
 
-def check_options(options: Any, known: Sequence[str] | None = None, where: str = "the suite") -> None:
+class CameraKeys(Protocol):
+    """The camera keys of a suite's Options: `CameraOptions`' fields, inherited or declared alike."""
+
+    @property
+    def obs(self) -> str: ...
+
+    @property
+    def cameras(self) -> Sequence[str] | None: ...
+
+    @property
+    def image_size(self) -> object: ...  # one size, or [height, width] (`parse_image_size`)
+
+
+def check_options(options: CameraKeys, known: Sequence[str] | None = None, where: str = "the suite") -> None:
     """Validate the camera keys without building an env (`known`: the suite's camera names, when fixed)."""
     if options.obs not in OBS_MODES:
         raise ConfigError(
@@ -59,15 +72,15 @@ def check_options(options: Any, known: Sequence[str] | None = None, where: str =
             raise ConfigError(f"cameras: empty list; valid cameras of {where}: {', '.join(known)}")
 
 
-def wants_images(options: Any) -> bool:
+def wants_images(options: CameraKeys) -> bool:
     return options.obs in ("rgb", "state+rgb")
 
 
-def chosen_cameras(options: Any, defaults: Sequence[str]) -> list[str]:
+def chosen_cameras(options: CameraKeys, defaults: Sequence[str]) -> list[str]:
     return list(options.cameras) if options.cameras is not None else list(defaults)
 
 
-def camera_spec(base: ObsSpec, options: Any, defaults: Sequence[str]) -> ObsSpec:
+def camera_spec(base: ObsSpec, options: CameraKeys, defaults: Sequence[str]) -> ObsSpec:
     """`base` (the state spec) with the entries `obs=` asks for: state, rgb.<camera> images, or both."""
     size = parse_image_size(options.image_size)
     out: dict[str, Feature] = {}
@@ -81,7 +94,11 @@ def camera_spec(base: ObsSpec, options: Any, defaults: Sequence[str]) -> ObsSpec
 
 
 def with_cameras(
-    env: EnvAdapter, options: Any, defaults: Sequence[str], where: str, scene_flags: dict[str, bool] | None = None
+    env: EnvAdapter,
+    options: CameraKeys,
+    defaults: Sequence[str],
+    where: str,
+    scene_flags: dict[str, bool] | None = None,
 ) -> EnvAdapter:
     """`env` with a camera rig (and image observations when `obs=` asks for them).
 
@@ -122,7 +139,7 @@ class CameraEnv(AdapterWrapper):
 
     def __init__(
         self,
-        inner: Any,
+        inner: EnvAdapter,
         mode: str,
         cameras: Sequence[str],
         size: tuple[int, int],
@@ -151,7 +168,7 @@ class CameraEnv(AdapterWrapper):
     def reset(self, seed: int) -> Obs:
         return self._obs(self.inner.reset(seed))
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self.inner.step(action)
         return self._obs(obs), reward, terminated, truncated, info
 

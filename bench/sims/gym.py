@@ -15,7 +15,7 @@ work on them.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from bench.protocols.env import CachedStateAdapter
 class GymEnv(CachedStateAdapter):
     """One Gymnasium env, built once and reset with a seed per episode."""
 
-    def __init__(self, env_id: str, horizon: int, env_kwargs: dict[str, Any] | None = None):
+    def __init__(self, env_id: str, horizon: int, env_kwargs: Mapping[str, object] | None = None):
         import gymnasium as gym  # gymnasium: loaded only when a Gymnasium env is made
         from gymnasium import spaces  # gymnasium: loaded only when a Gymnasium env is made
 
@@ -76,10 +76,10 @@ class GymEnv(CachedStateAdapter):
         self._success = False
         self._init_state = np.zeros(0)
 
-    def _flat_obs(self, obs: Any) -> np.ndarray:
+    def _flat_obs(self, obs: object) -> np.ndarray:
         return np.asarray(self._spaces.flatten(self._obs_space, obs), dtype=np.float32).ravel()
 
-    def _action(self, action: np.ndarray) -> Any:
+    def _action(self, action: np.ndarray) -> np.ndarray | int:
         a = np.asarray(action, dtype=np.float64).ravel()
         space = self._act_space
         if isinstance(space, self._spaces.Box):
@@ -101,7 +101,7 @@ class GymEnv(CachedStateAdapter):
         self._success = False
         return {STATE: flat}
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self._env.step(self._action(action))
         info = dict(info)
         self._success = bool(info.get("success", info.get("is_success", False)))

@@ -38,13 +38,19 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, ObsSpec
+from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
 from bench.sims.perturb.physx import PhysxAxes
 from bench.sims.sapien_novulkan import CHECKED, check_cameras, prepare
 
 if TYPE_CHECKING:
-    from bench.sims.perturb.physx import PhysxAxes
+    import torch
+    from mani_skill.agents.controllers.base_controller import BaseController
+    from mani_skill.envs.sapien_env import BaseEnv
+    from mani_skill.utils.assets.data import DataSource
+
+# ManiSkill's batched observation (a leading env axis): a torch tensor for obs_mode "state", else dicts of them
+MsObs = Any
 
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 RESETS = ("rebuild", "soft")
@@ -149,7 +155,7 @@ def missing_assets(env_id: str, robot: str | None) -> list[str]:
     return missing
 
 
-def _on_disk(source: Any) -> bool:
+def _on_disk(source: DataSource) -> bool:
     """ManiSkill's own check (the folder exists) passes on the empty folder a failed download leaves."""
     path = source.output_dir / source.target_path
     return path.is_file() or (path.is_dir() and any(path.iterdir()))
@@ -185,6 +191,12 @@ def reward_mode(env_id: str) -> str:
     return next(m for m in ("normalized_dense", "dense", "sparse", "none") if m in supported)
 
 
+class Built(Protocol):
+    """What an interface binds to after every (re)build: an adapter holding the unwrapped ManiSkill env."""
+
+    base: BaseEnv
+
+
 class ManiSkillInterface(Protocol):
     """What a suite's policy sees and commands, computed from the built ManiSkill env.
 
@@ -199,7 +211,7 @@ class ManiSkillInterface(Protocol):
     state_fields: tuple[tuple[str, int], ...]
     action_spec: ActionSpec
 
-    def bind(self, env: Any) -> None: ...
+    def bind(self, env: Built) -> None: ...
     def on_reset(self) -> None: ...
     def state(self, ms_state: np.ndarray | None) -> np.ndarray: ...
     def command(self, action: np.ndarray) -> np.ndarray: ...
@@ -233,7 +245,7 @@ class NativeInterface:
         self.state_fields: tuple[tuple[str, int], ...] = ()
         self.action_spec = ActionSpec.box([], [], [])
 
-    def bind(self, env: Any) -> None:
+    def bind(self, env: Built) -> None:
         base = env.base
         raw = base.get_obs(unflattened=True)  # {"agent": ..., "extra": ...}, flattened in that order
         self.state_fields = tuple(state_fields(raw.get("agent", {})) + state_fields(raw.get("extra", {})))
@@ -251,7 +263,7 @@ class NativeInterface:
         return np.asarray(action, dtype=np.float32)
 
 
-def _action_names(controller: Any, width: int) -> list[str]:
+def _action_names(controller: BaseController, width: int) -> list[str]:
     """Names of a controller's action entries: joint names where one entry drives one joint."""
     parts = getattr(controller, "controllers", None) or {"": controller}
     names: list[str] = []
@@ -286,7 +298,7 @@ class ManiSkillEnv(CachedStateAdapter):
     model_axes: ModelAxes | None
     physx: PhysxAxes | None  # the same object, with the adapter's reset hooks
     obs_spec: ObsSpec
-    base: Any  # the unwrapped ManiSkill env (mani_skill.envs.sapien_env.BaseEnv)
+    base: BaseEnv  # the unwrapped ManiSkill env
 
     def __init__(
         self,
@@ -386,18 +398,19 @@ class ManiSkillEnv(CachedStateAdapter):
     def _control_modes(self) -> list[str]:
         import gymnasium as gym  # gymnasium: loaded only when a Gymnasium env is made
 
-        probe: Any = gym.make(self.env_id, **{**self._kwargs, "obs_mode": "none", "render_backend": "none"})
+        probe = gym.make(self.env_id, **{**self._kwargs, "obs_mode": "none", "render_backend": "none"})
         try:
-            return list(probe.unwrapped.agent.supported_control_modes)
+            base: BaseEnv = probe.unwrapped
+            return list(base.agent.supported_control_modes)
         finally:
             probe.close()
 
-    def reconfigure(self, seed: int) -> Any:
+    def reconfigure(self, seed: int) -> tuple[MsObs, dict[str, torch.Tensor]]:
         """Rebuild the scene (new PhysX system, e.g. after a gravity change) and reset it with `seed`."""
         return self.base.reset(seed=int(seed), options={"reconfigure": True})
 
     # -- contract ----------------------------------------------------------------------------
-    def reset(self, seed: int) -> dict[str, Any]:
+    def reset(self, seed: int) -> Obs:
         seed = int(seed)
         axes = self.physx
         gravity_changed = axes is not None and axes.needs_reconfigure()
@@ -413,7 +426,7 @@ class ManiSkillEnv(CachedStateAdapter):
         self._init_state = self.base.get_state()[0].cpu().numpy().astype(np.float64)
         return self._obs(raw)
 
-    def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         raw, reward, _, _, info = self.base.step(self.interface.command(action))  # batched tensors (1, ...)
         self._t += 1
         self._success = bool(info["success"][0])
@@ -422,8 +435,8 @@ class ManiSkillEnv(CachedStateAdapter):
     def close(self) -> None:
         self._gym.close()
 
-    def _obs(self, raw: Any) -> dict[str, Any]:
-        out: dict[str, Any] = {}
+    def _obs(self, raw: MsObs) -> Obs:
+        out: Obs = {}
         if self.want_state:
             ms_state = None
             if self.interface.uses_ms_state:  # obs_mode "state": a (1, D) tensor; "state+rgb": a dict

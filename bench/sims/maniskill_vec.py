@@ -16,20 +16,23 @@ GPU backend, so the model perturbation axes are unavailable here; the interface 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.protocols import STATE, Obs
-from bench.sims.maniskill import ManiSkillInterface, NativeInterface, check_backend, check_buildable
+from bench.sims.maniskill import ManiSkillInterface, MsObs, NativeInterface, check_backend, check_buildable
 from bench.sims.sapien_novulkan import prepare
+
+if TYPE_CHECKING:
+    from mani_skill.envs.sapien_env import BaseEnv
 
 
 class ManiSkillVecEnv:
     """`num_envs` envs of one ManiSkill task; reset per env by seed, stepped together."""
 
-    base: Any  # the unwrapped ManiSkill env
+    base: BaseEnv  # the unwrapped ManiSkill env
 
     def __init__(
         self,
@@ -74,7 +77,7 @@ class ManiSkillVecEnv:
         self.interface.bind(self)
         self.action_spec = self.interface.action_spec
         self.device = self.base.device
-        self._obs: Any = None
+        self._obs: MsObs = None
 
     def reset(self, seeds: Sequence[int], envs: Sequence[int] | None = None) -> list[Obs]:
         """Reset env `envs[k]` (default: all, in order) with `seeds[k]`; returns every env's observation."""
@@ -110,6 +113,6 @@ class ManiSkillVecEnv:
     def close(self) -> None:
         self._gym.close()
 
-    def _split(self, raw: Any) -> list[Obs]:
+    def _split(self, raw: MsObs) -> list[Obs]:
         state = raw.reshape(self.num_envs, -1).cpu().numpy().astype(np.float32)
         return [{STATE: state[i]} for i in range(self.num_envs)]

@@ -35,7 +35,6 @@ import importlib.util
 import warnings
 from importlib.metadata import version
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -179,7 +178,7 @@ class MetaWorldEnv(CachedStateAdapter):
         """
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
-        env: Any = self._env  # Any: this instance's bound method is replaced below (mypy calls methods read-only)
+        env = self._env
         log = self.inputs
         model, data = env.model, env.data
         original = env._step_mujoco_simulation
@@ -192,7 +191,7 @@ class MetaWorldEnv(CachedStateAdapter):
                 log.rows.extend([row] * int(n_frames))
             return original(ctrl, n_frames)
 
-        env._step_mujoco_simulation = stepped
+        vars(env)["_step_mujoco_simulation"] = stepped  # this instance's method (mypy holds methods read-only)
 
     def reset(self, seed: int) -> Obs:
         env = self._env

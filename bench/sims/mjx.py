@@ -27,17 +27,41 @@ import time
 from collections.abc import Callable, Mapping
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
 import numpy as np
 
 from bench.core.errors import ConfigError, SpecError
 
+if TYPE_CHECKING:
+    import mujoco
+    from jax import Array
+    from mujoco.mjx import Data as MjxData
+
 EXTRA = 'pip install -e ".[mjx]"'
 ITERATIONS_FOR_GRADIENTS = 1  # reverse-mode differentiation of mjx.step needs the solver unrolled to one step
 FRICTIONLOSS_FLOOR = 1e-9  # friction loss added to every dof that gets a row (N or N*m): rows exist, force ~ 0
 
-_state: dict[str, Any] = {}
+_state: dict[str, ModuleType] = {}
+
+# An array leaf of the trees below: numpy outside the compiled functions, a `jax.Array` (a tracer, while JAX
+# traces) inside them. The same trees cross that line (`jnp.asarray` in, `np.asarray` out), so one name for both.
+Leaf = Any
+Batch = Mapping[str, Leaf]  # qpos0, qvel0, ctrl (B, T, nu + nv), [inputs (B, T, m)], target, weight, mask, channels
+_T = TypeVar("_T")
+
+
+class _Shared(TypedDict):
+    model: Mapping[str, Leaf]  # mjx.Model field -> value
+    qfrc: Leaf  # (nv,) constant generalised force
+
+
+class Params(_Shared, total=False):
+    """The parameters a calibration differentiates (`Rollouts.value_and_grad`), or tangents of the same structure."""
+
+    input_gain: Leaf  # (m, nv) gain on the logged extra inputs
+
 
 # jaxlib 0.7's XLA:CPU "fusion emitters" (on by default from 0.7) run MJX's many small fusions 100-300x
 # slower than the emitters before them (google-deepmind/mujoco#2957, jax-ml/jax#33761); measured here on
@@ -63,7 +87,7 @@ def xla_cpu_flags() -> str | None:
     return CPU_FLAG
 
 
-def require(x64: bool | None = None) -> tuple[Any, Any, Any]:
+def require(x64: bool | None = None) -> tuple[ModuleType, ModuleType, ModuleType]:
     """(jax, jax.numpy, mujoco.mjx), imported once; a one-line ConfigError naming the extra when missing.
 
     `x64`: run in float64 (the default the first time: calibration and the CPU comparisons need it);
@@ -101,13 +125,13 @@ def device() -> str:
 
 
 # --- what MJX cannot simulate -------------------------------------------------------------------------------
-def _name(model: Any, obj: Any, i: int) -> str:
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
     import mujoco  # MuJoCo's native library: loaded only when a model is checked
 
     return mujoco.mj_id2name(model, obj, i) or f"#{i}"
 
 
-def unsupported(model: Any) -> str | None:
+def unsupported(model: mujoco.MjModel) -> str | None:
     """The first feature of `model` that MJX (the installed version) cannot simulate, named; None if none.
 
     Checks what `mjx.put_model` would refuse, naming the geoms and options involved: the integrator,
@@ -173,7 +197,7 @@ def unsupported(model: Any) -> str | None:
     return None
 
 
-def check_model(model: Any, field: str = "model", where: str = "the model") -> None:
+def check_model(model: mujoco.MjModel, field: str = "model", where: str = "the model") -> None:
     """Refuse, in one line before any work, a model MJX cannot simulate (SpecError naming the feature)."""
     problem = unsupported(model)
     if problem is not None:
@@ -205,7 +229,7 @@ class Rollouts:
     plus FRICTIONLOSS_FLOOR.
     """
 
-    def __init__(self, model: Any, substeps: int, *, frictionloss_rows: bool = False) -> None:
+    def __init__(self, model: mujoco.MjModel, substeps: int, *, frictionloss_rows: bool = False) -> None:
         check_model(model)
         jax, jnp, mjx = require()
         self.jax, self.jnp, self.mjx = jax, jnp, mjx
@@ -222,13 +246,13 @@ class Rollouts:
         self.nq, self.nv, self.nu = m.nq, m.nv, m.nu
         self.substeps = int(substeps)
         self.compile_s = 0.0  # seconds spent in the first call of each new shape (tracing + XLA compile)
-        self._seen: set[tuple] = set()
+        self._seen: set[tuple[object, ...]] = set()
         self._sim = jax.jit(self._batched, static_argnames=("per_world",))
         self._vg = jax.jit(jax.value_and_grad(self._loss))
         self._vd = jax.jit(self._loss_dirs)
 
     # the pure functions that get compiled
-    def _one(self, world: Mapping[str, Any], qpos0: Any, qvel0: Any, ctrl: Any) -> Any:
+    def _one(self, world: Mapping[str, Array], qpos0: Array, qvel0: Array, ctrl: Array) -> Array:
         """One world: (T, nu + nv) commands -> (T // substeps, nq + nv) states after each frame."""
         jax, jnp, mjx = self.jax, self.jnp, self.mjx
         if self.floor and "dof_frictionloss" in world:
@@ -237,23 +261,23 @@ class Rollouts:
         d = mjx.make_data(m).replace(qpos=qpos0, qvel=qvel0)
         nu, s = self.nu, self.substeps
 
-        def substep(d: Any, u: Any) -> tuple[Any, None]:
+        def substep(d: MjxData, u: Array) -> tuple[MjxData, None]:
             d = d.replace(ctrl=u[:nu], qfrc_applied=u[nu:])
             return mjx.step(m, d), None
 
         @jax.checkpoint  # reverse mode keeps one state per frame, not one per physics step
-        def frame(d: Any, u: Any) -> tuple[Any, Any]:
+        def frame(d: MjxData, u: Array) -> tuple[MjxData, Array]:
             d, _ = jax.lax.scan(substep, d, u)
             return d, jnp.concatenate([d.qpos, d.qvel])
 
         _, out = jax.lax.scan(frame, d, ctrl.reshape(ctrl.shape[0] // s, s, ctrl.shape[-1]))
         return out
 
-    def _batched(self, world: Mapping[str, Any], qpos0: Any, qvel0: Any, ctrl: Any, per_world: bool) -> Any:
+    def _batched(self, world: Mapping[str, Array], qpos0: Array, qvel0: Array, ctrl: Array, per_world: bool) -> Array:
         axes = (0 if per_world else None, 0, 0, 0)
         return self.jax.vmap(self._one, in_axes=axes)(world, qpos0, qvel0, ctrl)
 
-    def _window_losses(self, params: Mapping[str, Any], batch: Mapping[str, Any]) -> Any:
+    def _window_losses(self, params: Params, batch: Batch) -> Array:
         """Per window: sum of squared weighted, masked residuals under shared `params`.
 
         params: {"model": {field: value}, "qfrc": (nv,), "input_gain": (m, nv) or absent};
@@ -270,17 +294,17 @@ class Rollouts:
         r = (sim[..., batch["channels"]] - batch["target"]) * batch["weight"]
         return jnp.sum(jnp.where(batch["mask"], r * r, 0.0), axis=(1, 2))
 
-    def _loss(self, params: Mapping[str, Any], batch: Mapping[str, Any]) -> Any:
+    def _loss(self, params: Params, batch: Batch) -> Array:
         return self.jnp.sum(self._window_losses(params, batch))
 
-    def _loss_dirs(self, params: Mapping[str, Any], tangents: Any, batch: Mapping[str, Any]) -> Any:
+    def _loss_dirs(self, params: Params, tangents: Params, batch: Batch) -> tuple[Array, Array]:
         """Loss and its directional derivatives along each tangent (leading axis), in forward mode."""
         f = lambda th: self._loss(th, batch)  # noqa: E731
         value = f(params)
         dirs = self.jax.vmap(lambda t: self.jax.jvp(f, (params,), (t,))[1])(tangents)
         return value, dirs
 
-    def _timed(self, key: tuple, fn: Callable[[], Any]) -> Any:
+    def _timed(self, key: tuple[object, ...], fn: Callable[[], _T]) -> _T:
         first = key not in self._seen
         t0 = time.perf_counter()
         out = self.jax.block_until_ready(fn())
@@ -289,7 +313,7 @@ class Rollouts:
             self.compile_s += time.perf_counter() - t0
         return out
 
-    def _key(self, name: str, *trees: Any) -> tuple:
+    def _key(self, name: str, *trees: object) -> tuple[object, ...]:
         tu = self.jax.tree_util
         return (name, tu.tree_structure(trees), *(np.shape(v) for v in tu.tree_leaves(trees)))
 
@@ -309,7 +333,7 @@ class Rollouts:
         key = self._key(f"sim{per_world}", w, args)
         return np.asarray(self._timed(key, lambda: self._sim(w, *args, per_world=per_world)))
 
-    def value_and_grad(self, params: Mapping[str, Any], batch: Mapping[str, Any]) -> tuple[float, Any]:
+    def value_and_grad(self, params: Params, batch: Batch) -> tuple[float, Params]:
         """Loss and its gradient with respect to every array of `params` (same structure, numpy): reverse mode,
         for models without constraint rows (`mode == "reverse"`)."""
         if self.mode != "reverse":
@@ -320,9 +344,7 @@ class Rollouts:
         value, grad = self._timed(self._key("vg", p, b), lambda: self._vg(p, b))
         return float(value), jax.tree_util.tree_map(np.asarray, grad)
 
-    def value_and_dirs(
-        self, params: Mapping[str, Any], tangents: Mapping[str, Any], batch: Mapping[str, Any]
-    ) -> tuple[float, np.ndarray]:
+    def value_and_dirs(self, params: Params, tangents: Params, batch: Batch) -> tuple[float, np.ndarray]:
         """Loss and its derivatives along tangents (`params`' structure, each leaf with a leading axis of K):
         (value, (K,)). Reverse mode (one gradient, then K dot products) or forward mode (K tangents)."""
         jax, jnp = self.jax, self.jnp
@@ -338,7 +360,7 @@ class Rollouts:
         value, dirs = self._timed(self._key("vd", p, t, b), lambda: self._vd(p, t, b))
         return float(value), np.asarray(dirs, dtype=float)
 
-    def window_losses(self, params: Mapping[str, Any], batch: Mapping[str, Any]) -> np.ndarray:
+    def window_losses(self, params: Params, batch: Batch) -> np.ndarray:
         """Each window's loss (B,), to find where a loss or gradient turned non-finite."""
         jax, jnp = self.jax, self.jnp
         p = jax.tree_util.tree_map(jnp.asarray, dict(params))

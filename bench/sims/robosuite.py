@@ -18,8 +18,9 @@ import logging
 import os
 import sys
 import types
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from bench.protocols import ActionSpec, InputLog, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
 from bench.sims import robosuite_fast
 from bench.sims.camera_env import CameraOptions
+
+if TYPE_CHECKING:
+    import mujoco
 
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
@@ -54,7 +58,7 @@ def _quiet_robosuite() -> None:
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
 
 
-def import_robosuite() -> Any:
+def import_robosuite() -> types.ModuleType:
     """robosuite, imported quietly (`_quiet_robosuite`) with MuJoCo; a suite's `preload` calls it."""
     _quiet_robosuite()
     import mujoco  # noqa: F401  # MuJoCo's native library: loaded only when a model is simulated
@@ -64,7 +68,7 @@ def import_robosuite() -> Any:
 
 
 @contextlib.contextmanager
-def _without_robot_only_models(skip: bool) -> Any:
+def _without_robot_only_models(skip: bool) -> Iterator[None]:
     """While robosuite builds an env (`skip`: the fast path's builds), compile no robot-only MuJoCo model.
 
     `Robot.load_model` compiles each robot's XML on its own before the whole scene is compiled
@@ -80,7 +84,7 @@ def _without_robot_only_models(skip: bool) -> Any:
 
     compile_alone = RobotModel.set_mujoco_model
 
-    def keep_given(self: Any, mujoco_model: Any = None) -> None:
+    def keep_given(self: RobotModel, mujoco_model: mujoco.MjModel | None = None) -> None:
         if mujoco_model is not None:
             self.mujoco_model = mujoco_model
 
@@ -139,7 +143,7 @@ def _scene_env_name(task: str) -> str:
 
 # how every env is made: no window and no robosuite cameras (bench.sims.camera renders frames itself), no reset or
 # done of its own (bench runs the horizon); benchmarks/bench_robosuite_raw.py makes its bare env the same way
-MAKE_OPTIONS: dict[str, Any] = {
+MAKE_OPTIONS: dict[str, bool | int] = {
     "has_renderer": False,
     "has_offscreen_renderer": False,
     "use_camera_obs": False,
@@ -193,7 +197,7 @@ class RobosuiteEnv(CachedStateAdapter):
         robot: str,
         horizon: int,
         observer: Observer,
-        env_kwargs: dict[str, Any] | None = None,
+        env_kwargs: Mapping[str, object] | None = None,
         fast: bool = True,
     ):
         robosuite = import_robosuite()
@@ -283,7 +287,7 @@ class RobosuiteEnv(CachedStateAdapter):
         self._success = False
         return self.observer.observe(raw)
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         raw, reward, done, info = self.raw_step(action)
         self._success = bool(self.raw._check_success())
         return self.observer.observe(raw), float(reward), False, bool(done), dict(info)

@@ -28,15 +28,20 @@ else steps through robosuite's own `env.step`.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from robosuite.environments.robot_env import RobotEnv
+    from robosuite.utils.observables import Observable
+
 # the ufunc np.clip calls, without np.clip's argument handling (the same values)
-_CLIP: Any = np.core.umath.clip  # type: ignore[attr-defined]  # numpy's stubs omit umath's ufuncs
+_CLIP: np.ufunc = np.core.umath.clip  # type: ignore[attr-defined]  # numpy's stubs omit umath's ufuncs
 
 
-def reason_not(raw: Any) -> str | None:
+def reason_not(raw: RobotEnv) -> str | None:
     """Why the fast path does not apply to robosuite env `raw` (None when it does)."""
     from robosuite.controllers.composite.composite_controller import (  # robosuite: loaded only when its env is made
         CompositeController,
@@ -103,7 +108,9 @@ class FastStep:
     (`bench.protocols.InputLog.rows`), read through `log_rows()` at every step.
     """
 
-    def __init__(self, raw: Any, keys: tuple[str, ...] | None, log_rows: Any) -> None:
+    def __init__(
+        self, raw: RobotEnv, keys: tuple[str, ...] | None, log_rows: Callable[[], list[np.ndarray] | None]
+    ) -> None:
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
         from robosuite.controllers.parts.arm import osc as osc_mod  # robosuite: loaded only when its env is made
 
@@ -123,7 +130,7 @@ class FastStep:
         self._jacr_c = np.zeros((3, nv))
         self._full_m: np.ndarray = np.ndarray(shape=(nv, nv), dtype=np.float64, order="C")
 
-    def _observables(self) -> list[Any]:
+    def _observables(self) -> list[Observable]:
         obs = self.raw._observables
         if self.keys is None:
             return list(obs.values())

@@ -17,9 +17,10 @@ cannot be undone: a process that installed them cannot build camera observations
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable, Iterable
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-from typing import Any
+from typing import TypeVar
 
 from bench.core.errors import ConfigError
 
@@ -39,7 +40,7 @@ _VISUAL_ADDERS = (
 warnings.filterwarnings("ignore", message="Failed to find system libvulkan", category=UserWarning)
 LAVAPIPE_HINT = "run scripts/fetch_lavapipe.sh and export the VK_ICD_FILENAMES it prints"
 
-_state: dict[str, Any] = {"mode": None}  # None (not decided yet) | "vulkan" | "stand-ins"
+_state: dict[str, str | None] = {"mode": None}  # None (not decided yet) | "vulkan" | "stand-ins"
 
 
 class InertRenderMaterial:
@@ -47,8 +48,8 @@ class InertRenderMaterial:
 
     def __init__(
         self,
-        emission: Any = (0.0, 0.0, 0.0, 0.0),
-        base_color: Any = (1.0, 1.0, 1.0, 1.0),
+        emission: Iterable[float] = (0.0, 0.0, 0.0, 0.0),
+        base_color: Iterable[float] = (1.0, 1.0, 1.0, 1.0),
         specular: float = 0.0,
         roughness: float = 1.0,
         metallic: float = 0.0,
@@ -63,7 +64,9 @@ class InertRenderMaterial:
         self.metallic_texture = self.normal_texture = self.roughness_texture = self.transmission_texture = None
 
 
-def _accessors(name: str) -> tuple[Any, Any]:
+def _accessors(
+    name: str,
+) -> tuple[Callable[[InertRenderMaterial], object], Callable[[InertRenderMaterial, object], None]]:
     return (lambda self: getattr(self, name)), (lambda self, value: setattr(self, name, value))
 
 
@@ -92,11 +95,14 @@ for _name in (
 class InertRenderTexture2D:
     """Remembers the file or array a `sapien.render.RenderTexture2D` would upload; uploads nothing."""
 
-    def __init__(self, *args: Any, **kwargs: Any):
+    def __init__(self, *args: object, **kwargs: object):
         self.filename = kwargs.get("filename", args[0] if args and isinstance(args[0], str) else None)
 
 
-def _record_nothing(self: Any, *args: Any, **kwargs: Any) -> Any:
+_Builder = TypeVar("_Builder")  # sapien.wrapper.actor_builder.ActorBuilder
+
+
+def _record_nothing(self: _Builder, *args: object, **kwargs: object) -> _Builder:
     return self  # SAPIEN's add_*_visual return the builder
 
 

@@ -12,11 +12,14 @@ from __future__ import annotations
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.core.console import table_console
 from bench.core.io import write_atomic, write_text_atomic
 from bench.core.schema import validate
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 VERDICT_WORDS = {
     "regression": "REGRESSION",
@@ -65,7 +68,7 @@ def look_line(look: dict[str, Any], n_looks: int) -> str:
     )
 
 
-def render(doc: dict[str, Any], console: Any = None) -> None:
+def render(doc: dict[str, Any], console: Console | None = None) -> None:
     """The per-cell and per-split tables, the looks and the verdict, in the terminal."""
     from rich.table import Table  # rich: loaded only when something is drawn on the terminal
 
@@ -170,7 +173,7 @@ def render(doc: dict[str, Any], console: Any = None) -> None:
     console.print(f"[{colour}]{VERDICT_WORDS[doc['verdict']]}[/] (exit {doc['exit_code']}){extra}")
 
 
-def write(doc: dict[str, Any], paths: dict[str, Path], console: Any) -> None:
+def write(doc: dict[str, Any], paths: dict[str, Path], console: Console) -> None:
     """Validate the verdict, then write it, its JUnit XML and its Markdown summary (each atomically), and show it."""
     doc["outputs"] = {"junit": str(paths["junit"]), "markdown": str(paths["markdown"])}
     validate(doc, "verdict")
@@ -272,7 +275,7 @@ def _detail(doc: dict[str, Any]) -> str:
 
 
 # -- Markdown ------------------------------------------------------------------------------------
-def _md(text: Any) -> str:
+def _md(text: object) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 

@@ -37,7 +37,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -47,6 +47,42 @@ IQM_MIN_PAIRS = 10  # pairs per cell before the IQM bootstrap bound may decide (
 IQM_MIN_CELLS = 4  # with fewer cells the IQM trims nothing: it is the mean of the cell rates
 CellKey = tuple[str, str, str, str, str]  # (task, robot, env, condition, split)
 TIE = 1e-9  # IQM drops are differences of means of a few ratios: one exactly at the margin is not above it
+
+if TYPE_CHECKING:
+    from typing_extensions import NotRequired  # typing's own from Python 3.11
+
+
+class GateTest(TypedDict):
+    """One test at a look (`evaluate_look`): a drop (baseline - candidate), its p-value and Holm threshold;
+    with bounds, the one-sided `level` of its bounds `lcb` / `ucb`."""
+
+    id: str  # "pooled", "iqm", "split:NAME" or a cell id
+    kind: str
+    pairs: int
+    drop: float
+    p: float
+    threshold: float
+    tested: bool
+    rejected: bool
+    level: NotRequired[float]
+    lcb: NotRequired[float]
+    ucb: NotRequired[float]
+
+
+class Look(TypedDict, total=False):
+    """A look's tests and decision (`evaluate_look`), as the verdict document holds it."""
+
+    pairs: int
+    reason: str  # no paired episode yet
+    baseline_only: int
+    candidate_only: int
+    alpha_spent: float
+    tests: list[GateTest]
+    regressed: list[str]
+    mean: dict[str, object]
+    iqm: dict[str, object]
+    certify: dict[str, object]
+    decision: str
 
 
 @dataclass(frozen=True)
@@ -234,7 +270,7 @@ def evaluate_look(
     rng: np.random.Generator,
     n_boot: int,
     bounds: bool = True,
-) -> dict[str, Any]:
+) -> Look:
     """All tests at look `look` (0-based) and its decision: "regression", "no_regression" or "continue".
 
     Args:
@@ -290,12 +326,12 @@ def evaluate_look(
     decision = "regression" if regressed else "no_regression" if certified else "continue"
 
     fallback = base_weights(list(design.cells) or keys, True, design.cell_alpha)  # bounds of untested tests
-    tests = []
+    tests: list[GateTest] = []
     for h in ids + (["iqm"] if samples is not None else []):
         tested = h in decided
         thr = decided[h][1] if tested else design.alpha * fallback.get(h, 0.0) / design.looks
         g = groups.get(h)
-        t: dict[str, Any] = {
+        t: GateTest = {
             "id": h,
             "kind": h.split(":")[0],
             "pairs": g.n if g else pooled.n,
@@ -312,9 +348,9 @@ def evaluate_look(
                 ucb = scoring.paired_score_bound(g.n10, g.n01, g.n, level, "upper")
             elif samples is not None:
                 lcb, ucb = _quantile(samples, thr), _quantile(samples, level)
-            t.update(level=round(level, 8), lcb=round(lcb, 6), ucb=round(ucb, 6))
+            t["level"], t["lcb"], t["ucb"] = round(level, 8), round(lcb, 6), round(ucb, 6)
         tests.append(t)
-    out: dict[str, Any] = {
+    out: Look = {
         "pairs": pooled.n,
         "baseline_only": pooled.n10,
         "candidate_only": pooled.n01,
@@ -342,7 +378,7 @@ def _quantile(samples: np.ndarray, q: float) -> float:
     return float(np.quantile(samples, q, method="inverted_cdf"))
 
 
-def decide(looks: Sequence[Mapping[str, Any]], strict: bool) -> tuple[str, int]:
+def decide(looks: Sequence[Mapping[str, object]], strict: bool) -> tuple[str, int]:
     """Final verdict and exit code from the looks taken so far (the last one decides)."""
     last = looks[-1]["decision"] if looks else "continue"
     if last == "regression":
@@ -352,7 +388,7 @@ def decide(looks: Sequence[Mapping[str, Any]], strict: bool) -> tuple[str, int]:
     return "inconclusive", 1 if strict else 0
 
 
-def _rates(g: Pairs) -> dict[str, Any]:
+def _rates(g: Pairs) -> dict[str, float]:
     """A verdict row's pair count, success rates and drop (`g` has pairs)."""
     return {
         "pairs": g.n,
@@ -362,7 +398,7 @@ def _rates(g: Pairs) -> dict[str, Any]:
     }
 
 
-def _test_columns(t: Mapping[str, Any]) -> dict[str, Any]:
+def _test_columns(t: Mapping[str, object]) -> dict[str, object]:
     """A verdict row's test at the look (p, level, bounds on the drop, tested, regressed); `t` may be {}."""
     return {
         "p": t.get("p"),
@@ -374,7 +410,7 @@ def _test_columns(t: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[dict[str, Any]]:
+def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[dict[str, object]]:  # look: JSON
     """Per-cell table of the verdict: rates, drop, the cell's test at the look (p, bounds, regressed)."""
     tests = {t["id"]: t for t in look.get("tests", [])}
     rows = []
@@ -398,7 +434,7 @@ def cell_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[d
     return rows
 
 
-def split_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[dict[str, Any]]:
+def split_rows(cells: Mapping[CellKey, Pairs], look: Mapping[str, Any]) -> list[dict[str, object]]:  # look: JSON
     """Per-split table of the verdict (pooled over each split's cells)."""
     tests = {t["id"]: t for t in look.get("tests", [])}
     splits: dict[str, Pairs] = {}
@@ -432,7 +468,7 @@ def rule(design: Design, metric: str) -> str:
     )
 
 
-def regressed_entry(test: Mapping[str, Any]) -> dict[str, Any]:
+def regressed_entry(test: GateTest) -> dict[str, object]:
     """A rejected test as the verdict's `regressed` list names it: what, its drop, its bounds."""
     names = {"pooled": "all cells", "iqm": "IQM across cells"}
     return {

@@ -6,13 +6,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 SEEN, UNSEEN = "#3b6fb6", "#e07b28"
 COLOURS = {"seen": SEEN, "unseen": UNSEEN}
 
 
-def labelled_bar(ax: Any, x: float, est: Sequence[float], colour: str, width: float, by_return: bool) -> None:
+def labelled_bar(ax: Axes, x: float, est: Sequence[float], colour: str, width: float, by_return: bool) -> None:
     """One bar with its interval (`est` = value, minus, plus) and its value written above (below, if negative)."""
     ax.bar(x, est[0], width=width, color=colour, alpha=0.85)
     ax.errorbar(x, est[0], yerr=[[est[1]], [est[2]]], color="black", capsize=3, lw=1)
@@ -38,7 +42,7 @@ def pyplot():
     return plt
 
 
-def save_figure(fig: Any, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+def save_figure(fig: Figure, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
     """Lay out, write and close one figure (closed figures free their memory in long report runs)."""
     import matplotlib.pyplot as plt  # matplotlib: loaded only when a figure is drawn
 
@@ -172,7 +176,7 @@ def fig_splits_gaps(summary: dict, path: Path) -> bool:
     return True
 
 
-def _level_x(level: Any) -> tuple[float, float] | None:
+def _level_x(level: object) -> tuple[float, float] | None:
     """(x, half-width) of a perturbation level: a scale, or the midpoint of a [low, high] range."""
     if isinstance(level, bool):
         return None

@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import html
 from collections.abc import Collection
-from typing import Any
 
-from bench.scoring.summary import fmt_estimate
+from bench.scoring.summary import EstimateDoc, fmt_estimate
 
 CSS = """
 body{font-family:-apple-system,'Segoe UI',Helvetica,Arial,sans-serif;margin:24px auto;max-width:1100px;color:#222;
@@ -24,27 +23,27 @@ figure{display:inline-block;margin:2px 4px} figcaption{font-size:11px}
 """
 
 
-def esc(x: Any) -> str:
+def esc(x: object) -> str:
     return html.escape(str(x))
 
 
-def _estimate(est: dict | None, pct: bool, signed: bool = True) -> str:
+def _estimate(est: EstimateDoc | None, pct: bool, signed: bool = True) -> str:
     """`summary.fmt_estimate`, or n/a with the reason (escaped) when there is no value."""
     if not est or est.get("value") is None:
         return f"n/a{' (' + esc(est.get('reason')) + ')' if est and est.get('reason') else ''}"
     return fmt_estimate(est, pct, signed)
 
 
-def return_cell(est: dict | None) -> str:
+def return_cell(est: EstimateDoc | None) -> str:
     """A mean return with its interval, in the env's units (`-274.6 [-325.5, -233.9]`), never as a percentage."""
     return _estimate(est, pct=False, signed=False)
 
 
-def rate_cell(est: dict | None) -> str:
+def rate_cell(est: EstimateDoc | None) -> str:
     return _estimate(est, pct=True)
 
 
-def signed_cell(est: dict | None) -> str:
+def signed_cell(est: EstimateDoc | None) -> str:
     return _estimate(est, pct=False)
 
 

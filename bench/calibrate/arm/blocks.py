@@ -9,15 +9,16 @@ friction, a joint spring); `values_of` turns a fit back into what `realise` writ
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from bench.calibrate.arm.dynamics import Dynamics
 from bench.calibrate.arm.idim import FRICTION_V, Block, Fit, fit, predict, prior_scale
 from bench.calibrate.arm.inertial import STD_NAMES
-from bench.calibrate.arm.model import ArmModel, group_std
+from bench.calibrate.arm.model import ArmModel, Values, group_std
 from bench.calibrate.arm.spec import ArmSpec
 from bench.calibrate.fit import information
 
@@ -41,7 +42,7 @@ class Candidate:
     blocks: list[Block]
     amplitude: list[str]  # labels whose interval must exclude zero
     payload: bool = False
-    note: dict[str, Any] = field(default_factory=dict)
+    note: dict[str, object] = field(default_factory=dict)
 
 
 def joint_cols(n_rows: int, n: int, j: int, col: np.ndarray) -> np.ndarray:
@@ -181,9 +182,9 @@ def candidates(
     return out, searched, payload_inertia
 
 
-def values_of(am: ArmModel, f: Fit) -> dict[str, Any]:
+def values_of(am: ArmModel, f: Fit) -> Values:
     """What `realise` writes, from a fit's parameter vector."""
-    out: dict[str, Any] = {"joints": {}, "links": {}}
+    out: Values = {"joints": {}, "links": {}}
     off = 0
     for b in f.blocks:
         x = f.x[off : off + b.size]
@@ -225,7 +226,7 @@ class Regression:
     base_free: np.ndarray  # ... less the declared links' own torque (link blocks hold absolute parameters)
     payload_inertia: np.ndarray | None  # (N, n, 6) torque per unit of the payload's rotational inertia
 
-    def blocks_of(self, added: list[dict[str, Any]]) -> list[Block]:
+    def blocks_of(self, added: Sequence[Mapping[str, object]]) -> list[Block]:
         """The declared blocks and those of the effects `added` (by name and target), in the fit's order."""
         out = list(self.declared)
         for a in added:

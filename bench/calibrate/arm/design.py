@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import mujoco
 import numpy as np
@@ -277,7 +277,7 @@ def search(
     return first, fr
 
 
-def finalise(p: DesignProblem, fr: Fourier) -> tuple[Fourier, dict[str, Any]]:
+def finalise(p: DesignProblem, fr: Fourier) -> tuple[Fourier, dict[str, object]]:
     """The design shrunk until it meets every limit on the 1 kHz grid; what it reaches there."""
     t = np.arange(int(round(p.period * CSV_RATE))) / CSV_RATE
     for _ in range(40):
@@ -295,18 +295,31 @@ def finalise(p: DesignProblem, fr: Fourier) -> tuple[Fourier, dict[str, Any]]:
     raise ConfigError("key 'torque': the design cannot be brought within the limits on the 1 kHz grid")
 
 
+class Side(TypedDict):
+    """An excitation as the design compares it: its name, condition number and what it identifies."""
+
+    of: str
+    condition: float
+    ident: Identifiability
+
+
+class Gain(TypedDict):
+    block: str
+    parameters: dict[str, dict[str, str]]  # label -> {before, after}: its identifiability status in each
+
+
 @dataclass
 class Design:
     """A designed excitation and how it compares with what came before (a log, or a random trajectory)."""
 
     fourier: Fourier
     limits: Limits
-    reached: dict[str, Any]  # on the 1 kHz grid: position span, largest |dq|, |ddq|, |torque| per joint
-    before: dict[str, Any]  # {of, condition, ident}
-    after: dict[str, Any]
+    reached: dict[str, object]  # on the 1 kHz grid: position span, largest |dq|, |ddq|, |torque| per joint
+    before: Side
+    after: Side
     parameters: int
     rank: int  # directions a motion identifies at all
-    gained: list[dict[str, Any]]  # per block: parameters the design identifies better than before
+    gained: list[Gain]  # per block: parameters the design identifies better than before
     warnings: list[str]
     evaluations: int
     wall: float
@@ -319,9 +332,9 @@ def identify(p: DesignProblem, blocks: list[Block], rate: float, duration: float
     return analyse(blocks, x, rows, p.weights, len(rows) / (rate * duration), np.ones(len(p.am.joints)))
 
 
-def gained(before: Identifiability, after: Identifiability, blocks: list[Block]) -> list[dict[str, Any]]:
+def gained(before: Identifiability, after: Identifiability, blocks: list[Block]) -> list[Gain]:
     """Per block, the parameters `after` identifies better than `before` (alone > in combination > not)."""
-    out = []
+    out: list[Gain] = []
     for b in blocks:
         pair = {lab: (before.status[lab]["status"], after.status[lab]["status"]) for lab in b.labels}
         better = {lab: {"before": x, "after": y} for lab, (x, y) in pair.items() if RANK[y] > RANK[x]}
@@ -330,7 +343,7 @@ def gained(before: Identifiability, after: Identifiability, blocks: list[Block])
     return out
 
 
-def _phrase(entry: dict[str, Any]) -> str:
+def _phrase(entry: Gain) -> str:
     kind, _, who = entry["block"].partition(":")
     params = entry["parameters"]
     names = ", ".join(lab.rsplit(".", 1)[1] for lab in params)
@@ -404,8 +417,8 @@ def run_design(
             f"{'; '.join(what) or 'combinations of parameters'}; the design identifies "
             + ("them" if left <= 0 else f"all but {left} of them")
         )
-    before = {"of": of, "condition": p.condition(b0), "ident": i0}
-    after = {"of": "the design", "condition": p.condition(b1), "ident": i1}
+    before: Side = {"of": of, "condition": p.condition(b0), "ident": i0}
+    after: Side = {"of": "the design", "condition": p.condition(b1), "ident": i1}
     return Design(fr, lim, reached, before, after, k, p.rank, found, warnings, p.evaluations, time.perf_counter() - t0)
 
 
@@ -418,8 +431,8 @@ def samples_of_log(
     return Samples(data.q, data.dq, data.ddq), data.rate
 
 
-def _side(x: dict[str, Any]) -> dict[str, Any]:
-    i: Identifiability = x["ident"]
+def _side(x: Side) -> dict[str, object]:
+    i = x["ident"]
     return {
         "of": x["of"],
         "condition_number": finite_or_none(x["condition"]),  # null: unbounded (directions left unidentified)
@@ -428,7 +441,9 @@ def _side(x: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def write_design(d: Design, out: Path, spec: ArmSpec, am: ArmModel, seed: int, inputs: dict[str, Any]) -> None:
+def write_design(
+    d: Design, out: Path, spec: ArmSpec, am: ArmModel, seed: int, inputs: Mapping[str, str | None]
+) -> None:
     """OUT/design.json and OUT/trajectory.csv (t, q1..qn, dq1..dqn, ddq1..ddqn over one period at CSV_RATE)."""
     fr, lim, n = d.fourier, d.limits, len(am.joints)
     t = np.arange(int(round(fr.period * CSV_RATE))) / CSV_RATE

@@ -13,9 +13,9 @@ data is best; whether it beats IDIM's estimate is for the held-out data to say (
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -28,6 +28,14 @@ from bench.calibrate.arm.spec import ArmSpec
 from bench.replay.simulate import free_runs
 
 MAX_ROWS = 4000  # simulated training frames the regressor is built on (evenly thinned beyond)
+
+
+class Iteration(TypedDict):
+    """One DIDIM iteration's training error (iteration 0: IDIM's estimate)."""
+
+    iteration: int
+    estimate: str  # idim | didim
+    train_closed_loop_free_run_nrmse: float
 
 
 @dataclass
@@ -73,13 +81,13 @@ def refine(
     bench: Bench,
     loop: Loop,
     start: Fit,
-    added: list[dict[str, Any]],
+    added: Sequence[Mapping[str, object]],
     drive_of: Callable[[Fit], Drive],
     log: Callable[[str], None] = lambda msg: None,
-) -> tuple[Fit | None, np.ndarray | None, list[dict[str, Any]]]:
+) -> tuple[Fit | None, np.ndarray | None, list[Iteration]]:
     """The DIDIM estimate (and its fixed torque on the simulated rows), and every iteration's training error
     (iteration 0: IDIM's estimate). None when there are no training windows to simulate."""
-    history: list[dict[str, Any]] = []
+    history: list[Iteration] = []
     if not bench.train or spec.didim <= 0:
         return None, None, history
     cur = start

@@ -8,20 +8,21 @@ has no interval (`null`, unbounded), never a narrow one that the faint pull towa
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from bench.calibrate.arm.identifiability import Identifiability
+from bench.calibrate.arm.identifiability import Identifiability, Status
 from bench.calibrate.arm.idim import Fit, bounds_of
 from bench.calibrate.arm.inertial import feasible
-from bench.calibrate.arm.model import ArmModel, group_std
+from bench.calibrate.arm.model import ArmModel, Values, group_std
 from bench.calibrate.arm.spec import ArmSpec
 
 UNBOUNDED = "unbounded: the data do not identify it alone (see identifiability.combinations)"
 
 
-def effect_terms(entry: dict[str, Any], f: Fit, draws: np.ndarray, ident: Identifiability) -> dict[str, Any]:
+def effect_terms(entry: Mapping[str, object], f: Fit, draws: np.ndarray, ident: Identifiability) -> dict[str, object]:
     """A found effect in its own terms: a payload's mass and centre of mass (m, in the payload frame),
     a drive's gain; 95% intervals from the draws (percentiles) or, without, the delta method; none where
     the data do not identify the quantity alone."""
@@ -31,7 +32,7 @@ def effect_terms(entry: dict[str, Any], f: Fit, draws: np.ndarray, ident: Identi
         x, cov = f.x[off : off + 4], f.cov[off : off + 4, off : off + 4]
         d = draws[:, off : off + 4] if len(draws) >= 20 else None
         com = x[1:] / x[0]
-        out: dict[str, Any] = {"mass": float(x[0]), "com": com.tolist()}
+        out: dict[str, object] = {"mass": float(x[0]), "com": com.tolist()}
         alone = [ident.status.get(lab, {}).get("status") == "identified" for lab in labels]
         if not alone[0]:
             out["mass_interval"] = None
@@ -74,7 +75,7 @@ def param_entries(final: Fit, declared: Fit, ident: Identifiability, draws: np.n
     out = []
     for i, lab in enumerate(final.labels):
         st = dict(ident.status.get(lab, {"status": "identified"}))
-        entry: dict[str, Any] = {"name": lab, "value": float(final.x[i]), "declared": float(prior[i]), **st}
+        entry: dict[str, object] = {"name": lab, "value": float(final.x[i]), "declared": float(prior[i]), **st}
         moved = abs(final.x[i] - prior[i]) > 0.01 * max(abs(prior[i]), 1e-9) + 1e-9
         if st["status"] != "identified":
             entry["interval"] = None
@@ -114,7 +115,7 @@ def param_entries(final: Fit, declared: Fit, ident: Identifiability, draws: np.n
     return out
 
 
-def link_entries(am: ArmModel, values: dict[str, Any], ident: dict[str, dict]) -> list[dict]:
+def link_entries(am: ArmModel, values: Values, ident: Mapping[str, Status]) -> list[dict]:
     """Each link's declared and fitted mass and centre of mass, and whether the fitted link is a physical body."""
     out = []
     for name, group in zip(am.links, am.groups):
@@ -158,7 +159,7 @@ def warnings_of(final: Fit, params: list[dict], errors: dict[str, Any], am: ArmM
     return out
 
 
-def uncarried_effects(values: dict[str, Any], added: list[dict], spec: ArmSpec) -> list[str]:
+def uncarried_effects(values: Values, added: list[dict], spec: ArmSpec) -> list[str]:
     """What the fit found that the calibrated MuJoCo model cannot carry (reported only)."""
     out = []
     if "offset" in spec.friction:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import mujoco
 import numpy as np
@@ -48,6 +48,49 @@ MIN_FRAMES = 2  # a horizon shorter than this is no forward check
 DAMPING_RATIO = 0.7  # of the virtual tracking loop
 
 
+class Score(TypedDict):
+    """One simulation of the held-out horizons scored: position RMSE per joint and mean NRMSE (None: diverged)."""
+
+    rmse: list[float] | None
+    nrmse: float | None
+    finite: bool
+
+
+class ClosedLoop(TypedDict):
+    k_step: dict[str, dict[str, Score]]  # horizon (s) -> drive -> score
+    free_run: dict[str, Score]  # drive -> score
+
+
+class OpenLoop(TypedDict, total=False):
+    k_step: dict[str, dict[str, Score]]  # horizon (s) -> drive or baseline -> score
+    informative: bool
+    why: str
+
+
+class Forward(TypedDict, total=False):
+    """The forward check (calibration.json's `errors.forward`); only `skipped` when there is none."""
+
+    input: str
+    integrator: str
+    fps: float
+    loop: dict[str, object]
+    horizons_s: list[float]
+    closed_loop: ClosedLoop
+    open_loop: OpenLoop
+    skipped: str
+
+
+class Verdict(TypedDict, total=False):
+    """Whether a model simulates the held-out data at least as well as the reference (`verdict`); `why` when unchecked."""
+
+    criterion: str
+    declared: float | None
+    calibrated: float | None
+    simulates_better: bool | None
+    rose: list[str]
+    why: str
+
+
 @dataclass(frozen=True)
 class Loop:
     """The feedback the simulation closes around the log: kp, kd per joint (torque per rad, per rad/s)."""
@@ -57,7 +100,7 @@ class Loop:
     source: str  # log (the spec's `controller`) | virtual (`loop_gain`)
     gain: float | None = None  # the virtual loop's stiffness in torque spreads per position spread
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {
             "source": self.source,
             "kp": self.kp.tolist(),
@@ -170,7 +213,7 @@ class Bench:
         finally:
             sim.close()
 
-    def score(self, pred: np.ndarray, segs: Segments) -> dict[str, Any]:
+    def score(self, pred: np.ndarray, segs: Segments) -> Score:
         n = len(self.am.joints)
         spread_ = np.maximum(self.rec.qpos[self.rec.frames(self.hold)].std(axis=0), 1e-12)
         err = segment_errors(pred[..., :n], self.rec, segs, spread_)
@@ -218,7 +261,7 @@ def bench_of(am: ArmModel, spec: ArmSpec, data: ArmLog, threads: int = 1) -> Ben
     return Bench(am, spec, rec, tau, fps, windows(data.dense_train), windows(data.dense_hold), threads)
 
 
-def _baselines(bench: Bench, segs: Segments) -> dict[str, dict[str, Any]]:
+def _baselines(bench: Bench, segs: Segments) -> dict[str, Score]:
     """Constant velocity and the repeat baseline (the nearest fitted state's motion) on the same horizons."""
     rec, n = bench.rec, len(bench.am.joints)
     steps = np.arange(1, segs.length + 1) / bench.fps
@@ -233,10 +276,10 @@ def _baselines(bench: Bench, segs: Segments) -> dict[str, dict[str, Any]]:
     return out
 
 
-def forward_errors(bench: Bench, drives: dict[str, Drive], loop: Loop) -> dict[str, Any]:
+def forward_errors(bench: Bench, drives: dict[str, Drive], loop: Loop) -> Forward:
     """Closed-loop k-step and free-run errors, and open-loop k-step errors beside their baselines, per drive."""
     spec = bench.spec
-    out: dict[str, Any] = {
+    out: Forward = {
         "input": "the logged torque"
         + (" (link side: every model steps its links without rotor inertia)" if spec.torque == "measured" else ""),
         "integrator": "implicitfast",
@@ -267,11 +310,12 @@ def forward_errors(bench: Bench, drives: dict[str, Drive], loop: Loop) -> dict[s
     return out
 
 
-def _open_loop_verdict(by_h: dict[str, dict[str, Any]], labels: list[str]) -> dict[str, Any]:
+def _open_loop_verdict(by_h: dict[str, dict[str, Score]], labels: list[str]) -> OpenLoop:
     """Open loop is informative when some model beats constant velocity at the shortest horizon."""
     first = by_h[min(by_h, key=float)]
-    cv = first.get("constant_velocity", {}).get("nrmse")
-    best = min((first[lab]["nrmse"] for lab in labels if first[lab]["nrmse"] is not None), default=None)
+    baseline = first.get("constant_velocity")
+    cv = baseline["nrmse"] if baseline is not None else None
+    best = min((v for v in (first[lab]["nrmse"] for lab in labels) if v is not None), default=None)
     if cv is None or best is None:
         return {"informative": False, "why": "no finite open-loop simulation"}
     if best < cv:
@@ -286,7 +330,7 @@ def _open_loop_verdict(by_h: dict[str, dict[str, Any]], labels: list[str]) -> di
     }
 
 
-def verdict(fw: dict[str, Any], label: str, reference: str = "nominal") -> dict[str, Any]:
+def verdict(fw: Forward, label: str, reference: str = "nominal") -> Verdict:
     """Does `label` simulate the held-out data at least as well as `reference` in closed loop (every horizon
     and the free run)? The criterion `bench run ... calibration=` checks."""
     if "skipped" in fw:

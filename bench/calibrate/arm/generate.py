@@ -32,7 +32,7 @@ All draws come from `numpy.random.default_rng(seed)`.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -43,6 +43,9 @@ from bench.core.errors import ConfigError, valid_choices
 from bench.core.io import write_atomic
 from bench.logs import from_arrays, write_dataset
 
+if TYPE_CHECKING:
+    from bench.calibrate.arm.model import Payload
+
 MODEL = Path(__file__).resolve().parents[1] / "models" / "arm6.xml"
 JOINTS = tuple(f"joint{i}" for i in range(1, 7))
 CASES = ("payload", "actuator_gain", "none")
@@ -50,7 +53,7 @@ EXCITATIONS = ("fourier", "periodic", "one_path")
 COULOMB = np.array([0.3, 0.5, 0.3, 0.1, 0.1, 0.05])
 VISCOUS = np.array([0.2, 0.3, 0.2, 0.05, 0.05, 0.02])
 OFFSET = np.array([0.1, -0.2, 0.05, 0.0, 0.02, 0.0])
-PAYLOAD: dict[str, Any] = {"mass": 1.2, "com": [0.05, 0.02, 0.03]}  # kg, m in the flange frame
+PAYLOAD: Payload = {"mass": 1.2, "com": [0.05, 0.02, 0.03]}  # kg, m in the flange frame
 GAIN = {"joint": "joint2", "gain": 0.8}  # the drive delivers this share of the command
 NOISE = {"qpos": 2e-4, "qvel": 5e-3, "torque": 0.05}  # rad, rad/s, N·m
 
@@ -106,7 +109,7 @@ def simulate(
     duration: float = 20.0,
     excitation: str = "fourier",
     payload_com: tuple[float, float, float] | None = None,
-) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+) -> tuple[dict[str, np.ndarray], dict[str, object]]:
     """One episode of logged columns on an irregular clock, and the truth."""
     if case not in CASES:
         raise ConfigError(f"effect={case!r} for the arm6 cases; {valid_choices(case, CASES)}")
@@ -134,7 +137,7 @@ def simulate(
         tau += armature * ddq
     tau += COULOMB * np.tanh(dq / 0.02) + VISCOUS * dq
     signal = tau + OFFSET
-    truth: dict[str, Any] = {
+    truth: dict[str, object] = {
         "case": case,
         "coulomb": COULOMB.tolist(),
         "viscous": VISCOUS.tolist(),
@@ -162,7 +165,7 @@ def simulate(
     return cols, truth
 
 
-def spec_dict(case: str, model_file: str = "arm6.xml") -> dict[str, Any]:
+def spec_dict(case: str, model_file: str = "arm6.xml") -> dict[str, object]:
     """The arm spec of a case (the links are trusted: see the module docstring)."""
     idx = list(range(len(JOINTS)))
     return {

@@ -20,7 +20,7 @@ declared values that keeps the fit there), and is
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -66,18 +66,36 @@ def plausible_sizes(blocks: list[Block], rows: np.ndarray, spread: np.ndarray) -
     return np.asarray(out)
 
 
+# what the data say of one parameter: "identified", "not identifiable" (with its unidentified share) or "in
+# combination" (with the parameters it is tied to, its unidentified share and the combination in words)
+Status = TypedDict(
+    "Status", {"status": str, "with": list[str], "unidentified_share": float, "combination": str}, total=False
+)
+
+
+class Combination(TypedDict):
+    """A combination of parameters the data identify where its parameters are not identified alone."""
+
+    combination: str  # in words, the first parameter's coefficient 1
+    terms: dict[str, float]  # parameter -> coefficient (physical units)
+    value: float
+    unit: str
+    interval: list[float]  # 95%
+    parameters: list[str]  # those not identified alone that it ties
+
+
 @dataclass
 class Identifiability:
     """Per parameter, whether the data identify it, its data-only standard deviation, and the combinations."""
 
     labels: list[str]
-    status: dict[str, dict[str, Any]]  # label -> {status, [with], [unidentified_share], [combination]}
+    status: dict[str, Status]  # label -> what the data say of it
     sd: np.ndarray  # (K,) data-only standard deviation; inf where a share is unidentified
-    combinations: list[dict[str, Any]] = field(default_factory=list)
+    combinations: list[Combination] = field(default_factory=list)
     information: list[float] = field(default_factory=list)  # eigenvalues of F, ascending
     unidentified: int = 0  # directions the data do not identify
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         return {
             "method": (
                 "eigen-directions of the Fisher information of the weighted training regressor (parameters "
@@ -119,8 +137,8 @@ def analyse(
     cov_n = (v_id / lam[ident]) @ v_id.T  # data-only covariance along identified directions (plausible sizes)
     sd = np.sqrt(np.maximum(np.diag(cov_n), 0.0)) * size
     sd = np.where(share < SHARE_ALONE, sd, np.inf)
-    status: dict[str, dict[str, Any]] = {}
-    combos: dict[tuple, dict[str, Any]] = {}
+    status: dict[str, Status] = {}
+    combos: dict[tuple[str, ...], Combination] = {}
     for k, lab in enumerate(labels):
         if share[k] < SHARE_ALONE:
             status[lab] = {"status": "identified"}

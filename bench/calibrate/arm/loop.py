@@ -26,7 +26,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,16 +34,16 @@ import mujoco
 import numpy as np
 
 from bench.calibrate import novelty
-from bench.calibrate.apply import edited_model, edits
+from bench.calibrate.apply import CalibrationEdit, edited_model, edits
 from bench.calibrate.arm import forward
-from bench.calibrate.arm.blocks import Fitter, nominal_torque, regression, torque_error, values_of
+from bench.calibrate.arm.blocks import Fitter, Regression, nominal_torque, regression, torque_error, values_of
 from bench.calibrate.arm.data import ArmLog, load_arm_log
-from bench.calibrate.arm.didim import refine
+from bench.calibrate.arm.didim import Iteration, refine
 from bench.calibrate.arm.dynamics import Dynamics
 from bench.calibrate.arm.entries import effect_terms, link_entries, param_entries, uncarried_effects, warnings_of
 from bench.calibrate.arm.identifiability import Identifiability, analyse, payload_sentence
 from bench.calibrate.arm.idim import Fit, bootstrap, fit_at, predict, windows_of
-from bench.calibrate.arm.model import ArmModel, build, check_positions, check_torques, realise
+from bench.calibrate.arm.model import ArmModel, Values, build, check_positions, check_torques, realise
 from bench.calibrate.arm.spec import ArmSpec
 from bench.core.threads import one_blas_thread
 
@@ -57,8 +57,8 @@ class Estimate:
     name: str
     fit: Fit
     fixed: np.ndarray  # (N, n) fixed torque on the logged rows
-    values: dict[str, Any]  # what `realise` writes
-    edits: list[dict[str, Any]]  # the model edits a run writes (`bench.calibrate.apply`)
+    values: Values  # what `realise` writes
+    edits: list[CalibrationEdit]  # the model edits a run writes (`bench.calibrate.apply`)
     model: mujoco.MjModel  # the declared model with those edits, as a run has it
     torque_rmse: np.ndarray  # (n,) held-out torque RMSE on the logged states
     torque_nrmse: float
@@ -79,9 +79,9 @@ class ArmCalibration:
     links: list[dict]
     errors: dict[str, Any]
     warnings: list[str]
-    values: dict[str, Any]  # what `realise` writes for the carried estimate: joints, links, payload
+    values: Values  # what `realise` writes for the carried estimate: joints, links, payload
     not_carried: list[str]
-    draws: list[dict[str, Any]]  # bootstrap replicates of `values`
+    draws: list[Values]  # bootstrap replicates of `values`
     searched: list[str]
     wall: dict[str, float]
     fitted_model: mujoco.MjModel | None = None
@@ -89,8 +89,8 @@ class ArmCalibration:
     estimates: dict[str, Estimate] = field(default_factory=dict)
     chosen: str = "idim"
     identifiability: Identifiability | None = None
-    trust: dict[str, Any] = field(default_factory=dict)
-    didim_history: list[dict[str, Any]] = field(default_factory=list)
+    trust: dict[str, object] = field(default_factory=dict)
+    didim_history: list[Iteration] = field(default_factory=list)
 
 
 def _excludes_zero(f: Fit, labels: list[str]) -> bool:
@@ -141,7 +141,7 @@ def _estimate(name: str, am: ArmModel, f: Fit, fixed: np.ndarray, fitter: Fitter
     return Estimate(name, f, fixed, values, model_edits, edited_model(am.model, model_edits), rmse, nrmse)
 
 
-def _drive(am: ArmModel, values: dict[str, Any], model: mujoco.MjModel) -> forward.Drive:
+def _drive(am: ArmModel, values: Values, model: mujoco.MjModel) -> forward.Drive:
     joints = values.get("joints", {})
     offset = np.array([joints.get(jn, {}).get("offset", 0.0) for jn in am.joints])
     gain = np.array([joints.get(jn, {}).get("gain", 1.0) for jn in am.joints])
@@ -149,7 +149,7 @@ def _drive(am: ArmModel, values: dict[str, Any], model: mujoco.MjModel) -> forwa
 
 
 def _trace(
-    spec: ArmSpec, fitter: Fitter, reg: Any, log: Callable[[str], None]
+    spec: ArmSpec, fitter: Fitter, reg: Regression, log: Callable[[str], None]
 ) -> tuple[Fit, np.ndarray, list[dict], list[dict], Fit, float, np.ndarray]:
     """The declared fit, then effects added round by round (module docstring, step 3)."""
     blocks = list(reg.declared)
@@ -258,7 +258,7 @@ def calibrate_arm(
     # forward: the declared model and each estimate simulated on the held-out data
     bench = forward.bench_of(am, spec, data, threads)
     loop = forward.loop_for(am, spec, data) if not isinstance(bench, str) else None
-    history: list[dict[str, Any]] = []
+    history: list[Iteration] = []
     if not isinstance(bench, str) and loop is not None and spec.didim > 0:
 
         def drive_of(f: Fit) -> forward.Drive:
@@ -272,7 +272,7 @@ def calibrate_arm(
             f_log = fit_at(idim_fit.blocks, f_didim.x, signal, fixed_log, data.train, idim_fit.weights)
             estimates["didim"] = _estimate("didim", am, f_log, fixed_log, fitter)
     lap("didim")
-    fw: dict[str, Any]
+    fw: forward.Forward
     if isinstance(bench, str):
         fw = {"skipped": bench}
     else:
@@ -317,7 +317,9 @@ def calibrate_arm(
         "beats_repeat": bool(est.torque_nrmse < best_repeat),
     }
     errors: dict[str, Any] = {"torque": torque, "forward": fw}
-    verdict = forward.verdict(fw, chosen) if "skipped" not in fw else {"simulates_better": None, "why": fw["skipped"]}
+    verdict: forward.Verdict = (
+        forward.verdict(fw, chosen) if "skipped" not in fw else {"simulates_better": None, "why": fw["skipped"]}
+    )
     trust = {
         "heldout": data.heldout.to_json(),
         "estimate": chosen,
@@ -363,7 +365,7 @@ def calibrate_arm(
     )
 
 
-def _choose(spec: ArmSpec, fw: dict[str, Any], estimates: dict[str, Estimate]) -> tuple[str, str]:
+def _choose(spec: ArmSpec, fw: forward.Forward, estimates: dict[str, Estimate]) -> tuple[str, str]:
     """Which estimate runs carry, and why: the spec's choice, else the one the held-out closed-loop free run supports."""
     if spec.estimate != "auto":
         if spec.estimate not in estimates:
@@ -415,7 +417,9 @@ def _payload_region_check(spec: ArmSpec, am: ArmModel, fitter: Fitter, f: Fit) -
     ]
 
 
-def _trust_warnings(data: ArmLog, torque: dict[str, Any], verdict: dict[str, Any], repeat: dict[str, Any]) -> list[str]:
+def _trust_warnings(
+    data: ArmLog, torque: dict[str, Any], verdict: forward.Verdict, repeat: dict[str, Any]
+) -> list[str]:
     out = []
     if data.heldout.nothing_new:
         out.append(data.heldout.sentence())
@@ -461,7 +465,7 @@ def summary_line(cal: ArmCalibration) -> str:
     return "; ".join(parts)
 
 
-def score_reference(cal: ArmCalibration, table: dict[str, Any]) -> dict[str, Any]:
+def score_reference(cal: ArmCalibration, table: Mapping[str, object]) -> dict[str, object]:
     """Another model's predicted torque on this calibration's held-out rows (a table with `t` and `tau`, e.g.
     results/references/gaz_panda.json), scored by the same code as ours: {nrmse, rmse}, or {why} when the table
     was made for other rows (another processing or split): then it must be made anew."""

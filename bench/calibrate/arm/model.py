@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 import mujoco
 import numpy as np
@@ -25,6 +25,30 @@ from bench.protocols import registry
 from bench.replay.spec import load_model
 
 UNIT_RATIO = 30.0  # a torque log this many times larger (or smaller) than the model's torques has other units
+
+
+class SuiteRef(TypedDict):
+    """The suite whose robot an arm spec calibrates."""
+
+    name: str
+    version: str
+    robot: str
+
+
+class Payload(TypedDict):
+    mass: float  # kg
+    com: list[float]  # centre of mass in the payload frame, m
+
+
+class _Values(TypedDict):
+    joints: dict[str, dict[str, float]]  # full joint name -> {coulomb, viscous, armature, stiffness, gain, offset}
+    links: dict[str, np.ndarray]  # link -> its rigid group's 10 standard inertial parameters (absolute)
+
+
+class Values(_Values, total=False):
+    """What `realise` writes into a copy of the declared model (a fit's values: `blocks.values_of`)."""
+
+    payload: Payload
 
 
 @dataclass
@@ -45,11 +69,11 @@ class ArmModel:
     payload_rot: np.ndarray  # the frame's axes in that body (3, 3)
     payload_name: str
     motors: np.ndarray  # (n,) actuator driving each joint with a plain motor (-1: none)
-    suite: dict[str, Any] | None  # {name, version, robot} for a suite's robot
+    suite: SuiteRef | None  # for a suite's robot
 
 
-def _suite_model(suite: str, robot: str) -> tuple[mujoco.MjModel, dict[str, Any]]:
-    cls: Any = registry.suite_class(suite)
+def _suite_model(suite: str, robot: str) -> tuple[mujoco.MjModel, SuiteRef]:
+    cls = registry.suite_class(suite)
     s = cls(config_mod.build(cls.Options, []))
     cells = [c for c in s.all_cells() if c.robot == robot]
     if not cells:
@@ -60,9 +84,10 @@ def _suite_model(suite: str, robot: str) -> tuple[mujoco.MjModel, dict[str, Any]
         )
     env = s.make_env(cells[0], s.default_horizon)
     try:
-        if getattr(env, "mujoco", None) is None:
+        mj = getattr(env, "mujoco", None)
+        if mj is None:
             raise SpecError(f"spec field 'model': suite {suite!r} has no MuJoCo model to calibrate")
-        model = copy.copy(env.mujoco.model)
+        model = copy.copy(mj.model)
     finally:
         env.close()
     return model, {"name": cls.name, "version": str(cls.version), "robot": robot}
@@ -261,7 +286,7 @@ REALISED = (  # the fields `realise` writes (a scratch copy is reset to the decl
 )
 
 
-def realise(am: ArmModel, values: dict[str, Any], into: mujoco.MjModel | None = None) -> mujoco.MjModel:
+def realise(am: ArmModel, values: Values, into: mujoco.MjModel | None = None) -> mujoco.MjModel:
     """A copy of the declared model carrying fitted values (or `into`, a copy made before, reset and rewritten:
     a suite's scene is costly to copy, and the bootstrap's draws realise hundreds of value sets).
 

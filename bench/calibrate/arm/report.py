@@ -8,25 +8,27 @@ which `perturb.AXIS=from(OUT)` samples from.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench import __version__
-from bench.calibrate.apply import edits, model_hash, robot_hash
+from bench.calibrate.apply import CalibrationEdit, edits, model_hash, robot_hash
 from bench.calibrate.arm.loop import ArmCalibration, summary_line
 from bench.calibrate.arm.model import realise
 from bench.core.io import json_safe, write_atomic, write_text_atomic
+from bench.sims.perturb.reset import ModelEdit
 
 SCHEMA = "bench.calibration/1"
 
 
-def _key(e: dict[str, Any]) -> str:
+def _key(e: ModelEdit) -> str:
     return f"{e['field']}:{e['element']}" + (f":{e['column']}" if "column" in e else "")
 
 
-def draws_section(cal: ArmCalibration, final_edits: list[dict[str, Any]]) -> dict[str, Any]:
+def draws_section(cal: ArmCalibration, final_edits: Sequence[CalibrationEdit]) -> dict[str, object]:
     """Every bootstrap replicate as the values of the final edits (same fields, elements and columns)."""
     keys = [_key(e) for e in final_edits]
     nominal = {_key(e): e["nominal"] for e in final_edits}
@@ -51,7 +53,7 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
     am, log = cal.am, cal.log
     chosen = cal.estimates.get(cal.chosen)
     final_edits = chosen.edits if chosen is not None else edits(am.model, realise(am, cal.values))
-    doc: dict[str, Any] = {
+    doc: dict[str, object] = {
         "schema": SCHEMA,
         "method": "idim",
         "spec": cal.spec.to_json(),
@@ -121,7 +123,7 @@ def to_json(cal: ArmCalibration) -> dict[str, Any]:
     return json_safe(doc)
 
 
-def _fmt(v: Any, digits: int = 4) -> str:
+def _fmt(v: object, digits: int = 4) -> str:
     if v is None:
         return "-"
     if isinstance(v, float):

@@ -15,9 +15,9 @@ naming the field; names are checked against the model in `bench.calibrate.arm.lo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from bench.calibrate.feedback import gains
 from bench.calibrate.spec import HOLDOUT_AT, TraceSpec, parse_holdout, parse_trace
@@ -92,7 +92,7 @@ class ArmSpec:
     trace: TraceSpec = field(default_factory=TraceSpec)
     source: Path | None = None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> dict[str, object]:
         """JSON-able form, embedded in calibration.json."""
         return {
             "method": "idim",
@@ -125,7 +125,7 @@ class ArmSpec:
         }
 
 
-def is_arm_spec(raw: Any) -> bool:
+def is_arm_spec(raw: object) -> bool:
     """A spec mapping that asks for inverse-dynamics identification."""
     return isinstance(raw, dict) and raw.get("method") == "idim"
 
@@ -136,7 +136,7 @@ def load_arm_spec(path: str | Path) -> ArmSpec:
     return parse_arm_spec(raw, base_dir=p.parent, source=p)
 
 
-def _names(value: Any, where: str, valid: tuple[str, ...] | None = None) -> tuple[str, ...]:
+def _names(value: object, where: str, valid: tuple[str, ...] | None = None) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [value]
     if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) and v for v in value):
@@ -150,7 +150,7 @@ def _names(value: Any, where: str, valid: tuple[str, ...] | None = None) -> tupl
     return tuple(value)
 
 
-def _choice_list(raw: Any, where: str, valid: tuple[str, ...]) -> tuple[str, ...]:
+def _choice_list(raw: object, where: str, valid: tuple[str, ...]) -> tuple[str, ...]:
     if raw == "all":
         return valid
     if raw in ("none", None) or raw == []:
@@ -158,7 +158,7 @@ def _choice_list(raw: Any, where: str, valid: tuple[str, ...]) -> tuple[str, ...
     return _names(raw, where, valid)
 
 
-def _model(raw: Any, base_dir: Path) -> tuple[Path | None, str | None, str | None]:
+def _model(raw: object, base_dir: Path) -> tuple[Path | None, str | None, str | None]:
     if isinstance(raw, dict):
         check_keys(raw, ("suite", "robot"), "model")
         suite, robot = raw.get("suite"), raw.get("robot")
@@ -173,7 +173,7 @@ def _model(raw: Any, base_dir: Path) -> tuple[Path | None, str | None, str | Non
     return path, None, None
 
 
-def _controller(raw: Any, n: int) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+def _controller(raw: object, n: int) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     if raw is None:
         return None
     kp, kd = gains(raw)
@@ -182,7 +182,7 @@ def _controller(raw: Any, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]
     return kp, kd
 
 
-def _horizons(raw: dict[str, Any]) -> tuple[float, ...]:
+def _horizons(raw: Mapping[str, object]) -> tuple[float, ...]:
     if "horizon" in raw and "horizons" in raw:
         raise SpecError("spec fields 'horizon' and 'horizons' both given; 'horizons' lists every one")
     if "horizon" in raw:
@@ -193,7 +193,7 @@ def _horizons(raw: dict[str, Any]) -> tuple[float, ...]:
     return tuple(sorted(number(x, "horizons", lo=1e-3, hi=3600.0) for x in v))
 
 
-def _region(raw: Any) -> tuple[tuple[float, float, float], float]:
+def _region(raw: object) -> tuple[tuple[float, float, float], float]:
     if raw is None:
         return (0.0, 0.0, 0.0), PAYLOAD_RADIUS
     raw = check_keys(raw, ("center", "radius"), "payload_region")
@@ -208,7 +208,7 @@ def _region(raw: Any) -> tuple[tuple[float, float, float], float]:
     return (float(c[0]), float(c[1]), float(c[2])), number(r, "payload_region.radius", lo=1e-6, hi=100.0)
 
 
-def parse_arm_spec(raw: Any, base_dir: str | Path = ".", source: Path | None = None) -> ArmSpec:
+def parse_arm_spec(raw: object, base_dir: str | Path = ".", source: Path | None = None) -> ArmSpec:
     """Check a raw arm spec mapping and build an ArmSpec (one SpecError naming the field otherwise)."""
     raw = check_keys(raw, ARM_KEYS, "")
     if raw.get("method") != "idim":

@@ -13,7 +13,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import ParamSpec, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -22,6 +22,9 @@ import pyarrow.parquet as pq
 from bench.core.errors import DataError
 from bench.logs.dataset import DEFAULT_FEATURES, first_bad_row
 from bench.logs.lerobot.validate import check_info
+
+P = ParamSpec("P")
+T = TypeVar("T")
 
 CODEBASE_VERSION = "v3.0"
 INFO_PATH = "meta/info.json"
@@ -153,7 +156,7 @@ def first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
-def read_arrow(root: Path, rel: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+def read_arrow(root: Path, rel: str, fn: Callable[P, T], *args: P.args, **kwargs: P.kwargs) -> T:
     """Run a pyarrow read, turning its errors into a DataError naming the file."""
     try:
         return fn(*args, **kwargs)

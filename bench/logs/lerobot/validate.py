@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import string
 from pathlib import Path
-from typing import Any
+from typing import TypeGuard
 
 from bench.core.errors import DataError
 
@@ -39,11 +39,11 @@ DTYPES = (
 PATH_KEYS = {"data_path": {"chunk_index", "file_index"}, "video_path": {"video_key", "chunk_index", "file_index"}}
 
 
-def _is_number(v: Any) -> bool:
+def _is_number(v: object) -> TypeGuard[int | float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def check_fps(fps: Any, where: str) -> float:
+def check_fps(fps: object, where: str) -> float:
     """A frame rate: a finite number in (0, MAX_FPS]; booleans and strings are not numbers."""
     if not _is_number(fps) or not math.isfinite(fps) or not 0 < fps <= MAX_FPS:
         raise DataError(f"{where}: field 'fps' is {fps!r:.40}; valid: a number in (0, {MAX_FPS:g}]")
@@ -74,7 +74,7 @@ def _check_path_template(info: dict, key: str, path: Path) -> None:
         raise DataError(f"{path}: field {key!r} is {tpl!r:.80}: {exc}") from None
 
 
-def _check_feature(name: str, feat: Any, path: Path) -> None:
+def _check_feature(name: str, feat: object, path: Path) -> None:
     where = f"{path}: field 'features.{name}"
     if not isinstance(feat, dict):
         raise DataError(f"{where}' is {feat!r:.60}; valid: an object with dtype and shape")
@@ -95,7 +95,7 @@ def _check_feature(name: str, feat: Any, path: Path) -> None:
         raise DataError(f"{where}.names' is {names!r:.40}; valid: a list, an object or null")
 
 
-def check_info(info: Any, path: Path, required: tuple[str, ...]) -> dict:
+def check_info(info: object, path: Path, required: tuple[str, ...]) -> dict:
     """Validate a decoded info.json; returns it unchanged.
 
     Raises:

@@ -11,9 +11,8 @@ import os
 import shutil
 import tempfile
 import uuid
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -163,7 +162,7 @@ class _VideoFiles:
         self.tmp, self.key, self.fps, self.codec, self.crf = tmp, key, fps, codec, crf
         self.file_no = 0
         self.frames = 0  # frames in the current file
-        self.writer: Any = None  # the current file's bench.core.video.Mp4Writer
+        self.writer: Mp4Writer | None = None  # the current file's
         self.first: Path | None = None
 
     def add(self, frames: np.ndarray) -> tuple[int, int, float, float]:
@@ -342,7 +341,7 @@ def write_dataset(
     crf: int | None = None,
     *,
     key: str = "out",
-    inputs: Mapping[str, Any] | None = None,
+    inputs: Mapping[str, outputs.InputPath | Sequence[outputs.InputPath]] | None = None,
 ) -> Path:
     """Write `ds` as a LeRobot v3.0 folder that lerobot itself can load.
 

@@ -18,12 +18,12 @@ import hashlib
 import json
 import math
 import re
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from bench.core.errors import ConfigError, DataError, did_you_mean
-from bench.protocols import RGB
-from bench.protocols.suite import NOMINAL, Condition
+from bench.protocols import RGB, ObsSpec
+from bench.protocols.suite import NOMINAL, Condition, ConditionSpec
 from bench.sims.perturb.axis import MAX_SCALE, MAX_STEPS, RGB_IMAGES, Axis
 from bench.sims.perturb.frames import ROWS as FRAME_ROWS
 from bench.sims.perturb.interface import ROWS as INTERFACE_ROWS
@@ -49,7 +49,7 @@ _DIST_RE = re.compile(r"^\s*(uniform|loguniform|u|logu)\s*\(\s*([^,()]+)\s*,\s*(
 
 
 # -- command line -> conditions ------------------------------------------------------------
-def _num(axis: Axis, field: str, value: Any) -> float | int:
+def _num(axis: Axis, field: str, value: object) -> float | int:
     """A level as a number, checked against the axis' minimum and integrality."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         try:
@@ -74,7 +74,7 @@ def _num(axis: Axis, field: str, value: Any) -> float | int:
     return int(value) if axis.integer else value
 
 
-def _range(axis: Axis, field: str, dist: str, bounds: Any) -> tuple[float, float]:
+def _range(axis: Axis, field: str, dist: str, bounds: object) -> tuple[float, float]:
     if not isinstance(bounds, (list, tuple)) or len(bounds) != 2:
         raise ConfigError(f"{field}: {dist} needs [low, high], got {bounds!r}")
     lo, hi = (_num(axis, field, b) for b in bounds)
@@ -138,7 +138,7 @@ def _from(axis: Axis, field: str, source: str) -> Condition:
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for row in rows for v in row):
         raise DataError(f"{field}: from({source}): {path} has a draw that is not a finite number")
     sha = hashlib.sha256(raw).hexdigest()
-    spec = {
+    spec: ConditionSpec = {
         "kind": "from",
         "targets": {},
         "source": str(path),
@@ -159,12 +159,12 @@ def axis_named(name: str) -> Axis:
     return AXES[name]
 
 
-def _conditions_for(name: str, value: Any) -> list[Condition]:
+def _conditions_for(name: str, value: object) -> list[Condition]:
     axis = axis_named(name)
     field = f"perturb.{name}"
     targets: dict[str, list[str]] = {}
-    levels: list[Any] = []
-    dists: list[tuple[str, Any, str]] = []
+    levels: list[object] = []
+    dists: list[tuple[str, object, str]] = []
     if isinstance(value, dict):
         valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
         for key, v in value.items():
@@ -187,7 +187,7 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
         levels = list(value) if isinstance(value, (list, tuple)) else [value]
         if not levels:
             raise ConfigError(f"{field}: empty list of levels")
-    grid: list[Any] = []
+    grid: list[float | int] = []
     froms: list[Condition] = []
     for lv in levels:
         parsed = _parse_dist(lv) if isinstance(lv, str) else None
@@ -204,7 +204,7 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
             grid.append(_num(axis, field, lv))
     out: list[Condition] = []
     for lv in dict.fromkeys(grid):  # unique, in the given order
-        spec = {"kind": "grid", "targets": targets}
+        spec: ConditionSpec = {"kind": "grid", "targets": targets}
         out.append(Condition(name=f"{name}={_fmt(lv)}", axis=name, level=lv, spec=spec))
     for dist, bounds, f in dists:
         lo, hi = _range(axis, f, dist, bounds)
@@ -215,7 +215,7 @@ def _conditions_for(name: str, value: Any) -> list[Condition]:
     return out + froms
 
 
-def conditions_from_config(perturb: dict[str, Any]) -> list[Condition]:
+def conditions_from_config(perturb: Mapping[str, object]) -> list[Condition]:
     """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level.
 
     A grid gives one condition per level ("friction=0.5"); a range gives one condition
@@ -248,7 +248,7 @@ def check_horizon(conditions: list[Condition], horizon: int) -> None:
             )
 
 
-def check_policy_sees(conditions: list[Condition], needs: tuple[str, ...], spec: Any, policy: str) -> None:
+def check_policy_sees(conditions: list[Condition], needs: tuple[str, ...], spec: ObsSpec, policy: str) -> None:
     """A visual axis changes only camera images: refused (ConfigError naming the axis) for a policy that reads none.
 
     `needs` are the observation keys the policy declares it reads (none: the whole observation, as a

@@ -20,15 +20,26 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from bench.protocols import EnvAdapter, MujocoHandle
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from bench.sims.perturb.physx import PhysxAxes
+    from bench.sims.perturb.scene import VisualScene
 
 MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
 MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
 
 RGB_IMAGES = "rgb"  # `Axis.sees` of an axis that changes only camera images
 Named = Mapping[str, Sequence[str]]  # targets named on the command line: {"bodies": [...], "joints": [...]}
+Params = dict[str, object]  # what an episode records beside a level (JSON-able: numbers, strings, lists of them)
+# an interface or frame axis' hook (`Axis.wrap`): (env, episode generator, level) -> (the env to step, params)
+Wrap = Callable[[EnvAdapter, np.random.Generator, float], tuple[EnvAdapter, Params]]
 
 
 @dataclass(frozen=True)
@@ -51,19 +62,19 @@ class Axis:
     # nominal values at the selected indices must not all be zero (column 0 of a 2-D field)
     fields: tuple[str, ...] = ()
     # (handle, named targets, field name for errors, where) -> indices into `fields`' first dimension
-    select: Callable[[Any, Named, str, str], np.ndarray] | None = None
+    select: Callable[[MujocoHandle, Named, str, str], np.ndarray] | None = None
     # (model, nominal values by field, indices, scale) -> edits the model
-    scale: Callable[[Any, Mapping[str, np.ndarray], np.ndarray, float], None] | None = None
+    scale: Callable[[mujoco.MjModel, Mapping[str, np.ndarray], np.ndarray, float], None] | None = None
     setconst: bool = False  # derived constants depend on it: mj_setConst after editing
     from_fields: tuple[str, ...] = ()  # model fields a calibration's draws carry for `from(CALIBRATION)`
     # -- model axes (ManiSkill / PhysX): (PhysxAxes, scale, named targets, field) -> edits the scene
-    physx: Callable[[Any, float, dict[str, list[str]], str], None] | None = None
+    physx: Callable[[PhysxAxes, float, dict[str, list[str]], str], None] | None = None
     physx_targets: tuple[str, ...] = ()  # target keys the PhysX edit takes
     # -- interface and frame axes: (env, episode generator, level) -> (the env to reset and step,
     # params to record beside the level)
-    wrap: Callable[[Any, np.random.Generator, Any], tuple[Any, dict[str, Any]]] | None = None
+    wrap: Wrap | None = None
     # -- visual axes: (VisualScene, level, named targets, generator) -> params to record; and the check
     # of a model and rig against the axis: (model, object bodies, named, cameras, where)
-    paint: Callable[[Any, Any, Named, np.random.Generator], dict[str, Any]] | None = None
-    check: Callable[[Any, Sequence[str], Named, Sequence[str], str], None] | None = None
+    paint: Callable[[VisualScene, float, Named, np.random.Generator], Params] | None = None
+    check: Callable[[mujoco.MjModel, Sequence[str], Named, Sequence[str], str], None] | None = None
     sees: str = ""  # "rgb": changes only camera images (a policy that reads none is refused)

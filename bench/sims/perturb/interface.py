@@ -8,13 +8,12 @@ command and a noisy observation.
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
 
 import numpy as np
 
 from bench.protocols import STATE, EnvAdapter, Obs
 from bench.protocols.env import AdapterWrapper
-from bench.sims.perturb.axis import MAX_STEPS, Axis
+from bench.sims.perturb.axis import MAX_STEPS, Axis, Params, Wrap
 
 
 class PerturbedInterface(AdapterWrapper):
@@ -31,10 +30,10 @@ class PerturbedInterface(AdapterWrapper):
         self,
         env: EnvAdapter,
         rng: np.random.Generator,
-        latency: int = 0,
+        latency: float = 0,  # whole control steps (an integer axis' level)
         action_noise: float = 0.0,
         obs_noise: float = 0.0,
-        action_hold: int = 1,
+        action_hold: float = 1,  # whole control steps
     ):
         super().__init__(env)
         self.env, self.rng = env, rng
@@ -48,7 +47,7 @@ class PerturbedInterface(AdapterWrapper):
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._queue: deque = deque([self.neutral.copy() for _ in range(self.latency)])
+        self._queue: deque[np.ndarray] = deque([self.neutral.copy() for _ in range(self.latency)])
         self._held = self.neutral.copy()
         self._t = 0
 
@@ -63,7 +62,7 @@ class PerturbedInterface(AdapterWrapper):
         self._reset_state()
         return self._obs(self.env.reset(seed))
 
-    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         if self._t % self.action_hold == 0:
             self._held = np.asarray(action, dtype=np.float64).copy()
         self._t += 1
@@ -76,10 +75,10 @@ class PerturbedInterface(AdapterWrapper):
         return self._obs(obs), reward, terminated, truncated, info
 
 
-def _wrap(name: str) -> Any:
+def _wrap(name: str) -> Wrap:
     """The row's hook: the env behind an interface perturbed on `name` alone (the others at their defaults)."""
 
-    def wrap(env: EnvAdapter, rng: np.random.Generator, level: Any) -> tuple[EnvAdapter, dict[str, Any]]:
+    def wrap(env: EnvAdapter, rng: np.random.Generator, level: float) -> tuple[EnvAdapter, Params]:
         return PerturbedInterface(env, rng, **{name: level}), {}
 
     return wrap

@@ -9,8 +9,9 @@ through `bench.sims.perturb.physx.PhysxAxes`' scene handles.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,9 +19,14 @@ from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import MujocoHandle
 from bench.sims.perturb.axis import MAX_SCALE, Axis, Named
 
+if TYPE_CHECKING:
+    import mujoco
+
+    from bench.sims.perturb.physx import PhysxAxes
+
 
 # -- names in the model --------------------------------------------------------------------
-def names(model: Any, objtype: str, count: int) -> list[str]:
+def names(model: mujoco.MjModel, objtype: str, count: int) -> list[str]:
     """Names of the first `count` objects of a MuJoCo type ("body", "geom", "joint", "actuator")."""
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
@@ -116,29 +122,31 @@ def _everything(mj: MujocoHandle, named: Named, field: str, where: str) -> np.nd
 
 # -- edits: (model, nominal values, indices, scale) ------------------------------------------
 Nominal = Mapping[str, np.ndarray]
+Edit = Callable[["mujoco.MjModel", Nominal, np.ndarray, float], None]
+PhysxEdit = Callable[["PhysxAxes", float, dict[str, list[str]], str], None]
 
 
-def _scaled(field: str) -> Any:
+def _scaled(field: str) -> Edit:
     """The edit of an axis that scales one per-element field."""
 
-    def edit(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
+    def edit(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None:
         getattr(m, field)[idx] = nom[field][idx] * s
 
     return edit
 
 
-def _friction(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
+def _friction(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None:
     m.geom_friction[idx] = nom["geom_friction"][idx] * s
     if m.npair and len(idx) == m.ngeom:  # explicit contact pairs override geom friction
         m.pair_friction[:] = nom["pair_friction"] * s
 
 
-def _mass(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
+def _mass(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None:
     m.body_mass[idx] = nom["body_mass"][idx] * s
     m.body_inertia[idx] = nom["body_inertia"][idx] * s  # same shape, scaled density
 
 
-def _gain(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
+def _gain(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None:
     g0 = nom["actuator_gainprm"][idx, 0]
     m.actuator_gainprm[idx, 0] = g0 * s
     for k in (1, 2):  # position servo: biasprm[1] = -kp; velocity servo: biasprm[2] = -kv
@@ -146,19 +154,19 @@ def _gain(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
         m.actuator_biasprm[idx[mirror], k] = nom["actuator_biasprm"][idx[mirror], k] * s
 
 
-def _gravity(m: Any, nom: Nominal, idx: np.ndarray, s: float) -> None:
+def _gravity(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None:
     m.opt.gravity[:] = nom["opt.gravity"] * s
 
 
 # -- the same axes on PhysX: (PhysxAxes, scale, named targets, field) ---------------------------
-def _physx_friction(px: Any, s: float, named: dict[str, list[str]], field: str) -> None:
+def _physx_friction(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
     px.scale_friction(s, named.get("bodies"), field)
 
 
-def _physx_bodies(default: str) -> Any:
+def _physx_bodies(default: str) -> PhysxEdit:
     """Mass and inertia of the named bodies, else of the env's objects ("objects") or robot links ("robot")."""
 
-    def edit(px: Any, s: float, named: dict[str, list[str]], field: str) -> None:
+    def edit(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
         if "bodies" in named:
             bodies = px.resolve(named["bodies"], px.body_names(), "body", f"{field}.bodies")
         elif default == "objects":
@@ -174,10 +182,10 @@ def _physx_bodies(default: str) -> Any:
     return edit
 
 
-def _physx_drive(column: int) -> Any:
+def _physx_drive(column: int) -> PhysxEdit:
     """Drive stiffness (column 0: the servo gain) or damping (column 1) of the robot's or the named joints."""
 
-    def edit(px: Any, s: float, named: dict[str, list[str]], field: str) -> None:
+    def edit(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
         key = "actuators" if "actuators" in named else "joints"
         joints = (
             px.resolve(named[key], px.joint_names(), "joint", f"{field}.{key}") if key in named else px.joint_names()
@@ -187,27 +195,39 @@ def _physx_drive(column: int) -> Any:
     return edit
 
 
-def _physx_gravity(px: Any, s: float, named: dict[str, list[str]], field: str) -> None:
+def _physx_gravity(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
     px.scale_gravity(s)
 
 
-_SCALE: dict[str, Any] = dict(unit="scale of nominal", maximum=MAX_SCALE)
-_BODY_MASS: dict[str, Any] = dict(
+# a model axis whose level scales nominal values; one that scales the mass and inertia of bodies
+_model_axis = partial(Axis, kind="model", unit="scale of nominal", maximum=MAX_SCALE)
+_body_mass_axis = partial(
+    Axis,
+    kind="model",
+    unit="scale of nominal",
+    maximum=MAX_SCALE,
     strict=True,
     targets=("bodies",),
     fields=("body_mass", "body_inertia"),
     scale=_mass,
     setconst=True,
     physx_targets=("bodies",),
-    **_SCALE,
 )
 
 
-def _joint_row(name: str, short: str, doc: str, field: str, **extra: Any) -> Axis:
+def _joint_row(
+    name: str,
+    short: str,
+    doc: str,
+    field: str,
+    *,
+    physx: PhysxEdit | None = None,
+    physx_targets: tuple[str, ...] = (),
+    setconst: bool = False,
+) -> Axis:
     """A model axis that scales one per-dof field of the robot's (or the named) joints."""
-    return Axis(
+    return _model_axis(
         name,
-        "model",
         short=short,
         doc=doc,
         targets=("joints",),
@@ -215,15 +235,15 @@ def _joint_row(name: str, short: str, doc: str, field: str, **extra: Any) -> Axi
         fields=(field,),
         scale=_scaled(field),
         from_fields=(field,),
-        **_SCALE,
-        **extra,
+        physx=physx,
+        physx_targets=physx_targets,
+        setconst=setconst,
     )
 
 
 ROWS: tuple[Axis, ...] = (
-    Axis(
+    _model_axis(
         "friction",
-        "model",
         short="friction of every geom",
         doc="sliding, torsional and rolling friction of every geom (and of explicit contact pairs); "
         "MuJoCo uses the max of the two geoms' friction, so all geoms are scaled unless geoms/bodies name some",
@@ -233,27 +253,22 @@ ROWS: tuple[Axis, ...] = (
         scale=_friction,
         physx=_physx_friction,
         physx_targets=("bodies",),
-        **_SCALE,
     ),
-    Axis(
+    _body_mass_axis(
         "mass",
-        "model",
         short="mass + inertia of the manipulated object",
         doc="mass and inertia of the manipulated object's bodies (the env's object bodies) or of the named bodies",
         select=_object_bodies,
         physx=_physx_bodies("objects"),
-        **_BODY_MASS,
     ),
-    Axis(
+    _body_mass_axis(
         "link_mass",
-        "model",
         short="mass + inertia of the robot's links",
         doc="mass and inertia of the robot's moving bodies (every moving body that is not an object body) "
         "or of the named bodies",
         select=_robot_bodies,
         physx=_physx_bodies("robot"),
         from_fields=("body_mass", "body_ipos", "body_inertia", "body_iquat"),
-        **_BODY_MASS,
     ),
     _joint_row(
         "damping",
@@ -276,9 +291,8 @@ ROWS: tuple[Axis, ...] = (
         "joint dry friction (frictionloss) of the robot's joints or the named ones",
         "dof_frictionloss",
     ),
-    Axis(
+    _model_axis(
         "gain",
-        "model",
         short="actuator gain (servo stiffness)",
         doc="actuator gain of every (or the named) actuator: gainprm[0], and for position/velocity servos the "
         "matching biasprm term, so a servo's setpoint is unchanged and only its stiffness scales",
@@ -289,17 +303,14 @@ ROWS: tuple[Axis, ...] = (
         from_fields=("actuator_gainprm",),
         physx=_physx_drive(0),
         physx_targets=("actuators", "joints"),
-        **_SCALE,
     ),
-    Axis(
+    _model_axis(
         "gravity",
-        "model",
         short="gravity vector",
         doc="the gravity vector (1 = nominal, 0 = weightless)",
         fields=("opt.gravity",),
         select=_everything,
         scale=_gravity,
         physx=_physx_gravity,
-        **_SCALE,
     ),
 )

@@ -28,13 +28,19 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.sims.perturb.axes import AXES
 from bench.sims.perturb.axis import Axis
+
+if TYPE_CHECKING:
+    from mani_skill.envs.scene import ManiSkillScene
+    from sapien.physx import PhysxArticulationJoint, PhysxMaterial, PhysxRigidBaseComponent, PhysxRigidBodyComponent
+
+    from bench.sims.maniskill import ManiSkillEnv
 
 ROWS: dict[str, Axis] = {a.name: a for a in AXES.values() if a.physx is not None}  # the axes PhysX applies
 
@@ -43,12 +49,14 @@ ROWS: dict[str, Axis] = {a.name: a for a in AXES.values() if a.physx is not None
 class _Nominal:
     """Handles and unperturbed values of one PhysX scene (collected once per scene)."""
 
-    scene: Any
-    bodies: dict[str, list[Any]] = field(default_factory=dict)  # name -> physx body components
+    scene: ManiSkillScene
+    bodies: dict[str, list[PhysxRigidBaseComponent]] = field(default_factory=dict)  # name -> physx body components
     robot_links: list[str] = field(default_factory=list)
-    joints: dict[str, Any] = field(default_factory=dict)  # robot joint name -> physx joint
-    materials: dict[int, tuple[Any, float, float]] = field(default_factory=dict)  # id -> (mat, static, dynamic)
-    mass: dict[int, tuple[Any, float, np.ndarray]] = field(default_factory=dict)  # id -> (body, mass, inertia)
+    joints: dict[str, PhysxArticulationJoint] = field(default_factory=dict)  # robot joint name -> physx joint
+    # id -> (material, static, dynamic friction)
+    materials: dict[int, tuple[PhysxMaterial, float, float]] = field(default_factory=dict)
+    # id -> (body, mass, inertia)
+    mass: dict[int, tuple[PhysxRigidBodyComponent, float, np.ndarray]] = field(default_factory=dict)
     drives: dict[str, tuple[float, float]] = field(default_factory=dict)  # joint -> (stiffness, damping)
 
 
@@ -57,7 +65,7 @@ class PhysxAxes:
 
     axes: frozenset[str] = frozenset(ROWS)
 
-    def __init__(self, env: Any):
+    def __init__(self, env: ManiSkillEnv):
         self.env = env
         self._nom: _Nominal | None = None
         self._active: list[tuple[str, float, dict[str, list[str]]]] = []
@@ -71,7 +79,7 @@ class PhysxAxes:
             self._nom = self._collect(scene)
         return self._nom
 
-    def _collect(self, scene: Any) -> _Nominal:
+    def _collect(self, scene: ManiSkillScene) -> _Nominal:
         nom = _Nominal(scene)
         for name, actor in scene.actors.items():
             nom.bodies[name] = list(actor._bodies)
@@ -147,7 +155,7 @@ class PhysxAxes:
             self._set_drive(nom.joints[name], stiffness, damping)
 
     @staticmethod
-    def _set_drive(joint: Any, stiffness: float, damping: float) -> None:
+    def _set_drive(joint: PhysxArticulationJoint, stiffness: float, damping: float) -> None:
         joint.set_drive_properties(stiffness, damping, joint.force_limit, joint.drive_mode)
 
     # -- what the rows' PhysX edits use (`bench.sims.perturb.model`) ---------------------------

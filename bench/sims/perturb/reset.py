@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
@@ -31,10 +31,13 @@ from bench.core.errors import ConfigError
 from bench.protocols import RGB, Cell, EnvAdapter, MujocoHandle, Suite
 from bench.protocols.suite import Condition
 from bench.sims.perturb.axes import AXES, INTERFACE_AXES, MODEL_AXES, axis_named
-from bench.sims.perturb.axis import RGB_IMAGES
+from bench.sims.perturb.axis import RGB_IMAGES, Params
 from bench.sims.perturb.scene import apply as paint_scene
 from bench.sims.perturb.scene import clear as clear_scene
 from bench.sims.perturb.scene import validate as validate_scene
+
+if TYPE_CHECKING:
+    import mujoco
 
 
 def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> np.ndarray:
@@ -45,7 +48,7 @@ def targets(mj: MujocoHandle, condition: Condition, where: str = "the env") -> n
     axis = AXES.get(condition.axis or "")
     if axis is None or axis.select is None:
         return np.arange(0)
-    named = (condition.spec or {}).get("targets") or {}
+    named = condition.targets
     return axis.select(mj, named, f"perturb.{axis.name}", where)
 
 
@@ -54,12 +57,12 @@ def _check_from(mj: MujocoHandle, cond: Condition, where: str) -> None:
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
     kinds = {"body_": mujoco.mjtObj.mjOBJ_BODY, "actuator_": mujoco.mjtObj.mjOBJ_ACTUATOR}
-    for key in (cond.spec or {}).get("keys", []):
+    for key in cond.spec.get("keys", []):
         field, element = key.split(":")[:2]
         obj = next((v for p, v in kinds.items() if field.startswith(p)), mujoco.mjtObj.mjOBJ_JOINT)
         if mujoco.mj_name2id(mj.model, obj, element) < 0:
             raise ConfigError(
-                f"perturb.{cond.axis}: from({(cond.spec or {}).get('source')}) draws {field} of {element!r}, "
+                f"perturb.{cond.axis}: from({cond.spec.get('source')}) draws {field} of {element!r}, "
                 f"which {where} does not have (a calibration of another robot?)"
             )
 
@@ -73,7 +76,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
     for cond in conditions:
         axis = AXES.get(cond.axis or "")
         if axis is not None and axis.paint is not None:
-            validate_scene(env, axis.name, (cond.spec or {}).get("targets") or {}, where)
+            validate_scene(env, axis.name, cond.targets, where)
             continue
         if axis is not None and axis.sees == RGB_IMAGES and not any(str(k).startswith(RGB) for k in env.obs_spec):
             raise ConfigError(
@@ -93,7 +96,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
                     other.apply(
                         str(cond.axis),
                         float(level if level is not None else 1.0),
-                        (cond.spec or {}).get("targets") or {},
+                        cond.targets,
                     )
                 finally:
                     other.restore()
@@ -103,7 +106,7 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
                 f"perturb.{cond.axis}: {where} ({env.backend}) cannot apply it; model axes there: "
                 f"{', '.join(can) or 'none'}; interface axes work everywhere: {', '.join(INTERFACE_AXES)}"
             )
-        if (cond.spec or {}).get("kind") == "from":
+        if cond.kind == "from":
             _check_from(mj, cond, where)
             continue
         idx = targets(mj, cond, where)
@@ -127,7 +130,7 @@ def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condi
     model_conds = [c for c in conditions if c.axis in AXES and AXES[c.axis].kind in ("model", "visual")]
     if not model_conds or not cells:
         return
-    named = any((c.spec or {}).get("targets") for c in model_conds)
+    named = any(c.targets for c in model_conds)
     for cell in cells if named else cells[:1]:
         try:
             env = suite.make_env(cell, horizon)
@@ -143,6 +146,18 @@ def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condi
 
 
 # -- nominal cache and model edits ---------------------------------------------------------
+class _Named(TypedDict):
+    field: str  # a model field: dof_* (by joint), jnt_*, body_*, actuator_*
+    element: str  # the joint, body or actuator's name
+    value: float
+
+
+class ModelEdit(_Named, total=False):
+    """One model value set by name (`write_fields`); `column` of a 2-D field (0 when absent)."""
+
+    column: int
+
+
 def _fields() -> tuple[str, ...]:
     """Every model field a model axis edits or a calibration's draws write (a dotted name: `opt.gravity`)."""
     out: dict[str, None] = {}
@@ -151,7 +166,7 @@ def _fields() -> tuple[str, ...]:
     return tuple(out)
 
 
-def _field(model: Any, name: str) -> np.ndarray:
+def _field(model: mujoco.MjModel, name: str) -> np.ndarray:
     obj = model
     for part in name.split("."):
         obj = getattr(obj, part)
@@ -161,7 +176,7 @@ def _field(model: Any, name: str) -> np.ndarray:
 class Nominal(dict[str, np.ndarray]):
     """Copies of every model field an axis edits, taken from an unperturbed model: {field: values}."""
 
-    def __init__(self, model: Any):
+    def __init__(self, model: mujoco.MjModel):
         super().__init__({f: np.array(_field(model, f), copy=True) for f in _fields()})
         self.model = model
         self.const_dirty = False  # derived constants computed from perturbed masses/armature
@@ -200,7 +215,7 @@ def _set_const(mj: MujocoHandle) -> None:
     d.qpos[:], d.qvel[:], d.act[:] = qpos, qvel, act
 
 
-def write_fields(mj: MujocoHandle, edits: Sequence[dict[str, Any]]) -> None:
+def write_fields(mj: MujocoHandle, edits: Sequence[ModelEdit]) -> None:
     """Set model values by name ({field, element, value[, column]}: dof_* by joint, body_*, actuator_*;
     a 2-D field's column 0 unless `column` says), e.g. a suite calibration's (`bench.calibrate.apply`).
     Call before the first episode, so the nominal values `apply` restores are these."""
@@ -239,16 +254,19 @@ def _scale_model(mj: MujocoHandle, nom: Nominal, axis: str, idx: np.ndarray, s: 
     scale(mj.model, nom, idx, s)
 
 
-def _from_draw(mj: MujocoHandle, nom: Nominal, axis: str, condition: Condition, rng: np.random.Generator) -> dict:
+def _from_draw(mj: MujocoHandle, nom: Nominal, axis: str, condition: Condition, rng: np.random.Generator) -> Params:
     """One bootstrap draw of a calibration written into the model; the record gets the draw and the
     mean ratio of the drawn values to the nominal ones of the axis' first field."""
-    spec = condition.spec or {}
+    spec = condition.spec
     k = int(rng.integers(len(spec["values"])))
-    edits = []
+    edits: list[ModelEdit] = []
     ratios = []
     for key, value in zip(spec["keys"], spec["values"][k]):
         field, element, *col = key.split(":")
-        edits.append({"field": field, "element": element, "value": value, **({"column": int(col[0])} if col else {})})
+        edit: ModelEdit = {"field": field, "element": element, "value": value}
+        if col:
+            edit["column"] = int(col[0])
+        edits.append(edit)
         if field == AXES[axis].from_fields[0]:
             current = _value(mj, field, element, int(col[0]) if col else 0)
             if current:
@@ -298,7 +316,7 @@ def set_nominal(mj: MujocoHandle, levels: dict[str, float], where: str = "the en
 
 
 def _draw(condition: Condition, rng: np.random.Generator) -> float:
-    kind = (condition.spec or {}).get("kind", "grid")
+    kind = condition.kind
     if kind == "grid":
         return condition.level
     lo, hi = condition.level
@@ -311,7 +329,7 @@ def _draw(condition: Condition, rng: np.random.Generator) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tuple[Any, dict[str, Any]]:
+def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tuple[EnvAdapter, Params]:
     """Apply `condition` to `env` for one episode; call before the env's reset.
 
     Restores the nominal model first (the env may have run another condition), draws
@@ -335,13 +353,13 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         if axis is None:
             return env, {}
         value = _draw(condition, rng)
-        named = (condition.spec or {}).get("targets") or {}
+        named = condition.targets
         if axis.paint is not None:
             return env, paint_scene(env, axis.name, value, named, rng)
         assert axis.wrap is not None, f"axis {axis.name} has no hook (axis.py: select+scale, wrap or paint)"
         stepper, extra = axis.wrap(env, rng, value)
         return stepper, {axis.name: value, **extra}
-    if (condition.spec or {}).get("kind") == "from":
+    if condition.kind == "from":
         if mj is None or nom is None:
             raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")
         return env, _from_draw(mj, nom, axis.name, condition, rng)
@@ -349,7 +367,7 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
     if mj is None or nom is None:
         if env.model_axes is None or axis.name not in env.model_axes.axes:
             raise ConfigError(f"perturb.{axis.name}: env {env.backend} cannot apply this model axis")
-        env.model_axes.apply(axis.name, float(value), (condition.spec or {}).get("targets") or {})
+        env.model_axes.apply(axis.name, float(value), condition.targets)
         return env, {axis.name: value}
     idx = targets(mj, condition)
     _scale_model(mj, nom, axis.name, idx, float(value))

@@ -14,16 +14,18 @@ policy that sees images (`obs=rgb` or `obs=state+rgb`).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from functools import partial
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.protocols import EnvAdapter, option_keys, registry
+from bench.sims.camera import CameraRig
 from bench.sims.camera_env import CameraEnv
-from bench.sims.perturb.axis import MAX_SCALE, RGB_IMAGES, Axis, Named
+from bench.sims.perturb.axis import MAX_SCALE, RGB_IMAGES, Axis, Named, Params
 from bench.sims.perturb.visual import (
     TEXTURES,
     check_cameras,
@@ -32,6 +34,13 @@ from bench.sims.perturb.visual import (
     target_geoms,
     textures_of,
 )
+
+if TYPE_CHECKING:
+    import mujoco
+
+# a row's hooks (`bench.sims.perturb.axis.Axis.paint` and `.check`)
+Paint = Callable[["VisualScene", float, Named, np.random.Generator], Params]
+Check = Callable[["mujoco.MjModel", Sequence[str], Named, Sequence[str], str], None]
 
 
 def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
@@ -80,7 +89,7 @@ class VisualScene:
         where: the env's name for error messages.
     """
 
-    rig: Any
+    rig: CameraRig
     object_bodies: Sequence[str] = ()
     where: str = "the env"
     light_scale: float = 1.0
@@ -130,7 +139,7 @@ class VisualScene:
         self.rig.make_current()
         mujoco.mjr_uploadTexture(self.rig.model, self.rig.context, texid)
 
-    def apply(self, axis: str, value: float, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+    def apply(self, axis: str, value: float, named: Named, rng: np.random.Generator) -> Params:
         """Perturb the scene along `axis` at level `value` (drawn already); returns the params to record."""
         row = ROWS.get(axis)
         if row is None or row.paint is None:
@@ -170,7 +179,7 @@ class VisualScene:
             out.append((kind, size, np.array([xy[0], xy[1], z + lift]), mat, rgba))
         return out
 
-    def __call__(self, scene: Any, camera: str) -> None:
+    def __call__(self, scene: mujoco.MjvScene, camera: str) -> None:
         """Render hook: edit the scene MuJoCo built for `camera` (lights, camera pose, colours, extra geoms)."""
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
@@ -216,7 +225,7 @@ class VisualScene:
                 scene.ngeom += 1
 
 
-def _rig(env: Any) -> Any:
+def _rig(env: EnvAdapter) -> CameraRig | None:
     mj = env.mujoco
     return None if mj is None else mj.cameras
 
@@ -228,7 +237,7 @@ def clear(env: EnvAdapter) -> None:
         rig.hook.clear()
 
 
-def apply(env: EnvAdapter, axis: str, value: float, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def apply(env: EnvAdapter, axis: str, value: float, named: Named, rng: np.random.Generator) -> Params:
     """Apply one visual axis at `value` for this episode; returns the params to record."""
     rig = _rig(env)
     if rig is None:
@@ -244,7 +253,7 @@ def suites_with_cameras() -> list[str]:
     out = []
     for name in registry.names(registry.SUITES):
         try:
-            cls: Any = registry.suite_class(name)
+            cls = registry.suite_class(name)
             if {"obs", "cameras", "image_size"} <= set(option_keys(cls.Options)):
                 out.append(name)
         except Exception:  # a broken plugin is reported by `bench list`, not here
@@ -272,26 +281,26 @@ def validate(env: EnvAdapter, axis: str, named: Named, where: str) -> None:
 
 
 # -- the rows: (scene, level, named targets, generator) -> params to record beside the level ----
-def _light(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _light(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     vs.light_scale = float(value)
     return {}
 
 
-def _light_dir(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _light_dir(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     azimuth = float(rng.uniform(0.0, 360.0))
     a = math.radians(azimuth)
     vs.light_rot = _rotation(np.array([math.cos(a), math.sin(a), 0.0]), float(value))
     return {"light_dir.azimuth_deg": round(azimuth, 3)}
 
 
-def _camera_pos(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _camera_pos(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     direction = _unit(rng)
     vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
     vs.cam_offset = float(value) * direction
     return {"camera_pos.direction": [round(float(v), 6) for v in direction]}
 
 
-def _camera_rot(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _camera_rot(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     direction = _unit(rng)
     vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
     vs.cam_rot = _rotation(direction, float(value))
@@ -301,7 +310,7 @@ def _camera_rot(vs: VisualScene, value: Any, named: Named, rng: np.random.Genera
 MAX_FOV_DEG = 170.0  # a wider perspective frustum is degenerate
 
 
-def _camera_fov(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _camera_fov(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     """The vertical field of view of every (or the named) camera times the level (capped at 170 degrees)."""
     model = vs.rig.model
     vs.fov_cameras = tuple(named.get("cameras") or vs.rig.cameras)
@@ -314,8 +323,8 @@ def _camera_fov(vs: VisualScene, value: Any, named: Named, rng: np.random.Genera
     return {"camera_fov.deg": round(wanted, 4)}
 
 
-def _color(axis: str) -> Any:
-    def paint(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _color(axis: str) -> Paint:
+    def paint(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
         rgb = rng.uniform(0.0, 1.0, size=3)
         for g in target_geoms(vs.rig.model, axis, vs.object_bodies, named, vs.where):
             vs.colors[g] = (float(value), rgb)
@@ -324,7 +333,7 @@ def _color(axis: str) -> Any:
     return paint
 
 
-def _texture(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _texture(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     model, kind = vs.rig.model, int(value)
     geoms = target_geoms(model, "texture", vs.object_bodies, named, vs.where)
     for t in textures_of(model, geoms, "perturb.texture", vs.where):
@@ -341,87 +350,98 @@ def _texture(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator
     return {"texture.name": TEXTURES[kind - 1]}
 
 
-def _distractors(vs: VisualScene, value: Any, named: Named, rng: np.random.Generator) -> dict[str, Any]:
+def _distractors(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     vs.n_distractors = int(value)
     vs.distractor_seed = int(rng.integers(0, 2**31 - 1))
     vs.distractors = None
     return {}
 
 
-def _check_cameras(axis: str) -> Any:
-    def check(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+def _check_cameras(axis: str) -> Check:
+    def check(model: mujoco.MjModel, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
         check_cameras(axis, named, cameras, where)
 
     return check
 
 
-def _check_geoms(axis: str) -> Any:
-    def check(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+def _check_geoms(axis: str) -> Check:
+    def check(model: mujoco.MjModel, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
         target_geoms(model, axis, objects, named, where)
 
     return check
 
 
-def _check_texture(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+def _check_texture(
+    model: mujoco.MjModel, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str
+) -> None:
     textures_of(model, target_geoms(model, "texture", objects, named, where), "perturb.texture", where)
 
 
-def _check_surface(model: Any, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str) -> None:
+def _check_surface(
+    model: mujoco.MjModel, objects: Sequence[str], named: Named, cameras: Sequence[str], where: str
+) -> None:
     surface(model, None, objects, where)
 
 
-_VISUAL: dict[str, Any] = dict(kind="visual", sees=RGB_IMAGES, maximum=MAX_SCALE)
-_CAMERA: dict[str, Any] = dict(targets=("cameras",), nominal=0.0, **_VISUAL)  # offsets of every (or the named) camera
-_BLEND: dict[str, Any] = dict(
-    unit="blend 0..1", targets=("geoms", "bodies"), nominal=0.0, **{**_VISUAL, "maximum": 1.0}
-)  # colour blends toward a colour drawn per episode
+# a visual axis; one that moves every (or the named) camera by an offset
+_visual_axis = partial(Axis, kind="visual", sees=RGB_IMAGES, maximum=MAX_SCALE)
+_camera_axis = partial(Axis, kind="visual", sees=RGB_IMAGES, maximum=MAX_SCALE, targets=("cameras",), nominal=0.0)
 
 
 def _blend_row(name: str, short: str, what: str) -> Axis:
     """A colour axis: the default (or the named) geoms' colour blended toward a colour drawn per episode."""
     doc = f"{what} blended toward a colour drawn per episode"
-    return Axis(name, short=short, doc=doc, paint=_color(name), check=_check_geoms(name), **_BLEND)
+    return _visual_axis(
+        name,
+        unit="blend 0..1",
+        short=short,
+        doc=doc,
+        targets=("geoms", "bodies"),
+        nominal=0.0,
+        maximum=1.0,
+        paint=_color(name),
+        check=_check_geoms(name),
+    )
 
 
 ROWS: dict[str, Axis] = {
     a.name: a
     for a in (
-        Axis(
+        _visual_axis(
             "light",
             unit="scale of nominal",
             short="light intensity",
             doc="ambient, diffuse and specular intensity of every light, headlight included",
             paint=_light,
-            **_VISUAL,
         ),
-        Axis(
+        _visual_axis(
             "light_dir",
             unit="degrees",
             short="light direction tilt",
             doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)",
             nominal=0.0,
             paint=_light_dir,
-            **{**_VISUAL, "maximum": 90.0},
+            maximum=90.0,
         ),
-        Axis(
+        _camera_axis(
             "camera_pos",
             unit="metres",
             short="camera position offset",
             doc="every (or the named) camera moved this far in a direction drawn per episode",
             paint=_camera_pos,
             check=_check_cameras("camera_pos"),
-            **{**_CAMERA, "maximum": 1.0},
+            maximum=1.0,
         ),
-        Axis(
+        _camera_axis(
             "camera_rot",
             unit="degrees",
             short="camera orientation offset",
             doc="every (or the named) camera rotated this much about an axis drawn per episode",
             paint=_camera_rot,
             check=_check_cameras("camera_rot"),
-            **{**_CAMERA, "maximum": 90.0},
+            maximum=90.0,
         ),
-        Axis(
+        _camera_axis(
             "camera_fov",
             unit="scale of nominal field of view",
             short="camera field of view",
@@ -430,12 +450,13 @@ ROWS: dict[str, Axis] = {
             strict=True,
             paint=_camera_fov,
             check=_check_cameras("camera_fov"),
-            **{**_CAMERA, "nominal": 1.0, "maximum": 4.0},
+            nominal=1.0,
+            maximum=4.0,
         ),
         _blend_row("object_color", "object colour", "the manipulated object's colour"),
         _blend_row("table_color", "table colour", "the table's colour (geoms/bodies named like 'table')"),
         _blend_row("background", "floor and wall colour", "floor and walls (world-body geoms other than the table)"),
-        Axis(
+        _visual_axis(
             "texture",
             unit=f"texture 1..{len(TEXTURES)} ({', '.join(TEXTURES)})",
             short="unseen table texture",
@@ -446,9 +467,9 @@ ROWS: dict[str, Axis] = {
             nominal=0.0,
             paint=_texture,
             check=_check_texture,
-            **{**_VISUAL, "maximum": float(len(TEXTURES))},
+            maximum=float(len(TEXTURES)),
         ),
-        Axis(
+        _visual_axis(
             "distractors",
             unit="objects",
             short="distractor objects on the table",
@@ -457,7 +478,7 @@ ROWS: dict[str, Axis] = {
             nominal=0.0,
             paint=_distractors,
             check=_check_surface,
-            **{**_VISUAL, "maximum": 20.0},
+            maximum=20.0,
         ),
     )
 }

@@ -9,17 +9,20 @@ scene) are `bench.sims.perturb.scene`'s; this module renders nothing.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.sims.perturb.model import names as model_names
 
+if TYPE_CHECKING:
+    import mujoco
+
 TEXTURES = ("checker", "stripes", "noise", "rings")
 
 
-def _named(model: Any, named: Mapping[str, Sequence[str]], field: str, where: str) -> list[int] | None:
+def _named(model: mujoco.MjModel, named: Mapping[str, Sequence[str]], field: str, where: str) -> list[int] | None:
     """Geom ids named by `.geoms=[...]` / `.bodies=[...]` targets, or None when none are named."""
     if not named:
         return None
@@ -39,7 +42,11 @@ def _named(model: Any, named: Mapping[str, Sequence[str]], field: str, where: st
 
 
 def target_geoms(
-    model: Any, axis: str, object_bodies: Sequence[str], named: Mapping[str, Sequence[str]], where: str = "the env"
+    model: mujoco.MjModel,
+    axis: str,
+    object_bodies: Sequence[str],
+    named: Mapping[str, Sequence[str]],
+    where: str = "the env",
 ) -> list[int]:
     """Geom ids an appearance axis recolours or retextures (ConfigError when there are none)."""
     field = f"perturb.{axis}"
@@ -72,7 +79,7 @@ def target_geoms(
     return ids
 
 
-def textures_of(model: Any, geoms: Sequence[int], field: str, where: str) -> list[int]:
+def textures_of(model: mujoco.MjModel, geoms: Sequence[int], field: str, where: str) -> list[int]:
     """The 2-D or cube RGB textures the geoms' materials use (ConfigError when the geoms have none)."""
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
@@ -106,7 +113,9 @@ def check_cameras(
             )
 
 
-def surface(model: Any, data: Any, object_bodies: Sequence[str], where: str) -> tuple[np.ndarray, np.ndarray, float]:
+def surface(
+    model: mujoco.MjModel, data: mujoco.MjData | None, object_bodies: Sequence[str], where: str
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Where distractors stand: (xy low, xy high, z) of the table top, else of a floor plane near the scene centre."""
     import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 

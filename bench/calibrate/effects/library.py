@@ -1,171 +1,17 @@
-"""The library of physical effects a declared model may be missing.
-
-Every effect is *nested*: with its amplitude parameters at zero the model is exactly the declared
-one, so switching an effect on from zero is a small, well-defined change (its signature). Each effect
-attaches to one target (a joint, an actuator or a body) and is realised in the simulation itself:
-
-- through `MjModel` fields where MuJoCo has one (friction loss, damping, stiffness, armature,
-  body mass, actuator gain), so `mujoco.rollout` runs them at full speed;
-- through the model's structure for backlash as position play: a rotor behind a dead zone in
-  position, built into the MJCF (`bench.calibrate.play`);
-- through the applied command where the effect acts on the drive (delay, deadband, saturation),
-  transformed before the rollout at the simulator's substep resolution;
-- through `qfrc_applied` for generalised forces (bias, a known extra input, the offset part of
-  asymmetric friction), constant or precomputed;
-- only the Stribeck excess depends on the simulated velocity: it is added to `qfrc_applied` at
-  every substep in a stepped rollout (see `bench.replay.simulate`).
-
-Bounds are scaled to the system from the logs (`Scales`), so one library serves a 1 kg arm and a
-95 kg carriage; a spec can override them per effect.
-"""
+"""The library: every effect family's row (`EFFECTS`), with its bounds scaled to the system and its
+realisation in MuJoCo, and the pairs of families that together are exactly a third (`MERGES`)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bench.calibrate.effects.row import Builder, Effect, Scales, Target
 
-@dataclass(frozen=True)
-class Scales:
-    """Typical magnitudes of the system, per dof / actuator, used to bound the effects."""
-
-    force: np.ndarray  # (nv,) typical actuator force on each dof [N or N·m]
-    vel: np.ndarray  # (nv,) velocity spread [m/s or rad/s]
-    half_range: np.ndarray  # (nv,) half the position range
-    inertia: np.ndarray  # (nv,) diagonal of the mass matrix at the logged mean pose
-    ctrl_gain: np.ndarray  # (nu,) force per unit command (gear x gain)
-    ctrl_max: np.ndarray  # (nu,) largest |command| in the logs
-    ctrl_sorted: tuple[np.ndarray, ...]  # per actuator, |command| of every logged frame, sorted
-    input_max: np.ndarray  # (m,) largest |extra input| in the logs
-    mass: float  # total mass of the model [kg]
-    dt: float  # log frame period [s]
-    spring_ref: np.ndarray  # (nv,) the model's spring reference position of each dof (qpos_spring)
-
-
-@dataclass(frozen=True)
-class Target:
-    """Where an effect attaches: a joint (its dof), an actuator (and the dof it drives) or a body."""
-
-    kind: str  # "joint" | "actuator" | "body"
-    name: str
-    index: int  # joint / actuator / body id
-    dof: int = -1  # dof driven (joints and actuators)
-    joint: str = ""  # name of that dof's joint
-    input: int = -1  # extra-input column (input_channel)
-    input_name: str = ""
-
-    @property
-    def label(self) -> str:
-        return f"{self.name}<-{self.input_name}" if self.input >= 0 else self.name
-
-
-class Builder(Protocol):
-    """What an effect may change while a parameter vector is realised (see `bench.calibrate.model`)."""
-
-    model: Any  # the mujoco.MjModel being edited
-
-    def add_qfrc(self, dof: int, value: float) -> None: ...
-    def add_input(self, col: int, dof: int, gain: float) -> None: ...
-    def add_stribeck(self, dof: int, fs: float, vs: float) -> None: ...
-    def ctrl_op(self, kind: str, act: int, value: float) -> None: ...
-    def mark_setconst(self) -> None: ...
-    def set_play(self, act: int, width: float, inertia: float) -> None: ...
-
-
-Bounds = list[tuple[float, float]]
-
-
-@dataclass(frozen=True)
-class Effect:
-    """One family of the library: its parameters, bounds, realisation and the families it extends."""
-
-    name: str
-    kind: str
-    params: tuple[str, ...]
-    units: tuple[str, ...]
-    bounds: Callable[[Scales, Target], Bounds]
-    apply: Callable[[Builder, Target, np.ndarray, Scales], None]
-    doc: str
-    fields: tuple[str, ...] = ()  # MjModel fields edited on the target (a declared free field excludes it)
-    shape: tuple[float, ...] = ()  # start values of non-nested (shape) params, as a share of their upper bound
-    # families this one generalises: lift their parameters to ours, and the contrast (weights on our
-    # parameters) that must differ from zero for the generalisation to be worth it
-    extends: dict[str, Callable[[np.ndarray, Bounds], np.ndarray]] = field(default_factory=dict)
-    contrast: tuple[float, ...] = ()
-    threshold: bool = False  # shows only beyond a threshold: its signature is also taken at a large step
-    report: Callable[[np.ndarray, Scales, Target], dict[str, float]] | None = None
-    # 95% intervals of the reported parameters from the estimate and its covariance (default: the
-    # report of x -+ 1.96 sd, right for monotone maps of one parameter each)
-    intervals: Callable[[np.ndarray, np.ndarray, Scales, Target], dict[str, list | None]] | None = None
-    gate: tuple[int, ...] | None = None  # nested params whose interval must exclude zero (default: all)
-    standalone: bool = False  # offered on its own too, not only as a replacement of a family it extends
-    group: str = ""  # families of one group exclude each other on a target
-    play_side: str | None = None  # backlash as position play: which side the log measures
-    # finite-difference step (normalised units) where the output moves in small jumps (contact events)
-    fd_step: float | None = None
-    # amplitudes (shares of the bound) simulated as starting points for a landscape with several basins
-    scan: tuple[float, ...] = ()
-    # parameters that stop being physical outside [0, top] (top None: no upper limit), as a spec's bounds
-    # are checked: {param: (what it is, top)}
-    limits: dict[str, tuple[str, float | None]] = field(default_factory=dict)
-    # the ground truth the synthetic-data generator (`bench.calibrate.generate`) hides in its arm
-    # (models/arm3.xml): a target there and physical parameters
-    example: tuple[str, dict[str, float]] = ("", {})
-    # how the generator plants `example`'s parameters where they are not the effect's own (physical units,
-    # another target): (builder, target, parameters, the true model); default: `apply` with them in order
-    plant: Callable[[Builder, Target, dict[str, float], Any], None] | None = None
-    reads_input: bool = False  # acts through a logged extra input (`signals.inputs`): one target per input column
-
-    @property
-    def n_nested(self) -> int:
-        """Amplitude parameters (zero = absent) come first; shape parameters follow."""
-        return len(self.params) - len(self.shape)
-
-    @property
-    def gated(self) -> tuple[int, ...]:
-        """The parameters whose interval must exclude zero for the effect to be accepted."""
-        return tuple(range(self.n_nested)) if self.gate is None else self.gate
-
-    def start(self, bounds: Bounds) -> np.ndarray:
-        """Parameter vector with the effect switched off (nested params zero, shape params at their start)."""
-        x = np.zeros(len(self.params))
-        for i, share in enumerate(self.shape):
-            lo, hi = bounds[self.n_nested + i]
-            x[self.n_nested + i] = lo + share * (hi - lo)
-        return x
-
-    def physical(self, x: np.ndarray, scales: Scales, target: Target) -> dict[str, float]:
-        """The parameters as reported (physical units), e.g. a saturation's force limit."""
-        if self.report is not None:
-            return self.report(x, scales, target)
-        return {p: float(v) for p, v in zip(self.params, x)}
-
-
-# --- primitive transforms shared by the calibration rollouts and the data generator -------------
-
-
-def deadband(u: np.ndarray, width: np.ndarray | float) -> np.ndarray:
-    """Command with a dead band of half-width `width` around zero (lost motion of a drive with play)."""
-    return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
-
-
-def saturate(u: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
-    """Command clipped to +-limit (torque saturation of the drive)."""
-    return np.clip(u, -limit, limit)
-
-
-def stribeck_force(v: np.ndarray, fs: np.ndarray | float, vs: np.ndarray | float) -> np.ndarray:
-    """Generalised force that turns a friction loss of fc + fs into the Stribeck curve.
-
-    MuJoCo's friction loss supplies the static level fc + fs (and true sticking); this force gives
-    back fs * (1 - exp(-(v/vs)^2)) once sliding, so the kinetic friction falls to fc. It is
-    continuous at v = 0, which keeps finite differences and the integrator well behaved.
-    """
-    return fs * (1.0 - np.exp(-np.square(v / vs))) * np.sign(v)
-
+if TYPE_CHECKING:
+    import mujoco
 
 # --- bounds and realisations ---------------------------------------------------------------------
 
@@ -277,15 +123,15 @@ def _input_gain_max(s: Scales, t: Target) -> float:
 PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
 
-def _plant_saturation(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+def _plant_saturation(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
     b.ctrl_op("saturation", t.index, p["limit"] / float(model.actuator_gear[t.index, 0]))
 
 
-def _plant_deadband(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+def _plant_deadband(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
     b.ctrl_op("deadband", t.index, p["deadband"] / float(model.actuator_gear[t.index, 0]))
 
 
-def _plant_spring(b: Builder, t: Target, p: dict[str, float], model: Any) -> None:
+def _plant_spring(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
     # the preload that puts the rest position at `reference`
     k = p["stiffness"]
     _apply_spring(b, t, np.array([k, k * (p["reference"] - float(model.qpos_spring[t.dof]))]), None)  # type: ignore[arg-type]
@@ -513,12 +359,3 @@ MERGES: dict[tuple[str, str], tuple[str, Callable[[np.ndarray, np.ndarray], np.n
     # friction F plus a constant force b: -(F - b) forwards, +(F + b) backwards: F+ = F - b, F- = F + b
     ("coulomb_friction", "bias"): ("asymmetric_friction", lambda f, b: np.array([f[0] - b[0], f[0] + b[0]])),
 }
-
-# signature steps, as shares of each amplitude parameter's largest magnitude: a small one for the
-# slope at zero and a large one for effects that only show beyond a threshold (saturation, dead band)
-SIGNATURE_LEVELS = (0.1, 0.4)
-
-
-def signature_steps(effect: Effect, bounds: Bounds, level: float) -> np.ndarray:
-    """Finite-difference steps for the nested parameters when an effect is switched on from zero."""
-    return np.array([level * max(abs(lo), abs(hi)) for lo, hi in bounds[: effect.n_nested]])
