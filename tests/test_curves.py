@@ -65,3 +65,60 @@ def test_a_curve_that_never_reaches_half_of_nominal_is_censored_with_a_reason():
 def test_too_few_draws_make_no_curve():
     c = curve(np.arange(1, MIN_DRAWS), np.ones(MIN_DRAWS - 1), 1.0, np.random.default_rng(0))
     assert c["curve"] is None and c["reason"] == f"{MIN_DRAWS - 1} draws; a curve needs at least {MIN_DRAWS}"
+
+
+def _run(tmp_n: int = 60) -> list:
+    """A run's records: 20 nominal episodes (all succeed) and a friction range drawn per episode whose success
+    follows the known curve."""
+    from tests.fixtures import record
+
+    rng = np.random.default_rng(3)
+    recs = [record(True, episode=i, seed=i) for i in range(20)]
+    x, y = _sample(rng, tmp_n)
+    name = "friction~logU(0.1,3)"
+    recs += [
+        record(bool(s), condition=name, axis="friction", level=[0.1, 3.0], params={"friction": float(v)}, episode=i)
+        for i, (v, s) in enumerate(zip(x, y))
+    ]
+    recs += [record(False, condition="friction~from(cal@12345678)", axis="friction", level=[0, 9], episode=0)]
+    return recs
+
+
+def test_a_run_summary_carries_its_curves_the_leaderboard_and_the_report_show_them(tmp_path):
+    from bench.board.leaderboard import entry_from_summary
+    from bench.board.report.figures import fig_curves
+    from bench.core.schema import validate
+    from bench.scoring.curves import breaking_sentence, curves_of
+    from bench.scoring.summary import build
+    from tests.fixtures import provenance
+
+    recs = _run()
+    meta = {
+        "run_id": "r",
+        "suite": {"name": "s", "version": "1", "manifest": {}},
+        "policy": {"name": "p", "checkpoint": None, "checkpoint_sha256": None},
+        "config": {"seed": 0, "n_boot": 200, "confidence": 0.95},
+        "expected_episodes": len(recs),
+        "provenance": provenance(episode_seeds=[1], started_at="t"),
+    }
+    summary = build(recs, run_meta=meta).to_json()
+    assert validate(summary) == "bench.summary/1"
+    (c,) = summary["curves"]  # the range only: a from(...) condition draws no factor
+    assert c["condition"] == "friction~logU(0.1,3)" and c["n"] == 60 and c["nominal"] == 1.0
+    assert c["ci"][0] is not None and c["ci"][0] <= c["breaks_at"] <= c["ci"][1]
+    again = curves_of(recs, np.random.default_rng([0, 7919, 2]), n_boot=200)
+    assert again == summary["curves"]  # seeded from the run seed: the same curve every time
+    assert breaking_sentence(c).startswith("friction~logU(0.1,3): this policy breaks at friction ")
+    entry = entry_from_summary(summary, "r")
+    assert entry["curves"] == [{k: c[k] for k in ("condition", "axis", "n", "breaks_at", "ci")}]
+    assert fig_curves(summary, tmp_path / "curves.png") == 1 and (tmp_path / "curves.png").stat().st_size > 1000
+
+
+def test_a_curve_asked_for_with_too_few_draws_is_refused(tmp_path):
+    from bench.cli import main
+
+    out = tmp_path / "runs"
+    argv = ["run", "suite=held_out_robots", "robots=[Panda]", "episodes=3", f"out={out}"]
+    assert main([*argv, "perturb.friction.curve=loguniform(0.01,1)"]) == 2
+    assert main([*argv, "perturb.friction.curve=[0.1,1]"]) == 2
+    assert not out.exists()

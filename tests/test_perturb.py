@@ -147,7 +147,10 @@ def test_cli_grammar_through_the_run_config():
         ({"friction": "abc"}, r"'abc' is not a number"),
         ({"mass": {"levels": [2], "bodys": ["box"]}}, r"perturb.mass.bodys: unknown key; .*Did you mean 'bodies'\?"),
         ({"friction": {"joints": ["hinge1"], "levels": [2]}}, r"perturb.friction.joints: unknown key"),
-        ({"mass": {"bodies": ["box"]}}, r"give levels=\[...\] or a range"),
+        (
+            {"mass": {"bodies": ["box"]}},
+            r"give levels=\[...\], a range \(uniform/loguniform=\[low,high\]\) or curve=uniform\(low,high\)",
+        ),
     ],
     ids=[
         "unknown-axis",

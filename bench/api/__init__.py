@@ -64,6 +64,7 @@ from bench.protocols import PolicyIdentity, PolicyPlugin, Suite, describe_spec, 
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Cell, Condition, Job, SuiteSpec, expand_jobs, policy_ref, select_cells
 from bench.records import EPISODES, EpisodeRecord, RecordWriter, read_records
+from bench.scoring.curves import check_curves
 from bench.scoring.summary import build, load_run, nothing_measured
 from bench.scoring.summary import render as render_summary
 from bench.scoring.typed import RunMeta
@@ -509,6 +510,7 @@ def plan(
             )
     conditions = axes.conditions_from_config(config.perturb)
     axes.check_horizon(conditions, horizon)
+    check_curves(conditions, len(cells) * config.episodes)
     n_jobs = len(cells) * len(conditions) * config.episodes
     if on_jobs is not None:
         on_jobs(n_jobs)

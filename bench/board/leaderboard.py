@@ -88,6 +88,16 @@ def _drops(summary: dict) -> list[dict]:
     return out
 
 
+def _breaks(summary: dict) -> list[dict]:
+    """Per range condition: where the policy breaks (the factor at half of nominal success) with its interval,
+    copied from the summary's curves (`bench.scoring.curves`)."""
+    out = []
+    for c in summary.get("curves") or []:
+        row = {k: c.get(k) for k in ("condition", "axis", "n", "breaks_at", "ci")}
+        out.append({**row, **({"reason": c["reason"]} if c.get("reason") else {})})
+    return out
+
+
 def entry_from_summary(summary: dict, source: str) -> dict:
     """One leaderboard entry from a run summary (scores copied, nothing recomputed), read through the
     typed `Summary` (a field of the wrong type is one line naming it); `drops` when the run perturbed the
@@ -118,6 +128,7 @@ def entry_from_summary(summary: dict, source: str) -> dict:
         "git_sha": prov.get("git_sha"),
         "superseded": [],
         **({"drops": drops} if (drops := _drops(summary)) else {}),
+        **({"curves": curves} if (curves := _breaks(summary)) else {}),
     }
 
 

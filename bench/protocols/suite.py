@@ -64,6 +64,7 @@ class ConditionSpec(TypedDict, total=False):
     targets: the elements the axis acts on by kind ({"joints": ["hinge1"]}); absent or empty: its defaults.
     source, sha256: for "from", the calibration.json drawn from and the sha256 of its bytes.
     keys, values: for "from", the draws' columns (`field:element[:column]`) and one row of values per draw.
+    curve: a range asked to be scored as a curve (`perturb.AXIS.curve=`): at least 10 draws are required.
     """
 
     kind: str
@@ -71,6 +72,7 @@ class ConditionSpec(TypedDict, total=False):
     source: str
     sha256: str
     keys: list[str]
+    curve: bool
     values: list[list[float]]
 
 

@@ -18,10 +18,15 @@ Entries are JSON-able with no NaN: what cannot be computed is null with a reason
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from bench.core.errors import ConfigError
+from bench.protocols.suite import Condition
+from bench.records import EpisodeRecord, dedupe
 
 MIN_DRAWS = 10  # fewer draws than this make no curve: two parameters and a bootstrap need more
 GRID = 21  # points of the band
@@ -57,23 +62,25 @@ class Fit:
 
 
 def _firth(z: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Firth-penalised logistic regression of y on [1, z]: (a, b, deviance of the unpenalised likelihood)."""
-    X = np.column_stack([np.ones_like(z), z])
-    beta = np.zeros(2)
+    """Firth-penalised logistic regression of y on [1, z]: (a, b, deviance of the unpenalised likelihood).
+    Newton steps on the modified score X'(y - p + h (1/2 - p)), the 2x2 algebra written out."""
+    a = b = 0.0
     for _ in range(_MAX_ITER):
-        p = 1.0 / (1.0 + np.exp(-(X @ beta)))
+        p = 1.0 / (1.0 + np.exp(-(a + b * z)))
         w = np.clip(p * (1.0 - p), 1e-12, None)
-        info = X.T @ (X * w[:, None])
-        inv = np.linalg.inv(info + 1e-12 * np.eye(2))
-        h = np.einsum("ij,jk,ik->i", X, inv, X) * w  # hat values of W^1/2 X
-        step = inv @ (X.T @ (y - p + h * (0.5 - p)))
-        step = np.clip(step, -5.0, 5.0)  # damped: the first steps of a separated sample are large
-        beta = beta + step
-        if np.max(np.abs(step)) < 1e-8:
+        s0, s1, s2 = float(w.sum()), float(w @ z), float(w @ (z * z))  # the information X'WX
+        det = s0 * s2 - s1 * s1 + 1e-18
+        h = w * (s2 - 2.0 * s1 * z + s0 * z * z) / det  # hat values of W^1/2 X
+        r = y - p + h * (0.5 - p)
+        u0, u1 = float(r.sum()), float(r @ z)
+        da = min(max((s2 * u0 - s1 * u1) / det, -5.0), 5.0)  # damped: a separated sample's first steps are large
+        db = min(max((s0 * u1 - s1 * u0) / det, -5.0), 5.0)
+        a, b = a + da, b + db
+        if max(abs(da), abs(db)) < 1e-8:
             break
-    p = np.clip(1.0 / (1.0 + np.exp(-(X @ beta))), 1e-12, 1 - 1e-12)
+    p = np.clip(1.0 / (1.0 + np.exp(-(a + b * z))), 1e-12, 1 - 1e-12)
     deviance = float(-2.0 * np.sum(y * np.log(p) + (1 - y) * np.log(1 - p)))
-    return float(beta[0]), float(beta[1]), deviance
+    return a, b, deviance
 
 
 def fit(x: np.ndarray, y: np.ndarray, log: bool | None = None) -> Fit:
@@ -162,3 +169,65 @@ def curve(
             else "success is below half of nominal over the whole drawn range"
         )
     return out
+
+
+def curves_of(
+    records: Sequence[EpisodeRecord],
+    rng: np.random.Generator,
+    metric: str = "success_once",
+    n_boot: int = 1000,
+    confidence: float = 0.95,
+) -> list[dict[str, object]]:
+    """A curve for every range condition of a run (a factor drawn per episode: `uniform` / `loguniform`), pooled
+    over its cells, against the nominal success of the same cells: one entry per condition, in name order."""
+    records = dedupe(list(records))
+    by_cond: dict[str, list[EpisodeRecord]] = defaultdict(list)
+    for r in records:
+        if r.error is None:
+            by_cond[r.condition].append(r)
+    out: list[dict[str, object]] = []
+    for name in sorted(by_cond):
+        recs = by_cond[name]
+        axis = recs[0].axis
+        if axis is None or "~" not in name or "~from(" in name:
+            continue
+        drawn = [(r, v) for r in recs if isinstance(v := r.params.get(axis), (int, float)) and not isinstance(v, bool)]
+        cells = {(r.task, r.robot, r.env) for r, _ in drawn}
+        ref = [bool(getattr(r, metric)) for r in by_cond.get("nominal", []) if (r.task, r.robot, r.env) in cells]
+        entry: dict[str, object] = {"condition": name, "axis": axis, "metric": metric}
+        if not ref:
+            out.append({**entry, "n": len(drawn), "curve": None, "reason": "no nominal episode of the same cells"})
+            continue
+        x = [float(v) for _, v in drawn]
+        y = [float(bool(getattr(r, metric))) for r, _ in drawn]
+        out.append({**entry, **curve(x, y, float(np.mean(ref)), rng, n_boot=n_boot, confidence=confidence)})
+    return out
+
+
+def breaking_sentence(entry: dict[str, object]) -> str:
+    """One line for the console and the report: where the policy breaks along the axis, or why no point is given."""
+    name, metric, point = entry["condition"], entry["metric"], entry.get("breaks_at")
+    if not isinstance(point, (int, float)):
+        return f"{name}: no breaking point ({entry.get('reason')})"
+    ci = entry.get("ci")
+    lo, hi = ci if isinstance(ci, list) and len(ci) == 2 else (None, None)
+    nominal = entry.get("nominal")
+    nom = float(nominal) if isinstance(nominal, (int, float)) else math.nan
+    confidence = entry.get("confidence")
+    conf = int(round(float(confidence) * 100)) if isinstance(confidence, (int, float)) else 95
+    iv = f"[{'below the range' if lo is None else f'{lo:.3g}'}, {'beyond the range' if hi is None else f'{hi:.3g}'}]"
+    return (
+        f"{name}: this policy breaks at {entry['axis']} {point:.3g} {iv} ({conf}% bootstrap): there its fitted "
+        f"{metric} falls to half of nominal ({nom * 100:.0f}% -> {nom * 50:.0f}%), over {entry['n']} draws"
+    )
+
+
+def check_curves(conditions: Sequence[Condition], draws: int) -> None:
+    """A curve asked for (`perturb.AXIS.curve=uniform(a,b)`) with fewer than `MIN_DRAWS` draws (the run's
+    episodes x cells) is refused: a logistic fit and its bootstrap need more (ConfigError naming the axis)."""
+    for cond in conditions:
+        if cond.spec.get("curve") and draws < MIN_DRAWS:
+            raise ConfigError(
+                f"perturb.{cond.axis}.curve: {draws} draws (episodes x cells); a curve needs at least {MIN_DRAWS}: "
+                "more episodes= or cells, or a plain range (perturb.AXIS=uniform(a,b)) scored as a pooled drop"
+            )

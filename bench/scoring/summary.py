@@ -30,6 +30,7 @@ from bench.records import (
 )
 from bench.remote.latency import run_latency
 from bench.scoring import stats as scoring
+from bench.scoring.curves import breaking_sentence, curves_of
 from bench.scoring.rows import cell_row
 from bench.scoring.sensitivity import render as render_sensitivity
 from bench.scoring.sensitivity import sensitivity
@@ -59,6 +60,9 @@ def _cells(records: list[EpisodeRecord]) -> dict[CellKey, list[EpisodeRecord]]:
 def _outcomes(recs: list[EpisodeRecord], metric: str) -> np.ndarray:
     attr = "return_" if metric == "return" else metric
     return np.array([getattr(r, attr) for r in recs if r.error is None], dtype=float)
+
+
+CURVE_BOOT = 1000  # bootstrap refits per curve (fewer than the run's n_boot when that is larger: each is a fit)
 
 
 def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
@@ -134,6 +138,12 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
         summary["policy_latency"] = latency
     if any(r.condition != "nominal" for r in records):
         summary["sensitivity"] = sensitivity(records, rng, n_boot=n_boot, confidence=conf)
+    metric = str(cfg.get("metric", "success_once"))
+    if metric != "return" and any("~" in r.condition for r in records):  # ranges: success against the factor
+        curve_rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 2])  # a generator of their own
+        found = curves_of(records, curve_rng, metric, n_boot=min(n_boot, CURVE_BOOT), confidence=conf)
+        if found:
+            summary["curves"] = found
     return Summary.from_json(summary, "summary of " + str(run_meta["run_id"]))
 
 
@@ -262,6 +272,8 @@ def render(summary: dict[str, Any], console: Console | None = None) -> None:  # 
             console.print(sentence)
     if summary.get("sensitivity"):
         render_sensitivity(summary["sensitivity"], console)
+    for entry in summary.get("curves") or []:
+        console.print(breaking_sentence(entry), soft_wrap=True, highlight=False)
     errored = errored_line(summary)
     if errored:
         console.print(f"[yellow]{errored}[/]", soft_wrap=True)

@@ -224,6 +224,7 @@ class Summary:
     provenance: dict[str, object]
     policy_latency: dict[str, object] | None = None
     sensitivity: list[dict[str, object]] | None = field(default=None)
+    curves: list[dict[str, object]] | None = field(default=None)  # `bench.scoring.curves`: one per range condition
 
     def to_json(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -246,6 +247,8 @@ class Summary:
             out["policy_latency"] = self.policy_latency
         if self.sensitivity is not None:
             out["sensitivity"] = self.sensitivity
+        if self.curves is not None:
+            out["curves"] = self.curves
         return out
 
     @classmethod
@@ -275,6 +278,7 @@ class Summary:
             provenance=_need(d, "provenance", dict, where),
             policy_latency=_raw(d, "policy_latency"),
             sensitivity=_raw(d, "sensitivity"),
+            curves=_raw(d, "curves"),
         )
 
     def nominal_cells(self) -> list[CellRow]:

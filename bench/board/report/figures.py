@@ -350,3 +350,36 @@ def fig_calibration(cal: dict, path: Path) -> bool:
 
 
 # -- HTML ---------------------------------------------------------------------------------------
+
+
+def fig_curves(summary: dict, path: Path) -> int:
+    """One panel per range condition: the fitted success against the drawn factor with its bootstrap band, half of
+    nominal (dashed) and the breaking point with its interval (shaded); the number of panels drawn."""
+    entries = [c for c in summary.get("curves") or [] if c.get("band")]
+    if not entries:
+        return 0
+    plt = pyplot()
+    ncol = min(3, len(entries))
+    nrow = (len(entries) + ncol - 1) // ncol
+    fig, axs = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
+    for k, c in enumerate(entries):
+        ax = axs[k // ncol, k % ncol]
+        band = c["band"]
+        xs = [b["x"] for b in band]
+        ax.fill_between(xs, [b["lo"] for b in band], [b["hi"] for b in band], color=COLOURS["unseen"], alpha=0.25)
+        ax.plot(xs, [b["p"] for b in band], color=COLOURS["unseen"], lw=1.5)
+        ax.axhline(c["nominal"] / 2, color="grey", ls="--", lw=0.8)
+        if c.get("breaks_at") is not None:
+            lo, hi = c["ci"]
+            ax.axvspan(xs[0] if lo is None else lo, xs[-1] if hi is None else hi, color="black", alpha=0.08)
+            ax.axvline(c["breaks_at"], color="black", lw=1)
+        if c.get("scale") == "log":
+            ax.set_xscale("log")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlabel(f"{c['axis']} (drawn per episode)")
+        ax.set_ylabel(c["metric"])
+        ax.set_title(c["condition"], fontsize=8)
+    for k in range(len(entries), nrow * ncol):
+        axs[k // ncol, k % ncol].axis("off")
+    save_figure(fig, path)
+    return len(entries)

@@ -25,13 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.board.report.figures import fig_calibration, fig_cells, fig_leaderboard, fig_sensitivity, fig_splits_gaps
+from bench.board.report.figures import (
+    fig_calibration,
+    fig_cells,
+    fig_curves,
+    fig_leaderboard,
+    fig_sensitivity,
+    fig_splits_gaps,
+)
 from bench.board.report.html import CSS, esc, img_tag, rate_cell, return_cell, signed_cell, table_html
 from bench.board.report.remote import latency_section
 from bench.core.errors import DataError
 from bench.core.io import first_nonfinite
 from bench.core.schema import load_json, validate
 from bench.records import EPISODES, read_records
+from bench.scoring.curves import breaking_sentence
 from bench.scoring.robustness import table
 from bench.scoring.summary import aggregates, gap_sentence
 
@@ -205,6 +213,14 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
             "<h2>Sensitivity per perturbation axis</h2>"
             + img_tag("sensitivity.png", "sensitivity")
             + table_html(["axis", "level", "n", metric, "drop vs nominal [CI]", "lost/gained", "McNemar p"], rows, {2})
+        )
+    if fig_curves(summary, tmp / "curves.png"):
+        parts.append(
+            "<h2>Where the policy breaks</h2><p>Success against a factor drawn per episode, fitted (logistic, with a "
+            "bootstrap band); the dashed line is half of nominal success, the vertical line where the fitted curve "
+            "crosses it, the shaded span its interval.</p>"
+            + img_tag("curves.png", "curves")
+            + "".join(f"<p>{esc(breaking_sentence(c))}</p>" for c in summary["curves"])
         )
     robust = robustness_section(summary, records)
     if robust:

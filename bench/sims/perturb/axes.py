@@ -165,8 +165,9 @@ def _conditions_for(name: str, value: object) -> list[Condition]:
     targets: dict[str, list[str]] = {}
     levels: list[object] = []
     dists: list[tuple[str, object, str]] = []
+    curve = False
     if isinstance(value, dict):
-        valid_keys = ["levels", *DISTRIBUTIONS, *axis.targets]
+        valid_keys = ["levels", *DISTRIBUTIONS, "curve", *axis.targets]
         for key, v in value.items():
             if key not in valid_keys:
                 raise ConfigError(
@@ -176,13 +177,23 @@ def _conditions_for(name: str, value: object) -> list[Condition]:
                 levels.extend(v if isinstance(v, (list, tuple)) else [v])
             elif key in DISTRIBUTIONS:
                 dists.append((key, v, f"{field}.{key}"))
+            elif key == "curve":  # a range scored as a curve, asked for: refused with fewer than MIN_DRAWS draws
+                parsed = _parse_dist(v) if isinstance(v, str) else None
+                if parsed is None:
+                    raise ConfigError(
+                        f"{field}.curve: {v!r} is not a range; write uniform(low,high) or loguniform(low,high)"
+                    )
+                dists.append((parsed[0], parsed[1], f"{field}.curve"))
+                curve = True
             else:
                 names = [v] if isinstance(v, str) else list(v or [])
                 if not names or not all(isinstance(n, str) and n for n in names):
                     raise ConfigError(f"{field}.{key}: expected a list of names, got {v!r}")
                 targets[key] = names
         if not levels and not dists:
-            raise ConfigError(f"{field}: give levels=[...] or a range ({'/'.join(DISTRIBUTIONS)}=[low,high])")
+            raise ConfigError(
+                f"{field}: give levels=[...], a range ({'/'.join(DISTRIBUTIONS)}=[low,high]) or curve=uniform(low,high)"
+            )
     else:
         levels = list(value) if isinstance(value, (list, tuple)) else [value]
         if not levels:
@@ -208,7 +219,7 @@ def _conditions_for(name: str, value: object) -> list[Condition]:
         out.append(Condition(name=f"{name}={_fmt(lv)}", axis=name, level=lv, spec=spec))
     for dist, bounds, f in dists:
         lo, hi = _range(axis, f, dist, bounds)
-        spec = {"kind": dist, "targets": targets}
+        spec = {"kind": dist, "targets": targets, **({"curve": True} if curve else {})}
         out.append(
             Condition(name=f"{name}~{_SHORT[dist]}({_fmt(lo)},{_fmt(hi)})", axis=name, level=[lo, hi], spec=spec)
         )
