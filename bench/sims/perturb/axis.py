@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -29,8 +29,21 @@ from bench.protocols import EnvAdapter, MujocoHandle
 if TYPE_CHECKING:
     import mujoco
 
-    from bench.sims.perturb.physx import PhysxAxes
-    from bench.sims.perturb.scene import VisualScene
+
+class PhysxScene(Protocol):
+    """What a model row's PhysX edit uses of the env's PhysX handles (`bench.sims.perturb.physx.PhysxAxes`)."""
+
+    def where(self) -> str: ...
+    def body_names(self) -> list[str]: ...
+    def joint_names(self) -> list[str]: ...
+    def robot_links(self) -> list[str]: ...
+    def object_names(self) -> list[str]: ...
+    def resolve(self, names: Sequence[str], valid: Sequence[str], what: str, field: str) -> list[str]: ...
+    def scale_gravity(self, s: float) -> None: ...
+    def scale_mass(self, bodies: Sequence[str], s: float, field: str) -> None: ...
+    def scale_drive(self, joints: Sequence[str], column: int, s: float, field: str) -> None: ...
+    def scale_friction(self, s: float, bodies: list[str] | None, field: str) -> None: ...
+
 
 MAX_SCALE = 1000.0  # a model field scaled by more than this is not a perturbation but a typo (1e300)
 MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's horizon, checked by plan)
@@ -68,13 +81,14 @@ class Axis:
     setconst: bool = False  # derived constants depend on it: mj_setConst after editing
     from_fields: tuple[str, ...] = ()  # model fields a calibration's draws carry for `from(CALIBRATION)`
     # -- model axes (ManiSkill / PhysX): (PhysxAxes, scale, named targets, field) -> edits the scene
-    physx: Callable[[PhysxAxes, float, dict[str, list[str]], str], None] | None = None
+    physx: Callable[[PhysxScene, float, dict[str, list[str]], str], None] | None = None
     physx_targets: tuple[str, ...] = ()  # target keys the PhysX edit takes
     # -- interface and frame axes: (env, episode generator, level) -> (the env to reset and step,
     # params to record beside the level)
     wrap: Wrap | None = None
     # -- visual axes: (VisualScene, level, named targets, generator) -> params to record; and the check
     # of a model and rig against the axis: (model, object bodies, named, cameras, where)
-    paint: Callable[[VisualScene, float, Named, np.random.Generator], Params] | None = None
+    # (the first argument is the rig's `bench.sims.perturb.scene.VisualScene`, which the row's module defines)
+    paint: Callable[[Any, float, Named, np.random.Generator], Params] | None = None
     check: Callable[[mujoco.MjModel, Sequence[str], Named, Sequence[str], str], None] | None = None
     sees: str = ""  # "rgb": changes only camera images (a policy that reads none is refused)

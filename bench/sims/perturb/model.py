@@ -4,7 +4,7 @@ A level is a scale of the nominal value (1 = unperturbed). Each row names the `M
 edits, selects the elements (its default targets, or those named with `perturb.AXIS.bodies=[...]` and
 the like) and writes `nominal x level` into them; `bench.sims.perturb.reset` saves and restores the
 nominal values and calls these at each episode. The `physx` hook is the same axis on ManiSkill/SAPIEN,
-through `bench.sims.perturb.physx.PhysxAxes`' scene handles.
+through `bench.sims.perturb.physx.PhysxAxes`' scene handles (`axis.PhysxScene`).
 """
 
 from __future__ import annotations
@@ -17,12 +17,10 @@ import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import MujocoHandle
-from bench.sims.perturb.axis import MAX_SCALE, Axis, Named
+from bench.sims.perturb.axis import MAX_SCALE, Axis, Named, PhysxScene
 
 if TYPE_CHECKING:
     import mujoco
-
-    from bench.sims.perturb.physx import PhysxAxes
 
 
 # -- names in the model --------------------------------------------------------------------
@@ -123,7 +121,7 @@ def _everything(mj: MujocoHandle, named: Named, field: str, where: str) -> np.nd
 # -- edits: (model, nominal values, indices, scale) ------------------------------------------
 Nominal = Mapping[str, np.ndarray]
 Edit = Callable[["mujoco.MjModel", Nominal, np.ndarray, float], None]
-PhysxEdit = Callable[["PhysxAxes", float, dict[str, list[str]], str], None]
+PhysxEdit = Callable[[PhysxScene, float, dict[str, list[str]], str], None]
 
 
 def _scaled(field: str) -> Edit:
@@ -158,15 +156,15 @@ def _gravity(m: mujoco.MjModel, nom: Nominal, idx: np.ndarray, s: float) -> None
     m.opt.gravity[:] = nom["opt.gravity"] * s
 
 
-# -- the same axes on PhysX: (PhysxAxes, scale, named targets, field) ---------------------------
-def _physx_friction(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
+# -- the same axes on PhysX: (PhysxScene, scale, named targets, field) ---------------------------
+def _physx_friction(px: PhysxScene, s: float, named: dict[str, list[str]], field: str) -> None:
     px.scale_friction(s, named.get("bodies"), field)
 
 
 def _physx_bodies(default: str) -> PhysxEdit:
     """Mass and inertia of the named bodies, else of the env's objects ("objects") or robot links ("robot")."""
 
-    def edit(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
+    def edit(px: PhysxScene, s: float, named: dict[str, list[str]], field: str) -> None:
         if "bodies" in named:
             bodies = px.resolve(named["bodies"], px.body_names(), "body", f"{field}.bodies")
         elif default == "objects":
@@ -185,7 +183,7 @@ def _physx_bodies(default: str) -> PhysxEdit:
 def _physx_drive(column: int) -> PhysxEdit:
     """Drive stiffness (column 0: the servo gain) or damping (column 1) of the robot's or the named joints."""
 
-    def edit(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
+    def edit(px: PhysxScene, s: float, named: dict[str, list[str]], field: str) -> None:
         key = "actuators" if "actuators" in named else "joints"
         joints = (
             px.resolve(named[key], px.joint_names(), "joint", f"{field}.{key}") if key in named else px.joint_names()
@@ -195,7 +193,7 @@ def _physx_drive(column: int) -> PhysxEdit:
     return edit
 
 
-def _physx_gravity(px: PhysxAxes, s: float, named: dict[str, list[str]], field: str) -> None:
+def _physx_gravity(px: PhysxScene, s: float, named: dict[str, list[str]], field: str) -> None:
     px.scale_gravity(s)
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -37,12 +37,20 @@ from bench.sims.perturb.axes import AXES
 from bench.sims.perturb.axis import Axis
 
 if TYPE_CHECKING:
+    from mani_skill.envs.sapien_env import BaseEnv
     from mani_skill.envs.scene import ManiSkillScene
     from sapien.physx import PhysxArticulationJoint, PhysxMaterial, PhysxRigidBaseComponent, PhysxRigidBodyComponent
 
-    from bench.sims.maniskill import ManiSkillEnv
-
 ROWS: dict[str, Axis] = {a.name: a for a in AXES.values() if a.physx is not None}  # the axes PhysX applies
+
+
+class PhysxHost(Protocol):
+    """What the PhysX handles need of their env (`bench.sims.maniskill.ManiSkillEnv`): ManiSkill's env and names."""
+
+    base: BaseEnv
+    env_id: str
+    robot: str
+    object_names: tuple[str, ...]
 
 
 @dataclass
@@ -65,7 +73,7 @@ class PhysxAxes:
 
     axes: frozenset[str] = frozenset(ROWS)
 
-    def __init__(self, env: ManiSkillEnv):
+    def __init__(self, env: PhysxHost):
         self.env = env
         self._nom: _Nominal | None = None
         self._active: list[tuple[str, float, dict[str, list[str]]]] = []
