@@ -26,7 +26,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.protocols.suite import Condition
-from bench.records import EpisodeRecord, dedupe
+from bench.records import EpisodeRecord
 
 MIN_DRAWS = 10  # fewer draws than this make no curve: two parameters and a bootstrap need more
 GRID = 21  # points of the band
@@ -179,8 +179,8 @@ def curves_of(
     confidence: float = 0.95,
 ) -> list[dict[str, object]]:
     """A curve for every range condition of a run (a factor drawn per episode: `uniform` / `loguniform`), pooled
-    over its cells, against the nominal success of the same cells: one entry per condition, in name order."""
-    records = dedupe(list(records))
+    over its cells, against the nominal success of the same cells: one entry per condition, in name order.
+    `records` as a summary holds them (`bench.records.dedupe`d: one per job)."""
     by_cond: dict[str, list[EpisodeRecord]] = defaultdict(list)
     for r in records:
         if r.error is None:

@@ -123,12 +123,14 @@ def _input_gain_max(s: Scales, t: Target) -> float:
 PLAY_SCAN = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.55)
 
 
-def _plant_saturation(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
-    b.ctrl_op("saturation", t.index, p["limit"] / float(model.actuator_gear[t.index, 0]))
+def _plant_command(kind: str, param: str) -> Callable[[Builder, Target, dict[str, float], mujoco.MjModel], None]:
+    """Plant a command transform (`kind`: saturation, deadband) whose parameter `param` is a drive force: in
+    command units, divided by the actuator's gear."""
 
+    def plant(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
+        b.ctrl_op(kind, t.index, p[param] / float(model.actuator_gear[t.index, 0]))
 
-def _plant_deadband(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
-    b.ctrl_op("deadband", t.index, p["deadband"] / float(model.actuator_gear[t.index, 0]))
+    return plant
 
 
 def _plant_spring(b: Builder, t: Target, p: dict[str, float], model: mujoco.MjModel) -> None:
@@ -262,7 +264,7 @@ EFFECTS: dict[str, Effect] = {
             threshold=True,
             limits={"clipped_share": ("a share of commands", 1.0)},
             example=("m2", {"limit": 5.0}),
-            plant=_plant_saturation,
+            plant=_plant_command("saturation", "limit"),
         ),
         Effect(
             "deadband",
@@ -275,7 +277,7 @@ EFFECTS: dict[str, Effect] = {
             threshold=True,
             limits={"deadband": ("a dead band", None)},
             example=("m2", {"deadband": 0.6}),
-            plant=_plant_deadband,
+            plant=_plant_command("deadband", "deadband"),
         ),
         _backlash(
             "link",

@@ -67,17 +67,22 @@ def _named_bodies(mj: MujocoHandle, named: Named, field: str, where: str) -> lis
 
 
 # -- selections: (handle, named targets, field, where) -> indices ---------------------------
-def _geoms(mj: MujocoHandle, named: Named, field: str, where: str) -> np.ndarray:
-    model = mj.model
-    if not named:
-        return np.arange(model.ngeom)
+def named_geoms(model: mujoco.MjModel, named: Named, field: str, where: str) -> list[int]:
+    """Geom ids named by `.geoms=[...]`, and the geoms of the bodies named by `.bodies=[...]`, sorted."""
     ids: list[int] = []
     if "geoms" in named:
         ids += resolve(named["geoms"], names(model, "geom", model.ngeom), "geom", f"{field}.geoms", where)
     if "bodies" in named:
-        bodies = set(_named_bodies(mj, named, field, where))
+        valid = names(model, "body", model.nbody)
+        bodies = set(resolve(named["bodies"], valid, "body", f"{field}.bodies", where))
         ids += [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
-    return np.array(sorted(set(ids)), dtype=int)
+    return sorted(set(ids))
+
+
+def _geoms(mj: MujocoHandle, named: Named, field: str, where: str) -> np.ndarray:
+    if not named:
+        return np.arange(mj.model.ngeom)
+    return np.array(named_geoms(mj.model, named, field, where), dtype=int)
 
 
 def _object_bodies(mj: MujocoHandle, named: Named, field: str, where: str) -> np.ndarray:

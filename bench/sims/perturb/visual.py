@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
+from bench.sims.perturb.model import named_geoms
 from bench.sims.perturb.model import names as model_names
 
 if TYPE_CHECKING:
@@ -24,21 +25,7 @@ TEXTURES = ("checker", "stripes", "noise", "rings")
 
 def _named(model: mujoco.MjModel, named: Mapping[str, Sequence[str]], field: str, where: str) -> list[int] | None:
     """Geom ids named by `.geoms=[...]` / `.bodies=[...]` targets, or None when none are named."""
-    if not named:
-        return None
-    ids: set[int] = set()
-    for key, kind, count in (("geoms", "geom", model.ngeom), ("bodies", "body", model.nbody)):
-        valid = model_names(model, kind, count)
-        for n in named.get(key, []):
-            if n not in valid:
-                shown = [v for v in valid if v]
-                raise ConfigError(
-                    f"{field}.{key}: {n!r} is not a {kind} of {where}; valid: "
-                    f"{', '.join(shown[:15])}{' ...' if len(shown) > 15 else ''}.{did_you_mean(n, shown)}"
-                )
-            i = valid.index(n)
-            ids |= {i} if kind == "geom" else {g for g in range(model.ngeom) if model.geom_bodyid[g] == i}
-    return sorted(ids)
+    return named_geoms(model, named, field, where) if named else None
 
 
 def target_geoms(

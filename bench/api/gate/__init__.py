@@ -28,6 +28,7 @@ See docs/ci-sequential.md.
 
 Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input, 3 nothing
 measured: a side completed no episode of some cell (verdict `nothing_measured`; a CI job fails).
+The two sides of the comparison (planned, run a look at a time, checked, described) are `bench.api.gate.sides`'.
 """
 
 from __future__ import annotations
@@ -44,13 +45,24 @@ from typing import Any, Optional
 import numpy as np
 
 import bench.sims.perturb.axes as axes
-from bench.api import Plan, config_from_argv, finish, load_suite, parse_run, plan, run, start
+from bench.api import config_from_argv, finish, load_suite, start
+from bench.api.gate.sides import (
+    SHARED_KEYS,
+    Side,
+    check_same_settings,
+    check_sides_pairable,
+    describe_side,
+    input_paths,
+    live_plan,
+    prepare_live,
+    run_look,
+    side_provenance,
+)
 from bench.board.gate import outputs, power, sequential
 from bench.board.gate.inputs import (
     cells_of_jobs,
     cells_of_records,
     check_outputs,
-    check_pairable,
     load_recorded,
     resolve,
 )
@@ -58,10 +70,7 @@ from bench.board.gate.pairs import cell_counts, pair_records, unmeasured
 from bench.core import config as config_mod
 from bench.core import provenance
 from bench.core.errors import ConfigError, NothingMeasured
-from bench.core.provenance import checkpoint_provenance, portable
-from bench.execution.local import LocalExecutor
 from bench.protocols.suite import SuiteSpec, select_cells
-from bench.records import EpisodeRecord
 
 __all__ = [
     "DEFAULT_EPISODES",
@@ -148,140 +157,11 @@ class Verdict:
 
 SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"
-# run keys that must be equal for candidate and baseline (they decide which episodes are played)
-SHARED_KEYS = (
-    "suite",
-    "seed",
-    "horizon",
-    "timeout",
-    "robots",
-    "tasks",
-    "envs",
-    "splits",
-    "metric",
-    "perturb",
-    "env_id",
-    "n_boot",
-    "confidence",
-    "allow_split_violation",
-)
 BINARY_METRICS = ("success_once", "success_at_end")
 
 
 def _override(key: str, value: Any) -> str:
     return f"{key}={json.dumps(value)}"  # JSON is valid YAML flow, which the override grammar parses
-
-
-# -- running -----------------------------------------------------------------------------------
-class _Side:
-    """One side of the comparison: a live run (planned by `bench.api.plan`) or recorded episodes."""
-
-    def __init__(self, role: str, info: dict[str, Any]):
-        self.role, self.info = role, info
-        self.p: Plan | None = None  # the plan of a live side
-        self.meta: dict[str, Any] = {}  # run metadata: loaded for a recorded side, from start() for a live one
-        self.records: list[EpisodeRecord] = []
-        self.wanted: set[str] = set()  # job ids a live side runs (those the recorded side has)
-
-    @property
-    def live(self) -> bool:
-        return self.p is not None
-
-    def describe(self) -> dict[str, Any]:
-        meta = self.meta or {}
-        pol = meta.get("policy", {})
-        run_dir = self.p.run_dir if self.p is not None else self.info.get("run_dir")
-        return {
-            "spec": self.info["spec"],
-            "kind": self.info["kind"],
-            "policy": pol.get("name"),
-            "checkpoint": pol.get("checkpoint"),
-            "checkpoint_sha256": pol.get("checkpoint_sha256"),
-            "run_id": meta.get("run_id"),
-            "run_dir": str(run_dir) if run_dir else None,
-            "reused": not self.live,
-        }
-
-
-def _prepare_live(side: _Side, shared: list[str], forwarded: list[str], run_id: str, parent: Path) -> None:
-    given = {config_mod.top_key(f) for f in forwarded}  # a key the user gave wins; the settings check names it
-    argv = [
-        *(o for o in shared if config_mod.top_key(o) not in given),
-        *forwarded,
-        f"policy={side.info['policy']}",
-        f"out={parent}",
-        f"run_id={run_id}",
-    ]
-    if side.info.get("checkpoint"):
-        argv.append(f"checkpoint={side.info['checkpoint']}")
-    side.p = plan(parse_run(argv))  # parsed once, planned once
-
-
-def _plan(side: _Side) -> Plan:
-    assert side.p is not None, f"the {side.role} side is live"
-    return side.p
-
-
-def _run_look(side: _Side, n_episodes: int, workers: int) -> None:
-    wanted = side.wanted
-    result = run(
-        _plan(side),
-        only=lambda j: j.episode < n_episodes and j.job_id in wanted,
-        summarize=False,
-        executor=LocalExecutor(workers),
-    )
-    side.records = result.records
-
-
-def _check_same_settings(
-    cand_cfg: dict[str, Any], base_config: dict[str, Any], user_keys: dict[str, str], base_dir: Path
-) -> None:
-    mine = {k: cand_cfg.get(k) for k in SHARED_KEYS}
-    for k in (k for k in SHARED_KEYS if k in base_config):  # keys an older run.json lacks are not compared
-        if mine.get(k) != base_config.get(k):
-            given = f" (you gave {user_keys[k]})" if k in user_keys else ""
-            raise ConfigError(
-                f"{k}={mine.get(k)!r} differs from the baseline run {base_dir} ({k}="
-                f"{base_config.get(k)!r}){given}: paired episodes need the same settings"
-            )
-
-
-# -- checks before anything runs -----------------------------------------------------------------
-def _check_pairable(ref: _Side, others: list[_Side]) -> None:
-    """The recorded `ref` run holds the cells and seeds the other side plays (else ConfigError naming it)."""
-    for side in others:
-        cells = cells_of_jobs(_plan(side).jobs) if side.live else cells_of_records(side.records)
-        seeds = {j.job_id: j.seed for j in _plan(side).jobs} if side.live else {r.job_id: r.seed for r in side.records}
-        check_pairable(ref.records, f"the {ref.role} run {ref.info['run_dir']}", side.role, cells, seeds, side.live)
-
-
-def _input_paths(sides: list[_Side]) -> list[tuple[Path, str]]:
-    """Files and folders the gate reads, which no output may overwrite or lie inside."""
-    inputs: list[tuple[Path, str]] = []
-    for side in sides:
-        if side.info["kind"] == "run":
-            inputs.append((Path(side.info["run_dir"]).resolve(), f"the {side.role} run directory"))
-        elif side.info.get("checkpoint"):
-            ck = Path(side.info["checkpoint"]).resolve()
-            inputs += [(ck, f"the {side.role} checkpoint"), (ck.with_suffix(".json"), f"the {side.role} spec")]
-    return inputs
-
-
-def _checkpoint_of(side: _Side) -> tuple[str | None, str | None]:
-    """(checkpoint path, sha256) of a side's policy: from the live plan, or as its run recorded it."""
-    if side.p is not None:
-        return portable(side.p.identity.checkpoint), side.p.identity.checkpoint_sha256
-    pol = (side.meta or {}).get("policy", {})
-    return pol.get("checkpoint"), pol.get("checkpoint_sha256")
-
-
-def _describe(side: _Side, provenance: dict[str, Any] | None) -> dict[str, Any]:
-    d = side.describe()
-    if d["policy"] is None:
-        d["policy"] = side.p.config.policy if side.p is not None else side.info.get("policy")
-    path, sha = _checkpoint_of(side)
-    d["checkpoint"], d["checkpoint_sha256"] = d["checkpoint"] or path, d["checkpoint_sha256"] or sha
-    return {**d, "provenance": provenance}
 
 
 def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = None) -> Verdict:
@@ -304,7 +184,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     verdict_path = Path(cfg.out) if cfg.out else parent / VERDICT_FILE
     if verdict_path.suffix != ".json":
         raise ConfigError(f"out={cfg.out!r}: the verdict file must end in .json")
-    cand, base = _Side("candidate", cand_info), _Side("baseline", base_info)
+    cand, base = Side("candidate", cand_info), Side("baseline", base_info)
 
     # 1. settings both sides share: from the recorded baseline (or candidate) run, else from the keys given
     recorded = [s for s in (base, cand) if s.info["kind"] == "run"]
@@ -330,9 +210,9 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     # 2. live sides: prepared by bench.cli.run (checks everything, writes nothing yet)
     for side in (cand, base):
         if side.info["kind"] != "run":
-            _prepare_live(side, shared, forwarded, f"{gate_id}-{side.role}", parent)
+            prepare_live(side, shared, forwarded, f"{gate_id}-{side.role}", parent)
             if ref is not None:
-                _check_same_settings(_plan(side).config_dict(), ref.meta["config"], user_keys, ref.info["run_dir"])
+                check_same_settings(live_plan(side).config_dict(), ref.meta["config"], user_keys, ref.info["run_dir"])
     if len(recorded) == 2:
         a, b = (s.meta["config"] for s in recorded)
         diff = [k for k in SHARED_KEYS if a.get(k) != b.get(k)]
@@ -342,12 +222,12 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
                 f"{b.get(diff[0])!r}): paired episodes need the same settings"
             )
     live = [s for s in (cand, base) if s.live]
-    plans = [_plan(s) for s in live]
+    plans = [live_plan(s) for s in live]
     any_cfg = plans[0].config if plans else None
     metric = any_cfg.metric if any_cfg else recorded[0].meta["config"].get("metric", "success_once")
     seed = any_cfg.seed if any_cfg else int(recorded[0].meta["config"].get("seed", 0))
     suite_desc = plans[0].suite.describe() if plans else recorded[0].meta["suite"]
-    specs = [(s.role, SuiteSpec.of(_plan(s).suite.describe(), provenance.package_versions())) for s in live] + [
+    specs = [(s.role, SuiteSpec.of(live_plan(s).suite.describe(), provenance.package_versions())) for s in live] + [
         (s.role, SuiteSpec.of(s.meta["suite"], s.meta.get("provenance", {}).get("packages"))) for s in recorded
     ]
     for role, spec in specs[1:]:
@@ -371,19 +251,19 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     if recorded:
         wanted = {r.job_id for r in recorded[0].records}
     for side in live:
-        side.wanted = wanted if wanted is not None else {j.job_id for j in _plan(side).jobs}
-        if not any(j.job_id in side.wanted for j in _plan(side).jobs):
+        side.wanted = wanted if wanted is not None else {j.job_id for j in live_plan(side).jobs}
+        if not any(j.job_id in side.wanted for j in live_plan(side).jobs):
             raise ConfigError("the recorded run has no episode of the selected cells; nothing to pair")
 
     # 3. checks of this gate (before anything is written), provenance, identical checkpoints
     if metric not in BINARY_METRICS:
         raise ConfigError(f"metric={metric!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
     if ref is not None:
-        _check_pairable(ref, [s for s in (cand, base) if s is not ref])
+        check_sides_pairable(ref, [s for s in (cand, base) if s is not ref])
     paths = outputs.output_paths(verdict_path)
-    check_outputs(paths, _input_paths([cand, base]))
+    check_outputs(paths, input_paths([cand, base]))
     planned = sorted(cells_of_jobs(plans[0].jobs, live[0].wanted) if live else cells_of_records(recorded[0].records))
-    prov = {s.role: _provenance(s) for s in (cand, base)}
+    prov = {s.role: side_provenance(s) for s in (cand, base)}
     shas = [(prov[r] or {}).get("sha256") for r in ("candidate", "baseline")]
     schedule = sequential.looks_schedule(episodes, cfg.batch) if live else [episodes]
     design = sequential.Design(cfg.margin, cfg.alpha, cfg.cell_alpha, tuple(schedule), tuple(planned))
@@ -412,8 +292,8 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
             "identical": True,
             "note": note,
             "stopped_early": False,
-            "candidate": _describe(cand, prov["candidate"]),
-            "baseline": _describe(base, prov["baseline"]),
+            "candidate": describe_side(cand, prov["candidate"]),
+            "baseline": describe_side(base, prov["baseline"]),
             "looks": [],
             "cells": [],
             "splits": [],
@@ -430,7 +310,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     n_boot = sequential.n_boot_needed(design, int(any_cfg.n_boot if any_cfg else 2000))
     workers = plans[0].workers if plans else 1  # workers=, computed once by `plan`
     for side in live:
-        side.meta, _ = start(_plan(side), workers)
+        side.meta, _ = start(live_plan(side), workers)
     console.print(
         f"regress {gate_id}: candidate {cand.info['spec']} vs baseline {base.info['spec']} "
         f"(reused: {', '.join(s.role for s in recorded) or 'none'}); {len(planned)} cells; looks at "
@@ -442,7 +322,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     counts: dict[sequential.CellKey, sequential.Pairs] = {}
     for k, n_eps in enumerate(schedule):
         for side in live:
-            _run_look(side, n_eps, workers)
+            run_look(side, n_eps, workers)
         paired = pair_records(cand.records, base.records, max_episode=n_eps)
         counts = cell_counts(paired["cells"], metric)
         rng = np.random.default_rng([int(seed), 6007, k])
@@ -457,7 +337,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     if empty:  # a cell compared against nothing: exit 3, whatever the statistics said
         verdict, code = "nothing_measured", NothingMeasured.exit_code
     for side in live:
-        finish(_plan(side), side.meta, workers)  # summary.json of each live run, for the leaderboard/report
+        finish(live_plan(side), side.meta, workers)  # summary.json of each live run, for the leaderboard/report
 
     last = looks[-1]
     tests = {t["id"]: t for t in last.get("tests", [])}
@@ -468,8 +348,8 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
         "identical": False,
         "note": f"nothing measured: {empty}" if empty else None,
         "stopped_early": len(looks) < len(schedule),
-        "candidate": _describe(cand, prov["candidate"]),
-        "baseline": _describe(base, prov["baseline"]),
+        "candidate": describe_side(cand, prov["candidate"]),
+        "baseline": describe_side(base, prov["baseline"]),
         "looks": looks,
         "cells": sequential.cell_rows(counts, last),
         "splits": sequential.split_rows(counts, last),
@@ -484,13 +364,6 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
 
 def _kind_order(test_id: str) -> tuple[int, str]:
     return ("cell split pooled iqm".split().index(test_id.split(":")[0]), test_id)  # cells first: what users act on
-
-
-def _provenance(side: _Side) -> dict[str, Any] | None:
-    path, sha = _checkpoint_of(side)
-    if not path:
-        return None
-    return checkpoint_provenance(path, sha, hash_file=not side.live)  # a live side's plan has just hashed it
 
 
 def regress_budget(cfg: RegressConfig, run_keys: Sequence[str] = ()) -> str:
