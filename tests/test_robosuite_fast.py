@@ -147,3 +147,45 @@ def test_records_equal_every_arm(tmp_path):
 @pytest.mark.slow
 def test_records_equal_every_scene(tmp_path):
     _both(tmp_path, "suite=held_out_scenes", "policy=scripted", "episodes=2", "horizon=150")
+
+
+def test_overlapping_fast_builds_leave_plain_builds_compiling_their_robot_model():
+    """Two fast-path builds overlapping in one process (threads of a worker) must not leave the skip on for a
+    later plain build: the skip is a per-thread flag read by one permanent wrapper, not a swapped method."""
+    import threading
+
+    from robosuite.models.robots.robot_model import RobotModel
+
+    from bench.sims.robosuite import _without_robot_only_models
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    seen: dict[str, bool] = {}
+
+    def first() -> None:
+        with _without_robot_only_models(skip=True):
+            a_in.set()
+            b_in.wait(5)
+        a_out.set()
+
+    def second() -> None:
+        a_in.wait(5)
+        with _without_robot_only_models(skip=True):
+            b_in.set()
+            a_out.wait(5)  # the first build ends while this one is still inside
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+
+    class Probe:
+        mujoco_model = None
+
+        def get_model(self):
+            seen["compiled"] = True
+            return "model"
+
+    probe = Probe()
+    RobotModel.set_mujoco_model(probe)  # type: ignore[arg-type]  # only get_model and mujoco_model are touched
+    assert seen.get("compiled") and probe.mujoco_model == "model"

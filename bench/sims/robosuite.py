@@ -17,6 +17,7 @@ import contextlib
 import logging
 import os
 import sys
+import threading
 import types
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -67,6 +68,32 @@ def import_robosuite() -> types.ModuleType:
     return robosuite
 
 
+_SKIPPING = threading.local()  # per thread: is this thread inside a fast-path build?
+
+
+def _install_skip_hook() -> None:
+    """Wrap `RobotModel.set_mujoco_model` once per process; the wrapper skips only inside a fast-path build.
+
+    One permanent wrapper consulting a thread-local flag, instead of swapping the method in and out
+    around each build: two builds overlapping in one process (threads of a worker) could otherwise
+    restore each other's swap and leave it installed, so a later plain build compiled no robot model.
+    """
+    from robosuite.models.robots.robot_model import RobotModel  # robosuite: imported by the caller already
+
+    if getattr(RobotModel.set_mujoco_model, "_bench_skip_hook", False):
+        return
+    compile_alone = RobotModel.set_mujoco_model
+
+    def set_mujoco_model(self: RobotModel, mujoco_model: mujoco.MjModel | None = None) -> None:
+        if not getattr(_SKIPPING, "on", False):
+            compile_alone(self, mujoco_model)
+        elif mujoco_model is not None:
+            self.mujoco_model = mujoco_model
+
+    set_mujoco_model._bench_skip_hook = True  # type: ignore[attr-defined]  # marks the wrapper as installed
+    RobotModel.set_mujoco_model = set_mujoco_model  # type: ignore[method-assign]  # permanent; a no-op outside fast builds
+
+
 @contextlib.contextmanager
 def _without_robot_only_models(skip: bool) -> Iterator[None]:
     """While robosuite builds an env (`skip`: the fast path's builds), compile no robot-only MuJoCo model.
@@ -75,24 +102,19 @@ def _without_robot_only_models(skip: bool) -> Iterator[None]:
     (`RobotModel.set_mujoco_model`: 0.2-0.3 s of a 0.3-0.6 s `robosuite.make` on these arms) and keeps
     the result in `robot_model.mujoco_model`, which nothing in robosuite 1.5 reads (tests/test_robosuite_fast.py
     checks its source); here it stays None. The scene's own model is compiled as before, so the env is
-    the same (the records of both paths are compared bit for bit).
+    the same (the records of both paths are compared bit for bit). The flag is per thread
+    (`_install_skip_hook`), so a plain build beside a fast one still compiles its robot model.
     """
     if not skip:
         yield
         return
-    from robosuite.models.robots.robot_model import RobotModel  # robosuite: imported by the caller already
-
-    compile_alone = RobotModel.set_mujoco_model
-
-    def keep_given(self: RobotModel, mujoco_model: mujoco.MjModel | None = None) -> None:
-        if mujoco_model is not None:
-            self.mujoco_model = mujoco_model
-
-    RobotModel.set_mujoco_model = keep_given  # type: ignore[method-assign]  # restored below
+    _install_skip_hook()
+    before = getattr(_SKIPPING, "on", False)
+    _SKIPPING.on = True
     try:
         yield
     finally:
-        RobotModel.set_mujoco_model = compile_alone  # type: ignore[method-assign]
+        _SKIPPING.on = before
 
 
 def _scene_env_name(task: str) -> str:
