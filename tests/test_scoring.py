@@ -18,15 +18,23 @@ def test_wilson_matches_hand_computation():
 
 
 @pytest.mark.parametrize("confidence", [0.8, 0.9, 0.95, 0.99, 0.999])
-def test_wilson_is_scipys_to_the_last_bit(confidence):
-    """`wilson` computes scipy's Wilson interval without importing scipy.stats: the same floats, every k <= n <= 60."""
-    from scipy.stats import binomtest
+def test_wilson_is_scipys_to_the_last_bit_away_from_the_edge_counts(confidence):
+    """`wilson` computes scipy's Wilson interval without importing scipy.stats: the same floats, every k <= n <= 60,
+    except the bound Brown, Cai & DasGupta replace for 1..x* successes (failures; x* = 2 up to 50 trials, 3 above):
+    the Poisson one, always lower."""
+    from scipy.stats import binomtest, chi2
 
     for n in range(1, 61):
+        edge = 2 if n <= 50 else 3
         for k in range(n + 1):
             ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
             est = scoring.wilson(k, n, confidence)
-            assert (est.lo, est.hi) == (float(ci.low), float(ci.high)), (k, n)
+            low = chi2.ppf(1 - confidence, 2 * k) / 2 / n if 1 <= k <= edge else float(ci.low)
+            high = 1 - chi2.ppf(1 - confidence, 2 * (n - k)) / 2 / n if 1 <= n - k <= edge else float(ci.high)
+            assert est.lo == pytest.approx(min(low, float(ci.low)), abs=1e-12), (k, n)
+            assert est.hi == pytest.approx(max(high, float(ci.high)), abs=1e-12), (k, n)
+            if not (1 <= k <= edge or 1 <= n - k <= edge):
+                assert (est.lo, est.hi) == (float(ci.low), float(ci.high)), (k, n)
 
 
 def test_iqm_is_scipys_trim_mean_to_the_last_bit():
@@ -72,9 +80,9 @@ def test_iqm_by_hand():
 def test_all_success_cells_keep_their_uncertainty():
     rng = np.random.default_rng(1)
     est = scoring.aggregate([np.ones(10), np.ones(10)], rng)
-    # 10/10 twice: point 1.0; the lower bound is well below 1 (each cell's Jeffreys 2.5% quantile ~0.78)
+    # 10/10 twice: point 1.0; the lower bound is Wilson's for 20/20 (0.8389), not 1
     assert est.value == 1.0 and est.hi == 1.0
-    assert 0.8 < est.lo < 0.97
+    assert est.lo == pytest.approx(scoring.wilson(20, 20).lo)
     more = scoring.aggregate([np.ones(200), np.ones(200)], rng)
     assert more.lo > est.lo  # more episodes, tighter interval
 
@@ -85,9 +93,16 @@ def test_paired_gap_by_hand():
     tgt = np.array([0, 1, 0, 0])  # differences 1, 0, 0, 1 -> 0.5
     est = scoring.paired_gap(ref, tgt, rng)
     assert est.value == pytest.approx(0.5)
-    assert 0.0 <= est.lo <= 0.5 <= est.hi <= 1.0
+    # 0/1 outcomes: Tango's two-sided score interval (2 discordant pairs of 4 do not exclude 0)
+    assert (est.lo, est.hi) == (
+        pytest.approx(scoring.paired_score_bound(2, 0, 4, 0.975, "lower")),
+        pytest.approx(scoring.paired_score_bound(2, 0, 4, 0.975, "upper")),
+    )
+    assert est.lo < 0.0 < 0.5 < est.hi < 1.0
     same = scoring.paired_gap(np.ones(6), np.zeros(6), rng)
-    assert (same.value, same.lo, same.hi) == (1.0, 1.0, 1.0)
+    assert same.value == 1.0 and same.hi == 1.0 and 0.2 < same.lo < 0.5  # 6 of 6 is not proof of 1
+    returns = scoring.paired_gap(np.array([2.0, 1.5, 0.5]), np.array([1.0, 1.5, 0.0]), rng)  # not 0/1: bootstrap
+    assert returns.value == pytest.approx(0.5) and 0.0 <= returns.lo <= 0.5 <= returns.hi <= 1.0
     with pytest.raises(ValueError, match="differ in shape"):
         scoring.paired_gap(np.ones(3), np.ones(4), rng)
 

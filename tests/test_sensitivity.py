@@ -7,6 +7,7 @@ import pytest
 from scipy.stats import binomtest
 
 from bench.scoring import sensitivity as sens
+from bench.scoring import stats as sc
 from tests.fixtures import provenance, record
 
 
@@ -67,7 +68,9 @@ def test_pairing_uses_the_same_episode_not_the_order_of_records():
     recs = run_records([1, 0] * 5, [1, 0] * 5)
     recs = list(reversed(recs))
     d = entries_for(recs)[1]["drop_vs_nominal"]["success_once"]
-    assert d["value"] == 0 and d["ci"] == [0, 0] and d["lost"] == d["gained"] == 0 and d["p_value"] == 1.0
+    assert d["value"] == 0 and d["lost"] == d["gained"] == 0 and d["p_value"] == 1.0
+    # no discordant pair of 10 is not proof of no effect: Tango's interval is symmetric about 0, not [0, 0]
+    assert d["ci"][0] == -d["ci"][1] and 0.2 < d["ci"][1] < 0.35
 
 
 def test_paired_interval_is_tighter_than_unpaired_when_outcomes_share_the_initial_state():
@@ -126,8 +129,10 @@ def test_per_cell_entries_and_joint_seed_resampling_with_two_cells():
     assert pooled["drop_vs_nominal"]["success_once"]["n_pairs"] == 12
     assert cells["Panda"]["drop_vs_nominal"]["success_once"]["value"] == 1.0
     assert cells["UR5e"]["drop_vs_nominal"]["success_once"]["value"] == 0.0
-    # both cells share the resampled seeds: the pooled drop is exactly 0.5 in every resample
-    assert pooled["drop_vs_nominal"]["success_once"]["ci"] == [0.5, 0.5]
+    # the pooled drop's interval is Tango's over the 12 pairs of both cells (6 lost, 0 gained), not a
+    # bootstrap that pins it at exactly 0.5
+    lo, hi = (round(sc.paired_score_bound(6, 0, 12, 0.975, side), 6) for side in ("lower", "upper"))
+    assert pooled["drop_vs_nominal"]["success_once"]["ci"] == [lo, hi] and lo < 0.5 < hi
 
 
 def test_return_drop_for_tasks_without_success():
@@ -168,7 +173,7 @@ def test_render_prints_conditions_intervals_and_p_values():
     console = Console(record=True, width=200)
     sens.render(entries_for(run_records([1] * 8, [1, 1, 0, 0, 0, 0, 0, 0])), console)
     text = console.export_text()
-    assert "friction=0.1" in text and "25% [7,59]" in text and "+75 [50,100] p=0.031" in text and "p=0.031" in text
+    assert "friction=0.1" in text and "25% [4,59]" in text and "+75 [18,93] p=0.031" in text and "p=0.031" in text
     assert "sampled" not in text  # a grid's value is its level
 
     recs = [rec("nominal", i, 1) for i in range(3)]

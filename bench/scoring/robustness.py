@@ -2,7 +2,7 @@
 
 The table robustness benchmarks print (one row per axis: nominal success, perturbed success,
 absolute and relative drop), with the drop paired by (cell, episode seed) as in
-`bench.scoring.sensitivity` and a paired bootstrap interval. `bench.scoring.sensitivity` gives the same per
+`bench.scoring.sensitivity` and its paired interval (Tango's score interval for success). `bench.scoring.sensitivity` gives the same per
 level; this pools an axis' levels (a grid, or the draws of a `uniform()` range) into one number,
 so axes can be ranked: which change of the world hurts the policy most.
 """

@@ -4,8 +4,8 @@ For every condition (axis, level) of a run: the success rate (success_once and
 success_at_end) pooled over the run's cells with a Wilson interval, and the drop
 from nominal = rate(nominal) - rate(condition) over the episodes present under both,
 paired by (cell, episode index), i.e. the same initial state under both. The drop
-carries a paired bootstrap interval (`bench.scoring.stats.paired_gap`, episode seeds
-resampled jointly across cells) and an exact McNemar p-value (two-sided binomial
+carries Tango's paired score interval (`bench.scoring.stats.paired_gap`; a paired bootstrap, episode seeds
+resampled jointly across cells, for returns) and an exact McNemar p-value (two-sided binomial
 test on the discordant pairs). Entries are computed for all cells pooled
 (`scope: "all"`) and, when the run has more than one cell, for each cell.
 Entries are JSON-able with no NaN: what cannot be computed is null with a reason.
@@ -235,7 +235,7 @@ def render(entries: Sequence[dict[str, Any]], console: Console | None = None) ->
         return
     t = Table(
         title="sensitivity: success per condition and drop from nominal "
-        "(paired by seed; drop in points, bootstrap CI, exact McNemar p)",
+        "(paired by seed; drop in points, Tango score CI, exact McNemar p)",
         title_justify="left",
     )
     # tasks without a success predicate (most Gymnasium control tasks): the return is the score

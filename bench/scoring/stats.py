@@ -1,13 +1,22 @@
 """Scores with intervals: success rates, aggregates across cells, transfer gaps.
 
-Conventions:
+Conventions (each interval's coverage is measured by simulation: `benchmarks/interval_coverage.py` prints the
+tables, `tests/test_interval_coverage.py` holds them):
 - A per-cell rate carries a Wilson score interval (`scipy.stats.binomtest(...).proportion_ci`).
-- Aggregates over cells (mean, IQM) and gaps between groups of cells carry a
-  stratified bootstrap interval (strata = cells): each cell's rate is redrawn from its
-  Jeffreys posterior (the Bayesian bootstrap of its 0/1 outcomes), so an all-success
-  cell still carries its uncertainty instead of a [1, 1] interval.
-- Paired gaps (same episode seeds under two conditions) resample episode indices
-  jointly, so the shared initial state cancels out.
+- The mean of per-cell success rates carries a stratified Wilson interval: Wilson's score interval at the
+  mean rate with the effective number of episodes C² / Σ 1/n_c (all episodes when the cells are of one
+  size). The cells are the benchmark's, fixed: the interval is for the mean of these cells' true rates,
+  and differing rates across cells only make it conservative. The IQM of per-cell rates takes the same
+  interval over the cells it keeps (the middle half by observed rate; every cell below 4 cells).
+  Unlike a bootstrap of per-cell draws, neither edge sits on the estimate away from 0 and 1.
+- A gap between two groups of cells (seen - unseen) carries Newcombe's MOVER interval, the two groups'
+  intervals above combined (Newcombe 1998, method 10; Zou & Donner 2008).
+- A paired gap (same episode seeds under two conditions: per-axis drops) of 0/1 outcomes carries Tango's
+  score interval for paired proportions (Tango 1998), whose bounds stay honest when few pairs disagree.
+- Returns (outcomes that are not 0/1): the mean (IQM) of cell means and gaps between groups carry a stratified
+  t interval (the cells' variances of their means summed, Welch-Satterthwaite degrees of freedom); a percentile
+  bootstrap, episodes resampled within each cell, where a cell has a single episode, and for paired gaps (pairs
+  resampled jointly).
 - Anything that cannot be computed is `None` plus a reason: never NaN.
 All randomness comes from a generator the caller seeds (from the run seed).
 """
@@ -62,17 +71,58 @@ def wilson(successes: int, trials: int, confidence: float = 0.95) -> Estimate:
     """
     if trials <= 0:
         return Estimate(None, reason="no completed episodes")
-    from scipy.special import ndtri  # scipy: loaded only when this estimate is computed (and cheap)
-
     k, n = int(successes), int(trials)
-    p = k / n
+    low, high = _score_interval(k / n, n, confidence)
+    return Estimate(successes / trials, low, high)
+
+
+def _score_interval(p: float, n: float, confidence: float) -> tuple[float, float]:
+    """Wilson's score interval for a proportion `p` seen over `n` trials (`n` may be an effective, fractional size),
+    with Brown, Cai & DasGupta's modification near the edges.
+
+    Ends at exactly 0 (1) when `p` is 0 (1), as scipy's does. Wilson's coverage dips well below nominal when
+    the successes (failures) number 1 to 3 (at p = 0.02 over 5 episodes, 0.90 for 0.95):
+    for x = p * n in (0, x*] successes, x* = 2 up to 50 trials and 3 above, the lower bound is the Poisson one,
+    ½ χ²(2x) quantile at 1 - confidence over n (Brown, Cai & DasGupta 2001, Statistical Science 16:101, §4.1.1),
+    and the upper bound likewise for failures. Elsewhere the floats are scipy's `binomtest(...).proportion_ci(
+    method="wilson")` term for term (tests/test_scoring.py checks both)."""
+    from scipy.special import gammaincinv, ndtri  # scipy: loaded only when an estimate is computed (and cheap)
+
     z = ndtri(0.5 + 0.5 * confidence)
     denom = 2 * (n + z**2)
     center = (2 * n * p + z**2) / denom
-    delta = z / denom * math.sqrt(4 * n * p * (1 - p) + z**2)
-    low = 0.0 if k == 0 else center - delta
-    high = 1.0 if k == n else center + delta
-    return Estimate(successes / trials, float(low), float(high))
+    delta = z / denom * math.sqrt(max(4 * n * p * (1 - p) + z**2, 0.0))
+    low = 0.0 if p <= 0 else center - delta
+    high = 1.0 if p >= 1 else center + delta
+    edge = 2.0 if n <= 50 else 3.0
+    alpha = 1.0 - confidence
+    if 0 < p * n <= edge + 1e-9:
+        low = min(low, float(gammaincinv(p * n, alpha)) / n)
+    if 0 < (1 - p) * n <= edge + 1e-9:
+        high = max(high, 1.0 - float(gammaincinv((1 - p) * n, alpha)) / n)
+    return float(max(low, 0.0)), float(min(high, 1.0))
+
+
+def kept_cells(rates: np.ndarray) -> np.ndarray:
+    """Indices of the cells the IQM of `rates` averages: the middle half by rate (`iqm`'s trimming)."""
+    nobs = len(rates)
+    low = int(0.25 * nobs)
+    return np.argsort(rates, kind="stable")[low : nobs - low]
+
+
+def stratified_wilson(cells: Sequence[np.ndarray], confidence: float = 0.95, statistic: str = "mean") -> Estimate:
+    """Mean (or IQM) of per-cell success rates with a stratified Wilson interval (see the module docstring).
+
+    Args:
+        cells: one array of 0/1 outcomes per cell, each with at least one episode.
+    """
+    rates = np.array([np.mean(c) for c in cells], dtype=float)
+    sizes = np.array([len(c) for c in cells], dtype=float)
+    keep = kept_cells(rates) if statistic == "iqm" else np.arange(len(rates))
+    point = float(STATISTICS[statistic](rates))
+    n_eff = len(keep) ** 2 / float(np.sum(1.0 / sizes[keep]))
+    low, high = _score_interval(float(rates[keep].mean()), n_eff, confidence)
+    return Estimate(point, min(low, point), max(high, point))
 
 
 def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -101,27 +151,9 @@ STATISTICS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
-def _resampled_rates(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int) -> np.ndarray:
-    """(n_boot, n_cells) plausible success rates, drawn independently per cell (strata = cells).
-
-    Each cell's rate is drawn from its Jeffreys posterior Beta(k + 1/2, n - k + 1/2): the
-    Bayesian bootstrap of 0/1 outcomes. It behaves like resampling episodes within the cell
-    but, unlike the percentile bootstrap, does not collapse to a single point when a cell is
-    all successes or all failures (10/10 is not proof of 100%).
-    """
-    out = np.empty((n_boot, len(cells)))
-    for j, outcomes in enumerate(cells):
-        outcomes = np.asarray(outcomes, dtype=float)
-        k, n = float(outcomes.sum()), float(len(outcomes))
-        out[:, j] = rng.beta(k + 0.5, n - k + 0.5, size=n_boot)
-    return out
-
-
-def _resampled_means(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int, binary: bool) -> np.ndarray:
-    """(n_boot, n_cells) resampled cell means: Jeffreys draws for 0/1 outcomes, else episodes
-    resampled with replacement within each cell (strata = cells), for continuous values (returns)."""
-    if binary:
-        return _resampled_rates(cells, rng, n_boot)
+def _resampled_means(cells: Sequence[np.ndarray], rng: np.random.Generator, n_boot: int) -> np.ndarray:
+    """(n_boot, n_cells) resampled cell means of returns: episodes resampled with replacement within each
+    cell (strata = cells)."""
     out = np.empty((n_boot, len(cells)))
     for j, values in enumerate(cells):
         values = np.asarray(values, dtype=float)
@@ -149,7 +181,7 @@ def _of_means(stat: Callable[[np.ndarray], np.ndarray], cells: list[np.ndarray])
 def _covering(point: float, boot: np.ndarray, confidence: float) -> Estimate:
     """`point` with the bootstrap interval of `boot`, widened to contain it.
 
-    As for the Jeffreys interval at k = 0 or k = n: the interval always contains the observed value."""
+    A percentile interval of a skewed statistic can miss the observed value; the reported one never does."""
     lo, hi = _interval(boot, confidence)
     return Estimate(point, min(lo, point), max(hi, point))
 
@@ -164,8 +196,31 @@ class Boot:
     binary: bool = True  # 0/1 outcomes (success); False: returns
 
 
+def _cell_variances(cells: Sequence[np.ndarray], statistic: str) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """stat of the cell means, and per kept cell its mean's variance share and degrees of freedom (None when a
+    kept cell has fewer than 2 episodes: no variance to estimate)."""
+    means = np.array([np.mean(c) for c in cells], dtype=float)
+    keep = kept_cells(means) if statistic == "iqm" else np.arange(len(means))
+    if any(len(cells[i]) < 2 for i in keep):
+        return None
+    shares = np.array([np.var(cells[i], ddof=1) / len(cells[i]) for i in keep]) / len(keep) ** 2
+    return float(STATISTICS[statistic](means)), shares, np.array([len(cells[i]) - 1.0 for i in keep])
+
+
+def _welch(point: float, shares: np.ndarray, dof: np.ndarray, confidence: float) -> Estimate:
+    """point ± t · sqrt(Σ shares), t at Welch-Satterthwaite's degrees of freedom."""
+    from scipy.special import stdtrit  # scipy: loaded only when an estimate is computed (and cheap)
+
+    var = float(shares.sum())
+    if var <= 0:
+        return Estimate(point, point, point)
+    df = var**2 / float(np.sum(shares**2 / dof))
+    half = float(stdtrit(df, 0.5 + 0.5 * confidence)) * math.sqrt(var)
+    return Estimate(point, point - half, point + half)
+
+
 def aggregate(cells: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot = Boot()) -> Estimate:
-    """Mean or IQM of per-cell success rates (or mean returns), with a stratified bootstrap interval.
+    """Mean or IQM of per-cell success rates (stratified Wilson interval), or of mean returns (stratified t).
 
     Args:
         cells: one array of outcomes per cell (episodes of that cell): 0/1, or returns with binary=False.
@@ -173,23 +228,62 @@ def aggregate(cells: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot 
     cells = _with_episodes(cells)
     if not cells:
         return Estimate(None, reason="no cell has completed episodes")
+    if boot.binary:
+        return stratified_wilson(cells, boot.confidence, boot.statistic)
+    parts = _cell_variances(cells, boot.statistic)
+    if parts is not None:
+        return _welch(*parts, boot.confidence)
     stat = STATISTICS[boot.statistic]
-    boots = stat(_resampled_means(cells, rng, boot.n_boot, boot.binary))
+    boots = stat(_resampled_means(cells, rng, boot.n_boot))
     return _covering(_of_means(stat, cells), boots, boot.confidence)
+
+
+def bootstrap_aggregate(cells: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot = Boot()) -> Estimate:
+    """Mean or IQM of cell means with a percentile bootstrap (episodes resampled within each cell): unlike the t
+    interval it stays within the values' range, for bounded measurements (an action difference >= 0)."""
+    cells = _with_episodes(cells)
+    if not cells:
+        return Estimate(None, reason="no cell has completed episodes")
+    stat = STATISTICS[boot.statistic]
+    return _covering(_of_means(stat, cells), stat(_resampled_means(cells, rng, boot.n_boot)), boot.confidence)
+
+
+def mover(first: Estimate, second: Estimate) -> Estimate:
+    """first - second with Newcombe's MOVER interval from the two estimates' own (independent) intervals."""
+    if first.value is None or second.value is None:
+        return Estimate(None, reason=first.reason if first.value is None else second.reason)
+    assert first.lo is not None and first.hi is not None and second.lo is not None and second.hi is not None
+    d = first.value - second.value
+    lo = d - math.hypot(first.value - first.lo, second.hi - second.value)
+    hi = d + math.hypot(first.hi - first.value, second.value - second.lo)
+    return Estimate(d, max(lo, -1.0), min(hi, 1.0))
 
 
 def gap(
     reference: Sequence[np.ndarray], target: Sequence[np.ndarray], rng: np.random.Generator, boot: Boot = Boot()
 ) -> Estimate:
-    """Transfer gap = stat(reference cells) - stat(target cells), independent stratified bootstrap."""
+    """Transfer gap = stat(reference cells) - stat(target cells): MOVER over the two stratified Wilson
+    intervals for success, a stratified t (Welch) for returns."""
     reference, target = _with_episodes(reference), _with_episodes(target)
     if not reference or not target:
         side = "reference" if not reference else "target"
         return Estimate(None, reason=f"the {side} group has no completed episodes")
+    if boot.binary:
+        return mover(
+            stratified_wilson(reference, boot.confidence, boot.statistic),
+            stratified_wilson(target, boot.confidence, boot.statistic),
+        )
+    ref_parts, tgt_parts = _cell_variances(reference, boot.statistic), _cell_variances(target, boot.statistic)
+    if ref_parts is not None and tgt_parts is not None:
+        return _welch(
+            ref_parts[0] - tgt_parts[0],
+            np.concatenate([ref_parts[1], tgt_parts[1]]),
+            np.concatenate([ref_parts[2], tgt_parts[2]]),
+            boot.confidence,
+        )
     stat = STATISTICS[boot.statistic]
     point = _of_means(stat, reference) - _of_means(stat, target)
-    n, binary = boot.n_boot, boot.binary
-    diffs = stat(_resampled_means(reference, rng, n, binary)) - stat(_resampled_means(target, rng, n, binary))
+    diffs = stat(_resampled_means(reference, rng, boot.n_boot)) - stat(_resampled_means(target, rng, boot.n_boot))
     return _covering(point, diffs, boot.confidence)
 
 
@@ -200,7 +294,8 @@ def paired_gap(
     n_boot: int = 2000,
     confidence: float = 0.95,
 ) -> Estimate:
-    """Mean of (reference - target) over episodes paired by seed, with a paired bootstrap interval.
+    """Mean of (reference - target) over episodes paired by seed: Tango's score interval when every outcome
+    is 0 or 1, a paired bootstrap (same resampled seeds in every cell) otherwise.
 
     Args:
         reference, target: (n_cells, n_episodes) or (n_episodes,) outcome arrays whose
@@ -213,6 +308,10 @@ def paired_gap(
         return Estimate(None, reason="no paired episodes")
     diff = ref - tgt  # (cells, episodes)
     point = float(diff.mean())
+    if np.isin(ref, (0.0, 1.0)).all() and np.isin(tgt, (0.0, 1.0)).all():
+        b, c, n = int((diff > 0).sum()), int((diff < 0).sum()), int(diff.size)
+        side = 1.0 - (1.0 - confidence) / 2.0
+        return Estimate(point, paired_score_bound(b, c, n, side, "lower"), paired_score_bound(b, c, n, side, "upper"))
     n = diff.shape[1]
     idx = rng.integers(0, n, size=(n_boot, n))
     boot = diff[:, idx].mean(axis=(0, 2))  # same resampled seeds in every cell
