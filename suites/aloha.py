@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
@@ -252,6 +253,7 @@ class Aloha(SuiteBase):
     default_horizon = HORIZON
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
     capabilities = frozenset({"expert"})
+    instructions = str(Path(__file__).with_name("instructions") / "aloha.json")  # `perturb.instruction`
 
     @classmethod
     def unavailable(cls) -> str | None:

@@ -20,7 +20,9 @@ Split (Meta-World's own definitions; `bench.sims.metaworld.metaworld_manifest` r
     Cells: task = env name, robot = "Sawyer", env = "ML10" / "ML45".
 Observation:
     Meta-World's 39-D vector with the goal hidden (last 3 values zeroed), as in the
-    ML benchmarks: the policy must infer the task from the scene.
+    ML benchmarks: the policy must infer the task from the scene; and `task`, the task
+    as an instruction ("open the drawer"; `instructions/metaworld.json`), which policies
+    that read only `state` never see.
 Action:
     4-D in [-1, 1]: hand position deltas (x, y, z) and gripper effort (+1 closes).
 Cameras (`obs=rgb|state+rgb`, `cameras=`, `image_size=`):
@@ -36,15 +38,19 @@ Metric:
     (test) tasks with a stratified bootstrap interval; transfer gap = seen - unseen.
 Reference policy:
     `scripted` = Meta-World's own scripted policy per task, given the true goal
-    through its input only.
+    through its input only. `metaworld_language` = the same experts, chosen by the
+    words of the instruction (for `perturb.instruction`, docs/perturbations.md).
 """
 
 from __future__ import annotations
 
+import functools
+import json
+from pathlib import Path
 from typing import Any
 
 from bench.api.sims import CameraOptions, camera_spec, check_options, unwrap
-from bench.protocols import STATE, Feature, ObsSpec
+from bench.protocols import STATE, TASK, Feature, ObsSpec
 from bench.protocols.suite import Cell, SuiteBase
 
 MAX_PATH_LENGTH = 500  # = bench.sims.metaworld.MAX_PATH_LENGTH (not imported: keeps `bench list` free of Meta-World)
@@ -52,6 +58,15 @@ MAX_PATH_LENGTH = 500  # = bench.sims.metaworld.MAX_PATH_LENGTH (not imported: k
 # camera in the gripper
 CAMERAS = ("topview", "corner", "corner2", "corner3", "corner4", "behindGripper", "gripperPOV")
 DEFAULT_CAMERAS = ("corner", "gripperPOV")
+# every v3 task as an instruction, with its paraphrases (`perturb.instruction`; package data)
+INSTRUCTIONS = Path(__file__).with_name("instructions") / "metaworld.json"
+
+
+@functools.cache
+def instruction(task: str) -> str:
+    """The task as an instruction sentence ("drawer-open-v3" -> "open the drawer"), from `INSTRUCTIONS`."""
+    return str(json.loads(INSTRUCTIONS.read_text(encoding="utf-8"))["tasks"][task]["instruction"])
+
 
 # Meta-World 3.1.1's ML10_V3 / ML45_V3 (metaworld/env_dict.py), kept here so that listing the
 # suite does not import Meta-World; tests/test_held_out_envs.py checks them against the source.
@@ -132,6 +147,7 @@ class _MetaWorldSplit(SuiteBase):
     default_horizon = MAX_PATH_LENGTH
     max_horizon = MAX_PATH_LENGTH  # Meta-World raises on step 501
     capabilities = frozenset({"expert"})
+    instructions = str(INSTRUCTIONS)
 
     def __init__(self, options: Any = None) -> None:
         super().__init__(options)
@@ -144,12 +160,12 @@ class _MetaWorldSplit(SuiteBase):
     def obs_spec(self, cell: Cell) -> ObsSpec:
         from bench.api.sims import OBS_NAMES
 
-        return camera_spec({STATE: Feature.state(OBS_NAMES)}, self.options, DEFAULT_CAMERAS)
+        return camera_spec({STATE: Feature.state(OBS_NAMES), TASK: Feature.text()}, self.options, DEFAULT_CAMERAS)
 
     def make_env(self, cell: Cell, horizon: int):
         from bench.api.sims import MetaWorldEnv, with_cameras
 
-        env = MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH))
+        env = MetaWorldEnv(cell.task, min(int(horizon), MAX_PATH_LENGTH), instruction(cell.task))
         return with_cameras(env, self.options, DEFAULT_CAMERAS, cell.key)
 
     def make_expert(self, cell: Cell, env):

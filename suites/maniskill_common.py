@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Optional
 
 from bench.api import ConfigError, did_you_mean
@@ -132,6 +133,7 @@ class ManiSkillSuite(SuiteBase):
 
     reference_policy = "scripted"
     capabilities = frozenset({"expert"})
+    instructions = str(Path(__file__).with_name("instructions") / "maniskill.json")  # `perturb.instruction`
 
     @classmethod
     def unavailable(cls) -> str | None:

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -229,6 +230,7 @@ class PushT(SuiteBase):
     default_metric = "success_once"
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
     capabilities = frozenset({"expert"})
+    instructions = str(Path(__file__).with_name("instructions") / "pusht.json")  # `perturb.instruction`
 
     @classmethod
     def unavailable(cls) -> str | None:

@@ -40,7 +40,7 @@ from bench.protocols.executor import Executor
 from bench.protocols.suite import Cell, Condition, Job, expand_jobs, policy_ref, select_cells
 from bench.scoring.curves import check_curves
 from bench.sims import perturb
-from bench.sims.perturb import axes
+from bench.sims.perturb import axes, language
 from bench.sims.perturb.reset import ModelEdit
 
 
@@ -302,7 +302,7 @@ def plan(
                 f"policy {policy_name!r} needs observation keys {missing}; suite {suite.name!r} cell "
                 f"{cell.key} provides {describe_spec(spec)}"
             )
-    conditions = axes.conditions_from_config(config.perturb)
+    conditions = axes.conditions_from_config(config.perturb, config.seed)
     axes.check_horizon(conditions, horizon)
     check_curves(conditions, len(cells) * config.episodes)
     n_jobs = len(cells) * len(conditions) * config.episodes
@@ -323,6 +323,8 @@ def plan(
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
         axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_name)
+    # an instruction axis on a policy that reads none would report an action difference of 0 by construction
+    conditions = language.prepare(conditions, suite, cells, needs, policy_name)
     if config.video:
         check_run(suite, cells, horizon)
     jobs = expand_jobs(cells, conditions, config.episodes, config.seed, config.seed_scheme)

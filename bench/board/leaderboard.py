@@ -98,10 +98,17 @@ def _breaks(summary: dict) -> list[dict]:
     return out
 
 
+def _interactions(summary: dict) -> list[dict]:
+    """Per combined condition (`perturb.combine`): its drop, the sum of its parts' single drops and the interaction,
+    with intervals, copied from the summary's interactions (`bench.scoring.interactions`)."""
+    keys = ("condition", "all_at_once", "metric", "n", "drop", "sum_of_single_drops", "interaction")
+    return [{k: e.get(k) for k in keys} for e in summary.get("interactions") or []]
+
+
 def entry_from_summary(summary: dict, source: str) -> dict:
     """One leaderboard entry from a run summary (scores copied, nothing recomputed), read through the
     typed `Summary` (a field of the wrong type is one line naming it); `drops` when the run perturbed the
-    physics or the interface (per axis and level, pooled over cells)."""
+    physics or the interface (per axis and level, pooled over cells), `interactions` when it combined axes."""
     split, score = _score(summary)
     typed = Summary.from_json(summary, source)
     cells = sorted(c.key for c in typed.nominal_cells())
@@ -129,6 +136,7 @@ def entry_from_summary(summary: dict, source: str) -> dict:
         "superseded": [],
         **({"drops": drops} if (drops := _drops(summary)) else {}),
         **({"curves": curves} if (curves := _breaks(summary)) else {}),
+        **({"interactions": inter} if (inter := _interactions(summary)) else {}),
     }
 
 

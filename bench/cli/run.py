@@ -64,6 +64,13 @@ def _perturb_help() -> str:
     return (
         "\nperturbations (perturb.AXIS=[levels] | uniform(lo,hi) | loguniform(lo,hi) | from(CALIBRATION); dict form\n"
         "perturb.AXIS.levels=[...] perturb.AXIS.bodies=[...]; details: docs/perturbations.md):\n" + axes_help() + "\n"
+        "\ncombined axes: perturb.combine=[A,B,...] also runs the axes together, every combination of their levels\n"
+        "(each from its own perturb.A=...; the single-axis conditions stay), or a seeded share of them with\n"
+        "perturb.combine.axes=[A,B] perturb.combine.fraction=0.5 (the all-at-once combination, every axis at its\n"
+        "level farthest from nominal, always kept). Reported per combination (summary key `interactions`): its drop\n"
+        "from nominal, the sum of its single drops, and the interaction = drop - sum with a paired interval (> 0: the\n"
+        "axes compound; < 0: less than additive).\n"
+        "  bench run robots=[Panda] perturb.friction=[0.02] perturb.mass=[3] perturb.combine=[friction,mass]\n"
     )
 
 

@@ -4,6 +4,14 @@ The rollout is the boundary between plugins and the records: an exception, a tim
 non-finite number coming out of the env (reward, observation) or the policy (action) ends
 the episode with its reason in `error` (the run goes on), and never reaches a summary.
 A policy may return an action chunk (T, A): its rows are executed open loop, one per step.
+
+An `instruction` episode (`bench.sims.perturb.language`) also measures how much the words steer the policy: a
+shadow instance of the policy, reset with the same seed, is asked whenever the policy is asked, on the same
+observation but with the true instruction; its answer is recorded, never executed. Per executed step the
+difference is the mean over action dimensions of |variant - true| / half-range (the chunk row executed against the
+shadow chunk's row of the same index, its last when shorter), so a stateful or chunking policy is compared query by
+query on one observation stream. The episode's `extras["instruction"]` holds the variant, the text the policy saw,
+the true one, `action_diff` (the mean over steps) and `steps_differ` (the share of steps that differ).
 """
 
 from __future__ import annotations
@@ -23,11 +31,12 @@ import numpy as np
 
 from bench.core.io import first_nonfinite, jsonable
 from bench.execution import episode_video
-from bench.protocols import RGB, STATE, EnvAdapter, NumArray, Obs, Policy, ReportsStats
+from bench.protocols import RGB, STATE, TASK, ActionSpec, EnvAdapter, NumArray, Obs, Policy, ReportsStats
 from bench.protocols.env import mj_input_names, state_hash
 from bench.protocols.suite import Job, condition_rng
 from bench.records import EpisodeRecord
 from bench.sims import perturb
+from bench.sims.perturb import language
 
 # an episode's trajectory while it runs: per-step lists (arrays, rewards, flags) and per-episode name lists
 Trajectory = dict[str, list[object]]
@@ -116,31 +125,75 @@ class _Actions:
         self.policy, self.dim, self.horizon = policy, dim, horizon
         self.queue: list[NumArray] = []
         self.prefetch = getattr(policy, "prefetch", None)
+        self.fresh, self.row = False, 0  # this step's action starts a new answer; its row in that answer
 
     def next(self, obs: Obs, t: int) -> NumArray:
+        self.fresh = not self.queue
+        self.row = 0 if self.fresh else self.row + 1
         if not self.queue:
-            out = np.asarray(self.policy.act(obs))
-            if out.ndim == 1 and out.shape[0] == self.dim:
-                self.queue = [out]
-            elif out.ndim == 2 and out.shape[1] == self.dim and out.shape[0] >= 1:
-                self.queue = list(out)
-            else:
-                raise ValueError(
-                    f"policy returned an action of shape {out.shape}; expected ({self.dim},) or a chunk (T, {self.dim})"
-                )
-            if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
-                raise NonFinite(f"policy returned a non-finite action at step {t}")
+            self.queue = chunk(self.policy.act(obs), self.dim, t)
         action = self.queue.pop(0)
         if not self.queue and self.prefetch is not None and t + 1 < self.horizon:
             self.prefetch(obs, t)
         return action
 
 
-def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> tuple[EpisodeRecord, bool]:
+def chunk(answer: object, dim: int, t: int, who: str = "policy") -> list[NumArray]:
+    """A policy's answer as the rows to execute: one action (A,) or a chunk (T, A) of finite numbers."""
+    out = np.asarray(answer)
+    if out.ndim == 1 and out.shape[0] == dim:
+        rows = [out]
+    elif out.ndim == 2 and out.shape[1] == dim and out.shape[0] >= 1:
+        rows = list(out)
+    else:
+        raise ValueError(f"{who} returned an action of shape {out.shape}; expected ({dim},) or a chunk (T, {dim})")
+    if out.dtype.kind not in "fiu" or not np.all(np.isfinite(out)):
+        raise NonFinite(f"{who} returned a non-finite action at step {t}")
+    return rows
+
+
+def needs_shadow(job: Job) -> bool:
+    """Whether `job` varies the instruction, so `run_episode` wants a shadow policy (the worker builds one)."""
+    return language.varies(job.condition)
+
+
+DIFFER = 1e-6  # a step's actions differ when their mean normalised difference exceeds this (float noise below it)
+
+
+class _Shadow:
+    """The shadow policy of an instruction episode: asked when the policy is asked, on the same observation with
+    the true instruction; accumulates the per-step action difference (see the module doc)."""
+
+    def __init__(self, policy: Policy, view: language.InstructionView, spec: ActionSpec):
+        self.policy, self.view, self.dim = policy, view, spec.dim
+        half = (np.asarray(spec.high, np.float64) - np.asarray(spec.low, np.float64)) / 2.0
+        self.half = np.where(np.isfinite(half) & (half > 0), half, 1.0)
+        self.rows: list[NumArray] = []
+        self.diffs: list[float] = []
+
+    def step(self, obs: Obs, actions: _Actions, action: NumArray, t: int) -> None:
+        if actions.fresh:
+            self.rows = chunk(self.policy.act({**obs, TASK: self.view.true}), self.dim, t, "the shadow policy")
+        true = np.asarray(self.rows[min(actions.row, len(self.rows) - 1)], np.float64)
+        self.diffs.append(float(np.mean(np.abs(np.asarray(action, np.float64) - true) / self.half)))
+
+    def record(self) -> dict[str, object]:
+        out: dict[str, object] = {"steps": len(self.diffs)}
+        if self.diffs:
+            d = np.asarray(self.diffs)
+            out["action_diff"] = round(float(d.mean()), 9)
+            out["steps_differ"] = round(float(np.mean(d > DIFFER)), 9)
+        return out
+
+
+def run_episode(
+    job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext, shadow: Policy | None = None
+) -> tuple[EpisodeRecord, bool]:
     """Run `job` on an already-built env; return its record and whether the env is still usable.
 
     An exception, a timeout or a non-finite number is recorded in `error` (the run goes on);
-    the env is then reported unusable so the caller rebuilds it.
+    the env is then reported unusable so the caller rebuilds it. `shadow`: for an instruction episode, a second
+    instance of the policy fed the true instruction (module doc); its actions are recorded, not executed.
     """
     t0 = time.perf_counter()
     success_once = success_at_end = False
@@ -156,10 +209,15 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
     )
     log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
     video = None
+    view: language.InstructionView | None = None
+    compare: _Shadow | None = None
     try:
         with time_limit(ctx.timeout_s):
             rng = condition_rng(job.seed, job.condition)
-            stepper, params = perturb.apply(env, job.condition, rng)
+            stepper, params = perturb.apply(env, job.condition, rng, seed=job.seed)
+            view = language.view_of(stepper)
+            if view is not None:
+                view.bind(job.condition.spec.get("instructions"), job.cell.task)
             obs = stepper.reset(job.seed)
             _check_obs(obs, 0)
             video = episode_video.start(ctx.video_dir, ctx.video_episodes, job, env)
@@ -168,10 +226,15 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
             init_hash = state_hash(env.init_state())
             policy.reset(job.seed)
             actions = _Actions(policy, env.action_spec.dim, ctx.horizon)
+            if view is not None and shadow is not None:
+                shadow.reset(job.seed)
+                compare = _Shadow(shadow, view, env.action_spec)
             if log is not None:
                 log.start()
             for t in range(ctx.horizon):
                 action = actions.next(obs, t)
+                if compare is not None:
+                    compare.step(obs, actions, action, t)
                 if traj is not None:
                     _append_frame(traj, env, obs, action)
                 obs, reward, terminated, truncated, _ = stepper.step(action)
@@ -212,6 +275,9 @@ def run_episode(job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext) -> t
         extras["video"] = video.close(str(ctx.video_dir))
     if ctx.policy_stats:
         stats = _policy_stats(policy)
+    if view is not None and view.text is not None:
+        words = {"variant": view.variant, "text": view.text, "true": view.true}
+        extras["instruction"] = {**words, **(compare.record() if compare is not None else {})}
     if error:
         success_once = success_at_end = False
         ret = 0.0 if not np.isfinite(ret) else ret

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.execution.processes import alive
-from bench.execution.rollout import RunContext, job_record, run_episode
+from bench.execution.rollout import RunContext, job_record, needs_shadow, run_episode
 from bench.execution.scheduling import given_up_message
 from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
@@ -63,6 +63,7 @@ class Worker:
         )
         self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
         self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
+        self.shadows: dict[str, Policy] = {}  # per cell: a second policy fed the true instruction (`needs_shadow`)
         self.freeze = freeze
 
     def built(self, job: Job) -> tuple[EnvAdapter, Policy]:
@@ -98,10 +99,21 @@ class Worker:
             env, policy = self.built(job)
         except Exception as exc:  # a cell whose env cannot be built: record, go on
             return error_record(job, self.spec.ctx, f"building env/policy failed: {type(exc).__name__}: {exc}")
-        record, usable = run_episode(job, env, policy, self.spec.ctx)
+        try:
+            shadow = self.shadow(job, env) if needs_shadow(job) else None
+        except Exception as exc:  # its shadow cannot be built: record, go on
+            return error_record(job, self.spec.ctx, f"building the shadow policy failed: {type(exc).__name__}: {exc}")
+        record, usable = run_episode(job, env, policy, self.spec.ctx, shadow=shadow)
         if not usable:  # the env may be in a bad state after an error: rebuild next time
             self.drop(job.cell.key)
         return record
+
+    def shadow(self, job: Job, env: EnvAdapter) -> Policy:
+        """The cell's shadow policy: a second instance from the same plugin, built on first use."""
+        key = job.cell.key
+        if key not in self.shadows:
+            self.shadows[key] = self.plugin.make(job.cell, env, self.policy_ctx)
+        return self.shadows[key]
 
     def _status(self, text: str | None) -> None:
         if self.on_status is not None:
@@ -109,6 +121,7 @@ class Worker:
 
     def drop(self, key: str) -> None:
         env, _ = self.cache.pop(key, (None, None))
+        self.shadows.pop(key, None)
         if env is not None:
             try:
                 env.close()

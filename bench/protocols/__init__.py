@@ -156,6 +156,7 @@ class MujocoHandle:
         object_bodies: bodies of the manipulated object(s); `perturb.mass` scales these by default.
         cameras: the env's `bench.sims.camera.CameraRig` when it can render its cameras (image observations,
             episode videos, visual perturbations), else None. Set by `bench.sims.camera_env.CameraEnv`.
+        arm_joints: the robot arm's joints (hinge or slide, no gripper); `perturb.init_qpos` offsets these by default.
     """
 
     model: mujoco.MjModel
@@ -163,6 +164,7 @@ class MujocoHandle:
     object_bodies: tuple[str, ...] = ()
     # a `bench.sims.camera.CameraRig` (sims sits above this layer, so the contract cannot name its type)
     cameras: Any = None
+    arm_joints: tuple[str, ...] = ()
 
     def forward(self) -> None:
         """Recompute derived quantities after the model or state was edited."""
@@ -297,8 +299,9 @@ class Suite(Protocol):
     `reference_policy` (its expert), `default_policy` (what `bench run` runs without
     `policy=`), `default_horizon`, `max_horizon` (None = no limit), `default_metric`
     (success_once | success_at_end | return), `manifest` ({axis: {"seen": [...],
-    "unseen": [...]}} over robots / envs / tasks) and `capabilities` (a subset of
-    `CAPABILITIES`). A suite is constructed with an instance of its `Options`.
+    "unseen": [...]}} over robots / envs / tasks), `capabilities` (a subset of
+    `CAPABILITIES`) and `instructions` (its paraphrase data file, or None). A suite is constructed with an
+    instance of its `Options`.
     """
 
     name: ClassVar[str]
@@ -311,6 +314,8 @@ class Suite(Protocol):
     default_metric: str
     manifest: Mapping[str, Mapping[str, Sequence[str]]]
     capabilities: frozenset[str]
+    # the suite's paraphrase data for `perturb.instruction` (a JSON file it ships: `bench.sims.perturb.language`), or None
+    instructions: str | None
     # an instance of the suite's own `Options` dataclass, whose type is the plugin's: a suite declares `options:
     # MyOptions`, which the contract's attribute must accept (a protocol's attributes are invariant)
     options: Any

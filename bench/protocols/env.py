@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -57,6 +58,17 @@ class AdapterBase(ABC):
         state: npt.NDArray[np.float64] = np.concatenate([data.qpos, data.qvel]).astype(np.float64)
         return state
 
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        """Start the episode from the state `edit` makes of the one `reset` left; its observation.
+
+        An optional capability (pose perturbations, `bench.sims.perturb.pose`): called right after `reset`,
+        it applies `edit` (which writes the MuJoCo state: joint positions, object poses), recomputes what the
+        simulator derives from the state, brings the env's own state in line with it (controller goals,
+        mocap targets, what observations are relative to, the state `init_state` reports) and returns the
+        observation of the edited state, as `reset` would have. Raises NotImplementedError where the
+        adapter cannot (the default)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot start an episode from an edited state")
+
     def close(self) -> None:
         """Nothing to release."""
         return None  # a hook
@@ -97,6 +109,11 @@ class AdapterWrapper(AdapterBase):
 
     def init_state(self) -> NumArray:
         return self.inner.init_state()
+
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        if not isinstance(self.inner, AdapterBase):  # an adapter of the bare protocol: no such capability
+            raise NotImplementedError(f"{type(self.inner).__name__} cannot start an episode from an edited state")
+        return self.inner.edit_start(edit)
 
     def close(self) -> None:
         self.inner.close()

@@ -65,6 +65,7 @@ class ConditionSpec(TypedDict, total=False):
     source, sha256: for "from", the calibration.json drawn from and the sha256 of its bytes.
     keys, values: for "from", the draws' columns (`field:element[:column]`) and one row of values per draw.
     curve: a range asked to be scored as a curve (`perturb.AXIS.curve=`): at least 10 draws are required.
+    instructions: for `instruction`, the paraphrase data of the run's tasks (`bench.sims.perturb.language.prepare`).
     """
 
     kind: str
@@ -74,6 +75,7 @@ class ConditionSpec(TypedDict, total=False):
     keys: list[str]
     curve: bool
     values: list[list[float]]
+    instructions: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -218,6 +220,7 @@ class SuiteBase(ABC):
     default_metric: str = "success_once"
     manifest: Mapping[str, Mapping[str, Sequence[str]]] = {}
     capabilities: frozenset[str] = frozenset()
+    instructions: str | None = None  # the paraphrase data file `perturb.instruction` reads; None: none shipped
 
     def __init__(self, options: Any = None) -> None:
         why = self.unavailable()

@@ -27,6 +27,7 @@ import numpy as np
 from bench.core.errors import ConfigError
 from bench.protocols.suite import Condition
 from bench.records import EpisodeRecord
+from bench.sims.perturb.combine import SEP
 
 MIN_DRAWS = 10  # fewer draws than this make no curve: two parameters and a bootstrap need more
 GRID = 21  # points of the band
@@ -189,7 +190,7 @@ def curves_of(
     for name in sorted(by_cond):
         recs = by_cond[name]
         axis = recs[0].axis
-        if axis is None or "~" not in name or "~from(" in name:
+        if axis is None or "~" not in name or "~from(" in name or SEP in name:  # a combination: its part's curve
             continue
         drawn = [(r, v) for r in recs if isinstance(v := r.params.get(axis), (int, float)) and not isinstance(v, bool)]
         cells = {(r.task, r.robot, r.env) for r, _ in drawn}

@@ -31,10 +31,15 @@ from bench.records import (
 from bench.remote.latency import run_latency
 from bench.scoring import stats as scoring
 from bench.scoring.curves import breaking_sentence, curves_of
+from bench.scoring.instructions import instructions
+from bench.scoring.instructions import sentence as instruction_sentence
+from bench.scoring.interactions import interactions
+from bench.scoring.interactions import sentence as interaction_sentence
 from bench.scoring.rows import cell_row
 from bench.scoring.sensitivity import render as render_sensitivity
 from bench.scoring.sensitivity import sensitivity
 from bench.scoring.typed import Summary
+from bench.sims.perturb.combine import SEP
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -144,6 +149,12 @@ def build(records: list[EpisodeRecord], *, run_meta: dict[str, Any]) -> Summary:
         found = curves_of(records, curve_rng, metric, n_boot=min(n_boot, CURVE_BOOT), confidence=conf)
         if found:
             summary["curves"] = found
+    if any(SEP in r.condition for r in records):  # perturb.combine: each combination against its parts
+        inter_rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 3])  # a generator of their own
+        summary["interactions"] = interactions(records, inter_rng, metric, n_boot=n_boot, confidence=conf)
+    if any(r.axis == "instruction" for r in records):  # perturb.instruction: do the words steer the actions?
+        words_rng = np.random.default_rng([int(cfg.get("seed", 0)), 7919, 4])  # a generator of their own
+        summary["instructions"] = instructions(records, words_rng, metric, n_boot=n_boot, confidence=conf)
     return Summary.from_json(summary, "summary of " + str(run_meta["run_id"]))
 
 
@@ -257,7 +268,8 @@ def render(summary: dict[str, Any], console: Console | None = None) -> None:  # 
     if gaps and all(g.get("value") is None for g in gaps) and "unseen" not in summary["splits"]:
         console.print("no held-out (unseen) cell was scored in this run: no seen → unseen transfer gap")
     elif gaps:
-        g_t = Table(title=f"transfer gaps (reference − target, {conf}% bootstrap)", title_justify="left")
+        method = "stratified bootstrap" if by_return else "MOVER of stratified Wilson intervals"
+        g_t = Table(title=f"transfer gaps (reference − target, {conf}% {method})", title_justify="left")
         for col in ("gap", "metric", "value [CI]"):
             g_t.add_column(col)
         for g in gaps:
@@ -274,6 +286,10 @@ def render(summary: dict[str, Any], console: Console | None = None) -> None:  # 
         render_sensitivity(summary["sensitivity"], console)
     for entry in summary.get("curves") or []:
         console.print(breaking_sentence(entry), soft_wrap=True, highlight=False)
+    for entry in summary.get("interactions") or []:
+        console.print(interaction_sentence(entry), soft_wrap=True, highlight=False)
+    for entry in summary.get("instructions") or []:
+        console.print(instruction_sentence(entry), soft_wrap=True, highlight=False)
     errored = errored_line(summary)
     if errored:
         console.print(f"[yellow]{errored}[/]", soft_wrap=True)
@@ -281,8 +297,8 @@ def render(summary: dict[str, Any], console: Console | None = None) -> None:  # 
 
 def aggregates(summary: dict[str, Any]) -> tuple[str, list[str], list[list[str]]] | None:
     """The aggregates table `bench run` prints and `bench report` shows: (title, header, rows of text), one row per
-    split: the mean (and IQM) of its nominal cells' rates, or returns, with stratified bootstrap intervals; None
-    when no split was scored."""
+    split: the mean (and IQM) of its nominal cells' rates with stratified Wilson intervals, or returns with
+    stratified bootstrap intervals; None when no split was scored."""
     if not summary["splits"]:
         return None
     conf = int(round(summary.get("confidence", 0.95) * 100))
@@ -302,7 +318,7 @@ def aggregates(summary: dict[str, Any]) -> tuple[str, list[str], list[list[str]]
         for s, v in summary["splits"].items()
     ]
     return (
-        f"aggregates over nominal cells ({what}, {conf}% stratified bootstrap)",
+        f"aggregates over nominal cells ({what}, {conf}% stratified {'bootstrap' if by_return else 'Wilson'})",
         ["split", *[name for name, _, _ in cols]],
         rows,
     )

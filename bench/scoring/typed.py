@@ -225,6 +225,8 @@ class Summary:
     policy_latency: dict[str, object] | None = None
     sensitivity: list[dict[str, object]] | None = field(default=None)
     curves: list[dict[str, object]] | None = field(default=None)  # `bench.scoring.curves`: one per range condition
+    instructions: list[dict[str, object]] | None = field(default=None)  # `bench.scoring.instructions`: per variant
+    interactions: list[dict[str, object]] | None = field(default=None)  # `bench.scoring.interactions`: per combination
 
     def to_json(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -249,6 +251,10 @@ class Summary:
             out["sensitivity"] = self.sensitivity
         if self.curves is not None:
             out["curves"] = self.curves
+        if self.instructions is not None:
+            out["instructions"] = self.instructions
+        if self.interactions is not None:
+            out["interactions"] = self.interactions
         return out
 
     @classmethod
@@ -279,6 +285,8 @@ class Summary:
             policy_latency=_raw(d, "policy_latency"),
             sensitivity=_raw(d, "sensitivity"),
             curves=_raw(d, "curves"),
+            instructions=_raw(d, "instructions"),
+            interactions=_raw(d, "interactions"),
         )
 
     def nominal_cells(self) -> list[CellRow]:

@@ -13,7 +13,7 @@ Suites name their default cameras (a front view and, where the robot has one, a 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Optional, Protocol
 
@@ -171,6 +171,9 @@ class CameraEnv(AdapterWrapper):
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self.inner.step(action)
         return self._obs(obs), reward, terminated, truncated, info
+
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        return self._obs(super().edit_start(edit))  # images rendered from the edited state
 
     def close(self) -> None:
         try:

@@ -15,12 +15,16 @@ work on them.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs
 from bench.protocols.env import CachedStateAdapter
+
+if TYPE_CHECKING:
+    import mujoco
 
 
 class GymEnv(CachedStateAdapter):
@@ -66,7 +70,8 @@ class GymEnv(CachedStateAdapter):
             import mujoco  # MuJoCo's native library: loaded only when a model is simulated
 
             if isinstance(model, mujoco.MjModel) and isinstance(data, mujoco.MjData):
-                self.mujoco = MujocoHandle(model, data)  # no manipulated object declared
+                # no manipulated object declared; the arm's joints: those an actuator drives
+                self.mujoco = MujocoHandle(model, data, arm_joints=_driven_joints(model))
                 self.backend += f"/mujoco-{mujoco.__version__}"
         except ImportError:
             pass
@@ -101,6 +106,29 @@ class GymEnv(CachedStateAdapter):
         self._success = False
         return {STATE: flat}
 
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        """The episode started from the state `edit` makes of the reset one (`AdapterBase.edit_start`).
+
+        Gymnasium has no public call for "the observation of the current state": a MuJoCo env's own
+        `_get_obs` (every `gymnasium.envs.mujoco` env has one) gives it, when no observation wrapper sits
+        between it and this adapter. Anything else raises NotImplementedError.
+        """
+        from gymnasium import ObservationWrapper, Wrapper  # gymnasium: loaded only when a Gymnasium env is made
+
+        layer = self._env
+        while isinstance(layer, Wrapper):
+            if isinstance(layer, ObservationWrapper):
+                raise NotImplementedError(f"{self.env_id}: observation wrapper {type(layer).__name__} is in the way")
+            layer = layer.env
+        get_obs = getattr(layer, "_get_obs", None)  # Gymnasium MuJoCo envs' convention, not its API
+        if self.mujoco is None or not callable(get_obs):
+            raise NotImplementedError(f"{self.env_id} is not a Gymnasium MuJoCo env with an observation of its state")
+        edit()
+        self.mujoco.forward()
+        flat = self._flat_obs(get_obs())
+        self._init_state = self._state(flat)
+        return {STATE: flat}
+
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self._env.step(self._action(action))
         info = dict(info)
@@ -109,3 +137,14 @@ class GymEnv(CachedStateAdapter):
 
     def close(self) -> None:
         self._env.close()
+
+
+def _driven_joints(model: mujoco.MjModel) -> tuple[str, ...]:
+    """Names of the hinge and slide joints an actuator drives, in the model's order."""
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+
+    one_dof = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+    by_joint = mujoco.mjtTrn.mjTRN_JOINT
+    driven = sorted({int(model.actuator_trnid[a, 0]) for a in range(model.nu) if model.actuator_trntype[a] == by_joint})
+    named = [(j, mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)) for j in driven]
+    return tuple(name for j, name in named if name and model.jnt_type[j] in one_dof)

@@ -23,6 +23,10 @@ once after its first build so those collections skip the long-lived objects of t
 
 Assets are never downloaded: a robot or task whose assets are not on disk is refused with one
 line naming them (and `MS_SKIP_ASSET_DOWNLOAD_PROMPT=1` is set so ManiSkill never prompts).
+
+Perturbations: model axes through PhysX (`physx`, `bench.sims.perturb.physx`), visual axes through
+SAPIEN's render scene (`sapien_scene`, `bench.sims.perturb.sapien_scene`: made after each reset, which
+then renders its observation again), image-noise and interface axes as wrappers like everywhere.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from bench.core.errors import ConfigError, did_you_mean
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, InputLog, ModelAxes, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
 from bench.sims.perturb.physx import PhysxAxes
+from bench.sims.perturb.sapien_scene import SapienScene
 from bench.sims.sapien_novulkan import CHECKED, check_cameras, prepare
 
 if TYPE_CHECKING:
@@ -297,6 +302,7 @@ class ManiSkillEnv(CachedStateAdapter):
     inputs: InputLog | None = None
     model_axes: ModelAxes | None
     physx: PhysxAxes | None  # the same object, with the adapter's reset hooks
+    sapien_scene: SapienScene  # visual axes: lights, cameras and colours of SAPIEN's render scene
     obs_spec: ObsSpec
     base: BaseEnv  # the unwrapped ManiSkill env
 
@@ -327,7 +333,7 @@ class ManiSkillEnv(CachedStateAdapter):
         self.interface: ManiSkillInterface = interface or NativeInterface()
         self.obs_mode, self.object_names, self.instruction = obs, tuple(object_names), instruction
         self.want_state, want_rgb = "state" in obs, "rgb" in obs
-        valid_cams = cameras_of(robot)
+        self.all_cameras = valid_cams = cameras_of(robot)
         self.cameras = tuple(cameras) if cameras else (valid_cams if want_rgb else ())
         for cam in self.cameras:
             if cam not in valid_cams:
@@ -371,6 +377,7 @@ class ManiSkillEnv(CachedStateAdapter):
         if instruction is not None:
             spec[TASK] = Feature.text()
         self.obs_spec = spec
+        self.sapien_scene = SapienScene(self)  # refuses every visual axis without a camera image (obs=state)
         self.action_spec = self.interface.action_spec
         self._success = False
         self._t = 0
@@ -420,6 +427,8 @@ class ManiSkillEnv(CachedStateAdapter):
             self.interface.bind(self)  # new scene, new actors
             if axes is not None:
                 axes.after_reconfigure()
+        if self.sapien_scene.after_reset():  # the episode's visual edits, made on the scene the reset left
+            raw = self.base.get_obs(info)  # the reset rendered the images before them
         self.interface.on_reset()
         self._t = 0
         self._success = bool(info["success"][0])

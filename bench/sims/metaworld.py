@@ -33,14 +33,16 @@ from __future__ import annotations
 import ast
 import importlib.util
 import warnings
+from collections.abc import Callable
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
 from bench.core.errors import ConfigError, did_you_mean
-from bench.protocols import STATE, ActionSpec, Feature, InputLog, MujocoHandle, Obs
+from bench.protocols import STATE, TASK, ActionSpec, Feature, InputLog, MujocoHandle, Obs
 from bench.protocols.env import CachedStateAdapter
+from bench.sims.quaternion import quat_conj, quat_mul
 
 MAX_PATH_LENGTH = 500  # Meta-World's truncation: one more step raises
 BENCHMARKS = ("ML10", "ML25", "ML45")
@@ -138,7 +140,7 @@ class MetaWorldEnv(CachedStateAdapter):
 
     mujoco: MujocoHandle  # always: a MuJoCo backend
 
-    def __init__(self, task: str, horizon: int = MAX_PATH_LENGTH):
+    def __init__(self, task: str, horizon: int = MAX_PATH_LENGTH, instruction: str | None = None):
         quiet_metaworld()
 
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
@@ -158,9 +160,15 @@ class MetaWorldEnv(CachedStateAdapter):
         env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute for the new observability
         self.backend = f"metaworld-{version('metaworld')}/mujoco-{mujoco.__version__}"
         self.fps = 1.0 / float(env.dt)  # control steps per second
-        self.obs_spec = {STATE: Feature.state(OBS_NAMES)}
+        self.instruction = instruction  # the task as a sentence, in obs["task"] when given (the suite's data)
+        spec = {STATE: Feature.state(OBS_NAMES)}
+        if instruction is not None:
+            spec[TASK] = Feature.text()
+        self.obs_spec = spec
         self.action_spec = ActionSpec.box(ACTION_NAMES, -1.0, 1.0)
-        self.mujoco = MujocoHandle(env.model, env.data)
+        joints = [mujoco.mj_id2name(env.model, mujoco.mjtObj.mjOBJ_JOINT, j) or "" for j in range(env.model.njnt)]
+        # the Sawyer arm's joints (right_j0..right_j6), not the gripper's r_close / l_close
+        self.mujoco = MujocoHandle(env.model, env.data, arm_joints=tuple(j for j in joints if j.startswith("right_j")))
         self._t = 0
         self._success = False
         self._init_state = np.zeros(0)  # set by reset
@@ -201,10 +209,40 @@ class MetaWorldEnv(CachedStateAdapter):
         obs, _ = env.reset()
         self._t = 0
         self._success = False
+        self._init_state = self._state_now()
+        return self._observation(obs)
+
+    def _state_now(self) -> np.ndarray:
+        """init_state(): qpos, qvel, mocap position and the (hidden) goal, taken right after reset."""
         data = self.mujoco.data
-        # init_state(): qpos, qvel, mocap position and the (hidden) goal right after reset
-        self._init_state = np.concatenate([data.qpos, data.qvel, data.mocap_pos.ravel(), self.true_goal()]).copy()
-        return {STATE: np.asarray(obs, dtype=np.float32)}
+        return np.concatenate([data.qpos, data.qvel, data.mocap_pos.ravel(), self.true_goal()]).copy()
+
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        """The episode started from the state `edit` makes of the reset one (`AdapterBase.edit_start`).
+
+        The hand is held by a weld to the mocap body, which Meta-World moves by the action: the mocap is
+        carried with the hand, keeping its pose relative to the hand at reset, so the weld holds the edited
+        arm where it is (Meta-World still commands the mocap's orientation back to its fixed one at every
+        step). The reward's reference tcp (`init_tcp`) and the stacked previous frame are taken again, as
+        Meta-World's reset takes them.
+        """
+        import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+
+        env, data = self._env, self.mujoco.data
+        hand, mocap = data.body("hand"), int(self.mujoco.model.body("mocap").mocapid[0])
+        to_hand = quat_conj(hand.xquat)
+        rel_pos = _rotate(to_hand, data.mocap_pos[mocap] - hand.xpos)  # the mocap in the hand's frame
+        rel_quat = quat_mul(to_hand, data.mocap_quat[mocap] / np.linalg.norm(data.mocap_quat[mocap]))
+        edit()
+        mujoco.mj_forward(env.model, data)
+        data.mocap_pos[mocap] = hand.xpos + _rotate(hand.xquat, rel_pos)
+        data.mocap_quat[mocap] = quat_mul(hand.xquat, rel_quat)
+        mujoco.mj_forward(env.model, data)
+        env.init_tcp = env.tcp_center
+        env._prev_obs = env._get_curr_obs_combined_no_goal()  # reset's frame stack: the current frame twice
+        obs = env._get_obs()
+        self._init_state = self._state_now()
+        return self._observation(obs)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict]:
         if self._t >= self.horizon:
@@ -214,7 +252,14 @@ class MetaWorldEnv(CachedStateAdapter):
         self._t += 1
         self._success = bool(info.get("success", 0.0))
         truncated = bool(truncated or self._t >= self.horizon)
-        return {STATE: np.asarray(obs, dtype=np.float32)}, float(reward), bool(terminated), truncated, dict(info)
+        return self._observation(obs), float(reward), bool(terminated), truncated, dict(info)
+
+    def _observation(self, obs: np.ndarray) -> Obs:
+        """Meta-World's vector as the `state` entry, and the instruction as `task` when the env has one."""
+        out: Obs = {STATE: np.asarray(obs, dtype=np.float32)}
+        if self.instruction is not None:
+            out[TASK] = self.instruction
+        return out
 
     def true_goal(self) -> np.ndarray:
         """The goal position the observation hides (for privileged code such as the scripted expert)."""
@@ -222,3 +267,8 @@ class MetaWorldEnv(CachedStateAdapter):
 
     def close(self) -> None:
         self._env.close()
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vector `v` rotated by the unit quaternion `q` (w, x, y, z)."""
+    return np.asarray(quat_mul(quat_mul(q, np.array([0.0, *v])), quat_conj(q))[1:])

@@ -19,7 +19,7 @@ import os
 import sys
 import threading
 import types
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -264,7 +264,8 @@ class RobosuiteEnv(CachedStateAdapter):
             if self.fast_path_reason is None
             else None
         )
-        self.mujoco = MujocoHandle(model, data, observer.bind(self))
+        arm = tuple(j for r in self.raw.robots for j in r.robot_joints)  # the arm's joints, no gripper
+        self.mujoco = MujocoHandle(model, data, observer.bind(self), arm_joints=arm)
 
     # -- actuator commands at every physics step (for batched replay) -------------------------
     def _wrap_physics_steps(self, data) -> None:
@@ -307,6 +308,30 @@ class RobosuiteEnv(CachedStateAdapter):
         data = self.mujoco.data
         self._init_state = np.concatenate([data.qpos, data.qvel, self._scene_vec]).copy()
         self._success = False
+        return self.observer.observe(raw)
+
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        """The episode started from the state `edit` makes of the reset one (`AdapterBase.edit_start`).
+
+        robosuite's controllers take their state from the joints when `Robot.reset` builds them: the OSC's
+        goal (the end-effector pose to hold) and its nullspace posture (`initial_joint`), the gripper's
+        joint state. Each part controller is re-initialised at the edited joints with robosuite's own
+        `update_initial_joints` (the OSC's also resets its goal there), then the composite controller's
+        state and goals, as `Robot.reset` does; otherwise the arm would be driven back to the reset pose.
+        """
+        edit()
+        self.mujoco.forward()
+        data = self.mujoco.data
+        for robot in self.raw.robots:
+            cc = robot.composite_controller
+            for part in cc.part_controllers.values():
+                part.update_initial_joints(np.array(data.qpos[part.qpos_index]))
+            cc.update_state()
+            cc.reset()
+        self.raw._obs_cache = {}  # as robosuite's reset: sensors reading the cache must see the edited state
+        raw = self.raw._get_observations(force_update=True)
+        self.observer.reset(raw)
+        self._init_state = np.concatenate([data.qpos, data.qvel, self._scene_vec]).copy()
         return self.observer.observe(raw)
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:

@@ -120,7 +120,7 @@ def fig_cells(summary: dict, path: Path) -> bool:
 
 
 def fig_splits_gaps(summary: dict, path: Path) -> bool:
-    """Split means/IQM (left) and transfer gaps (right), with bootstrap intervals."""
+    """Split means/IQM (left) and transfer gaps (right), with their intervals (bench.scoring.stats)."""
     plt = pyplot()
     metric = summary["metric"]
     splits = summary["splits"]
@@ -191,7 +191,7 @@ def fig_sensitivity(summary: dict, path: Path) -> list[str]:
     """One panel per axis: success vs level (pooled, with Wilson intervals; thin lines per cell)."""
     entries = summary.get("sensitivity") or []
     metric = summary["metric"]
-    axes_names = sorted({e["axis"] for e in entries if e.get("axis")})
+    axes_names = sorted({e["axis"] for e in entries if e.get("axis") and _level_x(e["level"])})  # a combination: none
     if not axes_names:
         return []
     plt = pyplot()

@@ -150,7 +150,35 @@ def robustness_section(summary: dict, records: list) -> str:
             {3, 4, 5, 7},
         )
         + "<p class='note'>Each axis' levels pooled; episodes paired with nominal by cell and seed (same initial "
-        "state); drop = nominal − perturbed with a paired bootstrap interval; most harmful axis first.</p>"
+        "state); drop = nominal − perturbed with Tango's paired score interval; most harmful axis first.</p>"
+    )
+
+
+def interactions_section(entries: list[dict]) -> str:
+    """Combined perturbations (`perturb.combine`): each combination's drop against the sum of its single drops."""
+    rows = [
+        [
+            esc(" with ".join(e["parts"])) + (" <b>(all at once)</b>" if e.get("all_at_once") else ""),
+            str(e["n"]),
+            signed_cell(e["drop"]),
+            " + ".join(signed_cell(s) for s in e["single_drops"]) or "n/a",
+            signed_cell(e["sum_of_single_drops"]),
+            signed_cell(e["interaction"]),
+            esc(e["reading"]),
+        ]
+        for e in entries
+    ]
+    metric = entries[0]["metric"]
+    return (
+        "<h2>Combined perturbations</h2>"
+        + table_html(
+            ["combination", "pairs", "drop [CI]", "single drops", "sum of single drops", "interaction [CI]", "reading"],
+            rows,
+            {1},
+        )
+        + f"<p class='note'>Drops of {esc(metric)} from nominal, over the episode seeds completed under nominal, every "
+        "part and the combination; interaction = combined drop − sum of single drops (paired bootstrap over "
+        "seeds). Above 0: the axes compound; below 0: less than additive (or success hit its floor).</p>"
     )
 
 
@@ -225,6 +253,8 @@ def run_sections(summary: dict, tmp: Path, run_dir: Path | None = None) -> list[
     robust = robustness_section(summary, records)
     if robust:
         parts.append(robust)
+    if summary.get("interactions"):
+        parts.append(interactions_section(summary["interactions"]))
 
     section = latency_section(summary, tmp)  # remote policies: the run's round-trip latency distribution
     if section:

@@ -25,9 +25,13 @@ from bench.core.errors import ConfigError, DataError, did_you_mean
 from bench.protocols import RGB, ObsSpec
 from bench.protocols.suite import NOMINAL, Condition, ConditionSpec
 from bench.sims.perturb.axis import MAX_SCALE, MAX_STEPS, RGB_IMAGES, Axis
+from bench.sims.perturb.combine import KEY as COMBINE
+from bench.sims.perturb.combine import combinations
 from bench.sims.perturb.frames import ROWS as FRAME_ROWS
 from bench.sims.perturb.interface import ROWS as INTERFACE_ROWS
+from bench.sims.perturb.language import ROWS as LANGUAGE_ROWS
 from bench.sims.perturb.model import ROWS as MODEL_ROWS
+from bench.sims.perturb.pose import ROWS as POSE_ROWS
 from bench.sims.perturb.scene import ROWS as SCENE_ROWS
 
 __all__ = ["AXES", "MAX_SCALE", "MAX_STEPS", "Axis"]  # with the grammar's functions below
@@ -35,7 +39,9 @@ __all__ = ["AXES", "MAX_SCALE", "MAX_STEPS", "Axis"]  # with the grammar's funct
 
 # the one table: every module that implements axes contributes its rows (`bench.sims.perturb.axis`)
 AXES: dict[str, Axis] = {
-    a.name: a for rows in (MODEL_ROWS, INTERFACE_ROWS, SCENE_ROWS.values(), FRAME_ROWS) for a in rows
+    a.name: a
+    for rows in (MODEL_ROWS, INTERFACE_ROWS, SCENE_ROWS.values(), FRAME_ROWS, LANGUAGE_ROWS, POSE_ROWS)
+    for a in rows
 }
 MODEL_AXES = tuple(n for n, a in AXES.items() if a.kind == "model")
 INTERFACE_AXES = tuple(n for n, a in AXES.items() if a.kind == "interface")
@@ -159,9 +165,36 @@ def axis_named(name: str) -> Axis:
     return AXES[name]
 
 
+def _words(axis: Axis, field: str, value: object) -> list[Condition]:
+    """A categorical axis' conditions: one per word (`perturb.instruction=[paraphrase,empty]`, or `.levels=[...]`);
+    a number, a range, a curve or a target is refused with the words that are valid."""
+    if isinstance(value, dict):
+        bad = [k for k in value if k != "levels"]
+        if bad:
+            raise ConfigError(f"{field}.{bad[0]}: {axis.name} is categorical; its only key is levels=[...]")
+        value = value.get("levels")
+    words = list(value) if isinstance(value, (list, tuple)) else [value]
+    if not words:
+        raise ConfigError(f"{field}: empty list of levels; valid: {', '.join(axis.words)}")
+    out: list[Condition] = []
+    for w in words:
+        if w not in axis.words:
+            raise ConfigError(
+                f"{field}: {w!r} is not a level of {axis.name}, a categorical axis (no numbers, ranges or curves); "
+                f"valid: {', '.join(axis.words)}.{did_you_mean(str(w), list(axis.words))}"
+            )
+        if all(c.level != w for c in out):
+            out.append(
+                Condition(name=f"{axis.name}={w}", axis=axis.name, level=w, spec={"kind": "grid", "targets": {}})
+            )
+    return out
+
+
 def _conditions_for(name: str, value: object) -> list[Condition]:
     axis = axis_named(name)
     field = f"perturb.{name}"
+    if axis.words:
+        return _words(axis, field, value)
     targets: dict[str, list[str]] = {}
     levels: list[object] = []
     dists: list[tuple[str, object, str]] = []
@@ -226,8 +259,9 @@ def _conditions_for(name: str, value: object) -> list[Condition]:
     return out + froms
 
 
-def conditions_from_config(perturb: Mapping[str, object]) -> list[Condition]:
-    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level.
+def conditions_from_config(perturb: Mapping[str, object], seed: int = 0) -> list[Condition]:
+    """The run's conditions from `perturb.*` overrides: nominal first, then one per axis level, then the
+    combinations `perturb.combine` asks for (`bench.sims.perturb.combine`; `seed`, the run's, draws a fraction).
 
     A grid gives one condition per level ("friction=0.5"); a range gives one condition
     whose value is drawn per episode ("friction~U(0.8,1.2)"). Raises ConfigError on an
@@ -236,10 +270,14 @@ def conditions_from_config(perturb: Mapping[str, object]) -> list[Condition]:
     out = [NOMINAL]
     seen: set[str] = set()
     for name, value in (perturb or {}).items():
+        if name == COMBINE:
+            continue
         for cond in _conditions_for(str(name), value):
             if cond.name not in seen:
                 seen.add(cond.name)
                 out.append(cond)
+    if COMBINE in (perturb or {}):
+        out += combinations(perturb[COMBINE], out[1:], AXES, seed)
     return out
 
 

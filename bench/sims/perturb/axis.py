@@ -12,7 +12,14 @@ The hooks a row carries say how a level is applied; `bench.sims.perturb.reset` c
   first time an env is seen and restored before every episode;
 - `physx` (model axes on ManiSkill/SAPIEN): the same edit through PhysX's scene API;
 - `wrap` (interface and frame axes): the env seen through a wrapper for the episode;
-- `paint` + `check` (visual axes): one episode's edit of the rendered scene, and the model checks.
+- `paint` + `check` (visual axes): one episode's edit of the rendered scene, and the model checks;
+- `sapien` (visual axes on ManiSkill/SAPIEN): the same episode's edit of SAPIEN's render scene (a visual
+  row without it is refused there);
+- `start` + `check_start` (pose axes, `pose`): the env whose reset starts from an edited initial state
+  (robot joints, object layout), and the check of a built env before any episode.
+
+A categorical axis (`words`: `instruction`, `bench.sims.perturb.language`) takes words for levels, not
+numbers: its `wrap` hook receives the word.
 """
 
 from __future__ import annotations
@@ -51,8 +58,9 @@ MAX_STEPS = 100_000  # latency / hold in control steps (also at most the run's h
 RGB_IMAGES = "rgb"  # `Axis.sees` of an axis that changes only camera images
 Named = Mapping[str, Sequence[str]]  # targets named on the command line: {"bodies": [...], "joints": [...]}
 Params = dict[str, object]  # what an episode records beside a level (JSON-able: numbers, strings, lists of them)
-# an interface or frame axis' hook (`Axis.wrap`): (env, episode generator, level) -> (the env to step, params)
-Wrap = Callable[[EnvAdapter, np.random.Generator, float], tuple[EnvAdapter, Params]]
+# an interface or frame axis' hook (`Axis.wrap`): (env, episode generator, level) -> (the env to step, params);
+# the level is a number, or one of a categorical axis' words
+Wrap = Callable[[EnvAdapter, np.random.Generator, Any], tuple[EnvAdapter, Params]]
 
 
 @dataclass(frozen=True)
@@ -60,7 +68,7 @@ class Axis:
     """One perturbation axis: what it changes, its unit, the levels it accepts and how a level is applied."""
 
     name: str
-    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env) or "visual" (images)
+    kind: str  # "model" (edits the simulator's model), "interface" (wraps the env), "visual" (images), "pose" (start)
     unit: str  # what a level means
     short: str  # a few words for `bench run --help`
     doc: str
@@ -70,6 +78,7 @@ class Axis:
     targets: tuple[str, ...] = ()  # optional name lists: "bodies", "joints", "geoms", "actuators", "cameras"
     nominal: float = 1.0  # the level that means "unperturbed"
     maximum: float = math.inf  # largest valid level
+    words: tuple[str, ...] = ()  # a categorical axis' levels (numbers, ranges and curves refused); empty: numeric
     # -- model axes (MuJoCo) ------------------------------------------------------------------
     # MjModel fields it edits (saved on first sight, restored before every episode); the first one's
     # nominal values at the selected indices must not all be zero (column 0 of a 2-D field)
@@ -91,4 +100,11 @@ class Axis:
     # (the first argument is the rig's `bench.sims.perturb.scene.VisualScene`, which the row's module defines)
     paint: Callable[[Any, float, Named, np.random.Generator], Params] | None = None
     check: Callable[[mujoco.MjModel, Sequence[str], Named, Sequence[str], str], None] | None = None
+    # the same edit on ManiSkill: (`bench.sims.perturb.sapien_scene.SapienScene`, level, named, generator) -> params
+    sapien: Callable[[Any, float, Named, np.random.Generator], Params] | None = None
     sees: str = ""  # "rgb": changes only camera images (a policy that reads none is refused)
+    # -- pose axes (kind "pose"): (env, episode generator, level, named targets) -> (the env whose reset returns
+    # the edited initial state, params to record); and the check of a built env before any episode:
+    # (env, the largest level asked, named targets, where), which may reset the env
+    start: Callable[[EnvAdapter, np.random.Generator, float, Named], tuple[EnvAdapter, Params]] | None = None
+    check_start: Callable[[EnvAdapter, float, Named, str], None] | None = None

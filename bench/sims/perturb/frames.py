@@ -39,6 +39,9 @@ class NoisyFrames(AdapterWrapper):
     def reset(self, seed: int) -> Obs:
         return self._obs(self.inner.reset(seed))
 
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        return self._obs(super().edit_start(edit))  # the edited start's images corrupted too
+
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self.inner.step(action)
         return self._obs(obs), reward, terminated, truncated, info

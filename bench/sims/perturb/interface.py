@@ -8,6 +8,7 @@ command and a noisy observation.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -61,6 +62,9 @@ class PerturbedInterface(AdapterWrapper):
     def reset(self, seed: int) -> Obs:
         self._reset_state()
         return self._obs(self.env.reset(seed))
+
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
+        return self._obs(super().edit_start(edit))  # the edited start seen through the noisy interface too
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         if self._t % self.action_hold == 0:

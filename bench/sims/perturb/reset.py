@@ -22,16 +22,17 @@ the axes and the `perturb.*` grammar that makes conditions are `bench.sims.pertu
 from __future__ import annotations
 
 import weakref
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.protocols import RGB, Cell, EnvAdapter, MujocoHandle, Suite
-from bench.protocols.suite import Condition
+from bench.protocols.suite import Condition, condition_rng
 from bench.sims.perturb.axes import AXES, INTERFACE_AXES, MODEL_AXES, axis_named
 from bench.sims.perturb.axis import RGB_IMAGES, Params
+from bench.sims.perturb.combine import Combination
 from bench.sims.perturb.scene import apply as paint_scene
 from bench.sims.perturb.scene import clear as clear_scene
 from bench.sims.perturb.scene import validate as validate_scene
@@ -84,6 +85,10 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
                 f"none (it observes {', '.join(map(str, env.obs_spec))}); use obs=rgb or obs=state+rgb where the "
                 "suite takes it, or leave the image axes out"
             )
+        if axis is not None and axis.check_start is not None:  # a pose axis, at its largest level
+            levels = cond.level if isinstance(cond.level, (list, tuple)) else [cond.level]
+            axis.check_start(env, max(float(v) for v in levels), cond.targets, where)
+            continue
         if axis is None or axis.kind != "model":
             continue
         mj = env.mujoco
@@ -127,10 +132,11 @@ def validate_run(suite: Suite, cells: Sequence[Cell], conditions: Sequence[Condi
     (names differ between robots). Nothing is built when only interface axes are used.
     An env that cannot be built here is left to the workers, which record the error.
     """
-    model_conds = [c for c in conditions if c.axis in AXES and AXES[c.axis].kind in ("model", "visual")]
+    model_conds = [c for c in conditions if c.axis in AXES and AXES[c.axis].kind in ("model", "visual", "pose")]
     if not model_conds or not cells:
         return
-    named = any(c.targets for c in model_conds)
+    # every cell when names are targeted (they differ between robots), or a pose axis asked (so do joint ranges)
+    named = any(c.targets or AXES[str(c.axis)].kind == "pose" for c in model_conds)
     for cell in cells if named else cells[:1]:
         try:
             env = suite.make_env(cell, horizon)
@@ -329,13 +335,20 @@ def _draw(condition: Condition, rng: np.random.Generator) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tuple[EnvAdapter, Params]:
+def apply(
+    env: EnvAdapter, condition: Condition, rng: np.random.Generator, seed: int | None = None
+) -> tuple[EnvAdapter, Params]:
     """Apply `condition` to `env` for one episode; call before the env's reset.
 
     Restores the nominal model first (the env may have run another condition), draws
     the episode's value from `rng` for a range, and returns `(stepper, params)`:
     the env itself for model and visual axes and nominal, the row's wrapper for interface
     and frame axes; `params` = {axis: value applied} for the episode record.
+
+    A combined condition (`bench.sims.perturb.combine.Combination`) applies each of its parts as it is
+    applied alone, in order, drawing from the part's own `condition_rng(seed, part)`: it needs the episode's
+    `seed` (ValueError without it). Model scales compose (each part scales the
+    values the parts before it left), wrappers nest (the first part innermost), visual edits accumulate.
     """
     mj = env.mujoco
     nom = nominal_of(mj) if mj is not None else None
@@ -344,6 +357,10 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
     if env.model_axes is not None:
         env.model_axes.restore()
     clear_scene(env)
+    if isinstance(condition, Combination):
+        if seed is None:
+            raise ValueError(f"{condition.name}: a combined condition needs the episode seed (apply(..., seed=))")
+        return _apply_parts(env, nom, condition, int(seed))
     axis = axis_named(condition.axis) if condition.axis is not None else None
     if axis is None or axis.scale is None:  # the model stays nominal this episode
         if mj is not None and nom is not None and nom.const_dirty:
@@ -356,6 +373,9 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
         named = condition.targets
         if axis.paint is not None:
             return env, paint_scene(env, axis.name, value, named, rng)
+        if axis.start is not None:  # a pose axis: the env whose reset starts from an edited state
+            stepper, extra = axis.start(env, rng, value, named)
+            return stepper, {axis.name: value, **extra}
         assert axis.wrap is not None, f"axis {axis.name} has no hook (axis.py: select+scale, wrap or paint)"
         stepper, extra = axis.wrap(env, rng, value)
         return stepper, {axis.name: value, **extra}
@@ -376,3 +396,63 @@ def apply(env: EnvAdapter, condition: Condition, rng: np.random.Generator) -> tu
     nom.const_dirty = axis.setconst
     mj.forward()
     return env, {axis.name: value}
+
+
+# -- combined conditions (`perturb.combine`) ------------------------------------------------
+class _Current(Mapping[str, np.ndarray]):
+    """A model's current values by field, read as a model axis' edit reads the nominal ones: a part of a
+    combination scales what the parts before it left, so two scales of one field multiply."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return np.array(_field(self.model, name), copy=True)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_fields())
+
+    def __len__(self) -> int:
+        return len(_fields())
+
+
+def _apply_parts(env: EnvAdapter, nom: Nominal | None, combo: Combination, seed: int) -> tuple[EnvAdapter, Params]:
+    """Apply every part of `combo` to the restored `env`, each with its own generator; (stepper, every part's params)."""
+    mj = env.mujoco
+    stepper: EnvAdapter = env
+    params: Params = {}
+    stale = False  # derived constants (mj_setConst) behind an edited mass or armature
+    for part in combo.parts:
+        rng = condition_rng(seed, part)
+        axis = axis_named(str(part.axis))
+        if part.kind == "from":
+            if mj is None or nom is None:
+                raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")
+            params.update(_from_draw(mj, nom, axis.name, part, rng))
+            stale = True
+            continue
+        value = _draw(part, rng)
+        if axis.paint is not None:
+            params.update(paint_scene(env, axis.name, value, part.targets, rng))
+        elif axis.scale is not None and mj is not None:
+            axis.scale(mj.model, _Current(mj.model), targets(mj, part), float(value))
+            stale |= axis.setconst
+            params[axis.name] = value
+        elif axis.start is not None:  # a pose axis: its wrapper edits the state the reset leaves
+            stepper, extra = axis.start(stepper, rng, value, part.targets)
+            params.update({axis.name: value, **extra})
+        elif axis.kind == "model":
+            if env.model_axes is None or axis.name not in env.model_axes.axes:
+                raise ConfigError(f"perturb.{axis.name}: env {env.backend} cannot apply this model axis")
+            env.model_axes.apply(axis.name, float(value), part.targets)
+            params[axis.name] = value
+        else:
+            assert axis.wrap is not None, f"axis {axis.name} has no hook (axis.py: select+scale, wrap or paint)"
+            stepper, extra = axis.wrap(stepper, rng, value)
+            params.update({axis.name: value, **extra})
+    if mj is not None and nom is not None:
+        if stale or nom.const_dirty:
+            _set_const(mj)
+        nom.const_dirty = stale
+        mj.forward()
+    return stepper, params

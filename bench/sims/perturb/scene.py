@@ -9,6 +9,12 @@ a model the axis cannot act on (the targets, textures and surfaces are `bench.si
 `clear`, `apply` and `validate` are the per-episode flow `bench.sims.perturb.reset` calls. Visual axes
 need the env's camera rig (`env.mujoco.cameras`, suites built on `bench.sims.camera_env`) and a
 policy that sees images (`obs=rgb` or `obs=state+rgb`).
+
+On ManiSkill the same rows act through SAPIEN's render scene: a row's `sapien` hook sets the episode's
+perturbation on the env's `bench.sims.perturb.sapien_scene.SapienScene` (`env.sapien_scene`), which
+edits lights, cameras and materials after the reset; a row without one (texture, distractors) is refused
+there. The hooks whose edit reads the same on both (light, light_dir, camera_pos, camera_rot, the colours)
+are one function: it sets the same fields of either scene.
 """
 
 from __future__ import annotations
@@ -26,10 +32,14 @@ from bench.protocols import EnvAdapter, option_keys, registry
 from bench.sims.camera import CameraRig
 from bench.sims.camera_env import CameraEnv
 from bench.sims.perturb.axis import MAX_SCALE, RGB_IMAGES, Axis, Named, Params
+from bench.sims.perturb.sapien_scene import SapienScene
 from bench.sims.perturb.visual import (
     TEXTURES,
     check_cameras,
     model_names,
+    pattern,
+    place_distractors,
+    rotation,
     surface,
     target_geoms,
     textures_of,
@@ -43,40 +53,9 @@ Paint = Callable[["VisualScene", float, Named, np.random.Generator], Params]
 Check = Callable[["mujoco.MjModel", Sequence[str], Named, Sequence[str], str], None]
 
 
-def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
-    """Rotation matrix about a unit axis (Rodrigues)."""
-    k = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    a = math.radians(degrees)
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx
-
-
 def _unit(rng: np.random.Generator) -> np.ndarray:
     v = rng.normal(size=3)
     return v / np.linalg.norm(v)
-
-
-def _pattern(kind: int, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
-    """A procedural (H, W, 3) uint8 texture: 1 checker, 2 stripes, 3 smooth noise, 4 rings."""
-    c0, c1 = rng.uniform(0, 255, size=3), rng.uniform(0, 255, size=3)
-    y, x = np.mgrid[0:height, 0:width] / max(height, width)
-    if kind == 1:
-        mix = (np.floor(x * 8) + np.floor(y * 8)) % 2
-    elif kind == 2:
-        mix = np.floor((x + y) * 12) % 2
-    elif kind == 3:
-        coarse = rng.uniform(0, 1, size=(9, 9))
-        yi, xi = np.clip((y * 8).astype(int), 0, 7), np.clip((x * 8).astype(int), 0, 7)
-        fy, fx = y * 8 - yi, x * 8 - xi
-        mix = (
-            coarse[yi, xi] * (1 - fy) * (1 - fx)
-            + coarse[yi + 1, xi] * fy * (1 - fx)
-            + coarse[yi, xi + 1] * (1 - fy) * fx
-            + coarse[yi + 1, xi + 1] * fy * fx
-        )
-    else:
-        mix = 0.5 + 0.5 * np.sin(np.hypot(x - 0.5, y - 0.5) * 40)
-    return np.rint(c0 * (1 - mix[..., None]) + c1 * mix[..., None]).astype(np.uint8)
 
 
 @dataclass
@@ -105,6 +84,16 @@ class VisualScene:
     distractors: list[tuple] | None = None
     nominal_tex: dict[int, np.ndarray] = field(default_factory=dict)
     dirty_tex: set[int] = field(default_factory=set)
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        """The cameras the rig renders."""
+        return tuple(self.rig.cameras)
+
+    def blend_toward(self, axis: str, named: Named, blend: float, rgb: np.ndarray) -> None:
+        """Blend a colour axis' geoms (the named ones, else its default; ConfigError when none) toward `rgb`."""
+        for g in target_geoms(self.rig.model, axis, self.object_bodies, named, self.where):
+            self.colors[g] = (blend, rgb)
 
     def clear(self) -> None:
         """Back to the nominal scene (restores edited textures in the model and on the GPU)."""
@@ -146,39 +135,6 @@ class VisualScene:
             raise ConfigError(f"perturb.{axis}: not a visual axis; valid: {', '.join(ROWS)}")
         return {axis: value, **row.paint(self, value, named, rng)}
 
-    def _place_distractors(self) -> list[tuple]:
-        """Distractors for this episode, placed at the first render (the object has its initial position then)."""
-        import mujoco  # MuJoCo's native library: loaded only when a model is simulated
-
-        model, data = self.rig.model, self.rig.data
-        rng = np.random.default_rng(self.distractor_seed)
-        lo, hi, z = surface(model, data, self.object_bodies, self.where)
-        bodies = model_names(model, "body", model.nbody)
-        avoid = [np.asarray(data.xpos[bodies.index(b)][:2]) for b in self.object_bodies if b in bodies]
-        kinds = (
-            mujoco.mjtGeom.mjGEOM_BOX,
-            mujoco.mjtGeom.mjGEOM_SPHERE,
-            mujoco.mjtGeom.mjGEOM_CYLINDER,
-            mujoco.mjtGeom.mjGEOM_CAPSULE,
-        )
-        out: list[tuple] = []
-        for _ in range(self.n_distractors):
-            kind = kinds[int(rng.integers(len(kinds)))]
-            r, h = float(rng.uniform(0.012, 0.03)), float(rng.uniform(0.012, 0.035))
-            for _attempt in range(50):
-                xy = rng.uniform(lo, hi)
-                if all(np.linalg.norm(xy - a) > 0.07 for a in avoid + [np.asarray(o[2][:2]) for o in out]):
-                    break
-            size = np.array([r, r, h]) if kind == mujoco.mjtGeom.mjGEOM_BOX else np.array([r, h, 0.0])
-            lift = (
-                r if kind == mujoco.mjtGeom.mjGEOM_SPHERE else h + (r if kind == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0)
-            )
-            yaw = float(rng.uniform(0, 2 * math.pi))
-            mat = _rotation(np.array([0.0, 0.0, 1.0]), math.degrees(yaw)).reshape(-1)
-            rgba = np.append(rng.uniform(0.05, 0.95, size=3), 1.0).astype(np.float32)
-            out.append((kind, size, np.array([xy[0], xy[1], z + lift]), mat, rgba))
-        return out
-
     def __call__(self, scene: mujoco.MjvScene, camera: str) -> None:
         """Render hook: edit the scene MuJoCo built for `camera` (lights, camera pose, colours, extra geoms)."""
         import mujoco  # MuJoCo's native library: loaded only when a model is simulated
@@ -217,7 +173,14 @@ class VisualScene:
                     g.rgba[:3] = (1.0 - blend) * g.rgba[:3] + blend * rgb
         if self.n_distractors:
             if self.distractors is None:
-                self.distractors = self._place_distractors()
+                self.distractors = place_distractors(
+                    self.rig.model,
+                    self.rig.data,
+                    self.object_bodies,
+                    self.n_distractors,
+                    self.distractor_seed,
+                    self.where,
+                )
             for kind, size, pos, mat, rgba in self.distractors:
                 if scene.ngeom >= scene.maxgeom:
                     break
@@ -230,15 +193,29 @@ def _rig(env: EnvAdapter) -> CameraRig | None:
     return None if mj is None else mj.cameras
 
 
+def _sapien(env: EnvAdapter) -> SapienScene | None:
+    """The SAPIEN render scene a ManiSkill adapter exposes (`sapien_scene`), else None."""
+    scene = getattr(env, "sapien_scene", None)  # a capability of ManiSkill adapters only, outside the contract
+    return scene if isinstance(scene, SapienScene) else None
+
+
 def clear(env: EnvAdapter) -> None:
     """Put the env's rendered scene back to nominal (every episode, whatever its condition)."""
-    rig = _rig(env)
+    rig, sapien = _rig(env), _sapien(env)
     if rig is not None and isinstance(rig.hook, VisualScene):
         rig.hook.clear()
+    if sapien is not None:
+        sapien.clear()
 
 
 def apply(env: EnvAdapter, axis: str, value: float, named: Named, rng: np.random.Generator) -> Params:
     """Apply one visual axis at `value` for this episode; returns the params to record."""
+    sapien = _sapien(env)
+    if sapien is not None:
+        hook = ROWS[axis].sapien
+        if hook is None:
+            raise ConfigError(f"perturb.{axis}: not available on ManiSkill/SAPIEN; valid: {', '.join(_on_sapien())}")
+        return {axis: value, **hook(sapien, value, named, rng)}
     rig = _rig(env)
     if rig is None:
         raise ConfigError(f"perturb.{axis}: env {env.backend} has no cameras to perturb")
@@ -261,8 +238,16 @@ def suites_with_cameras() -> list[str]:
     return out
 
 
+def _on_sapien() -> list[str]:
+    return [n for n, a in ROWS.items() if a.sapien is not None]
+
+
 def validate(env: EnvAdapter, axis: str, named: Named, where: str) -> None:
     """ConfigError naming the axis (and the suites that can apply it) unless `env` can apply it this run."""
+    sapien = _sapien(env)
+    if sapien is not None:
+        sapien.validate(axis, ROWS[axis].sapien, named, _on_sapien())
+        return
     rig = _rig(env)
     if rig is None:
         raise ConfigError(
@@ -281,29 +266,29 @@ def validate(env: EnvAdapter, axis: str, named: Named, where: str) -> None:
 
 
 # -- the rows: (scene, level, named targets, generator) -> params to record beside the level ----
-def _light(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+def _light(vs: VisualScene | SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     vs.light_scale = float(value)
     return {}
 
 
-def _light_dir(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+def _light_dir(vs: VisualScene | SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     azimuth = float(rng.uniform(0.0, 360.0))
     a = math.radians(azimuth)
-    vs.light_rot = _rotation(np.array([math.cos(a), math.sin(a), 0.0]), float(value))
+    vs.light_rot = rotation(np.array([math.cos(a), math.sin(a), 0.0]), float(value))
     return {"light_dir.azimuth_deg": round(azimuth, 3)}
 
 
-def _camera_pos(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+def _camera_pos(vs: VisualScene | SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     direction = _unit(rng)
-    vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
+    vs.cam_cameras = tuple(named.get("cameras") or vs.cameras)
     vs.cam_offset = float(value) * direction
     return {"camera_pos.direction": [round(float(v), 6) for v in direction]}
 
 
-def _camera_rot(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+def _camera_rot(vs: VisualScene | SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
     direction = _unit(rng)
-    vs.cam_cameras = tuple(named.get("cameras") or vs.rig.cameras)
-    vs.cam_rot = _rotation(direction, float(value))
+    vs.cam_cameras = tuple(named.get("cameras") or vs.cameras)
+    vs.cam_rot = rotation(direction, float(value))
     return {"camera_rot.axis": [round(float(v), 6) for v in direction]}
 
 
@@ -323,11 +308,16 @@ def _camera_fov(vs: VisualScene, value: float, named: Named, rng: np.random.Gene
     return {"camera_fov.deg": round(wanted, 4)}
 
 
+def _camera_fov_sapien(ss: SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+    """The same on SAPIEN: each camera's own vertical field of view times the level (capped at 170 degrees)."""
+    ss.fov_deg = {c: min(ss.fovy_deg(c) * float(value), MAX_FOV_DEG) for c in named.get("cameras") or ss.cameras}
+    return {"camera_fov.deg": round(next(iter(ss.fov_deg.values()), 0.0), 4)}
+
+
 def _color(axis: str) -> Paint:
-    def paint(vs: VisualScene, value: float, named: Named, rng: np.random.Generator) -> Params:
+    def paint(vs: VisualScene | SapienScene, value: float, named: Named, rng: np.random.Generator) -> Params:
         rgb = rng.uniform(0.0, 1.0, size=3)
-        for g in target_geoms(vs.rig.model, axis, vs.object_bodies, named, vs.where):
-            vs.colors[g] = (float(value), rgb)
+        vs.blend_toward(axis, named, float(value), rgb)
         return {f"{axis}.rgb": [round(float(v), 4) for v in rgb]}
 
     return paint
@@ -341,7 +331,7 @@ def _texture(vs: VisualScene, value: float, named: Named, rng: np.random.Generat
         adr = int(model.tex_adr[t])
         if t not in vs.nominal_tex:
             vs.nominal_tex[t] = np.array(model.tex_data[adr : adr + h * w * nc], copy=True)
-        img = _pattern(kind, h, w, rng)
+        img = pattern(kind, h, w, rng)
         if nc == 4:
             img = np.concatenate([img, np.full((h, w, 1), 255, np.uint8)], axis=-1)
         model.tex_data[adr : adr + h * w * nc] = img[..., :nc].reshape(-1)
@@ -391,6 +381,7 @@ _camera_axis = partial(Axis, kind="visual", sees=RGB_IMAGES, maximum=MAX_SCALE, 
 def _blend_row(name: str, short: str, what: str) -> Axis:
     """A colour axis: the default (or the named) geoms' colour blended toward a colour drawn per episode."""
     doc = f"{what} blended toward a colour drawn per episode"
+    color = _color(name)
     return _visual_axis(
         name,
         unit="blend 0..1",
@@ -399,7 +390,8 @@ def _blend_row(name: str, short: str, what: str) -> Axis:
         targets=("geoms", "bodies"),
         nominal=0.0,
         maximum=1.0,
-        paint=_color(name),
+        paint=color,
+        sapien=color,
         check=_check_geoms(name),
     )
 
@@ -413,6 +405,7 @@ ROWS: dict[str, Axis] = {
             short="light intensity",
             doc="ambient, diffuse and specular intensity of every light, headlight included",
             paint=_light,
+            sapien=_light,
         ),
         _visual_axis(
             "light_dir",
@@ -421,6 +414,7 @@ ROWS: dict[str, Axis] = {
             doc="every light tilted about a horizontal axis through the scene centre (azimuth drawn per episode)",
             nominal=0.0,
             paint=_light_dir,
+            sapien=_light_dir,
             maximum=90.0,
         ),
         _camera_axis(
@@ -429,6 +423,7 @@ ROWS: dict[str, Axis] = {
             short="camera position offset",
             doc="every (or the named) camera moved this far in a direction drawn per episode",
             paint=_camera_pos,
+            sapien=_camera_pos,
             check=_check_cameras("camera_pos"),
             maximum=1.0,
         ),
@@ -438,6 +433,7 @@ ROWS: dict[str, Axis] = {
             short="camera orientation offset",
             doc="every (or the named) camera rotated this much about an axis drawn per episode",
             paint=_camera_rot,
+            sapien=_camera_rot,
             check=_check_cameras("camera_rot"),
             maximum=90.0,
         ),
@@ -449,6 +445,7 @@ ROWS: dict[str, Axis] = {
             f"2 widens; at most {MAX_FOV_DEG:g} degrees), the image size unchanged",
             strict=True,
             paint=_camera_fov,
+            sapien=_camera_fov_sapien,
             check=_check_cameras("camera_fov"),
             nominal=1.0,
             maximum=4.0,

@@ -1,6 +1,6 @@
 """What the visual axes act on in a MuJoCo model: the geoms they recolour, the textures they replace,
 the surface distractors stand on, the cameras they move; each a check that raises ConfigError naming
-the axis when a model has none.
+the axis when a model has none. `pattern` draws the procedural textures that replace a table's, `place_distractors` the distractors.
 
 The visual axes themselves (one row each: what a level means and how it is painted into the rendered
 scene) are `bench.sims.perturb.scene`'s; this module renders nothing.
@@ -8,6 +8,7 @@ scene) are `bench.sims.perturb.scene`'s; this module renders nothing.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -130,3 +131,68 @@ def surface(
         f"perturb.distractors: {where} has no table (box geom named like 'table') or floor plane to "
         f"place distractors on"
     )
+
+
+def pattern(kind: int, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A procedural (H, W, 3) uint8 texture: 1 checker, 2 stripes, 3 smooth noise, 4 rings."""
+    c0, c1 = rng.uniform(0, 255, size=3), rng.uniform(0, 255, size=3)
+    y, x = np.mgrid[0:height, 0:width] / max(height, width)
+    if kind == 1:
+        mix = (np.floor(x * 8) + np.floor(y * 8)) % 2
+    elif kind == 2:
+        mix = np.floor((x + y) * 12) % 2
+    elif kind == 3:
+        coarse = rng.uniform(0, 1, size=(9, 9))
+        yi, xi = np.clip((y * 8).astype(int), 0, 7), np.clip((x * 8).astype(int), 0, 7)
+        fy, fx = y * 8 - yi, x * 8 - xi
+        mix = (
+            coarse[yi, xi] * (1 - fy) * (1 - fx)
+            + coarse[yi + 1, xi] * fy * (1 - fx)
+            + coarse[yi, xi + 1] * (1 - fy) * fx
+            + coarse[yi + 1, xi + 1] * fy * fx
+        )
+    else:
+        mix = 0.5 + 0.5 * np.sin(np.hypot(x - 0.5, y - 0.5) * 40)
+    return np.rint(c0 * (1 - mix[..., None]) + c1 * mix[..., None]).astype(np.uint8)
+
+
+def rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
+    """Rotation matrix about a unit axis (Rodrigues)."""
+    k = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    a = math.radians(degrees)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx
+
+
+def place_distractors(
+    model: mujoco.MjModel, data: mujoco.MjData, object_bodies: Sequence[str], n: int, seed: int, where: str
+) -> list[tuple]:
+    """`n` distractors (geom type, size, position, rotation, rgba) on the table or floor, away from the objects,
+    placed from `seed` (at an episode's first render: the object has its initial position then)."""
+    import mujoco  # MuJoCo's native library: loaded only when a model is simulated
+
+    rng = np.random.default_rng(seed)
+    lo, hi, z = surface(model, data, object_bodies, where)
+    bodies = model_names(model, "body", model.nbody)
+    avoid = [np.asarray(data.xpos[bodies.index(b)][:2]) for b in object_bodies if b in bodies]
+    kinds = (
+        mujoco.mjtGeom.mjGEOM_BOX,
+        mujoco.mjtGeom.mjGEOM_SPHERE,
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+    )
+    out: list[tuple] = []
+    for _ in range(n):
+        kind = kinds[int(rng.integers(len(kinds)))]
+        r, h = float(rng.uniform(0.012, 0.03)), float(rng.uniform(0.012, 0.035))
+        for _attempt in range(50):
+            xy = rng.uniform(lo, hi)
+            if all(np.linalg.norm(xy - a) > 0.07 for a in avoid + [np.asarray(o[2][:2]) for o in out]):
+                break
+        size = np.array([r, r, h]) if kind == mujoco.mjtGeom.mjGEOM_BOX else np.array([r, h, 0.0])
+        lift = r if kind == mujoco.mjtGeom.mjGEOM_SPHERE else h + (r if kind == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0)
+        yaw = float(rng.uniform(0, 2 * math.pi))
+        mat = rotation(np.array([0.0, 0.0, 1.0]), math.degrees(yaw)).reshape(-1)
+        rgba = np.append(rng.uniform(0.05, 0.95, size=3), 1.0).astype(np.float32)
+        out.append((kind, size, np.array([xy[0], xy[1], z + lift]), mat, rgba))
+    return out
