@@ -24,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.records import EpisodeRecord
 from bench.scoring import stats
+from bench.scoring.interactions import interactions
 
 CONF = 0.95
 NOMINAL_GATE = 0.95  # the one-sided level of the gate bounds checked here
@@ -160,6 +162,43 @@ def gate_iqm_upper(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool |
     return bool(truth <= float(np.quantile(samples, NOMINAL_GATE))), None
 
 
+def _record(condition: str, axis: str | None, level: object, robot: str, episode: int, ok: bool) -> EpisodeRecord:
+    return EpisodeRecord(
+        **{
+            **dict(run_id="r", suite="s", suite_version="1", task="T", env="e", split="seen", params={}),
+            **dict(init_state_hash="h", return_=0.0, length=1, steps_to_success=None, error=None, policy="p"),
+            **dict(checkpoint_sha256=None, backend="b", wall_s=0.0, finished_at=0.0, worker_pid=0),
+            "condition": condition,
+            "axis": axis,
+            "level": level,
+            "robot": robot,
+            "episode": episode,
+            "seed": episode,
+            "success_once": ok,
+            "success_at_end": ok,
+            "job_id": f"T/{robot}/e|{condition}|{episode}",
+        }
+    )
+
+
+def interaction(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
+    """`perturb.combine`'s interaction (bench.scoring.interactions): nominal at `rate`, each of two axes alone
+    losing `drop`, both together losing 3 x `drop` (an interaction of + `drop`), on shared per-seed draws."""
+    rates = {"nominal": sc.rate, "a=2": sc.rate - sc.drop, "b=2": sc.rate - sc.drop, "a=2&b=2": sc.rate - 3 * sc.drop}
+    meta = {"nominal": (None, None), "a=2": ("a", 2.0), "b=2": ("b", 2.0), "a=2&b=2": ("a&b", {"a": 2.0, "b": 2.0})}
+    records = []
+    for c in range(sc.cells):
+        u = rng.uniform(size=sc.episodes)  # the episode's initial state, shared by every condition
+        for name, p in rates.items():
+            v = np.where(rng.uniform(size=sc.episodes) < 0.5, u, rng.uniform(size=sc.episodes))
+            for e in range(sc.episodes):
+                records.append(_record(name, meta[name][0], meta[name][1], f"R{c}", e, bool(v[e] < p)))
+    (entry,) = interactions(records, rng, n_boot=1000)
+    lo, hi = entry["interaction"]["ci"]
+    truth = (rates["nominal"] - rates["a=2&b=2"]) - 2 * (rates["nominal"] - rates["a=2"])
+    return bool(lo <= truth <= hi), None
+
+
 def returns_mean(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
     """Mean return of cells (stratified bootstrap): skewed returns, lognormal around a cell's level."""
     levels = 1.0 + sc.rates(rng) * 10.0
@@ -197,6 +236,12 @@ ROWS: tuple[tuple[str, Check, tuple[Scenario, ...], float], ...] = (
         gate_iqm_upper,
         tuple(s for s in DROPS if s.cells >= 4),
         NOMINAL_GATE,
+    ),
+    (
+        "combined axes: interaction (wider of paired bootstrap and MOVER)",
+        interaction,
+        (Scenario(0.9, 2, 10, 0.0, 0.1), Scenario(0.9, 12, 10, 0.0, 0.1), Scenario(0.5, 4, 10, 0.0, 0.05)),
+        CONF,
     ),
     ("mean return of cells (stratified t)", returns_mean, tuple(s for s in SCENARIOS if s.rate == 0.5), CONF),
 )

@@ -17,6 +17,7 @@ from benchmarks.bench_interval_coverage import (
     coverage,
     gap,
     gate_pooled_upper,
+    interaction,
     paired_drop,
     per_cell,
     returns_mean,
@@ -58,3 +59,7 @@ def test_gap_and_paired_drop_and_gate_bound_cover(sc):
 def test_mean_return_covers_with_few_episodes_per_cell():
     now, before = coverage(returns_mean, Scenario(0.5, 12, 5), REPS, 7)
     assert now >= FLOOR, (now, before)
+
+
+def test_combined_axes_interaction_covers():
+    assert coverage(interaction, Scenario(0.9, 12, 10, 0.0, 0.1), 200, 8)[0] >= FLOOR
