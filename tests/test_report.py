@@ -163,7 +163,7 @@ def test_returns_are_shown_as_returns_and_stderr_stays_clean(tmp_path: Path, cap
     assert capsys.readouterr().err == ""  # no library warning (matplotlib layout) reaches stderr
     page = (out / "index.html").read_text()
     gym = page[page.index("<h2>gym v1") :].split("</table>")[0]
-    assert "seen -274.6 [-325.5, -233.9]" in gym and "%" not in gym.split("<table>")[1]
+    assert "seen -274.6 [-331.2, -218" in gym and "%" not in gym.split("<table>")[1]
     assert "-27460%" not in page
     assert Image.open(out / "leaderboard.png").size[0] > 1000
     run = tmp_path / "run"
