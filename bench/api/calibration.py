@@ -26,6 +26,16 @@ from bench.calibrate.effects import EFFECTS, Effect
 from bench.calibrate.generate import write_case
 from bench.calibrate.gradient import METHODS, GradientFitter
 from bench.calibrate.report import write_report
+from bench.calibrate.servo import (
+    ServoCalibration,
+    ServoSpec,
+    calibrate_servo,
+    is_servo_spec,
+    parse_servo_spec,
+    read_runs,
+    write_servo_report,
+)
+from bench.calibrate.servo import summary as servo_summary
 from bench.calibrate.spec import EffectRequest, load_spec
 from bench.calibrate.suite_robot import calibrate_suite, torque_joints
 from bench.calibrate.trace import calibrate_episodes
@@ -45,10 +55,12 @@ __all__ = [
     "DesignConfig",
     "Designed",
     "GenerateConfig",
+    "ServoCalibration",
     "SuiteCalibrateConfig",
     "calibrate",
     "calibrate_arm",
     "calibrate_robot",
+    "calibrate_servo",
     "calibrate_suite",
     "design_excitation",
     "effects",
@@ -57,6 +69,7 @@ __all__ = [
     "load_arm_spec",
     "model_hash",
     "score_reference",
+    "servo_summary",
     "summary_line",
     "torque_error",
     "torque_joints",
@@ -211,6 +224,19 @@ def _arm(cfg: CalibrateConfig, spec: ArmSpec, spec_file: str, logs: str, out_dir
     return Calibrated(out / "calibration.json", cal)
 
 
+def _servo(cfg: CalibrateConfig, spec: ServoSpec, spec_file: str, logs: str, out_dir: str) -> Calibrated:
+    """A position servo from its own logs (`method: servo`): OUT/calibration.json and report.md."""
+    if cfg.method == "gradient" or cfg.effects is not None:
+        raise ConfigError(
+            "a servo spec (method: servo) takes its effects from the spec; leave method= and effects= out"
+        )
+    out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "logs": logs})
+    runs = read_runs(Path(logs).expanduser(), spec.columns, units=spec.units, load_scale=spec.load_scale, fps=spec.rate)
+    cal = calibrate_servo(spec, runs, log=_log(cfg.quiet))
+    outputs.replace_dir(out, lambda tmp: write_servo_report(cal, tmp))
+    return Calibrated(out / "calibration.json", cal)
+
+
 def _arm_effects(value: Any) -> tuple[str, ...]:
     if value == "all":
         return ARM_EFFECTS
@@ -237,6 +263,8 @@ def calibrate(cfg: CalibrateConfig) -> Calibrated:
                 "least squares on the torque, solved exactly: leave method= out"
             )
         return _arm(cfg, parse_arm_spec(raw, spec_path.parent, spec_path), spec_file, logs, out_dir)
+    if is_servo_spec(raw):
+        return _servo(cfg, parse_servo_spec(raw, spec_path), spec_file, logs, out_dir)
     spec = load_spec(spec_path)
     fitter = _gradient_fitter(spec, cfg.quiet) if cfg.method == "gradient" else None
     out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})

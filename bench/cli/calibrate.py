@@ -124,6 +124,10 @@ def cmd_run(cfg: cal.CalibrateConfig) -> int:
     """Calibrate: spec + logs -> OUT/calibration.json, OUT/report.md, plots."""
     done = cal.calibrate(cfg)
     _warn(done)
+    if isinstance(done.calibration, cal.ServoCalibration):  # a position servo from its own logs (`method: servo`)
+        print("\n".join(cal.servo_summary(done.calibration)))
+        print(f"wrote {done.path} and {done.path.parent / 'report.md'} ({done.calibration.wall['total']:.1f} s)")
+        return 0
     if isinstance(done.calibration, cal.ArmCalibration):  # a real arm by inverse dynamics (`method: idim`)
         path = done.path
         print(f"wrote {path} and {path.parent / 'report.md'}")

@@ -1,0 +1,295 @@
+"""The servo's Real2Sim loop: fit the declared servo, find which effects the logs need, refit, and report the error on
+whole runs the fit never saw, before (the declared servo) and after (with the effects added).
+
+Held out are whole runs (by trajectory, the spec's `holdout`): new to the fit in their goal profile, and for
+`lift_and_drop` in their physics (stretches with the torque off: free fall under gravity and friction alone). Each
+run's gain setting is fitted on the other runs with that setting (the setting is a label, its value never used).
+Effects are chosen on validation windows of the training runs (every fourth window), never on the held-out runs.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.calibrate.servo.data import ServoRun
+from bench.calibrate.servo.effects import KP_UNIT, SERVO_EFFECTS, scale_of
+from bench.calibrate.servo.fit import Fit, Problem, duty_data, fit, linear_start, position_cost
+from bench.calibrate.servo.law import GRAVITY, ServoParams
+from bench.calibrate.servo.sim import RUN_GAP, make_windows, simulate
+from bench.calibrate.servo.spec import ServoSpec
+from bench.core.errors import DataError
+from bench.core.threads import one_blas_thread
+
+KP_GRID = np.geomspace(0.5, 5000.0, 28)  # gains tried by the linear start where no duty is logged
+SEARCH_NFEV = 12  # evaluations of a candidate's fit
+FINAL_NFEV = 40
+
+
+@dataclass
+class ServoCalibration:
+    """What `calibrate_servo` found: fits before and after, held-out errors per run, the physics recovered."""
+
+    spec: ServoSpec
+    train: list[str]
+    heldout: list[str]
+    labels: list[str]
+    declared: Fit
+    final: Fit
+    added: list[dict[str, Any]]
+    rounds: list[dict[str, Any]]
+    errors: dict[str, Any]
+    physics: dict[str, Any]
+    wall: dict[str, float]
+    warnings: list[str] = field(default_factory=list)
+
+    def parameters(self, f: Fit) -> dict[str, Any]:
+        """Every fitted parameter with its unit and 95% interval (None: the data do not bound it)."""
+        units = {p.field: p.unit for p in f.prob.params}
+        return {
+            n: {"value": f.value(n), "unit": units.get(n, KP_UNIT), "interval": f.interval(n)} for n in f.prob.names
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "schema": "bench.calibration.servo/1",
+            "spec": self.spec.to_json(),
+            "train": self.train,
+            "heldout": {
+                "runs": self.heldout,
+                "why_new": "whole runs never fitted: their goal profile, and with the torque off (lift_and_drop) "
+                "free motion under gravity and friction alone",
+            },
+            "labels": self.labels,
+            "effects_added": self.added,
+            "rounds": self.rounds,
+            "parameters": {"declared": self.parameters(self.declared), "final": self.parameters(self.final)},
+            "errors": self.errors,
+            "physics": self.physics,
+            "wall": self.wall,
+            "warnings": self.warnings,
+        }
+
+
+def _split(spec: ServoSpec, runs: list[ServoRun]) -> tuple[list[ServoRun], list[ServoRun]]:
+    key, val = next(iter(spec.holdout.items()))
+    if key == "trajectory":
+        held = [r for r in runs if r.trajectory == val]
+    else:
+        names = [str(v) for v in (val if isinstance(val, list) else [val])]
+        held = [r for r in runs if r.name in names]
+    train = [r for r in runs if r not in held]
+    if not held or not train:
+        raise DataError(
+            f"holdout {spec.holdout!r} leaves {len(train)} run(s) to fit and {len(held)} to hold out; both need one "
+            f"(trajectories: {', '.join(sorted({r.trajectory for r in runs}))})"
+        )
+    missing = sorted({r.label for r in held} - {r.label for r in train})
+    if missing:
+        raise DataError(f"held-out runs with gain setting {missing[0]} have no run with that setting to fit it on")
+    return train, held
+
+
+def _label_key(label: str) -> tuple[float, str]:
+    try:
+        return float(label.split("=")[-1]), label
+    except ValueError:
+        return float("inf"), label
+
+
+def _extend(prob: Problem, x: np.ndarray, name: str) -> tuple[Problem, np.ndarray]:
+    """The problem with effect `name` added, and `x` with its parameters at their start (amplitude zero)."""
+    new = Problem(prob.base, prob.labels, (*prob.effects, name), prob.scale)
+    k = len(prob.params)
+    starts = [p.start(prob.scale) for p in SERVO_EFFECTS[name].params]
+    if name == "backlash":  # a play of exactly zero is a different (one-body) model: start inside the family
+        starts[0] = 0.1 * SERVO_EFFECTS[name].params[0].bounds(prob.scale)[1]
+    return new, np.concatenate([x[:k], starts, x[k:]])
+
+
+def _gated(f: Fit, name: str) -> bool:
+    """The effect's amplitude parameters have intervals that exclude zero."""
+    for fld in SERVO_EFFECTS[name].gated:
+        iv = f.interval(fld)
+        if iv is None or iv[0] <= 0:
+            return False
+    return True
+
+
+def heldout_errors(
+    p: ServoParams, kp: np.ndarray, runs: list[ServoRun], labels: list[str], horizon: int
+) -> dict[str, Any]:
+    """Per run: free-run (from the first logged state to the end, driven by the logged goal) and k-step position
+    errors, and the free-run error over the frames with the torque off (free fall)."""
+    full = make_windows(runs, labels, 0)
+    sim = simulate(p.with_(kp=kp[full.label]), full)
+    kw = make_windows(runs, labels, horizon)
+    ks = simulate(p.with_(kp=kp[kw.label]), kw)
+    out: dict[str, Any] = {}
+    for i, r in enumerate(runs):
+        n = r.frames - 1
+        err = sim[i, :n] - r.q[1:]
+        sd = float(np.std(r.q))
+        off = r.enable[1:] < 0.5
+        mine = kw.run == i
+        kerr = (ks[mine] - kw.target[mine])[kw.mask[mine]]
+        out[r.name] = {
+            "trajectory": r.trajectory,
+            "label": r.label,
+            "free_run_rmse": float(np.sqrt(np.mean(err**2))),
+            "free_run_nrmse": float(np.sqrt(np.mean(err**2)) / sd),
+            "k_step_rmse": float(np.sqrt(np.mean(kerr**2))),
+            "free_fall_rmse": float(np.sqrt(np.mean(err[off] ** 2))) if off.any() else None,
+            "free_fall_frames": int(off.sum()),
+        }
+    return out
+
+
+def _physics(cal_fit: Fit, train: list[ServoRun], labels: list[str], spec: ServoSpec) -> dict[str, Any]:
+    """The load and the gains recovered, beside the bench's known values (read from the logs, never fitted)."""
+    truth = train[0].truth
+    out: dict[str, Any] = {}
+    g, giv = cal_fit.value("gravity"), cal_fit.interval("gravity")
+    if giv is not None:  # the declared torque scale's own uncertainty, in quadrature with the data's
+        half = 0.5 * (giv[1] - giv[0])
+        wide = float(np.hypot(half, 1.96 * spec.kt_over_r_sd * g))
+        giv_all: list[float] | None = [g - wide, g + wide]
+    else:
+        giv_all = None
+    mgl = truth["mass"] * GRAVITY * truth["length"] if "mass" in truth and "length" in truth else None
+    out["gravity_torque"] = {
+        "fitted": g,
+        "interval_data": giv,
+        "interval_with_torque_scale": giv_all,
+        "known_mgl": mgl,
+        "relative_error": (g - mgl) / mgl if mgl else None,
+    }
+    known = {r.label: float(r.truth["kp"]) for r in train if "kp" in r.truth}
+    base = labels[0]
+    kps = {}
+    for lab in labels:
+        v, iv = cal_fit.value(f"kp[{lab}]"), cal_fit.interval(f"kp[{lab}]")
+        ratio = v / cal_fit.value(f"kp[{base}]")
+        true_ratio = known[lab] / known[base] if lab in known and base in known else None
+        kps[lab] = {
+            "fitted": v,
+            "interval": iv,
+            "known": known.get(lab),
+            "ratio_to_" + base: ratio,
+            "known_ratio": true_ratio,
+            "ratio_error": (ratio - true_ratio) / true_ratio if true_ratio else None,
+        }
+    out["gains"] = kps
+    if mgl and "length" in truth:
+        j = cal_fit.value("inertia")
+        ml2 = truth["mass"] * truth["length"] ** 2
+        out["inertia"] = {"fitted": j, "point_mass_ml2": ml2, "implied_armature": j - ml2}
+    return out
+
+
+def calibrate_servo(
+    spec: ServoSpec, runs: list[ServoRun], log: Callable[[str], None] = lambda m: None
+) -> ServoCalibration:
+    """Fit, search the effects, refit, and score on the held-out runs (see the module's docstring)."""
+    t_start = time.perf_counter()
+    train, held = _split(spec, runs)
+    labels = sorted({r.label for r in train}, key=_label_key)
+    base = ServoParams(error_gain=spec.error_gain, max_duty=spec.max_duty, kt_over_r=spec.kt_over_r, kt=spec.kt)
+    with one_blas_thread():
+        horizon = max(2, int(round(spec.horizon * spec.rate)))
+        w = make_windows(train, labels, horizon)
+        val = np.arange(len(w.q0)) % 4 == 3
+        w_fit, w_val = w.subset(~val), w.subset(val)
+        sd_q = float(np.std(np.concatenate([r.q for r in train])))
+
+        def score(p: ServoParams, kp: np.ndarray) -> float:
+            sim = simulate(p.with_(kp=kp[w_fit.label]), w_fit)
+            return float(np.mean(((sim - w_fit.target) / sd_q)[w_fit.mask] ** 2))
+
+        start, kp0 = linear_start(train, labels, base, KP_GRID, score)
+        dd = duty_data(train, labels, RUN_GAP, stride=2)
+        sd_d = float(np.std(dd.duty)) if dd is not None else 1.0
+        torque = spec.kt_over_r * float(np.mean(np.concatenate([r.vin for r in train]))) * spec.max_duty
+        scale = scale_of(torque, np.concatenate([r.dq for r in train]), start.inertia, 1.0 / spec.rate)
+        prob = Problem(base, labels, (), scale)
+        cur = fit(prob, prob.vector(start, kp0), w_fit, dd, sd_q, sd_d, max_nfev=FINAL_NFEV)
+        cur_val = position_cost(prob, cur.x, w_val, sd_q)
+        log(f"declared servo: validation k-step MSE {cur_val:.4g} (sd units)")
+        added: list[dict[str, Any]] = []
+        rounds: list[dict[str, Any]] = []
+        w_search = w_fit.subset(np.arange(len(w_fit.q0)) % 2 == 0)  # the search screens on half the fit windows
+        while True:
+            scores = []
+            for name in spec.effects:
+                if name in cur.prob.effects:
+                    continue
+                pr, x0 = _extend(cur.prob, cur.x, name)
+                f = fit(pr, x0, w_search, dd, sd_q, sd_d, max_nfev=SEARCH_NFEV)
+                scores.append((position_cost(pr, f.x, w_val, sd_q), name, f))
+            if not scores:
+                break
+            scores.sort(key=lambda s: s[0])
+            rounds.append({"before": cur_val, "candidates": {n: v for v, n, _ in scores}})
+            passing = [s for s in scores if 1.0 - s[0] / cur_val >= spec.margin and _gated(s[2], s[1])]
+            for v, n, f in scores[:3]:
+                tag = (
+                    "added"
+                    if passing and n == passing[0][1]
+                    else (
+                        "not added: interval includes 0"
+                        if (v, n, f) not in passing and 1.0 - v / cur_val >= spec.margin
+                        else ""
+                    )
+                )
+                log(f"  {n}: validation {cur_val:.4g} -> {v:.4g} ({1.0 - v / cur_val:+.1%}) {tag}".rstrip())
+            if not passing:
+                break
+            best_val, name, best = passing[0]
+            added.append({"name": name, "validation_drop": 1.0 - best_val / cur_val})
+            cur, cur_val = best, best_val
+        t_search = time.perf_counter()
+        declared = fit(prob, prob.vector(start, kp0), w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV)
+        final = fit(cur.prob, cur.x, w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV) if added else declared
+        errors = {}
+        for tag, f in (("declared", declared), ("final", final)):
+            p, kp = f.servo()
+            errors[tag] = heldout_errors(p, kp, held, labels, horizon)
+    wall = {"total": time.perf_counter() - t_start, "search": t_search - t_start}
+    return ServoCalibration(
+        spec=spec,
+        train=[r.name for r in train],
+        heldout=[r.name for r in held],
+        labels=labels,
+        declared=declared,
+        final=final,
+        added=added,
+        rounds=rounds,
+        errors=errors,
+        physics=_physics(final, train, labels, spec),
+        wall=wall,
+    )
+
+
+def summary(cal: ServoCalibration) -> list[str]:
+    """Lines for the console: effects added, held-out errors before -> after, the physics recovered."""
+    added = ", ".join(a["name"] for a in cal.added) or "none"
+    lines = [f"effects added: {added}"]
+    for name in cal.heldout:
+        b, a = cal.errors["declared"][name], cal.errors["final"][name]
+        ff = ""
+        if b["free_fall_rmse"] is not None:
+            ff = f"; torque off: {b['free_fall_rmse']:.4f} -> {a['free_fall_rmse']:.4f} rad"
+        lines.append(
+            f"held-out {name} ({b['trajectory']}, {b['label']}): free-run RMSE {b['free_run_rmse']:.4f} -> "
+            f"{a['free_run_rmse']:.4f} rad{ff}"
+        )
+    g = cal.physics["gravity_torque"]
+    if g["known_mgl"]:
+        lines.append(
+            f"gravity torque m·g·l: fitted {g['fitted']:.4f} N·m, known {g['known_mgl']:.4f} ({g['relative_error']:+.1%})"
+        )
+    return lines

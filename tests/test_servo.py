@@ -1,0 +1,137 @@
+"""Position servos calibrated from their own logs (`method: servo`): the real BAM bench logs (XL330), MuJoCo CPU
+against the fit's simulator, and bad input refused through the CLI with one line and nothing written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from bench.calibrate.servo import calibrate_servo, parse_servo_spec, read_runs
+from bench.calibrate.servo.mujoco import simulate_run
+from bench.calibrate.servo.sim import make_windows, simulate, substeps_for
+from bench.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+BAM = ROOT.parent / "shared" / "data" / "real" / "servo_bam"
+SPEC = ROOT / "bench" / "calibrate" / "models" / "servo_xl330.yaml"
+needs_bam = pytest.mark.skipif(
+    not (BAM / "xl330").is_dir(), reason="needs ../shared/data/real/servo_bam (BAM's real servo logs)"
+)
+
+
+@pytest.fixture(scope="module")
+def xl330():
+    spec = parse_servo_spec(yaml.safe_load(SPEC.read_text()))
+    runs = read_runs(BAM / "xl330", spec.columns, units=spec.units, load_scale=spec.load_scale, fps=spec.rate)
+    return spec, runs, calibrate_servo(spec, runs)
+
+
+@needs_bam
+def test_xl330_held_out_runs_are_simulated_better_and_the_physics_is_recovered(xl330):
+    spec, runs, cal = xl330
+    assert all(r.trajectory == "lift_and_drop" for r in runs if r.name in cal.heldout) and len(cal.heldout) == 4
+    for name in cal.heldout:
+        before, after = cal.errors["declared"][name], cal.errors["final"][name]
+        assert after["free_run_rmse"] < 0.5 * before["free_run_rmse"], name
+        assert after["free_fall_rmse"] < 0.5 * before["free_fall_rmse"], name  # torque off: new physics
+    assert [a["name"] for a in cal.added][:1] == ["load_friction"]
+    g = cal.physics["gravity_torque"]
+    assert abs(g["relative_error"]) < 0.15, g  # m·g·l from the time series (mass and length never fitted)
+    for lab, k in cal.physics["gains"].items():
+        assert abs(k["ratio_error"] or 0.0) < 0.15, (lab, k)
+
+
+@needs_bam
+def test_mujoco_cpu_runs_the_same_servo(xl330):
+    _, runs, cal = xl330
+    p, kp = cal.final.servo()
+    run = next(r for r in runs if r.name == cal.heldout[0])
+    pk = p.with_(kp=float(kp[cal.labels.index(run.label)]))
+    mj = simulate_run(pk, run.goal, run.enable, run.vin, run.q[0], run.dq[0], run.fps, substeps_for(run.fps))
+    w = make_windows([run], cal.labels, 0)
+    ours = simulate(p.with_(kp=kp[w.label]), w)[0]
+    to_log = np.sqrt(np.mean((ours - run.q[1:]) ** 2))
+    assert np.sqrt(np.mean((mj - ours) ** 2)) < 0.2 * to_log
+
+
+@needs_bam
+def test_cli_writes_the_calibration(tmp_path, capsys):
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"spec={SPEC}", f"logs={BAM / 'xl330'}", f"out={out}", "quiet=true"]) == 0
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["schema"] == "bench.calibration.servo/1" and doc["effects_added"]
+    assert (out / "report.md").read_text().splitlines()[2].startswith("The calibrated xl330")
+    assert "gravity torque m·g·l" in capsys.readouterr().out
+
+
+def _run(n: int = 40, **meta) -> dict:
+    t = np.arange(n) * 0.005
+    entries = [
+        {
+            "timestamp": float(x),
+            "position": float(0.1 * np.sin(x)),
+            "goal_position": float(0.2 * np.sin(x)),
+            "torque_enable": True,
+            "load": 10,
+            "input_volts": 7.4,
+        }
+        for x in t
+    ]
+    return {
+        "mass": 0.5,
+        "length": 0.1,
+        "kp": 100,
+        "vin": 7.4,
+        "motor": "xl330",
+        "trajectory": "sin_sin",
+        "entries": entries,
+        **meta,
+    }
+
+
+def _backwards(d: dict) -> None:
+    d["entries"][5]["timestamp"] = d["entries"][3]["timestamp"]
+    d["entries"][6]["timestamp"] = 0.0
+
+
+def _degrees(d: dict) -> None:
+    for e in d["entries"]:
+        e["position"] *= 180 / np.pi * 20
+
+
+def _no_goal(d: dict) -> None:
+    for e in d["entries"]:
+        del e["goal_position"]
+
+
+def _kp0(d: dict) -> None:
+    d["kp"] = 0
+
+
+@pytest.mark.parametrize(
+    ("edit", "pattern"),
+    [
+        (_backwards, "not increasing"),
+        (_degrees, "looks like degrees"),
+        (_no_goal, "goal position"),
+        (_kp0, "kp is 0"),
+    ],
+    ids=["non_monotonic_time", "degrees_declared_rad", "goal_missing", "kp_zero"],
+)
+def test_bad_servo_logs_are_refused_with_one_line_and_nothing_written(tmp_path, capsys, edit, pattern):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    good, bad = _run(), _run()
+    edit(bad)
+    (logs / "a.json").write_text(json.dumps(good))
+    (logs / "b.json").write_text(json.dumps(bad))
+    out = tmp_path / "out"
+    code = main(["calibrate", f"spec={SPEC}", f"logs={logs}", f"out={out}", "quiet=true"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and pattern in err, err
+    assert not out.exists()
