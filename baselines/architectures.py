@@ -93,3 +93,30 @@ def build(name: str, obs_dim: int, action_dim: int, kwargs: dict[str, Any] | Non
         raise
     except (TypeError, ValueError) as exc:
         raise SpecError(f"architecture {name!r} with {kwargs}: {exc}") from None
+
+
+def rowwise(model, x):
+    """`model(x)` for a batch (B, D) whose row i is bit for bit what the same call gives `x[i:i+1]` alone.
+
+    A batched matrix product sums in an order that depends on the batch size (the packaged BC's actions move by up
+    to 1e-2 between a batch of 1 and of 32 once de-normalised), and a vectorised elementwise kernel rounds a value
+    by where it falls in memory, either of which would make a vectorised run's records differ from an unbatched
+    one's. So each `nn.Linear` of a `nn.Sequential` is a batch of one-row products (`baddbmm`, which runs the same
+    product per row whatever the batch), ReLU and Identity (no rounding) take the batch at once, and other layers
+    (tanh, GELU, ELU, LayerNorm) one row at a time, as does a model that is not a `nn.Sequential`. `act` is this
+    with B = 1. Checked over widths and layers in tests/test_vector.py.
+    """
+    import torch  # torch: loaded only when a policy answers (the registry itself imports none)
+
+    if not isinstance(model, torch.nn.Sequential):
+        return torch.cat([model(x[i : i + 1]) for i in range(len(x))])
+    h, n = x[:, None, :], len(x)
+    for m in model:
+        if isinstance(m, torch.nn.Linear):
+            weight = m.weight.t().expand(n, -1, -1)
+            h = torch.bmm(h, weight) if m.bias is None else torch.baddbmm(m.bias.expand(n, 1, -1), h, weight)
+        elif isinstance(m, (torch.nn.ReLU, torch.nn.Identity)):  # no rounding: exact whatever the layout
+            h = m(h)
+        else:  # a vectorised kernel rounds a row by where it falls in memory: one row at a time
+            h = torch.cat([m(h[i : i + 1]) for i in range(n)])
+    return h[:, 0]

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from baselines.architectures import rowwise
 from bench.api import ConfigError, SpecError, valid_choices
 from bench.api.data import sha256_file, write_bytes_atomic, write_text_atomic
 from bench.protocols import STATE, Obs, PolicyContext, PolicyIdentity, PolicyPlugin
@@ -329,12 +330,13 @@ class CheckpointPolicy:
         return self.act_batch([obs])[0]
 
     def act_batch(self, batch: list[Obs]) -> list[np.ndarray]:
-        """`act` for several observations in one forward pass (`bench serve batch=N` groups requests)."""
+        """`act` for several observations in one forward pass (`bench run vector=N`, `bench serve batch=N`), each
+        answer bit for bit what `act` gives it alone (`rowwise`), so batched runs record what unbatched ones do."""
         import torch
 
         x = (np.stack([np.asarray(o[STATE], np.float32) for o in batch]) - self.obs_mean) / self.obs_std
         with torch.inference_mode():
-            y = self.model(torch.from_numpy(x)).numpy()
+            y = rowwise(self.model, torch.from_numpy(x)).numpy()
         y = y.reshape(len(batch), self.chunk, -1)
         actions = y * self.act_std + self.act_mean
         if self.low is not None:

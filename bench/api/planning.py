@@ -135,6 +135,8 @@ class Plan:
             del cfg["seed_scheme"]
         if not cfg["strict"]:  # the default, left out: run.json of a run without it is as before the key existed
             del cfg["strict"]
+        if cfg["vector"] == 1:  # the default, left out likewise
+            del cfg["vector"]
         for opts in (self.suite_options, self.policy_options):
             if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
                 cfg.update(dataclasses.asdict(opts))
@@ -152,6 +154,7 @@ class Plan:
             ctx,
             (cal.robot, cal.edits) if cal is not None else None,
             build_memo,
+            self.config.vector,
         )
 
 

@@ -32,6 +32,7 @@ from bench.execution.run_config import (
     RESUMABLE_KEYS,
     RunConfig,
 )
+from bench.execution.run_lock import RunLock
 from bench.execution.runner import Worker, memo_folder
 from bench.protocols.executor import ClusterExecutor, Executor, capabilities
 from bench.protocols.suite import Job, SuiteSpec
@@ -160,6 +161,9 @@ def run(
 ) -> RunResult:
     """Run a config or a plan into its run directory; recorded episodes are skipped (resume).
 
+    The run directory is locked for the call (`bench.execution.run_lock`): a second writer is refused
+    (`RunLocked`, nothing written), and the lock of a killed run is taken over.
+
     Args:
         cfg: a RunConfig (planned here) or a Plan from `plan`.
         only: run only the jobs it accepts (e.g. the first k episodes); the others stay to do.
@@ -170,6 +174,29 @@ def run(
         on_record: called with each new record after it is written.
     """
     p = cfg if isinstance(cfg, Plan) else plan(cfg)
+    lock = RunLock(p.run_dir)  # one writer per run directory, held until the summary is written
+    try:
+        lock.acquire()
+    except BaseException:
+        if executor is not None:
+            executor.close()  # its prestarted children hold nothing but imports
+        raise
+    try:
+        return _run_locked(p, lock, only, progress, summarize, executor, on_record)
+    finally:
+        lock.release()
+
+
+def _run_locked(
+    p: Plan,
+    lock: RunLock,
+    only: Callable[[Job], bool] | None,
+    progress: bool,
+    summarize: bool,
+    executor: Executor | None,
+    on_record: Callable[[EpisodeRecord], None] | None,
+) -> RunResult:
+    """`run` with the run directory's lock held."""
     c = p.config
     episodes_path = p.run_dir / EPISODES
     done_ids = {r.job_id for r in read_records(episodes_path)}
@@ -186,6 +213,8 @@ def run(
             RecordWriter(episodes_path) as writer,
             RunProgress(progress, c, len(todo), len(done_ids), len(p.jobs), p.run_dir, workers) as bar,
         ):
+            if lock.took_over is not None:
+                bar.note(f"took over the lock of {lock.took_over.describe()}, which is gone (a run that was killed)")
 
             def write(record: EpisodeRecord) -> None:
                 writer.write(record)

@@ -14,7 +14,11 @@ Works on any suite (one cell, the random policy, whose actions depend only on th
    the start while the children spawn, import and build (bench.execution.local.LocalExecutor). Also
    printed: the share of the workers' wall time spent inside episodes (end to end ÷ steady
    state, roughly), which other load on the machine changes much less than the throughputs.
-3. With cameras (`obs=rgb` or `obs=state+rgb`, suites built on `bench.sims.camera_env`): the cost of
+3. `vector=[1,8,32]`: env-steps/s of one worker stepping N envs of the cell in lockstep (`bench run vector=N`),
+   its policy (`vector_policy=`, default the packaged torch BC checkpoint, which answers a batch in one
+   forward pass) asked once per step for all of them, and each N's ratio to the first: the same episodes
+   for every N, every env built before the timing, the sizes' order alternating between two rounds.
+4. With cameras (`obs=rgb` or `obs=state+rgb`, suites built on `bench.sims.camera_env`): the cost of
    rendering one frame of each camera (ms, median over frames of a reset/step sequence), the
    harness ÷ bare loop ratio of 1. where both render the cameras every step (the bare loop steps
    the same camera-wrapped env), and the cost of `video=N` (the harness with every episode filmed
@@ -44,6 +48,8 @@ from bench.core import outputs
 from bench.core.errors import ConfigError
 from bench.core.io import write_atomic
 from bench.execution.local import LocalExecutor
+from bench.execution.run_config import MAX_VECTOR
+from bench.protocols import batchable
 from bench.records import EpisodeRecord, RecordWriter
 from bench.sims.camera import SCENE_FLAGS
 
@@ -58,6 +64,7 @@ __all__ = [
     "perf",
     "render_cost",
     "steady_rate",
+    "vector_gain",
     "video_overhead",
     "workers_scaling",
 ]
@@ -82,23 +89,27 @@ class PerfConfig:
     cameras: Optional[list[str]] = None  # cameras to render (default: the suite's)
     image_size: int = 128  # image height and width in pixels
     video: bool = True  # with cameras: also measure the cost of filming every episode (video=N)
+    vector: Optional[list[int]] = None  # env counts to time vectorised episodes at, e.g. [1,8,32] (none: skip)
+    vector_policy: str = "bc"  # the policy of the vector measurement (bc: the packaged torch checkpoint)
     out: Optional[str] = None  # also write the measurements as JSON (schema bench.perf/1) to this new file
 
 
-def make_plan(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None = None) -> Plan:
-    """A random-policy plan of one cell; nothing is written (its run directory is never made: the
-    episodes are timed in this process and their records go to a private temporary file)."""
+def make_plan(
+    cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None = None, policy: str = "random"
+) -> Plan:
+    """A plan of one cell (the random policy unless told); nothing is written (its run directory is never made:
+    the episodes are timed in this process and their records go to a private temporary file)."""
     scratch = tempfile.mkdtemp(prefix="bench-perf-")  # new and empty: whatever the temporary folder holds
     try:
-        return _one_cell(cfg, episodes, suite_options, scratch)
+        return _one_cell(cfg, episodes, suite_options, scratch, policy)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def _one_cell(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None, scratch: str) -> Plan:
+def _one_cell(cfg: PerfConfig, episodes: int, suite_options: dict[str, Any] | None, scratch: str, policy: str) -> Plan:
     run = RunConfig(
         suite=cfg.suite,
-        policy="random",
+        policy=policy,
         episodes=episodes,
         seed=cfg.seed,
         horizon=cfg.horizon,
@@ -209,6 +220,60 @@ def workers_scaling(p: Plan, workers: int) -> dict[str, Any]:
     }
 
 
+def vector_gain(p: Plan, sizes: list[int], rounds: int = 2) -> dict[str, Any]:
+    """Env-steps/s of one worker running the plan's episodes N at a time in lockstep (`Worker.run_vector`), per N.
+
+    The same episodes for every N (the plan's, one cell and condition), every slot's env and policy built and
+    warmed first (a run at max(sizes)), then `rounds` passes over the sizes, the order reversed every other pass
+    so a drift in machine speed hits all alike. `ratio`: each N's rate over the first size's.
+    `policy_ms_per_step`: the policy's answers per env-step at each N (`_policy_ms`), which bounds what batching
+    can save.
+    """
+    worker = api_worker(p)
+    jobs = p.jobs
+    secs = dict.fromkeys(sizes, 0.0)
+    steps = dict.fromkeys(sizes, 0)
+    try:
+        worker.run_vector(jobs[: max(sizes)])  # warm-up: every slot built
+        for r in range(rounds):
+            for n in sizes if r % 2 == 0 else sizes[::-1]:
+                for i in range(0, len(jobs), n):
+                    t0 = time.perf_counter()
+                    records = worker.run_vector(jobs[i : i + n])
+                    secs[n] += time.perf_counter() - t0
+                    steps[n] += sum(rec.length for rec in records)
+        policy_ms = _policy_ms(worker, jobs[: max(sizes)], sizes)
+    finally:
+        worker.close()
+    rates = {n: steps[n] / secs[n] for n in sizes}
+    return {
+        "policy": str(p.config.policy),
+        "episodes": len(jobs),
+        "steps_per_s": {str(n): rates[n] for n in sizes},
+        "ratio": {str(n): rates[n] / rates[sizes[0]] for n in sizes},
+        "policy_ms_per_step": {str(n): policy_ms[n] for n in sizes},
+    }
+
+
+def _policy_ms(worker: Any, jobs: list[Any], sizes: list[int], repeats: int = 50) -> dict[int, float]:
+    """Milliseconds of policy answers per env-step when N envs are answered together (`act_batch` for a policy
+    that declares batches, else `act` per env), on the first observations of the jobs' episodes."""
+    policies = [worker.built(job, slot)[1] for slot, job in enumerate(jobs)]
+    obs = [worker.built(job, slot)[0].reset(job.seed) for slot, job in enumerate(jobs)]
+    out: dict[int, float] = {}
+    for n in sizes:
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            for i in range(0, len(obs), n):
+                if n > 1 and batchable(policies[i]):
+                    policies[i].act_batch(obs[i : i + n])
+                else:
+                    for k in range(i, min(i + n, len(obs))):
+                        policies[k].act(obs[k])
+        out[n] = (time.perf_counter() - t0) / (repeats * len(obs)) * 1e3
+    return out
+
+
 def render_cost(p: Plan, frames: int = 30) -> dict[str, float]:
     """Median ms to render one frame of each camera of the plan's first cell (states of a random rollout)."""
     worker = api_worker(p)
@@ -275,8 +340,8 @@ def perf(cfg: PerfConfig, on_step: Callable[[str, dict[str, Any]], None] | None 
     """The measurements of `bench perf` (schema bench.perf/1), also written to `cfg.out` (a new .json file).
 
     `on_step(stage, doc)` is called as each measurement is done, with the document so far: "start" (the suite,
-    cell and horizon), then "render_ms" (with cameras), "harness_vs_bare", "video" (with cameras and video=true)
-    and "scaling" (scaling_episodes > 0); `bench perf` prints a line for each.
+    cell and horizon), then "render_ms" (with cameras), "harness_vs_bare", "video" (with cameras and video=true),
+    "vector" (vector=[...]) and "scaling" (scaling_episodes > 0); `bench perf` prints a line for each.
     """
     step = on_step or (lambda _stage, _doc: None)
     for key in ("episodes", "workers"):
@@ -285,6 +350,9 @@ def perf(cfg: PerfConfig, on_step: Callable[[str, dict[str, Any]], None] | None 
     if not 0 <= cfg.scaling_episodes <= 10_000:
         raise ConfigError(f"scaling_episodes={cfg.scaling_episodes}: must be in [0, 10000]")
     out = outputs.check("out", cfg.out, {}, kind="file", can_overwrite=False) if cfg.out else None
+    sizes = list(cfg.vector or [])
+    if any(not 1 <= n <= MAX_VECTOR for n in sizes) or len(set(sizes)) != len(sizes):
+        raise ConfigError(f"vector={sizes}: give distinct env counts in [1, {MAX_VECTOR}], e.g. [1,8,32]")
     if out is not None and out.suffix != ".json":
         raise ConfigError(f"out={cfg.out!r}: the measurements are written as JSON; give a file name ending in .json")
     cams = {"obs": cfg.obs, "image_size": cfg.image_size, **({"cameras": cfg.cameras} if cfg.cameras else {})}
@@ -307,6 +375,9 @@ def perf(cfg: PerfConfig, on_step: Callable[[str, dict[str, Any]], None] | None 
     if options and cfg.video:
         doc["video"] = video_overhead(p)
         step("video", doc)
+    if sizes:
+        doc["vector"] = vector_gain(make_plan(cfg, max(sizes), options, cfg.vector_policy), sizes)
+        step("vector", doc)
     if cfg.scaling_episodes:
         b = workers_scaling(make_plan(cfg, cfg.scaling_episodes, options), cfg.workers)
         doc["scaling"] = {"workers": cfg.workers, **b}

@@ -20,6 +20,7 @@ def help_text() -> str:
             "bench perf suite=held_out_envs task=reach-v3 scaling_episodes=0",
             "bench perf obs=rgb cameras=[agentview] image_size=128 scaling_episodes=0   # rendering cost, video cost",
             "bench perf scaling_episodes=0 out=perf.json   # the measurements as JSON too",
+            "bench perf vector=[1,8,32] horizon=50 scaling_episodes=0   # vectorised episodes, the packaged BC",
         ],
     )
 
@@ -49,6 +50,15 @@ def _print_step(stage: str, doc: dict[str, Any]) -> None:
         print(
             f"video: {v['video_steps_per_s']:.1f} env-steps/s filming every episode, {v['plain_steps_per_s']:.1f} "
             f"without: wall time x{v['wall_ratio']:.3f}"
+        )
+    elif stage == "vector":
+        v = doc["vector"]
+        rates = ", ".join(f"N={n} {r:.1f}" for n, r in v["steps_per_s"].items())
+        gains = ", ".join(f"{n} / {next(iter(v['ratio']))} = {g:.2f}" for n, g in v["ratio"].items())
+        print(f"vector (policy {v['policy']}, {v['episodes']} episodes, one worker): {rates} env-steps/s; {gains}")
+        print(
+            "  of which the policy's answers, per env-step: "
+            + ", ".join(f"N={n} {ms:.3f} ms" for n, ms in v["policy_ms_per_step"].items())
         )
     elif stage == "scaling":
         b, w = doc["scaling"], doc["scaling"]["workers"]

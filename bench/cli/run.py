@@ -37,7 +37,8 @@ def help_text(argv: list[str] | None = None) -> str:
         "record per episode to OUT/RUN_ID/episodes.jsonl as it finishes, then writes\n"
         "OUT/RUN_ID/summary.json (success per cell with Wilson intervals, seen/unseen means with\n"
         "bootstrap intervals, the seen-unseen transfer gap) and prints the table.\n"
-        "Rerunning with the same run_id resumes: recorded episodes are skipped.\n"
+        "Rerunning with the same run_id resumes: recorded episodes are skipped. One run writes a run directory\n"
+        "at a time: a second one on the same run_id is refused, naming the first (docs/guarantees.md).\n"
         "Exit codes: 0 done (a last line counts the episodes that errored, per cell), 2 bad input or a\n"
         "missing capability (nothing written), 3 nothing measured: no episode completed, or a cell has\n"
         "none while others do (records and summary are kept; docs/guarantees.md).\n"
@@ -56,6 +57,7 @@ def help_text(argv: list[str] | None = None) -> str:
         "video=1   # cameras: docs/cameras.md\n"
         "  bench run suite=my_pkg.suites:MySuite policy=my_pkg.policies:make   # out-of-tree plugins\n"
         "  bench run executor=ray ray_address=10.0.0.5:6379 actors=64      # a Ray cluster (docs/ray.md)\n"
+        "  bench run policy=bc vector=8   # 8 envs per worker in lockstep, one batched policy call a step (docs/performance.md)\n"
         + _perturb_help()
     )
 

@@ -58,10 +58,10 @@ def _child_main(conn: Connection, spec: WorkerSpec | None, preload: tuple[str, s
     send(("ready", os.getpid()))
     try:
         while True:
-            job = conn.recv()
-            if job is None:
+            jobs = conn.recv()  # one job, or `vector=N` of one cell and condition
+            if jobs is None:
                 break
-            send(("record", worker.run(job)))
+            send(("records", worker.run_vector(jobs)))
     except (EOFError, OSError):  # the parent is gone: nothing to report to
         pass
     finally:
@@ -91,7 +91,7 @@ class _Child:
         self.proc.start()
         theirs.close()
         self.ready = False
-        self.inflight: deque[Job] = deque()
+        self.inflight: deque[list[Job]] = deque()  # the job groups sent and not yet answered, in order
         self.warm: set[str] = set()
 
     def give(self, spec: WorkerSpec) -> None:
@@ -174,18 +174,19 @@ class _Children:
             raise ExecutorError(f"a worker process could not start: {payload}")
         else:
             with self.cond:
-                job = child.inflight.popleft()
-                assert job.job_id == payload.job_id, (job.job_id, payload.job_id)
-                reasons = self.queue.attempts(job)
+                group = child.inflight.popleft()
+                assert [j.job_id for j in group] == [r.job_id for r in payload], (group, payload)
+                reasons = [self.queue.attempts(job) for job in group]
                 self.cond.notify_all()
-            self.emit(with_retries(payload, reasons))
+            for record, why in zip(payload, reasons):
+                self.emit(with_retries(record, why))
 
     def _lost(self, child: _Child, reason: str) -> None:
         """A child died: its unanswered jobs go back to the queue (or are given up); replace it."""
         child.conn.close()
         with self.cond:
             self.children.remove(child)
-            given_up = [job for job in child.inflight if not self.queue.lost(job, reason)]
+            given_up = [job for group in child.inflight for job in group if not self.queue.lost(job, reason)]
             child.inflight.clear()
             if self.queue and self.respawns > 0:
                 self.respawns -= 1
@@ -198,15 +199,16 @@ class _Children:
         for child in self.children:
             while child.ready:
                 with self.cond:
-                    if len(child.inflight) >= depth(len(self.queue), len(self.children) + 1):  # + the parent
+                    queued = -(-len(self.queue) // self.spec.vector)  # groups left to hand out
+                    if len(child.inflight) >= depth(queued, len(self.children) + 1):  # + the parent
                         break
-                    job = self.queue.take(child.warm)
-                    if job is None:
+                    group = self.queue.take_group(child.warm, self.spec.vector)
+                    if not group:
                         break
-                    child.inflight.append(job)
-                child.warm.add(job.cell.key)
+                    child.inflight.append(group)
+                child.warm.add(group[0].cell.key)
                 try:
-                    child.conn.send(job)
+                    child.conn.send(group)
                 except OSError:  # it died since its last message: `_receive` reads what it sent, then its EOF
                     child.ready = False  # requeues its in-flight jobs (this one included) via `_lost`
         with self.cond:
@@ -321,19 +323,20 @@ class LocalExecutor:
                 worker.on_status = lambda text: status(text, me)
             while True:
                 with cond:
-                    job = None
-                    while job is None:
+                    group: list[Job] = []
+                    while not group:
                         if children is not None and children.error is not None:
                             raise children.error
-                        job = queue.take(worker.cache.keys())
-                        if job is None:
+                        group = queue.take_group(worker.warm, spec.vector)
+                        if not group:
                             if children is None or not children.busy():
                                 break
                             cond.wait(0.5)
-                    if job is None:
+                    if not group:
                         break
-                    reasons = queue.attempts(job)
-                emit(with_retries(worker.run(job), reasons))
+                    reasons = [queue.attempts(job) for job in group]
+                for record, why in zip(worker.run_vector(group), reasons):
+                    emit(with_retries(record, why))
             if children is not None and children.error is not None:
                 raise children.error
         finally:

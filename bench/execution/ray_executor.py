@@ -57,8 +57,8 @@ class NodeInfo(ray_env.NodeReport):
     error: str | None
 
 
-if TYPE_CHECKING:  # what an actor answers: `RayWorker.start`'s node info, or `RayWorker.run`'s record and trajectory
-    Ref = ObjectRef[NodeInfo] | ObjectRef[tuple[EpisodeRecord, bytes | None]]
+if TYPE_CHECKING:  # what an actor answers: `RayWorker.start`'s node info, or `RayWorker.run`'s records and trajectories
+    Ref = ObjectRef[NodeInfo] | ObjectRef[list[tuple[EpisodeRecord, bytes | None]]]
 
 
 def probe_node(suite_ref: str, policy_ref: str) -> NodeInfo:
@@ -112,18 +112,21 @@ class RayWorker:
                 out["error"] = f"{type(exc).__name__}: {exc}"
         return out
 
-    def run(self, job: Job) -> tuple[EpisodeRecord, bytes | None]:
-        """The episode's record, and its trajectory file's bytes when the run records them (record=)."""
+    def run(self, jobs: list[Job]) -> list[tuple[EpisodeRecord, bytes | None]]:
+        """The records of `jobs` (one, or `vector=N` of one cell and condition, run in lockstep), each with its
+        trajectory file's bytes when the run records them (record=)."""
         assert self.worker is not None, "start() first"
-        record = self.worker.run(job)
+        return [(record, self._trajectory(record)) for record in self.worker.run_vector(jobs)]
+
+    def _trajectory(self, record: EpisodeRecord) -> bytes | None:
         if self.traj_dir is None:
-            return record, None
-        path = trajectory_path(self.traj_dir, job.job_id)
+            return None
+        path = trajectory_path(self.traj_dir, record.job_id)
         if not path.exists():  # an episode that failed has no trajectory
-            return record, None
+            return None
         data = path.read_bytes()
         path.unlink()
-        return record, data
+        return data
 
 
 @dataclass
@@ -132,7 +135,7 @@ class _Actor:
     start_ref: ObjectRef[NodeInfo]
     ready: bool = False
     where: str = "not placed yet"
-    inflight: deque[tuple[Ref, Job]] = field(default_factory=deque)  # (ref, job) in submission order
+    inflight: deque[tuple[Ref, list[Job]]] = field(default_factory=deque)  # (ref, job group) in submission order
     warm: set[str] = field(default_factory=set)  # the cells it has built
 
 
@@ -293,10 +296,10 @@ class _Run:
         try:
             while self.queue or any(a.inflight for a in self.actors):
                 self._feed()
-                refs: dict[Ref, tuple[_Actor, Job | None]] = {
+                refs: dict[Ref, tuple[_Actor, list[Job] | None]] = {
                     a.start_ref: (a, None) for a in self.actors if not a.ready
                 }
-                refs.update({ref: (a, job) for a in self.actors for ref, job in a.inflight})
+                refs.update({ref: (a, group) for a in self.actors for ref, group in a.inflight})
                 if not refs:
                     raise ExecutorError(
                         "no Ray actor left to run the remaining jobs (records so far are kept; "
@@ -314,7 +317,7 @@ class _Run:
             for a in self.actors:
                 ray.kill(a.handle, no_restart=True)
 
-    def _answer(self, actor: _Actor, ref: Ref, job: Job | None) -> None:
+    def _answer(self, actor: _Actor, ref: Ref, group: list[Job] | None) -> None:
         ray = self.ray
         try:
             value = ray.get(ref)
@@ -327,14 +330,14 @@ class _Run:
         except ray.exceptions.RayError as exc:  # the actor died, its node died or is unreachable, the result lost
             self._lost(actor, f"Ray actor {actor.where} lost ({type(exc).__name__})")
             return
-        if job is None:
+        if group is None:
             self._started(actor, value)
             return
-        actor.inflight.remove((ref, job))
-        record, trajectory = value
-        if trajectory is not None and self.spec.ctx.trajectory_dir:  # written before its record, as locally
-            write_bytes_atomic(trajectory_path(self.spec.ctx.trajectory_dir, job.job_id), trajectory)
-        self.on_record(with_retries(record, self.queue.attempts(job)))
+        actor.inflight.remove((ref, group))
+        for job, (record, trajectory) in zip(group, value):
+            if trajectory is not None and self.spec.ctx.trajectory_dir:  # written before its record, as locally
+                write_bytes_atomic(trajectory_path(self.spec.ctx.trajectory_dir, job.job_id), trajectory)
+            self.on_record(with_retries(record, self.queue.attempts(job)))
 
     def _started(self, actor: _Actor, info: NodeInfo) -> None:
         actor.where = check_worker(self.driver, info)  # a node that joined after the preflight is checked here
@@ -345,8 +348,9 @@ class _Run:
         """Kill the actor for good, put its unanswered jobs back (or give them up), start a replacement."""
         self.actors.remove(actor)
         self.ray.kill(actor.handle, no_restart=True)
-        given_up = [job for _, job in actor.inflight if not self.queue.lost(job, reason)]
-        requeued = len(actor.inflight) - len(given_up)
+        lost = [job for _, group in actor.inflight for job in group]
+        given_up = [job for job in lost if not self.queue.lost(job, reason)]
+        requeued = len(lost) - len(given_up)
         self.ex.note(f"{reason}: {requeued} episode(s) requeued" + (f", {len(given_up)} given up" if given_up else ""))
         for job in given_up:
             self.on_record(given_up_record(job, self.spec.ctx, self.queue.attempts(job)))
@@ -357,12 +361,12 @@ class _Run:
     def _feed(self) -> None:
         ready = sum(a.ready for a in self.actors)
         for actor in self.actors:
-            while actor.ready and len(actor.inflight) < depth(len(self.queue), ready):
-                job = self.queue.take(actor.warm)
-                if job is None:
+            while actor.ready and len(actor.inflight) < depth(-(-len(self.queue) // self.spec.vector), ready):
+                group = self.queue.take_group(actor.warm, self.spec.vector)
+                if not group:
                     return
-                actor.inflight.append((actor.handle.run.remote(job), job))
-                actor.warm.add(job.cell.key)
+                actor.inflight.append((actor.handle.run.remote(group), group))
+                actor.warm.add(group[0].cell.key)
 
     def _check_stall(self) -> None:
         now = time.time()

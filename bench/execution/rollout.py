@@ -3,7 +3,8 @@
 The rollout is the boundary between plugins and the records: an exception, a timeout, or a
 non-finite number coming out of the env (reward, observation) or the policy (action) ends
 the episode with its reason in `error` (the run goes on), and never reaches a summary.
-A policy may return an action chunk (T, A): its rows are executed open loop, one per step.
+A policy may return an action chunk (T, A): its rows are executed open loop, one per step. An episode's logic is
+one `Episode`: `run_episode` runs it alone, `bench.execution.vector` runs N of them in lockstep (`vector=N`).
 
 An `instruction` episode (`bench.sims.perturb.language`) also measures how much the words steer the policy: a
 shadow instance of the policy, reset with the same seed, is asked whenever the policy is asked, on the same
@@ -20,7 +21,7 @@ import os
 import signal
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,12 +127,17 @@ class _Actions:
         self.queue: list[NumArray] = []
         self.prefetch = getattr(policy, "prefetch", None)
         self.fresh, self.row = False, 0  # this step's action starts a new answer; its row in that answer
+        self.given = False  # the queue holds an answer `give` put there, not yet executed
+
+    def give(self, answer: object, t: int) -> None:
+        """The policy's answer for step t, asked for by the caller (a vectorised rollout's batched call)."""
+        self.queue, self.given = chunk(answer, self.dim, t), True
 
     def next(self, obs: Obs, t: int) -> NumArray:
-        self.fresh = not self.queue
-        self.row = 0 if self.fresh else self.row + 1
         if not self.queue:
-            self.queue = chunk(self.policy.act(obs), self.dim, t)
+            self.give(self.policy.act(obs), t)
+        self.fresh, self.given = self.given, False
+        self.row = 0 if self.fresh else self.row + 1
         action = self.queue.pop(0)
         if not self.queue and self.prefetch is not None and t + 1 < self.horizon:
             self.prefetch(obs, t)
@@ -186,6 +192,180 @@ class _Shadow:
         return out
 
 
+class Episode:
+    """One episode while it runs: `start` (condition, reset), `step` once per control step, `finish` into its record.
+
+    The one place an episode's step logic lives: `run_episode` runs one env through it, and
+    `bench.execution.vector.run_vector` N envs in lockstep, asking their policy once per step for all of them. Every
+    call goes through `guarded`, on the episode's own clock (`spent`: its own calls, and the batched answers it
+    waited for): an exception, a timeout or a non-finite number ends the episode (`done`) with its reason in `error`.
+    """
+
+    def __init__(self, job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext, shadow: Policy | None = None):
+        self.job, self.env, self.policy, self.ctx, self.shadow = job, env, policy, ctx, shadow
+        self.spent = 0.0  # wall seconds charged to this episode
+        self.done = False  # terminated, truncated, out of steps, or failed
+        self.success_once = self.success_at_end = False
+        self.ret, self.length = 0.0, 0
+        self.first_success: int | None = None
+        self.params: dict[str, object] = {}
+        self.init_hash: str | None = None
+        self.error: str | None = None
+        self.traj: Trajectory | None = (
+            {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [], "ctrl": []}
+            if ctx.trajectory_dir
+            else None
+        )
+        self.log = env.inputs if self.traj is not None else None  # MuJoCo inputs of every physics step
+        self.video: episode_video.EpisodeVideo | None = None
+        self.view: language.InstructionView | None = None
+        self.compare: _Shadow | None = None
+        self.stepper: EnvAdapter = env
+        self.obs: Obs = {}
+        self.actions = _Actions(policy, env.action_spec.dim, ctx.horizon)
+
+    def guarded(self, call: Callable[[], object]) -> None:
+        """`call()` on this episode's clock, unless it is done; a failure ends it with the reason."""
+        if self.done:
+            return
+        began = time.perf_counter()
+        limit = self.ctx.timeout_s - self.spent if self.ctx.timeout_s else None
+        try:
+            if limit is not None and limit <= 0:
+                raise EpisodeTimeout("episode timed out")
+            with time_limit(limit):
+                call()
+        except Exception as exc:  # recorded, the run goes on
+            self.fail(exc, time.perf_counter() - began)
+        else:
+            self.spent += time.perf_counter() - began
+
+    def fail(self, exc: Exception, took: float) -> None:
+        """End the episode with `exc` as its reason; `took`: the seconds the failed call cost it."""
+        self.spent += took
+        self.done = True
+        if isinstance(exc, EpisodeTimeout):
+            self.error = f"timeout after {self.ctx.timeout_s:g} s at step {self.length}"
+        elif isinstance(exc, NonFinite):
+            self.error = str(exc)
+        elif self.ctx.timeout_s and self.spent >= self.ctx.timeout_s:
+            # the alarm fired inside a library that re-raised it as its own exception type
+            self.error = (
+                f"timeout after {self.ctx.timeout_s:g} s at step {self.length} (surfaced as {type(exc).__name__})"
+            )
+        else:
+            tb = traceback.extract_tb(exc.__traceback__)[-1]
+            self.error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
+
+    def wants(self) -> bool:
+        """The policy must be asked at this step (the last answer's rows are used up)."""
+        return not self.done and not self.actions.queue
+
+    def start(self) -> None:
+        """Apply the job's condition (its own generator, the episode seed), reset, reset the policy."""
+        job, env, ctx = self.job, self.env, self.ctx
+        rng = condition_rng(job.seed, job.condition)
+        self.stepper, self.params = perturb.apply(env, job.condition, rng, seed=job.seed)
+        self.view = language.view_of(self.stepper)
+        if self.view is not None:
+            self.view.bind(job.condition.spec.get("instructions"), job.cell.task)
+        self.obs = self.stepper.reset(job.seed)
+        _check_obs(self.obs, 0)
+        self.video = episode_video.start(ctx.video_dir, ctx.video_episodes, job, env)
+        if self.video is not None:
+            self.video.frame(self.obs)
+        self.init_hash = state_hash(env.init_state())
+        self.policy.reset(job.seed)
+        if self.view is not None and self.shadow is not None:
+            self.shadow.reset(job.seed)
+            self.compare = _Shadow(self.shadow, self.view, env.action_spec)
+        if self.log is not None:
+            self.log.start()
+
+    def step(self, t: int) -> None:
+        """Control step t: the policy's action (asked now unless an answer is queued), the env's step, the bookkeeping."""
+        env, traj, log = self.env, self.traj, self.log
+        action = self.actions.next(self.obs, t)
+        if self.compare is not None:
+            self.compare.step(self.obs, self.actions, action, t)
+        if traj is not None:
+            _append_frame(traj, env, self.obs, action)
+        obs, reward, terminated, truncated, _ = self.stepper.step(action)
+        if log is not None and traj is not None:
+            traj["ctrl"].append(log.take().astype(np.float32).ravel())
+        if not np.isfinite(reward):
+            raise NonFinite(f"non-finite reward ({reward}) at step {t}")
+        _check_obs(obs, t + 1)
+        self.obs = obs
+        if self.video is not None:
+            self.video.frame(obs)
+        self.ret += reward
+        self.length = t + 1
+        self.success_at_end = bool(env.success())
+        if traj is not None:
+            traj["reward"].append(float(reward))
+            traj["success"].append(self.success_at_end)
+        if self.success_at_end and self.first_success is None:
+            self.first_success = self.length
+            self.success_once = True
+        if terminated or truncated or self.length >= self.ctx.horizon:
+            self.done = True
+
+    def run(self) -> None:
+        """`start`, then `step` until the episode ends (one env alone)."""
+        self.start()
+        for t in range(self.ctx.horizon):
+            if self.done:
+                break
+            self.step(t)
+
+    def finish(self) -> tuple[EpisodeRecord, bool]:
+        """The episode's record (its video, policy statistics and trajectory written), and whether the env is
+        still usable (False after an error: the caller rebuilds it)."""
+        began = time.perf_counter()
+        job, env, ctx, error = self.job, self.env, self.ctx, self.error
+        if self.log is not None:
+            self.log.stop()
+        extras: dict[str, object] = {}
+        if self.video is not None:
+            extras["video"] = self.video.close(str(ctx.video_dir))
+        stats = _policy_stats(self.policy) if ctx.policy_stats else {}
+        if self.view is not None and self.view.text is not None:
+            words = {"variant": self.view.variant, "text": self.view.text, "true": self.view.true}
+            extras["instruction"] = {**words, **(self.compare.record() if self.compare is not None else {})}
+        success_once, success_at_end, ret = self.success_once, self.success_at_end, self.ret
+        traj = self.traj
+        if error:
+            success_once = success_at_end = False
+            ret = 0.0 if not np.isfinite(ret) else ret
+        elif traj is not None and self.length:
+            if STATE in env.obs_spec:
+                traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
+            traj["action_names"] = list(env.action_spec.names)
+            traj["fps"] = [float(env.fps)]
+            if self.log is not None and env.mujoco is not None:
+                traj["ctrl_names"] = [*mj_input_names(env.mujoco.model, self.log.spec)]
+                traj["ctrl_spec"] = [int(self.log.spec)]
+            _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
+        record = job_record(
+            job,
+            ctx,
+            level=jsonable(job.condition.level, 10),
+            params=jsonable(self.params, 10),
+            init_state_hash=self.init_hash,
+            success_once=success_once,
+            success_at_end=success_at_end,
+            return_=float(ret),
+            length=self.length,
+            steps_to_success=self.first_success,
+            error=error,
+            backend=env.backend,
+            wall_s=round(self.spent + time.perf_counter() - began, 4),
+            extras={**({"policy": stats} if stats else {}), **extras},
+        )
+        return record, error is None
+
+
 def run_episode(
     job: Job, env: EnvAdapter, policy: Policy, ctx: RunContext, shadow: Policy | None = None
 ) -> tuple[EpisodeRecord, bool]:
@@ -195,118 +375,9 @@ def run_episode(
     the env is then reported unusable so the caller rebuilds it. `shadow`: for an instruction episode, a second
     instance of the policy fed the true instruction (module doc); its actions are recorded, not executed.
     """
-    t0 = time.perf_counter()
-    success_once = success_at_end = False
-    ret, length, first_success = 0.0, 0, None
-    params: dict[str, object] = {}
-    init_hash: str | None = None
-    error: str | None = None
-    stats: dict[str, object] = {}
-    traj: Trajectory | None = (
-        {"obs": [], "action": [], "reward": [], "success": [], "sim_state": [], "ctrl": []}
-        if ctx.trajectory_dir
-        else None
-    )
-    log = env.inputs if traj is not None else None  # MuJoCo inputs of every physics step
-    video = None
-    view: language.InstructionView | None = None
-    compare: _Shadow | None = None
-    try:
-        with time_limit(ctx.timeout_s):
-            rng = condition_rng(job.seed, job.condition)
-            stepper, params = perturb.apply(env, job.condition, rng, seed=job.seed)
-            view = language.view_of(stepper)
-            if view is not None:
-                view.bind(job.condition.spec.get("instructions"), job.cell.task)
-            obs = stepper.reset(job.seed)
-            _check_obs(obs, 0)
-            video = episode_video.start(ctx.video_dir, ctx.video_episodes, job, env)
-            if video is not None:
-                video.frame(obs)
-            init_hash = state_hash(env.init_state())
-            policy.reset(job.seed)
-            actions = _Actions(policy, env.action_spec.dim, ctx.horizon)
-            if view is not None and shadow is not None:
-                shadow.reset(job.seed)
-                compare = _Shadow(shadow, view, env.action_spec)
-            if log is not None:
-                log.start()
-            for t in range(ctx.horizon):
-                action = actions.next(obs, t)
-                if compare is not None:
-                    compare.step(obs, actions, action, t)
-                if traj is not None:
-                    _append_frame(traj, env, obs, action)
-                obs, reward, terminated, truncated, _ = stepper.step(action)
-                if log is not None and traj is not None:
-                    traj["ctrl"].append(log.take().astype(np.float32).ravel())
-                if not np.isfinite(reward):
-                    raise NonFinite(f"non-finite reward ({reward}) at step {t}")
-                _check_obs(obs, t + 1)
-                if video is not None:
-                    video.frame(obs)
-                ret += reward
-                length = t + 1
-                success_at_end = bool(env.success())
-                if traj is not None:
-                    traj["reward"].append(float(reward))
-                    traj["success"].append(success_at_end)
-                if success_at_end and first_success is None:
-                    first_success = length
-                    success_once = True
-                if terminated or truncated:
-                    break
-    except EpisodeTimeout:
-        error = f"timeout after {ctx.timeout_s:g} s at step {length}"
-    except NonFinite as exc:
-        error = str(exc)
-    except Exception as exc:  # recorded, the run goes on
-        if ctx.timeout_s and time.perf_counter() - t0 >= ctx.timeout_s:
-            # the alarm fired inside a library that re-raised it as its own exception type
-            error = f"timeout after {ctx.timeout_s:g} s at step {length} (surfaced as {type(exc).__name__})"
-        else:
-            tb = traceback.extract_tb(exc.__traceback__)[-1]
-            error = f"{type(exc).__name__}: {exc} ({os.path.basename(tb.filename)}:{tb.lineno})"
-    finally:
-        if log is not None:
-            log.stop()
-    extras: dict[str, object] = {}
-    if video is not None:
-        extras["video"] = video.close(str(ctx.video_dir))
-    if ctx.policy_stats:
-        stats = _policy_stats(policy)
-    if view is not None and view.text is not None:
-        words = {"variant": view.variant, "text": view.text, "true": view.true}
-        extras["instruction"] = {**words, **(compare.record() if compare is not None else {})}
-    if error:
-        success_once = success_at_end = False
-        ret = 0.0 if not np.isfinite(ret) else ret
-    elif traj is not None and length:
-        if STATE in env.obs_spec:
-            traj["obs_names"] = [f"{n}:{w}" for n, w in env.obs_spec[STATE].fields]
-        traj["action_names"] = list(env.action_spec.names)
-        traj["fps"] = [float(env.fps)]
-        if log is not None and env.mujoco is not None:
-            traj["ctrl_names"] = [*mj_input_names(env.mujoco.model, log.spec)]
-            traj["ctrl_spec"] = [int(log.spec)]
-        _save_trajectory(trajectory_path(str(ctx.trajectory_dir), job.job_id), traj)
-    record = job_record(
-        job,
-        ctx,
-        level=jsonable(job.condition.level, 10),
-        params=jsonable(params, 10),
-        init_state_hash=init_hash,
-        success_once=success_once,
-        success_at_end=success_at_end,
-        return_=float(ret),
-        length=length,
-        steps_to_success=first_success,
-        error=error,
-        backend=env.backend,
-        wall_s=round(time.perf_counter() - t0, 4),
-        extras={**({"policy": stats} if stats else {}), **extras},
-    )
-    return record, error is None
+    episode = Episode(job, env, policy, ctx, shadow)
+    episode.guarded(episode.run)  # one clock for the whole episode: the timeout bounds all of it
+    return episode.finish()
 
 
 def job_record(job: Job, ctx: RunContext, **outcome: Any) -> EpisodeRecord:

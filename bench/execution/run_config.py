@@ -21,7 +21,7 @@ import numpy as np
 from bench.core import config as config_mod
 from bench.core import outputs
 from bench.core.errors import ConfigError
-from bench.execution import ray_env
+from bench.execution import ray_env, run_lock
 from bench.protocols import ObsSpec, option_keys
 from bench.protocols.suite import MAX_ENV_SEED, METRICS, SEED_SCHEMES, SPLITS
 
@@ -29,6 +29,7 @@ from bench.protocols.suite import MAX_ENV_SEED, METRICS, SEED_SCHEMES, SPLITS
 MAX_EPISODES = config_mod.MAX_EPISODES
 MAX_HORIZON = config_mod.MAX_HORIZON
 MAX_WORKERS = config_mod.MAX_WORKERS
+MAX_VECTOR = 1024  # envs one worker holds at once (each a simulator instance)
 MAX_N_BOOT = config_mod.MAX_N_BOOT
 MAX_TIMEOUT_S = config_mod.MAX_TIMEOUT_S
 MAX_RUN_ID = config_mod.MAX_RUN_ID
@@ -46,6 +47,7 @@ class RunConfig:
     seed: int = ranged(0, 0, config_mod.MAX_SEED)  # run seed: episode seeds, perturbation draws, bootstrap
     seed_scheme: str = "hashed"  # episode seeds: hashed (bench's) or consecutive (seed + episode, lerobot-eval's)
     workers: int = ranged(0, 0, MAX_WORKERS)  # executor=local: processes running episodes; 0 = all cores
+    vector: int = ranged(1, 1, MAX_VECTOR)  # lockstep envs per worker (one cell and condition), one act per step
     out: str = "runs"  # parent folder of run directories
     run_id: Optional[str] = None  # run directory name; an existing one is resumed
     horizon: int = ranged(0, 0, MAX_HORIZON)  # control steps per episode; 0 = the suite's default
@@ -78,6 +80,7 @@ class RunConfig:
 # keys that may differ when a run is resumed: where and how episodes run, not what they compute
 RESUMABLE_KEYS = {
     "workers",
+    "vector",  # how episodes are stepped, not what they compute: records equal vector=1's
     "timeout",
     "out",
     "run_id",
@@ -124,6 +127,11 @@ def check_runner(cfg: RunConfig) -> None:
         twice = next((v for i, v in enumerate(given) if v in given[:i]), None)
         if twice is not None:
             raise ConfigError(f"{key}: {twice!r} is listed twice; list each once")
+    if cfg.vector > cfg.episodes:
+        raise ConfigError(
+            f"vector={cfg.vector}: more envs than a cell has episodes (episodes={cfg.episodes} per cell and "
+            f"condition); give vector at most {cfg.episodes}"
+        )
     if cfg.strict and not cfg.calibration:
         raise ConfigError(
             "strict=true applies to calibration= (it refuses a calibration whose model simulates the held-out data "
@@ -224,6 +232,15 @@ def _is_run_dir(folder: Path) -> bool:
     return isinstance(meta, dict) and isinstance(meta.get("config"), dict)
 
 
+def _entries(folder: Path) -> list[Path]:
+    """What `folder` holds besides a run lock (a run killed before its run.json leaves only that)."""
+    return [p for p in folder.iterdir() if p.name != run_lock.LOCK]
+
+
+def _resumable(folder: Path) -> bool:
+    return _is_run_dir(folder) or not _entries(folder)
+
+
 def check_outputs(cfg: RunConfig, run_id: str, checkpoint: str | None) -> Path:
     """The run directory and `record=` checked against `bench.core.outputs`' rule before anything is written."""
     inputs = {"checkpoint": checkpoint, "calibration": cfg.calibration}
@@ -231,12 +248,13 @@ def check_outputs(cfg: RunConfig, run_id: str, checkpoint: str | None) -> Path:
         raise ConfigError(f"run_id={run_id!r}: a run id names one folder (printable, no slashes, not . or ..)")
     run_dir = Path(cfg.out) / run_id
     outputs.names_fit("out", str(run_dir), run_dir.expanduser().absolute())
-    if run_dir.is_dir() and any(run_dir.iterdir()) and not _is_run_dir(run_dir):
+    run_lock.check_free(run_dir)  # another run writing it: named here; `bench.api.run` takes the lock itself
+    if run_dir.is_dir() and _entries(run_dir) and not _is_run_dir(run_dir):
         raise ConfigError(
             f"run_id={run_id!r}: {str(run_dir)!r} exists and is not a bench run directory (no run.json "
             "of a bench run); give a new run_id or out=, nothing there is touched"
         )
-    outputs.check("out", run_dir, inputs, resume=_is_run_dir, can_overwrite=False)
+    outputs.check("out", run_dir, inputs, resume=_resumable, can_overwrite=False)
     if cfg.record:
         outputs.check("record", cfg.record, {**inputs, "out (the run directory)": run_dir}, can_overwrite=False)
     return run_dir

@@ -1,7 +1,9 @@
 """The worker every executor runs jobs with: envs built once per worker and cell, one record per job.
 
 A `Worker` keeps a cache cell -> (env, policy); jobs arrive cell-major (bench.execution.scheduling),
-so a worker builds each cell's simulator once and soft-resets it for every episode.
+so a worker builds each cell's simulator once and soft-resets it for every episode. With `vector=N` a worker
+gets up to N jobs of one cell and condition at once and steps them in lockstep (`Worker.run_vector`,
+`bench.execution.vector`), one env and one policy per vector slot, each built once.
 Everything a worker needs travels in one picklable `WorkerSpec`, so any executor
 (`bench.execution.local.LocalExecutor`, `bench.execution.ray_executor.RayExecutor`) builds the same
 workers and produces the same records. An executor is any object with
@@ -24,6 +26,7 @@ from typing import Any
 from bench.execution.processes import alive
 from bench.execution.rollout import RunContext, job_record, needs_shadow, run_episode
 from bench.execution.scheduling import given_up_message
+from bench.execution.vector import run_vector
 from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
@@ -43,6 +46,7 @@ class WorkerSpec:
     ctx: RunContext
     calibration: tuple[str, Sequence[ModelEdit]] | None = None  # a suite calibration's (robot, model edits)
     build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (`memo_folder`)
+    vector: int = 1  # `vector=N`: episodes of one cell and condition a worker steps in lockstep (`Worker.run_vector`)
 
 
 class Worker:
@@ -62,15 +66,20 @@ class Worker:
             spec.policy_options, self.suite, spec.seed, spec.ctx.horizon, status=self._status
         )
         self.needs = tuple(self.plugin.obs_keys(spec.policy_options))
-        self.cache: dict[str, tuple[EnvAdapter, Policy]] = {}
-        self.shadows: dict[str, Policy] = {}  # per cell: a second policy fed the true instruction (`needs_shadow`)
+        self.cache: dict[tuple[str, int], tuple[EnvAdapter, Policy]] = {}  # (cell key, vector slot) -> built
+        self.shadows: dict[tuple[str, int], Policy] = {}  # a second policy fed the true instruction (`needs_shadow`)
         self.freeze = freeze
 
-    def built(self, job: Job) -> tuple[EnvAdapter, Policy]:
-        """The (env, policy) of the job's cell, built on first use."""
-        key = job.cell.key
+    @property
+    def warm(self) -> set[str]:
+        """The cells this worker has built (the scheduler prefers their jobs)."""
+        return {key for key, _ in self.cache}
+
+    def built(self, job: Job, slot: int = 0) -> tuple[EnvAdapter, Policy]:
+        """The (env, policy) of the job's cell in vector slot `slot` (`vector=N`: one per env), built on first use."""
+        key = (job.cell.key, slot)
         if key not in self.cache:
-            with building(self.spec.build_memo, key):  # a cell another worker built: reuse what it measured
+            with building(self.spec.build_memo, job.cell.key):  # a cell another worker built: reuse what it measured
                 env = self.suite.make_env(job.cell, self.spec.ctx.horizon)
             try:
                 if self.spec.calibration is not None:
@@ -93,24 +102,57 @@ class Worker:
                 self.freeze = False
         return self.cache[key]
 
-    def run(self, job: Job) -> EpisodeRecord:
-        """One episode; a cell whose env or policy cannot be built is recorded as an error."""
+    def _prepare(self, job: Job, slot: int) -> tuple[EnvAdapter, Policy, Policy | None] | EpisodeRecord:
+        """The job's env, policy and shadow in `slot`, or the error record of a cell that cannot be built."""
         try:
-            env, policy = self.built(job)
+            env, policy = self.built(job, slot)
         except Exception as exc:  # a cell whose env cannot be built: record, go on
             return error_record(job, self.spec.ctx, f"building env/policy failed: {type(exc).__name__}: {exc}")
         try:
-            shadow = self.shadow(job, env) if needs_shadow(job) else None
+            shadow = self.shadow(job, env, slot) if needs_shadow(job) else None
         except Exception as exc:  # its shadow cannot be built: record, go on
             return error_record(job, self.spec.ctx, f"building the shadow policy failed: {type(exc).__name__}: {exc}")
-        record, usable = run_episode(job, env, policy, self.spec.ctx, shadow=shadow)
+        return env, policy, shadow
+
+    def run(self, job: Job) -> EpisodeRecord:
+        """One episode; a cell whose env or policy cannot be built is recorded as an error."""
+        built = self._prepare(job, 0)
+        if isinstance(built, EpisodeRecord):
+            return built
+        record, usable = run_episode(job, *built[:2], self.spec.ctx, shadow=built[2])
         if not usable:  # the env may be in a bad state after an error: rebuild next time
-            self.drop(job.cell.key)
+            self.drop(job.cell.key, 0)
         return record
 
-    def shadow(self, job: Job, env: EnvAdapter) -> Policy:
-        """The cell's shadow policy: a second instance from the same plugin, built on first use."""
-        key = job.cell.key
+    def run_vector(self, jobs: Sequence[Job]) -> list[EpisodeRecord]:
+        """The episodes of `jobs` (one cell and condition) in lockstep, one env each (`bench.execution.vector`);
+        their records in job order. One job is `run`."""
+        if len(jobs) == 1:
+            return [self.run(jobs[0])]
+        records: dict[int, EpisodeRecord] = {}
+        ready: list[tuple[int, Job, tuple[EnvAdapter, Policy, Policy | None]]] = []
+        for slot, job in enumerate(jobs):
+            built = self._prepare(job, slot)
+            if isinstance(built, EpisodeRecord):
+                records[slot] = built
+            else:
+                ready.append((slot, job, built))
+        results = run_vector(
+            [job for _, job, _ in ready],
+            [b[0] for _, _, b in ready],
+            [b[1] for _, _, b in ready],
+            self.spec.ctx,
+            [b[2] for _, _, b in ready],
+        )
+        for (slot, job, _), (record, usable) in zip(ready, results):
+            records[slot] = record
+            if not usable:  # the env may be in a bad state after an error: rebuild next time
+                self.drop(job.cell.key, slot)
+        return [records[slot] for slot in range(len(jobs))]
+
+    def shadow(self, job: Job, env: EnvAdapter, slot: int = 0) -> Policy:
+        """The cell's shadow policy in `slot`: a second instance from the same plugin, built on first use."""
+        key = (job.cell.key, slot)
         if key not in self.shadows:
             self.shadows[key] = self.plugin.make(job.cell, env, self.policy_ctx)
         return self.shadows[key]
@@ -119,9 +161,9 @@ class Worker:
         if self.on_status is not None:
             self.on_status(text)
 
-    def drop(self, key: str) -> None:
-        env, _ = self.cache.pop(key, (None, None))
-        self.shadows.pop(key, None)
+    def drop(self, key: str, slot: int = 0) -> None:
+        env, _ = self.cache.pop((key, slot), (None, None))
+        self.shadows.pop((key, slot), None)
         if env is not None:
             try:
                 env.close()
@@ -129,8 +171,8 @@ class Worker:
                 pass
 
     def close(self) -> None:
-        for key in list(self.cache):
-            self.drop(key)
+        for key, slot in list(self.cache):
+            self.drop(key, slot)
 
 
 MEMO_PREFIX = "bench-build-memo-"  # + the pid of the process whose run made it

@@ -64,6 +64,25 @@ class JobQueue:
                 return self._pop(key)
         return None
 
+    def take_group(self, warm: Collection[str] = (), size: int = 1) -> list[Job]:
+        """Up to `size` jobs of one cell and condition for a vectorised worker (`vector=N`): `take`'s next job and
+        those after it in its queue (lost jobs first, as `take` gives them); empty when nothing is left."""
+        first = self.take(warm)
+        if first is None:
+            return []
+        group = [first]
+
+        def same(job: Job) -> bool:
+            return job.cell.key == first.cell.key and job.condition.name == first.condition.name
+
+        while len(group) < size and self.lost_jobs and same(self.lost_jobs[0]):
+            group.append(self.lost_jobs.popleft())
+        queue = self.cells.get(first.cell.key)
+        while len(group) < size and queue and same(queue[0]):
+            group.append(self._pop(first.cell.key))
+            queue = self.cells.get(first.cell.key)
+        return group
+
     def _pop(self, key: str) -> Job:
         self.started.add(key)
         queue = self.cells[key]

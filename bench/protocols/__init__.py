@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeGuard, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -278,6 +278,37 @@ class Policy(Protocol):
     def act(self, obs: Obs) -> NumArray:
         """One action (A,) or an action chunk (T, A) executed open loop."""
         ...
+
+
+class BatchPolicy(Protocol):
+    """A policy that answers several observations in one call (`bench run vector=N`, `bench serve batch=N`).
+
+    Policies with equal `batch_key`s are interchangeable (the same weights, spec, bounds and chunking) and keep no
+    state an answer changes, so one `act_batch(observations)` call on any of them answers for all of them: one
+    answer per observation, in order, each bit for bit what `act` would answer for it alone ((A,) or a chunk
+    (T, A)), so a vectorised run's records equal `vector=1`'s. The answers are a sequence, or an array (N, A) or
+    (N, T, A). A `batch_key` of None declares nothing (`batchable`).
+    """
+
+    batch_key: Hashable
+
+    def act_batch(self, observations: list[Obs]) -> Sequence[npt.ArrayLike] | NumArray: ...
+
+
+def batchable(policy: object) -> TypeGuard[BatchPolicy]:
+    """`policy` declares batches: an `act_batch` method and a `batch_key` that is not None."""
+    return callable(getattr(policy, "act_batch", None)) and getattr(policy, "batch_key", None) is not None
+
+
+@runtime_checkable
+class SplitPolicy(Protocol):
+    """A policy whose answer can be asked for before it is read (a remote one): `send(obs)` then `receive()` is
+    `act(obs)`. A vectorised rollout sends every env's observation before it reads an answer, so a server that
+    batches (`bench serve batch=N`) answers them in one forward pass."""
+
+    def send(self, obs: Obs) -> None: ...
+
+    def receive(self) -> NumArray: ...
 
 
 @runtime_checkable

@@ -15,21 +15,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Hashable, Sequence
-from typing import Protocol, TypeGuard
+from collections.abc import Callable, Hashable
 
 import numpy as np
-import numpy.typing as npt
 
-from bench.protocols import Obs
-
-
-class BatchPolicy(Protocol):
-    """A policy that answers many observations in one forward pass; equal `batch_key`s answer identically."""
-
-    batch_key: Hashable
-
-    def act_batch(self, observations: list[Obs]) -> Sequence[npt.ArrayLike]: ...
+from bench.protocols import BatchPolicy, Obs
 
 
 class _Request:
@@ -42,10 +32,6 @@ class _Request:
         self.error: BaseException | None = None
         self.infer_ms = 0.0
         self.batch = 1
-
-
-def batchable(policy: object) -> TypeGuard[BatchPolicy]:
-    return callable(getattr(policy, "act_batch", None)) and getattr(policy, "batch_key", None) is not None
 
 
 class Batcher:

@@ -86,6 +86,7 @@ class RemotePolicy:
         self._steps = 0  # env steps the actions returned so far cover (the step the next act() answers)
         self._obs_steps: list[int] = []  # per chunk: the step whose observation the server saw
         self._pending: float | None = None  # overlap: when the prefetched request went out
+        self._sent: float | None = None  # when the request `receive` reads the answer of went out
         try:
             self.warm_up(0)  # before any episode: the server's set-up is not an episode's time
         except BaseException:
@@ -129,8 +130,8 @@ class RemotePolicy:
     def reset(self, seed: int) -> None:
         self._rtt, self._server_ms = [], []
         self._steps, self._obs_steps = 0, []
-        if self._pending is not None:  # an answer nobody read (the last episode ended early): start clean
-            self._pending = None
+        if self._pending is not None or self._sent is not None:  # an answer nobody read: start clean
+            self._pending = self._sent = None
             self.conn.close()
         for attempt in (0, 1):
             if not self.conn.connected:
@@ -147,14 +148,30 @@ class RemotePolicy:
                 self.conn.close()  # the server may have restarted since the last episode: reconnect once
 
     def act(self, obs: Obs) -> np.ndarray:
+        self.send(obs)
+        return self.receive()
+
+    def send(self, obs: Obs) -> None:
+        """`act`'s request, its answer read by `receive` (`bench.protocols.SplitPolicy`): a vectorised run sends every
+        env's observation before it reads an answer, so a server with `batch=N` answers them in one forward pass.
+        Nothing is sent when a prefetched request (`overlap=true`) already carries this step's answer."""
         if not self.conn.connected:
             raise RemoteError(f"the connection to {self.conn.where} was lost during the episode")
         if self._pending is not None:
-            return self._collect()
+            return
         message = self.map(obs)
-        t0 = time.perf_counter()
-        reply = self.conn.request(message)
-        self._rtt.append(time.perf_counter() - t0)
+        self._sent = time.perf_counter()
+        self.conn.send(message)
+
+    def receive(self) -> np.ndarray:
+        """The rows to execute from the answer to `send` (or to the prefetched request)."""
+        if self._pending is not None:
+            return self._collect()
+        sent, self._sent = self._sent, None
+        if sent is None:
+            raise RemoteError(f"no request to {self.conn.where} is waiting for its answer (send first)")
+        reply = self.conn.receive()
+        self._rtt.append(time.perf_counter() - sent)
         self._obs_steps.append(self._steps)
         chunk = self._chunk(reply)
         n = self.options.replan_every

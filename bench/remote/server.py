@@ -36,10 +36,10 @@ from bench import __version__
 from bench.core import config as config_mod
 from bench.core.errors import BenchError, ConfigError, did_you_mean
 from bench.core.io import jsonable
-from bench.protocols import TASK, EnvAdapter, Feature, Obs, Policy, PolicyContext, Suite, registry
+from bench.protocols import TASK, EnvAdapter, Feature, Obs, Policy, PolicyContext, Suite, batchable, registry
 from bench.remote import obs_map as obs_map_mod
 from bench.remote import wire
-from bench.remote.batching import Batcher, batchable
+from bench.remote.batching import Batcher
 from bench.remote.serving import RequestError, WebsocketServer
 
 MAX_HORIZON = 100_000
