@@ -23,13 +23,16 @@ def _table() -> dict[tuple[str, ...], list[str]]:
     from bench.api.calibration import CalibrateConfig, DesignConfig, GenerateConfig, SuiteCalibrateConfig
     from bench.cli.actions import ActionsConfig
     from bench.cli.check import CheckConfig
+    from bench.cli.compare import CompareConfig
     from bench.cli.correlate import CorrelateConfig
     from bench.cli.coverage import CoverageConfig
     from bench.cli.leaderboard import MergeConfig
     from bench.cli.logs import FORMATS, CardConfig, ImportConfig, RankConfig
     from bench.cli.perf import PerfConfig
+    from bench.cli.predict import PredictConfig
     from bench.cli.regress_args import RegressConfig
     from bench.cli.report import ReportConfig
+    from bench.cli.sweep import SweepConfig
     from bench.execution import run_config
     from bench.remote.server import ServeConfig
     from bench.replay.common import ReplayConfig
@@ -61,8 +64,11 @@ def _table() -> dict[tuple[str, ...], list[str]]:
         ("calibrate", "design"): _keys(DesignConfig),
         ("calibrate", "effects"): [],
         ("regress",): _keys(RegressConfig),
+        ("compare",): _keys(CompareConfig),
         ("report",): _keys(ReportConfig),
         ("coverage",): _keys(CoverageConfig),
+        ("predict",): _keys(PredictConfig),
+        ("sweep",): _keys(SweepConfig),
     }
 
 

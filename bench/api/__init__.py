@@ -45,6 +45,7 @@ from bench.core.errors import (
 )
 from bench.execution.rollout import RunContext
 from bench.execution.run_config import RUNNER_KEYS, RunConfig
+from bench.execution.run_lock import RunLocked
 from bench.scoring.summary import nothing_measured
 from bench.scoring.summary import render as render_summary
 
@@ -70,6 +71,7 @@ if TYPE_CHECKING:  # the command functions, imported on first use (`__getattr__`
         generate_case,
     )
     from bench.api.checks import CheckConfig, check
+    from bench.api.compare import CompareConfig, compare
     from bench.api.data_coverage import CoverageConfig, coverage
     from bench.api.gate import RegressConfig, regress, regress_budget
     from bench.api.logs import (
@@ -84,8 +86,10 @@ if TYPE_CHECKING:  # the command functions, imported on first use (`__getattr__`
     )
     from bench.api.plugins import list_plugins, plugin_keys
     from bench.api.policy_on_logs import ActionsConfig, actions
+    from bench.api.predict import PredictConfig, predict_real
     from bench.api.replays import ReplayConfig, replay
     from bench.api.serving import ServeConfig, serve
+    from bench.api.sweep import SweepConfig, sweep
     from bench.api.throughput import PerfConfig, perf
 
 # the public face (docs/api.md): the config and its checks live in bench.execution.run_config
@@ -95,6 +99,7 @@ __all__ = [
     "DataError",
     "NothingMeasured",
     "RegistryError",
+    "RunLocked",
     "SpecError",
     "SplitError",
     "did_you_mean",
@@ -128,6 +133,7 @@ __all__ = [
     "CalibrateConfig",
     "CardConfig",
     "CheckConfig",
+    "CompareConfig",
     "CorrelateConfig",
     "CoverageConfig",
     "DesignConfig",
@@ -135,16 +141,19 @@ __all__ = [
     "ImportConfig",
     "MergeConfig",
     "PerfConfig",
+    "PredictConfig",
     "RankConfig",
     "RegressConfig",
     "ReplayConfig",
     "ReportConfig",
     "ServeConfig",
+    "SweepConfig",
     "SuiteCalibrateConfig",
     "actions",
     "calibrate",
     "calibrate_robot",
     "check",
+    "compare",
     "correlate",
     "coverage",
     "design_excitation",
@@ -158,6 +167,7 @@ __all__ = [
     "log_card",
     "log_info",
     "perf",
+    "predict_real",
     "plugin_keys",
     "rank_log",
     "regress",
@@ -165,6 +175,7 @@ __all__ = [
     "replay",
     "report",
     "serve",
+    "sweep",
     "verify_log",
 ]
 
@@ -192,6 +203,7 @@ _LAZY: dict[str, str] = {
         "calibration",
     ),
     **dict.fromkeys(["CheckConfig", "check"], "checks"),
+    **dict.fromkeys(["CompareConfig", "compare"], "compare"),
     **dict.fromkeys(["CoverageConfig", "coverage"], "data_coverage"),
     **dict.fromkeys(
         ["CardConfig", "ImportConfig", "RankConfig", "import_log", "log_card", "log_info", "rank_log", "verify_log"],
@@ -202,6 +214,8 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(["RegressConfig", "regress", "regress_budget"], "gate"),
     **dict.fromkeys(["ReplayConfig", "replay"], "replays"),
     **dict.fromkeys(["ServeConfig", "serve"], "serving"),
+    **dict.fromkeys(["PredictConfig", "predict_real"], "predict"),
+    **dict.fromkeys(["SweepConfig", "sweep"], "sweep"),
 }
 
 

@@ -47,8 +47,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "calibrate": ("bench.cli.calibrate:main", "Real2Sim: fit a model to logs, trace the residual to missing effects"),
     "regress": ("bench.cli.regress:main", "CI regression gate: candidate vs baseline checkpoint, paired by seed"),
+    "compare": ("bench.cli.compare:main", "which of two policies is better: paired by seed, stops at the answer"),
     "report": ("bench.cli.report:main", "static HTML report of a run or leaderboard"),
     "coverage": ("bench.cli.coverage:main", "data-coverage metrics of a training set against a suite"),
+    "predict": ("bench.cli.predict:main", "real success from a sim run plus a few real trials (prediction-powered)"),
+    "sweep": ("bench.cli.sweep:main", "run a suite per training checkpoint; success vs step; the best, selected"),
 }
 
 USAGE = """usage: bench COMMAND [key=value ...]

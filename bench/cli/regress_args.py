@@ -4,14 +4,10 @@ types, ranges) before anything is read or run; the gate's own keys are `bench.ap
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 from bench import api
-from bench.api import RUNNER_KEYS, RunConfig
 from bench.api.gate import FORBIDDEN_KEYS, RegressConfig, check_regress
-from bench.api.plugins import option_keys, suite_options_type
+from bench.cli.forwarding import split_keys
 from bench.core import config as config_mod
-from bench.core.errors import ConfigError, did_you_mean
 
 
 def help_text() -> str:
@@ -47,29 +43,7 @@ def help_text() -> str:
 
 def _split_overrides(argv: list[str]) -> tuple[RegressConfig, list[str], dict[str, str]]:
     """Own keys -> RegressConfig; `bench run` keys (the runner's and the suite's) forwarded verbatim."""
-    positional, overrides = config_mod.split_args(argv)
-    if positional:
-        raise ConfigError(
-            f"unexpected argument {positional[0]!r}; bench regress takes key=value only (see bench regress --help)"
-        )
-    own_names = {f.name for f in fields(RegressConfig)}
-    suite = config_mod.build(RunConfig, [o for o in overrides if config_mod.top_key(o) == "suite"]).suite
-    run_names = set(RUNNER_KEYS) | set(option_keys(suite_options_type(suite)))
-    own, forwarded, by_key = [], [], {}
-    for item in overrides:
-        key = item.split("=", 1)[0]
-        top = key.split(".")[0]
-        if top in own_names:
-            own.append(item)
-        elif top in FORBIDDEN_KEYS:
-            hint = f"; use {FORBIDDEN_KEYS[top]}" if FORBIDDEN_KEYS[top] else ""
-            raise ConfigError(f"key {top!r} is not valid for bench regress{hint}")
-        elif top in run_names:
-            forwarded.append(item)
-            by_key[top] = item
-        else:
-            valid = sorted(own_names | (run_names - set(FORBIDDEN_KEYS) - {"out", "run_id"}))
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(valid)}.{did_you_mean(top, valid)}")
+    own, forwarded, by_key = split_keys(argv, RegressConfig, FORBIDDEN_KEYS, "regress")
     cfg: RegressConfig = config_mod.build(RegressConfig, own)
     check_regress(cfg)
     return cfg, forwarded, by_key

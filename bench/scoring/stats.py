@@ -103,6 +103,13 @@ def _score_interval(p: float, n: float, confidence: float) -> tuple[float, float
     return float(max(low, 0.0)), float(min(high, 1.0))
 
 
+def score_interval(p: float, n: float, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson's score interval (with the edge correction above) for a rate `p` over an effective, possibly
+    fractional, number of trials `n`: what `wilson` and `stratified_wilson` compute, for estimators whose
+    variance is stated as an effective sample size (prediction-powered inference, `bench.scoring.predict`)."""
+    return _score_interval(min(max(float(p), 0.0), 1.0), float(n), confidence)
+
+
 def kept_cells(rates: np.ndarray) -> np.ndarray:
     """Indices of the cells the IQM of `rates` averages: the middle half by rate (`iqm`'s trimming)."""
     nobs = len(rates)

@@ -34,9 +34,8 @@ The two sides of the comparison (planned, run a look at a time, checked, describ
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -52,9 +51,11 @@ from bench.api.gate.sides import (
     check_same_settings,
     check_sides_pairable,
     describe_side,
+    episodes_of,
     input_paths,
     live_plan,
     prepare_live,
+    recorded_settings,
     run_look,
     side_provenance,
 )
@@ -63,7 +64,6 @@ from bench.board.gate.inputs import (
     cells_of_jobs,
     cells_of_records,
     check_outputs,
-    load_recorded,
     resolve,
 )
 from bench.board.gate.pairs import cell_counts, pair_records, unmeasured
@@ -109,18 +109,6 @@ class RegressConfig:
     cells: int = 0  # plan: number of cells; 0 = those the suite/robots/tasks/envs/perturb keys select
 
 
-@dataclass(frozen=True)
-class _Episodes:
-    """Parses the forwarded `episodes=` value (typed like bench run's)."""
-
-    episodes: int = DEFAULT_EPISODES
-
-
-def episodes_of(user_keys: Mapping[str, str], default: int) -> int:
-    """The forwarded `episodes=` value, typed like bench run's, or `default` when none was given."""
-    return int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys else default
-
-
 def check_regress(cfg: RegressConfig) -> None:
     """The ranges of the gate's own keys (one line naming the key and what is valid)."""
     for key, lo, hi, what in (
@@ -160,10 +148,6 @@ VERDICT_FILE = "verdict.json"
 BINARY_METRICS = ("success_once", "success_at_end")
 
 
-def _override(key: str, value: Any) -> str:
-    return f"{key}={json.dumps(value)}"  # JSON is valid YAML flow, which the override grammar parses
-
-
 def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = None) -> Verdict:
     """The gate of `cfg.candidate` against `cfg.baseline` (`bench regress`): both run on the cells and episode seeds
     the `bench run` keys `run_keys` select (`key=value` strings: suite=, robots=, episodes= ...), in looks of
@@ -187,24 +171,8 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     cand, base = Side("candidate", cand_info), Side("baseline", base_info)
 
     # 1. settings both sides share: from the recorded baseline (or candidate) run, else from the keys given
+    ref, shared, episodes = recorded_settings((base, cand), user_keys, lambda: DEFAULT_EPISODES)
     recorded = [s for s in (base, cand) if s.info["kind"] == "run"]
-    shared: list[str] = []
-    for side in recorded:
-        side.records, side.meta = load_recorded(side.info["run_dir"], side.role)
-    ref = recorded[0] if recorded else None
-    if ref is not None:
-        rc = ref.meta["config"]
-        shared = [_override(k, rc[k]) for k in SHARED_KEYS if rc.get(k) is not None]
-        max_eps = int(rc.get("episodes", 0)) or max(r.episode for r in ref.records) + 1
-        episodes = episodes_of(user_keys, max_eps)
-        if episodes > max_eps:
-            raise ConfigError(
-                f"episodes={episodes}: the recorded {ref.role} run {ref.info['run_dir']} has only {max_eps} per cell"
-            )
-    else:
-        episodes = episodes_of(user_keys, DEFAULT_EPISODES)
-    if episodes < 1:
-        raise ConfigError(f"episodes={episodes}: must be >= 1")
     forwarded = [f for f in forwarded if not f.startswith("episodes=")] + [f"episodes={episodes}"]
 
     # 2. live sides: prepared by bench.cli.run (checks everything, writes nothing yet)

@@ -5,6 +5,9 @@ the verdict says of each side (policy, checkpoint, provenance)."""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +16,7 @@ from bench.board.gate.inputs import (
     cells_of_jobs,
     cells_of_records,
     check_pairable,
+    load_recorded,
 )
 from bench.core import config as config_mod
 from bench.core.errors import ConfigError
@@ -37,6 +41,50 @@ SHARED_KEYS = (
     "confidence",
     "allow_split_violation",
 )
+
+
+@dataclass(frozen=True)
+class _Episodes:
+    """Parses the forwarded `episodes=` value (typed like bench run's)."""
+
+    episodes: int = 1
+
+
+def episodes_of(user_keys: Mapping[str, str], default: int) -> int:
+    """The forwarded `episodes=` value, typed like bench run's, or `default` when none was given."""
+    return int(config_mod.build(_Episodes, [user_keys["episodes"]]).episodes) if "episodes" in user_keys else default
+
+
+def override(key: str, value: Any) -> str:
+    """`key=value` as a run's override (JSON is valid YAML flow, which the override grammar parses)."""
+    return f"{key}={json.dumps(value)}"
+
+
+def recorded_settings(
+    sides: Sequence[Side], user_keys: Mapping[str, str], default: Callable[[], int]
+) -> tuple[Side | None, list[str], int]:
+    """Load the recorded sides' episodes; return the first recorded side, the settings both sides must share (its
+    run's `SHARED_KEYS`, as overrides) and the episodes per cell: `episodes=` if given (at most the recorded run's),
+    else the recorded run's, else `default()`. ConfigError for more episodes than the recorded run has, or < 1."""
+    recorded = [s for s in sides if s.info["kind"] == "run"]
+    for side in recorded:
+        side.records, side.meta = load_recorded(side.info["run_dir"], side.role)
+    ref = recorded[0] if recorded else None
+    shared: list[str] = []
+    if ref is not None:
+        rc = ref.meta["config"]
+        shared = [override(k, rc[k]) for k in SHARED_KEYS if rc.get(k) is not None]
+        max_eps = int(rc.get("episodes", 0)) or max(r.episode for r in ref.records) + 1
+        episodes = episodes_of(user_keys, max_eps)
+        if episodes > max_eps:
+            raise ConfigError(
+                f"episodes={episodes}: the recorded {ref.role} run {ref.info['run_dir']} has only {max_eps} per cell"
+            )
+    else:
+        episodes = episodes_of(user_keys, 0) if "episodes" in user_keys else default()
+    if episodes < 1:
+        raise ConfigError(f"episodes={episodes}: must be >= 1")
+    return ref, shared, episodes
 
 
 # -- running -----------------------------------------------------------------------------------

@@ -1,5 +1,5 @@
 """The figures of `bench report` (matplotlib, Agg): cells, split means and gaps, sensitivity curves,
-leaderboard, calibration errors. Each `fig_*` writes one PNG and says whether it drew anything.
+leaderboard, calibration errors, checkpoint sweeps. Each `fig_*` writes one PNG and says whether it drew anything.
 """
 
 from __future__ import annotations
@@ -383,3 +383,38 @@ def fig_curves(summary: dict, path: Path) -> int:
         axs[k // ncol, k % ncol].axis("off")
     save_figure(fig, path)
     return len(entries)
+
+
+def fig_sweep(sweep: dict, path: Path) -> bool:
+    """A checkpoint sweep (`bench sweep`): success against training step with simultaneous intervals, the best
+    set filled and the selected checkpoint starred."""
+    rows = [r for r in sweep.get("checkpoints", []) if r["success"].get("value") is not None]
+    if not rows:
+        return False
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    for r in rows:
+        v, minus, plus = _err(r["success"]) or (0.0, 0.0, 0.0)
+        best = r["in_best_set"]
+        ax.errorbar(
+            r["step"],
+            v,
+            yerr=[[minus], [plus]],
+            fmt="o",
+            color=SEEN if best else "grey",
+            mfc=SEEN if best else "white",
+            capsize=3,
+            lw=1,
+        )
+        if r["name"] == sweep.get("selected"):
+            ax.plot(r["step"], v, marker="*", ms=14, color=UNSEEN, zorder=3)
+    ax.plot([r["step"] for r in rows], [r["success"]["value"] for r in rows], color="grey", lw=0.8, zorder=0)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(f"training step ({sweep.get('step_source', 'step')})")
+    ax.set_ylabel(f"{sweep.get('metric', 'success')} (mean of cell rates)")
+    ax.set_title(
+        f"{sweep.get('simultaneous_confidence', 0.95):.3g} simultaneous intervals; filled: best set; star: selected",
+        fontsize=8,
+    )
+    save_figure(fig, path)
+    return True
