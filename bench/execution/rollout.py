@@ -223,6 +223,7 @@ class Episode:
         self.stepper: EnvAdapter = env
         self.obs: Obs = {}
         self.actions = _Actions(policy, env.action_spec.dim, ctx.horizon)
+        self.pending: NumArray | None = None  # the action `choose` took for the coming step
 
     def guarded(self, call: Callable[[], object]) -> None:
         """`call()` on this episode's clock, unless it is done; a failure ends it with the reason."""
@@ -282,10 +283,16 @@ class Episode:
         if self.log is not None:
             self.log.start()
 
+    def choose(self, t: int) -> None:
+        """Take control step t's action now (`pending`), so a batch of worlds can be stepped before `step` reads it."""
+        self.pending = self.actions.next(self.obs, t)
+
     def step(self, t: int) -> None:
-        """Control step t: the policy's action (asked now unless an answer is queued), the env's step, the bookkeeping."""
+        """Control step t: the policy's action (asked now unless an answer is queued or `choose` took it), the env's
+        step, the bookkeeping."""
         env, traj, log = self.env, self.traj, self.log
-        action = self.actions.next(self.obs, t)
+        action = self.pending if self.pending is not None else self.actions.next(self.obs, t)
+        self.pending = None
         if self.compare is not None:
             self.compare.step(self.obs, self.actions, action, t)
         if traj is not None:

@@ -11,7 +11,8 @@ the episodes whose last answer is used up are answered together:
   one forward pass;
 - any other policy is asked per env, in its episode's step, as without `vector=`.
 
-Then every episode still running takes its step. An episode that ends (terminated, truncated, failed) is masked
+Envs that are worlds of one batched simulator (an MJX suite: `batch.step_all`) are then stepped in one call
+(`step_batches`). Then every episode still running takes its step. An episode that ends (terminated, truncated, failed) is masked
 from then on, never stepped again, so each record equals the one its job gives alone (`vector=1`). A batched
 answer that is not one valid answer per observation (a count or shape `act_batch` should not give) fails the
 episodes it was for, with the reason in their records, like a wrong `act` answer does alone: the run goes on.
@@ -49,6 +50,7 @@ def run_vector(
         if not live:
             break
         answer(live, t)
+        step_batches(live, t)
         for ep in live:
             ep.guarded(functools.partial(ep.step, t))
     return [ep.finish() for ep in episodes]
@@ -73,6 +75,38 @@ def answer(live: Sequence[Episode], t: int) -> None:
         ep.guarded(functools.partial(_send, ep))
     for ep in split:
         ep.guarded(functools.partial(_receive, ep, t))
+
+
+def step_batches(live: Sequence[Episode], t: int) -> None:
+    """Step together the episodes whose envs are worlds of one batched simulator (an env with `batch`, whose
+    `step_all({index: action})` steps those worlds in one call, and `index`: an MJX world, `bench.sims.mjx_lift`).
+
+    Each takes its action first (`Episode.choose`); its own `step` then reads the world's row of that batched step.
+    An env under a wrapper that changes actions (a perturbed interface) is left to step alone."""
+    groups: dict[int, list[Episode]] = {}
+    for ep in live:
+        batch = getattr(ep.stepper, "batch", None)
+        if batch is not None and callable(getattr(batch, "step_all", None)):
+            groups.setdefault(id(batch), []).append(ep)
+    for group in groups.values():
+        if len(group) < 2:
+            continue
+        for ep in group:
+            ep.guarded(functools.partial(ep.choose, t))
+        ready = [ep for ep in group if not ep.done and ep.pending is not None]
+        if not ready:
+            continue
+        batch = ready[0].stepper.batch  # type: ignore[attr-defined]  # a batched world (checked above)
+        began = time.perf_counter()
+        try:
+            batch.step_all({ep.stepper.index: ep.pending for ep in ready})  # type: ignore[attr-defined]
+        except Exception as exc:  # every world of the call fails with the reason; the run goes on
+            for ep in ready:
+                ep.fail(exc, time.perf_counter() - began)
+            continue
+        took = (time.perf_counter() - began) / len(ready)
+        for ep in ready:
+            ep.spent += took
 
 
 def _send(ep: Episode) -> None:

@@ -1,0 +1,7 @@
+"""The MJX Lift scene for suites (`suites/mjx_lift.py`): its batch of worlds, observation and checks."""
+
+from __future__ import annotations
+
+from bench.sims.mjx_lift import ACTION_NAMES, AXES, OBS_FIELDS, LiftBatch, World, check_worlds, memory_estimate
+
+__all__ = ["ACTION_NAMES", "AXES", "OBS_FIELDS", "LiftBatch", "World", "check_worlds", "memory_estimate"]
