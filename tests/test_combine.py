@@ -321,8 +321,21 @@ TOY = ["run", "suite=tests.toy_suite:ToySuite", "workers=1", "episodes=3"]
         ),
         (["perturb.latency=[2]", "perturb.light=[0.5]", "perturb.combine=[latency,light]"], "has no camera rig"),
         (["perturb.latency=[2]", "perturb.friction=[0.5]", "perturb.combine=[friction,latency]"], "cannot apply it"),
+        (
+            ["perturb.latency=[2]", "perturb.obs_noise=[1]", "perturb.combine=[latency,obs_noise]"]
+            + ["perturb.combine.fraction=0.5"],
+            "(e.g. perturb.combine.axes=[...] perturb.combine.fraction=...)",
+        ),
     ],
-    ids=["unknown-axis", "no-levels", "one-axis", "fraction", "visual-without-cameras", "model-without-model"],
+    ids=[
+        "unknown-axis",
+        "no-levels",
+        "one-axis",
+        "fraction",
+        "visual-without-cameras",
+        "model-without-model",
+        "list-and-sub-key",
+    ],
 )
 def test_bad_combine_on_the_command_line_exits_2_and_writes_nothing(tmp_path: Path, capsys, keys, match):
     out = tmp_path / "runs"

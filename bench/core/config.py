@@ -182,6 +182,10 @@ def build_from_argv(cls: type[T], argv: Iterable[str], command: str) -> T:
     return build(cls, overrides)
 
 
+# the sub-key a bare list value means, where it is not `levels` (`perturb.combine=[a,b]` is `perturb.combine.axes=`)
+LIST_SUBKEY = {"combine": "axes"}
+
+
 def top_key(override: str) -> str:
     """`perturb.friction=[1,2]` -> `perturb`: the key a `key=value` override sets (or sets inside)."""
     return override.split("=", 1)[0].split(".", 1)[0]
@@ -290,9 +294,10 @@ def build(schema: type[T], overrides: Iterable[str], *, base: Mapping[str, objec
     for key in keys:  # `a.b=[1,2] a.b.c=x`: OmegaConf fails with a bare ValueError
         child = next((k for k in keys if k.startswith(key + ".")), None)
         if child:
+            listed = LIST_SUBKEY.get(key.rsplit(".", 1)[-1], "levels")  # the sub-key a bare list stands for
             raise ConfigError(
                 f"{key} is set to a value and also given the sub-key {child}; "
-                f"give every part as a sub-key instead (e.g. {key}.levels=[...] {child}=...)"
+                f"give every part as a sub-key instead (e.g. {key}.{listed}=[...] {child}=...)"
             )
     try:
         cfg = OmegaConf.structured(schema)
