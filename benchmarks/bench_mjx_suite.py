@@ -22,7 +22,7 @@ from baselines.scripted_lift import LiftExpert
 from bench.api.stats import wilson
 from bench.core.errors import ConfigError
 from bench.sims import mjx_lift
-from suites.lift import make_env
+from suites.lift import OBS_FIELDS, make_env
 
 HORIZON = 250
 
@@ -64,17 +64,7 @@ def mjx_success(worlds: int) -> int:
 def robosuite(episodes: int) -> tuple[float, int]:
     """(env-steps/s, successes) of robosuite's Lift on the Panda with its scripted expert."""
     env = make_env("Lift", "Panda", HORIZON)
-    expert = LiftExpert(
-        [
-            ("eef_pos", 3),
-            ("eef_quat_rel", 4),
-            ("gripper_opening", 1),
-            ("object_pos", 3),
-            ("object_quat", 4),
-            ("gripper_to_object", 3),
-        ],
-        env.action_spec.dim,
-    )
+    expert = LiftExpert(OBS_FIELDS, env.action_spec.dim)
     steps, wall, wins = 0, 0.0, 0
     for ep in range(episodes):
         obs = env.reset(1000 + ep)

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.protocols.suite import Cell
+from bench.protocols.suite import Cell, declared_scene
 from suites.lift import LiftSuite, make_env
 
 NOMINAL: dict[str, Any] = {
@@ -85,12 +85,7 @@ UNSEEN_SCENES: dict[str, dict[str, Any]] = {
 
 def scene_params(name: str) -> dict[str, Any]:
     """Full parameters of a declared scene (nominal values where the scene does not change them)."""
-    overrides = SEEN_SCENES.get(name, UNSEEN_SCENES.get(name))
-    if overrides is None:
-        raise KeyError(name)
-    params = {k: (list(v) if isinstance(v, list) else v) for k, v in NOMINAL.items()}
-    params.update(overrides)
-    return params
+    return declared_scene(name, NOMINAL, SEEN_SCENES, UNSEEN_SCENES)
 
 
 def region_relation(params: dict[str, Any]) -> str:

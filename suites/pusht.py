@@ -50,7 +50,7 @@ from bench.api import ConfigError, did_you_mean
 from bench.api.sims import installed_version
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
-from bench.protocols.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase, declared_scene
 
 TASK_ID = "PushT-v0"
 ROBOT = "agent"
@@ -77,10 +77,7 @@ UNSEEN_SCENES: dict[str, dict[str, Any]] = {
 
 def scene_params(name: str) -> dict[str, Any]:
     """A declared scene's full parameters (gym-pusht's values where it changes nothing)."""
-    overrides = SEEN_SCENES.get(name, UNSEEN_SCENES.get(name))
-    if overrides is None:
-        raise KeyError(name)
-    return {**NOMINAL, **overrides}
+    return declared_scene(name, NOMINAL, SEEN_SCENES, UNSEEN_SCENES)
 
 
 def in_seen_region(params: dict[str, Any]) -> bool:

@@ -52,7 +52,7 @@ import numpy as np
 from bench.api.sims import CameraOptions, camera_spec, check_options, installed_version, unwrap, with_cameras
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import AdapterBase
-from bench.protocols.suite import Cell, SuiteBase
+from bench.protocols.suite import Cell, SuiteBase, declared_scene
 
 ROBOT = "so101"
 TASK_NAME = "PickCube"
@@ -87,10 +87,7 @@ UNSEEN_SCENES: dict[str, dict[str, Any]] = {
 
 def scene_params(name: str) -> dict[str, Any]:
     """Full parameters of a declared scene (nominal values where the scene does not change them)."""
-    overrides = SEEN_SCENES.get(name, UNSEEN_SCENES.get(name))
-    if overrides is None:
-        raise KeyError(name)
-    return {**NOMINAL, **overrides}
+    return declared_scene(name, NOMINAL, SEEN_SCENES, UNSEEN_SCENES)
 
 
 def in_seen_region(params: dict[str, Any]) -> bool:

@@ -279,6 +279,17 @@ class SuiteBase(ABC):
         return out
 
 
+def declared_scene(name: str, nominal: Mapping[str, Any], *declared: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """A suite's declared scene `name` in full: `nominal`'s values (lists copied), then the overrides of the first
+    of `declared` (e.g. SEEN_SCENES, UNSEEN_SCENES) that names it. KeyError when none does."""
+    overrides = next((scenes[name] for scenes in declared if name in scenes), None)
+    if overrides is None:
+        raise KeyError(name)
+    params = {k: (list(v) if isinstance(v, list) else v) for k, v in nominal.items()}
+    params.update(overrides)
+    return params
+
+
 def policy_ref(suite: Suite | type[Suite], policy: str | None) -> str:
     """The policy a run of `suite` uses: `policy`, else the suite's `default_policy`, else its reference policy."""
     return policy or suite.default_policy or suite.reference_policy
