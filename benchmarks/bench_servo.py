@@ -1,6 +1,6 @@
 """Servo calibration on BAM's real bench logs: the time of one calibration on one core, and (folds=true) every
 trajectory held out in turn, with the held-out errors per run, the physics recovered and BAM's published parameters
-side by side.
+side by side, and how many known values (m·g·l, each kp, each kp ratio) lie inside their intervals.
 
     python benchmarks/bench_servo.py [servo=xl330|sts3250] [folds=false]
 
@@ -52,6 +52,7 @@ def main(argv: list[str]) -> int:
     os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     runs = read_runs(BAM / servo, spec.columns, units=spec.units, load_scale=spec.load_scale, fps=spec.rate)
     trajectories = sorted({r.trajectory for r in runs}) if args.get("folds") == "true" else ["lift_and_drop"]
+    totals = [0, 0]
     for traj in trajectories:
         s = dataclasses.replace(spec, holdout={"trajectory": traj})
         load0 = os.getloadavg()[0]
@@ -72,16 +73,29 @@ def main(argv: list[str]) -> int:
                 f"{b['k_step_rmse']:.4f} -> {a['k_step_rmse']:.4f}   {ff}"
             )
         g = cal.physics["gravity_torque"]
+        lo, hi = g["interval_with_torque_scale"] or (-np.inf, np.inf)
         print(
-            f"m·g·l: {g['fitted']:.4f} N·m {np.round(g['interval_data'], 4).tolist()} (data) "
-            f"{np.round(g['interval_with_torque_scale'], 4).tolist()} (with kt/R sd); known {g['known_mgl']:.4f} "
-            f"({g['relative_error']:+.1%})"
+            f"m·g·l: {g['fitted']:.4f} N·m {np.round(g['interval_data'] or [-np.inf, np.inf], 4).tolist()} (data: Jacobian + jackknife) "
+            f"[{lo:.4f}, {hi:.4f}] (with kt/R sd; width {(hi - lo) / g['fitted']:.0%} of the value); known "
+            f"{g['known_mgl']:.4f} ({g['relative_error']:+.1%}) {'inside' if g['inside'] else 'OUTSIDE'}"
         )
         for lab, k in cal.physics["gains"].items():
+            lo, hi = k["interval"] or (-np.inf, np.inf)
+            ratio = ""
+            if k["ratio_interval"]:
+                rlo, rhi = k["ratio_interval"]
+                ratio = (
+                    f"; ratio [{rlo:.3f}, {rhi:.3f}] (known {k['known_ratio']:g}, error {(k['ratio_error'] or 0):+.1%}) "
+                    f"{'inside' if k['ratio_inside'] else 'OUTSIDE'}"
+                )
             print(
-                f"{lab}: fitted {k['fitted']:.1f} {np.round(k['interval'], 1).tolist()}; ratio error "
-                f"{(k['ratio_error'] or 0):+.1%}"
+                f"{lab}: fitted {k['fitted']:.1f} [{lo:.1f}, {hi:.1f}] (width {(hi - lo) / k['fitted']:.1%}) "
+                f"{'inside' if k['inside'] else 'OUTSIDE'}{ratio}"
             )
+        ins = cal.physics["truths_inside"]
+        totals[0] += ins["inside"]
+        totals[1] += ins["checked"]
+        print(f"known values inside their intervals: {ins['inside']} of {ins['checked']}")
         params = cal.parameters(cal.final)
         kt = params["kt"]["value"]
         print(
@@ -97,6 +111,7 @@ def main(argv: list[str]) -> int:
             f"kt²/R + viscous = {spec.kt_over_r * kt + params.get('viscous', {'value': 0.0})['value']:.4f} N·m·s/rad; "
             f"implied armature (inertia - m l², check only) {cal.physics.get('inertia', {}).get('implied_armature', float('nan')):.5f}"
         )
+    print(f"\nall folds: {totals[0]} of {totals[1]} known values inside their 95% intervals")
     _bam(servo)
     return 0
 

@@ -3,6 +3,7 @@ against the fit's simulator, and bad input refused through the CLI with one line
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -46,6 +47,22 @@ def test_xl330_held_out_runs_are_simulated_better_and_the_physics_is_recovered(x
 
 
 @needs_bam
+def test_xl330_intervals_hold_the_known_values_and_stay_useful(xl330):
+    _, _, cal = xl330
+    ph = cal.physics
+    assert ph["truths_inside"] == {"inside": 8, "checked": 8}, ph["truths_inside"]  # m·g·l, 4 kp, 3 ratios
+    g = ph["gravity_torque"]
+    lo, hi = g["interval_data"]
+    assert lo <= g["known_mgl"] <= hi and (hi - lo) / g["fitted"] < 0.3  # the data alone, without kt/R's sd
+    for lab, k in ph["gains"].items():
+        lo, hi = k["interval"]
+        assert (hi - lo) / k["fitted"] < 0.12, (lab, k)
+        assert k["sd"]["jackknife"] > 0  # the between-run spread is part of it
+    kp800 = ph["gains"]["kp=800"]
+    assert kp800["sd"]["jackknife"] > kp800["sd"]["jacobian"]  # model error dominates the noise here
+
+
+@needs_bam
 def test_mujoco_cpu_runs_the_same_servo(xl330):
     _, runs, cal = xl330
     p, kp = cal.final.servo()
@@ -64,7 +81,11 @@ def test_cli_writes_the_calibration(tmp_path, capsys):
     assert main(["calibrate", f"spec={SPEC}", f"logs={BAM / 'xl330'}", f"out={out}", "quiet=true"]) == 0
     doc = json.loads((out / "calibration.json").read_text())
     assert doc["schema"] == "bench.calibration.servo/1" and doc["effects_added"]
-    assert (out / "report.md").read_text().splitlines()[2].startswith("The calibrated xl330")
+    report = (out / "report.md").read_text()
+    assert report.splitlines()[2].startswith("The calibrated xl330")
+    assert "| quantity | unit | ours (95% interval) | BAM m1 |" in report  # BAM's published models beside ours
+    assert "Known values inside their 95% intervals: 8 of 8." in report and "s CPU" in report
+    assert doc["intervals"]["jackknife_left_out"] and doc["parameters"]["final"]["gravity"]["sd"]["jackknife"] > 0
     assert "gravity torque m·g·l" in capsys.readouterr().out
 
 
@@ -103,6 +124,11 @@ def _degrees(d: dict) -> None:
         e["position"] *= 180 / np.pi * 20
 
 
+def _small_degrees(d: dict) -> None:
+    for e in d["entries"]:  # within one turn's range even in degrees (at most 5.7), against a goal in rad
+        e["position"] *= 180 / np.pi
+
+
 def _no_goal(d: dict) -> None:
     for e in d["entries"]:
         del e["goal_position"]
@@ -117,10 +143,11 @@ def _kp0(d: dict) -> None:
     [
         (_backwards, "not increasing"),
         (_degrees, "looks like degrees"),
+        (_small_degrees, "'position' spreads 28.6x more than 'goal_position'"),
         (_no_goal, "goal position"),
         (_kp0, "kp is 0"),
     ],
-    ids=["non_monotonic_time", "degrees_declared_rad", "goal_missing", "kp_zero"],
+    ids=["non_monotonic_time", "degrees_declared_rad", "small_degrees_beside_a_goal_in_rad", "goal_missing", "kp_zero"],
 )
 def test_bad_servo_logs_are_refused_with_one_line_and_nothing_written(tmp_path, capsys, edit, pattern):
     logs = tmp_path / "logs"
@@ -135,3 +162,18 @@ def test_bad_servo_logs_are_refused_with_one_line_and_nothing_written(tmp_path, 
     assert code == 2, err
     assert len(err.splitlines()) == 1 and pattern in err, err
     assert not out.exists()
+
+
+@needs_bam
+def test_sts3250_without_a_saturating_run_reports_its_scale_as_unidentified():
+    """No duty logged and sin_time_square (the only run that saturates the PWM) held out: the gain's scale is flat,
+    and the scale profile widens the gain's and m·g·l's intervals to hold the known values instead of excluding them."""
+    spec = parse_servo_spec(yaml.safe_load((SPEC.parent / "servo_sts3250.yaml").read_text()))
+    spec = dataclasses.replace(spec, holdout={"trajectory": "sin_time_square"})
+    runs = read_runs(BAM / "sts3250", spec.columns, units=spec.units, load_scale=spec.load_scale, fps=spec.rate)
+    cal = calibrate_servo(spec, runs)
+    k = cal.physics["gains"]["kp=32"]
+    assert k["fitted"] < 8 and k["inside"], k  # fitted far off, and the interval says so
+    assert k["interval"][1] / k["interval"][0] > 10
+    assert cal.physics["gravity_torque"]["inside"]
+    assert len(cal.jackknives["final"].alternates) >= 2

@@ -53,6 +53,7 @@ class ServoRun:
     label: str  # the gain setting (runs with one label share one fitted gain)
     trajectory: str
     truth: dict[str, Any] = field(default_factory=dict)  # mass, length, kp, vin as logged: checked, never fitted
+    source: str = ""  # the run's file
 
     @property
     def frames(self) -> int:
@@ -78,6 +79,24 @@ def _check_radians(x: np.ndarray, where: str, column: str) -> None:
         )
 
 
+UNIT_RATIO = 20.0  # spread of position over goal beyond which one of them is in degrees (the servo follows its goal)
+
+
+def _check_same_units(q: np.ndarray, goal: np.ndarray, on: np.ndarray, where: str, cols: Columns) -> None:
+    """Position and goal in one unit: while its torque is on (`on`) a servo follows its goal, so their spreads
+    differ by far less than 180/pi."""
+    if int(on.sum()) < 10:
+        return
+    sq, sg = float(np.std(q[on])), float(np.std(goal[on]))
+    if sq > 0 and sg > 0 and not 1.0 / UNIT_RATIO < sq / sg < UNIT_RATIO:
+        big = cols.position if sq > sg else cols.goal
+        raise DataError(
+            f"{where}: column {big!r} spreads {max(sq, sg) / min(sq, sg):.3g}x more than "
+            f"{cols.goal if big == cols.position else cols.position!r} (180/pi = 57.3): it looks like degrees while "
+            "the other is in rad; log both in the spec's `units`"
+        )
+
+
 def read_run(path: Path, cols: Columns, *, units: str, load_scale: float | None, fps: float) -> ServoRun:
     """One run file, checked (time increasing, goal present, positions in the declared units, kp > 0), resampled."""
     where = f"servo log {path.name}"
@@ -100,6 +119,7 @@ def read_run(path: Path, cols: Columns, *, units: str, load_scale: float | None,
         _check_radians(q, where, cols.position)
         _check_radians(goal, where, cols.goal)
     enable = _column(entries, cols.enable, where, "torque on/off") if cols.enable in entries[0] else np.ones_like(t)
+    _check_same_units(q, goal, enable > 0.5, where, cols)
     vin = _column(entries, cols.volts, where, "supply") if cols.volts in entries[0] else np.full_like(t, 0.0)
     if not np.any(vin > 0):
         vin = np.full_like(t, float(raw.get("vin", 0.0)))
@@ -128,6 +148,7 @@ def read_run(path: Path, cols: Columns, *, units: str, load_scale: float | None,
         label=f"kp={kp:g}",
         trajectory=str(raw.get("trajectory", "")),
         truth=truth,
+        source=str(path),
     )
 
 

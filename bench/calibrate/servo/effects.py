@@ -3,8 +3,9 @@
 
 The declared servo (`DECLARED`) is BAM's electrical model without friction: the firmware's P gain per gain
 setting, the back-EMF constant, the load's inertia, its gravity torque and the encoder's zero. The families add
-what a log may need: Coulomb, viscous, Stribeck and load-dependent friction (BAM's M1-M3 terms), backlash and a
-transport delay. Bounds scale with the servo: `Scale.torque` is its stall torque at the logged supply.
+what a log may need: Coulomb, viscous, Stribeck and load-dependent friction (BAM's M1-M3 terms), backlash, the
+firmware's goal velocity limit (BAM's Feetech model) and a transport delay. Bounds scale with the servo:
+`Scale.torque` is its stall torque at the logged supply.
 """
 
 from __future__ import annotations
@@ -96,6 +97,12 @@ SERVO_EFFECTS: dict[str, ServoEffect] = {
                 Param("rotor_share", "1", lambda s: (0.05, 0.9), lambda s: 0.3),
             ),
             "play between motor and output (total width); the encoder reads the output, the rotor crosses the gap",
+        ),
+        ServoEffect(
+            "goal_velocity_limit",
+            (Param("goal_slowness", "s/rad", lambda s: (0.0, 2.0), bam="1/max_velocity"),),
+            "the firmware moves its internal target toward the goal at a limited velocity (Feetech STS: BAM's "
+            "max_velocity, 3400 steps/s = 5.2 rad/s by default); as its inverse, zero absent",
         ),
         ServoEffect(
             "delay",

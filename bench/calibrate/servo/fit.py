@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -17,7 +18,7 @@ from scipy.optimize import least_squares
 from bench.calibrate.servo.data import ServoRun
 from bench.calibrate.servo.effects import DECLARED, SERVO_EFFECTS, Param, Scale
 from bench.calibrate.servo.law import ServoParams, duty
-from bench.calibrate.servo.sim import Windows, simulate
+from bench.calibrate.servo.sim import Windows, simulate, target_axis
 
 Z95 = 1.96
 FD_STEP = 1e-4  # finite-difference step in normalised units (each parameter over its own size)
@@ -89,6 +90,22 @@ class Problem:
         return self.base.with_(**{q.field: float(v) for q, v in zip(self.params, x[:k])}), np.asarray(x[k:])
 
 
+def duty_goal(w: Windows, dd: DutyData, delay: Any, slowness: Any) -> np.ndarray:
+    """The firmware's target at the duty samples (P, n) for delays and slownesses of shape (P, 1) or scalars."""
+    d = np.ravel(np.asarray(delay, dtype=float))
+    sl = np.ravel(np.asarray(slowness, dtype=float))
+    P = max(d.size, sl.size)
+    d, sl = np.broadcast_to(d, (P,)), np.broadcast_to(sl, (P,))
+    axes: dict[float, np.ndarray] = {}
+    out = np.empty((P, dd.times.size))
+    for i in range(P):
+        if float(sl[i]) not in axes:
+            axes[float(sl[i])] = target_axis(w, float(sl[i]))
+        ax = axes[float(sl[i])]
+        out[i] = np.interp(np.maximum(dd.times - d[i], dd.run_start), w.axis_t, ax)
+    return out
+
+
 def residuals(prob: Problem, X: np.ndarray, w: Windows, dd: DutyData | None, sd_q: float, sd_d: float) -> np.ndarray:
     """Position errors of every window (in sd of the logged position) and duty errors (in sd of the logged duty),
     each block weighted by one over the root of its size so each weighs the same whatever the log's length;
@@ -98,8 +115,7 @@ def residuals(prob: Problem, X: np.ndarray, w: Windows, dd: DutyData | None, sd_
     r = ((sim - w.target) / sd_q)[:, w.mask] / np.sqrt(max(int(w.mask.sum()), 1))
     if dd is None:
         return r
-    delay = np.asarray(p.delay)
-    g = np.interp(np.maximum(dd.times[None] - delay, dd.run_start[None]), w.axis_t, w.axis_goal)
+    g = duty_goal(w, dd, p.delay, p.goal_slowness)
     model = duty(p.with_(kp=kp[:, dd.label]), g, dd.q)
     return np.concatenate([r, (model - dd.duty) / sd_d / np.sqrt(dd.duty.size)], axis=1)
 
@@ -113,6 +129,7 @@ class Fit:
     cost: float  # mean squared position error (in sd units) plus the duty block's
     cov: np.ndarray | None
     evaluations: int
+    delta95: float | None = None  # a cost this much above `cost` is still inside the 95% region (3.84 s² tau)
 
     def servo(self) -> tuple[ServoParams, np.ndarray]:
         return self.prob.servo(self.x)
@@ -125,6 +142,8 @@ class Fit:
             return None
         i = self.prob.names.index(name)
         sd = float(np.sqrt(max(self.cov[i, i], 0.0)))
+        if not np.isfinite(sd):
+            return None
         return [float(self.x[i] - Z95 * sd), float(self.x[i] + Z95 * sd)]
 
 
@@ -146,9 +165,18 @@ def _autocorr_time(r: np.ndarray, mask: np.ndarray) -> float:
 
 
 def fit(
-    prob: Problem, x0: np.ndarray, w: Windows, dd: DutyData | None, sd_q: float, sd_d: float, *, max_nfev: int = 60
+    prob: Problem,
+    x0: np.ndarray,
+    w: Windows,
+    dd: DutyData | None,
+    sd_q: float,
+    sd_d: float,
+    *,
+    max_nfev: int = 60,
+    covariance: bool = True,
 ) -> Fit:
-    """Bounded least squares from `x0` (trust region reflective, finite differences in normalised units)."""
+    """Bounded least squares from `x0` (trust region reflective, finite differences in normalised units); the
+    Jacobian's covariance unless `covariance` is false (a jackknife replicate needs only the vector)."""
     lo, hi = prob.bounds()
     span = np.maximum(np.abs(x0), 0.1 * (hi - lo) if np.all(np.isfinite(hi)) else 1.0)
     span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
@@ -169,8 +197,8 @@ def fit(
     x = res.x * span
     jm = np.asarray(res.jac)
     n, k = res.fun.size, x.size
-    cov = None
-    if n > k:
+    cov, delta95 = None, None
+    if covariance and n > k:
         s2 = float(res.fun @ res.fun) / (n - k)
         npos = int(w.mask.sum())
         sim_r = res.fun[:npos]
@@ -178,8 +206,15 @@ def fit(
         full[w.mask] = sim_r
         tau = _autocorr_time(full, w.mask)
         cov_n = np.linalg.pinv(jm.T @ jm) * s2 * tau
+        # a parameter the residuals do not move (e.g. a goal velocity limit that never binds) is unbounded by the
+        # data: pinv would give it zero variance, an interval that excludes anything
+        flat = np.linalg.norm(jm, axis=0) <= 1e-9 * max(float(np.max(np.linalg.norm(jm, axis=0))), 1e-300)
+        cov_n[flat, :] = 0.0
+        cov_n[:, flat] = 0.0
+        cov_n[flat, flat] = np.inf
         cov = cov_n * np.outer(span, span)
-    return Fit(prob, x, float(res.fun @ res.fun), cov, int(res.nfev))
+        delta95 = Z95**2 * s2 * tau
+    return Fit(prob, x, float(res.fun @ res.fun), cov, int(res.nfev), delta95)
 
 
 def position_cost(prob: Problem, x: np.ndarray, w: Windows, sd_q: float) -> float:

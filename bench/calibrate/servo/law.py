@@ -49,6 +49,9 @@ class ServoParams:
     play: float = 0.0  # rad, backlash (total width) between motor and output
     rotor_share: float = 0.3  # share of the inertia on the motor side of the play (only with play)
     delay: float = 0.0  # s, transport delay of the goal position
+    # the firmware's goal velocity limit (Feetech: the internal target moves at most max velocity toward the goal;
+    # BAM's STS3215 model, `q_target_smooth`); as its inverse so that zero is absent
+    goal_slowness: float = 0.0  # s/rad, 1 / the largest velocity of the firmware's internal target
 
     def with_(self, **changes: Any) -> ServoParams:
         """A copy with some parameters changed."""
@@ -65,6 +68,13 @@ class ServoParams:
 def duty(p: ServoParams, goal: Any, q: Any, xp: ModuleType = np) -> Any:
     """The firmware's P controller: PWM duty from the position error, clipped at the PWM limit."""
     return xp.clip(p.error_gain * p.kp * (goal - q), -p.max_duty, p.max_duty)
+
+
+def goal_step(p: ServoParams, target: Any, goal: Any, dt: float, xp: ModuleType = np) -> Any:
+    """The firmware's internal target after a step `dt`: toward the goal at most 1/goal_slowness rad/s (the goal
+    itself when the limit is absent). While the torque is off the caller resets it to the measured position."""
+    reach = dt / xp.maximum(p.goal_slowness, 1e-12)
+    return xp.clip(goal, target - reach, target + reach)
 
 
 def motor_torque(p: ServoParams, d: Any, vin: Any, dq_motor: Any, enable: Any) -> Any:

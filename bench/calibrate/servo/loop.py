@@ -5,13 +5,15 @@ Held out are whole runs (by trajectory, the spec's `holdout`): new to the fit in
 `lift_and_drop` in their physics (stretches with the torque off: free fall under gravity and friction alone). Each
 run's gain setting is fitted on the other runs with that setting (the setting is a label, its value never used).
 Effects are chosen on validation windows of the training runs (every fourth window), never on the held-out runs.
+Intervals combine the Jacobian's with a jackknife over whole training runs and the declared kt/R's spread
+(`bench.calibrate.servo.intervals`); the physics recovered says how many known values lie inside them.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -19,6 +21,7 @@ import numpy as np
 from bench.calibrate.servo.data import ServoRun
 from bench.calibrate.servo.effects import KP_UNIT, SERVO_EFFECTS, scale_of
 from bench.calibrate.servo.fit import Fit, Problem, duty_data, fit, linear_start, position_cost
+from bench.calibrate.servo.intervals import Jackknife, jackknife, scale_profile
 from bench.calibrate.servo.law import GRAVITY, ServoParams
 from bench.calibrate.servo.sim import RUN_GAP, make_windows, simulate
 from bench.calibrate.servo.spec import ServoSpec
@@ -28,6 +31,8 @@ from bench.core.threads import one_blas_thread
 KP_GRID = np.geomspace(0.5, 5000.0, 28)  # gains tried by the linear start where no duty is logged
 SEARCH_NFEV = 12  # evaluations of a candidate's fit
 FINAL_NFEV = 40
+GOAL_SLOWNESS_START = 1.0 / 5.2  # s/rad: the Feetech STS firmware's default limit, 3400 steps/s (BAM)
+SEARCH_HALVE = 100  # fit windows from which the search screens on every second one
 
 
 @dataclass
@@ -45,14 +50,25 @@ class ServoCalibration:
     errors: dict[str, Any]
     physics: dict[str, Any]
     wall: dict[str, float]
+    jackknives: dict[str, Jackknife]  # "declared", "final": each fit's leave-one-run-out refits
+    sources: list[str] = field(default_factory=list)  # the runs' files
     warnings: list[str] = field(default_factory=list)
 
     def parameters(self, f: Fit) -> dict[str, Any]:
-        """Every fitted parameter with its unit and 95% interval (None: the data do not bound it)."""
+        """Every fitted parameter with its unit and 95% interval: the Jacobian's, the jackknife over training runs
+        and, for torques, the declared kt/R's spread combined (`bench.calibrate.servo.intervals`); the sd of each
+        part beside it."""
         units = {p.field: p.unit for p in f.prob.params}
-        return {
-            n: {"value": f.value(n), "unit": units.get(n, KP_UNIT), "interval": f.interval(n)} for n in f.prob.names
-        }
+        jk = next((j for j in self.jackknives.values() if j.full is f), None)
+        out: dict[str, Any] = {}
+        for n in f.prob.names:
+            if jk is None:
+                out[n] = {"value": f.value(n), "unit": units.get(n, KP_UNIT), "interval": f.interval(n), "sd": None}
+            else:
+                iv = jk.parameter(n)
+                out[n] = {"value": iv["value"], "unit": units.get(n, KP_UNIT), "interval": iv["interval"]}
+                out[n]["sd"] = iv["sd"]
+        return out
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -68,6 +84,11 @@ class ServoCalibration:
             "effects_added": self.added,
             "rounds": self.rounds,
             "parameters": {"declared": self.parameters(self.declared), "final": self.parameters(self.final)},
+            "intervals": {
+                "method": "95%: Jacobian (noise) + jackknife over whole training runs (model error) + the declared "
+                "kt/R's relative sd for torques, variances summed",
+                "jackknife_left_out": self.jackknives["final"].left_out,
+            },
             "errors": self.errors,
             "physics": self.physics,
             "wall": self.wall,
@@ -108,6 +129,8 @@ def _extend(prob: Problem, x: np.ndarray, name: str) -> tuple[Problem, np.ndarra
     starts = [p.start(prob.scale) for p in SERVO_EFFECTS[name].params]
     if name == "backlash":  # a play of exactly zero is a different (one-body) model: start inside the family
         starts[0] = 0.1 * SERVO_EFFECTS[name].params[0].bounds(prob.scale)[1]
+    if name == "goal_velocity_limit":  # a limit far above every goal velocity has no gradient: start where it binds
+        starts[0] = GOAL_SLOWNESS_START
     return new, np.concatenate([x[:k], starts, x[k:]])
 
 
@@ -149,53 +172,77 @@ def heldout_errors(
     return out
 
 
-def _physics(cal_fit: Fit, train: list[ServoRun], labels: list[str], spec: ServoSpec) -> dict[str, Any]:
-    """The load and the gains recovered, beside the bench's known values (read from the logs, never fitted)."""
+def _physics(jk: Jackknife, train: list[ServoRun], labels: list[str]) -> dict[str, Any]:
+    """The load and the gains recovered, beside the bench's known values (read from the logs, never fitted), each
+    with its honest interval (`bench.calibrate.servo.intervals`) and whether the known value lies inside it."""
+    cal_fit = jk.full
+    names = cal_fit.prob.names
     truth = train[0].truth
     out: dict[str, Any] = {}
-    g, giv = cal_fit.value("gravity"), cal_fit.interval("gravity")
-    if giv is not None:  # the declared torque scale's own uncertainty, in quadrature with the data's
-        half = 0.5 * (giv[1] - giv[0])
-        wide = float(np.hypot(half, 1.96 * spec.kt_over_r_sd * g))
-        giv_all: list[float] | None = [g - wide, g + wide]
-    else:
-        giv_all = None
+    ig = names.index("gravity")
+    g_data = jk.interval(_component(ig), torque=False)  # the data's part: Jacobian, jackknife, scale profile
+    g = jk.interval(_component(ig), torque=True)
     mgl = truth["mass"] * GRAVITY * truth["length"] if "mass" in truth and "length" in truth else None
     out["gravity_torque"] = {
-        "fitted": g,
-        "interval_data": giv,
-        "interval_with_torque_scale": giv_all,
+        "fitted": g["value"],
+        "interval_data": g_data["interval"],
+        "interval_with_torque_scale": g["interval"],
+        "sd": g["sd"],
         "known_mgl": mgl,
-        "relative_error": (g - mgl) / mgl if mgl else None,
+        "relative_error": (g["value"] - mgl) / mgl if mgl else None,
+        "inside": _inside(mgl, g["interval"]),
     }
     known = {r.label: float(r.truth["kp"]) for r in train if "kp" in r.truth}
     base = labels[0]
+    i0 = names.index(f"kp[{base}]")
     kps = {}
     for lab in labels:
-        v, iv = cal_fit.value(f"kp[{lab}]"), cal_fit.interval(f"kp[{lab}]")
-        ratio = v / cal_fit.value(f"kp[{base}]")
+        i = names.index(f"kp[{lab}]")
+        kp = jk.interval(_component(i), torque=False)
+        ratio = jk.interval(_ratio(i, i0), torque=False)
         true_ratio = known[lab] / known[base] if lab in known and base in known else None
         kps[lab] = {
-            "fitted": v,
-            "interval": iv,
+            "fitted": kp["value"],
+            "interval": kp["interval"],
+            "sd": kp["sd"],
             "known": known.get(lab),
-            "ratio_to_" + base: ratio,
+            "inside": _inside(known.get(lab), kp["interval"]),
+            "ratio_to_" + base: ratio["value"],
+            "ratio_interval": ratio["interval"] if lab != base else None,
             "known_ratio": true_ratio,
-            "ratio_error": (ratio - true_ratio) / true_ratio if true_ratio else None,
+            "ratio_error": (ratio["value"] - true_ratio) / true_ratio if true_ratio else None,
+            "ratio_inside": _inside(true_ratio, ratio["interval"]) if lab != base else None,
         }
     out["gains"] = kps
     if mgl and "length" in truth:
         j = cal_fit.value("inertia")
         ml2 = truth["mass"] * truth["length"] ** 2
         out["inertia"] = {"fitted": j, "point_mass_ml2": ml2, "implied_armature": j - ml2}
+    checks = [out["gravity_torque"]["inside"]] + [k["inside"] for k in kps.values()]
+    checks += [k["ratio_inside"] for k in kps.values()]
+    known_checks = [c for c in checks if c is not None]
+    out["truths_inside"] = {"inside": sum(known_checks), "checked": len(known_checks)}
     return out
+
+
+def _component(i: int) -> Callable[[np.ndarray], float]:
+    return lambda x: float(x[i])
+
+
+def _ratio(i: int, base: int) -> Callable[[np.ndarray], float]:
+    return lambda x: float(x[i] / x[base])
+
+
+def _inside(v: float | None, iv: list[float] | None) -> bool | None:
+    """Whether known value `v` lies in `iv` (None: no known value; an unbounded interval holds every value)."""
+    return None if v is None else (iv is None or bool(iv[0] <= v <= iv[1]))
 
 
 def calibrate_servo(
     spec: ServoSpec, runs: list[ServoRun], log: Callable[[str], None] = lambda m: None
 ) -> ServoCalibration:
     """Fit, search the effects, refit, and score on the held-out runs (see the module's docstring)."""
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
     train, held = _split(spec, runs)
     labels = sorted({r.label for r in train}, key=_label_key)
     base = ServoParams(error_gain=spec.error_gain, max_duty=spec.max_duty, kt_over_r=spec.kt_over_r, kt=spec.kt)
@@ -221,7 +268,8 @@ def calibrate_servo(
         log(f"declared servo: validation k-step MSE {cur_val:.4g} (sd units)")
         added: list[dict[str, Any]] = []
         rounds: list[dict[str, Any]] = []
-        w_search = w_fit.subset(np.arange(len(w_fit.q0)) % 2 == 0)  # the search screens on half the fit windows
+        # the search screens on half the fit windows (all of them when they are few: a half would overfit)
+        w_search = w_fit.subset(np.arange(len(w_fit.q0)) % 2 == 0) if len(w_fit.q0) >= SEARCH_HALVE else w_fit
         while True:
             scores = []
             for name in spec.effects:
@@ -254,11 +302,26 @@ def calibrate_servo(
         t_search = time.perf_counter()
         declared = fit(prob, prob.vector(start, kp0), w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV)
         final = fit(cur.prob, cur.x, w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV) if added else declared
+        t_fit = time.perf_counter()
+        jks = {"declared": jackknife(declared, train, w, sd_q, sd_d, spec.kt_over_r_sd)}
+        jks["final"] = jackknife(final, train, w, sd_q, sd_d, spec.kt_over_r_sd) if added else jks["declared"]
+        if dd is None:  # the scale is fixed by PWM saturation alone: widen to the scales that fit as well
+            for tag in dict.fromkeys(jks):
+                jk = jks[tag]
+                jks[tag] = replace(jk, alternates=scale_profile(jk.full, w, sd_q))
+            if not added:
+                jks["final"] = jks["declared"]
         errors = {}
         for tag, f in (("declared", declared), ("final", final)):
             p, kp = f.servo()
             errors[tag] = heldout_errors(p, kp, held, labels, horizon)
-    wall = {"total": time.perf_counter() - t_start, "search": t_search - t_start}
+    t_end = time.perf_counter()
+    wall = {
+        "total": t_end - t_start,
+        "search": t_search - t_start,
+        "intervals": t_end - t_fit,
+        "cpu": time.process_time() - c_start,
+    }
     return ServoCalibration(
         spec=spec,
         train=[r.name for r in train],
@@ -269,8 +332,10 @@ def calibrate_servo(
         added=added,
         rounds=rounds,
         errors=errors,
-        physics=_physics(final, train, labels, spec),
+        physics=_physics(jks["final"], train, labels),
         wall=wall,
+        jackknives=jks,
+        sources=[r.source for r in runs],
     )
 
 
@@ -291,5 +356,10 @@ def summary(cal: ServoCalibration) -> list[str]:
     if g["known_mgl"]:
         lines.append(
             f"gravity torque m·g·l: fitted {g['fitted']:.4f} N·m, known {g['known_mgl']:.4f} ({g['relative_error']:+.1%})"
+        )
+    ins = cal.physics["truths_inside"]
+    if ins["checked"]:
+        lines.append(
+            f"known values (m·g·l, gains, gain ratios) inside their 95% intervals: {ins['inside']} of {ins['checked']}"
         )
     return lines

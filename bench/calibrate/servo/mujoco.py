@@ -7,7 +7,11 @@ same). Why not a custom actuator: MuJoCo's user actuator callbacks (`mjcb_act_ga
 globals that every model shares and that `mujoco.rollout` threads would call from C; and the budget is a friction
 loss, which no actuator can set. The load's inertia and gravity are the model's own.
 
-Backlash is not realised here (the fit's simulator has it; an arm's play goes through `bench.calibrate.play`).
+Backlash: the motor side of the play is a state of the actuator (position and velocity of the rotor, its share of
+the inertia), integrated with the same contact torque as `bench.calibrate.servo.sim` at either end of the gap; that
+torque, not the motor's, is what reaches the output joint through `qfrc_applied` (the model's link then carries the
+rest of the inertia). The firmware's goal velocity limit is a state too (its internal target), reset to the measured
+position while the torque is off.
 """
 
 from __future__ import annotations
@@ -15,40 +19,80 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from bench.calibrate.servo.law import GRAVITY, ServoParams, duty, friction_budget, gravity_torque, motor_torque
-from bench.core.errors import SpecError
+from bench.calibrate.servo.law import (
+    GRAVITY,
+    ServoParams,
+    coupling,
+    dead_zone,
+    duty,
+    friction_budget,
+    goal_step,
+    gravity_torque,
+    motor_torque,
+)
 
 
 class ServoActuator:
-    """The law on one dof of a MuJoCo model, applied by `before_step` ahead of every `mj_step`."""
+    """The law on one dof of a MuJoCo model, applied by `before_step` ahead of every `mj_step` of length `dt`."""
 
-    def __init__(self, params: ServoParams, dof: int) -> None:
-        if params.play > 0:
-            raise SpecError(f"servo play {params.play:g} rad: backlash is not realised in MuJoCo CPU; fit without it")
+    def __init__(self, params: ServoParams, dof: int, dt: float) -> None:
         self.p = params
         self.dof = dof
+        self.dt = dt
+        self.target: float | None = None  # the firmware's internal target (goal velocity limit)
+        self.qm: float | None = None  # rotor position and velocity (play only)
+        self.dqm = 0.0
+
+    def _goal(self, goal: float, q: float, enable: float) -> float:
+        if self.p.goal_slowness <= 0:
+            return goal
+        if self.target is None or enable < 0.5:
+            self.target = goal if enable >= 0.5 else q
+        else:
+            self.target = float(goal_step(self.p, self.target, goal, self.dt))
+        return self.target
 
     def before_step(self, model: mujoco.MjModel, data: mujoco.MjData, goal: float, enable: float, vin: float) -> float:
-        """Write the motor torque and the friction budget for the coming step; returns the motor torque."""
+        """Write the torque reaching the output and the friction budget for the coming step; returns it."""
+        p = self.p
         q, dq = float(data.qpos[self.dof]), float(data.qvel[self.dof])
-        tm = float(motor_torque(self.p, duty(self.p, goal, q), vin, dq, enable))
-        te = float(gravity_torque(self.p, q))
-        data.qfrc_applied[self.dof] = tm
-        model.dof_frictionloss[self.dof] = float(friction_budget(self.p, dq, tm, te))
-        return tm
+        d = duty(p, self._goal(goal, q, enable), q)
+        te = float(gravity_torque(p, q))
+        if p.play > 0:
+            half = 0.5 * p.play
+            if self.qm is None:  # against the end the motor pushes on (or gravity, at rest), as in sim.py
+                side = np.sign(d) if abs(d) > 1e-6 else -np.sign(te)
+                self.qm, self.dqm = q + side * half, dq
+            c = coupling(p, self.dt)
+            tm = float(motor_torque(p, d, vin, self.dqm, enable))
+            comp = float(dead_zone(self.qm - q, half))
+            tau = float(c.stiffness * comp + c.damping * (self.dqm - dq) * (comp != 0))
+            self.dqm += (tm - tau) / (p.rotor_share * p.inertia) * self.dt
+            self.qm += self.dqm * self.dt
+        else:
+            tau = float(motor_torque(p, d, vin, dq, enable))
+        data.qfrc_applied[self.dof] = tau
+        model.dof_frictionloss[self.dof] = float(friction_budget(p, dq, tau, te))
+        return tau
+
+
+def pendulum_xml(p: ServoParams, dt: float, frictionloss: float = 0.0) -> str:
+    """The bench as the fit sees it: a hinge about y (q = 0 hanging down) carrying a point mass whose m·g·l and
+    m·l² are the fitted gravity torque and the output's inertia (all of it; without the rotor's share with play),
+    its encoder offset as the mass's angle. `frictionloss` > 0 makes MJX allocate the friction-loss row."""
+    inertia = p.inertia * (1.0 - p.rotor_share) if p.play > 0 else p.inertia
+    length = inertia * GRAVITY / max(p.gravity, 1e-9)
+    mass = p.gravity / (GRAVITY * length)
+    x, z = -length * np.sin(p.offset), -length * np.cos(p.offset)
+    return f"""<mujoco><option timestep="{dt}" integrator="Euler"/><worldbody><body name="arm">
+      <joint name="servo" type="hinge" axis="0 1 0" damping="0" frictionloss="{frictionloss}"/>
+      <geom type="sphere" size="0.001" pos="{x} 0 {z}" mass="{mass}" contype="0" conaffinity="0"/>
+    </body></worldbody></mujoco>"""
 
 
 def pendulum(p: ServoParams, dt: float) -> mujoco.MjModel:
-    """The bench as the fit sees it: a hinge about y (q = 0 hanging down) carrying a point mass whose m·g·l and
-    m·l² are the fitted gravity torque and inertia (its encoder offset as the mass's angle)."""
-    length = p.inertia * GRAVITY / max(p.gravity, 1e-9)
-    mass = p.gravity / (GRAVITY * length)
-    x, z = -length * np.sin(p.offset), -length * np.cos(p.offset)
-    xml = f"""<mujoco><option timestep="{dt}" integrator="Euler"/><worldbody><body name="arm">
-      <joint name="servo" type="hinge" axis="0 1 0" damping="0"/>
-      <geom type="sphere" size="0.001" pos="{x} 0 {z}" mass="{mass}" contype="0" conaffinity="0"/>
-    </body></worldbody></mujoco>"""
-    model = mujoco.MjModel.from_xml_string(xml)
+    """The pendulum of `pendulum_xml` as a MuJoCo model."""
+    model = mujoco.MjModel.from_xml_string(pendulum_xml(p, dt))
     model.body_inertia[1] = 1e-12  # a point mass: m·l² is the whole inertia about the hinge
     return model
 
@@ -68,7 +112,7 @@ def simulate_run(
     model = pendulum(p, dt)
     data = mujoco.MjData(model)
     data.qpos[0], data.qvel[0] = q0, dq0
-    servo = ServoActuator(p, 0)
+    servo = ServoActuator(p, 0, dt)
     t = np.arange(goal.size) / fps
     out = np.empty(goal.size - 1)
     for k in range(goal.size - 1):

@@ -46,6 +46,8 @@ class Windows:
     label: np.ndarray  # (W,) index of the gain setting
     axis_t: np.ndarray  # shared time axis of every run's frames
     axis_goal: np.ndarray
+    axis_reset: np.ndarray  # frames where the firmware's internal target is reset (a run's first, torque off)
+    axis_q: np.ndarray  # the logged position (what the internal target is reset to while the torque is off)
     goal0: np.ndarray  # (W, S) the goal with no delay
     substeps: int
     dt: float  # substep
@@ -63,6 +65,8 @@ class Windows:
             **per,
             axis_t=self.axis_t,
             axis_goal=self.axis_goal,
+            axis_reset=self.axis_reset,
+            axis_q=self.axis_q,
             goal0=self.goal0[pick],
             substeps=self.substeps,
             dt=self.dt,
@@ -81,6 +85,8 @@ def make_windows(runs: list[ServoRun], labels: list[str], horizon: int, stride: 
     offs = [i * RUN_GAP for i in range(len(runs))]
     axis_t = np.concatenate([r.t + o for r, o in zip(runs, offs)])
     axis_goal = np.concatenate([r.goal for r in runs])
+    axis_reset = np.concatenate([(r.enable < 0.5) | (np.arange(r.frames) == 0) for r in runs])
+    axis_q = np.concatenate([np.where(r.enable < 0.5, r.q, r.goal) for r in runs])
     H = max(r.frames for r in runs) - 1 if horizon <= 0 else horizon
     starts: list[tuple[int, int]] = []
     for i, r in enumerate(runs):
@@ -115,6 +121,8 @@ def make_windows(runs: list[ServoRun], labels: list[str], horizon: int, stride: 
         label=np.array([labels.index(runs[i].label) for i, _ in starts]),
         axis_t=axis_t,
         axis_goal=axis_goal,
+        axis_reset=axis_reset,
+        axis_q=axis_q,
         goal0=np.interp(np.maximum(out["times"], run_start[:, None]), axis_t, axis_goal),
         substeps=n,
         dt=dt,
@@ -122,16 +130,48 @@ def make_windows(runs: list[ServoRun], labels: list[str], horizon: int, stride: 
     )
 
 
-def goal_at(w: Windows, delay: Any) -> np.ndarray:
-    """The goal each substep acts on: the logged goal `delay` seconds earlier (held at the run's first value);
-    (W, S), or (P, W, S) for a batch of delays of shape (P, 1)."""
-    if np.ndim(delay) == 0 or np.all(np.asarray(delay) == np.ravel(delay)[0]):
-        d = float(np.ravel(delay)[0])
-        if d == 0.0:
+def target_axis(w: Windows, slowness: float) -> np.ndarray:
+    """The firmware's internal target on every frame of the shared axis: the logged goal, followed at most at
+    1/`slowness` rad/s (`law.goal_step` per frame), reset to the logged position while the torque is off.
+
+    Sequential only where the limit binds: frames where the goal outruns the target, until it catches up."""
+    g = w.axis_goal
+    y = np.where(w.axis_reset, w.axis_q, g)
+    if slowness <= 0.0:
+        return y
+    frame = float(np.min(np.diff(w.axis_t))) if g.size > 1 else 1.0  # the uniform frame period
+    reach = frame / slowness
+    late = np.flatnonzero(~w.axis_reset[1:] & (np.abs(g[1:] - y[:-1]) > reach)) + 1
+    done = 0
+    for k0 in late:
+        k = int(max(k0, done))
+        while k < g.size and not w.axis_reset[k]:
+            y[k] = min(max(g[k], y[k - 1] - reach), y[k - 1] + reach)
+            k += 1
+            if y[k - 1] == g[k - 1]:
+                break
+        done = k
+    return y
+
+
+def goal_at(w: Windows, delay: Any, slowness: Any = 0.0) -> np.ndarray:
+    """The goal each substep acts on: the firmware's internal target (`target_axis`) `delay` seconds earlier
+    (held at the run's first value); (W, S), or (P, W, S) for a batch of delays or slownesses of shape (P, 1)."""
+    d, sl = np.ravel(np.asarray(delay, dtype=float)), np.ravel(np.asarray(slowness, dtype=float))
+    if np.all(sl == 0.0) and (np.ndim(delay) == 0 or np.all(d == d[0])):
+        if d[0] == 0.0:
             return w.goal0
-        return np.interp(np.maximum(w.times - d, w.run_start[:, None]), w.axis_t, w.axis_goal)
-    t = np.maximum(w.times[None] - np.asarray(delay)[..., None], w.run_start[None, :, None])
-    return np.interp(t, w.axis_t, w.axis_goal)
+        return np.interp(np.maximum(w.times - d[0], w.run_start[:, None]), w.axis_t, w.axis_goal)
+    P = max(d.size, sl.size)
+    d, sl = np.broadcast_to(d, (P,)), np.broadcast_to(sl, (P,))
+    out = np.empty((P, *w.times.shape))
+    axes: dict[float, np.ndarray] = {}
+    for i in range(P):
+        if float(sl[i]) not in axes:
+            axes[float(sl[i])] = target_axis(w, float(sl[i]))
+        ax = axes[float(sl[i])]
+        out[i] = np.interp(np.maximum(w.times - d[i], w.run_start[:, None]), w.axis_t, ax)
+    return out if np.ndim(delay) or np.ndim(slowness) else out[0]
 
 
 def simulate(p: ServoParams, w: Windows) -> np.ndarray:
@@ -139,7 +179,7 @@ def simulate(p: ServoParams, w: Windows) -> np.ndarray:
 
     A batch of P parameter sets at once (the fit's finite differences): every field of `p` of shape (P, 1), `kp`
     (P, W); the result is then (P, W, H)."""
-    goal = goal_at(w, p.delay)
+    goal = goal_at(w, p.delay, p.goal_slowness)
     shape = np.broadcast_shapes(np.shape(p.kp), np.shape(p.inertia), w.q0.shape)
     q, dq = np.broadcast_to(w.q0, shape).copy(), np.broadcast_to(w.dq0, shape).copy()
     S = goal.shape[-1]
