@@ -31,12 +31,17 @@ Conditions:
     frictionloss, armature, gain [the servos' kp], link_mass, gravity), interface axes and the visual
     axes on the images (the floor is the table: `perturb.table_color.geoms=[floor]`), the pose axes
     (init_qpos on the arm joints, object_pose / object_yaw on the cube: `edit_start`).
+    `calibration=` an arm servo calibration (`bench calibrate`, `method: servo_arm`): the measured servos'
+    stiffness, damping, Coulomb friction and armature written into the arm's actuators and joints before the
+    first episode (the servo law in MuJoCo's fields: `bench.calibrate.servo.arm.model`), and
+    `perturb.gain|damping|frictionloss=from(CALIBRATION)` drawing them per episode (armature when fitted).
 Success:
     success_once: the cube is 5 cm above its start and within 5 cm of the grasp point; horizon 150
     steps (5 s at 30 fps).
 Policies:
     `scripted` (baselines/so101_scripted.py): top-down grasp planned with inverse kinematics on the
-    env's own model, executed as joint goals.
+    env's own model, executed as joint goals. `baselines.so101_scripted:excitation`: goals that excite every
+    servo, for recording a calibration dataset.
 """
 
 from __future__ import annotations

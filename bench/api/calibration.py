@@ -36,6 +36,14 @@ from bench.calibrate.servo import (
     write_servo_report,
 )
 from bench.calibrate.servo import summary as servo_summary
+from bench.calibrate.servo.arm import (
+    ArmServoCalibration,
+    calibrate_arm_servos,
+    is_servo_arm_spec,
+    parse_servo_arm_spec,
+    write_arm_servo_report,
+)
+from bench.calibrate.servo.arm import summary as arm_servo_summary
 from bench.calibrate.spec import EffectRequest, load_spec
 from bench.calibrate.suite_robot import calibrate_suite, torque_joints
 from bench.calibrate.trace import calibrate_episodes
@@ -50,6 +58,9 @@ from bench.sims.mjx import require as require_mjx
 
 __all__ = [
     "ArmCalibration",
+    "ArmServoCalibration",
+    "arm_servo_summary",
+    "calibrate_arm_servos",
     "CalibrateConfig",
     "Calibrated",
     "DesignConfig",
@@ -237,6 +248,21 @@ def _servo(cfg: CalibrateConfig, spec: ServoSpec, spec_file: str, logs: str, out
     return Calibrated(out / "calibration.json", cal)
 
 
+def _servo_arm(cfg: CalibrateConfig, raw: dict[str, Any], spec_path: Path, logs: str, out_dir: str) -> Calibrated:
+    """An arm's servos from its LeRobot dataset (`method: servo_arm`): OUT/calibration.json (with `apply` and
+    `draws`) and report.md; nothing written on bad input."""
+    if cfg.method == "gradient" or cfg.effects is not None or cfg.threads is not None:
+        raise ConfigError(
+            "a servo_arm spec fits each servo's stiffness, damping, Coulomb friction and armature in one rollout "
+            "per parameter kind; leave method=, effects= and threads= out"
+        )
+    spec = parse_servo_arm_spec(raw, spec_path)
+    out = _out(out_dir, cfg.overwrite, {"spec": str(spec_path), "logs": logs, "ranges": spec.ranges_path})
+    cal = calibrate_arm_servos(spec, logs, seed=cfg.seed, log=_log(cfg.quiet))
+    outputs.replace_dir(out, lambda tmp: write_arm_servo_report(cal, tmp))
+    return Calibrated(out / "calibration.json", cal)
+
+
 def _arm_effects(value: Any) -> tuple[str, ...]:
     if value == "all":
         return ARM_EFFECTS
@@ -265,6 +291,8 @@ def calibrate(cfg: CalibrateConfig) -> Calibrated:
         return _arm(cfg, parse_arm_spec(raw, spec_path.parent, spec_path), spec_file, logs, out_dir)
     if is_servo_spec(raw):
         return _servo(cfg, parse_servo_spec(raw, spec_path), spec_file, logs, out_dir)
+    if is_servo_arm_spec(raw):
+        return _servo_arm(cfg, raw, spec_path, logs, out_dir)
     spec = load_spec(spec_path)
     fitter = _gradient_fitter(spec, cfg.quiet) if cfg.method == "gradient" else None
     out = _out(out_dir, cfg.overwrite, {"spec": spec_file, "model": str(spec.model), "logs": logs})

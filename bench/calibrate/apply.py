@@ -240,6 +240,7 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
             f"calibration={str(p)!r} is for robot {section.get('robot')!r}, which no selected cell "
             f"has (robots: {', '.join(sorted(set(robots)))})"
         )
+    _check_servos(section, p)
     return {
         "path": str(p.resolve()),
         "sha256": hashlib.sha256(raw).hexdigest(),
@@ -250,6 +251,36 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
         "edits": section["edits"],
         "trust": trust_of(doc, p),
     }
+
+
+def _check_servos(section: Mapping[str, object], p: Path) -> None:
+    """An arm's servo calibration (`servos` beside its edits): every servo holds (kp and stiffness > 0) and its
+    friction and armature are not negative; one line naming the joint and the value otherwise."""
+    servos = section.get("servos")
+    if servos is None:
+        return
+    if not isinstance(servos, dict):
+        raise DataError(f"calibration={str(p)!r}: apply.servos must map each joint to its servo's parameters")
+    for joint, row in servos.items():
+        for key, v in row.items() if isinstance(row, dict) else [("servo", row)]:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise DataError(f"calibration={str(p)!r}: apply.servos.{joint}.{key} is {v!r}, not a number")
+            if key in ("kp", "stiffness") and v <= 0:
+                raise DataError(
+                    f"calibration={str(p)!r}: apply.servos.{joint}.{key} is {v:g}; a servo's {key} must be > 0"
+                )
+            if v < 0:
+                raise DataError(f"calibration={str(p)!r}: apply.servos.{joint}.{key} is {v:g}; must be >= 0")
+    edits = section.get("edits")
+    for e in edits if isinstance(edits, list) else []:
+        if (
+            isinstance(e, dict)
+            and e.get("field") == "actuator_gainprm"
+            and not (isinstance(e.get("value"), (int, float)) and e["value"] > 0)
+        ):
+            raise DataError(
+                f"calibration={str(p)!r}: the servo of {e.get('element')!r} has gain {e.get('value')!r}; must be > 0"
+            )
 
 
 def _number(v: object) -> float | None:

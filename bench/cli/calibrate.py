@@ -61,6 +61,11 @@ def help_text() -> str:
         "(links' inertia, friction, offsets; payload and drive-gain effects; a forward check), e.g. the real Panda:\n"
         'bench/calibrate/models/panda_gaz.yaml (docs/calibration.md, "Real arms"); its calibration.json carries\n'
         "`apply` (bench run ... calibration=OUT) and `draws` (perturb.AXIS=from(OUT)).\n\n"
+        "A spec with `method: servo_arm` calibrates an arm's servos (the SO-101: stiffness / kp, damping, Coulomb\n"
+        "friction per joint) from its LeRobot dataset (action = goal positions, observation.state = positions, units\n"
+        "rad | deg | normalized with lerobot's calibration ranges) with the arm's own dynamics from its suite's MJCF,\n"
+        "holding out whole episodes; calibration.json carries `apply` (bench run suite=so101 calibration=OUT) and\n"
+        '`draws` (perturb.gain=from(OUT)) (docs/calibration.md, "Arms from LeRobot datasets").\n\n'
         "suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
         "state before each frame, the command of every physics step): a damping and an armature scale over\n"
         "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"
@@ -127,6 +132,12 @@ def cmd_run(cfg: cal.CalibrateConfig) -> int:
     if isinstance(done.calibration, cal.ServoCalibration):  # a position servo from its own logs (`method: servo`)
         print("\n".join(cal.servo_summary(done.calibration)))
         print(f"wrote {done.path} and {done.path.parent / 'report.md'} ({done.calibration.wall['total']:.1f} s)")
+        return 0
+    if isinstance(done.calibration, cal.ArmServoCalibration):  # an arm's servos from a LeRobot dataset
+        print("\n".join(cal.arm_servo_summary(done.calibration)))
+        arm = done.calibration.arm
+        print(f"wrote {done.path} and {done.path.parent / 'report.md'}")
+        print(f"run with it: bench run suite={arm.suite} calibration={done.path}")
         return 0
     if isinstance(done.calibration, cal.ArmCalibration):  # a real arm by inverse dynamics (`method: idim`)
         path = done.path

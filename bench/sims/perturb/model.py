@@ -303,7 +303,7 @@ ROWS: tuple[Axis, ...] = (
         fields=("actuator_gainprm", "actuator_biasprm"),
         select=_actuators,
         scale=_gain,
-        from_fields=("actuator_gainprm",),
+        from_fields=("actuator_gainprm", "actuator_biasprm"),  # a position servo's bias follows its gain
         physx=_physx_drive(0),
         physx_targets=("actuators", "joints"),
     ),
