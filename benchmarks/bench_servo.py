@@ -1,6 +1,7 @@
 """Servo calibration on BAM's real bench logs: the time of one calibration on one core, and (folds=true) every
 trajectory held out in turn, with the held-out errors per run, the physics recovered and BAM's published parameters
-side by side, and how many known values (m·g·l, each kp, each kp ratio) lie inside their intervals.
+side by side, how many known values (m·g·l, each kp, each kp ratio) lie inside their intervals, and the verdict per
+held-out run (which of the free-run, k-step and torque-off errors the calibration did not improve).
 
     python benchmarks/bench_servo.py [servo=xl330|sts3250] [folds=false]
 
@@ -20,7 +21,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from bench.api.scripts import script_keys
 from bench.calibrate.servo import calibrate_servo, parse_servo_spec, read_runs
+from bench.calibrate.servo.verdict import verdict_lines, verdicts
 
 ROOT = Path(__file__).resolve().parents[1]
 BAM = ROOT.parent / "shared" / "data" / "real" / "servo_bam"
@@ -41,7 +44,7 @@ def _bam(servo: str) -> None:
 
 
 def main(argv: list[str]) -> int:
-    args = dict(a.split("=", 1) for a in argv)
+    args = script_keys(argv, __doc__, ("folds", "servo"))
     servo = args.get("servo", "xl330")
     spec = parse_servo_spec(
         yaml.safe_load((ROOT / "bench" / "calibrate" / "models" / f"servo_{servo}.yaml").read_text())
@@ -52,7 +55,7 @@ def main(argv: list[str]) -> int:
     os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     runs = read_runs(BAM / servo, spec.columns, units=spec.units, load_scale=spec.load_scale, fps=spec.rate)
     trajectories = sorted({r.trajectory for r in runs}) if args.get("folds") == "true" else ["lift_and_drop"]
-    totals = [0, 0]
+    totals, counted = [0, 0], [0, 0]
     for traj in trajectories:
         s = dataclasses.replace(spec, holdout={"trajectory": traj})
         load0 = os.getloadavg()[0]
@@ -64,14 +67,19 @@ def main(argv: list[str]) -> int:
             f"\n{servo}, held out: {traj} ({len(cal.heldout)} runs): {wall:.2f} s wall, {cpu:.2f} s CPU on one core "
             f"(load {load0:.1f}); effects added: {added}"
         )
-        print("run  setting  free-run RMSE rad declared -> final   k-step RMSE   torque off RMSE")
+        print("run  setting  free-run RMSE rad declared -> final   k-step RMSE   torque off RMSE   verdict")
+        per_run = verdicts(cal.errors, cal.heldout)["per_run"]
         for n in cal.heldout:
             b, a = cal.errors["declared"][n], cal.errors["final"][n]
             ff = f"{b['free_fall_rmse']:.4f} -> {a['free_fall_rmse']:.4f}" if b["free_fall_rmse"] is not None else "-"
             print(
                 f"{n}  {b['label']}  {b['free_run_rmse']:.4f} -> {a['free_run_rmse']:.4f}   "
-                f"{b['k_step_rmse']:.4f} -> {a['k_step_rmse']:.4f}   {ff}"
+                f"{b['k_step_rmse']:.4f} -> {a['k_step_rmse']:.4f}   {ff}   {per_run[n]['verdict']}"
             )
+        labels = {n: f"{e['trajectory']}, {e['label']}" for n, e in cal.errors["declared"].items()}
+        print("\n".join(verdict_lines(cal.errors, cal.heldout, labels)))
+        counted[0] += sum(v["verdict"] == "better" for v in per_run.values())
+        counted[1] += len(per_run)
         g = cal.physics["gravity_torque"]
         lo, hi = g["interval_with_torque_scale"] or (-np.inf, np.inf)
         print(
@@ -112,6 +120,7 @@ def main(argv: list[str]) -> int:
             f"implied armature (inertia - m l², check only) {cal.physics.get('inertia', {}).get('implied_armature', float('nan')):.5f}"
         )
     print(f"\nall folds: {totals[0]} of {totals[1]} known values inside their 95% intervals")
+    print(f"all folds: {counted[0]} of {counted[1]} held-out runs predicted better on every metric")
     _bam(servo)
     return 0
 

@@ -14,6 +14,7 @@ import yaml
 from bench.calibrate.servo import calibrate_servo, parse_servo_spec, read_runs
 from bench.calibrate.servo.mujoco import simulate_run
 from bench.calibrate.servo.sim import make_windows, simulate, substeps_for
+from bench.calibrate.servo.verdict import run_verdict, verdict_lines, verdicts
 from bench.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +87,22 @@ def test_cli_writes_the_calibration(tmp_path, capsys):
     assert "| quantity | unit | ours (95% interval) | BAM m1 |" in report  # BAM's published models beside ours
     assert "Known values inside their 95% intervals: 8 of 8." in report and "s CPU" in report
     assert doc["intervals"]["jackknife_left_out"] and doc["parameters"]["final"]["gravity"]["sd"]["jackknife"] > 0
-    assert "gravity torque m·g·l" in capsys.readouterr().out
+    console = capsys.readouterr().out
+    assert "gravity torque m·g·l" in console
+    # the verdict per held-out run and metric: on lift_and_drop kp 100 and 200 the k-step error grows (the torque-on
+    # lift) while the free-run and torque-off errors fall; it is said in calibration.json, report.md and the console
+    v = doc["verdict"]
+    assert (v["runs_better_on_every_metric"], v["runs"]) == (2, 4)
+    low = [n for n, r in v["per_run"].items() if doc["errors"]["declared"][n]["label"] in ("kp=100", "kp=200")]
+    for n in low:
+        assert v["per_run"][n]["verdict"] == "mixed" and v["per_run"][n]["worse_on"] == ["k-step"], v["per_run"][n]
+        parts = v["per_run"][n]["k_step_parts"]
+        assert not parts["torque-on windows"]["better"], parts  # the lift with the torque on is what got worse
+        line = next(x for x in console.splitlines() if x.startswith(f"NOT better on every metric: {n}"))
+        assert "k-step" in line and "(worse)" in line and "torque-on windows" in line
+        assert f"NOT better on every metric: {n}" in report
+    assert "held-out runs predicted better on every metric (free-run, k-step, torque off): 2 of 4" in report
+    assert report.count("| mixed: k-step worse |") == 2
 
 
 def _run(n: int = 40, **meta) -> dict:
@@ -177,3 +193,36 @@ def test_sts3250_without_a_saturating_run_reports_its_scale_as_unidentified():
     assert k["interval"][1] / k["interval"][0] > 10
     assert cal.physics["gravity_torque"]["inside"]
     assert len(cal.jackknives["final"].alternates) >= 2
+
+
+def _errors(free: float, kstep: float, off: float | None, on_k: float, off_k: float | None) -> dict:
+    return {
+        "free_run_rmse": free,
+        "k_step_rmse": kstep,
+        "free_fall_rmse": off,
+        "k_step_rmse_torque_on": on_k,
+        "k_step_rmse_torque_off": off_k,
+    }
+
+
+def test_the_verdict_judges_every_held_out_metric_on_its_own():
+    before = _errors(0.20, 0.021, 0.25, 0.015, 0.024)
+    mixed = run_verdict(before, _errors(0.05, 0.026, 0.05, 0.032, 0.022))  # free-run 4x better, k-step worse
+    assert mixed["verdict"] == "mixed" and mixed["worse_on"] == ["k-step"]
+    assert mixed["better_on"] == ["free-run", "torque off"]
+    assert not mixed["k_step_parts"]["torque-on windows"]["better"]
+    assert mixed["k_step_parts"]["windows with the torque off"]["better"]
+    assert run_verdict(before, _errors(0.05, 0.02, 0.05, 0.014, 0.023))["verdict"] == "better"
+    worse = run_verdict(_errors(0.025, 0.0158, None, 0.0158, None), _errors(0.048, 0.0165, None, 0.0165, None))
+    assert worse["verdict"] == "worse" and "torque off" not in worse["metrics"]  # no torque-off frames: not judged
+    errors = {
+        "declared": {"a": before, "b": before},
+        "final": {"a": _errors(0.05, 0.026, 0.05, 0.032, 0.022), "b": _errors(0.05, 0.02, 0.05, 0.014, 0.023)},
+    }
+    assert verdicts(errors, ["a", "b"])["runs_better_on_every_metric"] == 1
+    lines = verdict_lines(errors, ["a", "b"], {"a": "lift_and_drop, kp=100", "b": "lift_and_drop, kp=800"})
+    assert lines[0].endswith("1 of 2") and len(lines) == 2
+    assert lines[1] == (
+        "NOT better on every metric: a (lift_and_drop, kp=100): k-step 0.0210 -> 0.0260 rad (worse): torque-on "
+        "windows 0.0150 -> 0.0320, windows with the torque off 0.0240 -> 0.0220; better on free-run, torque off"
+    )

@@ -25,6 +25,7 @@ from bench.calibrate.servo.intervals import Jackknife, jackknife, scale_profile
 from bench.calibrate.servo.law import GRAVITY, ServoParams
 from bench.calibrate.servo.sim import RUN_GAP, make_windows, simulate
 from bench.calibrate.servo.spec import ServoSpec
+from bench.calibrate.servo.verdict import verdict_lines, verdicts
 from bench.core.errors import DataError
 from bench.core.threads import one_blas_thread
 
@@ -90,6 +91,7 @@ class ServoCalibration:
                 "jackknife_left_out": self.jackknives["final"].left_out,
             },
             "errors": self.errors,
+            "verdict": verdicts(self.errors, self.heldout),
             "physics": self.physics,
             "wall": self.wall,
             "warnings": self.warnings,
@@ -147,7 +149,8 @@ def heldout_errors(
     p: ServoParams, kp: np.ndarray, runs: list[ServoRun], labels: list[str], horizon: int
 ) -> dict[str, Any]:
     """Per run: free-run (from the first logged state to the end, driven by the logged goal) and k-step position
-    errors, and the free-run error over the frames with the torque off (free fall)."""
+    errors (also split: windows with the torque on throughout, windows with it off part of the time), and the
+    free-run error over the frames with the torque off (free fall)."""
     full = make_windows(runs, labels, 0)
     sim = simulate(p.with_(kp=kp[full.label]), full)
     kw = make_windows(runs, labels, horizon)
@@ -160,12 +163,18 @@ def heldout_errors(
         off = r.enable[1:] < 0.5
         mine = kw.run == i
         kerr = (ks[mine] - kw.target[mine])[kw.mask[mine]]
+        on = mine & (kw.enable.min(axis=1) > 0.5)  # windows with the torque on throughout (the rest: off a while)
+        parts = {}
+        for tag, sel in (("on", on), ("off", mine & ~on)):
+            e = (ks[sel] - kw.target[sel])[kw.mask[sel]]
+            parts[f"k_step_rmse_torque_{tag}"] = float(np.sqrt(np.mean(e**2))) if e.size else None
         out[r.name] = {
             "trajectory": r.trajectory,
             "label": r.label,
             "free_run_rmse": float(np.sqrt(np.mean(err**2))),
             "free_run_nrmse": float(np.sqrt(np.mean(err**2)) / sd),
             "k_step_rmse": float(np.sqrt(np.mean(kerr**2))),
+            **parts,
             "free_fall_rmse": float(np.sqrt(np.mean(err[off] ** 2))) if off.any() else None,
             "free_fall_frames": int(off.sum()),
         }
@@ -339,8 +348,14 @@ def calibrate_servo(
     )
 
 
+def _run_labels(cal: ServoCalibration) -> dict[str, str]:
+    """Each held-out run's trajectory and gain setting, for the verdict's lines."""
+    return {n: f"{e['trajectory']}, {e['label']}" for n, e in cal.errors["declared"].items()}
+
+
 def summary(cal: ServoCalibration) -> list[str]:
-    """Lines for the console: effects added, held-out errors before -> after, the physics recovered."""
+    """Lines for the console: effects added, held-out errors before -> after, the verdict per held-out run (which
+    metric did not improve), the physics recovered."""
     added = ", ".join(a["name"] for a in cal.added) or "none"
     lines = [f"effects added: {added}"]
     for name in cal.heldout:
@@ -350,8 +365,9 @@ def summary(cal: ServoCalibration) -> list[str]:
             ff = f"; torque off: {b['free_fall_rmse']:.4f} -> {a['free_fall_rmse']:.4f} rad"
         lines.append(
             f"held-out {name} ({b['trajectory']}, {b['label']}): free-run RMSE {b['free_run_rmse']:.4f} -> "
-            f"{a['free_run_rmse']:.4f} rad{ff}"
+            f"{a['free_run_rmse']:.4f} rad; k-step {b['k_step_rmse']:.4f} -> {a['k_step_rmse']:.4f} rad{ff}"
         )
+    lines += verdict_lines(cal.errors, cal.heldout, _run_labels(cal))
     g = cal.physics["gravity_torque"]
     if g["known_mgl"]:
         lines.append(

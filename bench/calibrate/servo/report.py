@@ -1,5 +1,6 @@
 """A servo calibration's outputs: OUT/calibration.json (schema `bench.calibration.servo/1`) and OUT/report.md,
-opening with its verdict (does the calibrated servo simulate the held-out runs better than the declared one), then
+opening with its verdict (does the calibrated servo simulate the held-out runs better than the declared one, per run
+and per held-out metric: `bench.calibrate.servo.verdict`), then
 per held-out run the errors before and after, the parameters with their intervals beside BAM's published ones (when
 BAM's parameter files lie in `params/` next to the logs' folder, as in `../shared/data/real/servo_bam`), the physics
 recovered and the calibration's wall and CPU time."""
@@ -14,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from bench.calibrate.servo.loop import ServoCalibration
+from bench.calibrate.servo.verdict import verdict_lines, verdicts
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -99,36 +101,55 @@ def bam_table(cal: ServoCalibration) -> list[str]:
     return lines
 
 
-def verdict(cal: ServoCalibration) -> str:
-    """One line: the held-out free-run error before and after, summed over the held-out runs."""
-    b = [cal.errors["declared"][n]["free_run_rmse"] for n in cal.heldout]
-    a = [cal.errors["final"][n]["free_run_rmse"] for n in cal.heldout]
-    rb, ra = float(np.sqrt(np.mean(np.square(b)))), float(np.sqrt(np.mean(np.square(a))))
-    better = "simulates the held-out runs better" if ra < rb else "does NOT simulate the held-out runs better"
-    added = ", ".join(x["name"] for x in cal.added) or "no effect"
-    return (
-        f"The calibrated {cal.spec.servo} ({added} added) {better} than the declared servo: free-run position RMSE "
-        f"{rb:.4f} -> {ra:.4f} rad over {len(cal.heldout)} held-out run(s)."
+def verdict(cal: ServoCalibration) -> list[str]:
+    """The verdict: the held-out free-run and k-step errors before and after over every held-out run, then per run
+    which held-out metric did not improve (an after counts only where the calibrated servo predicts better)."""
+    rms = lambda tag, key: float(np.sqrt(np.mean([cal.errors[tag][n][key] ** 2 for n in cal.heldout])))  # noqa: E731
+    fb, fa = rms("declared", "free_run_rmse"), rms("final", "free_run_rmse")
+    kb, ka = rms("declared", "k_step_rmse"), rms("final", "k_step_rmse")
+    v = verdicts(cal.errors, cal.heldout)
+    every = v["runs_better_on_every_metric"] == v["runs"]
+    better = (
+        "simulates every held-out run better"
+        if every
+        else (
+            "simulates the held-out runs better on the whole"
+            if fa < fb and ka < kb
+            else "does NOT simulate the held-out runs better"
+        )
     )
+    added = ", ".join(x["name"] for x in cal.added) or "no effect"
+    lines = [
+        f"The calibrated {cal.spec.servo} ({added} added) {better} than the declared servo: free-run position RMSE "
+        f"{fb:.4f} -> {fa:.4f} rad, k-step {kb:.4f} -> {ka:.4f} rad over {len(cal.heldout)} held-out run(s)."
+    ]
+    labels = {n: f"{e['trajectory']}, {e['label']}" for n, e in cal.errors["declared"].items()}
+    return lines + ["", *(f"- {line}" for line in verdict_lines(cal.errors, cal.heldout, labels))]
+
+
+def _run_word(v: dict[str, Any]) -> str:
+    """A run's verdict in the table: better, or mixed/worse with the metrics that did not improve."""
+    return v["verdict"] if v["verdict"] == "better" else f"{v['verdict']}: {', '.join(v['worse_on'])} worse"
 
 
 def write_servo_report(cal: ServoCalibration, out: Path) -> None:
     """calibration.json and report.md into `out`."""
     (out / "calibration.json").write_text(json.dumps(cal.to_json(), indent=1, allow_nan=False) + "\n")
-    lines = [f"# Servo calibration: {cal.spec.servo}", "", verdict(cal), ""]
+    lines = [f"# Servo calibration: {cal.spec.servo}", "", *verdict(cal), ""]
     lines += [
         "## Held-out runs (never fitted)",
         "",
         "| run | trajectory | setting | free-run RMSE declared -> final (rad) "
-        "| k-step RMSE (rad) | torque off: free-run RMSE (rad) |",
-        "|---|---|---|---|---|---|",
+        "| k-step RMSE (rad) | torque off: free-run RMSE (rad) | verdict |",
+        "|---|---|---|---|---|---|---|",
     ]
+    per_run = verdicts(cal.errors, cal.heldout)["per_run"]
     for n in cal.heldout:
         b, a = cal.errors["declared"][n], cal.errors["final"][n]
         ff = f"{_fmt(b['free_fall_rmse'])} -> {_fmt(a['free_fall_rmse'])}" if b["free_fall_rmse"] is not None else "-"
         lines.append(
             f"| {n} | {b['trajectory']} | {b['label']} | {_fmt(b['free_run_rmse'])} -> {_fmt(a['free_run_rmse'])} | "
-            f"{_fmt(b['k_step_rmse'])} -> {_fmt(a['k_step_rmse'])} | {ff} |"
+            f"{_fmt(b['k_step_rmse'])} -> {_fmt(a['k_step_rmse'])} | {ff} | {_run_word(per_run[n])} |"
         )
     lines += ["", "## Effects", ""]
     for r in cal.rounds:
