@@ -17,9 +17,11 @@ import sys
 import time
 from typing import Any
 
+from bench.api.scripts import script_keys
+
 
 def main(argv: list[str]) -> int:
-    opts = dict(a.split("=", 1) for a in argv)
+    opts = script_keys(argv, __doc__, ("sizes", "steps", "task"))
     task = opts.get("task", "PickCube")
     sizes = [int(x) for x in opts.get("sizes", "1,64,1024,4096").split(",")]
     steps = int(opts.get("steps", 200))

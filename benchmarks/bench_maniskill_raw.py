@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import sys
 
+from bench.api.scripts import script_keys
+
 
 def main(argv: list[str]) -> int:
-    opts = dict(a.split("=", 1) for a in argv)
+    opts = script_keys(argv, __doc__, ("episodes", "horizon", "reset", "seed", "task"))
     modes = ("soft", "rebuild") if opts.get("reset", "both") == "both" else (opts["reset"],)
     for mode in modes:
         measure(

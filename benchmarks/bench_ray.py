@@ -30,6 +30,8 @@ import sys
 import time
 from pathlib import Path
 
+from bench.api.scripts import script_keys
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
@@ -83,7 +85,7 @@ def main(argv: list[str]) -> int:
     from bench.execution.ray_executor import RayExecutor
     from bench.records import RecordWriter, comparable
 
-    kv = dict(a.split("=", 1) for a in argv)
+    kv = script_keys(argv, __doc__, ("episodes", "rounds", "tiny", "workers"))
     episodes, workers = int(kv.get("episodes", 40)), int(kv.get("workers", 2))
     tiny, rounds = int(kv.get("tiny", 300)), int(kv.get("rounds", 1))
 

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.api.scripts import script_keys
+
 REPO = Path(__file__).resolve().parents[1]
 IMAGES = {"obs": "state+rgb", "image_size": 224}  # two cameras: the suite's default agentview + wrist view
 
@@ -161,7 +163,7 @@ def throughput(robots: list[str], episodes: int, horizon: int) -> tuple[float, f
 
 
 def main(argv: list[str]) -> int:
-    kv = dict(a.split("=", 1) for a in argv)
+    kv = script_keys(argv, __doc__, ("episodes", "horizon", "requests", "robots"))
     requests = int(kv.get("requests", 2000))
     robots = kv.get("robots", "[Panda,UR5e]").strip("[]").split(",")
     episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 150))

@@ -17,6 +17,8 @@ import tempfile
 
 import numpy as np
 
+from bench.api.scripts import script_keys
+
 
 class Bare:
     """Bare robosuite: the env's placement generator re-seeded per episode, its own soft reset, `env.step`."""
@@ -65,7 +67,7 @@ def plan(robot: str, episodes: int, horizon: int, seed: int = 0, run_id: str = "
 def main(argv: list[str]) -> int:
     from bench.api.throughput import harness_vs_bare
 
-    kv = dict(a.split("=", 1) for a in argv)
+    kv = script_keys(argv, __doc__, ("episodes", "horizon", "robot", "seed"))
     robot, episodes = kv.get("robot", "Panda"), int(kv.get("episodes", 8))
     horizon, seed = int(kv.get("horizon", 250)), int(kv.get("seed", 0))
     p = plan(robot, episodes, horizon, seed)

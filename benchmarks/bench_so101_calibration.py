@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.api.scripts import script_keys
 from bench.calibrate.servo.arm import calibrate_arm_servos, load_arm, parse_servo_arm_spec, servo_document, servos_from
 from bench.calibrate.servo.arm.data import in_units
 from bench.calibrate.servo.arm.spec import TORQUE_PER_KP, read_ranges
@@ -72,7 +73,7 @@ def record(folder: Path, episodes: int, seed: int) -> tuple[Path, object]:
 
 
 def main(argv: list[str]) -> int:
-    args = dict(a.split("=", 1) for a in argv)
+    args = script_keys(argv, __doc__, ("episodes", "out", "seed", "units"))
     episodes, seed, units = int(args.get("episodes", 8)), int(args.get("seed", 0)), args.get("units", "rad")
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})

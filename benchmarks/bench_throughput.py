@@ -37,6 +37,8 @@ import numpy as np
 from bench_robosuite_raw import Bare as RawBare  # the same folder (run as a script): the one bare loop
 from bench_robosuite_raw import plan  # ... and the plan it times
 
+from bench.api.scripts import script_keys
+
 ARMS = ("Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7")
 
 
@@ -186,11 +188,7 @@ KEYS = (
 
 
 def main(argv: list[str]) -> int:
-    bad = [a for a in argv if "=" not in a or a.split("=", 1)[0] not in KEYS]
-    if bad:
-        print(f"error: {bad[0]!r}: give key=value with a key among {', '.join(KEYS)}", file=sys.stderr)
-        return 2
-    kv = dict(a.split("=", 1) for a in argv)
+    kv = script_keys(argv, __doc__, KEYS)
     parts = kv.get("parts", "[fast,workers,remote,batch]").strip("[]").split(",")
     episodes, horizon = int(kv.get("episodes", 6)), int(kv.get("horizon", 250))
     scaling = int(kv.get("scaling_episodes", 12))
