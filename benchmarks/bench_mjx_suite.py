@@ -1,17 +1,24 @@
-"""The MJX Lift suite against robosuite's Lift (fast path) on this machine, in one run: env-steps/s and success.
+"""The MJX Lift suite against robosuite's Lift (fast path) on this machine, in one run: env-steps/s, where the
+MJX step's time goes, and the scripted experts' success per arm.
 
-    python benchmarks/bench_mjx_suite.py [worlds=[1,64,1024]] [steps=20] [episodes=64] [robosuite_episodes=20]
+    python benchmarks/bench_mjx_suite.py [worlds=[1,64,1024,4096]] [steps=10] [arms=[Panda,UR5e,Kinova3]]
+        [episodes=64] [robosuite_episodes=10] [profile=256]
 
-Env-steps/s (control steps, 20 Hz, both): the MJX suite's batch (`bench.sims.mjx_lift.LiftBatch`) stepping
-`worlds` worlds with the batched scripted expert (baselines/mjx_lift_expert.py), after a first call that compiles
-(printed apart), against robosuite's Lift on the Panda through the harness's env (suites/lift.py, fast path) with
-its scripted expert (baselines/scripted_lift.py), one env on one core. Success: the batched expert on `episodes`
-MJX worlds (horizon 250) and the robosuite expert on `robosuite_episodes` episodes, each with a 95% Wilson
-interval. Bad input: a world count beyond memory (estimated first) exits 2 with one line.
+Env-steps/s (control steps, 20 Hz, both): the MJX suite's batch (`bench.sims.mjx_lift.LiftBatch`, Panda) stepping
+`worlds` worlds under the batched scripted expert (baselines/mjx_lift_expert.py), each world read through its env
+adapter as the runner reads it, after a first call that compiles (printed apart), against robosuite's Lift on the
+Panda through the harness's env (suites/lift.py, fast path) with its scripted expert (baselines/scripted_lift.py),
+one env on one core. Profile (`profile` worlds, Panda, 0 leaves it out): per control step, the compiled call
+alone, host-side work (gathering and scattering the batch's arrays), the expert and the per-world adapter reads;
+and the compiled call with 1 physics substep instead of 10 (physics vs controller + observation) and with fewer
+solver iterations (variants for the record, not the suite's settings). Success: the batched expert on `episodes`
+MJX worlds per arm (horizon 250) and robosuite's expert on `robosuite_episodes` episodes per arm, each with a 95%
+Wilson interval. Bad input: a world count beyond memory (estimated first) exits 2 with one line.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -22,21 +29,38 @@ from baselines.scripted_lift import LiftExpert
 from bench.api.stats import wilson
 from bench.core.errors import ConfigError
 from bench.sims import mjx_lift
+from bench.sims.mjx_lift import control
 from suites.lift import OBS_FIELDS, make_env
 
 HORIZON = 250
 
 
 def args(argv: list[str]) -> dict[str, str]:
-    return dict(a.split("=", 1) for a in argv)
+    out = {}
+    for a in argv:
+        key, eq, value = a.partition("=")
+        if not eq or key not in ("worlds", "steps", "arms", "episodes", "robosuite_episodes", "profile"):
+            raise ConfigError(
+                f"{a!r}: give key=value with keys worlds, steps, arms, episodes, robosuite_episodes, profile"
+            )
+        out[key] = value
+    return out
+
+
+def listed(text: str) -> list[str]:
+    return [w.strip() for w in text.strip("[]").split(",") if w.strip()]
+
+
+def batch_of(arm: str, worlds: int, seed: int) -> tuple[mjx_lift.LiftBatch, list[mjx_lift.World], list]:
+    batch = mjx_lift.LiftBatch(arm)
+    envs = [batch.add(HORIZON) for _ in range(worlds)]
+    return batch, envs, [w.reset(seed + i) for i, w in enumerate(envs)]
 
 
 def mjx_rate(worlds: int, steps: int) -> tuple[float, float]:
-    """(env-steps/s, compile s) of `worlds` worlds under the batched expert."""
-    batch = mjx_lift.LiftBatch()
-    envs = [batch.add(HORIZON) for _ in range(worlds)]
+    """(env-steps/s, compile s) of `worlds` Panda worlds under the batched expert."""
+    batch, envs, obs = batch_of("Panda", worlds, 0)
     expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
-    obs = [w.reset(i) for i, w in enumerate(envs)]
     began = time.perf_counter()
     for t in range(steps + 1):
         if t == 1:
@@ -47,23 +71,69 @@ def mjx_rate(worlds: int, steps: int) -> tuple[float, float]:
     return worlds * steps / (time.perf_counter() - began), compile_s
 
 
-def mjx_success(worlds: int) -> int:
-    batch = mjx_lift.LiftBatch()
-    envs = [batch.add(HORIZON) for _ in range(worlds)]
+def profile(worlds: int, steps: int) -> None:
+    """Where a control step's time goes at `worlds` Panda worlds (module docstring). Every part and variant is
+    timed once per round, interleaved, and the median over `steps` rounds is printed, so a loaded machine's
+    swings fall on all of them alike."""
+    batch, envs, obs = batch_of("Panda", worlds, 0)
     expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
-    obs = [w.reset(1000 + i) for i, w in enumerate(envs)]
+    c = batch.c
+    act = np.asarray(expert.act_batch(obs), np.float32)
+    state = (batch.fields, batch.qpos, batch.qvel, batch.rgoal, batch.quat0, act)
+    variants = {
+        f"compiled call alone (as the suite: {c.substeps} substeps, solver {c.model.opt.iterations} / "
+        f"line search {c.model.opt.ls_iterations}, implicitfast)": c,
+        "compiled call, 1 physics substep": control.Compiled("Panda", substeps=1),
+        "compiled call, solver 2 / line search 4": control.Compiled("Panda", iterations=2, ls_iterations=4),
+        "compiled call, Euler integrator": control.Compiled("Panda", euler=True),
+    }
+    for comp in variants.values():
+        comp.jax.block_until_ready(comp.step(*state))  # compile
+    batch.step_all(dict(enumerate(act)))  # compiled already: the same function as "as the suite"
+    times: dict[str, list[float]] = {k: [] for k in ("expert", "step_all (compiled call + host)", "adapter reads")}
+    times.update({k: [] for k in variants})
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        act = expert.act_batch(obs)
+        t1 = time.perf_counter()
+        batch.step_all(dict(enumerate(act)))
+        t2 = time.perf_counter()
+        obs = [w.step(a)[0] for w, a in zip(envs, act)]
+        t3 = time.perf_counter()
+        for k, dt in zip(("expert", "step_all (compiled call + host)", "adapter reads"), (t1 - t0, t2 - t1, t3 - t2)):
+            times[k].append(dt)
+        for k, comp in variants.items():
+            began = time.perf_counter()
+            comp.jax.block_until_ready(comp.step(*state))
+            times[k].append(time.perf_counter() - began)
+    med = {k: 1e3 * float(np.median(v)) for k, v in times.items()}
+    names = list(variants)
+    print(f"profile, {worlds} Panda worlds, median ms per control step over {steps} interleaved rounds:")
+    for k, v in med.items():
+        print(f"  {k}: {v:.1f}")
+    full, one = med[names[0]], med[names[1]]
+    print(
+        f"  -> physics ~{(full - one) / (c.substeps - 1):.1f} ms per substep ({100 * (full - one) * c.substeps / (c.substeps - 1) / full:.0f}% "
+        f"of the call); controller + kinematics + observation ~{one - (full - one) / (c.substeps - 1):.1f}; "
+        f"host gather/scatter ~{med['step_all (compiled call + host)'] - full:.1f}"
+    )
+
+
+def mjx_success(arm: str, worlds: int) -> int:
+    batch, envs, obs = batch_of(arm, worlds, 1000)
+    expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
     lifted = np.zeros(worlds, bool)
     for _ in range(HORIZON):
         act = expert.act_batch(obs)
         batch.step_all(dict(enumerate(act)))
         obs = [w.step(a)[0] for w, a in zip(envs, act)]
-        lifted |= [w.success() for w in envs]
+        lifted |= batch.lifted()
     return int(lifted.sum())
 
 
-def robosuite(episodes: int) -> tuple[float, int]:
-    """(env-steps/s, successes) of robosuite's Lift on the Panda with its scripted expert."""
-    env = make_env("Lift", "Panda", HORIZON)
+def robosuite(arm: str, episodes: int) -> tuple[float, int]:
+    """(env-steps/s, successes) of robosuite's Lift on `arm` with its scripted expert."""
+    env = make_env("Lift", arm, HORIZON)
     expert = LiftExpert(OBS_FIELDS, env.action_spec.dim)
     steps, wall, wins = 0, 0.0, 0
     for ep in range(episodes):
@@ -81,29 +151,44 @@ def robosuite(episodes: int) -> tuple[float, int]:
     return steps / wall, wins
 
 
+def interval(wins: int, n: int) -> str:
+    est = wilson(wins, n)
+    return f"{wins}/{n} [{est.lo:.2f}, {est.hi:.2f}]"
+
+
 def main(argv: list[str]) -> int:
-    a = args(argv)
-    worlds = [int(w) for w in a.get("worlds", "[1,64,1024]").strip("[]").split(",")]
-    steps, episodes = int(a.get("steps", 20)), int(a.get("episodes", 64))
     try:
-        for w in [*worlds, episodes]:
+        a = args(argv)
+        worlds = [int(w) for w in listed(a.get("worlds", "[1,64,1024,4096]"))]
+        arms = listed(a.get("arms", "[Panda,UR5e,Kinova3]"))
+        steps, episodes = int(a.get("steps", 10)), int(a.get("episodes", 64))
+        rs_n, prof = int(a.get("robosuite_episodes", 10)), int(a.get("profile", 256))
+        bad = [arm for arm in arms if arm not in mjx_lift.ARMS]
+        if bad:
+            raise ConfigError(f"arms: {bad} not among {', '.join(mjx_lift.ARMS)}")
+        for w in [*worlds, episodes, prof]:
             mjx_lift.check_worlds(w)
-    except ConfigError as e:
+    except (ConfigError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    rs_rate, rs_wins = robosuite(int(a.get("robosuite_episodes", 20)))
-    rs_n = int(a.get("robosuite_episodes", 20))
+    load = os.getloadavg()
+    print(f"machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1/5/15 min)")
+    rs_rate, rs_wins = robosuite("Panda", rs_n)
     print(f"robosuite Lift (Panda, fast path, 1 env): {rs_rate:,.0f} env-steps/s")
     print("| worlds | MJX env-steps/s | compile s | MJX / robosuite |")
     print("|---|---|---|---|")
     for w in worlds:
         rate, comp = mjx_rate(w, steps)
-        print(f"| {w:,} | {rate:,.0f} | {comp:.1f} | {rate / rs_rate:.2f} |")
-    wins = mjx_success(episodes)
-    est, rs_est = wilson(wins, episodes), wilson(rs_wins, rs_n)
-    lo, hi, rlo, rhi = est.lo, est.hi, rs_est.lo, rs_est.hi
-    print(f"scripted expert success, MJX Lift: {wins}/{episodes} [{lo:.2f}, {hi:.2f}] (95% Wilson)")
-    print(f"scripted expert success, robosuite Lift (Panda): {rs_wins}/{rs_n} [{rlo:.2f}, {rhi:.2f}] (95% Wilson)")
+        print(f"| {w:,} | {rate:,.0f} | {comp:.1f} | {rate / rs_rate:.2f} |", flush=True)
+    if prof:
+        profile(prof, steps)
+    print("| arm | split | MJX expert success (95% Wilson) | robosuite expert success (95% Wilson) |")
+    print("|---|---|---|---|")
+    for arm in arms:
+        split = "seen" if arm in ("Panda", "Sawyer", "IIWA") else "unseen"
+        wins = mjx_success(arm, episodes)
+        rw = rs_wins if arm == "Panda" else robosuite(arm, rs_n)[1]
+        print(f"| {arm} | {split} | {interval(wins, episodes)} | {interval(rw, rs_n)} |", flush=True)
     return 0
 
 

@@ -1,10 +1,14 @@
-"""The MJX Lift suite (suites/mjx_lift.py): N worlds per call, one record per world, bad input refused.
+"""The MJX Lift suite (suites/mjx_lift.py): robosuite's arms in MJX, N worlds per call, one record per world,
+per-world calibration draws, bad input refused.
 
-Needs the mjx extra; skipped without it. Small on purpose: JAX compiles each world count once (40 s on this CPU,
-then cached on disk), so the runs here use 1 and 2 worlds and a 60-step horizon.
+Needs the mjx extra; skipped without it. Small on purpose: JAX compiles each arm and world count once (tens of
+seconds on this CPU, then cached on disk), so the fast tests compile nothing and the runs are marked slow.
 """
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,15 +20,17 @@ from bench.records import read_records
 pytest.importorskip("mujoco.mjx")
 pytest.importorskip("robosuite")
 
+CALIBRATION = Path(__file__).resolve().parent.parent / "results" / "real_panda" / "calibration"  # a real Panda's
 
-def _run(tmp_path, *extra: str) -> int:
-    return main(["run", "suite=mjx_lift", "episodes=2", "horizon=60", "seed=3", f"out={tmp_path}", *extra])
+
+def _run(tmp_path, *extra: str, episodes: int = 2) -> int:
+    return main(["run", "suite=mjx_lift", f"episodes={episodes}", "horizon=60", "seed=3", f"out={tmp_path}", *extra])
 
 
 @pytest.mark.slow
 def test_vector_run_gives_one_record_per_world_like_vector_1(tmp_path):
-    assert _run(tmp_path, "workers=1", "vector=2", "run_id=two") == 0
-    assert _run(tmp_path, "workers=1", "vector=1", "run_id=one") == 0
+    assert _run(tmp_path, "robots=[Panda]", "workers=1", "vector=2", "run_id=two") == 0
+    assert _run(tmp_path, "robots=[Panda]", "workers=1", "vector=1", "run_id=one") == 0
     two = sorted(read_records(tmp_path / "two" / "episodes.jsonl"), key=lambda r: r.episode)
     one = sorted(read_records(tmp_path / "one" / "episodes.jsonl"), key=lambda r: r.episode)
     assert [r.episode for r in two] == [0, 1]
@@ -36,20 +42,128 @@ def test_vector_run_gives_one_record_per_world_like_vector_1(tmp_path):
     assert all(r.backend.startswith("mjx-") for r in two)
 
 
-def test_axis_mjx_cannot_express_is_refused_before_the_run(tmp_path, capsys):
-    assert _run(tmp_path, "perturb.damping=[0.5]", "run_id=bad") == 2
+@pytest.mark.slow
+@pytest.mark.parametrize("arm", ["UR5e", "Kinova3"])
+def test_the_expert_lifts_on_held_out_arms(tmp_path, arm):
+    assert _run(tmp_path, f"robots=[{arm}]", "workers=1", "vector=2", "run_id=r") == 0
+    records = list(read_records(tmp_path / "r" / "episodes.jsonl"))
+    assert len(records) == 2 and all(r.split == "unseen" and r.success_once for r in records)
+
+
+@pytest.mark.slow
+def test_from_calibration_gives_each_world_its_own_recorded_draw(tmp_path):
+    axis = f"perturb.damping=from({CALIBRATION})"
+    assert _run(tmp_path, "robots=[Panda]", "workers=1", "vector=4", axis, "run_id=cal", episodes=4) == 0
+    records = [r for r in read_records(tmp_path / "cal" / "episodes.jsonl") if "from(" in str(r.condition)]
+    assert len(records) == 4 and all(r.error is None for r in records)
+    draws = [r.params["damping.draw"] for r in records]
+    assert len(set(draws)) > 1  # each world its own draw, recorded
+    assert len({r.params["damping"] for r in records}) == len(set(draws))
+
+
+def test_the_split_is_held_out_robots():
+    from suites.held_out_robots import SEEN, UNSEEN
+    from suites.mjx_lift import MjxLift
+
+    cells = MjxLift().all_cells()
+    assert [c.robot for c in cells if c.split == "seen"] == SEEN
+    assert [c.robot for c in cells if c.split == "unseen"] == UNSEEN
+
+
+@pytest.mark.parametrize("arm", ["Panda", "Sawyer", "IIWA", "UR5e", "Kinova3", "Jaco", "XArm7"])
+def test_every_arm_builds_with_its_joints_first_and_the_contacts_pruned(arm):
+    import mujoco
+
+    from bench.sims.mjx_lift import ARMS, scene
+
+    m = scene.build(arm)
+    joints = ARMS[arm].joints
+    assert m.njnt == len(joints) + 3  # the arm's, two fingers, the cube's free joint (Sawyer's head pan welded)
+    assert [int(m.jnt_dofadr[m.joint(j).id]) for j in joints] == list(range(len(joints)))
+    assert not np.any(m.jnt_limited[: len(joints)]) and not np.any(m.dof_frictionloss)
+    data = mujoco.MjData(m)
+    data.qpos[: len(joints)] = ARMS[arm].home
+    mujoco.mj_forward(m, data)
+    grip = data.site_xpos[m.site("grip").id]
+    assert (
+        0.85 < grip[2] < 1.25 and abs(grip[0]) < 0.25 and abs(grip[1]) < 0.2
+    )  # over the table (robosuite: Sawyer 17 cm aside)
+    pairs = {
+        tuple(sorted((int(m.geom_bodyid[i]), int(m.geom_bodyid[j]))))
+        for i in range(m.ngeom)
+        for j in range(i + 1, m.ngeom)
+        if (m.geom_contype[i] & m.geom_conaffinity[j]) or (m.geom_contype[j] & m.geom_conaffinity[i])
+    }
+    cube = m.body("cube").id
+    assert pairs == {(0, cube), *((m.body(f"finger_{s}").id, cube) for s in ("left", "right"))}  # table is world
+
+
+def test_gains_follow_each_arms_inertia():
+    from bench.sims.mjx_lift import scene
+
+    kp = {}
+    for arm in ("Panda", "Kinova3"):
+        m = scene.build(arm)
+        kp[arm], kd = scene.gains(m, arm, np.arange(len(scene.ARMS[arm].joints)))
+        assert np.all(kp[arm] >= scene.KP_RANGE[0]) and np.all(kp[arm] <= scene.KP_RANGE[1]) and np.all(kd > 0)
+    assert kp["Panda"][0] > kp["Kinova3"][0]  # the Panda's shoulder carries more inertia than the Kinova Gen3's
+
+
+def test_an_axis_mjx_cannot_express_is_refused_before_the_run(tmp_path, capsys):
+    assert _run(tmp_path, "robots=[Panda]", "perturb.frictionloss=[0.5]", "run_id=bad") == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "perturb.damping" in err and "friction, mass" in err
+    assert len(err.splitlines()) == 1 and "perturb.frictionloss" in err
+    assert "damping, friction, link_mass, mass" in err
     assert not (tmp_path / "bad").exists()
 
 
-def test_world_count_beyond_memory_is_refused_in_one_line():
+def test_a_world_count_beyond_memory_is_refused_in_one_line_with_the_estimate():
     from bench.sims import mjx_lift  # the MJX scene: only with the extra (importorskip above)
 
+    need, per = mjx_lift.memory_estimate(1)
+    assert 10_000 < per < 10_000_000 and need == per  # from the model's MJX data: kB per world, not bytes or GB
     mjx_lift.check_worlds(1024, available=2**34)  # 16 GiB holds 1,024 worlds
     with pytest.raises(ConfigError) as e:
-        mjx_lift.check_worlds(10**6, available=2**34)
-    assert "worlds=1000000" in str(e.value) and "\n" not in str(e.value)
+        mjx_lift.check_worlds(10**6, available=2**34, per="vector=500000 x workers=2")
+    msg = str(e.value)
+    assert msg.startswith("worlds=1000000 (vector=500000 x workers=2)") and "\n" not in msg
+    assert f"{per / 1e3:.0f} kB per world" in msg and f"at most {2**34 // per} worlds" in msg
+
+
+def test_a_run_over_memory_writes_nothing(tmp_path, capsys):
+    argv = ["robots=[Panda]", "episodes=65536", "vector=65536", "workers=64", "horizon=1", "run_id=big"]
+    assert main(["run", "suite=mjx_lift", f"out={tmp_path}", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "worlds=4194304 (vector=65536 x workers=64)" in err and "GiB" in err
+    assert not (tmp_path / "big").exists()
+
+
+def test_calibration_draws_land_in_their_own_world_only():
+    if not (CALIBRATION / "calibration.json").exists():
+        pytest.skip(f"no calibration at {CALIBRATION}")
+    from bench.sims.mjx_lift import LiftBatch
+
+    draws = json.loads((CALIBRATION / "calibration.json").read_text())["draws"]
+    keys = [k for k in draws["keys"] if k.startswith("dof_damping:")]
+    rows = [[v for k, v in zip(draws["keys"], row) if k.startswith("dof_damping:")] for row in draws["values"][:2]]
+    batch = LiftBatch("Panda")
+    a, b = batch.add(10), batch.add(10)
+    ratio = a.write_draw("damping", keys, rows[0])
+    b.write_draw("damping", keys, rows[1])
+    damping = batch.fields["dof_damping"]
+    assert np.allclose(damping[0, :7], rows[0]) and np.allclose(damping[1, :7], rows[1])
+    assert not np.allclose(damping[0], damping[1])
+    assert ratio == pytest.approx(np.mean(np.asarray(rows[0]) / batch.c.nominal["dof_damping"][:7]), rel=1e-5)
+    a.restore()
+    assert np.allclose(damping[0], batch.c.nominal["dof_damping"]) and np.allclose(damping[1, :7], rows[1])
+
+
+def test_a_calibration_of_another_robot_is_refused():
+    from bench.sims.mjx_lift import LiftBatch
+
+    world = LiftBatch("Kinova3").add(10)
+    with pytest.raises(ConfigError, match="does not have .a calibration of another robot"):
+        world.write_draw("damping", ["dof_damping:robot0_joint1"], [0.1])
 
 
 def test_batched_expert_is_stateless_and_batched():
@@ -75,3 +189,44 @@ def test_observation_is_held_out_robots_lift_observation():
     from suites.lift import OBS_FIELDS as LIFT
 
     assert list(OBS_FIELDS) == [tuple(f) for f in LIFT]
+
+
+def _gpu() -> str | None:
+    """Why the CPU/GPU agreement test cannot run here, or None when a GPU JAX device is present."""
+    try:
+        import jax
+    except ImportError:
+        return "JAX is not installed"
+    try:
+        jax.devices("gpu")
+    except RuntimeError:
+        return "no GPU JAX device (this test compares CPU JAX with a GPU; CPU-only CI skips it)"
+    return None
+
+
+STATE_TOL = 2e-3  # m / rad: float32 worlds on two backends drift apart by XLA's operation order, not physics
+
+
+@pytest.mark.skipif(_gpu() is not None, reason=str(_gpu()))
+def test_cpu_and_gpu_agree_per_world():
+    """The same seeds on CPU JAX and on the GPU: the same per-world success, states within STATE_TOL."""
+    import jax
+
+    from baselines.mjx_lift_expert import BatchLiftExpert
+    from bench.sims.mjx_lift import OBS_FIELDS, LiftBatch
+
+    out = {}
+    for platform in ("cpu", "gpu"):
+        with jax.default_device(jax.devices(platform)[0]):
+            batch = LiftBatch("Panda")
+            worlds = [batch.add(60) for _ in range(8)]
+            obs = [w.reset(100 + i) for i, w in enumerate(worlds)]
+            expert, lifted = BatchLiftExpert(OBS_FIELDS), np.zeros(8, bool)
+            for _ in range(60):
+                act = expert.act_batch(obs)
+                batch.step_all(dict(enumerate(act)))
+                obs = [w.step(a)[0] for w, a in zip(worlds, act)]
+                lifted |= batch.lifted()
+            out[platform] = (lifted, batch.qpos.copy())
+    assert np.array_equal(out["cpu"][0], out["gpu"][0])
+    assert np.max(np.abs(out["cpu"][1] - out["gpu"][1])) < STATE_TOL

@@ -215,7 +215,7 @@ def test_bench_run_vector_records_equal_vector_1(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["vector=0"], "vector=0: must be in [1, 1024]"),
+        (["vector=0"], "vector=0: must be in [1, 65536]"),
         (["vector=5"], "vector=5: more envs than a cell has episodes (episodes=4 per cell and condition)"),
     ],
 )

@@ -20,6 +20,7 @@ from bench.core.errors import (
     ConfigError,
     SplitError,
 )
+from bench.execution import vector
 from bench.execution.check import fast_check
 from bench.execution.episode_video import check_run
 from bench.execution.local import LocalExecutor
@@ -323,7 +324,12 @@ def plan(
         verify(suite, cells, horizon, loaded)
         calibration = Calibration.of(loaded)
     check_work(config, n_jobs, horizon, step_bytes)
+    check_worlds = getattr(suite, "check_worlds", None)  # a batched simulator's memory per world (suites/mjx_lift.py)
+    if callable(check_worlds):
+        check_worlds(cells, config.vector, workers)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
+    if config.vector > 1:  # a batched policy's answer shape, asked once before anything is written
+        vector.probe(suite, cells[0], plugin, policy_options, horizon, config.seed, config.vector)
     for cell in cells:  # a visual axis on a policy that sees no image would report a drop of +0 [0, 0]
         axes.check_policy_sees(conditions, needs, suite.obs_spec(cell), policy_name)
     # an instruction axis on a policy that reads none would report an action difference of 0 by construction

@@ -29,7 +29,7 @@ from bench.protocols.suite import MAX_ENV_SEED, METRICS, SEED_SCHEMES, SPLITS
 MAX_EPISODES = config_mod.MAX_EPISODES
 MAX_HORIZON = config_mod.MAX_HORIZON
 MAX_WORKERS = config_mod.MAX_WORKERS
-MAX_VECTOR = 1024  # envs one worker holds at once (each a simulator instance)
+MAX_VECTOR = 65_536  # envs one worker holds at once (simulator instances, or worlds of one batched simulator: mjx_lift)
 MAX_N_BOOT = config_mod.MAX_N_BOOT
 MAX_TIMEOUT_S = config_mod.MAX_TIMEOUT_S
 MAX_RUN_ID = config_mod.MAX_RUN_ID

@@ -16,6 +16,8 @@ Envs that are worlds of one batched simulator (an MJX suite: `batch.step_all`) a
 from then on, never stepped again, so each record equals the one its job gives alone (`vector=1`). A batched
 answer that is not one valid answer per observation (a count or shape `act_batch` should not give) fails the
 episodes it was for, with the reason in their records, like a wrong `act` answer does alone: the run goes on.
+Before a run, `probe` asks a batched policy once on a freshly reset env, so a policy whose `act_batch` answers the
+wrong shape everywhere is refused in one line before anything is written.
 """
 
 from __future__ import annotations
@@ -26,9 +28,11 @@ from collections.abc import Hashable, Sequence
 
 import numpy as np
 
-from bench.execution.rollout import Episode, RunContext, time_limit
-from bench.protocols import EnvAdapter, Policy, SplitPolicy, batchable
-from bench.protocols.suite import Job
+from bench.core.errors import ConfigError
+from bench.execution.rollout import Episode, RunContext, chunk, time_limit
+from bench.protocols import EnvAdapter, Policy, PolicyContext, PolicyPlugin, SplitPolicy, Suite, batchable
+from bench.protocols.batch import BatchEnv, WorldBatch, batch_of
+from bench.protocols.suite import Cell, Job
 from bench.records import EpisodeRecord
 
 
@@ -78,35 +82,61 @@ def answer(live: Sequence[Episode], t: int) -> None:
 
 
 def step_batches(live: Sequence[Episode], t: int) -> None:
-    """Step together the episodes whose envs are worlds of one batched simulator (an env with `batch`, whose
-    `step_all({index: action})` steps those worlds in one call, and `index`: an MJX world, `bench.sims.mjx_lift`).
+    """Step together the episodes whose envs are worlds of one batched simulator (`bench.protocols.batch.BatchEnv`:
+    a `batch` whose `step_all({index: action})` steps those worlds in one call, and an `index`: an MJX world,
+    `bench.sims.mjx_lift`).
 
     Each takes its action first (`Episode.choose`); its own `step` then reads the world's row of that batched step.
     An env under a wrapper that changes actions (a perturbed interface) is left to step alone."""
-    groups: dict[int, list[Episode]] = {}
+    groups: dict[int, tuple[WorldBatch, list[tuple[Episode, int]]]] = {}
     for ep in live:
-        batch = getattr(ep.stepper, "batch", None)
-        if batch is not None and callable(getattr(batch, "step_all", None)):
-            groups.setdefault(id(batch), []).append(ep)
-    for group in groups.values():
+        stepper = ep.stepper
+        batch = batch_of(stepper)
+        if batch is not None and isinstance(stepper, BatchEnv):
+            groups.setdefault(id(batch), (batch, []))[1].append((ep, stepper.index))
+    for batch, group in groups.values():
         if len(group) < 2:
             continue
-        for ep in group:
+        for ep, _ in group:
             ep.guarded(functools.partial(ep.choose, t))
-        ready = [ep for ep in group if not ep.done and ep.pending is not None]
+        ready = [(ep, i) for ep, i in group if not ep.done and ep.pending is not None]
         if not ready:
             continue
-        batch = ready[0].stepper.batch  # type: ignore[attr-defined]  # a batched world (checked above)
         began = time.perf_counter()
         try:
-            batch.step_all({ep.stepper.index: ep.pending for ep in ready})  # type: ignore[attr-defined]
+            batch.step_all({i: ep.pending for ep, i in ready if ep.pending is not None})
         except Exception as exc:  # every world of the call fails with the reason; the run goes on
-            for ep in ready:
+            for ep, _ in ready:
                 ep.fail(exc, time.perf_counter() - began)
             continue
         took = (time.perf_counter() - began) / len(ready)
-        for ep in ready:
+        for ep, _ in ready:
             ep.spent += took
+
+
+def probe(
+    suite: Suite, cell: Cell, plugin: PolicyPlugin, options: object, horizon: int, seed: int, vector: int
+) -> None:
+    """Before a `vector=N` run writes anything: the policy of `cell`, if it declares batches, asked once for two
+    observations of a freshly reset env; an answer that is not two valid actions (a wrong batch shape) is refused
+    in one line (ConfigError, exit 2). Policies that do not declare batches are asked per env and not probed."""
+    env = suite.make_env(cell, horizon)
+    try:
+        policy = plugin.make(cell, env, PolicyContext(options, suite, seed, horizon))
+        policy.reset(seed)
+        if not batchable(policy):
+            return
+        obs = env.reset(seed)
+        try:
+            for one in split_answers(policy.act_batch([obs, obs]), 2):
+                chunk(one, env.action_spec.dim, 0, "an answer of its act_batch")
+        except ValueError as exc:
+            raise ConfigError(
+                f"vector={vector}: the batched policy {type(policy).__name__} on {cell.key}: {exc}; act_batch must "
+                "answer one action (A,) or chunk (T, A) per observation"
+            ) from None
+    finally:
+        env.close()
 
 
 def _send(ep: Episode) -> None:

@@ -94,6 +94,13 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
         mj = env.mujoco
         if mj is None:
             other = env.model_axes
+            draw = getattr(other, "write_draw", None)  # a backend that writes a calibration's draws (MJX worlds)
+            if cond.kind == "from" and other is not None and cond.axis in other.axes and callable(draw):
+                try:  # the backend checks the draw's names by writing one
+                    draw(str(cond.axis), cond.spec["keys"], cond.spec["values"][0])
+                finally:
+                    other.restore()
+                continue
             if other is not None and cond.axis in other.axes:
                 # the backend checks the named targets (and refuses zero-valued ones) by applying once
                 level = cond.level[0] if isinstance(cond.level, (list, tuple)) else cond.level
@@ -380,6 +387,11 @@ def apply(
         stepper, extra = axis.wrap(env, rng, value)
         return stepper, {axis.name: value, **extra}
     if condition.kind == "from":
+        draw = getattr(env.model_axes, "write_draw", None)  # a backend that writes a calibration's draws (MJX)
+        if mj is None and env.model_axes is not None and axis.name in env.model_axes.axes and callable(draw):
+            k = int(rng.integers(len(condition.spec["values"])))
+            ratio = draw(axis.name, condition.spec["keys"], condition.spec["values"][k])
+            return env, {axis.name: round(float(ratio), 9), f"{axis.name}.draw": k}
         if mj is None or nom is None:
             raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")
         return env, _from_draw(mj, nom, axis.name, condition, rng)
