@@ -1,7 +1,8 @@
 """Coverage of every interval the harness prints, by simulation with known truth (issue 38, item 0).
 
-    python benchmarks/bench_interval_coverage.py              # 2000 simulated runs per row (~2 min on 2 cores)
+    python benchmarks/bench_interval_coverage.py              # 2000 simulated runs per row
     python benchmarks/bench_interval_coverage.py --reps 500   # quicker, noisier
+    python benchmarks/bench_interval_coverage.py --only "gate: IQM"   # one interval's rows
 
 Each row draws `reps` synthetic runs of 0/1 outcomes (or returns) from known per-cell rates, computes the
 interval with the very function the harness calls (`bench.scoring.stats`, `bench.board.gate`'s bounds), and
@@ -9,7 +10,8 @@ counts how often it contains the truth. Scenarios cross rates near 0, 0.5 and 1 
 across cells), few and many cells, few and more episodes per cell. Printed per row: the nominal level, the
 coverage with its Monte-Carlo standard error, and for the aggregates, gaps and drops the coverage of the method
 they replaced (a bootstrap of per-cell Jeffreys draws widened to contain the estimate, a percentile paired
-bootstrap, a percentile bootstrap of returns; kept here only as the "before" column). `tests/test_interval_coverage.py` holds a smaller table.
+bootstrap, the gate's plain bootstrap of pairs, the stratified t of returns without skewness correction; kept
+here only as the "before" column). `tests/test_interval_coverage.py` holds a smaller table.
 
 The truth is a property of the fixed cells (the benchmark's cells are not a sample of robots): the mean (IQM) of
 their true rates, or its difference between two groups / two conditions.
@@ -18,6 +20,7 @@ their true rates, or its difference between two groups / two conditions.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -62,6 +65,28 @@ DROPS = tuple(
     Scenario(rate, cells, episodes, 0.0, drop)
     for rate, drop in ((0.98, 0.0), (0.98, 0.3), (0.5, 0.0), (0.5, 0.2), (0.1, 0.05))
     for cells, episodes in ((2, 10), (12, 10))
+)
+
+
+RETURNS = tuple(
+    Scenario(0.5, cells, episodes, spread)
+    for cells, episodes in ((1, 20), (2, 10), (2, 20), (12, 5), (12, 20))
+    for spread in (0.0, 1.0)
+    if cells > 1 or not spread
+)
+GATE_IQM = tuple(  # the IQM is used with >= 4 cells of >= 10 pairs
+    Scenario(rate, cells, episodes, spread, drop)
+    for rate, drop, spread in (
+        (0.02, 0.0, 0.0),
+        (0.05, 0.05, 0.0),
+        (0.1, 0.05, 0.0),
+        (0.5, 0.0, 0.0),
+        (0.5, 0.2, 1.0),
+        (0.9, 0.1, 1.0),
+        (0.98, 0.0, 0.0),
+        (0.98, 0.3, 0.0),
+    )
+    for cells, episodes in ((4, 10), (12, 10), (12, 20))
 )
 
 
@@ -151,15 +176,39 @@ def gate_pooled_upper(sc: Scenario, rng: np.random.Generator) -> tuple[bool, boo
     return bool(float(ref.mean() - tgt.mean()) <= ucb), None
 
 
-def gate_iqm_upper(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
-    """The gate's IQM bound: the paired bootstrap's upper quantile (used with >= 4 cells of >= 10 pairs)."""
-    ref = sc.rates(rng)
-    tgt = np.clip(ref - sc.drop, 0.0, 1.0)
-    a, b = _pairs(ref, tgt, sc.episodes, rng)
-    counts = np.column_stack([(a * b).sum(1), (a * (1 - b)).sum(1), ((1 - a) * b).sum(1), ((1 - a) * (1 - b)).sum(1)])
-    _, samples = stats.paired_binary_stat_samples(counts, rng, "iqm", 1000)
-    truth = float(stats.iqm(ref) - stats.iqm(tgt))
-    return bool(truth <= float(np.quantile(samples, NOMINAL_GATE))), None
+def _before_iqm_samples(counts: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The replaced gate IQM bootstrap: pairs resampled within each cell, i.e. multinomial counts of the 4 pair
+    types, drawn as a chain of binomials (vectorised over cells)."""
+    n = counts.sum(axis=1)
+    left, mass, drawn = np.broadcast_to(n, (1000, len(n))).copy(), np.ones(len(n)), []
+    for j in range(3):
+        share = np.divide(counts[:, j] / n, mass, out=np.zeros(len(n)), where=mass > 1e-12).clip(0.0, 1.0)
+        drawn.append(rng.binomial(left, share))
+        left -= drawn[-1]
+        mass = mass - counts[:, j] / n
+    return stats.iqm((drawn[0] + drawn[1]) / n) - stats.iqm((drawn[0] + drawn[2]) / n)
+
+
+def gate_iqm(side: str) -> Check:
+    """The gate's IQM bounds (`stats.paired_binary_stat_samples`, used with >= 4 cells of >= 10 pairs): the upper
+    one certifies "no regression", the lower one is the regression test's."""
+
+    def check(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
+        ref = sc.rates(rng)
+        tgt = np.clip(ref - sc.drop, 0.0, 1.0)
+        a, b = _pairs(ref, tgt, sc.episodes, rng)
+        counts = np.column_stack(
+            [(a * b).sum(1), (a * (1 - b)).sum(1), ((1 - a) * b).sum(1), ((1 - a) * (1 - b)).sum(1)]
+        ).astype(int)
+        _, samples = stats.paired_binary_stat_samples(counts, rng, "iqm", 1000)
+        before = _before_iqm_samples(counts, rng)
+        truth = float(stats.iqm(ref) - stats.iqm(tgt))
+        if side == "upper":
+            return bool(truth <= np.quantile(samples, NOMINAL_GATE)), bool(truth <= np.quantile(before, NOMINAL_GATE))
+        q = 1.0 - NOMINAL_GATE
+        return bool(truth >= np.quantile(samples, q)), bool(truth >= np.quantile(before, q))
+
+    return check
 
 
 def _record(condition: str, axis: str | None, level: object, robot: str, episode: int, ok: bool) -> EpisodeRecord:
@@ -199,15 +248,44 @@ def interaction(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | No
     return bool(lo <= truth <= hi), None
 
 
+def _before_returns(cells: list[np.ndarray], minus: list[np.ndarray] | None = None) -> tuple[float, float]:
+    """The replaced returns interval: the stratified Welch t (of the mean of `cells`, or of its difference with
+    the mean of `minus`), no skewness correction."""
+    from scipy.special import stdtrit  # scipy: only this "before" column needs it
+
+    groups = [cells] if minus is None else [cells, minus]
+    shares = np.concatenate([[c.var(ddof=1) / len(c) / len(g) ** 2 for c in g] for g in groups])
+    dof = np.concatenate([[len(c) - 1.0 for c in g] for g in groups])
+    var = float(shares.sum())
+    df = var**2 / float(np.sum(shares**2 / dof))
+    point = float(np.mean([c.mean() for c in cells]) - (0.0 if minus is None else np.mean([c.mean() for c in minus])))
+    half = float(stdtrit(df, 0.5 + CONF / 2)) * var**0.5
+    return point - half, point + half
+
+
 def returns_mean(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
-    """Mean return of cells (stratified bootstrap): skewed returns, lognormal around a cell's level."""
+    """Mean return of cells: skewed returns, lognormal (sigma 0.75: skewness 2.9) around a cell's level."""
     levels = 1.0 + sc.rates(rng) * 10.0
     cells = [lv * rng.lognormal(0.0, 0.75, sc.episodes) for lv in levels]
     truth = float(np.mean(levels) * np.exp(0.75**2 / 2))
     est = stats.aggregate(cells, rng, stats.Boot("mean", 1000, CONF, binary=False))
-    boot = np.column_stack([c[rng.integers(0, len(c), (1000, len(c)))].mean(axis=1) for c in cells]).mean(axis=1)
-    lo, hi = np.quantile(boot, [0.025, 0.975])  # before: the percentile bootstrap of episodes within cells
+    lo, hi = _before_returns(cells)
     return bool(est.lo <= truth <= est.hi), bool(lo <= truth <= hi)
+
+
+def returns_gap(sc: Scenario, rng: np.random.Generator) -> tuple[bool, bool | None]:
+    """Seen - unseen gap of mean returns: two groups of `cells` lognormal cells, the second's levels lower by
+    10 x `drop`."""
+    levels = 1.0 + sc.rates(rng) * 10.0
+    shift = np.exp(0.75**2 / 2)
+    ref = [lv * rng.lognormal(0.0, 0.75, sc.episodes) for lv in levels]
+    tgt = [(lv - 10.0 * sc.drop) * rng.lognormal(0.0, 0.75, sc.episodes) for lv in levels]
+    est = stats.gap(ref, tgt, rng, stats.Boot("mean", 1000, CONF, binary=False))
+    truth = 10.0 * sc.drop * shift
+    r, t = stats._cell_moments(ref, "mean"), stats._cell_moments(tgt, "mean")
+    assert r is not None and t is not None
+    skewed = stats._hall_t(dataclasses.replace(r.minus(t), kappa3=r.kappa3 - t.kappa3), CONF)
+    return bool(est.lo <= truth <= est.hi), bool(skewed.lo <= truth <= skewed.hi)
 
 
 def coverage(check: Check, sc: Scenario, reps: int, seed: int) -> tuple[float, float | None]:
@@ -231,19 +309,21 @@ ROWS: tuple[tuple[str, Check, tuple[Scenario, ...], float], ...] = (
     ("seen - unseen gap (MOVER)", gap, DROPS, CONF),
     ("paired drop vs nominal (Tango)", paired_drop, DROPS, CONF),
     ("gate: pooled drop upper bound (Tango, one-sided)", gate_pooled_upper, DROPS, NOMINAL_GATE),
-    (
-        "gate: IQM drop upper bound (paired bootstrap)",
-        gate_iqm_upper,
-        tuple(s for s in DROPS if s.cells >= 4),
-        NOMINAL_GATE,
-    ),
+    ("gate: IQM drop upper bound (smoothed Bayesian bootstrap)", gate_iqm("upper"), GATE_IQM, NOMINAL_GATE),
+    ("gate: IQM drop lower bound (smoothed Bayesian bootstrap)", gate_iqm("lower"), GATE_IQM, NOMINAL_GATE),
     (
         "combined axes: interaction (wider of paired bootstrap and MOVER)",
         interaction,
         (Scenario(0.9, 2, 10, 0.0, 0.1), Scenario(0.9, 12, 10, 0.0, 0.1), Scenario(0.5, 4, 10, 0.0, 0.05)),
         CONF,
     ),
-    ("mean return of cells (stratified t)", returns_mean, tuple(s for s in SCENARIOS if s.rate == 0.5), CONF),
+    ("mean return of cells (stratified t, Hall's skewness correction)", returns_mean, RETURNS, CONF),
+    (
+        "seen - unseen gap of mean returns (stratified t; before: with Hall's correction)",
+        returns_gap,
+        tuple(Scenario(0.5, s.cells, s.episodes, s.spread, 0.3) for s in RETURNS if s.cells > 1),
+        CONF,
+    ),
 )
 
 
@@ -251,10 +331,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--reps", type=int, default=2000, help="simulated runs per row (default 2000)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default="", help="only the intervals whose name contains this text (e.g. 'gate: IQM')")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     worst: dict[str, float] = {}
     for name, check, scenarios, nominal in ROWS:
+        if args.only not in name:
+            continue
         print(f"\n{name}  (nominal {nominal:.0%}, {args.reps} runs per row)")
         print(f"  {'scenario':<34} {'coverage':>9} {'± MC se':>8} {'before':>7}")
         for sc in scenarios:

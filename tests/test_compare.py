@@ -169,3 +169,34 @@ def test_help_names_the_keys_and_the_answers(capsys):
     text = capsys.readouterr().out
     for word in ("alpha", "beta", "delta", "batch", "paired", "A better", "equivalent", "inconclusive"):
         assert word in text
+
+
+# -- the shipped JSON Schema (bench.compare/1) ----------------------------------------------------------
+def test_compare_outputs_validate_against_the_shipped_schema(tmp_path: Path, capsys):
+    """A real paired and a real unpaired comparison validate (as `bench leaderboard validate` checks files); the
+    schema refuses what a comparison never holds."""
+    from bench.core.errors import DataError
+    from bench.core.schema import validate
+
+    rng = np.random.default_rng(2)
+    a = write_run(tmp_path / "a", {r: list(rng.random(30) < 0.8) for r in ROBOTS}, policy="new")
+    b = write_run(tmp_path / "b", {r: list(rng.random(30) < 0.4) for r in ROBOTS}, policy="old")
+    c = write_run(tmp_path / "c", {r: list(rng.random(30) < 0.4) for r in ROBOTS}, seed=3, policy="other")
+    paired, unpaired = tmp_path / "p.json", tmp_path / "u.json"
+    assert main(["compare", f"a={a}", f"b={b}", "batch=5", f"out={paired}", f"runs={tmp_path}"]) == 0
+    assert main(["compare", f"a={a}", f"b={c}", "paired=false", f"out={unpaired}"]) == 0
+    docs = [json.loads(paired.read_text()), json.loads(unpaired.read_text())]
+    assert [validate(d, "doc") for d in docs] == ["bench.compare/1"] * 2
+    assert docs[0]["looks"] and not docs[1]["looks"] and "boschloo_p" in docs[1]["tests"][0]
+    assert main(["leaderboard", "validate", str(paired), str(unpaired)]) == 0
+    capsys.readouterr()
+    broken = [
+        {**docs[0], "answer": "maybe"},
+        {**docs[0], "alpha": 0.5},
+        {**docs[1], "tests": [{**docs[1]["tests"][0], "boschloo_p": 1.5}]},
+        {**docs[1], "looks": docs[0]["looks"]},  # an unpaired comparison has one look and no paired looks
+        {k: v for k, v in docs[0].items() if k != "pairs_used"},  # a paired one says how many pairs it used
+    ]
+    for doc in broken:
+        with pytest.raises(DataError, match="schema bench.compare/1"):
+            validate(doc, "doc")

@@ -112,6 +112,7 @@ def test_a_bound_above_the_margin_is_exactly_a_rejection(seed):
 
 
 def test_identical_outcomes_never_fail_and_pass_once_the_budget_can_certify():
+    """Identical outcomes: never a regression; certified once the pooled and IQM bounds both fall below the margin."""
     rng = np.random.default_rng(0)
     outcomes = rng.random((7, 20)) < 0.7
     same = {k: sequential.pairs_of(outcomes[i], outcomes[i]) for i, k in enumerate(SEVEN)}
@@ -124,7 +125,14 @@ def test_identical_outcomes_never_fail_and_pass_once_the_budget_can_certify():
     z = 2.2414  # certification: one-sided at 1 - 0.05 / 4 looks (the IQM is not used with 5 pairs per cell)
     assert small["mean"]["ucb"] == pytest.approx(z * z / (35 + z * z), rel=2e-3)
     full = sequential.evaluate_look(same, d, 3, rng, sequential.n_boot_needed(d, 2000))
-    assert full["decision"] == "no_regression" and full["mean"]["ucb"] < 0.05
+    # 20 pairs per cell certify the pooled drop, not the IQM's: its bound counts one pseudo-pair lost and one won
+    # per cell (the smoothed bootstrap), as honest as Tango's on the 5 kept cells' 100 pairs (0.059)
+    assert full["mean"]["ucb"] < 0.05 < full["iqm"]["ucb"] and full["decision"] == "continue"
+    d40 = design(40, 10)
+    more = rng.random((7, 40)) < 0.7
+    same40 = {k: sequential.pairs_of(more[i], more[i]) for i, k in enumerate(SEVEN)}
+    full = sequential.evaluate_look(same40, d40, 3, rng, sequential.n_boot_needed(d40, 2000))
+    assert full["decision"] == "no_regression" and max(full["mean"]["ucb"], full["iqm"]["ucb"]) < 0.05
 
 
 def test_better_candidate_is_never_a_regression():
@@ -184,8 +192,8 @@ def test_vectorised_tango_statistic_matches_the_scalar_bound():
 
 
 def resampled_episodes(reference, target, rng, statistic, n_boot):
-    """The bootstrap `paired_binary_stat_samples` replaces: each resample draws episode indices within
-    every cell and applies them to both sides (cell j of both holds the same episodes' outcomes)."""
+    """The plain bootstrap of pairs: each resample draws episode indices within every cell and applies them to
+    both sides (cell j of both holds the same episodes' outcomes)."""
     stat = scoring.STATISTICS[statistic]
     pairs = [(np.asarray(r, float), np.asarray(t, float)) for r, t in zip(reference, target)]
     point = float(stat(np.array([r.mean() for r, _ in pairs])) - stat(np.array([t.mean() for _, t in pairs])))
@@ -196,16 +204,34 @@ def resampled_episodes(reference, target, rng, statistic, n_boot):
     return point, stat(ref_b) - stat(tgt_b)
 
 
-def test_binary_bootstrap_from_counts_matches_resampling_episodes():
+def test_smoothed_bayesian_bootstrap_matches_resampling_episodes_when_pairs_are_many():
+    """With many discordant pairs in every cell the prior's pseudo-pairs weigh nothing: the Dirichlet draws of the
+    pair types spread as the bootstrap of episodes does."""
     rng = np.random.default_rng(5)
-    base = rng.random((5, 12)) < 0.7
-    cand = rng.random((5, 12)) < 0.5
+    base = rng.random((5, 300)) < 0.7
+    cand = rng.random((5, 300)) < 0.5
     counts = np.array([sequential.pairs_of(b, c).as_row() for b, c in zip(base, cand)])
-    p1, s1 = resampled_episodes(base, cand, rng, "iqm", 40000)
-    p2, s2 = scoring.paired_binary_stat_samples(counts, rng, "iqm", 40000)
+    p1, s1 = resampled_episodes(base, cand, rng, "iqm", 20000)
+    p2, s2 = scoring.paired_binary_stat_samples(counts, rng, "iqm", 20000)
     assert p1 == pytest.approx(p2)
-    assert np.quantile(s1, [0.05, 0.5, 0.95]) == pytest.approx(np.quantile(s2, [0.05, 0.5, 0.95]), abs=0.02)
-    assert s1.std() == pytest.approx(s2.std(), rel=0.03)
+    assert np.quantile(s1, [0.05, 0.5, 0.95]) == pytest.approx(np.quantile(s2, [0.05, 0.5, 0.95]), abs=0.006)
+    assert s1.std() == pytest.approx(s2.std(), rel=0.05)
+
+
+def test_smoothed_bayesian_bootstrap_spreads_where_no_pair_disagrees_and_keeps_the_estimate():
+    """The plain bootstrap has no spread in a cell without a discordant pair (its bound sat on the estimate, the
+    coverage failure near rates 0 and 1); the pseudo-pairs give one, and the recentring moves no estimate."""
+    rng = np.random.default_rng(6)
+    counts = np.array([[0, 0, 0, 10]] * 3 + [[0, 2, 0, 8]])  # rate 0 everywhere but one cell's 2 lost pairs
+    point, samples = scoring.paired_binary_stat_samples(counts, rng, "mean", 40000)
+    assert point == pytest.approx(0.05)
+    assert samples.mean() == pytest.approx(point, abs=0.002)  # recentred: no shrinkage toward 0
+    assert np.quantile(samples, 0.95) > 0.1 and np.quantile(samples, 0.05) < 0.0
+    baseline = np.arange(10) < counts[:, 1:2]  # the same outcomes as episodes: cell j's first n10 pairs lost
+    _, plain = resampled_episodes(baseline, np.zeros((4, 10)), rng, "mean", 4000)
+    assert np.quantile(plain, 0.95) < np.quantile(samples, 0.95)
+    with pytest.raises(ValueError, match="at least one pair"):
+        scoring.paired_binary_stat_samples(np.array([[0, 0, 0, 0]]), rng)
 
 
 # -- the power calculation (plan=true) ----------------------------------------------------------

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from PIL import Image
 from test_leaderboard import ALL, summary  # shared synthetic summaries (tests/ is on sys.path)
@@ -163,7 +166,7 @@ def test_returns_are_shown_as_returns_and_stderr_stays_clean(tmp_path: Path, cap
     assert capsys.readouterr().err == ""  # no library warning (matplotlib layout) reaches stderr
     page = (out / "index.html").read_text()
     gym = page[page.index("<h2>gym v1") :].split("</table>")[0]
-    assert "seen -274.6 [-331.2, -218" in gym and "%" not in gym.split("<table>")[1]
+    assert "seen -274.6 [-364.1, -229.4" in gym and "%" not in gym.split("<table>")[1]
     assert "-27460%" not in page
     assert Image.open(out / "leaderboard.png").size[0] > 1000
     run = tmp_path / "run"
@@ -171,3 +174,68 @@ def test_returns_are_shown_as_returns_and_stderr_stays_clean(tmp_path: Path, cap
     assert capsys.readouterr().err == ""
     cells = (run / "index.html").read_text()
     assert "<h2>Return per cell</h2>" in cells and "<th>mean return</th>" in cells and "-274.6 [" in cells
+
+
+# -- a checkpoint sweep (bench sweep's folder) ------------------------------------------------------
+def _sweep_folder(tmp_path: Path) -> Path:
+    """A sweep folder as `bench sweep` leaves it: sweep.json from the real selection (`bench.scoring.sweep.select`)
+    over three checkpoints on common seeds, and a leaderboard.json beside it (the committed one)."""
+    from bench.scoring.sweep import Point, select
+
+    rng = np.random.default_rng(0)
+    u = rng.random(40)
+    points = [Point(f"step{s}", float(s), {("c", "n", e): float(u[e] < r) for e in range(40)}) for s, r in
+              ((1000, 0.2), (2000, 0.7), (3000, 0.75))]  # fmt: skip
+    doc = {"schema": "bench.sweep/1", "metric": "success_once", "step_source": "file name", "min_success": None}
+    doc.update(select(points, 0.05), exit_code=0)
+    folder = tmp_path / "sw"
+    folder.mkdir()
+    (folder / "sweep.json").write_text(json.dumps(doc))
+    shutil.copy(Path(__file__).resolve().parents[1] / "results" / "leaderboard.json", folder / "leaderboard.json")
+    return folder
+
+
+def test_a_sweep_folder_is_reported_with_its_curve_table_and_leaderboard(tmp_path: Path, capsys):
+    folder = _sweep_folder(tmp_path)
+    doc = json.loads((folder / "sweep.json").read_text())
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(folder), f"out={out}"]) == 0
+    page = (out / "index.html").read_text()
+    assert "<h2>Checkpoint sweep</h2>" in page and "sweep.png" in page and (out / "sweep.png").stat().st_size > 0
+    assert f"Selected: <b>{doc['selected']}</b>" in page and "beaten by" in page and "step1000" in page
+    assert "leaderboard.png" in page  # the per-checkpoint entries beside the sweep
+    # sweep.json itself, without a leaderboard beside it: the sweep sections only
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(folder / "sweep.json", alone / "sweep.json")
+    assert cli.main(["report", str(alone / "sweep.json"), f"out={tmp_path / 'rep2'}"]) == 0
+    assert "leaderboard.png" not in (tmp_path / "rep2" / "index.html").read_text()
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        (lambda d: d.update(selected="step9"), "field selected names 'step9', not one of the sweep's checkpoints"),
+        (lambda d: d["checkpoints"][0]["success"].update(ci=[0.1, 1.4]), "a success rate's interval lies in"),
+        (lambda d: d.pop("best_set"), "'best_set' is a required property"),
+        (lambda d: d.update(metric="return"), "field \\$.metric"),
+    ],
+)
+def test_a_bad_sweep_is_one_line_exit_2_nothing_written(tmp_path: Path, capsys, change, match):
+    folder = _sweep_folder(tmp_path)
+    doc = json.loads((folder / "sweep.json").read_text())
+    change(doc)
+    (folder / "sweep.json").write_text(json.dumps(doc))
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(folder), f"out={out}"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(match, err) and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_a_broken_leaderboard_beside_a_sweep_is_refused(tmp_path: Path, capsys):
+    folder = _sweep_folder(tmp_path)
+    (folder / "leaderboard.json").write_text(json.dumps({"schema": "bench.leaderboard/1", "entries": 3}))
+    assert cli.main(["report", str(folder), f"out={tmp_path / 'rep'}"]) == 2
+    assert "leaderboard.json" in capsys.readouterr().err and not (tmp_path / "rep").exists()

@@ -48,6 +48,7 @@ from bench.board.gate.sequential import CellKey
 from bench.core import config as config_mod
 from bench.core.errors import ConfigError
 from bench.core.io import write_atomic
+from bench.core.schema import validate
 from bench.protocols import NumArray
 from bench.protocols.suite import select_cells
 from bench.records import EpisodeRecord
@@ -234,6 +235,7 @@ def compare(cfg: CompareConfig, run_keys: Sequence[str] = (), console: Any = Non
         b_cells = _outcomes(side_b.records, metric, episodes)
         tests = sl.unpaired(a_cells, b_cells, cfg.alpha, cfg.beta, cfg.delta)
         doc = {**base_doc, "answer": tests[0]["answer"], "tests": tests, "looks": []}
+        validate(doc, "comparison")  # the shipped schema bench.compare/1, before the file is written
         write_atomic(out, doc)
         console.print(_summary_line(doc), soft_wrap=True)
         return Comparison(run_id, doc, 0, out)
@@ -282,6 +284,7 @@ def compare(cfg: CompareConfig, run_keys: Sequence[str] = (), console: Any = Non
         "tests": list(sl.cell_answers(looks).values()),
         "wall_s": round(time.time() - t0, 2),
     }
+    validate(doc, "comparison")
     write_atomic(out, doc)
     console.print(_summary_line(doc), soft_wrap=True)
     return Comparison(run_id, doc, code, out, empty)

@@ -21,6 +21,8 @@ SCHEMAS = {
     "bench.leaderboard/1": "leaderboard-1.json",
     "bench.regress/1": "regress-1.json",
     "bench.regress/2": "regress-2.json",
+    "bench.compare/1": "compare-1.json",
+    "bench.sweep/1": "sweep-1.json",
 }
 
 

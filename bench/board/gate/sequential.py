@@ -9,8 +9,10 @@ drop = baseline success − candidate success. Every test asks "is the drop abov
 (H0: drop <= margin, one-sided):
 
     pooled    all pairs together              Tango's score test for paired binary outcomes
-    iqm       IQM of the per-cell rates        paired bootstrap; only with >= 4 cells and
-                                               >= IQM_MIN_PAIRS pairs in every cell
+    iqm       IQM of the per-cell rates        smoothed Bayesian bootstrap of the pairs (one
+                                               pseudo-pair lost and one won per cell, recentred:
+                                               `scoring.paired_binary_stat_samples`); only with
+                                               >= 4 cells and >= IQM_MIN_PAIRS pairs in every cell
     split:S   the pairs of split S's cells     Tango; only when both splits are in the run
     cell:C    the pairs of one cell            Tango; only with >= 2 cells
 
@@ -43,7 +45,7 @@ import numpy as np
 
 from bench.scoring import stats as scoring
 
-IQM_MIN_PAIRS = 10  # pairs per cell before the IQM bootstrap bound may decide (2 lost pairs -> bootstrap LCB 1.0)
+IQM_MIN_PAIRS = 10  # pairs per cell before the IQM bootstrap bound may decide (fewer: the trimming is noise)
 IQM_MIN_CELLS = 4  # with fewer cells the IQM trims nothing: it is the mean of the cell rates
 CellKey = tuple[str, str, str, str, str]  # (task, robot, env, condition, split)
 TIE = 1e-9  # IQM drops are differences of means of a few ratios: one exactly at the margin is not above it
@@ -460,8 +462,8 @@ def rule(design: Design, metric: str) -> str:
     """The decision rule in words, for the verdict document."""
     return (
         f"regression if a one-sided paired test finds the drop (baseline - candidate) in {metric} above margin "
-        f"{design.margin}: pooled over all pairs (Tango score test), in the IQM of the per-cell rates (paired "
-        f"bootstrap, with >= {IQM_MIN_CELLS} cells of >= {IQM_MIN_PAIRS} pairs), per split, or per cell "
+        f"{design.margin}: pooled over all pairs (Tango score test), in the IQM of the per-cell rates (smoothed "
+        f"Bayesian bootstrap of the pairs, with >= {IQM_MIN_CELLS} cells of >= {IQM_MIN_PAIRS} pairs), per split, or per cell "
         f"({len(design.cells)} cells, {design.cell_alpha:g} of alpha); alpha {design.alpha} spent over "
         f"{design.looks} look(s) and the tests (Bonferroni), weighted Holm within a look; no regression if the "
         f"upper bounds of the pooled (and IQM) drop are below the margin"

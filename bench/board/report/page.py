@@ -1,4 +1,4 @@
-"""`bench report RUN|LEADERBOARD out=DIR`: a static HTML page with matplotlib figures.
+"""`bench report RUN|LEADERBOARD|SWEEP out=DIR`: a static HTML page with matplotlib figures.
 
 For a run (a run directory or its summary.json): the sentence `bench run` ends with on how to
 read the transfer gap; success per task and robot/env with Wilson intervals, seen and unseen
@@ -7,6 +7,9 @@ gaps with their intervals; per-axis sensitivity curves (success against the
 perturbation level, pooled and per cell) when the run has perturbed conditions; for a
 remote policy (`policy=remote`), the distribution of its round-trip latency per condition.
 For a leaderboard: each entry's score, seen and unseen success and gap, ranked.
+For a checkpoint sweep (a `bench sweep` folder or its sweep.json, `bench.board.report.sweep`): success
+against training step with the simultaneous intervals, the best set and the selection, and the
+per-checkpoint leaderboard beside it.
 With `calibration=DIR|FILE` (a `bench calibrate` output with calibration.json,
 schema `bench.calibration/1`): held-out error before/after calibration (nominal,
 declared fit, final) as a table and bars. With `verdict=FILE` (a `bench regress`
@@ -35,6 +38,7 @@ from bench.board.report.figures import (
 )
 from bench.board.report.html import CSS, esc, img_tag, rate_cell, return_cell, signed_cell, table_html
 from bench.board.report.remote import latency_section
+from bench.board.report.sweep import SWEEP_ID, load_sweep, sweep_sections
 from bench.core.errors import DataError
 from bench.core.io import first_nonfinite
 from bench.core.schema import load_json, validate
@@ -46,17 +50,27 @@ from bench.scoring.summary import aggregates, gap_sentence
 
 # -- inputs -------------------------------------------------------------------------------------
 def load_input(arg: str) -> tuple[str, dict, Path]:
-    """(kind, document, path) for a run dir, summary.json or leaderboard.json; validated."""
+    """(kind, document, path) for a run dir, summary.json, leaderboard.json, or a sweep folder or its sweep.json
+    (kind "sweep": the document is {"sweep": ..., "leaderboard": ... or None}); validated."""
     path = Path(arg)
     if path.is_dir():
-        if not (path / "summary.json").is_file():
-            raise DataError(f"{path}: no summary.json (is it a run directory? `bench score {path}` rebuilds it)")
-        path = path / "summary.json"
+        if (path / "sweep.json").is_file() and not (path / "summary.json").is_file():
+            path = path / "sweep.json"
+        elif not (path / "summary.json").is_file():
+            raise DataError(
+                f"{path}: no summary.json or sweep.json (is it a run or sweep directory? `bench score {path}` "
+                "rebuilds a run's summary)"
+            )
+        else:
+            path = path / "summary.json"
     doc = load_json(path)
     sid = validate(doc, str(path))
+    if sid == SWEEP_ID:
+        sweep, board = load_sweep(path)
+        return "sweep", {"sweep": sweep, "leaderboard": board}, path
     kinds = {"bench.summary/1": "run", "bench.leaderboard/1": "leaderboard"}
     if sid not in kinds:
-        raise DataError(f"{path}: schema {sid} cannot be the report's input; give a run or a leaderboard")
+        raise DataError(f"{path}: schema {sid} cannot be the report's input; give a run, a leaderboard or a sweep")
     return kinds[sid], doc, path
 
 
@@ -418,6 +432,11 @@ def build_page(
             f" · seed {prov.get('seed')} · git {esc(prov.get('git_sha'))} · finished {esc(prov.get('finished_at'))}"
         )
         parts = run_sections(doc, tmp, run_dir)
+    elif kind == "sweep":
+        sweep, board = doc["sweep"], doc["leaderboard"]
+        default = f"checkpoint sweep · {len(sweep['checkpoints'])} checkpoints · {sweep['metric']}"
+        meta = f"selected {esc(sweep['selected'] or 'none')} · best set {esc(', '.join(sweep['best_set']) or 'empty')}"
+        parts = sweep_sections(sweep, tmp) + (leaderboard_sections(board, tmp) if board else [])
     else:
         default = "leaderboard"
         meta = f"{len(doc['entries'])} entries · suites " + ", ".join(
