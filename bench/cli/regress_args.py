@@ -20,7 +20,9 @@ def help_text() -> str:
         "(one-sided paired tests, weighted Holm across them, alpha spent over the looks). Episodes run in\n"
         "batches and stop once the verdict is certain. A baseline run directory is reused (the candidate\n"
         "runs with its settings; different cells, horizon or seeds are refused). Identical checkpoints\n"
-        "(same sha256) are not simulated.",
+        "(same sha256) are not simulated. paired=false compares two recorded runs whose seeds differ\n"
+        "(unpaired): one look, Chan's exact unconditional test per cell, a stratified score test per split\n"
+        "and pooled, weighted Holm across them (docs/ci-gate.md, Unpaired runs).",
         RegressConfig,
         notes=(
             "  (and the `bench run` keys suite, episodes (default 20), seed, workers, horizon, timeout, robots,\n"
@@ -36,6 +38,7 @@ def help_text() -> str:
             "bench regress candidate=ckpt/new.safetensors baseline=ckpt/old.safetensors robots=[Panda,UR5e]",
             "bench regress candidate=ckpt/new.safetensors baseline=results/runs/<run_id> out=gate/verdict.json",
             "bench regress candidate=random baseline=scripted episodes=4 batch=2",
+            "bench regress candidate=results/runs/<new> baseline=results/runs/<old> paired=false",
             "bench regress plan=true suite=held_out_robots power=0.9 drop=0.6 rate=0.9",
         ],
     )

@@ -29,6 +29,7 @@ See docs/ci-sequential.md.
 Exit codes: 0 no regression (or inconclusive, not strict), 1 regression, 2 bad input, 3 nothing
 measured: a side completed no episode of some cell (verdict `nothing_measured`; a CI job fails).
 The two sides of the comparison (planned, run a look at a time, checked, described) are `bench.api.gate.sides`'.
+`paired=false` compares two recorded runs with other seeds unpaired instead (`bench.api.gate.unpaired`).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from bench.api.gate.sides import (
     run_look,
     side_provenance,
 )
+from bench.api.gate.unpaired import run_unpaired
 from bench.board.gate import outputs, power, sequential
 from bench.board.gate.inputs import (
     cells_of_jobs,
@@ -107,6 +109,7 @@ class RegressConfig:
     drop: float = 0.6  # plan: the drop to detect (one cell falls from rate to rate - drop)
     rate: float = 0.9  # plan: baseline success rate of the cell(s) that drop
     cells: int = 0  # plan: number of cells; 0 = those the suite/robots/tasks/envs/perturb keys select
+    paired: bool = True  # false: two recorded runs with other seeds, compared unpaired (exact tests, one look)
 
 
 def check_regress(cfg: RegressConfig) -> None:
@@ -169,6 +172,9 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
     if verdict_path.suffix != ".json":
         raise ConfigError(f"out={cfg.out!r}: the verdict file must end in .json")
     cand, base = Side("candidate", cand_info), Side("baseline", base_info)
+    if not cfg.paired:  # two recorded runs whose episodes do not pair: bench.api.gate.unpaired
+        doc, code, paths = run_unpaired(cfg, cand, base, forwarded, verdict_path, SCHEMA_ID, console)
+        return Verdict(gate_id, doc, code, paths)
 
     # 1. settings both sides share: from the recorded baseline (or candidate) run, else from the keys given
     ref, shared, episodes = recorded_settings((base, cand), user_keys, lambda: DEFAULT_EPISODES)
@@ -188,6 +194,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
             raise ConfigError(
                 f"candidate and baseline runs differ in {diff[0]} ({a.get(diff[0])!r} vs "
                 f"{b.get(diff[0])!r}): paired episodes need the same settings"
+                + ("; paired=false compares the two runs unpaired" if diff[0] == "seed" else "")
             )
     live = [s for s in (cand, base) if s.live]
     plans = [live_plan(s) for s in live]

@@ -95,7 +95,7 @@ def check_pairable(
         raise ConfigError(
             f"{where} was made with other episode seeds: {bad.job_id} has seed {bad.seed}, the {role} "
             f"{'would play' if live else 'has'} {seeds[bad.job_id]} (another seed= or bench "
-            "version?); paired episodes need the same seeds"
+            "version?); paired episodes need the same seeds (paired=false compares two recorded runs unpaired)"
         )
 
 

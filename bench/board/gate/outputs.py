@@ -81,7 +81,22 @@ def render(doc: dict[str, Any], console: Console | None = None) -> None:
         f"candidate {doc['candidate']['spec']} vs baseline {doc['baseline']['spec']}",
         title_justify="left",
     )
-    for col in ("cell", "split", "pairs", "baseline", "candidate", "drop", "bounds", "p", "lost/won", "regressed"):
+    unpaired = doc.get("pairing") == "unpaired"  # bench.board.gate.unpaired: episodes, not pairs
+    cols: tuple[str, ...] = (
+        "cell",
+        "split",
+        "pairs",
+        "baseline",
+        "candidate",
+        "drop",
+        "bounds",
+        "p",
+        "lost/won",
+        "regressed",
+    )
+    if unpaired:
+        cols = tuple({"pairs": "episodes", "lost/won": "base/cand ep"}.get(c, c) for c in cols)
+    for col in cols:
         t.add_column(col, justify="left" if col in ("cell", "split", "regressed") else "right", no_wrap=True)
     for c in doc["cells"]:
         t.add_row(
@@ -93,7 +108,9 @@ def render(doc: dict[str, Any], console: Console | None = None) -> None:
             f"{c['drop']:+.2f}",
             _bounds(c),
             "n/a" if c["p"] is None else f"{c['p']:.2g}",
-            f"{c['baseline_only']} / {c['candidate_only']}",
+            f"{c['episodes_baseline']} / {c['episodes_candidate']}"
+            if unpaired
+            else f"{c['baseline_only']} / {c['candidate_only']}",
             "YES" if c["regressed"] else ("" if c["tested"] else "untested"),
             style="red" if c["regressed"] else None,
         )
@@ -316,7 +333,7 @@ def markdown(doc: dict[str, Any]) -> str:
         m = last["mean"]
         out.append(
             f"Pooled drop {m['value']:+.3f} (lower bound {m['lcb']:+.3f}, certifying upper bound "
-            f"{m['ucb']:+.3f}) over {last['pairs']} pairs; look {last['look']} of {len(doc['schedule'])} "
+            f"{m['ucb']:+.3f}) over {last['pairs']} {'episodes' if doc.get('pairing') == 'unpaired' else 'pairs'}; look {last['look']} of {len(doc['schedule'])} "
             f"({last['episodes_per_cell']} episodes per cell)"
             + (", stopped early" if doc["stopped_early"] else "")
             + "."
