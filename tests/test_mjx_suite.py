@@ -230,3 +230,95 @@ def test_cpu_and_gpu_agree_per_world():
             out[platform] = (lifted, batch.qpos.copy())
     assert np.array_equal(out["cpu"][0], out["gpu"][0])
     assert np.max(np.abs(out["cpu"][1] - out["gpu"][1])) < STATE_TOL
+
+
+def _top_speeds(batch, steps: int, expert: bool = False) -> np.ndarray:
+    """Step every world of `batch` `steps` control steps (zero actions, or the batched expert's); the largest
+    |qvel| seen per dof over the worlds (inf once a world turns non-finite)."""
+    from baselines.mjx_lift_expert import BatchLiftExpert
+    from bench.sims.mjx_lift import OBS_FIELDS
+
+    policy, top = BatchLiftExpert(OBS_FIELDS), np.zeros(batch.nv)
+    for _ in range(steps):
+        n = len(batch.worlds)
+        actions = policy.act_batch([{"state": o} for o in batch.obs]) if expert else np.zeros((n, 7), np.float32)
+        batch.step_all(dict(enumerate(actions)))
+        if not (np.isfinite(batch.qpos).all() and np.isfinite(batch.qvel).all()):
+            return np.full(batch.nv, np.inf)
+        top = np.maximum(top, np.abs(batch.qvel).max(axis=0))
+    return top
+
+
+@pytest.mark.slow
+def test_iiwa_stays_finite_with_its_shoulder_joints_aligned():
+    """At q2 -> 0 the IIWA's joints 1 and 3 align and the impedance's damping, applied explicitly, had
+    dt * max eig(M^-1 Kd) = 2.5 > 2 (unstable): 10 of 64 expert worlds went non-finite while re-grasping. The
+    damping is now the joints' dof_damping, integrated implicitly: a small twist of that mode dies out (explicit:
+    joints 1 and 3 at +70 / -81 rad/s after one control step)."""
+    from bench.sims.mjx_lift import LiftBatch
+
+    batch = LiftBatch("IIWA")
+    batch.add(10).reset(0)
+    batch.qpos[0, 1] = 0.05  # shoulder nearly upright: joints 1 and 3 aligned
+    batch.qvel[0, 0], batch.qvel[0, 2] = 0.1, -0.1  # a twist of the aligned pair (the mode that blew up)
+    top = _top_speeds(batch, 5)
+    assert np.all(np.isfinite(top)) and max(top[0], top[2]) < 1.0  # rad/s: the aligned pair stays slow
+
+
+@pytest.mark.slow
+def test_link_mass_draws_are_written_as_on_mujoco_cpu_and_stay_finite():
+    """`perturb.link_mass=from(real_panda)`: each world gets the draw's values verbatim, as the MuJoCo CPU path's
+    `write_fields` writes them (principal inertias of exactly 0 included: robot0_right_hand's in every draw; no
+    floor there either), and the worlds stay finite: draws 106 and 167 went non-finite at steps 1-3 when the
+    impedance's damping was applied explicitly (wrist inertias 10-50x below the nominal ones the gains use)."""
+    if not (CALIBRATION / "calibration.json").exists():
+        pytest.skip(f"no calibration at {CALIBRATION}")
+    from bench.sims.mjx_lift import LiftBatch
+    from bench.sims.perturb.axes import FROM_FIELDS
+
+    draws = json.loads((CALIBRATION / "calibration.json").read_text())["draws"]
+    keep = [i for i, k in enumerate(draws["keys"]) if k.split(":")[0] in FROM_FIELDS["link_mass"]]
+    keys = [draws["keys"][i] for i in keep]
+    batch = LiftBatch("Panda")
+    for seed, k in enumerate((106, 167)):
+        world = batch.add(10)
+        world.write_draw("link_mass", keys, [draws["values"][k][i] for i in keep])
+        world.reset(seed)
+    hand = batch.c.model.body("right_hand").id
+    row = keys.index("body_inertia:robot0_right_hand:0")
+    assert draws["values"][167][keep[row]] == 0.0 and batch.fields["body_inertia"][1, hand, 0] == 0.0  # verbatim
+    assert np.all(np.isfinite(_top_speeds(batch, 5, expert=True)))
+
+
+def test_draw_writing_and_world_checks_are_declared_capabilities():
+    """perturb writes a calibration draw into backends declaring `WritesDraws`, and the planner asks every suite
+    `check_worlds` (SuiteBase: any count fits): protocol members, not getattr probes."""
+    from bench.protocols import WritesDraws
+    from bench.protocols.suite import SuiteBase
+    from bench.sims.mjx_lift import LiftBatch
+    from suites.mjx_lift import MjxLift
+
+    class ScalesOnly:  # a ModelAxes without the capability
+        axes = frozenset({"mass"})
+
+        def restore(self) -> None: ...
+
+        def apply(self, axis, scale, targets) -> None: ...
+
+    world = LiftBatch("Panda").add(10)
+    assert isinstance(world.model_axes, WritesDraws) and not isinstance(ScalesOnly(), WritesDraws)
+
+    class Plain(SuiteBase):
+        def all_cells(self):
+            return []
+
+        def obs_spec(self, cell):
+            return {}
+
+        def make_env(self, cell, horizon):
+            raise AssertionError
+
+    assert Plain().check_worlds([], 10**9, 64) is None  # the default accepts any count
+    cells = [c for c in MjxLift().all_cells() if c.robot == "Panda"]
+    with pytest.raises(ConfigError, match=r"^worlds=4194304 \(vector=65536 x workers=64\)"):
+        MjxLift().check_worlds(cells, 65536, 64)

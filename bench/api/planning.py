@@ -324,9 +324,7 @@ def plan(
         verify(suite, cells, horizon, loaded)
         calibration = Calibration.of(loaded)
     check_work(config, n_jobs, horizon, step_bytes)
-    check_worlds = getattr(suite, "check_worlds", None)  # a batched simulator's memory per world (suites/mjx_lift.py)
-    if callable(check_worlds):
-        check_worlds(cells, config.vector, workers)
+    suite.check_worlds(cells, config.vector, workers)  # a batched simulator's memory per world (suites/mjx_lift.py)
     perturb.validate_run(suite, cells, conditions, horizon)  # names in the model
     if config.vector > 1:  # a batched policy's answer shape, asked once before anything is written
         vector.probe(suite, cells[0], plugin, policy_options, horizon, config.seed, config.vector)

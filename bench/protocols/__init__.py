@@ -225,6 +225,19 @@ class ModelAxes(Protocol):
 
 
 @runtime_checkable
+class WritesDraws(ModelAxes, Protocol):
+    """Optional capability of a non-MuJoCo backend's `ModelAxes` (e.g. the MJX Lift worlds): `perturb.AXIS=
+    from(CALIBRATION)` writes one bootstrap draw of a calibration into it (`bench.sims.perturb.reset`).
+
+    `write_draw(axis, keys, values)` writes the absolute `values` of the draw's `field:element[:column]` keys and
+    returns the mean ratio of the drawn values to the nominal ones (what perturb records); it raises ConfigError
+    naming an element the backend lacks. `restore` puts the nominal values back, as after `apply`.
+    """
+
+    def write_draw(self, axis: str, keys: Sequence[str], values: Sequence[float]) -> float: ...
+
+
+@runtime_checkable
 class EnvAdapter(Protocol):
     """One simulator instance of one suite cell, built once per worker and reset per episode.
 
@@ -384,6 +397,12 @@ class Suite(Protocol):
 
     def describe(self) -> dict[str, Any]:
         """JSON-able identity: name, version, manifest and the options that change results."""
+        ...
+
+    def check_worlds(self, cells: list[Cell], vector: int, workers: int) -> None:
+        """Before a run writes anything: refuse (ConfigError, one line) `vector` envs of each of `cells` in each
+        of `workers` workers when they cannot fit (a batched simulator's memory per world); `SuiteBase`'s default
+        accepts any count."""
         ...
 
 

@@ -262,6 +262,11 @@ class SuiteBase(ABC):
         simulator: robosuite takes ~0.5 s); nothing by default. Errors are the build's to report."""
         return None  # a hook
 
+    def check_worlds(self, cells: list[Cell], vector: int, workers: int) -> None:
+        """Refuse a world count that cannot fit before the run writes anything; any count fits by default (a
+        batched simulator's suite overrides it: suites/mjx_lift.py)."""
+        return None  # a hook
+
     def describe(self) -> dict[str, object]:
         """JSON-able identity of the suite: name, version, split manifest and its options.
 

@@ -141,7 +141,8 @@ class World(CachedStateAdapter):
     batch for it (`fresh`), else steps this world alone. Model axes are per world (`model_axes` is the world):
     `mass`, `friction` scale the cube's; `damping`, `link_mass` scale the arm's joints' damping and links' mass
     and inertia; `write_draw` writes a calibration's draw (`perturb.AXIS=from(CALIBRATION)`) into this world
-    alone. Derived constants (subtree masses, inverse weights) stay the nominal model's."""
+    alone, verbatim as the MuJoCo CPU path writes it (`bench.protocols.WritesDraws`). Derived constants (subtree
+    masses, inverse weights) stay the nominal model's."""
 
     obs_spec: ObsSpec = {STATE: Feature.state(OBS_FIELDS)}
     action_spec = ActionSpec.box(ACTION_NAMES, -1.0, 1.0)

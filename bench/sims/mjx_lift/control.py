@@ -6,9 +6,13 @@ over the arm's own joints (7 on most arms, 6 on the UR5e). At each control step 
 plus the delta; an orientation goal kept per world, rotated by the delta), one DLS step
 `dq = J^T (J J^T + lambda^2 I)^-1 e` on the 6 x n Jacobian gives joint targets, and every physics step applies
 `tau = kp (q* - q) - kd qdot` (gravity is compensated by the model; kp, kd per arm from its inertia,
-`scene.gains`). Why this and not operational-space control: one 6x6 solve per control step instead of the mass
-matrix and its inverse every physics step; it stays stable at the 5 ms step used here; it is robosuite's own
-alternative (IK + joint control).
+`scene.gains`). The stiffness is applied as a force (`qfrc_applied`); the damping `kd` is added to the joints'
+`dof_damping` in the step's model, so the implicitfast integrator integrates it implicitly: applied explicitly it
+is unstable wherever `dt * max eig(M^-1 Kd) > 2`, which the IIWA reaches when it lifts towards an upright
+shoulder (joints 1 and 3 aligned at q2 -> 0: 2.26 at q2 = 0.14, where its worlds went non-finite; docs/mjx.md).
+Why this and not operational-space control: one 6x6 solve per control step instead of the mass matrix and its
+inverse every physics step; it stays stable at the 5 ms step used here; it is robosuite's own alternative (IK +
+joint control).
 
 Per world the step also takes that world's model fields (`WORLD_FIELDS`: a perturbed cube mass or friction, a
 calibration's link masses or joint damping drawn for it) and returns its observation, computed in the same call
@@ -81,8 +85,9 @@ class Compiled:
     ) -> tuple[Array, ...]:
         """One world, one control step: (qpos, qvel, orientation goal, observation)."""
         jax, jnp, mjx = self.jax, self.jnp, self.mjx
-        m = self.mx.tree_replace(world)
         n = self.n
+        kp, kd = jnp.asarray(self.kp, jnp.float32), jnp.asarray(self.kd, jnp.float32)
+        m = self.mx.tree_replace({**world, "dof_damping": world["dof_damping"].at[:n].add(kd)})  # implicit kd
         d = mjx.make_data(m).replace(qpos=qpos, qvel=qvel)
         d = mjx.com_pos(m, mjx.kinematics(m, d))
         pos, rot = d.site_xpos[self.grip], d.site_xmat[self.grip]
@@ -96,11 +101,10 @@ class Compiled:
         qstar = qpos[:n] + dq
         fingers = 0.5 * scene.STROKE * (1.0 - a[6])  # +1 closes (0 m), -1 opens (4 cm)
         d = d.replace(ctrl=jnp.stack([fingers, fingers]))
-        kp, kd = jnp.asarray(self.kp, jnp.float32), jnp.asarray(self.kd, jnp.float32)
         zeros = jnp.zeros(self.mx.nv)
 
         def physics(d: Any, _: None) -> tuple[Any, None]:
-            tau = kp * (qstar - d.qpos[:n]) - kd * d.qvel[:n]
+            tau = kp * (qstar - d.qpos[:n])  # - kd qdot: the model's dof_damping (implicit)
             return mjx.step(m, d.replace(qfrc_applied=zeros.at[:n].set(tau))), None
 
         d, _ = jax.lax.scan(physics, d, None, length=self.substeps)

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, TypedDict
 import numpy as np
 
 from bench.core.errors import ConfigError
-from bench.protocols import RGB, Cell, EnvAdapter, MujocoHandle, Suite
+from bench.protocols import RGB, Cell, EnvAdapter, MujocoHandle, Suite, WritesDraws
 from bench.protocols.suite import Condition, condition_rng
 from bench.sims.perturb.axes import AXES, INTERFACE_AXES, MODEL_AXES, axis_named
 from bench.sims.perturb.axis import RGB_IMAGES, Params
@@ -94,10 +94,10 @@ def validate(env: EnvAdapter, conditions: Sequence[Condition], where: str = "the
         mj = env.mujoco
         if mj is None:
             other = env.model_axes
-            draw = getattr(other, "write_draw", None)  # a backend that writes a calibration's draws (MJX worlds)
-            if cond.kind == "from" and other is not None and cond.axis in other.axes and callable(draw):
+            # a backend that writes a calibration's draws (MJX worlds)
+            if cond.kind == "from" and isinstance(other, WritesDraws) and cond.axis in other.axes:
                 try:  # the backend checks the draw's names by writing one
-                    draw(str(cond.axis), cond.spec["keys"], cond.spec["values"][0])
+                    other.write_draw(str(cond.axis), cond.spec["keys"], cond.spec["values"][0])
                 finally:
                     other.restore()
                 continue
@@ -387,10 +387,10 @@ def apply(
         stepper, extra = axis.wrap(env, rng, value)
         return stepper, {axis.name: value, **extra}
     if condition.kind == "from":
-        draw = getattr(env.model_axes, "write_draw", None)  # a backend that writes a calibration's draws (MJX)
-        if mj is None and env.model_axes is not None and axis.name in env.model_axes.axes and callable(draw):
+        draws = env.model_axes  # a backend that writes a calibration's draws (MJX)
+        if mj is None and isinstance(draws, WritesDraws) and axis.name in draws.axes:
             k = int(rng.integers(len(condition.spec["values"])))
-            ratio = draw(axis.name, condition.spec["keys"], condition.spec["values"][k])
+            ratio = draws.write_draw(axis.name, condition.spec["keys"], condition.spec["values"][k])
             return env, {axis.name: round(float(ratio), 9), f"{axis.name}.draw": k}
         if mj is None or nom is None:
             raise ConfigError(f"perturb.{axis.name}: from(...) edits a MuJoCo model; env {env.backend} has none")
