@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bench.api.sims import (
+    LIFT_OBS_FIELDS,
     ROBOSUITE_ACTION_NAMES,
     RobosuiteOptions,
     camera_spec,
@@ -31,14 +32,7 @@ from bench.protocols.suite import Cell, SuiteBase
 if TYPE_CHECKING:
     from bench.api.sims import RobosuiteEnv
 
-OBS_FIELDS: list[tuple[str, int]] = [
-    ("eef_pos", 3),
-    ("eef_quat_rel", 4),
-    ("gripper_opening", 1),
-    ("object_pos", 3),
-    ("object_quat", 4),
-    ("gripper_to_object", 3),
-]
+OBS_FIELDS: list[tuple[str, int]] = list(LIFT_OBS_FIELDS)  # bench.sims.lift_obs: shared with mjx_lift
 OBJECT = {"Lift": "cube", "Stack": "cubeA"}
 # robosuite's cameras on every single-arm table task (the same six on all 7 arms)
 CAMERAS = ("frontview", "birdview", "agentview", "sideview", "robot0_robotview", "robot0_eye_in_hand")

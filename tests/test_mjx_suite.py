@@ -182,15 +182,6 @@ def test_batched_expert_is_stateless_and_batched():
     assert np.array_equal(expert.act({"state": far}), batch[1])
 
 
-def test_observation_is_held_out_robots_lift_observation():
-    """bench.sims sits below the suites, so the MJX scene names the Lift observation itself: it must stay the one
-    suites/lift.py defines (a policy trained on held_out_robots reads both)."""
-    from bench.sims.mjx_lift import OBS_FIELDS
-    from suites.lift import OBS_FIELDS as LIFT
-
-    assert list(OBS_FIELDS) == [tuple(f) for f in LIFT]
-
-
 def _gpu() -> str | None:
     """Why the CPU/GPU agreement test cannot run here, or None when a GPU JAX device is present."""
     try:

@@ -14,6 +14,7 @@ from bench.sims.build_memo import remembered
 from bench.sims.camera import RENDERER_DEFAULTS, camera_names
 from bench.sims.camera_env import CameraOptions, camera_spec, check_options, with_cameras
 from bench.sims.gym import GymEnv
+from bench.sims.lift_obs import LIFT_OBS_FIELDS
 from bench.sims.maniskill import OBS_MODES, RESETS, ManiSkillEnv, NativeInterface, cameras_of, check_backend
 from bench.sims.metaworld import OBS_NAMES, TOO_HIGH, MetaWorldEnv
 from bench.sims.perturb.axes import AXES, conditions_from_config
@@ -23,6 +24,7 @@ from bench.sims.robosuite import ACTION_NAMES as ROBOSUITE_ACTION_NAMES
 from bench.sims.robosuite import RobosuiteEnv, RobosuiteOptions, import_robosuite
 
 __all__ = [
+    "LIFT_OBS_FIELDS",
     "AXES",
     "OBS_MODES",
     "OBS_NAMES",

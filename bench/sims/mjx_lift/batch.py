@@ -16,17 +16,11 @@ import numpy.typing as npt
 from bench.core.errors import ConfigError
 from bench.protocols import STATE, ActionSpec, Feature, NumArray, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
+from bench.sims.lift_obs import LIFT_OBS_FIELDS
 from bench.sims.mjx_lift import control, scene
 
 ACTION_NAMES = ("dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper")  # robosuite OSC_POSE deltas + gripper
-OBS_FIELDS = (  # the 18-number agnostic Lift observation of suites/lift.py (OBS_FIELDS there)
-    ("eef_pos", 3),
-    ("eef_quat_rel", 4),
-    ("gripper_opening", 1),
-    ("object_pos", 3),
-    ("object_quat", 4),
-    ("gripper_to_object", 3),
-)
+OBS_FIELDS = LIFT_OBS_FIELDS  # the 18-number agnostic Lift observation (bench.sims.lift_obs)
 AXES = frozenset({"mass", "friction", "damping", "link_mass"})  # per-world model axes (`World.apply`)
 ROBOT_PREFIX = "robot0_"  # robosuite's names of the arm's joints and bodies (a calibration's draws use them)
 GRIPPER_PREFIX = "gripper0_"  # robosuite's gripper bodies: this scene's hand is its own (draws of them skipped)
