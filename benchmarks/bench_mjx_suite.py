@@ -26,6 +26,7 @@ import numpy as np
 
 from baselines.mjx_lift_expert import BatchLiftExpert
 from baselines.scripted_lift import LiftExpert
+from bench.api.scripts import script_keys
 from bench.api.stats import wilson
 from bench.core.errors import ConfigError
 from bench.sims import mjx_lift
@@ -33,18 +34,6 @@ from bench.sims.mjx_lift import control
 from suites.lift import OBS_FIELDS, make_env
 
 HORIZON = 250
-
-
-def args(argv: list[str]) -> dict[str, str]:
-    out = {}
-    for a in argv:
-        key, eq, value = a.partition("=")
-        if not eq or key not in ("worlds", "steps", "arms", "episodes", "robosuite_episodes", "profile"):
-            raise ConfigError(
-                f"{a!r}: give key=value with keys worlds, steps, arms, episodes, robosuite_episodes, profile"
-            )
-        out[key] = value
-    return out
 
 
 def listed(text: str) -> list[str]:
@@ -157,8 +146,8 @@ def interval(wins: int, n: int) -> str:
 
 
 def main(argv: list[str]) -> int:
+    a = script_keys(argv, __doc__, ("worlds", "steps", "arms", "episodes", "robosuite_episodes", "profile"))
     try:
-        a = args(argv)
         worlds = [int(w) for w in listed(a.get("worlds", "[1,64,1024,4096]"))]
         arms = listed(a.get("arms", "[Panda,UR5e,Kinova3]"))
         steps, episodes = int(a.get("steps", 10)), int(a.get("episodes", 64))
