@@ -122,3 +122,14 @@ def coupling(p: ServoParams, dt: float) -> Coupling:
 def dead_zone(x: Any, half: float, xp: ModuleType = np) -> Any:
     """x beyond +-half (the compression of the play's contact)."""
     return xp.sign(x) * xp.maximum(xp.abs(x) - half, 0.0)
+
+
+def play_side(d: Any, te: Any, xp: ModuleType = np) -> Any:
+    """The end of the play the motor starts against: the one its duty pushes on, or gravity's when it does not push."""
+    return xp.where(xp.abs(d) > 1e-6, xp.sign(d), -xp.sign(te))
+
+
+def play_torque(c: Coupling, qm: Any, q: Any, dqm: Any, dq: Any, half: Any, xp: ModuleType = np) -> Any:
+    """Torque through the play: none inside the gap, the stiff damped contact of `c` at either end."""
+    comp = dead_zone(qm - q, half, xp)
+    return c.stiffness * comp + c.damping * (dqm - dq) * (comp != 0)

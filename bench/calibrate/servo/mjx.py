@@ -23,12 +23,13 @@ from mujoco import mjx
 from bench.calibrate.servo.law import (
     ServoParams,
     coupling,
-    dead_zone,
     duty,
     friction_budget,
     goal_step,
     gravity_torque,
     motor_torque,
+    play_side,
+    play_torque,
 )
 from bench.calibrate.servo.mujoco import pendulum_xml
 
@@ -60,7 +61,7 @@ def simulate_run_mjx(
     target0 = float(g[0]) if enable[0] >= 0.5 else q0
     half = 0.5 * p.play
     d_first = float(duty(p, target0 if p.goal_slowness > 0 else g[0], q0))
-    side = np.sign(d_first) if abs(d_first) > 1e-6 else -np.sign(float(gravity_torque(p, q0)))
+    side = float(play_side(d_first, float(gravity_torque(p, q0))))
     c = coupling(p, dt) if p.play > 0 else None
     j_m = p.rotor_share * p.inertia
 
@@ -77,8 +78,7 @@ def simulate_run_mjx(
         te = gravity_torque(p, q, xp=jnp)
         if c is not None:
             tm = motor_torque(p, du, v, dqm, en)
-            comp = dead_zone(qm - q, half, xp=jnp)
-            tau = c.stiffness * comp + c.damping * (dqm - dq) * (comp != 0)
+            tau = play_torque(c, qm, q, dqm, dq, half, xp=jnp)
             dqm = dqm + (tm - tau) / j_m * dt
             qm = qm + dqm * dt
         else:

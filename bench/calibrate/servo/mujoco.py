@@ -23,12 +23,13 @@ from bench.calibrate.servo.law import (
     GRAVITY,
     ServoParams,
     coupling,
-    dead_zone,
     duty,
     friction_budget,
     goal_step,
     gravity_torque,
     motor_torque,
+    play_side,
+    play_torque,
 )
 
 
@@ -61,12 +62,11 @@ class ServoActuator:
         if p.play > 0:
             half = 0.5 * p.play
             if self.qm is None:  # against the end the motor pushes on (or gravity, at rest), as in sim.py
-                side = np.sign(d) if abs(d) > 1e-6 else -np.sign(te)
+                side = float(play_side(d, te))
                 self.qm, self.dqm = q + side * half, dq
             c = coupling(p, self.dt)
             tm = float(motor_torque(p, d, vin, self.dqm, enable))
-            comp = float(dead_zone(self.qm - q, half))
-            tau = float(c.stiffness * comp + c.damping * (self.dqm - dq) * (comp != 0))
+            tau = float(play_torque(c, self.qm, q, self.dqm, dq, half))
             self.dqm += (tm - tau) / (p.rotor_share * p.inertia) * self.dt
             self.qm += self.dqm * self.dt
         else:

@@ -17,12 +17,13 @@ from bench.calibrate.servo.data import ServoRun
 from bench.calibrate.servo.law import (
     ServoParams,
     coupling,
-    dead_zone,
     duty,
     friction,
     friction_budget,
     gravity_torque,
     motor_torque,
+    play_side,
+    play_torque,
 )
 
 MAX_SUBSTEP = 0.0055  # s, the longest physics step (the 200 Hz XL330 logs: one step per frame, the 50 Hz STS3250: 4)
@@ -209,12 +210,11 @@ def _simulate_play(p: ServoParams, w: Windows, goal: np.ndarray, out: np.ndarray
     shape = np.broadcast_shapes(np.shape(p.kp), np.shape(p.inertia), w.q0.shape)
     q, dq = np.broadcast_to(w.q0, shape).copy(), np.broadcast_to(w.dq0, shape).copy()
     d0 = duty(p, goal[..., 0], q)
-    side = np.where(np.abs(d0) > 1e-6, np.sign(d0), -np.sign(gravity_torque(p, q)))
+    side = play_side(d0, gravity_torque(p, q))
     qm, dqm = q + side * half, dq.copy()
     for s in range(goal.shape[-1]):
         tm = motor_torque(p, duty(p, goal[..., s], q), w.vin[:, s], dqm, w.enable[:, s])
-        comp = dead_zone(qm - q, half)
-        tc = c.stiffness * comp + c.damping * (dqm - dq) * (comp != 0)
+        tc = play_torque(c, qm, q, dqm, dq, half)
         te = gravity_torque(p, q)
         net = tc + te
         f = friction(friction_budget(p, dq, tc, te), j_l / dt * dq + net)
