@@ -28,7 +28,6 @@ import numpy as np
 
 import bench.sims.perturb.axes as axes
 from bench.api import config_from_argv, finish, load_suite, start
-from bench.api.gate import BINARY_METRICS
 from bench.api.gate.sides import (
     SHARED_KEYS,
     Side,
@@ -42,7 +41,7 @@ from bench.api.gate.sides import (
 )
 from bench.board.compare import design as sd
 from bench.board.compare import looks as sl
-from bench.board.gate.inputs import cells_of_jobs, cells_of_records, check_outputs, resolve
+from bench.board.gate.inputs import BINARY_METRICS, cells_of_jobs, cells_of_records, check_outputs, resolve
 from bench.board.gate.pairs import cell_counts, pair_records, unmeasured
 from bench.board.gate.sequential import CellKey
 from bench.core import config as config_mod

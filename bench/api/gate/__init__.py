@@ -66,6 +66,7 @@ from bench.board.gate.inputs import (
     cells_of_jobs,
     cells_of_records,
     check_outputs,
+    require_binary,
     resolve,
 )
 from bench.board.gate.pairs import cell_counts, pair_records, unmeasured
@@ -148,7 +149,6 @@ class Verdict:
 
 SCHEMA_ID = "bench.regress/2"
 VERDICT_FILE = "verdict.json"
-BINARY_METRICS = ("success_once", "success_at_end")
 
 
 def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = None) -> Verdict:
@@ -231,8 +231,7 @@ def regress(cfg: RegressConfig, run_keys: Sequence[str] = (), console: Any = Non
             raise ConfigError("the recorded run has no episode of the selected cells; nothing to pair")
 
     # 3. checks of this gate (before anything is written), provenance, identical checkpoints
-    if metric not in BINARY_METRICS:
-        raise ConfigError(f"metric={metric!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
+    metric = require_binary(metric)
     if ref is not None:
         check_sides_pairable(ref, [s for s in (cand, base) if s is not ref])
     paths = outputs.output_paths(verdict_path)

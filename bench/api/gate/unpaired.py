@@ -16,10 +16,8 @@ from typing import Any
 from bench.api.gate.sides import Side, describe_side, input_paths, side_provenance
 from bench.board.gate import outputs, sequential
 from bench.board.gate import unpaired as gate
-from bench.board.gate.inputs import cells_of_records, check_outputs, load_recorded
+from bench.board.gate.inputs import cells_of_records, check_outputs, load_recorded, require_binary
 from bench.core.errors import ConfigError
-
-BINARY_METRICS = ("success_once", "success_at_end")
 
 
 def prepare(cand: Side, base: Side, forwarded: Sequence[str]) -> str:
@@ -44,8 +42,7 @@ def prepare(cand: Side, base: Side, forwarded: Sequence[str]) -> str:
     mb = base.meta["config"].get("metric", "success_once")
     if mc != mb:
         raise ConfigError(f"candidate run scores metric {mc!r}, baseline {mb!r}: the gate compares one metric")
-    if mc not in BINARY_METRICS:
-        raise ConfigError(f"metric={mc!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
+    metric = require_binary(mc)
     a, b = cells_of_records(cand.records), cells_of_records(base.records)
     if a != b:
         missing, extra = sorted(b - a), sorted(a - b)
@@ -54,7 +51,7 @@ def prepare(cand: Side, base: Side, forwarded: Sequence[str]) -> str:
             f"the candidate run {what} that the baseline {'has' if missing else 'does not have'} "
             f"({len(missing)} missing, {len(extra)} extra): the gate compares the same cells"
         )
-    return str(mc)
+    return metric
 
 
 def run_unpaired(

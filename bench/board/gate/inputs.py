@@ -15,6 +15,16 @@ from bench.core.errors import ConfigError, DataError
 from bench.protocols import registry
 from bench.scoring.summary import load_run
 
+BINARY_METRICS = ("success_once", "success_at_end")  # the metrics a gate (or a comparison) of success reads
+
+
+def require_binary(metric: object) -> str:
+    """The gate's check of its metric: one of the success metrics (ConfigError naming the valid ones)."""
+    if metric not in BINARY_METRICS:
+        raise ConfigError(f"metric={metric!r}: the gate compares success; valid: {', '.join(BINARY_METRICS)}")
+    return str(metric)
+
+
 CHECKPOINT_SUFFIXES = (".safetensors", ".pt")
 
 
