@@ -131,15 +131,32 @@ def test_xla_cpu_fusion_emitters_are_turned_off_only_where_jaxlib_has_the_slow_d
 
     from bench.sims import mjx as backend
 
-    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_hlo_as_text=false")
+    mine = f"--xla_dump_hlo_as_text=false {backend.DEVICES_FLAG}=3"  # the user's device count stays
+    monkeypatch.setenv("XLA_FLAGS", mine)
     jaxlib = tuple(int(p) for p in version("jaxlib").split(".")[:2])
     slow = backend.CPU_FLAG_JAXLIB[0] <= jaxlib < backend.CPU_FLAG_JAXLIB[1]
     assert backend.xla_cpu_flags() == (backend.CPU_FLAG if slow else None)
-    want = "--xla_dump_hlo_as_text=false" + (f" {backend.CPU_FLAG}" if slow else "")
+    want = mine + (f" {backend.CPU_FLAG}" if slow else "")
     assert os.environ["XLA_FLAGS"] == want
     assert backend.xla_cpu_flags() is None and os.environ["XLA_FLAGS"] == want  # once only
-    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
-    assert backend.xla_cpu_flags() is None and os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=true"
+    monkeypatch.setenv("XLA_FLAGS", f"--xla_cpu_use_fusion_emitters=true {backend.DEVICES_FLAG}=1")
+    assert backend.xla_cpu_flags() is None
+    assert os.environ["XLA_FLAGS"] == f"--xla_cpu_use_fusion_emitters=true {backend.DEVICES_FLAG}=1"
+
+
+def test_one_xla_host_device_per_usable_core(monkeypatch):
+    """A compiled call keeps one core busy; batched MJX paths split their worlds across one host device per core
+    (bench.sims.mjx_lift.control.Compiled.step), so require() asks XLA for as many as this process may use."""
+    from bench.sims import mjx as backend
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    backend.xla_cpu_flags()
+    assert os.environ["XLA_FLAGS"] == f"--xla_cpu_use_fusion_emitters=false {backend.DEVICES_FLAG}=3"
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    backend.xla_cpu_flags()
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=false"  # one core: XLA's default
 
 
 # --- batched simulation equals the CPU path -------------------------------------------------------------

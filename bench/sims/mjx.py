@@ -69,12 +69,22 @@ class Params(_Shared, total=False):
 # 13 ms -> 0.04 ms. GPU backends ignore xla_cpu_* flags.
 CPU_FLAG = "--xla_cpu_use_fusion_emitters=false"
 CPU_FLAG_JAXLIB = ((0, 7), (0, 8))  # jaxlib versions [from, to) that have the flag and the slow default
+# One XLA host device per usable core: a compiled call runs on one device, and one device's call keeps one core
+# busy (a 1,024-world MJX Lift step used 1.1 of 2 cores); batched paths split their worlds across the devices
+# (`bench.sims.mjx_lift.control.Compiled.step`). A call on one device is as fast as before (measured).
+DEVICES_FLAG = "--xla_force_host_platform_device_count"
 
 
 def xla_cpu_flags() -> str | None:
     """Add `CPU_FLAG` to `XLA_FLAGS` for this process (before JAX creates its CPU backend) where the installed
-    jaxlib needs it and `XLA_FLAGS` does not already choose; returns the flag added, or None."""
+    jaxlib needs it and `XLA_FLAGS` does not already choose, and `DEVICES_FLAG` (one host device per usable core)
+    where `XLA_FLAGS` does not set it; returns the fusion flag added, or None."""
     flags = os.environ.get("XLA_FLAGS", "")
+    if DEVICES_FLAG not in flags:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        if cores > 1:
+            flags = f"{flags} {DEVICES_FLAG}={cores}".strip()
+            os.environ["XLA_FLAGS"] = flags
     if "xla_cpu_use_fusion_emitters" in flags:
         return None  # the user chose
     try:

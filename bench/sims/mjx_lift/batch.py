@@ -114,7 +114,6 @@ class LiftBatch:
             world = {f: v[take] for f, v in self.fields.items()}
             state = (self.qpos[take], self.qvel[take], self.rgoal[take], self.quat0[take])
         out = self.c.step(world, *state, act)
-        out = [np.asarray(x) for x in out]
         if len(take) != len(rows):
             keep = np.isin(take, rows)
             out = [x[keep] for x in out]
