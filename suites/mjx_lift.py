@@ -27,7 +27,7 @@ Vectorised:
     `bench run suite=mjx_lift vector=N` makes the N envs of a cell N worlds of one batch, stepped in one call per
     control step (`bench.execution.vector.step_batches`); each world is one episode with its own record.
 Policies:
-    `scripted` is baselines/mjx_lift_expert.py's batched, stateless expert.
+    `scripted` is baselines/mjx_lift_expert.py's batched, stateless expert, in JAX (one jitted call per step).
 """
 
 from __future__ import annotations

@@ -180,6 +180,15 @@ def test_batched_expert_is_stateless_and_batched():
     assert batch.shape == (2, 7)
     assert batch[0, 2] > 0 and batch[0, 6] == 1.0 and batch[1, 6] == -1.0
     assert np.array_equal(expert.act({"state": far}), batch[1])
+    above = far.copy()
+    above[8:11], above[0:3] = (0.0, 0.0, 0.82), (0.0, 0.0, 0.9)  # centred above the cube, open: descend, open
+    at = far.copy()
+    at[8:11], at[0:3] = (0.0, 0.0, 0.82), (0.0, 0.0, 0.825)  # centred at its height, open: close
+    phases = expert.act_batch([{"state": above}, {"state": at}])
+    assert phases[0, 2] < 0 and phases[0, 6] == -1.0 and phases[1, 6] == 1.0
+    assert batch.dtype == np.float32 and not batch[:, 3:6].any()  # rotation deltas 0
+    many = [{"state": o} for o in (obs, far, above, at) * 256]  # 1,024 worlds in one call: each its own answer
+    assert np.array_equal(expert.act_batch(many), np.tile(np.vstack([batch, phases]), (256, 1)))
 
 
 def _gpu() -> str | None:
