@@ -122,8 +122,18 @@ def comparisons(n: int, cells: int, seed: int) -> None:
         )
 
 
-def gate_savings(gates: int, seed: int) -> None:
-    """The regression gate's expected saving: simulated episodes per cell against its one-look design at equal power."""
+GATE_SCENARIOS = {"cell": ("one cell 0.9 -> 0.3", 0.6), "all": ("every cell 0.9 -> 0.75", 0.15)}
+
+
+def gate_savings(
+    gates: int,
+    seed: int,
+    scenarios: tuple[str, ...] = tuple(GATE_SCENARIOS),
+    truths: tuple[str, ...] = ("drop", "none"),
+) -> None:
+    """The regression gate's expected saving: simulated episodes per cell against its one-look design at equal power
+    (`scenarios`: keys of GATE_SCENARIOS; `truths`: "drop" the scenario's drop, "none" no drop; each row keeps its
+    own random stream, so a row run alone prints what it prints in a run of all)."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     import bench_gate as bg  # the gate's simulation: importable once benchmarks/ is on sys.path
 
@@ -140,9 +150,9 @@ def gate_savings(gates: int, seed: int) -> None:
         f"  {'scenario':<34} {'cap':>4} {'fixed':>5} {'fail':>6} {'pass':>6} {'inconc':>6} {'ep/cell':>7} {'saving':>7}"
     )
     rates = np.full(cells, 0.9)
-    for s, (label, scenario, drop) in enumerate(
-        (("one cell 0.9 -> 0.3", "cell", 0.6), ("every cell 0.9 -> 0.75", "all", 0.15))
-    ):
+    for s, (scenario, (label, drop)) in enumerate(GATE_SCENARIOS.items()):
+        if scenario not in scenarios:
+            continue
         d0 = sequential.Design(0.05, 0.05, 0.5)
         seq_b = power.Budget(0.8, 0.9, drop, cells, BATCH, d0, 20)
         fix_b = power.Budget(0.8, 0.9, drop, cells, 0, d0, 20)
@@ -156,7 +166,7 @@ def gate_savings(gates: int, seed: int) -> None:
             cand_alt[0] -= drop
         else:
             cand_alt -= drop
-        for sub, cand in (("", cand_alt), (", no drop", rates)):
+        for sub, cand in ((s, c) for t, s, c in (("drop", "", cand_alt), ("none", ", no drop", rates)) if t in truths):
             rng = np.random.default_rng([seed, 77, s, len(sub)])
             t0 = time.time()
             verdicts, used = [], []
@@ -179,13 +189,26 @@ def main() -> int:
     ap.add_argument("--cells", default="7,1", help="cell counts of the comparison tables")
     ap.add_argument("--gates", type=int, default=1000, help="gates per gate scenario (0: none)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--gate-scenarios",
+        default=",".join(GATE_SCENARIOS),
+        help="gate scenarios to simulate: cell (one cell 0.9 -> 0.3), all (every cell 0.9 -> 0.75; its cap of 55 "
+        "episodes per cell takes about 2 s per gate on one core)",
+    )
+    ap.add_argument("--gate-truths", default="drop,none", help="rows per gate scenario: drop, none (no drop)")
     a = ap.parse_args()
+    truths = tuple(x.strip() for x in a.gate_truths.split(",") if x.strip())
+    if not truths or any(x not in ("drop", "none") for x in truths):
+        ap.error(f"--gate-truths {a.gate_truths!r}: a comma list of drop, none")
+    chosen = tuple(x.strip() for x in a.gate_scenarios.split(",") if x.strip())
+    if not chosen or any(x not in GATE_SCENARIOS for x in chosen):
+        ap.error(f"--gate-scenarios {a.gate_scenarios!r}: a comma list of {', '.join(GATE_SCENARIOS)}")
     t0 = time.time()
     if a.n:
         for cells in (int(c) for c in a.cells.split(",")):
             comparisons(a.n, cells, a.seed)
     if a.gates:
-        gate_savings(a.gates, a.seed)
+        gate_savings(a.gates, a.seed, chosen, truths)
     print(f"\ntotal {time.time() - t0:.0f} s")
     return 0
 
