@@ -1,7 +1,7 @@
 """The SO-101's six servos calibrated from a LeRobot dataset recorded in simulation with hidden servo parameters:
 truth vs fitted, held-out position error before (the MJCF's declared servos) and after, and the time.
 
-    python benchmarks/bench_so101_calibration.py [episodes=8] [seed=0] [units=rad|deg|normalized] [out=DIR]
+    python benchmarks/bench_so101_calibration.py [episodes=8] [seed=0] [units=rad|deg|normalized] [latency=0] [out=DIR]
 
 It writes HIDDEN/calibration.json (known per-joint kp, damping and Coulomb friction; the armature stays the
 MJCF's, which positions cannot separate from the stiffness where the rotor dominates), records
@@ -9,10 +9,13 @@ MJCF's, which positions cannot separate from the stiffness where the rotor domin
 pick moves each joint once, slowly, and squeezes the cube: too little to identify a servo), rewrites the dataset
 in the chosen units (lerobot's normalised units with a calibration-ranges file), and calibrates it in this
 process, pinned to one core where the OS allows: the wall and CPU seconds of the calibration alone are printed.
+`latency=L` records with `perturb.latency=[L]` (a hidden transport delay: the goals act L frames late) and keeps
+only those episodes; the delay the calibration finds is printed.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -56,8 +59,9 @@ def ranges_for(arm) -> dict:
     return out
 
 
-def record(folder: Path, episodes: int, seed: int) -> tuple[Path, object]:
-    """HIDDEN/calibration.json and the recording under it; returns (dataset folder, the hidden servos)."""
+def record(folder: Path, episodes: int, seed: int, latency: int = 0) -> tuple[Path, object]:
+    """HIDDEN/calibration.json and the recording under it (with `latency` > 0: its episodes of that delay only);
+    returns (dataset folder, the hidden servos)."""
     arm = load_arm("so101")
     hidden = servos_from(arm, HIDDEN, TORQUE_PER_KP, "HIDDEN")
     (folder / "hidden").mkdir(parents=True, exist_ok=True)
@@ -67,19 +71,25 @@ def record(folder: Path, episodes: int, seed: int) -> tuple[Path, object]:
         f"seed={seed}", "workers=1", "policy=baselines.so101_scripted:excitation",
         f"calibration={folder / 'hidden' / 'calibration.json'}", f"record={folder / 'rad'}",
         f"out={folder / 'runs'}", "run_id=hidden",
-    ]  # fmt: skip
+    ] + ([f"perturb.latency=[{latency}]"] if latency else [])  # fmt: skip
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    return folder / "rad", hidden
+    if not latency:
+        return folder / "rad", hidden
+    ds = read_dataset(folder / "rad")
+    late = [e for e in ds.episodes if e.meta.get("condition") == f"latency={latency}"]
+    write_dataset(folder / "rad_late", dataclasses.replace(ds, episodes=late))
+    return folder / "rad_late", hidden
 
 
 def main(argv: list[str]) -> int:
-    args = script_keys(argv, __doc__, ("episodes", "out", "seed", "units"))
+    args = script_keys(argv, __doc__, ("episodes", "out", "seed", "units", "latency"))
     episodes, seed, units = int(args.get("episodes", 8)), int(args.get("seed", 0)), args.get("units", "rad")
+    latency = int(args.get("latency", 0))
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     folder = Path(args.get("out") or tempfile.mkdtemp(prefix="so101_servos_"))
     t0 = time.perf_counter()
-    logs, hidden = record(folder, episodes, seed)
+    logs, hidden = record(folder, episodes, seed, latency)
     print(f"recorded {episodes} episodes of the hidden servos in {time.perf_counter() - t0:.1f} s: {logs}")
     raw = {"method": "servo_arm", "arm": "so101", "units": units}
     if units != "rad":
@@ -111,6 +121,11 @@ def main(argv: list[str]) -> int:
             )
     fr, wi = cal.errors["free_run"], cal.errors["window"]
     print(f"\ntruth inside its 95% interval: {inside}/{total}")
+    print(
+        f"transport delay: hidden {latency} frame(s), found {cal.delay} (linear-start window RMSE by delay "
+        + ", ".join(f"{v:.3g}" for v in cal.delay_search)
+        + " rad)"
+    )
     print(
         f"held-out position RMSE ({len(cal.heldout)} episodes): free run {fr['declared']['rmse']:.4g} -> "
         f"{fr['fitted']['rmse']:.4g} rad; {spec.horizon:g} s windows {wi['declared']['rmse']:.4g} -> "

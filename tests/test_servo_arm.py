@@ -72,6 +72,8 @@ def test_spec_refuses_what_it_cannot_read(tmp_path):
         parse_servo_arm_spec({"method": "servo_arm", "arm": "so101", "units": "normalized"})
     with pytest.raises(SpecError, match="Koch: no MJCF"):
         parse_servo_arm_spec({"method": "servo_arm", "arm": "koch", "units": "rad"})
+    with pytest.raises(SpecError, match="'max_delay' must be seconds in"):
+        parse_servo_arm_spec({"method": "servo_arm", "arm": "so101", "units": "rad", "max_delay": -0.1})
     with pytest.raises(SpecError, match="'units' must be one of rad, deg, normalized"):
         parse_servo_arm_spec({"method": "servo_arm", "arm": "so101", "units": "ticks"})
     (tmp_path / "r.json").write_text(
@@ -133,6 +135,50 @@ def test_known_truth_recovered_in_both_unit_modes(case, fitted, arm, tmp_path, c
     assert fr["fitted"]["rmse"] < 0.2 * fr["declared"]["rmse"]
     assert rad["trust"]["simulates_better"] is True
     assert rad["apply"]["robot"] == "so101" and len(rad["draws"]["values"]) >= 2
+    assert rad["delay"]["frames"] == 0 and rad["delay"]["run_with"] is None  # recorded without one: none found
+
+
+def test_a_hidden_transport_delay_is_found_and_the_servos_recovered_with_it(arm, tmp_path):
+    """The same hidden servos recorded with the goals acting 2 frames late (`perturb.latency=[2]`: 67 ms at 30
+    fps): the search finds 2 frames, and the servos come back as without a delay; with the search off
+    (max_delay: 0) the fit is biased (the reason the search exists)."""
+    import dataclasses
+
+    truth = servos_from(arm, HIDDEN, KP, "HIDDEN")
+    (tmp_path / "hidden.json").write_text(json.dumps(servo_document(arm, truth, KP)))
+    rc = main(["run", "suite=so101", "envs=[nominal]", "episodes=4", "horizon=90", "workers=1", "seed=0",
+               "policy=baselines.so101_scripted:excitation", f"calibration={tmp_path / 'hidden.json'}",
+               "perturb.latency=[2]", f"record={tmp_path / 'all'}", f"out={tmp_path / 'runs'}", "run_id=late"])  # fmt: skip
+    assert rc == 0
+    ds = read_dataset(tmp_path / "all")
+    late = [e for e in ds.episodes if e.meta.get("condition") == "latency=2"]
+    assert len(late) == 4
+    write_dataset(tmp_path / "late", dataclasses.replace(ds, episodes=late))
+    fits = {}
+    for name, extra in (("search", ""), ("off", "max_delay: 0\n")):
+        (tmp_path / f"{name}.yaml").write_text(f"method: servo_arm\narm: so101\nunits: rad\nhorizon: 0.4\n{extra}")
+        out = tmp_path / f"cal_{name}"
+        args = [
+            "calibrate",
+            f"spec={tmp_path / f'{name}.yaml'}",
+            f"logs={tmp_path / 'late'}",
+            f"out={out}",
+            "quiet=true",
+        ]
+        assert main(args) == 0
+        fits[name] = json.loads((out / "calibration.json").read_text())
+    found = fits["search"]
+    assert found["delay"]["frames"] == 2 and found["delay"]["run_with"] == "perturb.latency=[2]"
+    assert found["trust"]["simulates_better"] is True
+    for j, joint in enumerate(arm.joints):
+        assert found["fitted"][joint]["stiffness"] == pytest.approx(truth.stiffness[j], rel=0.05), joint
+        assert found["fitted"][joint]["damping"] == pytest.approx(truth.damping[j], rel=0.10), joint
+    off = fits["off"]
+    assert off["delay"]["frames"] == 0
+    worst = max(abs(off["fitted"][j]["stiffness"] / truth.stiffness[i] - 1) for i, j in enumerate(arm.joints))
+    assert worst > 0.15  # without the delay the servos come out wrong
+    fr_found, fr_off = found["errors"]["free_run"]["fitted"]["rmse"], off["errors"]["free_run"]["fitted"]["rmse"]
+    assert fr_found < 0.5 * fr_off
 
 
 def test_a_servo_calibration_runs_and_draws_per_episode(fitted, tmp_path):

@@ -12,7 +12,7 @@ the arm's joint range (by more than `SLACK`) are refused with one line naming th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,14 @@ class ArmLog:
     @property
     def frames(self) -> int:
         return sum(len(q) for q in self.q)
+
+    def delayed(self, frames: int) -> ArmLog:
+        """The log with every goal acting `frames` frames late (a transport delay): frame k's goal is the one
+        logged at k - frames, and before that the episode's first goal (held)."""
+        if frames <= 0:
+            return self
+        goal = [np.concatenate([np.repeat(g[:1], frames, axis=0), g[:-frames]])[: len(g)] for g in self.goal]
+        return replace(self, goal=goal)
 
 
 def _base(name: str) -> str:

@@ -14,7 +14,8 @@ every simulator of the harness (MuJoCo CPU, `mujoco.rollout`, MJX) runs them unc
     armature   A                                      -> dof_armature (the rotor's inertia through the gears)
 
 The firmware's kp is reported as K / torque_per_kp (the spec's `firmware.torque_per_kp`). Stribeck,
-load-dependent friction, backlash and delay have no model field: the arm's calibration leaves them out.
+load-dependent friction and backlash have no model field: the arm's calibration leaves them out; a transport delay
+is found by the loop (`bench.calibrate.servo.arm.loop`) and named for `perturb.latency`, not written here.
 """
 
 from __future__ import annotations

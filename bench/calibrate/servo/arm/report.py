@@ -100,6 +100,14 @@ def document(cal: ArmServoCalibration) -> dict[str, Any]:
         fitted=fitted,
         errors=cal.errors,
         fit={"cost": cal.fit.cost, "rollouts": cal.fit.rollouts},
+        delay={
+            "frames": cal.delay,
+            "seconds": cal.delay / cal.log.fps,
+            "searched_to": len(cal.delay_search) - 1,
+            "window_rmse_by_frames": cal.delay_search,
+            "run_with": f"perturb.latency=[{cal.delay}]" if cal.delay else None,
+            "note": "calibration= writes the servos' MJCF fields; the delay has none: perturb.latency adds it",
+        },
         held=[k for k in KINDS if k not in spec.free],
         draws={
             "keys": draw_keys(arm, spec.free),
@@ -135,6 +143,14 @@ def summary(cal: ArmServoCalibration) -> list[str]:
                 continue
             cells.append(f"{d:.3g} -> {f:.4g} [{lo[k * n + j]:.3g}, {hi[k * n + j]:.3g}]".ljust(30))
         out.append(f"{joint:14s} " + "  ".join(cells))
+    if len(cal.delay_search) > 1:
+        out.append(
+            f"transport delay: {cal.delay} frame(s) ({1e3 * cal.delay / cal.log.fps:.0f} ms), searched 0-"
+            f"{len(cal.delay_search) - 1} (linear-start window RMSE "
+            + ", ".join(f"{v:.3g}" for v in cal.delay_search)
+            + " rad)"
+            + (f"; run with perturb.latency=[{cal.delay}] to include it" if cal.delay else "")
+        )
     fr, wi = cal.errors["free_run"], cal.errors["window"]
     out.append(
         f"held-out position RMSE ({len(cal.heldout)} episodes): free run {fr['declared']['rmse']:.4g} -> "
@@ -163,7 +179,13 @@ def write_arm_servo_report(cal: ArmServoCalibration, out: Path) -> None:
         "",
         "Run with it: `bench run suite=" + cal.arm.suite + " calibration=OUT/calibration.json`; draw per episode: "
         "`perturb.gain=from(OUT)` (stiffness), `perturb.damping=from(OUT)`, `perturb.frictionloss=from(OUT)`, "
-        "`perturb.armature=from(OUT)` (when the spec frees the armature).",
+        "`perturb.armature=from(OUT)` (when the spec frees the armature)."
+        + (
+            f" The transport delay found ({cal.delay} frame(s)) is no MJCF field: add it with "
+            f"`perturb.latency=[{cal.delay}]` (whole control steps, {cal.log.fps:g} per second)."
+            if cal.delay
+            else ""
+        ),
         "",
     ]
     (out / "report.md").write_text("\n".join(lines))

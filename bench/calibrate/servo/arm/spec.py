@@ -10,6 +10,7 @@ firmware: {torque_per_kp: 1.1125}   # N·m/rad of stiffness per unit of the firm
 free: [stiffness, damping, coulomb] # the fitted kinds (armature may be added); the others stay the MJCF's
 holdout: 0.3                    # share of whole episodes held out (at least one)
 horizon: 0.5                    # s, the refinement's simulated windows
+max_delay: 0.1                  # s, the longest transport delay searched (whole frames; 0: none)
 
 Positions in degrees and lerobot's normalised units are both referenced to the middle of the calibrated
 range (lerobot's `degrees` mode: (raw - (range_min + range_max) / 2) * 360 / 4095), which is the MJCF's
@@ -27,7 +28,7 @@ from bench.core.errors import SpecError, did_you_mean
 
 METHOD = "servo_arm"
 UNITS = ("rad", "deg", "normalized")
-KEYS = ("method", "arm", "units", "ranges", "gripper", "servo", "firmware", "free", "holdout", "horizon")
+KEYS = ("method", "arm", "units", "ranges", "gripper", "servo", "firmware", "free", "holdout", "horizon", "max_delay")
 KINDS = ("stiffness", "damping", "coulomb", "armature")  # bench.calibrate.servo.arm.model's, in its order
 # positions identify a joint's stiffness, damping and friction relative to its whole inertia (link + rotor):
 # where the rotor's armature dominates (the wrist roll, the gripper) their common scale is not identifiable,
@@ -64,6 +65,7 @@ class ArmServoSpec:
     free: tuple[str, ...]
     holdout: float
     horizon: float
+    max_delay: float = 0.1
     path: str = ""
 
     def to_json(self) -> dict[str, Any]:
@@ -78,6 +80,7 @@ class ArmServoSpec:
             "free": list(self.free),
             "holdout": self.holdout,
             "horizon": self.horizon,
+            "max_delay": self.max_delay,
         }
 
 
@@ -89,6 +92,12 @@ def _number(raw: dict[str, Any], key: str, default: float, lo: float, hi: float,
     v = raw.get(key, default)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo < v <= hi:
         raise SpecError(f"spec field '{where}{key}' must be a number in ({lo:g}, {hi:g}]; got {v!r}")
+    return float(v)
+
+
+def _max_delay(v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+        raise SpecError(f"spec field 'max_delay' must be seconds in [0, 1] (0: no delay searched); got {v!r}")
     return float(v)
 
 
@@ -167,5 +176,6 @@ def parse_servo_arm_spec(raw: dict[str, Any], path: Path | None = None) -> ArmSe
         free=tuple(k for k in KINDS if k in free),
         holdout=_number(raw, "holdout", 0.3, 0.0, 0.9),
         horizon=_number(raw, "horizon", 0.5, 0.0, 10.0),
+        max_delay=_max_delay(raw.get("max_delay", 0.1)),
         path=str(path or ""),
     )
