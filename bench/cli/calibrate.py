@@ -62,10 +62,11 @@ def help_text() -> str:
         'bench/calibrate/models/panda_gaz.yaml (docs/calibration.md, "Real arms"); its calibration.json carries\n'
         "`apply` (bench run ... calibration=OUT) and `draws` (perturb.AXIS=from(OUT)).\n\n"
         "A spec with `method: servo_arm` calibrates an arm's servos (the SO-101: stiffness / kp, damping, Coulomb\n"
-        "friction per joint) from its LeRobot dataset (action = goal positions, observation.state = positions, units\n"
-        "rad | deg | normalized with lerobot's calibration ranges) with the arm's own dynamics from its suite's MJCF,\n"
-        "holding out whole episodes; calibration.json carries `apply` (bench run suite=so101 calibration=OUT) and\n"
-        '`draws` (perturb.gain=from(OUT)) (docs/calibration.md, "Arms from LeRobot datasets").\n\n'
+        "friction per joint, and a transport delay searched up to the spec's max_delay) from its LeRobot dataset\n"
+        "(action = goal positions, observation.state = positions, units rad | deg | normalized with lerobot's\n"
+        "calibration ranges) with the arm's own dynamics from its suite's MJCF, holding out whole episodes;\n"
+        "calibration.json carries `apply` (bench run suite=so101 calibration=OUT), `draws` (perturb.gain=from(OUT))\n"
+        'and `delay` (perturb.latency=[d] adds a delay found) (docs/calibration.md, "Arms from LeRobot datasets").\n\n'
         "suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
         "state before each frame, the command of every physics step): a damping and an armature scale over\n"
         "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"
