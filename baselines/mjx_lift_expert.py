@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bench.api.mjx_lift import require
 from bench.protocols import STATE, Obs
 from bench.protocols.env import obs_slices
-from bench.sims import mjx as mjx_sim
 
 if TYPE_CHECKING:
     from jax import Array
@@ -46,7 +46,7 @@ class BatchLiftExpert:
     def __init__(self, obs_names: Sequence[tuple[str, int]], action_dim: int = 7) -> None:
         self._s = obs_slices(list(obs_names))
         self.action_dim = action_dim
-        jax, self._jnp, _ = mjx_sim.require(x64=False)  # float32, as the MJX Lift worlds
+        jax, self._jnp, _ = require(x64=False)  # float32, as the MJX Lift worlds
         self._rule = jax.jit(self._one_batch)
 
     def reset(self, seed: int | None = None) -> None:
