@@ -135,7 +135,7 @@ def test_known_truth_recovered_in_both_unit_modes(case, fitted, arm, tmp_path, c
     assert fr["fitted"]["rmse"] < 0.2 * fr["declared"]["rmse"]
     assert rad["trust"]["simulates_better"] is True
     assert rad["apply"]["robot"] == "so101" and len(rad["draws"]["values"]) >= 2
-    assert rad["delay"]["frames"] == 0 and rad["delay"]["run_with"] is None  # recorded without one: none found
+    assert rad["delay"]["frames"] == 0 and "delay_steps" not in rad["apply"]  # recorded without one: none found
 
 
 def test_a_hidden_transport_delay_is_found_and_the_servos_recovered_with_it(arm, tmp_path):
@@ -168,13 +168,13 @@ def test_a_hidden_transport_delay_is_found_and_the_servos_recovered_with_it(arm,
         assert main(args) == 0
         fits[name] = json.loads((out / "calibration.json").read_text())
     found = fits["search"]
-    assert found["delay"]["frames"] == 2 and found["delay"]["run_with"] == "perturb.latency=[2]"
+    assert found["delay"]["frames"] == 2 and found["apply"]["delay_steps"] == 2
     assert found["trust"]["simulates_better"] is True
     for j, joint in enumerate(arm.joints):
         assert found["fitted"][joint]["stiffness"] == pytest.approx(truth.stiffness[j], rel=0.05), joint
         assert found["fitted"][joint]["damping"] == pytest.approx(truth.damping[j], rel=0.10), joint
     off = fits["off"]
-    assert off["delay"]["frames"] == 0
+    assert off["delay"]["frames"] == 0 and "delay_steps" not in off["apply"]
     worst = max(abs(off["fitted"][j]["stiffness"] / truth.stiffness[i] - 1) for i, j in enumerate(arm.joints))
     assert worst > 0.15  # without the delay the servos come out wrong
     fr_found, fr_off = found["errors"]["free_run"]["fitted"]["rmse"], off["errors"]["free_run"]["fitted"]["rmse"]
@@ -234,3 +234,35 @@ def test_the_declared_servos_change_nothing(arm):
     assert len(edits) == 5 * len(arm.joints)
     assert all(e["value"] == pytest.approx(e["nominal"], rel=1e-12) for e in edits)
     assert doc["apply"]["servos"]["gripper"]["kp"] == pytest.approx(16.0)
+
+
+def test_a_calibrations_delay_runs_the_robots_commands_late(arm, tmp_path, capsys):
+    """`apply.delay_steps` (the delay a servo calibration found): `calibration=` runs the robot's cells with its
+    commands that many control steps late, exactly as the same servos under `perturb.latency=[2]`; said before
+    the run and recorded in run.json; a delay that is not a whole number of steps is refused in one line."""
+    truth = servos_from(arm, HIDDEN, KP, "HIDDEN")
+    doc = servo_document(arm, truth, KP)
+    (tmp_path / "plain.json").write_text(json.dumps(doc))
+    doc["apply"]["delay_steps"] = 2
+    (tmp_path / "late.json").write_text(json.dumps(doc))
+    common = ["run", "suite=so101", "envs=[nominal]", "episodes=2", "horizon=20", "workers=1", "seed=0",
+              "policy=baselines.so101_scripted:excitation", f"out={tmp_path / 'runs'}"]  # fmt: skip
+    capsys.readouterr()
+    assert main([*common, f"calibration={tmp_path / 'late.json'}", f"record={tmp_path / 'a'}", "run_id=a"]) == 0
+    said = capsys.readouterr()
+    assert "commands 2 control steps late" in said.out + said.err
+    assert main([*common, f"calibration={tmp_path / 'plain.json'}", "perturb.latency=[2]",
+                 f"record={tmp_path / 'b'}", "run_id=b"]) == 0  # fmt: skip
+    a = read_dataset(tmp_path / "a").episodes
+    b = [e for e in read_dataset(tmp_path / "b").episodes if e.meta.get("condition") == "latency=2"]
+    assert len(a) == len(b) == 2
+    for x, y in zip(a, b):
+        assert x.meta["seed"] == y.meta["seed"]
+        assert np.array_equal(x.data["observation.state"], y.data["observation.state"])
+    run = json.loads((tmp_path / "runs" / "a" / "run.json").read_text())
+    assert run["provenance"]["calibration"]["delay_steps"] == 2
+    doc["apply"]["delay_steps"] = 1.5
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    assert main([*common, f"calibration={tmp_path / 'bad.json'}", "run_id=bad"]) == 2
+    assert "apply.delay_steps is 1.5" in capsys.readouterr().err
+    assert not (tmp_path / "runs" / "bad").exists()

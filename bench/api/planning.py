@@ -58,6 +58,7 @@ class Calibration:
     edits: tuple[ModelEdit, ...]  # model values by name ({field, element, value[, column]})
     trust: Mapping[str, Any] | None  # the forward check on held-out data (None: never checked)
     robot_hash: str | None = None  # a portable calibration's robot fingerprint (any suite with that robot)
+    delay_steps: int = 0  # a servo calibration's transport delay: the robot's commands act this many steps late
 
     @classmethod
     def of(cls, loaded: Mapping[str, Any]) -> Calibration:
@@ -71,6 +72,7 @@ class Calibration:
             edits=tuple(loaded["edits"]),
             trust=loaded.get("trust"),
             robot_hash=loaded.get("robot_hash"),
+            delay_steps=int(loaded.get("delay_steps", 0)),
         )
 
     def loaded(self) -> dict[str, Any]:
@@ -84,6 +86,7 @@ class Calibration:
             "joints": list(self.joints),
             "edits": list(self.edits),
             "trust": self.trust,
+            **({"delay_steps": self.delay_steps} if self.delay_steps else {}),
         }
         return out
 
@@ -95,6 +98,7 @@ class Calibration:
             "robot": self.robot,
             "model_hash": self.model_hash,
             "trust": self.trust,
+            **({"delay_steps": self.delay_steps} if self.delay_steps else {}),
         }
 
 
@@ -156,6 +160,7 @@ class Plan:
             (cal.robot, cal.edits) if cal is not None else None,
             build_memo,
             self.config.vector,
+            cal.delay_steps if cal is not None else 0,
         )
 
 

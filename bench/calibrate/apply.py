@@ -32,8 +32,9 @@ from bench.protocols import Cell, MujocoHandle, Suite
 from bench.sims.perturb.reset import ModelEdit, write_fields
 
 # What `load` returns and the checks below read: {path, sha256, robot, model_hash, [robot_hash], joints, edits
-# (`CalibrationEdit`s), trust (`Trust` or None)}. A plain dict: bench.api's `Calibration` builds it (`loaded()`).
+# (`CalibrationEdit`s), trust (`Trust` or None), [delay_steps]}. A plain dict: bench.api's `Calibration` builds it (`loaded()`).
 Loaded = dict[str, Any]
+MAX_DELAY_STEPS = 1000  # apply.delay_steps: a servo calibration's transport delay, in the suite's control steps
 
 
 class CalibrationEdit(ModelEdit):
@@ -241,6 +242,12 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
             f"has (robots: {', '.join(sorted(set(robots)))})"
         )
     _check_servos(section, p)
+    delay = section.get("delay_steps", 0)
+    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= MAX_DELAY_STEPS:
+        raise DataError(
+            f"calibration={str(p)!r}: apply.delay_steps is {delay!r}; a whole number of control steps in "
+            f"[0, {MAX_DELAY_STEPS}] (the transport delay `method: servo_arm` found)"
+        )
     return {
         "path": str(p.resolve()),
         "sha256": hashlib.sha256(raw).hexdigest(),
@@ -250,6 +257,7 @@ def load(path: str | Path, suite: str, suite_version: str, robots: list[str]) ->
         "joints": section["joints"],
         "edits": section["edits"],
         "trust": trust_of(doc, p),
+        **({"delay_steps": delay} if delay else {}),
     }
 
 
@@ -357,13 +365,15 @@ def verdict(cal: Loaded) -> str:
 
 
 def describe(cal: Loaded) -> str:
-    """One line a run prints before its episodes: robot, file, edits, trust verdict, repeat share."""
+    """One line a run prints before its episodes: robot, file, edits, delay, trust verdict, repeat share."""
     t = cal.get("trust")
     share = None if t is None else t["heldout"]["repeat_share"]
     n = len(cal["edits"])
+    d = int(cal.get("delay_steps", 0))
+    delay = f", commands {d} control step{'' if d == 1 else 's'} late" if d else ""
     return (
         f"calibration: the {cal['robot']} cells run the calibrated model of {cal['path']} ({n} model edit"
-        f"{'' if n == 1 else 's'}); {verdict(cal)}; held-out repeat share "
+        f"{'' if n == 1 else 's'}{delay}); {verdict(cal)}; held-out repeat share "
         + ("unknown" if share is None else f"{share:.0%}")
     )
 

@@ -66,7 +66,8 @@ def help_text() -> str:
         "(action = goal positions, observation.state = positions, units rad | deg | normalized with lerobot's\n"
         "calibration ranges) with the arm's own dynamics from its suite's MJCF, holding out whole episodes;\n"
         "calibration.json carries `apply` (bench run suite=so101 calibration=OUT), `draws` (perturb.gain=from(OUT))\n"
-        'and `delay` (perturb.latency=[d] adds a delay found) (docs/calibration.md, "Arms from LeRobot datasets").\n\n'
+        'and `delay` (a delay found: calibration= runs the commands late) (docs/calibration.md, "Arms from LeRobot\n'
+        'datasets").\n\n'
         "suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
         "state before each frame, the command of every physics step): a damping and an armature scale over\n"
         "the robot's motor-driven joints, plus Coulomb friction, payloads and gain errors the search finds.\n"

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bench.execution.processes import alive
 from bench.execution.rollout import RunContext, job_record, needs_shadow, run_episode
 from bench.execution.scheduling import given_up_message
@@ -31,6 +33,7 @@ from bench.protocols import EnvAdapter, Policy, PolicyContext, registry
 from bench.protocols.suite import Job
 from bench.records import EpisodeRecord
 from bench.sims.build_memo import building
+from bench.sims.perturb.interface import PerturbedInterface
 from bench.sims.perturb.reset import ModelEdit, write_fields
 
 
@@ -47,6 +50,7 @@ class WorkerSpec:
     calibration: tuple[str, Sequence[ModelEdit]] | None = None  # a suite calibration's (robot, model edits)
     build_memo: str | None = None  # the run's folder for measurements shared by builds of a cell (`memo_folder`)
     vector: int = 1  # `vector=N`: episodes of one cell and condition a worker steps in lockstep (`Worker.run_vector`)
+    calibration_delay: int = 0  # the calibration's transport delay: its robot's commands act this many steps late
 
 
 class Worker:
@@ -87,6 +91,8 @@ class Worker:
                     if job.cell.robot == robot:  # checked against this model by `plan`
                         assert env.mujoco is not None, f"the calibration of {robot} edits a MuJoCo model"
                         write_fields(env.mujoco, edits)
+                        if self.spec.calibration_delay:  # the delay the servos' calibration found: no draws
+                            env = PerturbedInterface(env, np.random.default_rng(0), latency=self.spec.calibration_delay)
                 missing = [k for k in self.needs if k not in env.obs_spec]
                 if missing:  # the suite declared them (checked before the run), but its env does not give them
                     raise RuntimeError(

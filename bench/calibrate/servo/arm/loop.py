@@ -10,7 +10,7 @@ policy's latency) biases every servo's fit (a hidden 2-frame delay on the simula
 linear start on the training episodes with the goals delayed, simulated over the training windows; one more frame
 is kept only while it lowers that window error by at least `DELAY_GAIN` (as an effect is added only when it pays).
 The fit, the draws and the fitted check use the chosen delay; the declared servos are checked without one (the
-MJCF has none).
+MJCF has none). calibration.json's `apply.delay_steps` carries it into `bench run ... calibration=`.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ every simulator of the harness (MuJoCo CPU, `mujoco.rollout`, MJX) runs them unc
 
 The firmware's kp is reported as K / torque_per_kp (the spec's `firmware.torque_per_kp`). Stribeck,
 load-dependent friction and backlash have no model field: the arm's calibration leaves them out; a transport delay
-is found by the loop (`bench.calibrate.servo.arm.loop`) and named for `perturb.latency`, not written here.
+is found by the loop (`bench.calibrate.servo.arm.loop`) and carried by `apply.delay_steps`, not written here.
 """
 
 from __future__ import annotations

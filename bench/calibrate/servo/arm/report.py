@@ -74,6 +74,13 @@ def _num(v: float) -> float | None:
 
 
 def document(cal: ArmServoCalibration) -> dict[str, Any]:
+    doc = _document(cal)
+    if cal.delay:  # a delay found: runs of the calibrated robot delay its commands (`bench.calibrate.apply.load`)
+        doc["apply"]["delay_steps"] = cal.delay
+    return doc
+
+
+def _document(cal: ArmServoCalibration) -> dict[str, Any]:
     arm, spec = cal.arm, cal.spec
     lo, hi = cal.interval()
     n = len(arm.joints)
@@ -105,8 +112,9 @@ def document(cal: ArmServoCalibration) -> dict[str, Any]:
             "seconds": cal.delay / cal.log.fps,
             "searched_to": len(cal.delay_search) - 1,
             "window_rmse_by_frames": cal.delay_search,
-            "run_with": f"perturb.latency=[{cal.delay}]" if cal.delay else None,
-            "note": "calibration= writes the servos' MJCF fields; the delay has none: perturb.latency adds it",
+            "applied_by": "apply.delay_steps: bench run calibration= delays the commands of the robot's cells"
+            if cal.delay
+            else None,
         },
         held=[k for k in KINDS if k not in spec.free],
         draws={
@@ -149,7 +157,7 @@ def summary(cal: ArmServoCalibration) -> list[str]:
             f"{len(cal.delay_search) - 1} (linear-start window RMSE "
             + ", ".join(f"{v:.3g}" for v in cal.delay_search)
             + " rad)"
-            + (f"; run with perturb.latency=[{cal.delay}] to include it" if cal.delay else "")
+            + ("; calibration= runs include it" if cal.delay else "")
         )
     fr, wi = cal.errors["free_run"], cal.errors["window"]
     out.append(
@@ -181,8 +189,9 @@ def write_arm_servo_report(cal: ArmServoCalibration, out: Path) -> None:
         "`perturb.gain=from(OUT)` (stiffness), `perturb.damping=from(OUT)`, `perturb.frictionloss=from(OUT)`, "
         "`perturb.armature=from(OUT)` (when the spec frees the armature)."
         + (
-            f" The transport delay found ({cal.delay} frame(s)) is no MJCF field: add it with "
-            f"`perturb.latency=[{cal.delay}]` (whole control steps, {cal.log.fps:g} per second)."
+            f" The transport delay found ({cal.delay} frame(s)) is no MJCF field: `calibration=` runs the robot's "
+            f"cells with their commands {cal.delay} control step(s) late (`apply.delay_steps`), and "
+            "`perturb.latency` adds to it."
             if cal.delay
             else ""
         ),
