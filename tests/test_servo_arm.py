@@ -241,9 +241,8 @@ def test_a_calibrations_delay_runs_the_robots_commands_late(arm, tmp_path, capsy
     commands that many control steps late, exactly as the same servos under `perturb.latency=[2]`; said before
     the run and recorded in run.json; a delay that is not a whole number of steps is refused in one line."""
     truth = servos_from(arm, HIDDEN, KP, "HIDDEN")
-    doc = servo_document(arm, truth, KP)
-    (tmp_path / "plain.json").write_text(json.dumps(doc))
-    doc["apply"]["delay_steps"] = 2
+    (tmp_path / "plain.json").write_text(json.dumps(servo_document(arm, truth, KP)))
+    doc = servo_document(arm, truth, KP, delay_steps=2)
     (tmp_path / "late.json").write_text(json.dumps(doc))
     common = ["run", "suite=so101", "envs=[nominal]", "episodes=2", "horizon=20", "workers=1", "seed=0",
               "policy=baselines.so101_scripted:excitation", f"out={tmp_path / 'runs'}"]  # fmt: skip

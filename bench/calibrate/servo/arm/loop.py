@@ -73,20 +73,27 @@ def _rmse(pred: np.ndarray, target: np.ndarray) -> dict[str, Any]:
 
 
 def held_out_errors(
-    arm: Arm, log: ArmLog, heldout: list[int], frames: int, servos: dict[str, ArmServos]
+    arm: Arm, heldout: list[int], frames: int, models: dict[str, tuple[ArmServos, ArmLog]]
 ) -> dict[str, Any]:
-    """Free-run and window position RMSE (rad) of the held-out episodes under each named set of servos."""
+    """Free-run and window position RMSE (rad) of the held-out episodes under each named (servos, log): the log
+    gives the goals the servos act on (the dataset's, or the same delayed). Models sharing a log share its windows
+    and one rollout."""
     out: dict[str, Any] = {"free_run": {}, "window": {}}
-    names, n_j = list(servos), len(arm.joints)
-    win = windows(arm, log, heldout, frames)
-    if len(win.state):
-        for n, s in zip(names, simulate(arm, [servos[n] for n in names], win)):
-            out["window"][n] = _rmse(s, win.target)
-    whole = [windows(arm, log, [e], 0) for e in heldout]
-    runs = [simulate(arm, [servos[n] for n in names], w) for w in whole]
-    target = np.concatenate([w.target.reshape(-1, n_j) for w in whole])
-    for i, n in enumerate(names):
-        out["free_run"][n] = _rmse(np.concatenate([r[i].reshape(-1, n_j) for r in runs]), target)
+    n_j = len(arm.joints)
+    groups: dict[int, list[str]] = {}
+    for name, (_, log) in models.items():
+        groups.setdefault(id(log), []).append(name)
+    for names in groups.values():
+        log, servos = models[names[0]][1], [models[n][0] for n in names]
+        win = windows(arm, log, heldout, frames)
+        if len(win.state):
+            for n, s in zip(names, simulate(arm, servos, win)):
+                out["window"][n] = _rmse(s, win.target)
+        whole = [windows(arm, log, [e], 0) for e in heldout]
+        runs = [simulate(arm, servos, w) for w in whole]
+        target = np.concatenate([w.target.reshape(-1, n_j) for w in whole])
+        for i, n in enumerate(names):
+            out["free_run"][n] = _rmse(np.concatenate([r[i].reshape(-1, n_j) for r in runs]), target)
     if not out["window"]:  # held-out episodes shorter than a window: the free run is the whole check
         out["window"] = out["free_run"]
     return out
@@ -148,10 +155,10 @@ def calibrate_arm_servos(
     log(f"  linear start: window RMSE {np.sqrt(costs[0]):.4g} rad (declared {np.sqrt(costs[1]):.4g})")
     fit = refine(arm, first, declared, win, spec.free, log)
     wall3, cpu3 = time.perf_counter(), time.process_time()
-    errors = held_out_errors(arm, data, heldout, frames, {"declared": declared})
-    fitted = held_out_errors(arm, data.delayed(delay), heldout, frames, {"fitted": fit.servos})
-    for part in ("free_run", "window"):
-        errors[part] = {**errors[part], **fitted[part]}
+    # the declared servos act on the logged goals (the MJCF has no delay), the fitted ones on the delayed goals
+    errors = held_out_errors(
+        arm, heldout, frames, {"declared": (declared, data), "fitted": (fit.servos, data.delayed(delay))}
+    )
     rng = np.random.default_rng(seed)
     x = fit.servos.vector().reshape(4, -1)
     draws = np.empty((DRAWS, x.size))

@@ -17,8 +17,9 @@ SCHEMA = "bench.calibration/1"
 SERVO_KEYS = ("kp", "stiffness", "damping", "coulomb", "armature")
 
 
-def apply_section(arm: Arm, servos: ArmServos, torque_per_kp: float) -> dict[str, Any]:
-    """What `bench run calibration=` reads: the robot, its fingerprints, the model edits and the servos they realise."""
+def apply_section(arm: Arm, servos: ArmServos, torque_per_kp: float, delay_steps: int = 0) -> dict[str, Any]:
+    """What `bench run calibration=` reads: the robot, its fingerprints, the model edits and the servos they realise,
+    and a transport delay found (`delay_steps`, only when there is one: the robot's commands act that late)."""
     return {
         "robot": arm.robot,
         "joints": list(arm.joints),
@@ -26,6 +27,7 @@ def apply_section(arm: Arm, servos: ArmServos, torque_per_kp: float) -> dict[str
         "model_hash": model_hash(arm.nominal, list(arm.joints)),
         "edits": servo_edits(arm, servos),
         "servos": describe(arm, servos, torque_per_kp),
+        **({"delay_steps": int(delay_steps)} if delay_steps else {}),
     }
 
 
@@ -58,13 +60,15 @@ def servos_from(arm: Arm, table: dict[str, dict[str, float]], torque_per_kp: flo
     return declared.with_vector(x.ravel())
 
 
-def servo_document(arm: Arm, servos: ArmServos, torque_per_kp: float, **extra: Any) -> dict[str, Any]:
+def servo_document(
+    arm: Arm, servos: ArmServos, torque_per_kp: float, delay_steps: int = 0, **extra: Any
+) -> dict[str, Any]:
     """A calibration document that runs `servos` on the arm (known servos: a test's hidden truth)."""
     return {
         "schema": SCHEMA,
         "method": "servo_arm",
         "suite": {"name": arm.suite, "robot": arm.robot},
-        "apply": apply_section(arm, servos, torque_per_kp),
+        "apply": apply_section(arm, servos, torque_per_kp, delay_steps),
         **extra,
     }
 
@@ -74,13 +78,6 @@ def _num(v: float) -> float | None:
 
 
 def document(cal: ArmServoCalibration) -> dict[str, Any]:
-    doc = _document(cal)
-    if cal.delay:  # a delay found: runs of the calibrated robot delay its commands (`bench.calibrate.apply.load`)
-        doc["apply"]["delay_steps"] = cal.delay
-    return doc
-
-
-def _document(cal: ArmServoCalibration) -> dict[str, Any]:
     arm, spec = cal.arm, cal.spec
     lo, hi = cal.interval()
     n = len(arm.joints)
@@ -98,6 +95,7 @@ def _document(cal: ArmServoCalibration) -> dict[str, Any]:
         arm,
         cal.servos,
         spec.torque_per_kp,
+        cal.delay,
         spec=spec.to_json(),
         logs={"path": cal.logs, "fps": cal.log.fps, "frames": cal.log.frames},
         episodes={"train": [ep[i] for i in cal.train], "heldout": [ep[i] for i in cal.heldout]},
