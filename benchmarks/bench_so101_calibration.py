@@ -30,7 +30,7 @@ import numpy as np
 from bench.api.scripts import script_keys
 from bench.calibrate.servo.arm import calibrate_arm_servos, load_arm, parse_servo_arm_spec, servo_document, servos_from
 from bench.calibrate.servo.arm.data import in_units
-from bench.calibrate.servo.arm.spec import TORQUE_PER_KP, read_ranges
+from bench.calibrate.servo.arm.spec import TORQUE_PER_KP, UNITS, read_ranges
 from bench.logs import read_dataset, write_dataset
 
 # the hidden servos: per joint kp (firmware units), damping (N·m·s/rad) and Coulomb friction (N·m)
@@ -83,8 +83,19 @@ def record(folder: Path, episodes: int, seed: int, latency: int = 0) -> tuple[Pa
 
 def main(argv: list[str]) -> int:
     args = script_keys(argv, __doc__, ("episodes", "out", "seed", "units", "latency"))
-    episodes, seed, units = int(args.get("episodes", 8)), int(args.get("seed", 0)), args.get("units", "rad")
-    latency = int(args.get("latency", 0))
+    bad = {"episodes": "a whole number >= 2 (one episode is held out)", "seed": "a whole number",
+           "latency": "a whole number of frames >= 0", "units": " | ".join(UNITS)}  # fmt: skip
+    try:
+        episodes, seed, latency = (int(args.get(k, d)) for k, d in (("episodes", "8"), ("seed", "0"), ("latency", "0")))
+        units = args.get("units", "rad")
+        wrong = [
+            k for k, ok in (("episodes", episodes >= 2), ("latency", latency >= 0), ("units", units in UNITS)) if not ok
+        ]
+    except ValueError:
+        wrong = [k for k in ("episodes", "seed", "latency") if not args.get(k, "0").lstrip("-").isdigit()]
+    if wrong:
+        print(f"error: {wrong[0]}={args.get(wrong[0])!r}: must be {bad[wrong[0]]}", file=sys.stderr)
+        return 2
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     folder = Path(args.get("out") or tempfile.mkdtemp(prefix="so101_servos_"))
