@@ -23,7 +23,7 @@ from bench.calibrate.servo.effects import KP_UNIT, SERVO_EFFECTS, scale_of
 from bench.calibrate.servo.fit import Fit, Problem, duty_data, fit, linear_start, position_cost
 from bench.calibrate.servo.intervals import Jackknife, jackknife, scale_profile
 from bench.calibrate.servo.law import GRAVITY, ServoParams
-from bench.calibrate.servo.sim import RUN_GAP, make_windows, simulate
+from bench.calibrate.servo.sim import RUN_GAP, Windows, make_windows, simulate
 from bench.calibrate.servo.spec import ServoSpec
 from bench.calibrate.servo.verdict import verdict_lines, verdicts
 from bench.core.errors import DataError
@@ -86,8 +86,10 @@ class ServoCalibration:
             "rounds": self.rounds,
             "parameters": {"declared": self.parameters(self.declared), "final": self.parameters(self.final)},
             "intervals": {
-                "method": "95%: Jacobian (noise) + jackknife over whole training runs (model error) + the declared "
-                "kt/R's relative sd for torques, variances summed",
+                "method": "95%: Jacobian (noise) + jackknife over whole training runs (model error; each refit from "
+                "the estimator's own start without that run where no duty is logged) + the declared kt/R's relative "
+                "sd for torques, variances summed; Student's t at the Welch-Satterthwaite degrees of freedom (the "
+                "jackknife's n - 1); cut to the parameter's range",
                 "jackknife_left_out": self.jackknives["final"].left_out,
             },
             "errors": self.errors,
@@ -189,8 +191,9 @@ def _physics(jk: Jackknife, train: list[ServoRun], labels: list[str]) -> dict[st
     truth = train[0].truth
     out: dict[str, Any] = {}
     ig = names.index("gravity")
-    g_data = jk.interval(_component(ig), torque=False)  # the data's part: Jacobian, jackknife, scale profile
-    g = jk.interval(_component(ig), torque=True)
+    positive = (0.0, np.inf)  # a gravity torque and a gain are not negative
+    g_data = jk.interval(_component(ig), torque=False, within=positive)  # the data's part alone
+    g = jk.interval(_component(ig), torque=True, within=positive)
     mgl = truth["mass"] * GRAVITY * truth["length"] if "mass" in truth and "length" in truth else None
     out["gravity_torque"] = {
         "fitted": g["value"],
@@ -207,8 +210,8 @@ def _physics(jk: Jackknife, train: list[ServoRun], labels: list[str]) -> dict[st
     kps = {}
     for lab in labels:
         i = names.index(f"kp[{lab}]")
-        kp = jk.interval(_component(i), torque=False)
-        ratio = jk.interval(_ratio(i, i0), torque=False)
+        kp = jk.interval(_component(i), torque=False, within=positive)
+        ratio = jk.interval(_ratio(i, i0), torque=False, within=positive)
         true_ratio = known[lab] / known[base] if lab in known and base in known else None
         kps[lab] = {
             "fitted": kp["value"],
@@ -312,8 +315,15 @@ def calibrate_servo(
         declared = fit(prob, prob.vector(start, kp0), w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV)
         final = fit(cur.prob, cur.x, w, dd, sd_q, sd_d, max_nfev=FINAL_NFEV) if added else declared
         t_fit = time.perf_counter()
-        jks = {"declared": jackknife(declared, train, w, sd_q, sd_d, spec.kt_over_r_sd)}
-        jks["final"] = jackknife(final, train, w, sd_q, sd_d, spec.kt_over_r_sd) if added else jks["declared"]
+        # no duty logged: the start's gain comes from simulations of the fitted runs, so each leave-one-run-out
+        # refit takes the start the estimator would take without that run (a warm start stays in this basin)
+        cold = None if dd is not None else _cold_start(train, labels, base, w_fit, sd_q)
+        jks = {"declared": jackknife(declared, train, w, sd_q, sd_d, spec.kt_over_r_sd, cold_start=_on(cold, prob))}
+        jks["final"] = (
+            jackknife(final, train, w, sd_q, sd_d, spec.kt_over_r_sd, cold_start=_on(cold, final.prob))
+            if added
+            else jks["declared"]
+        )
         if dd is None:  # the scale is fixed by PWM saturation alone: widen to the scales that fit as well
             for tag in dict.fromkeys(jks):
                 jk = jks[tag]
@@ -346,6 +356,41 @@ def calibrate_servo(
         jackknives=jks,
         sources=[r.source for r in runs],
     )
+
+
+def _cold_start(
+    train: list[ServoRun], labels: list[str], base: ServoParams, w_fit: Windows, sd_q: float
+) -> Callable[[int], tuple[ServoParams, np.ndarray]]:
+    """The linear start (`linear_start`, its gain chosen by simulating `w_fit`) without training run i."""
+
+    def start(i: int) -> tuple[ServoParams, np.ndarray]:
+        keep = w_fit.subset(w_fit.run != i)
+
+        def score(p: ServoParams, kp: np.ndarray) -> float:
+            sim = simulate(p.with_(kp=kp[keep.label]), keep)
+            return float(np.mean(((sim - keep.target) / sd_q)[keep.mask] ** 2))
+
+        return linear_start([r for j, r in enumerate(train) if j != i], labels, base, KP_GRID, score)
+
+    return start
+
+
+def _on(
+    start: Callable[[int], tuple[ServoParams, np.ndarray]] | None, prob: Problem
+) -> Callable[[int], np.ndarray] | None:
+    """Start vectors of `prob` from servo starts: the declared parameters, then each effect's own start."""
+    if start is None:
+        return None
+
+    def vector(i: int) -> np.ndarray:
+        p, kp = start(i)
+        cur = Problem(prob.base, prob.labels, (), prob.scale)
+        x = cur.vector(p, kp)
+        for name in prob.effects:
+            cur, x = _extend(cur, x, name)
+        return x
+
+    return vector
 
 
 def _run_labels(cal: ServoCalibration) -> dict[str, str]:
