@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from baselines.servo_excitation import ServoExcitation
+
 ARM = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll")
 DOWN = np.array([0.0, 0.0, -1.0])
 OPEN, CLOSED = 1.2, -0.17  # gripper goals, rad (closed is the joint's lower limit: the servo squeezes)
@@ -117,57 +119,10 @@ class SO101Expert:
 # amplitude of each joint's goal about it
 EXCITE_POSE = np.array([0.0, -0.3, 0.2, 0.3, 0.0, 0.4])
 EXCITE_AMPLITUDE = np.array([0.6, 0.35, 0.35, 0.5, 1.0, 0.35])
-EXCITE_HOLD = (8, 20)  # control steps each step goal is held (drawn between these)
 
 
-class SO101Excitation:
-    """Goals that excite every servo of the SO-101 for its calibration (suite so101, any obs).
-
-    The scripted pick moves each joint once, slowly, and the gripper squeezes the cube (a contact the arm's
-    model does not have): too little to identify a servo. This policy moves from the start to `EXCITE_POSE`,
-    then sends, per joint, a sum of two sines (0.3 to 1.5 Hz) plus steps held 8 to 20 control steps: large
-    errors (saturation, stiffness), reversals (Coulomb friction) and accelerations (armature). The gripper
-    stays clear of the floor and the cube. Every draw comes from the episode's seed (`reset`).
-    """
-
-    def __init__(self, fps: float = 30.0):
-        self.fps = fps
-        self._goals: np.ndarray | None = None
-        self._rng = np.random.default_rng(0)
-        self._t = 0
-
-    def reset(self, seed: int) -> None:
-        self._rng = np.random.default_rng(int(seed))
-        self._goals, self._t = None, 0
-
-    def plan(self, start: np.ndarray, steps: int = 400) -> np.ndarray:
-        rng, n = self._rng, len(EXCITE_POSE)
-        t = np.arange(steps) / self.fps
-        freq = rng.uniform(0.3, 1.5, (2, n))
-        phase = rng.uniform(0, 2 * np.pi, (2, n))
-        sines = sum(np.sin(2 * np.pi * freq[i] * t[:, None] + phase[i]) for i in range(2)) / 2
-        held = np.zeros((steps, n))
-        k = 0
-        while k < steps:
-            length = int(rng.integers(*EXCITE_HOLD))
-            held[k : k + length] = rng.uniform(-1, 1, n)
-            k += length
-        goals = EXCITE_POSE + EXCITE_AMPLITUDE * (0.5 * sines + 0.5 * held)
-        ramp = np.clip(t / 1.0, 0, 1)[:, None]  # one second from the start pose into the excitation
-        return (1 - ramp) * start[None, :n] + ramp * goals
-
-    def act(self, obs: dict) -> np.ndarray:
-        if self._goals is None:
-            if "state" not in obs:
-                raise ValueError(
-                    "the SO-101 excitation reads the start pose from obs['state'] (obs=state or state+rgb)"
-                )
-            self._goals = self.plan(np.asarray(obs["state"], np.float64)[: len(EXCITE_POSE)])
-        step = self._goals[min(self._t, len(self._goals) - 1)]
-        self._t += 1
-        return step.astype(np.float32)
-
-
-def excitation(cell: Any, env: Any, ctx: Any) -> SO101Excitation:
-    """`policy=baselines.so101_scripted:excitation`: the servo excitation for suite so101."""
-    return SO101Excitation(float(getattr(env, "fps", 30.0) or 30.0))
+def excitation(cell: Any, env: Any, ctx: Any) -> ServoExcitation:
+    """`policy=baselines.so101_scripted:excitation`: the servo excitation for suite so101 (the scripted pick
+    moves each joint once, slowly, and squeezes the cube, a contact the arm's model has not: too little to
+    identify a servo)."""
+    return ServoExcitation(EXCITE_POSE, EXCITE_AMPLITUDE, float(getattr(env, "fps", 30.0) or 30.0))

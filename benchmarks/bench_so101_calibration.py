@@ -1,12 +1,14 @@
-"""The SO-101's six servos calibrated from a LeRobot dataset recorded in simulation with hidden servo parameters:
-truth vs fitted, held-out position error before (the MJCF's declared servos) and after, and the time.
+"""An arm's six servos (the SO-101's, or with arm=koch the Koch's) calibrated from a LeRobot dataset recorded in
+simulation with hidden servo parameters: truth vs fitted, held-out position error before (the model's declared
+servos) and after, and the time.
 
-    python benchmarks/bench_so101_calibration.py [episodes=8] [seed=0] [units=rad|deg|normalized] [latency=0] [out=DIR]
+    python benchmarks/bench_so101_calibration.py [arm=so101|koch] [episodes=8] [seed=0] [units=rad|deg|normalized]
+        [latency=0] [out=DIR]
 
 It writes HIDDEN/calibration.json (known per-joint kp, damping and Coulomb friction; the armature stays the
 MJCF's, which positions cannot separate from the stiffness where the rotor dominates), records
-`bench run suite=so101 calibration=HIDDEN record=DIR policy=baselines.so101_scripted:excitation` (the scripted
-pick moves each joint once, slowly, and squeezes the cube: too little to identify a servo), rewrites the dataset
+`bench run suite=ARM calibration=HIDDEN record=DIR policy=baselines.ARM_scripted:excitation` (a task's scripted
+policy moves each joint once, slowly: too little to identify a servo), rewrites the dataset
 in the chosen units (lerobot's normalised units with a calibration-ranges file), and calibrates it in this
 process, pinned to one core where the OS allows: the wall and CPU seconds of the calibration alone are printed.
 `latency=L` records with `perturb.latency=[L]` (a hidden transport delay: the goals act L frames late) and keeps
@@ -30,11 +32,11 @@ import numpy as np
 from bench.api.scripts import script_keys
 from bench.calibrate.servo.arm import calibrate_arm_servos, load_arm, parse_servo_arm_spec, servo_document, servos_from
 from bench.calibrate.servo.arm.data import in_units
-from bench.calibrate.servo.arm.spec import TORQUE_PER_KP, UNITS, read_ranges
+from bench.calibrate.servo.arm.spec import ARMS, UNITS, read_ranges
 from bench.logs import read_dataset, write_dataset
 
 # the hidden servos: per joint kp (firmware units), damping (N·m·s/rad) and Coulomb friction (N·m)
-HIDDEN = {
+HIDDEN_SO101 = {
     "shoulder_pan": {"kp": 12, "damping": 0.9, "coulomb": 0.12},
     "shoulder_lift": {"kp": 22, "damping": 0.5, "coulomb": 0.08},
     "elbow_flex": {"kp": 14, "damping": 0.8, "coulomb": 0.10},
@@ -42,6 +44,17 @@ HIDDEN = {
     "wrist_roll": {"kp": 10, "damping": 0.7, "coulomb": 0.06},
     "gripper": {"kp": 20, "damping": 0.5, "coulomb": 0.05},
 }
+HIDDEN = HIDDEN_SO101
+# the Koch's (Dynamixel Position P Gain; declared 800, 1500 on the elbow; damping 0.041, Coulomb 0.0128)
+HIDDEN_KOCH = {
+    "shoulder_pan": {"kp": 600, "damping": 0.06, "coulomb": 0.020},
+    "shoulder_lift": {"kp": 1100, "damping": 0.03, "coulomb": 0.015},
+    "elbow_flex": {"kp": 1300, "damping": 0.05, "coulomb": 0.010},
+    "wrist_flex": {"kp": 700, "damping": 0.03, "coulomb": 0.008},
+    "wrist_roll": {"kp": 500, "damping": 0.05, "coulomb": 0.012},
+    "gripper": {"kp": 900, "damping": 0.04, "coulomb": 0.010},
+}
+HIDDEN_OF = {"so101": HIDDEN_SO101, "koch": HIDDEN_KOCH}
 
 
 def ranges_for(arm) -> dict:
@@ -59,16 +72,17 @@ def ranges_for(arm) -> dict:
     return out
 
 
-def record(folder: Path, episodes: int, seed: int, latency: int = 0) -> tuple[Path, object]:
+def record(folder: Path, episodes: int, seed: int, latency: int = 0, name: str = "so101") -> tuple[Path, object]:
     """HIDDEN/calibration.json and the recording under it (with `latency` > 0: its episodes of that delay only);
     returns (dataset folder, the hidden servos)."""
-    arm = load_arm("so101")
-    hidden = servos_from(arm, HIDDEN, TORQUE_PER_KP, "HIDDEN")
+    arm = load_arm(ARMS[name].suite)
+    per_kp = ARMS[name].torque_per_kp
+    hidden = servos_from(arm, HIDDEN_OF[name], per_kp, "HIDDEN")
     (folder / "hidden").mkdir(parents=True, exist_ok=True)
-    (folder / "hidden" / "calibration.json").write_text(json.dumps(servo_document(arm, hidden, TORQUE_PER_KP)))
+    (folder / "hidden" / "calibration.json").write_text(json.dumps(servo_document(arm, hidden, per_kp)))
     cmd = [
-        sys.executable, "-c", "import sys; from bench.cli import main; sys.exit(main())", "run", "suite=so101", "envs=[nominal]", f"episodes={episodes}",
-        f"seed={seed}", "workers=1", "policy=baselines.so101_scripted:excitation",
+        sys.executable, "-c", "import sys; from bench.cli import main; sys.exit(main())", "run", f"suite={ARMS[name].suite}", "envs=[nominal]", f"episodes={episodes}",
+        f"seed={seed}", "workers=1", f"policy=baselines.{name}_scripted:excitation",
         f"calibration={folder / 'hidden' / 'calibration.json'}", f"record={folder / 'rad'}",
         f"out={folder / 'runs'}", "run_id=hidden",
     ] + ([f"perturb.latency=[{latency}]"] if latency else [])  # fmt: skip
@@ -82,9 +96,13 @@ def record(folder: Path, episodes: int, seed: int, latency: int = 0) -> tuple[Pa
 
 
 def main(argv: list[str]) -> int:
-    args = script_keys(argv, __doc__, ("episodes", "out", "seed", "units", "latency"))
+    args = script_keys(argv, __doc__, ("arm", "episodes", "out", "seed", "units", "latency"))
     bad = {"episodes": "a whole number >= 2 (one episode is held out)", "seed": "a whole number",
-           "latency": "a whole number of frames >= 0", "units": " | ".join(UNITS)}  # fmt: skip
+           "latency": "a whole number of frames >= 0", "units": " | ".join(UNITS), "arm": " | ".join(ARMS)}  # fmt: skip
+    name = args.get("arm", "so101")
+    if name not in ARMS:
+        print(f"error: arm={name!r}: must be {bad['arm']}", file=sys.stderr)
+        return 2
     try:
         episodes, seed, latency = (int(args.get(k, d)) for k, d in (("episodes", "8"), ("seed", "0"), ("latency", "0")))
         units = args.get("units", "rad")
@@ -98,13 +116,16 @@ def main(argv: list[str]) -> int:
         return 2
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    folder = Path(args.get("out") or tempfile.mkdtemp(prefix="so101_servos_"))
+    raw = {"method": "servo_arm", "arm": name, "units": units}
+    if units == "normalized" and not ARMS[name].mid_range_zero:  # refused before anything is recorded
+        print(f"error: units=normalized: arm {name}'s model has no mid-range zero; use rad or deg", file=sys.stderr)
+        return 2
+    folder = Path(args.get("out") or tempfile.mkdtemp(prefix=f"{name}_servos_"))
     t0 = time.perf_counter()
-    logs, hidden = record(folder, episodes, seed, latency)
+    logs, hidden = record(folder, episodes, seed, latency, name)
     print(f"recorded {episodes} episodes of the hidden servos in {time.perf_counter() - t0:.1f} s: {logs}")
-    raw = {"method": "servo_arm", "arm": "so101", "units": units}
     if units != "rad":
-        arm = load_arm("so101")
+        arm = load_arm(ARMS[name].suite)
         if units == "normalized":
             (folder / "so101_follower.json").write_text(json.dumps(ranges_for(arm), indent=1))
             raw["ranges"] = str(folder / "so101_follower.json")

@@ -70,8 +70,10 @@ def test_units_round_trip_through_lerobots_normalised_range():
 def test_spec_refuses_what_it_cannot_read(tmp_path):
     with pytest.raises(SpecError, match="'ranges' is required with units: normalized"):
         parse_servo_arm_spec({"method": "servo_arm", "arm": "so101", "units": "normalized"})
-    with pytest.raises(SpecError, match="Koch: no MJCF"):
-        parse_servo_arm_spec({"method": "servo_arm", "arm": "koch", "units": "rad"})
+    with pytest.raises(SpecError, match="'arm' must name an arm with a model; valid: so101, koch"):
+        parse_servo_arm_spec({"method": "servo_arm", "arm": "widowx", "units": "rad"})
+    with pytest.raises(SpecError, match="normalized needs the model's joint zero at the middle"):
+        parse_servo_arm_spec({"method": "servo_arm", "arm": "koch", "units": "normalized", "ranges": "r.json"})
     with pytest.raises(SpecError, match="'max_delay' must be seconds in"):
         parse_servo_arm_spec({"method": "servo_arm", "arm": "so101", "units": "rad", "max_delay": -0.1})
     with pytest.raises(SpecError, match="'units' must be one of rad, deg, normalized"):

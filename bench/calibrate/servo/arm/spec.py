@@ -1,12 +1,12 @@
 """Spec of an arm's servos calibrated from a LeRobot dataset (`method: servo_arm`).
 
 method: servo_arm
-arm: so101                      # the suite whose robot's MJCF is the arm (its mass matrix, gravity, coupling)
+arm: so101                      # so101 | koch: the suite whose robot's model is the arm (mass matrix, gravity, coupling)
 units: rad                      # rad | deg | normalized: how the dataset writes positions and goals
 ranges: so101_follower.json     # lerobot's calibration file (units: normalized only), relative to the spec
 gripper: gripper                # the joint lerobot writes 0..100 (normalized); the others -100..100
 servo: sts3215                  # a name for the report
-firmware: {torque_per_kp: 1.1125}   # N·m/rad of stiffness per unit of the firmware's kp (reports kp)
+firmware: {torque_per_kp: 1.1125}   # N·m/rad of stiffness per unit of the firmware's kp (reports kp; default per arm)
 free: [stiffness, damping, coulomb] # the fitted kinds (armature may be added); the others stay the MJCF's
 holdout: 0.3                    # share of whole episodes held out (at least one)
 horizon: 0.5                    # s, the refinement's simulated windows
@@ -14,7 +14,9 @@ max_delay: 0.1                  # s, the longest transport delay searched (whole
 
 Positions in degrees and lerobot's normalised units are both referenced to the middle of the calibrated
 range (lerobot's `degrees` mode: (raw - (range_min + range_max) / 2) * 360 / 4095), which is the MJCF's
-zero (so101_new_calib); normalised units are converted through the ranges to raw ticks first.
+zero (so101_new_calib); normalised units are converted through the ranges to raw ticks first. The Koch's model
+(ManiSkill's URDF) has its zero at a joint limit for several joints: its datasets are read in rad or deg from the
+model's zero, and normalised units are refused.
 """
 
 from __future__ import annotations
@@ -35,9 +37,25 @@ KINDS = ("stiffness", "damping", "coulomb", "armature")  # bench.calibrate.servo
 # so the armature is held at the MJCF's (the rotor's, through the gears) unless the spec frees it
 FREE = ("stiffness", "damping", "coulomb")
 RANGE_KEYS = ("drive_mode", "homing_offset", "range_min", "range_max")
-ARMS = {"so101": "so101"}  # arm name -> the suite whose robot's MJCF models it
-# the MJCF's 17.8 N·m/rad (Open Duck Mini's STS3215 constants) at lerobot's default P_Coefficient of 16
-TORQUE_PER_KP = 17.8 / 16.0
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """An arm the calibration can simulate: the suite whose robot's model it is, and its declared servo scale."""
+
+    suite: str
+    torque_per_kp: float  # N·m/rad of stiffness per unit of the firmware's gain (the spec's default)
+    mid_range_zero: bool  # the model's joint zero is the middle of lerobot's calibrated range
+
+
+ARMS = {
+    # the MJCF's 17.8 N·m/rad (Open Duck Mini's STS3215 constants) at lerobot's default P_Coefficient of 16
+    "so101": ArmModel("so101", 17.8 / 16.0, mid_range_zero=True),
+    # Dynamixel XL330 at 5 V: kt/R 0.104 N·m/V x 5 V x BAM's error gain 0.0028775 per Position P Gain unit
+    # (suites/koch.py); ManiSkill's Koch URDF has its zero at a joint limit for several joints, not mid-range
+    "koch": ArmModel("koch", 0.104 * 5.0 * 0.0028775, mid_range_zero=False),
+}
+TORQUE_PER_KP = ARMS["so101"].torque_per_kp
 
 
 @dataclass(frozen=True)
@@ -136,14 +154,17 @@ def parse_servo_arm_spec(raw: dict[str, Any], path: Path | None = None) -> ArmSe
             )
     arm = raw.get("arm")
     if arm not in ARMS:
-        raise SpecError(
-            f"spec field 'arm' must name an arm with a model; valid: {', '.join(ARMS)}; got {arm!r}"
-            + (" (Koch: no MJCF of it is installed here)" if str(arm).lower().startswith("koch") else "")
-        )
+        raise SpecError(f"spec field 'arm' must name an arm with a model; valid: {', '.join(ARMS)}; got {arm!r}")
+    model = ARMS[str(arm)]
     units = raw.get("units")
     if units not in UNITS:
         raise SpecError(
             f"spec field 'units' must be one of {', '.join(UNITS)} (how the dataset writes positions); got {units!r}"
+        )
+    if units == "normalized" and not model.mid_range_zero:
+        raise SpecError(
+            f"spec field 'units': normalized needs the model's joint zero at the middle of lerobot's calibrated range, "
+            f"which arm {arm}'s model does not have; write positions in rad (or deg) from the model's zero"
         )
     ranges, ranges_path = None, raw.get("ranges")
     if units == "normalized":
@@ -166,13 +187,13 @@ def parse_servo_arm_spec(raw: dict[str, Any], path: Path | None = None) -> ArmSe
         raise SpecError(f"spec field 'free' must be a non-empty list of {', '.join(KINDS)}; got {free!r}")
     return ArmServoSpec(
         arm=str(arm),
-        suite=ARMS[str(arm)],
+        suite=model.suite,
         units=str(units),
         ranges=ranges,
         ranges_path=None if ranges_path is None else str(ranges_path),
         gripper=str(raw.get("gripper", "gripper")),
         servo=str(raw.get("servo", "servo")),
-        torque_per_kp=_number(fw, "torque_per_kp", TORQUE_PER_KP, 0.0, 1e6, "firmware."),
+        torque_per_kp=_number(fw, "torque_per_kp", model.torque_per_kp, 0.0, 1e6, "firmware."),
         free=tuple(k for k in KINDS if k in free),
         holdout=_number(raw, "holdout", 0.3, 0.0, 0.9),
         horizon=_number(raw, "horizon", 0.5, 0.0, 10.0),
