@@ -45,7 +45,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.protocols.suite import Cell, declared_scene
+from bench.protocols.suite import Cell, declared_scene, scene_cells
 from suites.lift import LiftSuite, make_env
 
 NOMINAL: dict[str, Any] = {
@@ -135,11 +135,7 @@ class HeldOutScenes(LiftSuite):
     manifest = {"envs": {"seen": list(SEEN_SCENES), "unseen": list(UNSEEN_SCENES)}}
 
     def all_cells(self) -> list[Cell]:
-        return [
-            Cell(self.name, "Lift", "Panda", scene, split, options=scene_params(scene))
-            for split, scenes in (("seen", SEEN_SCENES), ("unseen", UNSEEN_SCENES))
-            for scene in scenes
-        ]
+        return scene_cells(self.name, "Lift", "Panda", SEEN_SCENES, UNSEEN_SCENES, scene_params)
 
     def make_env(self, cell: Cell, horizon: int):
         return make_env(

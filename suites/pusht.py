@@ -50,7 +50,7 @@ from bench.api import ConfigError, did_you_mean
 from bench.api.sims import installed_version
 from bench.protocols import RGB, STATE, TASK, ActionSpec, Feature, Obs, ObsSpec
 from bench.protocols.env import CachedStateAdapter
-from bench.protocols.suite import Cell, SuiteBase, declared_scene
+from bench.protocols.suite import Cell, SuiteBase, declared_scene, scene_cells
 
 TASK_ID = "PushT-v0"
 ROBOT = "agent"
@@ -247,11 +247,7 @@ class PushT(SuiteBase):
             raise ConfigError(f"image_size: {self.options.image_size!r} is invalid; whole pixels in [16, 1024]")
 
     def all_cells(self) -> list[Cell]:
-        return [
-            Cell(self.name, TASK_ID, ROBOT, scene, split, options=scene_params(scene))
-            for split, scenes in (("seen", SEEN_SCENES), ("unseen", UNSEEN_SCENES))
-            for scene in scenes
-        ]
+        return scene_cells(self.name, TASK_ID, ROBOT, SEEN_SCENES, UNSEEN_SCENES, scene_params)
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
         spec: dict[str, Feature] = {}

@@ -57,7 +57,7 @@ import numpy as np
 from bench.api.sims import CameraOptions, camera_spec, check_options, installed_version, unwrap, with_cameras
 from bench.protocols import STATE, ActionSpec, Feature, MujocoHandle, Obs, ObsSpec
 from bench.protocols.env import AdapterBase
-from bench.protocols.suite import Cell, SuiteBase, declared_scene
+from bench.protocols.suite import Cell, SuiteBase, declared_scene, scene_cells
 
 ROBOT = "so101"
 TASK_NAME = "PickCube"
@@ -259,11 +259,7 @@ class SO101(SuiteBase):
         check_options(self.options, CAMERAS, "the SO-101 scene")
 
     def all_cells(self) -> list[Cell]:
-        return [
-            Cell(self.name, TASK_NAME, ROBOT, scene, split, options=scene_params(scene))
-            for split, scenes in (("seen", SEEN_SCENES), ("unseen", UNSEEN_SCENES))
-            for scene in scenes
-        ]
+        return scene_cells(self.name, TASK_NAME, ROBOT, SEEN_SCENES, UNSEEN_SCENES, scene_params)
 
     def obs_spec(self, cell: Cell) -> ObsSpec:
         return camera_spec({STATE: state_feature()}, self.options, list(CAMERAS))

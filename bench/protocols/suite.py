@@ -16,7 +16,7 @@ import hashlib
 import json
 import zlib
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, TypedDict
 
@@ -293,6 +293,23 @@ def declared_scene(name: str, nominal: Mapping[str, Any], *declared: Mapping[str
     params = {k: (list(v) if isinstance(v, list) else v) for k, v in nominal.items()}
     params.update(overrides)
     return params
+
+
+def scene_cells(
+    suite: str,
+    task: str,
+    robot: str,
+    seen: Mapping[str, object],
+    unseen: Mapping[str, object],
+    params: Callable[[str], dict[str, Any]],
+) -> list[Cell]:
+    """One cell per declared scene of a one-task, one-robot suite: the seen scenes, then the unseen ones, each with
+    its full parameters (`params(name)`, e.g. `declared_scene` over the suite's nominal) as the cell's options."""
+    return [
+        Cell(suite, task, robot, scene, split, options=params(scene))
+        for split, scenes in (("seen", seen), ("unseen", unseen))
+        for scene in scenes
+    ]
 
 
 def policy_ref(suite: Suite | type[Suite], policy: str | None) -> str:
