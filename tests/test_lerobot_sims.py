@@ -4,6 +4,7 @@ gym-pusht themselves, declared held-out scenes, the scripted experts, and bench'
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,9 @@ from bench.core.errors import ConfigError
 from bench.protocols.suite import episode_seed, select_cells
 from bench.records import read_records
 
+# gym-aloha renders its top camera in every observation, and dm_control picks its OpenGL backend when imported: EGL
+# unless the caller chose one (run alone, nothing else in the session has set it; conftest's default is `disable`)
+os.environ.setdefault("MUJOCO_GL", "egl")
 gym = pytest.importorskip("gymnasium")
 pytest.importorskip("gym_aloha", reason="suite aloha needs the lerobot-sims extra: pip install -e '.[lerobot-sims]'")
 pytest.importorskip("gym_pusht", reason="suite pusht needs the lerobot-sims extra: pip install -e '.[lerobot-sims]'")
