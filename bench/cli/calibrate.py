@@ -61,11 +61,12 @@ def help_text() -> str:
         "(links' inertia, friction, offsets; payload and drive-gain effects; a forward check), e.g. the real Panda:\n"
         'bench/calibrate/models/panda_gaz.yaml (docs/calibration.md, "Real arms"); its calibration.json carries\n'
         "`apply` (bench run ... calibration=OUT) and `draws` (perturb.AXIS=from(OUT)).\n\n"
-        "A spec with `method: servo_arm` calibrates an arm's servos (the SO-101: stiffness / kp, damping, Coulomb\n"
-        "friction per joint, and a transport delay searched up to the spec's max_delay) from its LeRobot dataset\n"
-        "(action = goal positions, observation.state = positions, units rad | deg | normalized with lerobot's\n"
-        "calibration ranges) with the arm's own dynamics from its suite's MJCF, holding out whole episodes;\n"
-        "calibration.json carries `apply` (bench run suite=so101 calibration=OUT), `draws` (perturb.gain=from(OUT))\n"
+        "A spec with `method: servo_arm` calibrates an arm's servos (arm: so101 | koch: stiffness / kp, damping,\n"
+        "Coulomb friction per joint, and a transport delay searched up to the spec's max_delay) from its LeRobot\n"
+        "dataset (action = goal positions, observation.state = positions, units rad | deg | normalized with\n"
+        "lerobot's calibration ranges; the Koch: rad | deg from its model's zero) with the arm's own dynamics from\n"
+        "its suite's model, holding out whole episodes; calibration.json carries `apply` (bench run suite=so101\n"
+        "calibration=OUT, or suite=koch), `draws` (perturb.gain=from(OUT))\n"
         'and `delay` (a delay found: calibration= runs the commands late) (docs/calibration.md, "Arms from LeRobot\n'
         'datasets").\n\n'
         "suite= calibrates a suite's own robot in its scene from `bench run ... record=DIR` logs (MuJoCo\n"
