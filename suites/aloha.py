@@ -38,7 +38,7 @@ Conditions:
     socket], link_mass, frictionloss, armature, gain, gravity; the model has no joint damping, so
     `perturb.damping` is refused: use frictionloss), interface axes (latency, action_noise,
     obs_noise, action_hold; latency's first steps command the neutral action, here the zero joint
-    pose) and, with `obs=state+rgb`, the visual axes on the images: light, light_dir, camera_pos,
+    pose: AlohaEnv declares no `hold_action`, which the committed latency results were measured without) and, with `obs=state+rgb`, the visual axes on the images: light, light_dir, camera_pos,
     camera_rot, object_color, table_color, background (not texture: the table has none; not
     distractors: the table is a mesh, not a box to stand them on).
 Success:

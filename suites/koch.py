@@ -265,6 +265,10 @@ class KochEnv(AdapterBase):
     def init_state(self) -> np.ndarray:
         return self._init
 
+    def hold_action(self) -> np.ndarray:
+        """The goals the servos hold at the start (its joint positions): a delayed command's first frames."""
+        return np.asarray(self.data.ctrl[self._act], np.float64).copy()
+
 
 class Koch(SuiteBase):
     """Koch v1.1 reach in MuJoCo (ManiSkill's URDF); 4 seen, 4 held-out target regions."""

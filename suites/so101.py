@@ -223,6 +223,10 @@ class SO101Env(AdapterBase):
     def init_state(self) -> np.ndarray:
         return self._init
 
+    def hold_action(self) -> np.ndarray:
+        """The goals the servos hold at the start (its joint positions): a delayed command's first frames."""
+        return np.asarray(self.data.ctrl[self._act], np.float64).copy()
+
 
 def grasp_offset(model: Any) -> np.ndarray:
     """The midpoint of the jaw pads at the grasp angle, in the `gripperframe` site's frame."""

@@ -107,3 +107,24 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arg, says):
     err = capsys.readouterr().err.strip()
     assert says in err and len(err.splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+
+
+def test_latency_first_frames_hold_the_start_not_joint_zero():
+    """A delayed servo keeps its last goal: `perturb.latency`'s first frames repeat the env's hold action (the start
+    pose's goals); joint zero would stretch the folded Koch out."""
+    from bench.sims.perturb.interface import PerturbedInterface
+
+    suite, cell = _cell()
+    env = PerturbedInterface(suite.make_env(cell, 10), np.random.default_rng(0), latency=3)
+    try:
+        start = env.reset(0)[STATE][:6]
+        assert np.allclose(start, koch.REST, atol=1e-6)
+        far = np.array([0.5, 1.0, 1.0, 0.5, 0.5, 1.0], np.float32)
+        for _ in range(3):  # the queue's frames: the start held, the far goal not yet acting
+            obs, *_ = env.step(far)
+        assert np.abs(obs[STATE][:6] - start).max() < 0.05
+        for _ in range(20):
+            obs, *_ = env.step(far)
+        assert np.abs(obs[STATE][:6] - far).max() < 0.3  # then the commands act
+    finally:
+        env.close()

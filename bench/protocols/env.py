@@ -69,6 +69,12 @@ class AdapterBase(ABC):
         adapter cannot (the default)."""
         raise NotImplementedError(f"{type(self).__name__} cannot start an episode from an edited state")
 
+    def hold_action(self) -> NumArray | None:
+        """The action that holds the env where it is now (absolute position goals: the goals the servos hold after
+        `reset` / `edit_start`), or None where the zero action does (delta or torque actions: the default).
+        `perturb.latency` fills its first frames with it, as a delayed servo keeps its last goal."""
+        return None
+
     def close(self) -> None:
         """Nothing to release."""
         return None  # a hook
@@ -114,6 +120,9 @@ class AdapterWrapper(AdapterBase):
         if not isinstance(self.inner, AdapterBase):  # an adapter of the bare protocol: no such capability
             raise NotImplementedError(f"{type(self.inner).__name__} cannot start an episode from an edited state")
         return self.inner.edit_start(edit)
+
+    def hold_action(self) -> NumArray | None:
+        return self.inner.hold_action() if isinstance(self.inner, AdapterBase) else None
 
     def close(self) -> None:
         self.inner.close()

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from bench.protocols import STATE, EnvAdapter, Obs
-from bench.protocols.env import AdapterWrapper
+from bench.protocols.env import AdapterBase, AdapterWrapper
 from bench.sims.perturb.axis import MAX_STEPS, Axis, Params, Wrap
 
 
@@ -21,8 +21,10 @@ class PerturbedInterface(AdapterWrapper):
     """The env seen through a perturbed interface: command hold, latency, action and observation noise.
 
     Per step: the policy's command is sampled every `action_hold` steps (zero-order hold),
-    delayed by `latency` steps (the queue starts with the neutral action: zeros clipped to
-    the bounds), perturbed by Gaussian noise with std `action_noise` x half-range and
+    delayed by `latency` steps (the queue starts with the neutral action: the env's
+    `hold_action()` after reset where it declares one, absolute position goals holding the start
+    as a delayed servo keeps its last goal; else zeros clipped to the bounds), perturbed by Gaussian
+    noise with std `action_noise` x half-range and
     clipped to the bounds; the state observation gets Gaussian noise with std `obs_noise`.
     All draws come from the episode's generator.
     """
@@ -47,10 +49,15 @@ class PerturbedInterface(AdapterWrapper):
         self.neutral = np.clip(np.zeros_like(self.low), self.low, self.high)
         self._reset_state()
 
-    def _reset_state(self) -> None:
-        self._queue: deque[np.ndarray] = deque([self.neutral.copy() for _ in range(self.latency)])
-        self._held = self.neutral.copy()
+    def _reset_state(self, neutral: np.ndarray | None = None) -> None:
+        start = self.neutral if neutral is None else np.clip(np.asarray(neutral, np.float64), self.low, self.high)
+        self._queue: deque[np.ndarray] = deque([start.copy() for _ in range(self.latency)])
+        self._held = start.copy()
         self._t = 0
+
+    def _hold(self) -> np.ndarray | None:
+        """The inner env's hold action now (None: zeros)."""
+        return self.env.hold_action() if isinstance(self.env, AdapterBase) else None
 
     def _obs(self, obs: Obs) -> Obs:
         if self.obs_noise <= 0 or STATE not in obs:
@@ -60,11 +67,14 @@ class PerturbedInterface(AdapterWrapper):
         return {**obs, STATE: noisy.astype(np.asarray(state).dtype, copy=False)}
 
     def reset(self, seed: int) -> Obs:
-        self._reset_state()
-        return self._obs(self.env.reset(seed))
+        obs = self.env.reset(seed)
+        self._reset_state(self._hold())
+        return self._obs(obs)
 
     def edit_start(self, edit: Callable[[], None]) -> Obs:
-        return self._obs(super().edit_start(edit))  # the edited start seen through the noisy interface too
+        obs = super().edit_start(edit)
+        self._reset_state(self._hold())  # the servos' goals followed the edited start
+        return self._obs(obs)  # the edited start seen through the noisy interface too
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
         if self._t % self.action_hold == 0:
@@ -94,7 +104,7 @@ ROWS: tuple[Axis, ...] = (
         "interface",
         "control steps",
         "action delay",
-        "the env executes the action commanded this many control steps ago (neutral action at the start)",
+        "the env executes the action commanded this many control steps ago (at the start: the env's hold action, else zeros)",
         integer=True,
         nominal=0.0,
         maximum=MAX_STEPS,
