@@ -48,6 +48,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -129,10 +130,16 @@ def _stl(src: Path) -> Path:
     if not dst.is_file():
         import trimesh  # a ManiSkill dependency: needed only the first time a mesh is converted
 
-        dst.parent.mkdir(parents=True, exist_ok=True)
         tmp = dst.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_bytes(trimesh.load(src, force="mesh").export(file_type="stl"))
-        tmp.replace(dst)
+        try:
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(trimesh.load(src, force="mesh").export(file_type="stl"))
+            tmp.replace(dst)
+        except OSError as exc:
+            raise RuntimeError(
+                f"suite koch: cannot write its converted meshes to {dst.parent} ({exc.strerror}); "
+                "set BENCH_KOCH_CACHE to a writable folder"
+            ) from None
     return dst
 
 
@@ -246,7 +253,7 @@ class KochEnv(AdapterBase):
         self._init = np.concatenate([d.qpos, d.qvel, self.target, *physics]).copy()
         return self._obs()
 
-    def edit_start(self, edit: Any) -> Obs:
+    def edit_start(self, edit: Callable[[], None]) -> Obs:
         """The episode started from the state `edit` makes of the reset one (the pose axes): the goals follow."""
         edit()
         return self._started()
