@@ -217,10 +217,19 @@ def fit(
     return Fit(prob, x, float(res.fun @ res.fun), cov, int(res.nfev), delta95)
 
 
+def window_score(w: Windows, sd_q: float) -> Callable[[ServoParams, np.ndarray], float]:
+    """The mean squared position error of windows `w` in sd units for a servo and its gain per setting (the
+    linear start's score of a trial gain)."""
+
+    def score(p: ServoParams, kp: np.ndarray) -> float:
+        return float(np.mean(((simulate(p.with_(kp=kp[w.label]), w) - w.target) / sd_q)[w.mask] ** 2))
+
+    return score
+
+
 def position_cost(prob: Problem, x: np.ndarray, w: Windows, sd_q: float) -> float:
     """Mean squared position error of windows `w` in sd units (the selection's and the report's k-step score)."""
-    p, kp = prob.servo(x)
-    return float(np.mean(((simulate(p.with_(kp=kp[w.label]), w) - w.target) / sd_q)[w.mask] ** 2))
+    return window_score(w, sd_q)(*prob.servo(x))
 
 
 def linear_start(

@@ -20,7 +20,7 @@ import numpy as np
 
 from bench.calibrate.servo.data import ServoRun
 from bench.calibrate.servo.effects import KP_UNIT, SERVO_EFFECTS, scale_of
-from bench.calibrate.servo.fit import Fit, Problem, duty_data, fit, linear_start, position_cost
+from bench.calibrate.servo.fit import Fit, Problem, duty_data, fit, linear_start, position_cost, window_score
 from bench.calibrate.servo.intervals import Jackknife, jackknife, scale_profile
 from bench.calibrate.servo.law import GRAVITY, ServoParams
 from bench.calibrate.servo.sim import RUN_GAP, Windows, make_windows, simulate
@@ -265,11 +265,7 @@ def calibrate_servo(
         w_fit, w_val = w.subset(~val), w.subset(val)
         sd_q = float(np.std(np.concatenate([r.q for r in train])))
 
-        def score(p: ServoParams, kp: np.ndarray) -> float:
-            sim = simulate(p.with_(kp=kp[w_fit.label]), w_fit)
-            return float(np.mean(((sim - w_fit.target) / sd_q)[w_fit.mask] ** 2))
-
-        start, kp0 = linear_start(train, labels, base, KP_GRID, score)
+        start, kp0 = linear_start(train, labels, base, KP_GRID, window_score(w_fit, sd_q))
         dd = duty_data(train, labels, RUN_GAP, stride=2)
         sd_d = float(np.std(dd.duty)) if dd is not None else 1.0
         torque = spec.kt_over_r * float(np.mean(np.concatenate([r.vin for r in train]))) * spec.max_duty
@@ -364,12 +360,7 @@ def _cold_start(
     """The linear start (`linear_start`, its gain chosen by simulating `w_fit`) without training run i."""
 
     def start(i: int) -> tuple[ServoParams, np.ndarray]:
-        keep = w_fit.subset(w_fit.run != i)
-
-        def score(p: ServoParams, kp: np.ndarray) -> float:
-            sim = simulate(p.with_(kp=kp[keep.label]), keep)
-            return float(np.mean(((sim - keep.target) / sd_q)[keep.mask] ** 2))
-
+        score = window_score(w_fit.subset(w_fit.run != i), sd_q)
         return linear_start([r for j, r in enumerate(train) if j != i], labels, base, KP_GRID, score)
 
     return start

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from bench.protocols import STATE, EnvAdapter, Obs
-from bench.protocols.env import AdapterBase, AdapterWrapper
+from bench.protocols.env import AdapterWrapper
 from bench.sims.perturb.axis import MAX_STEPS, Axis, Params, Wrap
 
 
@@ -55,10 +55,6 @@ class PerturbedInterface(AdapterWrapper):
         self._held = start.copy()
         self._t = 0
 
-    def _hold(self) -> np.ndarray | None:
-        """The inner env's hold action now (None: zeros)."""
-        return self.env.hold_action() if isinstance(self.env, AdapterBase) else None
-
     def _obs(self, obs: Obs) -> Obs:
         if self.obs_noise <= 0 or STATE not in obs:
             return obs
@@ -68,12 +64,12 @@ class PerturbedInterface(AdapterWrapper):
 
     def reset(self, seed: int) -> Obs:
         obs = self.env.reset(seed)
-        self._reset_state(self._hold())
+        self._reset_state(super().hold_action())  # the inner env's (None: zeros)
         return self._obs(obs)
 
     def edit_start(self, edit: Callable[[], None]) -> Obs:
         obs = super().edit_start(edit)
-        self._reset_state(self._hold())  # the servos' goals followed the edited start
+        self._reset_state(super().hold_action())  # the servos' goals followed the edited start
         return self._obs(obs)  # the edited start seen through the noisy interface too
 
     def step(self, action: np.ndarray) -> tuple[Obs, float, bool, bool, dict[str, object]]:
