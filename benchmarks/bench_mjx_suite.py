@@ -7,8 +7,9 @@ MJX step's time goes, and the scripted experts' success per arm.
 Env-steps/s (control steps, 20 Hz, both): the MJX suite's batch (`bench.sims.mjx_lift.LiftBatch`, Panda) stepping
 `worlds` worlds under the batched scripted expert (baselines/mjx_lift_expert.py), each world read through its env
 adapter as the runner reads it, after a first call that compiles (printed apart), against robosuite's Lift on the
-Panda through the harness's env (suites/lift.py, fast path) with its scripted expert (baselines/scripted_lift.py),
-one env on one core. Profile (`profile` worlds, Panda, 0 leaves it out): per control step, the compiled call
+Panda through the harness's env (suites/lift.py, fast path) with its scripted expert (baselines/scripted_lift.py):
+one env on one core, and one env per core in as many processes at once (what `bench run workers=<cores>` can get
+from the machine), each ratio printed. Profile (`profile` worlds, Panda, 0 leaves it out): per control step, the compiled call
 alone, host-side work (gathering and scattering the batch's arrays), the expert and the per-world adapter reads;
 and the compiled call with 1 physics substep instead of 10 (physics vs controller + observation) and with fewer
 solver iterations (variants for the record, not the suite's settings). Success: the batched expert on `episodes`
@@ -18,9 +19,11 @@ Wilson interval. Bad input: a world count beyond memory (estimated first) exits 
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import sys
 import time
+from multiprocessing.synchronize import Barrier
 
 import numpy as np
 
@@ -120,13 +123,17 @@ def mjx_success(arm: str, worlds: int) -> int:
     return int(lifted.sum())
 
 
-def robosuite(arm: str, episodes: int) -> tuple[float, int]:
-    """(env-steps/s, successes) of robosuite's Lift on `arm` with its scripted expert."""
+def robosuite(arm: str, episodes: int, first: int = 1000, start: Barrier | None = None) -> tuple[float, int]:
+    """(env-steps/s, successes) of robosuite's Lift on `arm` with its scripted expert, seeds `first`...; `start`:
+    wait there once the env is built (the processes of `robosuite_all_cores` step at the same time)."""
     env = make_env("Lift", arm, HORIZON)
     expert = LiftExpert(OBS_FIELDS, env.action_spec.dim)
+    env.reset(first)  # the first reset builds the simulation (not timed, as in every process)
+    if start is not None:
+        start.wait()
     steps, wall, wins = 0, 0.0, 0
     for ep in range(episodes):
-        obs = env.reset(1000 + ep)
+        obs = env.reset(first + ep)
         expert.reset()
         won = False
         began = time.perf_counter()
@@ -138,6 +145,28 @@ def robosuite(arm: str, episodes: int) -> tuple[float, int]:
         wins += won
     env.close()
     return steps / wall, wins
+
+
+def _robosuite_process(arm: str, episodes: int, first: int, start: Barrier, out: mp.SimpleQueue) -> None:
+    out.put(robosuite(arm, episodes, first, start)[0])
+
+
+def robosuite_all_cores(arm: str, episodes: int) -> tuple[float, int]:
+    """(summed env-steps/s, processes) of one robosuite env per core, stepping at once (each in its own spawned
+    process, as the harness's workers: robosuite's simulation is single-threaded)."""
+    procs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    ctx = mp.get_context("spawn")
+    start, out = ctx.Barrier(procs), ctx.SimpleQueue()
+    children = [
+        ctx.Process(target=_robosuite_process, args=(arm, episodes, 1000 + 100 * i, start, out)) for i in range(procs)
+    ]
+    for c in children:
+        c.start()
+    for c in children:
+        c.join()
+    if any(c.exitcode for c in children):
+        raise RuntimeError(f"a robosuite process failed (exit codes {[c.exitcode for c in children]})")
+    return sum(out.get() for _ in children), procs
 
 
 def interval(wins: int, n: int) -> str:
@@ -163,12 +192,14 @@ def main(argv: list[str]) -> int:
     load = os.getloadavg()
     print(f"machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1/5/15 min)")
     rs_rate, rs_wins = robosuite("Panda", rs_n)
-    print(f"robosuite Lift (Panda, fast path, 1 env): {rs_rate:,.0f} env-steps/s")
-    print("| worlds | MJX env-steps/s | compile s | MJX / robosuite |")
-    print("|---|---|---|---|")
+    print(f"robosuite Lift (Panda, fast path, 1 env on 1 core): {rs_rate:,.0f} env-steps/s")
+    all_rate, procs = robosuite_all_cores("Panda", rs_n)
+    print(f"robosuite Lift (Panda, fast path, 1 env per core, {procs} processes at once): {all_rate:,.0f} env-steps/s")
+    print(f"| worlds | MJX env-steps/s | compile s | MJX / robosuite on 1 core | MJX / robosuite on {procs} cores |")
+    print("|---|---|---|---|---|")
     for w in worlds:
         rate, comp = mjx_rate(w, steps)
-        print(f"| {w:,} | {rate:,.0f} | {comp:.1f} | {rate / rs_rate:.2f} |", flush=True)
+        print(f"| {w:,} | {rate:,.0f} | {comp:.1f} | {rate / rs_rate:.2f} | {rate / all_rate:.2f} |", flush=True)
     if prof:
         profile(prof, steps)
     print("| arm | split | MJX expert success (95% Wilson) | robosuite expert success (95% Wilson) |")
