@@ -2,7 +2,7 @@
 MJX step's time goes, and the scripted experts' success per arm.
 
     python benchmarks/bench_mjx_suite.py [worlds=[1,64,1024,4096]] [steps=10] [arms=[Panda,UR5e,Kinova3]]
-        [episodes=64] [robosuite_episodes=10] [profile=256]
+        [episodes=64] [robosuite_episodes=10] [profile=256] [solvers=0]
 
 Env-steps/s (control steps, 20 Hz, both): the MJX suite's batch (`bench.sims.mjx_lift.LiftBatch`, Panda) stepping
 `worlds` worlds under the batched scripted expert (baselines/mjx_lift_expert.py), each world read through its env
@@ -14,7 +14,11 @@ alone, host-side work (gathering and scattering the batch's arrays), the expert 
 and the compiled call with 1 physics substep instead of 10 (physics vs controller + observation) and with fewer
 solver iterations (variants for the record, not the suite's settings). Success: the batched expert on `episodes`
 MJX worlds per arm (horizon 250) and robosuite's expert on `robosuite_episodes` episodes per arm, each with a 95%
-Wilson interval. Bad input: a world count beyond memory (estimated first) exits 2 with one line.
+Wilson interval. Solvers (`solvers` worlds, Panda, 0 leaves it out): the compiled call's time with other MJX solver
+settings on the worlds 32 control steps into the expert's grasp (where the fingers hold the cube and the solver needs
+its iterations; on the first step's states Newton stops after one everywhere), and each setting's error after one
+control step against a converged solve (100 iterations, line search 50, tolerance 1e-12), from 10 states along the
+grasp (steps 0, 8, ..., 72) of every world. Bad input: a world count beyond memory (estimated first) exits 2 with one line.
 """
 
 from __future__ import annotations
@@ -111,6 +115,64 @@ def profile(worlds: int, steps: int) -> None:
     )
 
 
+SOLVERS: dict[str, dict[str, object]] = {  # the variants `solvers` compares (keyword arguments of control.Compiled)
+    "Newton, 4 iterations / line search 8 (the suite's)": {},
+    "Newton, 3 iterations": {"iterations": 3},
+    "Newton, 2 iterations": {"iterations": 2},
+    "Newton, 1 iteration (no while loop)": {"iterations": 1},
+    "CG, 4 iterations": {"cg": True},
+    "Newton, line search 4": {"ls_iterations": 4},
+    "Newton, line search 2": {"ls_iterations": 2},
+    "Newton, no warm start": {"warmstart": False},
+}
+
+
+def solvers(worlds: int, rounds: int) -> None:
+    """Each solver setting's compiled-call time in the grasp and its one-step error (module docstring)."""
+    batch, envs, obs = batch_of("Panda", worlds, 0)
+    expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
+    states, timed = [], None
+    for t in range(80):
+        act = np.asarray(expert.act_batch(obs), np.float32)
+        state = (
+            {k: np.array(v) for k, v in batch.fields.items()},
+            *(np.array(x) for x in (batch.qpos, batch.qvel, batch.rgoal, batch.quat0)),
+            act,
+        )
+        if t % 8 == 0:
+            states.append(state)
+        if t == 32:
+            timed = state
+        batch.step_all(dict(enumerate(act)))
+        obs = [w.step(a)[0] for w, a in zip(envs, act)]
+    assert timed is not None
+    ref = control.Compiled("Panda", iterations=100, ls_iterations=50, tolerance=1e-12)
+    truth = [ref.step(*s) for s in states]
+    comps = {name: control.Compiled("Panda", **kw) for name, kw in SOLVERS.items()}  # type: ignore[arg-type]
+    cube = slice(ref.cube_q, ref.cube_q + 3)
+    errors = {}
+    for name, c in comps.items():
+        out = [c.step(*s) for s in states]  # also compiles
+        per = np.concatenate([np.abs(o[0][:, cube] - r[0][:, cube]).max(axis=1) for o, r in zip(out, truth)])
+        errors[name] = (1e3 * float(per.max()), 1e3 * float(np.median(per)))
+    times: dict[str, list[float]] = {k: [] for k in comps}
+    for _ in range(rounds):
+        for name, c in comps.items():
+            began = time.perf_counter()
+            c.jax.block_until_ready(c.step(*timed))
+            times[name].append(time.perf_counter() - began)
+    print(
+        f"solvers, {worlds} Panda worlds: compiled call at control step 32 (median ms over {rounds} interleaved "
+        "rounds); cube position error after one control step against a converged solve, over every world and 10 "
+        "states (largest, median; mm):"
+    )
+    print("| solver | ms per call | largest error mm | median error mm |")
+    print("|---|---|---|---|")
+    for name in comps:
+        big, mid = errors[name]
+        print(f"| {name} | {1e3 * float(np.median(times[name])):.1f} | {big:.4f} | {mid:.4f} |", flush=True)
+
+
 def mjx_success(arm: str, worlds: int) -> int:
     batch, envs, obs = batch_of(arm, worlds, 1000)
     expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
@@ -175,16 +237,17 @@ def interval(wins: int, n: int) -> str:
 
 
 def main(argv: list[str]) -> int:
-    a = script_keys(argv, __doc__, ("worlds", "steps", "arms", "episodes", "robosuite_episodes", "profile"))
+    a = script_keys(argv, __doc__, ("worlds", "steps", "arms", "episodes", "robosuite_episodes", "profile", "solvers"))
     try:
         worlds = [int(w) for w in listed(a.get("worlds", "[1,64,1024,4096]"))]
         arms = listed(a.get("arms", "[Panda,UR5e,Kinova3]"))
         steps, episodes = int(a.get("steps", 10)), int(a.get("episodes", 64))
         rs_n, prof = int(a.get("robosuite_episodes", 10)), int(a.get("profile", 256))
+        solver_worlds = int(a.get("solvers", 0))
         bad = [arm for arm in arms if arm not in mjx_lift.ARMS]
         if bad:
             raise ConfigError(f"arms: {bad} not among {', '.join(mjx_lift.ARMS)}")
-        for w in [*worlds, episodes, prof]:
+        for w in [*worlds, episodes, prof, solver_worlds]:
             mjx_lift.check_worlds(w)
     except (ConfigError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
@@ -202,6 +265,8 @@ def main(argv: list[str]) -> int:
         print(f"| {w:,} | {rate:,.0f} | {comp:.1f} | {rate / rs_rate:.2f} | {rate / all_rate:.2f} |", flush=True)
     if prof:
         profile(prof, steps)
+    if solver_worlds:
+        solvers(solver_worlds, steps)
     print("| arm | split | MJX expert success (95% Wilson) | robosuite expert success (95% Wilson) |")
     print("|---|---|---|---|")
     for arm in arms:

@@ -109,6 +109,21 @@ def test_gains_follow_each_arms_inertia():
     assert kp["Panda"][0] > kp["Kinova3"][0]  # the Panda's shoulder carries more inertia than the Kinova Gen3's
 
 
+def test_profiling_solver_settings_reach_the_compiled_model_and_the_suite_keeps_its_own():
+    import mujoco
+
+    from bench.sims.mjx_lift import control, scene
+
+    suite = control.Compiled("Panda").model.opt
+    assert suite.solver == mujoco.mjtSolver.mjSOL_NEWTON and suite.iterations == scene.ITERATIONS
+    assert not suite.disableflags & mujoco.mjtDisableBit.mjDSBL_WARMSTART
+    variant = control.Compiled("Panda", iterations=2, cg=True, warmstart=False, tolerance=1e-12)
+    opt = variant.model.opt
+    assert opt.solver == mujoco.mjtSolver.mjSOL_CG and opt.iterations == 2 and opt.tolerance == 1e-12
+    assert opt.disableflags & mujoco.mjtDisableBit.mjDSBL_WARMSTART
+    assert variant.mx.opt.solver.value == int(mujoco.mjtSolver.mjSOL_CG)  # what MJX steps with
+
+
 def test_an_axis_mjx_cannot_express_is_refused_before_the_run(tmp_path, capsys):
     assert _run(tmp_path, "robots=[Panda]", "perturb.frictionloss=[0.5]", "run_id=bad") == 2
     err = capsys.readouterr().err.strip()

@@ -41,9 +41,10 @@ OBS_SIZE = 18
 
 class Compiled:
     """The compiled batched control step of the Lift scene on one arm (one per arm and process: JAX caches it per
-    world count). `substeps`, `iterations`, `ls_iterations` default to the scene's and `euler` swaps the scene's
-    implicitfast integrator for Euler; other values are for profiling (benchmarks/bench_mjx_suite.py), not for
-    the suite."""
+    world count). `substeps`, `iterations`, `ls_iterations` default to the scene's; `euler` swaps the scene's
+    implicitfast integrator for Euler, `cg` its Newton solver for conjugate gradients, `warmstart=False` turns the
+    solver's warm start off and `tolerance` replaces MuJoCo's; other values are for profiling
+    (benchmarks/bench_mjx_suite.py), not for the suite."""
 
     def __init__(
         self,
@@ -52,16 +53,25 @@ class Compiled:
         iterations: int = scene.ITERATIONS,
         ls_iterations: int = scene.LS_ITERATIONS,
         euler: bool = False,
+        cg: bool = False,
+        warmstart: bool = True,
+        tolerance: float | None = None,
     ) -> None:
         jax, jnp, mjx = mjx_sim.require(x64=False)
         self.jax, self.jnp, self.mjx = jax, jnp, mjx
         self.arm, self.substeps = arm, int(substeps)
         m = scene.build(arm)
         m.opt.iterations, m.opt.ls_iterations = int(iterations), int(ls_iterations)
-        if euler:
-            import mujoco  # MuJoCo's native library: already loaded by `scene.build`
+        import mujoco  # MuJoCo's native library: already loaded by `scene.build`
 
+        if euler:
             m.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+        if cg:
+            m.opt.solver = mujoco.mjtSolver.mjSOL_CG
+        if not warmstart:
+            m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_WARMSTART
+        if tolerance is not None:
+            m.opt.tolerance = float(tolerance)
         self.model = m
         mjx_sim.check_model(m)
         self.mx = mjx.put_model(m)
