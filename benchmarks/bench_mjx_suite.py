@@ -33,7 +33,7 @@ import numpy as np
 
 from baselines.mjx_lift_expert import BatchLiftExpert
 from baselines.scripted_lift import LiftExpert
-from bench.api.scripts import script_keys
+from bench.api.scripts import script_keys, whole
 from bench.api.stats import wilson
 from bench.core.errors import ConfigError
 from bench.sims import mjx_lift
@@ -41,6 +41,7 @@ from bench.sims.mjx_lift import control
 from suites.lift import OBS_FIELDS, make_env
 
 HORIZON = 250
+BARRIER_S = 600.0  # the robosuite processes wait this long for each other to build their envs (~10 s here)
 
 
 def listed(text: str) -> list[str]:
@@ -131,7 +132,7 @@ def solvers(worlds: int, rounds: int) -> None:
     """Each solver setting's compiled-call time in the grasp and its one-step error (module docstring)."""
     batch, envs, obs = batch_of("Panda", worlds, 0)
     expert = BatchLiftExpert(mjx_lift.OBS_FIELDS)
-    states, timed = [], None
+    states = []
     for t in range(80):
         act = np.asarray(expert.act_batch(obs), np.float32)
         state = (
@@ -141,11 +142,9 @@ def solvers(worlds: int, rounds: int) -> None:
         )
         if t % 8 == 0:
             states.append(state)
-        if t == 32:
-            timed = state
         batch.step_all(dict(enumerate(act)))
         obs = [w.step(a)[0] for w, a in zip(envs, act)]
-    assert timed is not None
+    timed = states[32 // 8]  # control step 32: the fingers hold the cube
     ref = control.Compiled("Panda", iterations=100, ls_iterations=50, tolerance=1e-12)
     truth = [ref.step(*s) for s in states]
     comps = {name: control.Compiled("Panda", **kw) for name, kw in SOLVERS.items()}  # type: ignore[arg-type]
@@ -192,7 +191,7 @@ def robosuite(arm: str, episodes: int, first: int = 1000, start: Barrier | None 
     expert = LiftExpert(OBS_FIELDS, env.action_spec.dim)
     env.reset(first)  # the first reset builds the simulation (not timed, as in every process)
     if start is not None:
-        start.wait()
+        start.wait(timeout=BARRIER_S)  # a sibling that failed to start breaks it: this one fails too, not hangs
     steps, wall, wins = 0, 0.0, 0
     for ep in range(episodes):
         obs = env.reset(first + ep)
@@ -215,8 +214,9 @@ def _robosuite_process(arm: str, episodes: int, first: int, start: Barrier, out:
 
 def robosuite_all_cores(arm: str, episodes: int) -> tuple[float, int]:
     """(summed env-steps/s, processes) of one robosuite env per core, stepping at once (each in its own spawned
-    process, as the harness's workers: robosuite's simulation is single-threaded)."""
-    procs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    process, as the harness's workers: robosuite's simulation is single-threaded; as many as `bench run`'s default
+    `workers`, one per core)."""
+    procs = os.cpu_count() or 1
     ctx = mp.get_context("spawn")
     start, out = ctx.Barrier(procs), ctx.SimpleQueue()
     children = [
@@ -241,9 +241,9 @@ def main(argv: list[str]) -> int:
     try:
         worlds = [int(w) for w in listed(a.get("worlds", "[1,64,1024,4096]"))]
         arms = listed(a.get("arms", "[Panda,UR5e,Kinova3]"))
-        steps, episodes = int(a.get("steps", 10)), int(a.get("episodes", 64))
-        rs_n, prof = int(a.get("robosuite_episodes", 10)), int(a.get("profile", 256))
-        solver_worlds = int(a.get("solvers", 0))
+        steps, episodes = whole(a, "steps", 10), whole(a, "episodes", 64)
+        rs_n, prof = whole(a, "robosuite_episodes", 10), whole(a, "profile", 256)
+        solver_worlds = whole(a, "solvers", 0)
         bad = [arm for arm in arms if arm not in mjx_lift.ARMS]
         if bad:
             raise ConfigError(f"arms: {bad} not among {', '.join(mjx_lift.ARMS)}")

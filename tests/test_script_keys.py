@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.api.scripts import script_keys
+from bench.api.scripts import script_keys, whole
+from bench.core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,6 +29,13 @@ def test_a_key_the_script_does_not_read_is_one_line_and_exit_2(arg, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "folds, servo" in err[0]
+
+
+def test_a_whole_number_key_is_read_or_named_in_its_error():
+    keys = {"steps": "20", "solvers": "abc"}
+    assert whole(keys, "steps", 10) == 20 and whole(keys, "episodes", 64) == 64
+    with pytest.raises(ConfigError, match=r"^solvers='abc': expected a whole number$"):
+        whole(keys, "solvers", 0)
 
 
 def test_help_prints_the_docstring(capsys):

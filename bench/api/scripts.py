@@ -4,7 +4,7 @@
 with a suggestion), `command_help` writes `--help` from that dataclass, and `guarded` ends the
 script as every bench command ends: bad input is one line on stderr and exit code 2. `script_keys`
 is the light form for benchmark scripts: `key=value` strings checked against the keys the script
-reads, `--help` printing its docstring.
+reads, `--help` printing its docstring; `whole` reads one of them as a whole number, naming the key when it is not.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import sys
 from collections.abc import Iterable, Sequence
 
 from bench.core.config import build_from_argv, command_help
-from bench.core.errors import did_you_mean
+from bench.core.errors import ConfigError, did_you_mean
 from bench.core.guard import guarded
 
-__all__ = ["build_from_argv", "command_help", "guarded", "script_keys"]
+__all__ = ["build_from_argv", "command_help", "guarded", "script_keys", "whole"]
 
 
 def script_keys(argv: Sequence[str], doc: str | None, keys: Iterable[str]) -> dict[str, str]:
@@ -35,3 +35,12 @@ def script_keys(argv: Sequence[str], doc: str | None, keys: Iterable[str]) -> di
             raise SystemExit(2)
         out[key] = value
     return out
+
+
+def whole(keys: dict[str, str], key: str, default: int) -> int:
+    """`keys[key]` (from `script_keys`) as an int, `default` when absent; ConfigError naming the key otherwise."""
+    text = keys.get(key, str(default))
+    try:
+        return int(text)
+    except ValueError:
+        raise ConfigError(f"{key}={text!r}: expected a whole number") from None
